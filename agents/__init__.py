@@ -1,0 +1,1 @@
+"""Learning agents: MC-PILCO and adapters for baselines. Imports ``models``, reads ``envs``."""

@@ -1,0 +1,1 @@
+"""MC-PILCO: Monte Carlo probabilistic inference for learning control (thesis ch. 5)."""

@@ -1,0 +1,1 @@
+"""Exact multi-output GP regression on GPyTorch and a cached predictor for rollouts."""

@@ -1,0 +1,1 @@
+"""Kernels for structured GP regression: linear, PK/IPK, MPK, SED-MPK, GIP."""
