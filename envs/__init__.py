@@ -3,3 +3,28 @@
 Importing this package registers the environments with string entry points, so that no
 MuJoCo model is built and nothing from ``agents``/``models`` is imported at registration.
 """
+
+import gymnasium
+
+gymnasium.register(
+    id="mcpilco/CartpoleSwingUp-v0",
+    entry_point="mcpilco.envs.cartpole:CartpoleSwingUpEnv",
+    max_episode_steps=60,
+)
+gymnasium.register(
+    id="mcpilco/DMCCartpoleSwingUp-v0",
+    entry_point="mcpilco.envs.dmc_cartpole:DMCCartpoleSwingUpEnv",
+    max_episode_steps=60,
+)
+
+# Arms (issue 5): joint-trajectory tracking behind a PD + gravity controller, 8 ms samples.
+gymnasium.register(
+    id="mcpilco/UR10-v0",
+    entry_point="mcpilco.envs.arm_env:UR10Env",
+    max_episode_steps=1250,
+)
+gymnasium.register(
+    id="mcpilco/SCARA-v0",
+    entry_point="mcpilco.envs.arm_env:SCARAEnv",
+    max_episode_steps=1250,
+)

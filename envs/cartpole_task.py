@@ -182,8 +182,7 @@ def validate_action(action: ArrayLike, dim: int) -> NDArray[np.float64]:
         a = a.reshape(1)
     if a.shape != (dim,):
         raise ValueError(
-            f"action has shape {a.shape}, expected ({dim},); pass one value in [-1, 1] per "
-            "actuator"
+            f"action has shape {a.shape}, expected ({dim},); pass one value in [-1, 1] per actuator"
         )
     if not np.all(np.isfinite(a)):
         raise ValueError(f"action contains NaN or inf: {a}; pass finite values in [-1, 1]")

@@ -3,6 +3,7 @@ dependency direction of DESIGN.md holds (envs import neither torch-heavy agents 
 
 from __future__ import annotations
 
+import re
 import subprocess
 import sys
 import tomllib
@@ -50,9 +51,9 @@ def test_envs_registration_imports_no_torch_nor_models() -> None:
 
 
 def test_models_do_not_import_agents_or_envs() -> None:
+    pattern = re.compile(r"^\s*(from|import)\s+mcpilco\.(agents|envs)\b", re.MULTILINE)
     offenders = []
     for path in (ROOT / "models").rglob("*.py"):
-        text = path.read_text()
-        if "mcpilco.agents" in text or "mcpilco.envs" in text:
+        if pattern.search(path.read_text()):
             offenders.append(str(path.relative_to(ROOT)))
     assert not offenders, f"models/ must not import agents/ or envs/: {offenders}"

@@ -1,0 +1,239 @@
+"""Robot tables for :mod:`mcpilco.envs.arm_builder`: UR10, an AdeptOne-like SCARA, random arms.
+
+Every function returns an :class:`~mcpilco.envs.arm_builder.ArmSpec` (pure data; nothing is
+compiled here). Units: m, rad, kg, kg m^2, N m (N for prismatic joints), A.
+
+Sources and assumptions
+-----------------------
+UR10
+    DH table, link masses and centres of mass: Universal Robots' public "DH parameters for
+    calculations of kinematics and dynamics" page (UR10 column), written from that public
+    data: ``d1 = 0.1273, a2 = -0.612, a3 = -0.5723, d4 = 0.163941, d5 = 0.1157,
+    d6 = 0.0922`` m, ``alpha = [pi/2, 0, 0, pi/2, -pi/2, 0]``, masses ``7.1, 12.7, 4.27, 2.0,
+    2.0, 0.365`` kg; centres of mass in the DH frames ``{i}``. UR does not publish inertia
+    tensors: they are solid-cylinder approximations (radii/lengths below). Drive data are
+    plausible values, not datasheet numbers: harmonic-drive gear ``K_r = 101``; motor
+    torque constants ``K_tau = 0.13`` N m/A (joints 1-3) and ``0.09`` N m/A (wrists), so
+    ``K_tau K_r`` is about 13.1 and 9.1 N m/A; rotor inertias ``J_m = 7e-5, 7e-5, 3e-5, 1e-5,
+    1e-5, 1e-5`` kg m^2 (armature ``J_m K_r^2`` = 0.71, 0.71, 0.31, 0.10, 0.10, 0.10);
+    torque limits 330, 330, 150, 56, 56, 56 N m (UR joint sizes 4, 4, 3, 2, 2, 2); speed
+    limits 120 deg/s (joints 1-2) and 180 deg/s; joint range +-2 pi. Friction (joint side):
+    viscous ``F_v = 8, 8, 5, 1.5, 1.5, 1.5`` N m s/rad, Coulomb ``F_c = 7, 7, 4.5, 1.5, 1.5,
+    1.5`` N m and stiction ``F_s = 1.3 F_c`` with Stribeck velocity 0.01 rad/s (the
+    thesis's quasi-static threshold ``sigma_v = 1e-2`` rad/s, section 4.4.2).
+SCARA (AdeptOne-like, joints R R P R, thesis section 3.4.1)
+    The thesis gives no numbers; the kinematics follow the AdeptOne's public data as used in
+    Spong, Hutchinson & Vidyasagar's SCARA example: inner arm ``a1 = 0.425`` m, outer arm
+    ``a2 = 0.375`` m, column height ``d1 = 0.877`` m, ``alpha2 = pi`` (the quill points
+    down), quill stroke 0.195 m, flange offset ``d4 = 0.06`` m. Masses (15, 8, 2, 1 kg),
+    centres of mass (middle of each arm, quill centre above the tip) and cylinder inertias
+    are assumptions. Joints 1-2 are direct drive (``K_r = 1``) as on the AdeptOne, the quill
+    is a ball screw (``K_r = 2 pi / 0.02`` rad/m), joint 4 has ``K_r = 20``.
+Random arms
+    :func:`random_arm` draws joint types, DH parameters, masses and centres of mass from
+    documented uniform ranges (seeded), for Monte Carlo studies.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from mcpilco.envs.arm_builder import ArmSpec, DHJoint, LinkInertia, solid_cylinder_inertia
+
+TWO_PI = 2.0 * math.pi
+
+
+def ur10() -> ArmSpec:
+    """The Universal Robots UR10 (6 revolute joints); see the module docstring for sources."""
+    a = (0.0, -0.612, -0.5723, 0.0, 0.0, 0.0)
+    d = (0.1273, 0.0, 0.0, 0.163941, 0.1157, 0.0922)
+    alpha = (math.pi / 2, 0.0, 0.0, math.pi / 2, -math.pi / 2, 0.0)
+    mass = (7.1, 12.7, 4.27, 2.0, 2.0, 0.365)
+    com = (
+        (0.021, 0.0, 0.027),
+        (0.38, 0.0, 0.158),
+        (0.24, 0.0, 0.068),
+        (0.0, 0.007, 0.018),
+        (0.0, 0.007, 0.018),
+        (0.0, 0.0, -0.026),
+    )
+    # solid cylinders: (radius, length, axis in {i}); link 1 is the vertical column (y_1)
+    shapes = (
+        (0.075, 0.18, "y"),
+        (0.075, 0.612, "x"),
+        (0.06, 0.5723, "x"),
+        (0.05, 0.12, "z"),
+        (0.05, 0.12, "z"),
+        (0.045, 0.05, "z"),
+    )
+    torque_constant = (0.13, 0.13, 0.13, 0.09, 0.09, 0.09)
+    rotor_inertia = (7e-5, 7e-5, 3e-5, 1e-5, 1e-5, 1e-5)
+    torque_limit = (330.0, 330.0, 150.0, 56.0, 56.0, 56.0)
+    velocity_limit = (math.radians(120),) * 2 + (math.radians(180),) * 4
+    viscous = (8.0, 8.0, 5.0, 1.5, 1.5, 1.5)
+    coulomb = (7.0, 7.0, 4.5, 1.5, 1.5, 1.5)
+    joints = tuple(
+        DHJoint(
+            a=a[i],
+            alpha=alpha[i],
+            d=d[i],
+            theta=0.0,
+            type="R",
+            range=(-TWO_PI, TWO_PI),
+            viscous=viscous[i],
+            coulomb=coulomb[i],
+            static_friction=1.3 * coulomb[i],
+            stribeck_velocity=0.01,
+            rotor_inertia=rotor_inertia[i],
+            gear=101.0,
+            torque_constant=torque_constant[i],
+            torque_limit=torque_limit[i],
+            velocity_limit=velocity_limit[i],
+        )
+        for i in range(6)
+    )
+    links = tuple(
+        LinkInertia(mass=mass[i], com=com[i], inertia=solid_cylinder_inertia(mass[i], *shapes[i]))
+        for i in range(6)
+    )
+    return ArmSpec(
+        name="ur10",
+        joints=joints,
+        links=links,
+        radius=0.06,
+        description="UR10: public UR DH/mass/CoM data; cylinder inertias; plausible drives",
+    )
+
+
+def scara() -> ArmSpec:
+    """An AdeptOne-like SCARA, joints ``RRPR`` (thesis section 3.4.1); see the module docstring."""
+    lead = 0.02  # ball-screw lead of the quill [m/rev]
+    joints = (
+        DHJoint(
+            a=0.425, alpha=0.0, d=0.877, type="R", range=(-2.618, 2.618),
+            viscous=5.0, coulomb=4.0, static_friction=5.2, rotor_inertia=0.03, gear=1.0,
+            torque_constant=3.0, torque_limit=250.0, velocity_limit=3.0,
+        ),
+        DHJoint(
+            a=0.375, alpha=math.pi, d=0.0, type="R", range=(-2.574, 2.574),
+            viscous=3.0, coulomb=2.5, static_friction=3.25, rotor_inertia=0.01, gear=1.0,
+            torque_constant=1.5, torque_limit=120.0, velocity_limit=3.0,
+        ),
+        DHJoint(
+            a=0.0, alpha=0.0, d=0.0, type="P", range=(0.0, 0.195),
+            viscous=50.0, coulomb=10.0, static_friction=13.0, stribeck_velocity=0.005,
+            rotor_inertia=1e-5, gear=TWO_PI / lead, torque_constant=0.1, torque_limit=400.0,
+            velocity_limit=0.5,
+        ),
+        DHJoint(
+            a=0.0, alpha=0.0, d=0.06, type="R", range=(-4.71, 4.71),
+            viscous=0.5, coulomb=0.4, static_friction=0.52, rotor_inertia=2e-5, gear=20.0,
+            torque_constant=0.1, torque_limit=20.0, velocity_limit=6.0,
+        ),
+    )  # fmt: skip
+    links = (
+        LinkInertia(15.0, (-0.2125, 0.0, 0.0), solid_cylinder_inertia(15.0, 0.08, 0.425, "x")),
+        LinkInertia(8.0, (-0.19, 0.0, 0.0), solid_cylinder_inertia(8.0, 0.06, 0.375, "x")),
+        LinkInertia(2.0, (0.0, 0.0, -0.15), solid_cylinder_inertia(2.0, 0.02, 0.3, "z")),
+        LinkInertia(1.0, (0.0, 0.0, -0.02), solid_cylinder_inertia(1.0, 0.04, 0.06, "z")),
+    )
+    return ArmSpec(
+        name="scara",
+        joints=joints,
+        links=links,
+        radius=0.05,
+        description="AdeptOne-like SCARA (RRPR): public kinematics, assumed inertias",
+    )
+
+
+RANDOM_ARM_RANGES: dict[str, tuple[float, float]] = dict(
+    a=(-0.4, 0.4),  # link length [m]
+    d=(0.0, 0.3),  # link offset [m] (offset d0 of prismatic joints too)
+    alpha=(-math.pi, math.pi),  # link twist [rad]
+    theta=(-math.pi, math.pi),  # joint angle offset [rad] (constant theta of P joints)
+    mass=(0.5, 5.0),  # link mass [kg]
+    radius=(0.02, 0.06),  # radius of the cylinder giving the inertia [m]
+    prismatic_range=(0.0, 0.3),  # joint range of P joints [m]; R joints get +-pi
+)
+"""Uniform ranges of :func:`random_arm`."""
+
+
+def random_arm(
+    n_joints: int = 6,
+    seed: int | None = 0,
+    joint_types: str | None = None,
+    p_prismatic: float = 0.25,
+    friction: bool = False,
+) -> ArmSpec:
+    """A random serial arm for Monte Carlo studies (thesis section 2.6.1 style).
+
+    Args:
+        n_joints: number of joints ``n >= 1``.
+        seed: seed of ``numpy.random.default_rng``; the same seed gives the same arm.
+        joint_types: e.g. ``"RRPR"`` to fix the types; ``None`` draws each joint ``P`` with
+            probability ``p_prismatic``.
+        p_prismatic: probability of a prismatic joint when ``joint_types`` is ``None``.
+        friction: give the joints small random friction (viscous U(0.05, 0.5), Coulomb
+            U(0.05, 0.5), stiction 1.3 x Coulomb) instead of none.
+
+    Returns:
+        the arm; parameters drawn uniformly from :data:`RANDOM_ARM_RANGES`; every link's
+        centre of mass is drawn on the segment from ``{i-1}`` to ``{i}`` and its inertia is
+        a solid cylinder of the link's length.
+    """
+    if n_joints < 1:
+        raise ValueError(f"n_joints must be >= 1, got {n_joints}")
+    rng = np.random.default_rng(seed)
+    if joint_types is None:
+        joint_types = "".join("P" if rng.random() < p_prismatic else "R" for _ in range(n_joints))
+    if len(joint_types) != n_joints or set(joint_types) - {"R", "P"}:
+        raise ValueError(f"joint_types must be {n_joints} letters R/P, got {joint_types!r}")
+    r = RANDOM_ARM_RANGES
+    joints, links = [], []
+    for kind in joint_types:
+        a = float(rng.uniform(*r["a"]))
+        d = float(rng.uniform(*r["d"]))
+        alpha = float(rng.uniform(*r["alpha"]))
+        theta = float(rng.uniform(*r["theta"]))
+        mass = float(rng.uniform(*r["mass"]))
+        radius = float(rng.uniform(*r["radius"]))
+        fv, fc = rng.uniform(0.05, 0.5, size=2) if friction else (0.0, 0.0)
+        joints.append(
+            DHJoint(
+                a=a,
+                alpha=alpha,
+                d=d,
+                theta=theta,
+                type=kind,
+                range=r["prismatic_range"] if kind == "P" else (-math.pi, math.pi),
+                viscous=float(fv),
+                coulomb=float(fc),
+                static_friction=1.3 * float(fc),
+                rotor_inertia=0.0,
+                gear=1.0,
+                torque_constant=1.0,
+                torque_limit=None,
+                velocity_limit=1.0 if kind == "R" else 0.2,
+            )
+        )
+        # {i-1} origin in {i}: p = -(Rx(alpha)^T [a, 0, 0] + Rx(alpha)^T Rz^T [0, 0, d])
+        # the CoM is drawn on the straight segment from the joint to the frame {i} origin
+        ca, sa = math.cos(alpha), math.sin(alpha)
+        joint_in_i = -np.array([a, d * sa, d * ca])
+        s = float(rng.uniform(0.2, 0.8))
+        com = tuple((s * joint_in_i).tolist())
+        length = max(float(np.linalg.norm(joint_in_i)), 0.05)
+        links.append(LinkInertia(mass, com, solid_cylinder_inertia(mass, radius, length, "x")))
+    return ArmSpec(
+        name=f"random{n_joints}_{joint_types}_{seed}",
+        joints=tuple(joints),
+        links=tuple(links),
+        radius=0.03,
+        description=f"random arm, seed {seed}, ranges RANDOM_ARM_RANGES",
+    )
+
+
+ARMS = {"ur10": ur10, "scara": scara}
+"""Named robot tables (factories)."""

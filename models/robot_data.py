@@ -1,0 +1,347 @@
+"""Robot measurement files: the one dataset schema, a validating loader and a saver.
+
+The arm envs' data (``scripts/collect_arm_data.py``) and the files users bring from their
+robots share this format: one row per sample, CSV or Parquet, columns
+
+======================  ============================================  ========================
+column                  meaning                                       unit (R joint / P joint)
+======================  ============================================  ========================
+``t``                   time, strictly increasing                     s
+``q1..qn``              joint positions                               rad / m
+``qd1..qdn``            joint velocities (optional: computed)         rad/s / m/s
+``qdd1..qddn``          joint accelerations (optional: computed)      rad/s^2 / m/s^2
+``tau1..taun``          joint torques / forces (optional*)            N m / N
+``i1..in``              measured motor currents (optional*)           A
+``i_cmd1..i_cmdn``      controller current commands (optional)        A
+``e_q1..e_qn``          reference minus measured position (optional)  rad / m
+``e_qd1..e_qdn``        reference minus measured velocity (optional)  rad/s / m/s
+``contact``             1 while an external contact acts (optional)   0/1
+======================  ============================================  ========================
+
+(*) at least one of the ``tau`` and ``i`` groups must be present. Joints are numbered from 1.
+Other columns are kept in :attr:`RobotDataset.extras`. A group is either complete
+(``1..n``) or absent.
+
+Derivatives when absent (:func:`differentiate`): on a uniform time grid (relative spread
+of ``diff(t)`` below 1e-3) a Savitzky-Golay derivative (cubic, 9-sample window, i.e. a
+local least-squares fit; offline and non-causal, with a delay-free phase); otherwise
+second-order central differences on the actual times (``numpy.gradient``). ``qdd`` is the
+same filter applied to ``qd`` (measured or computed).
+"""
+
+from __future__ import annotations
+
+import json
+import re
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pandas as pd
+from numpy.typing import ArrayLike, NDArray
+
+FloatArray = NDArray[np.float64]
+
+JOINT_GROUPS: tuple[str, ...] = ("q", "qd", "qdd", "tau", "i", "i_cmd", "e_q", "e_qd")
+"""Per-joint column groups, in file order; group ``g`` has columns ``g1..gn``."""
+
+UNITS: dict[str, str] = {
+    "t": "s",
+    "q": "rad (m for prismatic joints)",
+    "qd": "rad/s (m/s)",
+    "qdd": "rad/s^2 (m/s^2)",
+    "tau": "N m (N)",
+    "i": "A",
+    "i_cmd": "A",
+    "e_q": "rad (m)",
+    "e_qd": "rad/s (m/s)",
+    "contact": "0/1",
+}
+"""Unit of every column group."""
+
+OUTPUT_GROUPS: tuple[str, ...] = ("tau", "i")
+"""At least one of these groups must be present."""
+
+SAVGOL_WINDOW = 9
+SAVGOL_ORDER = 3
+
+
+def column_names(n_joints: int, groups: tuple[str, ...] = JOINT_GROUPS) -> list[str]:
+    """``["t", "q1", ..., "qn", "qd1", ...]`` for the given groups, then ``"contact"``."""
+    if n_joints < 1:
+        raise ValueError(f"n_joints must be >= 1, got {n_joints}")
+    cols = ["t"]
+    for g in groups:
+        cols += [f"{g}{j}" for j in range(1, n_joints + 1)]
+    return [*cols, "contact"]
+
+
+@dataclass
+class RobotDataset:
+    """A validated robot dataset: arrays ``(N,)`` / ``(N, n)`` in the units of :data:`UNITS`.
+
+    ``qd``/``qdd`` are always filled (computed when the file lacks them; see
+    ``metadata["computed"]``); the optional groups are ``None`` when absent.
+    """
+
+    t: FloatArray
+    q: FloatArray
+    qd: FloatArray
+    qdd: FloatArray
+    tau: FloatArray | None = None
+    i: FloatArray | None = None
+    i_cmd: FloatArray | None = None
+    e_q: FloatArray | None = None
+    e_qd: FloatArray | None = None
+    contact: NDArray[np.int64] | None = None
+    extras: dict[str, FloatArray] = field(default_factory=dict)
+    metadata: dict[str, Any] = field(default_factory=dict)
+
+    @property
+    def n_joints(self) -> int:
+        return int(self.q.shape[1])
+
+    @property
+    def n_samples(self) -> int:
+        return int(self.t.shape[0])
+
+    @property
+    def sample_time(self) -> float:
+        """Median ``diff(t)`` [s]."""
+        return float(np.median(np.diff(self.t))) if self.n_samples > 1 else float("nan")
+
+    def to_frame(self) -> pd.DataFrame:
+        """The dataset as a ``DataFrame`` with the schema's column names and order."""
+        cols: dict[str, Any] = {"t": self.t}
+        for g in JOINT_GROUPS:
+            arr = getattr(self, g)
+            if arr is not None:
+                for j in range(self.n_joints):
+                    cols[f"{g}{j + 1}"] = arr[:, j]
+        if self.contact is not None:
+            cols["contact"] = self.contact
+        cols.update(self.extras)
+        return pd.DataFrame(cols)
+
+    def subset(self, rows: ArrayLike) -> RobotDataset:
+        """Rows ``rows`` (index array or boolean mask) as a new dataset."""
+
+        def take(a: Any) -> Any:
+            return None if a is None else a[rows]
+
+        return RobotDataset(
+            t=self.t[rows],
+            **{g: take(getattr(self, g)) for g in JOINT_GROUPS},
+            contact=take(self.contact),
+            extras={k: v[rows] for k, v in self.extras.items()},
+            metadata=dict(self.metadata),
+        )
+
+
+def differentiate(y: ArrayLike, t: ArrayLike) -> FloatArray:
+    """``dy/dt`` along axis 0 with the filter of the module docstring."""
+    y = np.asarray(y, dtype=np.float64)
+    t = np.asarray(t, dtype=np.float64)
+    if y.shape[0] < 3:
+        raise ValueError(f"need at least 3 samples to differentiate, got {y.shape[0]}")
+    dt = np.diff(t)
+    if y.shape[0] >= SAVGOL_WINDOW and np.ptp(dt) <= 1e-3 * np.mean(dt):
+        from scipy.signal import savgol_filter
+
+        return savgol_filter(
+            y, SAVGOL_WINDOW, SAVGOL_ORDER, deriv=1, delta=float(np.mean(dt)), axis=0
+        )
+    return np.gradient(y, t, axis=0, edge_order=2)
+
+
+_COL = re.compile(r"^(q|qd|qdd|tau|i|i_cmd|e_q|e_qd)(\d+)$")
+
+
+def _joint_count(columns: list[str]) -> int:
+    """Number of joints = the largest index of the ``q`` group."""
+    idx = [int(m.group(2)) for c in columns if (m := _COL.match(c)) and m.group(1) == "q"]
+    if not idx:
+        raise ValueError("missing column 'q1': a dataset needs joint positions q1..qn")
+    return max(idx)
+
+
+def from_frame(
+    df: pd.DataFrame, n_joints: int | None = None, source: str = "<frame>"
+) -> RobotDataset:
+    """Validate a ``DataFrame`` against the schema and build a :class:`RobotDataset`.
+
+    Raises:
+        ValueError: a missing column (named), a NaN/inf value (row index and column), time
+            not strictly increasing (row index), a joint count different from ``n_joints``,
+            or no ``tau``/``i`` group.
+    """
+    cols = [str(c) for c in df.columns]
+    if "t" not in cols:
+        raise ValueError(f"{source}: missing column 't' (time [s])")
+    n_file = _joint_count(cols)
+    if n_joints is not None and n_file != n_joints:
+        raise ValueError(
+            f"{source}: joint count mismatch: the data has {n_file} joints (q1..q{n_file}) "
+            f"but {n_joints} were expected"
+        )
+    n = n_file
+    present: dict[str, bool] = {}
+    for g in JOINT_GROUPS:
+        have = [f"{g}{j}" in cols for j in range(1, n + 1)]
+        if any(have) and not all(have):
+            missing = f"{g}{have.index(False) + 1}"
+            raise ValueError(f"{source}: missing column '{missing}' (group {g}1..{g}{n})")
+        if g == "q" and not all(have):
+            raise ValueError(f"{source}: missing column 'q{have.index(False) + 1}'")
+        extra = [
+            c for c in cols if (m := _COL.match(c)) and m.group(1) == g and int(m.group(2)) > n
+        ]
+        if extra:
+            raise ValueError(
+                f"{source}: joint count mismatch: column '{extra[0]}' but only q1..q{n} present"
+            )
+        present[g] = all(have)
+    if not any(present[g] for g in OUTPUT_GROUPS):
+        raise ValueError(
+            f"{source}: missing columns 'tau1'..'tau{n}' or 'i1'..'i{n}': give joint torques "
+            "or motor currents"
+        )
+    used = ["t"] + [f"{g}{j}" for g in JOINT_GROUPS if present[g] for j in range(1, n + 1)]
+    if "contact" in cols:
+        used.append("contact")
+    values = df[used].apply(pd.to_numeric, errors="coerce").to_numpy(dtype=np.float64)
+    bad = ~np.isfinite(values)
+    if bad.any():
+        row, col = np.argwhere(bad)[0]
+        raise ValueError(
+            f"{source}: row {df.index[row]} has a NaN/inf/non-numeric value in column "
+            f"'{used[col]}'; drop or fill that row"
+        )
+    t = values[:, 0]
+    if t.size < 2:
+        raise ValueError(f"{source}: need at least 2 rows, got {t.size}")
+    dt = np.diff(t)
+    if (dt <= 0).any():
+        k = int(np.argmax(dt <= 0)) + 1
+        raise ValueError(
+            f"{source}: time is not strictly increasing at row {df.index[k]} "
+            f"(t={t[k]} after t={t[k - 1]})"
+        )
+    arrays: dict[str, Any] = {}
+    for g in JOINT_GROUPS:
+        if present[g]:
+            idx = [used.index(f"{g}{j}") for j in range(1, n + 1)]
+            arrays[g] = values[:, idx]
+    computed = []
+    if "qd" not in arrays:
+        arrays["qd"] = differentiate(arrays["q"], t)
+        computed.append("qd")
+    if "qdd" not in arrays:
+        arrays["qdd"] = differentiate(arrays["qd"], t)
+        computed.append("qdd")
+    contact = None
+    if "contact" in used:
+        contact = values[:, used.index("contact")].astype(np.int64)
+    extras = {c: df[c].to_numpy() for c in cols if c not in used}
+    metadata = {"source": source, "computed": computed}
+    return RobotDataset(t=t, contact=contact, extras=extras, metadata=metadata, **arrays)
+
+
+def load_dataset(path: str | Path, n_joints: int | None = None) -> RobotDataset:
+    """Read and validate a CSV (``.csv``) or Parquet (``.parquet``/``.pq``) robot file.
+
+    Metadata stored by :func:`save_dataset` (Parquet key ``mcpilco``; CSV sidecar
+    ``<file>.json``) is merged into :attr:`RobotDataset.metadata`.
+    """
+    path = Path(path)
+    if not path.exists():
+        raise FileNotFoundError(f"no dataset at {path}")
+    suffix = path.suffix.lower()
+    stored: dict[str, Any] = {}
+    if suffix in (".parquet", ".pq"):
+        import pyarrow.parquet as pq
+
+        table = pq.read_table(path)
+        raw = (table.schema.metadata or {}).get(b"mcpilco")
+        stored = json.loads(raw) if raw else {}
+        df = table.to_pandas()
+    elif suffix == ".csv":
+        df = pd.read_csv(path)
+        sidecar = path.with_suffix(path.suffix + ".json")
+        if sidecar.exists():
+            stored = json.loads(sidecar.read_text())
+    else:
+        raise ValueError(f"{path}: unknown file type {suffix!r}; use .csv or .parquet")
+    ds = from_frame(df, n_joints=n_joints, source=str(path))
+    ds.metadata = {**stored, **ds.metadata}
+    return ds
+
+
+def make_dataset(
+    arrays: dict[str, ArrayLike], metadata: dict[str, Any] | None = None
+) -> RobotDataset:
+    """A validated :class:`RobotDataset` from arrays keyed by group name (``t``, ``q``, ...;
+    other keys become extra columns: 1-D as is, ``(N, m)`` as ``key_1..key_m``, forces
+    ``f_*`` of shape ``(N, 3)`` as ``key_x/y/z``)."""
+    if "q" not in arrays or "t" not in arrays:
+        raise ValueError("arrays need at least 't' and 'q'")
+    q = np.asarray(arrays["q"], dtype=np.float64)
+    if q.ndim != 2:
+        raise ValueError(f"'q' must be (N, n), got shape {q.shape}")
+    n = q.shape[1]
+    cols: dict[str, Any] = {"t": np.asarray(arrays["t"], dtype=np.float64)}
+    for key, value in arrays.items():
+        if key == "t":
+            continue
+        arr = np.asarray(value)
+        if key in JOINT_GROUPS:
+            if arr.shape != q.shape:
+                raise ValueError(f"'{key}' must have shape {q.shape} like 'q', got {arr.shape}")
+            cols.update({f"{key}{j + 1}": arr[:, j] for j in range(n)})
+        elif arr.ndim == 1:
+            cols[key] = arr
+        else:
+            vector3 = key.startswith("f_") and arr.shape[1] == 3  # forces: _x, _y, _z
+            names = "xyz" if vector3 else [str(k + 1) for k in range(arr.shape[1])]
+            cols.update({f"{key}_{c}": arr[:, k] for k, c in enumerate(names)})
+    ds = from_frame(pd.DataFrame(cols), n_joints=n)
+    ds.metadata = {**(metadata or {}), **ds.metadata}
+    ds.metadata["source"] = "<arrays>"
+    return ds
+
+
+def save_dataset(
+    dataset: RobotDataset | dict[str, ArrayLike],
+    path: str | Path,
+    metadata: dict[str, Any] | None = None,
+) -> Path:
+    """Write a dataset (or arrays, see :func:`make_dataset`) as CSV or Parquet by suffix.
+
+    Columns follow :func:`column_names` order (absent groups skipped), then extras.
+    ``metadata`` (JSON-serialisable) goes into the Parquet schema metadata (key
+    ``mcpilco``) or a CSV sidecar ``<file>.json``.
+    """
+    if not isinstance(dataset, RobotDataset):
+        dataset = make_dataset(dataset, metadata)
+    path = Path(path)
+    meta = {**dataset.metadata, **(metadata or {})}
+    meta.pop("source", None)
+    meta["units"] = UNITS
+    df = dataset.to_frame()
+    path.parent.mkdir(parents=True, exist_ok=True)
+    suffix = path.suffix.lower()
+    if suffix in (".parquet", ".pq"):
+        import pyarrow as pa
+        import pyarrow.parquet as pq
+
+        table = pa.Table.from_pandas(df, preserve_index=False)
+        schema_meta = dict(table.schema.metadata or {})
+        schema_meta[b"mcpilco"] = json.dumps(meta).encode()
+        pq.write_table(table.replace_schema_metadata(schema_meta), path)
+    elif suffix == ".csv":
+        df.to_csv(path, index=False)
+        path.with_suffix(path.suffix + ".json").write_text(json.dumps(meta, indent=1))
+    else:
+        raise ValueError(f"{path}: unknown file type {suffix!r}; use .csv or .parquet")
+    return path

@@ -1,0 +1,128 @@
+"""Contract test over every registered ``mcpilco/*`` environment (later envs included)."""
+
+import os
+import subprocess
+import sys
+import warnings
+
+import gymnasium as gym
+import numpy as np
+import pytest
+from gymnasium.utils.env_checker import check_env as gym_check_env
+from stable_baselines3.common.env_checker import check_env as sb3_check_env
+
+import mcpilco.envs  # noqa: F401  (registers the ids)
+
+ENV_IDS = sorted(i for i in gym.registry if i.startswith("mcpilco/"))
+
+
+def test_cartpole_ids_registered():
+    assert {"mcpilco/CartpoleSwingUp-v0", "mcpilco/DMCCartpoleSwingUp-v0"} <= set(ENV_IDS)
+    assert gym.spec("mcpilco/CartpoleSwingUp-v0").max_episode_steps == 60
+    assert gym.spec("mcpilco/DMCCartpoleSwingUp-v0").max_episode_steps == 60
+
+
+def _is_swingup(env_id: str) -> bool:
+    return "SwingUp" in env_id
+
+
+@pytest.fixture(params=ENV_IDS)
+def env_id(request):
+    return request.param
+
+
+def _rollout(env, seed, n):
+    obs, _ = env.reset(seed=seed)
+    env.action_space.seed(seed)
+    out = [obs]
+    for _ in range(n):
+        out.append(env.step(env.action_space.sample())[0])
+    return np.array(out)
+
+
+def test_checkers_pass(env_id):
+    env = gym.make(env_id)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", UserWarning)  # unbounded Box warnings
+        # render modes (incl. "human") need a display; rendering is tested separately below
+        gym_check_env(env.unwrapped, skip_render_check=True)
+        sb3_check_env(env.unwrapped, warn=False)
+    env.close()
+
+
+def test_reset_step_shapes_dtypes_and_info(env_id):
+    env = gym.make(env_id)
+    obs, info = env.reset(seed=0)
+    assert obs.shape == env.observation_space.shape and obs.dtype == env.observation_space.dtype
+    assert env.observation_space.contains(obs)
+    horizon = env.spec.max_episode_steps
+    steps = 0
+    for _ in range(horizon or 5):
+        steps += 1
+        obs, reward, terminated, truncated, info = env.step(env.action_space.sample())
+        assert obs.shape == env.observation_space.shape
+        assert obs.dtype == env.observation_space.dtype
+        assert isinstance(reward, float) and np.isfinite(reward)
+        assert isinstance(terminated, bool) and isinstance(truncated, bool)
+        assert "cost" in info and np.isfinite(info["cost"])
+        if _is_swingup(env_id):
+            assert reward == -info["cost"] and isinstance(info["upright"], bool)
+            assert info["state"].shape == (4,) and info["state"].dtype == np.float64
+        if terminated or truncated:
+            break
+    if horizon is not None:
+        assert truncated and steps == horizon
+        if _is_swingup(env_id):
+            assert isinstance(info["success"], bool)
+    env.close()
+
+
+def test_same_seed_same_trajectory(env_id):
+    a, b = gym.make(env_id), gym.make(env_id)
+    ta, tb = _rollout(a, 11, 20), _rollout(b, 11, 20)
+    np.testing.assert_array_equal(ta, tb)
+    assert not np.array_equal(ta, _rollout(b, 12, 20))
+
+
+def test_bad_actions_raise_value_error(env_id):
+    env = gym.make(env_id)
+    env.reset(seed=0)
+    dim = env.action_space.shape[0]
+    with pytest.raises(ValueError, match="shape"):
+        env.step(np.zeros(dim + 1, dtype=np.float32))
+    bad = np.zeros(dim, dtype=np.float32)
+    bad[0] = np.nan
+    with pytest.raises(ValueError, match="NaN"):
+        env.step(bad)
+    env.close()
+
+
+_RENDER_CODE = """
+import mcpilco.envs, gymnasium as gym, numpy as np
+env = gym.make({env_id!r}, render_mode="rgb_array")
+env.reset(seed=0)
+img = env.render()
+assert img.ndim == 3 and img.shape[2] == 3 and img.dtype == np.uint8 and img.std() > 0, img.shape
+env.close()
+print("RENDER_OK")
+"""
+
+
+@pytest.mark.parametrize("env_id", ["mcpilco/CartpoleSwingUp-v0", "mcpilco/DMCCartpoleSwingUp-v0"])
+def test_rgb_array_render_headless(env_id):
+    """Offscreen rendering in a subprocess (a missing GL backend can abort the process)."""
+    errors = []
+    for backend in ("egl", "osmesa"):
+        proc = subprocess.run(
+            [sys.executable, "-c", _RENDER_CODE.format(env_id=env_id)],
+            env={**os.environ, "MUJOCO_GL": backend},
+            capture_output=True,
+            text=True,
+            timeout=120,
+        )
+        if "RENDER_OK" in proc.stdout:
+            return
+        errors.append(f"{backend}: {(proc.stderr.strip().splitlines() or ['?'])[-1]}")
+    pytest.skip(
+        "no headless OpenGL backend (MUJOCO_GL=egl/osmesa) works here: " + "; ".join(errors)
+    )
