@@ -1,1 +1,31 @@
-"""Exact multi-output GP regression on GPyTorch and a cached predictor for rollouts."""
+"""Exact multi-output GP regression on GPyTorch and a cached predictor for rollouts.
+
+* :class:`GPRegressor` -- one independent exact GP per output (batched), float64,
+  standardisation, marginal-likelihood training (Adam then L-BFGS), save / load.
+* :class:`CachedPredictor` -- dense, differentiable posterior mean / variance for rollouts.
+* :func:`greedy_subset` -- subset of data by largest posterior variance (pivoted Cholesky).
+* :func:`dense_covar` / :func:`dense_diag` -- evaluate a GPyTorch kernel tree with dense ops.
+"""
+
+from mcpilco.models.gp.dense import dense_covar, dense_diag
+from mcpilco.models.gp.linalg import jittered_cholesky
+from mcpilco.models.gp.predictor import CachedPredictor
+from mcpilco.models.gp.regressor import (
+    BatchIndependentExactGP,
+    GPRegressor,
+    KernelFactory,
+    exact_gp_settings,
+)
+from mcpilco.models.gp.subset import greedy_subset
+
+__all__ = [
+    "BatchIndependentExactGP",
+    "CachedPredictor",
+    "GPRegressor",
+    "KernelFactory",
+    "dense_covar",
+    "dense_diag",
+    "exact_gp_settings",
+    "greedy_subset",
+    "jittered_cholesky",
+]

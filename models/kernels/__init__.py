@@ -1,1 +1,33 @@
-"""Kernels for structured GP regression: linear, PK/IPK, MPK, SED-MPK, GIP."""
+"""Kernels for structured GP regression: linear, PK/IPK, MPK, SED-MPK, GIP.
+
+All are ``gpytorch.kernels.Kernel`` subclasses with a dense matmul-form ``forward``; see each
+class for the maths (thesis chapters 3 and 6).
+"""
+
+from mcpilco.models.kernels.gip import (
+    GIPKernel,
+    check_joint_types,
+    gip_feature_dim,
+    gip_feature_names,
+    gip_features,
+)
+from mcpilco.models.kernels.linear import LinearKernel
+from mcpilco.models.kernels.mpk import MPKernel
+from mcpilco.models.kernels.polynomial import PolynomialKernel
+from mcpilco.models.kernels.sed_mpk import SEDMPKernel, sed_matrix
+from mcpilco.models.kernels.volterra import VOLTERRA_KINDS, volterra_kernel
+
+__all__ = [
+    "GIPKernel",
+    "LinearKernel",
+    "MPKernel",
+    "PolynomialKernel",
+    "SEDMPKernel",
+    "VOLTERRA_KINDS",
+    "check_joint_types",
+    "gip_feature_dim",
+    "gip_feature_names",
+    "gip_features",
+    "sed_matrix",
+    "volterra_kernel",
+]

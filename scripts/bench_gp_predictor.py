@@ -1,0 +1,183 @@
+"""Benchmark: cached GP predictor vs GPyTorch's own posterior ``model(x)`` in eval mode.
+
+Fits a 2-output GP (ScaleKernel(RBF-ARD)) on N synthetic points in d dimensions, then times one
+posterior call (mean and variance) at ``n_test`` points for:
+
+* ``gpytorch``: ``model(x)`` in eval mode with exact settings (prediction caches warm);
+* ``cached64`` / ``cached32``: :class:`mcpilco.models.gp.CachedPredictor` in float64 / float32,
+  forward only and forward + backward w.r.t. the test inputs.
+
+All timings come from one process with warm-up; each is the median over ``--repeats`` blocks.
+Writes ``results/bench_gp_predictor.json`` and prints a Markdown table and the speed ratio.
+
+Usage::
+
+    mcpilco-bench-gp                       # N=500, 400 test points, d=6
+    mcpilco-bench-gp --n-train 300 --repeats 5
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import statistics
+import time
+from collections.abc import Callable
+from pathlib import Path
+
+import gpytorch
+import torch
+
+from mcpilco.models.gp import GPRegressor, exact_gp_settings
+
+
+def _time_call(
+    fn: Callable[[], object], repeats: int, inner: int, warmup: int, clock: Callable[[], float]
+) -> float:
+    """Median over ``repeats`` of the mean seconds per call over ``inner`` calls."""
+    for _ in range(warmup):
+        fn()
+    samples = []
+    for _ in range(repeats):
+        t0 = clock()
+        for _ in range(inner):
+            fn()
+        samples.append((clock() - t0) / inner)
+    return statistics.median(samples)
+
+
+def _make_gp(n_train: int, d: int, m: int, seed: int) -> tuple[GPRegressor, torch.Tensor]:
+    gen = torch.Generator().manual_seed(seed)
+    X = torch.rand(n_train, d, generator=gen, dtype=torch.float64) * 4 - 2
+    W = torch.randn(d, m, generator=gen, dtype=torch.float64)
+    Y = torch.sin(X @ W) + 0.05 * torch.randn(n_train, m, generator=gen, dtype=torch.float64)
+
+    def kernel_factory(batch_shape: torch.Size) -> gpytorch.kernels.Kernel:
+        rbf = gpytorch.kernels.RBFKernel(ard_num_dims=d, batch_shape=batch_shape)
+        return gpytorch.kernels.ScaleKernel(rbf, batch_shape=batch_shape)
+
+    gp = GPRegressor(kernel_factory).fit(X, Y, adam_iters=30, lbfgs_iters=10)
+    return gp, X
+
+
+def run(
+    n_train: int = 500, n_test: int = 400, d: int = 6, m: int = 2, repeats: int = 7, seed: int = 0
+) -> dict:
+    """Run the benchmark and return the results dict."""
+    gp, _ = _make_gp(n_train, d, m, seed)
+    gen = torch.Generator().manual_seed(seed + 1)
+    x64 = torch.rand(n_test, d, generator=gen, dtype=torch.float64) * 4 - 2
+    x32 = x64.float()
+    xs = gp._standardize_x(x64).expand(m, n_test, d)
+    model = gp.model_
+    model.eval()
+
+    def gpytorch_call() -> None:
+        with torch.no_grad(), exact_gp_settings():
+            post = model(xs)
+            post.mean, post.variance  # noqa: B018 (evaluate both)
+
+    pred64 = gp.cached_predictor(torch.float64, validate=False)
+    pred32 = gp.cached_predictor(torch.float32, validate=False)
+
+    def cached(pred: torch.nn.Module, x: torch.Tensor) -> Callable[[], None]:
+        def call() -> None:
+            with torch.no_grad():
+                pred(x)
+
+        return call
+
+    def cached_backward(pred: torch.nn.Module, x: torch.Tensor) -> Callable[[], None]:
+        xg = x.clone().requires_grad_(True)
+
+        def call() -> None:
+            mean, var = pred(xg)
+            (mean.sum() + var.sum()).backward()
+
+        return call
+
+    # accuracy check against gpytorch (float64)
+    m_ref, v_ref = gp.predict_gpytorch(x64)
+    m64, v64 = pred64(x64)
+    max_err = max(float((m64 - m_ref).abs().max()), float((v64 - v_ref).abs().max()))
+
+    calls = {
+        "gpytorch_eval": (gpytorch_call, 3, 2),
+        "cached64": (cached(pred64, x64), 10, 3),
+        "cached32": (cached(pred32, x32), 10, 3),
+        "cached64_fwd_bwd": (cached_backward(pred64, x64), 5, 2),
+        "cached32_fwd_bwd": (cached_backward(pred32, x32), 5, 2),
+    }
+    # CPU time of this (single-threaded) process is robust to other jobs on a shared machine;
+    # wall-clock time is reported too.
+    timings = {k: _time_call(*v[:1], repeats, *v[1:], time.process_time) for k, v in calls.items()}
+    wall = {k: _time_call(*v[:1], repeats, *v[1:], time.perf_counter) for k, v in calls.items()}
+    ref = timings["gpytorch_eval"]
+    return {
+        "config": {
+            "n_train": n_train,
+            "n_test": n_test,
+            "d": d,
+            "m": m,
+            "repeats": repeats,
+            "torch_threads": torch.get_num_threads(),
+            "torch": torch.__version__,
+            "gpytorch": gpytorch.__version__,
+        },
+        "seconds_per_call": timings,
+        "clock": "process_time (CPU seconds of this process)",
+        "wall_seconds_per_call": wall,
+        "speedup_vs_gpytorch": {k: ref / v for k, v in timings.items() if k != "gpytorch_eval"},
+        "speedup_vs_gpytorch_wall": {
+            k: wall["gpytorch_eval"] / v for k, v in wall.items() if k != "gpytorch_eval"
+        },
+        "max_abs_diff_cached64_vs_gpytorch": max_err,
+    }
+
+
+def markdown_table(result: dict) -> str:
+    """Markdown table of the timings."""
+    lines = [
+        "| path | CPU ms / call | speed-up (CPU) | wall ms / call | speed-up (wall) |",
+        "|---|---:|---:|---:|---:|",
+    ]
+    cpu, wall = result["seconds_per_call"], result["wall_seconds_per_call"]
+    for name in cpu:
+        lines.append(
+            f"| {name} | {cpu[name] * 1e3:.2f} | {cpu['gpytorch_eval'] / cpu[name]:.1f}x "
+            f"| {wall[name] * 1e3:.2f} | {wall['gpytorch_eval'] / wall[name]:.1f}x |"
+        )
+    return "\n".join(lines)
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Command-line entry point (``mcpilco-bench-gp``)."""
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--n-train", type=int, default=500, help="training points N")
+    parser.add_argument("--n-test", type=int, default=400, help="test points per call")
+    parser.add_argument("--dim", type=int, default=6, help="input dimension d")
+    parser.add_argument("--outputs", type=int, default=2, help="number of outputs m")
+    parser.add_argument("--repeats", type=int, default=7, help="timing blocks (median)")
+    parser.add_argument("--threads", type=int, default=1, help="torch threads")
+    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--out", type=Path, default=Path("results/bench_gp_predictor.json"))
+    args = parser.parse_args(argv)
+    torch.set_num_threads(args.threads)
+    result = run(args.n_train, args.n_test, args.dim, args.outputs, args.repeats, args.seed)
+    args.out.parent.mkdir(parents=True, exist_ok=True)
+    args.out.write_text(json.dumps(result, indent=2))
+    print(markdown_table(result))
+    r64 = result["speedup_vs_gpytorch"]["cached64"]
+    r32 = result["speedup_vs_gpytorch"]["cached32"]
+    print(
+        f"\ncached predictor vs gpytorch model(x) in eval mode (N={args.n_train}, "
+        f"{args.n_test} test points, d={args.dim}, m={args.outputs}): float64 {r64:.1f}x, "
+        f"float32 {r32:.1f}x faster per call (CPU time); "
+        f"max |diff| float64 = {result['max_abs_diff_cached64_vs_gpytorch']:.2e}"
+    )
+    print(f"wrote {args.out}")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
