@@ -9,7 +9,7 @@ symbol              meaning
 :math:`m`           system memory (number of past lags); the regressor has :math:`m+1` entries
 :math:`\mathbf u_k` lagged input :math:`[u_k, u_{k-1}, \dots, u_{k-m}]^T` (:func:`lag_matrix`)
 :math:`r`           Volterra order (highest monomial degree)
-:math:`z_k`         noiseless system output; :math:`y_k = z_k + e_k`, :math:`e_k\sim N(0,\sigma_n^2)`
+:math:`z_k`         noiseless output; :math:`y_k = z_k + e_k`, :math:`e_k\sim N(0,\sigma_n^2)`
 PK                  :math:`K^{(r)}_{pk} = \sum_{i=1}^r (\mathbf u^T\Sigma^{(i)}\mathbf u')^i+\rho_0`
                     (6.18)
 IPK                 :math:`(\sigma^2 + \mathbf u^T\Sigma\mathbf u')^r` (6.23)
@@ -52,7 +52,7 @@ __all__ = [
 ]
 
 #: Kernel families accepted by :class:`VolterraGP` and :func:`volterra_kernel_factory`.
-KINDS = ("pk", "ipk", "mpk", "sedmpk")
+KINDS = ("pk", "ipk", "mpk", "sed_mpk", "sed_mpk_eq")
 
 #: Numerator and denominator of :math:`G(q) = 10q^{-1}/(1 - 1.8036q^{-1} + 0.8338q^{-2})`
 #: (eq. 6.38, Stoddard and Welsh 2018) in :func:`scipy.signal.lfilter` convention.
@@ -185,65 +185,81 @@ def wiener_system(u: np.ndarray | torch.Tensor | list[float], order: int) -> np.
 # --------------------------------------------------------------------------------------------
 # kernels
 # --------------------------------------------------------------------------------------------
-KernelFactory = Callable[[torch.Size], "torch.nn.Module"]
+KernelFactory = Callable[[torch.Size], "gpytorch.kernels.Kernel"]  # noqa: F821
+
+
+def _power_kernel_class():
+    """Build (lazily, gpytorch is heavy) the :class:`PowerKernel` wrapper class."""
+    import gpytorch
+
+    class PowerKernel(gpytorch.kernels.Kernel):
+        r""":math:`k(\mathbf x, \mathbf x')^{q}` of a base kernel (dense, shares its parameters).
+
+        With a degree-1 :class:`~mcpilco.models.kernels.SEDMPKernel` base this is the SED-MPK
+        building block with all :math:`\alpha_p` (resp. :math:`\beta_p`) equal, the special case
+        (6.35) used in the thesis experiments: :math:`(\mathbf u^T\Sigma(\alpha,\beta)\mathbf
+        u')^q`.
+        """
+
+        def __init__(self, base_kernel: gpytorch.kernels.Kernel, power: int, **kwargs) -> None:
+            super().__init__(**kwargs)
+            self.base_kernel = base_kernel
+            self.power = int(power)
+
+        def forward(self, x1, x2, diag: bool = False, last_dim_is_batch: bool = False, **params):
+            k = self.base_kernel.forward(x1, x2, diag=diag, last_dim_is_batch=last_dim_is_batch)
+            out = k
+            for _ in range(1, self.power):
+                out = out * k
+            return out
+
+    return PowerKernel
 
 
 def volterra_kernel_factory(kind: str, order: int, memory: int) -> KernelFactory:
     r"""Kernel factory (``batch_shape -> gpytorch Kernel``) for a Volterra model of order r.
 
-    ``kind``:
+    ``kind`` (all built by :func:`mcpilco.models.kernels.volterra_kernel` except the last):
 
-    * ``"pk"``: :math:`\sum_{i=1}^r (\mathbf u^T\Sigma^{(i)}\mathbf u')^i + \rho_0` (6.18), one
-      diagonal :math:`\Sigma^{(i)}` (ARD) per order.
+    * ``"pk"``: :math:`\sum_{i=1}^r (\mathbf u^T\Sigma^{(i)}\mathbf u')^i + \rho_0` (6.18),
+      one diagonal :math:`\Sigma^{(i)}` (ARD) per order.
     * ``"ipk"``: :math:`(\sigma^2 + \mathbf u^T\Sigma\mathbf u')^r` (6.23), diagonal
-      :math:`\Sigma`, :math:`\sigma^2` trained (the thesis fixes it to 1; the overall scale is
-      :math:`\sigma^{2r}` so this is the same model with a trainable output scale).
-    * ``"mpk"``: :math:`\sum_{i=1}^r \rho_i k^{(i)}_{mpk} + \rho_0` (6.25).
-    * ``"sedmpk"``: :math:`\sum_{i=1}^r \rho_i k^{(i)}_{sed} + \rho_0` (6.30).
+      :math:`\Sigma`, :math:`\sigma^2` trained (the thesis fixes it to 1; since the overall
+      scale is free this is the same model with a trainable output scale).
+    * ``"mpk"``: :math:`\sum_{i=1}^r \rho_i k^{(i)}_{mpk} + \rho_0` (6.25), homogeneous
+      blocks (6.24) with the hierarchical parametrisation (6.28).
+    * ``"sed_mpk"``: :math:`\sum_{i=1}^r \rho_i k^{(i)}_{sed} + \rho_0` (6.30), every factor
+      :math:`p` of block :math:`i` with its own :math:`(\alpha_p, \beta_p)` (hierarchical).
+    * ``"sed_mpk_eq"``: the special case (6.35) used in the thesis experiment 2: within block
+      :math:`i` all :math:`\alpha_p = \alpha^{(i)}`, :math:`\beta_p = \beta^{(i)}`, i.e.
+      :math:`k^{(i)}_{sed} = (\mathbf u^T\Sigma(\alpha^{(i)},\beta^{(i)})\mathbf u')^i`.
     """
-    from mcpilco.models import kernels as K  # noqa: N812 - deferred: optional at import time
-
     if kind not in KINDS:
         raise ValueError(f"kind must be one of {KINDS}, got {kind!r}")
-    if isinstance(order, bool) or not isinstance(order, int) or order < 1:
+    if isinstance(order, bool) or not isinstance(order, int | np.integer) or order < 1:
         raise ValueError(f"order must be a positive int, got {order!r}")
-    if isinstance(memory, bool) or not isinstance(memory, int) or memory < 0:
+    if isinstance(memory, bool) or not isinstance(memory, int | np.integer) or memory < 0:
         raise ValueError(f"memory must be a non-negative int, got {memory!r}")
-    d = memory + 1
+    order, memory = int(order), int(memory)
 
     def factory(batch_shape: torch.Size = torch.Size([])):  # noqa: B008
         import gpytorch
 
-        def const():
-            return gpytorch.kernels.ConstantKernel(batch_shape=batch_shape)
+        from mcpilco.models.kernels import SEDMPKernel, volterra_kernel
 
-        if kind == "ipk":
-            return K.PolynomialKernel(
-                degree=order, ard_num_dims=d, homogeneous=False, batch_shape=batch_shape
+        if kind != "sed_mpk_eq":
+            return volterra_kernel(kind, order, memory, batch_shape=batch_shape)
+        power_kernel = _power_kernel_class()
+        terms = [
+            gpytorch.kernels.ScaleKernel(
+                power_kernel(SEDMPKernel(1, memory, batch_shape=batch_shape), i),
+                batch_shape=batch_shape,
             )
-        terms = []
-        for i in range(1, order + 1):
-            if kind == "pk":
-                terms.append(
-                    K.PolynomialKernel(
-                        degree=i, ard_num_dims=d, homogeneous=True, batch_shape=batch_shape
-                    )
-                )
-            elif kind == "mpk":
-                terms.append(
-                    K.MPKernel(degree=i, ard_num_dims=d, batch_shape=batch_shape)
-                )
-            else:
-                terms.append(
-                    gpytorch.kernels.ScaleKernel(
-                        K.SEDMPKernel(degree=i, memory=memory, batch_shape=batch_shape),
-                        batch_shape=batch_shape,
-                    )
-                )
-        kernel = terms[0]
-        for t in terms[1:]:
-            kernel = kernel + t
-        return kernel + const()
+            for i in range(1, order + 1)
+        ]
+        return gpytorch.kernels.AdditiveKernel(
+            *terms, gpytorch.kernels.ConstantKernel(batch_shape=batch_shape)
+        )
 
     return factory
 
@@ -263,7 +279,7 @@ class VolterraGP:
     ``predict(u)`` returns the posterior mean of :math:`z` for a new record from rest.
 
     Args:
-        kind: ``"pk"``, ``"ipk"``, ``"mpk"`` or ``"sedmpk"``.
+        kind: one of :data:`KINDS` (see :func:`volterra_kernel_factory`).
         order: Volterra order :math:`r`.
         memory: system memory :math:`m`.
         ml_points: size of the random subset used for marginal-likelihood training (``None``:
@@ -353,10 +369,28 @@ class VolterraGP:
         return self
 
     def predict(self, u: np.ndarray | torch.Tensor | list[float]) -> np.ndarray:
-        """Posterior mean of the noiseless output for a record from rest, shape ``(N,)``."""
-        x = self.features(u)
-        mean, _ = self.gp_.predict(x)
+        r"""Posterior mean of the noiseless output for a record from rest, shape ``(N,)``.
+
+        Mean only: :math:`\hat z = k(\mathbf U_*, \mathbf U)(K + \sigma_n^2 I)^{-1}\tilde y`
+        (rescaled) via ``GPRegressor.predict_mean``, which skips the :math:`L^{-1}` and
+        variance products of ``GPRegressor.predict`` (they dominate at N = 3500 and the Fit
+        does not need them). :meth:`predict_gp` gives mean and variance.
+        """
+        self._check_fitted()
+        mean = self.gp_.predict_mean(self.features(u))
         mean = mean.detach().cpu().numpy().reshape(-1)
+        return self._to_output_units(mean)
+
+    def predict_gp(
+        self, u: np.ndarray | torch.Tensor | list[float]
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """Posterior mean and latent variance of the output via ``GPRegressor.predict``."""
+        x = self.features(u)
+        mean, var = self.gp_.predict(x)
+        mean = self._to_output_units(mean.detach().cpu().numpy().reshape(-1))
+        return mean, var.detach().cpu().numpy().reshape(-1) * self.y_std_**2
+
+    def _to_output_units(self, mean: np.ndarray) -> np.ndarray:
         out = mean * self.y_std_ + self.y_mean_
         if not np.all(np.isfinite(out)):
             raise FloatingPointError(

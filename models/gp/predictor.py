@@ -68,17 +68,21 @@ class CachedPredictor(nn.Module):
         noise_variance: Tensor,
         *,
         validate: bool = True,
+        with_variance: bool = True,
     ) -> None:
         """Low-level constructor; prefer :meth:`from_data`.
 
         Args:
             kernel: frozen dense-evaluable kernel (batch shape ``[m]`` or ``[]``).
             train_x: ``(N, d)`` standardised training inputs.
-            weights: ``(m, N, N + 1)`` = :math:`[\\alpha_b \\,|\\, L_b^{-T}]`.
+            weights: ``(m, N, N + 1)`` = :math:`[\\alpha_b \\,|\\, L_b^{-T}]`, or ``(m, N, 1)``
+                = :math:`\\alpha_b` when ``with_variance`` is False.
             x_mean, x_scale: ``(d,)`` input standardisation.
             y_mean, y_scale: ``(m,)`` output standardisation.
             noise_variance: ``(m,)`` in original units.
             validate: check finiteness of inputs and outputs on every call.
+            with_variance: whether ``weights`` holds :math:`L^{-T}` (else the call returns
+                ``(mean, None)``).
         """
         super().__init__()
         self.kernel = kernel
@@ -90,6 +94,7 @@ class CachedPredictor(nn.Module):
         self.register_buffer("y_scale", y_scale)
         self.register_buffer("noise_variance", noise_variance)
         self.validate = validate
+        self.with_variance = with_variance
         self.input_dim = int(train_x.shape[-1])
         self.output_dim = int(weights.shape[0])
         self.num_train = int(train_x.shape[0])
@@ -109,6 +114,7 @@ class CachedPredictor(nn.Module):
         y_scale: Tensor,
         dtype: torch.dtype = torch.float32,
         validate: bool = True,
+        with_variance: bool = True,
     ) -> CachedPredictor:
         """Precompute :math:`\\alpha` and :math:`L^{-1}` in float64, then cast once to ``dtype``.
 
@@ -121,6 +127,9 @@ class CachedPredictor(nn.Module):
             x_mean, x_scale, y_mean, y_scale: standardisation constants.
             dtype: dtype of the buffers and of the call (float32 or float64).
             validate: see the class docstring.
+            with_variance: when False only :math:`\\alpha` is kept (no :math:`L^{-1}`, an
+                :math:`O(N^3)` solve and :math:`O(N^2)` memory less) and the call returns
+                ``(mean, None)``; for large-N mean predictions such as the Volterra benchmark.
         """
         if dtype not in (torch.float32, torch.float64):
             raise TypeError(f"dtype must be torch.float32 or torch.float64, got {dtype}")
@@ -132,10 +141,13 @@ class CachedPredictor(nn.Module):
         K = dense_covar(k64, Xb, Xb)
         K = K.expand(m, n, n) + torch.diag_embed(noise.to(f64).reshape(m, 1).expand(m, n))
         L, _ = jittered_cholesky(K)
-        eye = torch.eye(n, dtype=f64).expand(m, n, n)
-        Linv = torch.linalg.solve_triangular(L, eye, upper=False)
         alpha = torch.cholesky_solve(train_y.to(f64).unsqueeze(-1), L)  # (m, N, 1)
-        weights = torch.cat([alpha, Linv.transpose(-1, -2)], dim=-1)
+        if with_variance:
+            eye = torch.eye(n, dtype=f64).expand(m, n, n)
+            Linv = torch.linalg.solve_triangular(L, eye, upper=False)
+            weights = torch.cat([alpha, Linv.transpose(-1, -2)], dim=-1)
+        else:
+            weights = alpha
         frozen = k64.to(dtype)
         for p in frozen.parameters():
             p.requires_grad_(False)
@@ -149,6 +161,7 @@ class CachedPredictor(nn.Module):
             y_scale.to(dtype),
             (noise.to(f64) * y_scale.to(f64) ** 2).to(dtype),
             validate=validate,
+            with_variance=with_variance,
         )
 
     @property
@@ -156,14 +169,15 @@ class CachedPredictor(nn.Module):
         """Dtype of the buffers and of the outputs."""
         return self.weights.dtype
 
-    def forward(self, x: Tensor) -> tuple[Tensor, Tensor]:
+    def forward(self, x: Tensor) -> tuple[Tensor, Tensor | None]:
         """Posterior mean and latent variance at ``x``.
 
         Args:
             x: ``(..., d)`` test inputs in original units.
 
         Returns:
-            ``(mean, var)``, each ``(..., m)``, in original units and the predictor's dtype.
+            ``(mean, var)``, each ``(..., m)``, in original units and the predictor's dtype;
+            ``var`` is None for a mean-only predictor (``with_variance=False``).
         """
         if x.shape[-1] != self.input_dim:
             raise ValueError(
@@ -179,9 +193,14 @@ class CachedPredictor(nn.Module):
         x1 = xs.expand(m, n, self.input_dim)
         x2 = self.train_x.expand(m, self.num_train, self.input_dim)
         k_star = dense_covar(self.kernel, x1, x2)  # (m, n, N)
-        prior = dense_diag(self.kernel, x1)  # (m, n)
         out = k_star @ self.weights  # (m, n, N + 1)
         mean_s = out[..., 0]
+        if not self.with_variance:
+            mean = (mean_s.transpose(0, 1) * self.y_scale + self.y_mean).reshape(*lead, m)
+            if self.validate and not bool(torch.isfinite(mean).all()):
+                raise ValueError("the GP posterior mean produced NaN or inf; check the inputs")
+            return mean, None
+        prior = dense_diag(self.kernel, x1)  # (m, n)
         var_s = (prior - out[..., 1:].pow(2).sum(-1)).clamp_min(0.0)
         mean = mean_s.transpose(0, 1) * self.y_scale + self.y_mean
         var = var_s.transpose(0, 1) * self.y_scale.pow(2)

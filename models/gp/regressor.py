@@ -164,6 +164,7 @@ class GPRegressor:
         self.model_: BatchIndependentExactGP | None = None
         self.subset_indices_: Tensor | None = None
         self._predictor64: CachedPredictor | None = None
+        self._mean_predictor64: CachedPredictor | None = None
 
     # ------------------------------------------------------------------ properties
     @property
@@ -280,6 +281,7 @@ class GPRegressor:
         else:
             self.model_ = self._build_model(xs, ys)
         self._predictor64 = None
+        self._mean_predictor64 = None
 
     def _can_warm_start(self, d: int, m: int) -> bool:
         if self.model_ is None:
@@ -396,6 +398,7 @@ class GPRegressor:
             bar.close()
             model.eval()
             self._predictor64 = None
+            self._mean_predictor64 = None
 
     def _run_lbfgs(
         self,
@@ -453,13 +456,18 @@ class GPRegressor:
         return xs, ys, noise
 
     def cached_predictor(
-        self, dtype: torch.dtype = torch.float32, *, validate: bool = True
+        self,
+        dtype: torch.dtype = torch.float32,
+        *,
+        validate: bool = True,
+        with_variance: bool = True,
     ) -> CachedPredictor:
         """Extract a :class:`CachedPredictor` (dense, differentiable w.r.t. the test inputs).
 
         Args:
             dtype: float32 (rollouts) or float64.
             validate: finiteness checks on every call (set False in hot loops).
+            with_variance: False gives a mean-only predictor (no :math:`L^{-1}`).
         """
         self._check_fitted()
         xs, ys, noise = self._standardized_train()
@@ -474,7 +482,21 @@ class GPRegressor:
             y_scale=self.y_scale_,
             dtype=dtype,
             validate=validate,
+            with_variance=with_variance,
         )
+
+    @torch.no_grad()
+    def predict_mean(self, X: np.ndarray | Tensor) -> Tensor:
+        """Posterior mean only, ``(n, m)`` float64 in original units.
+
+        Skips :math:`L^{-1}` and the variance products of :meth:`predict`, which dominate for
+        large N when only the mean is needed.
+        """
+        self._check_fitted()
+        x = self._as_inputs(X)
+        if self._mean_predictor64 is None:
+            self._mean_predictor64 = self.cached_predictor(torch.float64, with_variance=False)
+        return self._mean_predictor64(x)[0]
 
     @torch.no_grad()
     def predict(self, X: np.ndarray | Tensor, include_noise: bool = False) -> tuple[Tensor, Tensor]:

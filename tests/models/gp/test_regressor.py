@@ -70,6 +70,8 @@ def test_posterior_in_original_units_with_standardisation() -> None:
     mean, var = gp.predict(Xs)
     np.testing.assert_allclose(mean[:, 0].numpy(), my + sy * ref_mean, rtol=1e-9)
     np.testing.assert_allclose(var[:, 0].numpy(), sy**2 * ref_var, rtol=1e-7, atol=1e-9)
+    # the mean-only path (no L^-1) gives the same closed-form mean
+    np.testing.assert_allclose(gp.predict_mean(Xs)[:, 0].numpy(), my + sy * ref_mean, rtol=1e-9)
     np.testing.assert_allclose(gp.noise_variance.numpy(), [noise * sy**2], rtol=1e-10)
     # change of variables: log p(y) = log p(y_std) - N log s_y
     np.testing.assert_allclose(

@@ -1,0 +1,101 @@
+"""Smoke test of the Volterra benchmark script in a tiny configuration."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+import torch
+
+from mcpilco.models.volterra import lag_matrix, spinelli_system, wiener_system
+from mcpilco.scripts import bench_volterra as bench
+
+
+@pytest.fixture(autouse=True)
+def _one_torch_thread():
+    """GP fits here are tiny: one thread avoids oversubscribing the 2 shared cores."""
+    previous = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(previous)
+
+
+def test_tiny_benchmark_writes_json_pngs_and_table(tmp_path):
+    out = tmp_path / "res"
+    rc = bench.main(
+        [
+            "--runs", "1",
+            "--orders", "2",
+            "--snrs", "20",
+            "--n-train", "40",
+            "--n-test", "30",
+            "--adam-iters", "2",
+            "--lbfgs-iters", "0",
+            "--out-dir", str(out),
+            "--no-progress",
+        ]
+    )  # fmt: skip
+    assert rc == 0
+    for name in ("volterra.json", "volterra.md", "volterra_exp1.png", "volterra_exp2.png"):
+        assert (out / name).stat().st_size > 0, name
+    data = json.loads((out / "volterra.json").read_text())
+    assert data["meta"]["runs_exp1"] == 1 and data["meta"]["runs_exp2"] == 1
+    fits1 = data["fits"]["exp1"]
+    assert set(fits1) == {"setup1", "setup2"}
+    assert set(fits1["setup1"]) == set(bench.EXP1["kinds"])
+    fits2 = data["fits"]["exp2"]
+    assert set(fits2) == {"r2_snr20"}
+    assert set(fits2["r2_snr20"]) == set(bench.EXP2["kinds"])
+    for run in data["runs"]:
+        assert run["error"] == {}, run["error"]
+        assert all(np.isfinite(v) for v in run["fit"].values())
+    table = (out / "volterra.md").read_text()
+    assert "| setup2 | MPK | 1 |" in table
+    assert "| 2 | 20 | MPK | 1 |" in table
+
+    # --resume reuses the logged runs (nothing recomputed: same Fits, no new log lines)
+    n_lines = len((out / "volterra_runs.jsonl").read_text().splitlines())
+    again = bench.run_benchmark(
+        runs=1,
+        out_dir=out,
+        progress=False,
+        resume=True,
+        exp1_overrides={"n_train": 40, "n_test": 30, "adam_iters": 2, "lbfgs_iters": 0},
+        exp2_overrides={"n_train": 40, "n_test": 30, "adam_iters": 2, "lbfgs_iters": 0,
+                        "orders": [2], "snrs_db": [20.0]},
+    )  # fmt: skip
+    assert again["summary"] == data["summary"]
+    assert len((out / "volterra_runs.jsonl").read_text().splitlines()) == n_lines
+
+
+def test_data_generation_is_reproducible_and_consistent():
+    a = bench.exp1_data(3, 1.0, 4.0, 50, 40, 4.0, config_index=1)
+    b = bench.exp1_data(3, 1.0, 4.0, 50, 40, 4.0, config_index=1)
+    for key in a:
+        np.testing.assert_array_equal(a[key], b[key])
+    # noiseless test output is the system (6.36) applied to the test input; train std as asked
+    np.testing.assert_allclose(a["z_test"], spinelli_system(a["u_test"]))
+    assert a["u_test"].std() == pytest.approx(4.0, rel=0.3)
+    # the noise is a separate stream: not a function of the input (residual of the exact
+    # degree-3 least-squares fit keeps the noise variance 16)
+    e = a["y_train"] - spinelli_system(a["u_train"])
+    assert abs(np.corrcoef(e, a["u_train"])[0, 1]) < 0.5
+    big = bench.exp1_data(0, 1.0, 4.0, 400, 10, 4.0, config_index=0)
+    e = big["y_train"] - spinelli_system(big["u_train"])
+    assert np.abs(e - 4.0 * big["u_train"]).max() > 1.0
+    assert abs(np.corrcoef(e, big["u_train"])[0, 1]) < 0.2
+    # SNR definition: 10 log10(var(z_train) / sigma_n^2)
+    d = bench.exp2_data(0, 3, 20.0, 300, 50, 1.0, config_index=0)
+    z_train = wiener_system(d["u_train"], 3)
+    assert 10 * np.log10(z_train.var() / d["noise_std"] ** 2) == pytest.approx(20.0)
+    np.testing.assert_allclose(d["z_test"], wiener_system(d["u_test"], 3))
+    assert lag_matrix(d["u_train"], 70).shape == (300, 71)
+
+
+def test_quick_mode_and_argument_validation(tmp_path):
+    with pytest.raises(ValueError, match="experiments"):
+        bench.run_benchmark(experiments=(3,), out_dir=tmp_path, progress=False)
+    with pytest.raises(ValueError, match="runs"):
+        bench.run_benchmark(runs=0, experiments=(1,), out_dir=tmp_path, progress=False)
+    assert bench.QUICK["experiments"] == (1,)
