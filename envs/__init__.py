@@ -28,3 +28,8 @@ gymnasium.register(
     entry_point="mcpilco.envs.arm_env:SCARAEnv",
     max_episode_steps=1250,
 )
+gymnasium.register(
+    id="mcpilco/MarkerCamera-v0",
+    entry_point="mcpilco.envs.marker_camera:MarkerCameraEnv",
+    max_episode_steps=100,
+)

@@ -1,0 +1,483 @@
+"""A fixed camera observing fiducial markers on a robot arm (thesis chapter 2 setup).
+
+Gymnasium environment ``mcpilco/MarkerCamera-v0``; the arm comes from the DH-table builder
+(:mod:`mcpilco.envs.arm_builder`), one MuJoCo site per marker and a camera in the world.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import gymnasium as gym
+import mujoco
+import numpy as np
+from gymnasium import spaces
+from numpy.typing import ArrayLike, NDArray
+
+from mcpilco.envs.arm_builder import ArmSpec, build_arm_spec
+from mcpilco.envs.cartpole_task import validate_action
+
+__all__ = ["MarkerCameraEnv", "NOISE_DEFAULTS", "camera_rotation", "matrix_to_ypr", "ypr_to_matrix"]
+
+FloatArray = NDArray[np.float64]
+
+NOISE_DEFAULTS: dict[str, float] = dict(
+    position_noise=0.002,
+    angle_noise=0.007,
+    noise_reference_distance=2.0,
+    incidence_gain=1.0,
+    outlier_prob=0.0,
+    outlier_position=0.1,
+    encoder_noise=1e-4,
+    time_offset=0.005,
+)
+"""Measurement-noise defaults (see the table in :class:`MarkerCameraEnv`)."""
+
+
+def ypr_to_matrix(o: ArrayLike) -> FloatArray:
+    """``Rz(gamma) Ry(beta) Rx(alpha)`` of ``o = [gamma, beta, alpha]`` ``(..., 3)``."""
+    o = np.asarray(o, dtype=np.float64)
+    cg, cb, ca = np.cos(o[..., 0]), np.cos(o[..., 1]), np.cos(o[..., 2])
+    sg, sb, sa = np.sin(o[..., 0]), np.sin(o[..., 1]), np.sin(o[..., 2])
+    R = np.stack(
+        [
+            cg * cb, cg * sb * sa - sg * ca, cg * sb * ca + sg * sa,
+            sg * cb, sg * sb * sa + cg * ca, sg * sb * ca - cg * sa,
+            -sb, cb * sa, cb * ca,
+        ],
+        axis=-1,
+    )  # fmt: skip
+    return R.reshape(*o.shape[:-1], 3, 3)
+
+
+def matrix_to_ypr(R: ArrayLike) -> FloatArray:
+    """``[gamma, beta, alpha]`` with ``R = Rz(gamma) Ry(beta) Rx(alpha)`` (thesis eq. 2.20)."""
+    R = np.asarray(R, dtype=np.float64)
+    return np.stack(
+        [
+            np.arctan2(R[..., 1, 0], R[..., 0, 0]),
+            np.arctan2(-R[..., 2, 0], np.hypot(R[..., 2, 1], R[..., 2, 2])),
+            np.arctan2(R[..., 2, 1], R[..., 2, 2]),
+        ],
+        axis=-1,
+    )
+
+
+def camera_rotation(position: ArrayLike, look_at: ArrayLike) -> FloatArray:
+    """World rotation of an OpenCV-style camera frame (z optical axis, x right, y down)."""
+    z = np.asarray(look_at, dtype=np.float64) - np.asarray(position, dtype=np.float64)
+    z /= np.linalg.norm(z)
+    x = np.cross(z, [0.0, 0.0, 1.0])
+    if np.linalg.norm(x) < 1e-9:
+        raise ValueError("the camera must not look straight up or down")
+    x /= np.linalg.norm(x)
+    return np.column_stack([x, np.cross(z, x), z])
+
+
+def _random_rotations(rng: np.random.Generator, n: int) -> FloatArray:
+    """``n`` uniformly distributed rotation matrices (normalised Gaussian quaternions)."""
+    quats = rng.standard_normal((n, 4))
+    quats /= np.linalg.norm(quats, axis=1, keepdims=True)
+    out = np.empty((n, 9))
+    for i, qt in enumerate(quats):
+        mujoco.mju_quat2Mat(out[i], qt)
+    return out.reshape(n, 3, 3)
+
+
+def _small_rotations(omega: FloatArray) -> FloatArray:
+    """Rotation matrices ``exp([omega]_x)`` (Rodrigues) for rotation vectors ``(n, 3)``."""
+    out = np.empty((omega.shape[0], 9))
+    for i, w in enumerate(omega):
+        angle = float(np.linalg.norm(w))
+        qt = np.array([1.0, 0.0, 0.0, 0.0])
+        if angle > 0:
+            mujoco.mju_axisAngle2Quat(qt, w / angle, angle)
+        mujoco.mju_quat2Mat(out[i], qt)
+    return out.reshape(-1, 3, 3)
+
+
+class MarkerCameraEnv(gym.Env):
+    """Reach a target pose with an arm whose structure is only seen through marker poses.
+
+    ## Description
+    A fixed camera (eye-to-hand; thesis section 2.2) observes a serial arm built from a DH
+    table (default: the UR10 of :func:`mcpilco.envs.arms.ur10`; ``arm="random"`` gives
+    :func:`mcpilco.envs.arms.random_arm` with revolute and prismatic joints, seeded by
+    ``arm_seed``). One fiducial marker is rigidly attached to every link, the fixed base
+    included (``n + 1`` markers for ``n`` joints; MuJoCo sites ``marker0..markern``, marker
+    ``j`` on body ``link{j}``, marker 0 on the world). Marker placements are unknown: at
+    every reset each marker gets a random position (``U(-marker_offset, marker_offset)^3``
+    plus a random point along the link's ``a`` segment) and a uniformly random orientation.
+    Marker identities and the joint order are shuffled by a random permutation per episode,
+    so the kinematic structure is unknown to the agent (``info`` gives the permutations for
+    evaluation only). The camera frame is OpenCV-like (``z`` optical axis, ``x`` right,
+    ``y`` down), placed at ``camera_position`` and looking at ``camera_look_at`` (default:
+    2 m in front of the robot, as in the thesis). Poses use yaw-pitch-roll
+    ``R = Rz(gamma) Ry(beta) Rx(alpha)``.
+
+    ## Action Space
+    ``Box(-1, 1, (n,), float32)``: joint position increments in the *shuffled* joint order
+    of the observation; observed joint ``s`` (true joint ``joint_permutation[s]``) moves by
+    ``action[s] * max_increment`` (rad; ``max_increment_prismatic`` m for ``P`` joints).
+    The low-level controller is ideal: the reference is clipped to the joint range and the
+    joint positions are set to it (``qpos`` directly, kinematics only, no dynamics).
+
+    ## Observation Space
+    ``Box(-inf, inf, (6 (n + 1) + n + 6,), float64)``:
+
+    | Num                     | Observation                                   | Unit      |
+    |-------------------------|-----------------------------------------------|-----------|
+    | 6s .. 6s+2              | position ``x, y, z`` of observed marker ``s`` | m         |
+    | 6s+3 .. 6s+5            | ``gamma, beta, alpha`` of observed marker ``s``| rad      |
+    | 6(n+1) .. 6(n+1)+n-1    | measured position of observed joint ``s``     | rad or m  |
+    | 6(n+1)+n .. end         | target pose ``[x, y, z, gamma, beta, alpha]``  | m, rad   |
+
+    (``s = 0..n`` for markers; all poses in the camera frame.)
+
+    ## Measurement noise (defaults in :data:`NOISE_DEFAULTS`)
+
+    | argument                     | default  | meaning                                     |
+    |------------------------------|----------|---------------------------------------------|
+    | ``position_noise``           | 0.002 m  | std per coordinate at ``d0``, face-on        |
+    | ``angle_noise``              | 0.007 rad| std of the rotation-vector error, same       |
+    | ``noise_reference_distance`` | 2.0 m    | ``d0``                                      |
+    | ``incidence_gain``           | 1.0      | ``kappa``: both stds x ``f`` (below)         |
+    | ``outlier_prob``             | 0.0      | probability that a marker pose is an outlier |
+    | ``outlier_position``         | 0.1 m    | outlier position error std (and a random     |
+    |                              |          | rotation of 0.3..pi rad)                    |
+    | ``encoder_noise``            | 1e-4     | encoder std (rad; a tenth of it in m, ``P``) |
+    | ``time_offset``              | 0.005 s  | the camera sees the arm this much earlier    |
+    |                              |          | than the encoders (linear interpolation     |
+    |                              |          | within the last step, ``dt = 0.1`` s)       |
+
+    ``f = (d / d0)^2 (1 + kappa (1 - |cos theta|))``, with
+    ``theta`` the angle between the marker normal (its ``z`` axis) and the optical axis,
+    ``d`` the camera-marker distance: at 2 m face-on the noise is 2 mm / 0.01 rad (AprilTag-
+    like, thesis section 2.4.2), growing to 4 mm / 0.014 rad at grazing incidence and as
+    ``d^2`` with the distance (about 0.01 rad per axis on average). Noise is
+    drawn from the env's ``np_random`` (deterministic under ``reset(seed=...)``).
+
+    ## Rewards
+    ``reward = -cost``, ``cost = ||l_ee - l*|| + orientation_weight * angle(R_ee^T R*)``
+    [m]: the distance between the (true, noise-free) end-effector marker pose and the target
+    pose, with the geodesic angle weighted by ``orientation_weight`` = 0.1 m/rad.
+
+    ## Starting State
+    At reset: new marker placements and permutations; joint positions and the target's
+    joint configuration drawn uniformly in ``[-start_range, start_range]`` (clipped to the
+    joint ranges; prismatic joints uniformly in their range); the target pose is the
+    end-effector marker pose at the target configuration (always reachable).
+
+    ## Episode End
+    No termination; ``gym.make`` truncates after 100 steps.
+
+    ## Info
+    ``cost``; ``position_error`` [m]; ``orientation_error`` [rad]; ``marker_permutation``
+    (observed marker slot ``s`` shows chain marker ``marker_permutation[s]``, 0 = base);
+    ``joint_permutation`` (observed joint ``s`` is chain joint ``joint_permutation[s]``);
+    ``ee_slot`` (the observed slot of the end-effector marker); ``q`` (true joint
+    positions, chain order); ``marker_poses`` (true poses ``(n + 1, 6)``, chain order);
+    ``target_q`` (chain order); ``t`` [s].
+
+    ## Arguments
+    ``arm`` (``"ur10"``, ``"scara"``, ``"random"`` or an :class:`ArmSpec`); ``n_joints``,
+    ``joint_types``, ``p_prismatic``, ``arm_seed`` (random arms); ``camera_position``,
+    ``camera_look_at``; ``marker_offset``; ``max_increment``, ``max_increment_prismatic``;
+    ``start_range``; ``dt``; ``orientation_weight``; the noise arguments above;
+    ``shuffle`` (False keeps chain order); ``render_mode`` (``"rgb_array"``, offscreen).
+
+    ## Version History
+    * v0: initial version.
+    """
+
+    metadata = {"render_modes": ["rgb_array"], "render_fps": 10}
+
+    def __init__(
+        self,
+        arm: str | ArmSpec = "ur10",
+        n_joints: int = 6,
+        joint_types: str | None = None,
+        p_prismatic: float = 0.3,
+        arm_seed: int = 0,
+        camera_position: ArrayLike = (2.0, 0.0, 0.8),
+        camera_look_at: ArrayLike = (0.0, 0.0, 0.4),
+        marker_offset: float = 0.08,
+        max_increment: float = 0.05,
+        max_increment_prismatic: float = 0.01,
+        start_range: float = math.pi,
+        dt: float = 0.1,
+        orientation_weight: float = 0.1,
+        position_noise: float = NOISE_DEFAULTS["position_noise"],
+        angle_noise: float = NOISE_DEFAULTS["angle_noise"],
+        noise_reference_distance: float = NOISE_DEFAULTS["noise_reference_distance"],
+        incidence_gain: float = NOISE_DEFAULTS["incidence_gain"],
+        outlier_prob: float = NOISE_DEFAULTS["outlier_prob"],
+        outlier_position: float = NOISE_DEFAULTS["outlier_position"],
+        encoder_noise: float = NOISE_DEFAULTS["encoder_noise"],
+        time_offset: float = NOISE_DEFAULTS["time_offset"],
+        shuffle: bool = True,
+        render_mode: str | None = None,
+    ) -> None:
+        if render_mode is not None and render_mode not in self.metadata["render_modes"]:
+            raise ValueError(f"render_mode must be one of {self.metadata['render_modes']}")
+        for name, value in dict(
+            position_noise=position_noise, angle_noise=angle_noise, encoder_noise=encoder_noise,
+            time_offset=time_offset, incidence_gain=incidence_gain, marker_offset=marker_offset,
+        ).items():  # fmt: skip
+            if not value >= 0:
+                raise ValueError(f"{name} must be >= 0, got {value}")
+        if not 0.0 <= outlier_prob <= 1.0:
+            raise ValueError(f"outlier_prob must be in [0, 1], got {outlier_prob}")
+        if not (dt > 0 and time_offset <= dt):
+            raise ValueError(f"need dt > 0 and time_offset <= dt, got dt={dt}, {time_offset=}")
+        self.arm = self._make_arm(arm, n_joints, joint_types, p_prismatic, arm_seed)
+        n = self.arm.n_joints
+        self.n_joints, self.n_markers = n, n + 1
+        self.prismatic = np.array([j.type == "P" for j in self.arm.joints])
+        ranges = self.arm.joint_ranges
+        self.q_low, self.q_high = ranges[:, 0], ranges[:, 1]
+        self.max_increment = np.where(self.prismatic, max_increment_prismatic, max_increment)
+        self.start_range = float(start_range)
+        self.dt, self.time_offset = float(dt), float(time_offset)
+        self.orientation_weight = float(orientation_weight)
+        self.marker_offset = float(marker_offset)
+        self.position_noise, self.angle_noise = float(position_noise), float(angle_noise)
+        self.noise_reference_distance = float(noise_reference_distance)
+        self.incidence_gain = float(incidence_gain)
+        self.outlier_prob, self.outlier_position = float(outlier_prob), float(outlier_position)
+        self.encoder_noise = np.where(self.prismatic, 0.1, 1.0) * float(encoder_noise)
+        self.shuffle = bool(shuffle)
+        self.render_mode = render_mode
+        self._renderer = None
+
+        self.camera_position = np.asarray(camera_position, dtype=np.float64)
+        self.camera_R = camera_rotation(self.camera_position, camera_look_at)  # world <- camera
+        self.model = self._build_model()
+        self.data = mujoco.MjData(self.model)
+        self._site = np.array([self.model.site(f"marker{j}").id for j in range(n + 1)])
+        self._a = np.array([j.a for j in self.arm.joints])
+
+        obs_dim = 6 * (n + 1) + n + 6
+        self.action_space = spaces.Box(-1.0, 1.0, shape=(n,), dtype=np.float32)
+        self.observation_space = spaces.Box(-np.inf, np.inf, shape=(obs_dim,), dtype=np.float64)
+        self.marker_permutation = np.arange(n + 1)
+        self.joint_permutation = np.arange(n)
+        self.q = np.zeros(n)
+        self._q_prev = np.zeros(n)
+        self.target_q = np.zeros(n)
+        self.target_pose = np.zeros(6)
+        self._t = 0.0
+
+    # ---------------------------------------------------------------- construction
+    @staticmethod
+    def _make_arm(
+        arm: str | ArmSpec, n_joints: int, joint_types: str | None, p_prismatic: float, seed: int
+    ) -> ArmSpec:
+        from mcpilco.envs import arms
+
+        if isinstance(arm, ArmSpec):
+            return arm
+        if arm == "random":
+            if joint_types is not None:
+                n_joints = len(joint_types)
+            return arms.random_arm(n_joints, seed=seed, joint_types=joint_types,
+                                   p_prismatic=p_prismatic)  # fmt: skip
+        if arm in arms.ARMS:
+            return arms.ARMS[arm]()
+        raise ValueError(
+            f"arm must be 'random', one of {sorted(arms.ARMS)} or an ArmSpec, got {arm!r}"
+        )
+
+    def _build_model(self) -> mujoco.MjModel:
+        spec = build_arm_spec(self.arm, friction=False, armature=False, floor=True)
+        size = [0.03, 0.03, 0.002]
+        spec.worldbody.add_site(name="marker0", type=mujoco.mjtGeom.mjGEOM_BOX, size=size,
+                                rgba=[0.1, 0.1, 0.1, 1.0])  # fmt: skip
+        for j in range(1, self.arm.n_joints + 1):
+            spec.body(f"link{j}").add_site(
+                name=f"marker{j}", type=mujoco.mjtGeom.mjGEOM_BOX, size=size,
+                rgba=[0.1, 0.1, 0.1, 1.0],
+            )  # fmt: skip
+        # MuJoCo cameras look along their -z with y up: columns [x, -y, -z] of the CV frame
+        R_mj = self.camera_R * np.array([1.0, -1.0, -1.0])
+        quat = np.zeros(4)
+        mujoco.mju_mat2Quat(quat, R_mj.ravel())
+        spec.worldbody.add_camera(name="camera", pos=self.camera_position.tolist(),
+                                  quat=quat.tolist(), fovy=60.0)  # fmt: skip
+        return spec.compile()
+
+    # ---------------------------------------------------------------- kinematics
+    def _set_q(self, q: FloatArray) -> None:
+        self.data.qpos[:] = q
+        mujoco.mj_kinematics(self.model, self.data)
+
+    def marker_transforms(self, q: ArrayLike) -> tuple[FloatArray, FloatArray]:
+        """True (noise-free) marker poses at ``q`` (chain order) in the camera frame.
+
+        Returns ``(l, R)``: positions ``(n + 1, 3)`` and rotations ``(n + 1, 3, 3)``. The
+        simulator state is restored to the current joint positions afterwards.
+        """
+        q = np.asarray(q, dtype=np.float64)
+        if q.shape != (self.n_joints,):
+            raise ValueError(f"q must have shape ({self.n_joints},), got {q.shape}")
+        self._set_q(q)
+        xpos = self.data.site_xpos[self._site]
+        xmat = self.data.site_xmat[self._site].reshape(-1, 3, 3)
+        l_c = (xpos - self.camera_position) @ self.camera_R
+        R_c = np.einsum("ji,njk->nik", self.camera_R, xmat)
+        self._set_q(self.q)
+        return l_c, R_c
+
+    def marker_poses(self, q: ArrayLike) -> FloatArray:
+        """True marker poses ``(n + 1, 6)`` ``[x, y, z, gamma, beta, alpha]`` at ``q``."""
+        l_c, R_c = self.marker_transforms(q)
+        return np.concatenate([l_c, matrix_to_ypr(R_c)], axis=1)
+
+    def marker_placements(self) -> tuple[FloatArray, FloatArray]:
+        """Marker poses in their body frames: ``pos`` ``(n+1, 3)``, ``R`` ``(n+1, 3, 3)``."""
+        pos = self.model.site_pos[self._site].copy()
+        R = np.empty((self.n_markers, 9))
+        for i, s in enumerate(self._site):
+            mujoco.mju_quat2Mat(R[i], self.model.site_quat[s])
+        return pos, R.reshape(-1, 3, 3)
+
+    # ---------------------------------------------------------------- measurement
+    def _noise_scale(self, l_c: FloatArray, R_c: FloatArray) -> FloatArray:
+        d = np.linalg.norm(l_c, axis=1)
+        cos_theta = np.abs(R_c[:, 2, 2])  # marker normal . optical axis
+        return (d / self.noise_reference_distance) ** 2 * (
+            1.0 + self.incidence_gain * (1.0 - cos_theta)
+        )
+
+    def _measure(self) -> tuple[FloatArray, FloatArray]:
+        """Noisy marker poses (chain order) and encoder readings (chain order)."""
+        rng = self.np_random
+        lag = self.time_offset / self.dt
+        q_cam = self.q - lag * (self.q - self._q_prev)
+        l_c, R_c = self.marker_transforms(q_cam)
+        scale = self._noise_scale(l_c, R_c)
+        m = self.n_markers
+        l_meas = l_c + rng.standard_normal((m, 3)) * (self.position_noise * scale)[:, None]
+        omega = rng.standard_normal((m, 3)) * (self.angle_noise * scale)[:, None]
+        R_meas = _small_rotations(omega) @ R_c
+        outlier = rng.random(m) < self.outlier_prob
+        if outlier.any():
+            k = int(outlier.sum())
+            l_meas[outlier] += rng.standard_normal((k, 3)) * self.outlier_position
+            axis = rng.standard_normal((k, 3))
+            axis /= np.linalg.norm(axis, axis=1, keepdims=True)
+            R_meas[outlier] = (
+                _small_rotations(axis * rng.uniform(0.3, np.pi, (k, 1))) @ R_meas[outlier]
+            )
+        poses = np.concatenate([l_meas, matrix_to_ypr(R_meas)], axis=1)
+        q_meas = self.q + rng.standard_normal(self.n_joints) * self.encoder_noise
+        return poses, q_meas
+
+    def _get_obs(self) -> FloatArray:
+        poses, q_meas = self._measure()
+        return np.concatenate(
+            [
+                poses[self.marker_permutation].ravel(),
+                q_meas[self.joint_permutation],
+                self.target_pose,
+            ]
+        )
+
+    # ---------------------------------------------------------------- task
+    def _pose_errors(self) -> tuple[float, float]:
+        l_c, R_c = self.marker_transforms(self.q)
+        R_t = ypr_to_matrix(self.target_pose[3:])
+        d_pos = float(np.linalg.norm(l_c[-1] - self.target_pose[:3]))
+        cos = np.clip((np.trace(R_c[-1].T @ R_t) - 1.0) / 2.0, -1.0, 1.0)
+        return d_pos, float(np.arccos(cos))
+
+    def _info(self) -> dict[str, Any]:
+        d_pos, d_ang = self._pose_errors()
+        cost = d_pos + self.orientation_weight * d_ang
+        return dict(
+            cost=cost,
+            position_error=d_pos,
+            orientation_error=d_ang,
+            marker_permutation=self.marker_permutation.copy(),
+            joint_permutation=self.joint_permutation.copy(),
+            ee_slot=int(np.nonzero(self.marker_permutation == self.n_joints)[0][0]),
+            q=self.q.copy(),
+            marker_poses=self.marker_poses(self.q),
+            target_q=self.target_q.copy(),
+            t=self._t,
+        )
+
+    def _random_q(self) -> FloatArray:
+        rng = self.np_random
+        lo = np.where(self.prismatic, self.q_low, np.maximum(self.q_low, -self.start_range))
+        hi = np.where(self.prismatic, self.q_high, np.minimum(self.q_high, self.start_range))
+        return rng.uniform(lo, hi)
+
+    def _place_markers(self) -> None:
+        rng = self.np_random
+        n = self.n_joints
+        R = _random_rotations(rng, n + 1)
+        along = np.concatenate([[0.0], rng.uniform(0.0, 1.0, n) * self._a])
+        pos = rng.uniform(-self.marker_offset, self.marker_offset, (n + 1, 3))
+        pos[:, 0] += along
+        pos[0] += np.asarray(self.arm.base_pos)
+        for j, s in enumerate(self._site):
+            quat = np.zeros(4)
+            mujoco.mju_mat2Quat(quat, R[j].ravel())
+            self.model.site_pos[s] = pos[j]
+            self.model.site_quat[s] = quat
+            self.model.site_sameframe[s] = 0  # the compiler may have fused it with the body
+
+    def reset(
+        self, *, seed: int | None = None, options: dict[str, Any] | None = None
+    ) -> tuple[FloatArray, dict[str, Any]]:
+        """New marker placements, permutations, start and target (see the class docstring).
+
+        ``options={"q": q0}`` sets the start configuration (chain order).
+        """
+        super().reset(seed=seed)
+        rng = self.np_random
+        self._place_markers()
+        if self.shuffle:
+            self.marker_permutation = rng.permutation(self.n_markers)
+            self.joint_permutation = rng.permutation(self.n_joints)
+        self.target_q = self._random_q()
+        self.q = self._random_q()
+        if options and "q" in options:
+            q0 = np.asarray(options["q"], dtype=np.float64)
+            if q0.shape != (self.n_joints,):
+                raise ValueError(f"options['q'] must have shape ({self.n_joints},)")
+            self.q = np.clip(q0, self.q_low, self.q_high)
+        self._q_prev = self.q.copy()
+        self.target_pose = self.marker_poses(self.target_q)[-1]
+        self._set_q(self.q)
+        self._t = 0.0
+        return self._get_obs(), self._info()
+
+    def step(self, action: ArrayLike) -> tuple[FloatArray, float, bool, bool, dict[str, Any]]:
+        a = np.clip(validate_action(action, self.n_joints), -1.0, 1.0)
+        delta = np.empty(self.n_joints)
+        delta[self.joint_permutation] = a  # observed slot s drives chain joint perm[s]
+        self._q_prev = self.q.copy()
+        self.q = np.clip(self.q + delta * self.max_increment, self.q_low, self.q_high)
+        self._set_q(self.q)
+        self._t += self.dt
+        obs = self._get_obs()
+        info = self._info()
+        return obs, -float(info["cost"]), False, False, info
+
+    # ---------------------------------------------------------------- rendering
+    def render(self) -> NDArray[np.uint8] | None:
+        """``rgb_array`` image from the marker camera (offscreen; needs an OpenGL backend)."""
+        if self.render_mode != "rgb_array":
+            return None
+        if self._renderer is None:
+            self._renderer = mujoco.Renderer(self.model, 480, 640)
+        self._renderer.update_scene(self.data, camera="camera")
+        return self._renderer.render()
+
+    def close(self) -> None:
+        if self._renderer is not None:
+            self._renderer.close()
+            self._renderer = None

@@ -1,0 +1,382 @@
+"""Forward kinematics GP with polynomial kernels and a gradient kinematic controller (thesis 2.5).
+
+Glossary (thesis section 2.5; ``N_r`` revolute and ``N_p`` prismatic joints, in chain order)
+-----------------------------------------------------------------------------------------
+``x = [q_c, q_s, q_p]`` (eq. 2.21)
+    ``q_c = cos q_r``, ``q_s = sin q_r`` over the revolute joints, ``q_p`` the prismatic
+    joints: :func:`fk_features`.
+``k_R(x, x') = prod_b [1, q_cb, q_sb] Sigma_Rb [1, q_cb', q_sb']^T`` (eq. 2.22)
+    a product of :class:`~mcpilco.models.kernels.LinearKernel` s, one per revolute joint,
+    acting on the columns ``(b, N_r + b)``; the "1" is the linear kernel's offset
+    ``sigma^2``. Its RKHS holds the polynomials of Prop. 2.5.1 (i): degree <= 1 in each
+    ``(cos q_b, sin q_b)`` pair. Models ``R(1,1), R(2,1), R(3,1), R(3,2), R(3,3)``.
+``k_l(x, x') = k_R(x, x') [1, q_p] Sigma_l [1, q_p']^T`` (eq. 2.23)
+    one more linear kernel on the prismatic columns (Prop. 2.5.1 (ii)). Models ``x, y, z``.
+    Without prismatic joints ``k_l = k_R``; without revolute joints ``k_R`` is the linear
+    kernel on ``q_p`` (a superset of the constant rotation).
+orientation (eq. 2.20)
+    ``gamma = atan2(R21, R11)``, ``beta = atan2(-R31, sqrt(R32^2 + R33^2))``,
+    ``alpha = atan2(R32, R33)`` from the five GP means (``R = Rz(gamma) Ry(beta) Rx(alpha)``).
+controller (eq. 2.24)
+    ``q_des(t + delta) = q_des(t) - nu grad_q e_p``, ``e_p = ||p* - p_hat(q)||`` with
+    ``p = [l, w_o o]``: the pose error stacks the position error [m] and the 2 pi-wrapped
+    yaw-pitch-roll error [rad] weighted by ``w_o`` [m/rad] (default 0.1: 0.1 rad of
+    orientation error costs as much as 1 cm). The gradient is autograd through the GPs'
+    cached predictors.
+
+Each output is one independent GP (``mcpilco.models.gp.GPRegressor``, hyperparameters by
+marginal likelihood); only the joint types are known, no kinematic parameter.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+from numpy.typing import ArrayLike, NDArray
+from torch import Tensor, nn
+
+from mcpilco.models.gp import GPRegressor, KernelFactory
+from mcpilco.models.kernels import LinearKernel
+from mcpilco.models.kinematics.rotations import elements_to_ypr_torch, ypr_to_matrix
+
+__all__ = [
+    "ControllerResult",
+    "FKPredictor",
+    "ForwardKinematicsGP",
+    "fk_features",
+    "gradient_kinematic_controller",
+    "pose_error",
+    "position_kernel_factory",
+    "rotation_kernel_factory",
+    "rotation_elements",
+]
+
+FloatArray = NDArray[np.float64]
+ROTATION_OUTPUTS = ("R11", "R21", "R31", "R32", "R33")
+POSITION_OUTPUTS = ("x", "y", "z")
+
+
+def _check_types(joint_types: str) -> tuple[list[int], list[int]]:
+    if not isinstance(joint_types, str) or not joint_types or set(joint_types) - {"R", "P"}:
+        raise ValueError(f"joint_types must be a non-empty string of 'R'/'P', got {joint_types!r}")
+    rev = [i for i, c in enumerate(joint_types) if c == "R"]
+    pri = [i for i, c in enumerate(joint_types) if c == "P"]
+    return rev, pri
+
+
+def fk_features(q: ArrayLike | Tensor, joint_types: str) -> Tensor:
+    """``x = [cos q_r, sin q_r, q_p]`` of eq. 2.21; ``q`` ``(..., n)`` -> ``(..., 2 N_r + N_p)``.
+
+    Differentiable (torch in, torch out); numpy input gives a float64 tensor.
+    """
+    rev, pri = _check_types(joint_types)
+    q = q if isinstance(q, Tensor) else torch.as_tensor(np.asarray(q), dtype=torch.float64)
+    if q.shape[-1] != len(joint_types):
+        raise ValueError(
+            f"q must have {len(joint_types)} columns (joint_types {joint_types!r}), got "
+            f"{tuple(q.shape)}"
+        )
+    qr, qp = q[..., rev], q[..., pri]
+    return torch.cat([torch.cos(qr), torch.sin(qr), qp], dim=-1)
+
+
+def rotation_kernel_factory(joint_types: str) -> KernelFactory:
+    """Factory of ``k_R`` (eq. 2.22) on the features of :func:`fk_features`."""
+    rev, pri = _check_types(joint_types)
+    n_r, n_p = len(rev), len(pri)
+
+    def factory(batch_shape: torch.Size) -> LinearKernel:
+        if n_r == 0:
+            return LinearKernel(n_p, batch_shape=batch_shape, active_dims=tuple(range(n_p)))
+        kernel = None
+        for b in range(n_r):
+            k = LinearKernel(2, batch_shape=batch_shape, active_dims=(b, n_r + b))
+            kernel = k if kernel is None else kernel * k
+        return kernel
+
+    return factory
+
+
+def position_kernel_factory(joint_types: str) -> KernelFactory:
+    """Factory of ``k_l = k_R [1, q_p]^T Sigma_l [1, q_p]`` (eq. 2.23)."""
+    rev, pri = _check_types(joint_types)
+    n_r, n_p = len(rev), len(pri)
+    k_r = rotation_kernel_factory(joint_types)
+
+    def factory(batch_shape: torch.Size):
+        kernel = k_r(batch_shape)
+        if n_p == 0 or n_r == 0:
+            return kernel
+        cols = tuple(range(2 * n_r, 2 * n_r + n_p))
+        return kernel * LinearKernel(n_p, batch_shape=batch_shape, active_dims=cols)
+
+    return factory
+
+
+def rotation_elements(poses: ArrayLike) -> FloatArray:
+    """``[R11, R21, R31, R32, R33]`` ``(N, 5)`` of poses ``[x, y, z, gamma, beta, alpha]``."""
+    R = ypr_to_matrix(np.asarray(poses, dtype=np.float64)[..., 3:])
+    return np.stack([R[..., 0, 0], R[..., 1, 0], R[..., 2, 0], R[..., 2, 1], R[..., 2, 2]], -1)
+
+
+class _MaskedOutputs(nn.Module):
+    """GP outputs scattered among constant ones: ``(..., d) -> (..., m)`` means.
+
+    Outputs that are constant in the training data (e.g. ``R31`` of a planar arm whose plane
+    faces the camera) cannot be learned by a GP (:class:`GPRegressor` rejects them): they are
+    stored as constants and predicted as such.
+    """
+
+    def __init__(self, predictor: nn.Module | None, varying: Tensor, constants: Tensor) -> None:
+        super().__init__()
+        self.predictor = predictor
+        self.register_buffer("varying", varying)
+        self.register_buffer("constants", constants)
+
+    def forward(self, x: Tensor) -> Tensor:
+        out = self.constants.to(x.dtype).expand(*x.shape[:-1], -1)
+        if self.predictor is None:
+            return out
+        mean, _ = self.predictor(x)
+        out = out.clone()
+        out[..., self.varying] = mean.to(x.dtype)
+        return out
+
+
+def _split_constant(Y: FloatArray, tol: float = 1e-10) -> tuple[NDArray[np.bool_], FloatArray]:
+    """Mask of the varying columns of ``Y`` and the column means (used for constant ones)."""
+    varying = Y.std(0) > tol * (1.0 + np.abs(Y).max(0))
+    return varying, Y.mean(0)
+
+
+class FKPredictor(nn.Module):
+    """Differentiable ``q -> (l_hat, o_hat)`` from the two GPs' cached predictors.
+
+    Call: ``position, ypr = pred(q)`` with ``q`` ``(..., n)`` -> ``(..., 3)`` each.
+    """
+
+    def __init__(self, joint_types: str, rotation: nn.Module, position: nn.Module) -> None:
+        super().__init__()
+        self.joint_types = joint_types
+        self.rotation = rotation
+        self.position = position
+
+    def forward(self, q: Tensor) -> tuple[Tensor, Tensor]:
+        x = fk_features(q, self.joint_types)
+        return self.position(x), elements_to_ypr_torch(self.rotation(x))
+
+
+class ForwardKinematicsGP:
+    """GP model of the forward kinematics ``q -> p^c_M`` knowing only the joint types (2.5.3).
+
+    Args:
+        joint_types: joint types along the chain, e.g. ``"RRRRRR"`` (``S_Q`` of the structure
+            identification; ``q`` columns must follow the same order, ``S_q``).
+        noise_init: initial noise variance (standardised units).
+        noise_min: lower bound of the noise variance (standardised units).
+        standardize_x: standardise the features (off by default: ``cos q``, ``sin q`` are
+            already in ``[-1, 1]``, and the prior of eq. 2.22 is then the thesis's).
+
+    Fitted attributes: ``rotation_gp_`` (the outputs among ``R11..R33`` that vary in the
+    data, kernel ``k_R``), ``position_gp_`` (those among ``x, y, z``, kernel ``k_l``);
+    ``rotation_varying_`` / ``position_varying_`` masks and ``rotation_constants_`` /
+    ``position_constants_`` (outputs constant in the training data are predicted constant).
+    """
+
+    def __init__(
+        self,
+        joint_types: str,
+        *,
+        noise_init: float = 1e-3,
+        noise_min: float = 1e-8,
+        standardize_x: bool = False,
+    ) -> None:
+        _check_types(joint_types)
+        self.joint_types = joint_types
+        self.standardize_x = standardize_x
+        self.noise_init = noise_init
+        self.noise_min = noise_min
+        self.rotation_gp_: GPRegressor | None = None
+        self.position_gp_: GPRegressor | None = None
+        self._fitted = False
+
+    def _validate(self, q: ArrayLike, poses: ArrayLike | None = None) -> tuple[Tensor, FloatArray]:
+        q = np.asarray(q, dtype=np.float64)
+        if q.ndim != 2 or q.shape[1] != len(self.joint_types):
+            raise ValueError(
+                f"q must have shape (N, {len(self.joint_types)}) for joint_types "
+                f"{self.joint_types!r}, got {q.shape}"
+            )
+        if not np.isfinite(q).all():
+            raise ValueError("q contains NaN or inf; drop those samples before fitting/predicting")
+        if poses is None:
+            return fk_features(q, self.joint_types), np.empty(0)
+        poses = np.asarray(poses, dtype=np.float64)
+        if poses.shape != (q.shape[0], 6):
+            raise ValueError(
+                f"poses must have shape ({q.shape[0]}, 6) with columns [x, y, z, gamma, beta, "
+                f"alpha], got {poses.shape}"
+            )
+        if not np.isfinite(poses).all():
+            raise ValueError("poses contain NaN or inf; drop those samples before fitting")
+        return fk_features(q, self.joint_types), poses
+
+    def fit(
+        self,
+        q: ArrayLike,
+        poses: ArrayLike,
+        *,
+        adam_iters: int = 20,
+        adam_lr: float = 0.05,
+        lbfgs_iters: int = 50,
+        progress: bool = False,
+    ) -> ForwardKinematicsGP:
+        """Fit the 8 GPs by marginal likelihood (a second call warm-starts).
+
+        Args:
+            q: ``(N, n)`` joint positions in chain order.
+            poses: ``(N, 6)`` end-marker poses ``[x, y, z, gamma, beta, alpha]`` (camera).
+        """
+        x, poses = self._validate(q, poses)
+        kw = dict(adam_iters=adam_iters, adam_lr=adam_lr, lbfgs_iters=lbfgs_iters)
+        for name, Y, factory, names in (
+            ("rotation", rotation_elements(poses), rotation_kernel_factory, ROTATION_OUTPUTS),
+            ("position", poses[:, :3], position_kernel_factory, POSITION_OUTPUTS),
+        ):
+            varying, constants = _split_constant(Y)
+            gp = getattr(self, f"{name}_gp_")
+            old = getattr(self, f"{name}_varying_", None)
+            if gp is None or old is None or not np.array_equal(old, varying):
+                gp = None
+                if varying.any():
+                    gp = GPRegressor(
+                        factory(self.joint_types),
+                        output_names=[n for n, v in zip(names, varying, strict=True) if v],
+                        noise_init=self.noise_init,
+                        noise_min=self.noise_min,
+                        standardize_x=self.standardize_x,
+                    )
+            if gp is not None:
+                gp.fit(x, Y[:, varying], progress=progress, **kw)
+            setattr(self, f"{name}_gp_", gp)
+            setattr(self, f"{name}_varying_", varying)
+            setattr(self, f"{name}_constants_", constants)
+        self._fitted = True
+        return self
+
+    def _check_fitted(self) -> None:
+        if not self._fitted:
+            raise RuntimeError("ForwardKinematicsGP is not fitted; call fit(q, poses) first")
+
+    def predict(self, q: ArrayLike) -> FloatArray:
+        """Posterior-mean poses ``(n, 6)`` ``[x, y, z, gamma, beta, alpha]`` (eq. 2.20)."""
+        pred = self.predictor(torch.float64)
+        x, _ = self._validate(q)
+        with torch.no_grad():
+            position, ypr = pred(x.new_tensor(np.asarray(q, dtype=np.float64)))
+        return torch.cat([position, ypr], dim=-1).numpy()
+
+    def _outputs(self, name: str, dtype: torch.dtype) -> _MaskedOutputs:
+        gp = getattr(self, f"{name}_gp_")
+        predictor = None if gp is None else gp.cached_predictor(dtype, validate=False)
+        varying = torch.as_tensor(getattr(self, f"{name}_varying_"))
+        constants = torch.as_tensor(getattr(self, f"{name}_constants_"), dtype=dtype)
+        return _MaskedOutputs(predictor, varying, constants)
+
+    def predictor(self, dtype: torch.dtype = torch.float64) -> FKPredictor:
+        """Differentiable :class:`FKPredictor` over the cached GP predictors."""
+        self._check_fitted()
+        return FKPredictor(
+            self.joint_types, self._outputs("rotation", dtype), self._outputs("position", dtype)
+        )
+
+
+# ----------------------------------------------------------------------------- controller
+
+
+def pose_error(
+    position: Tensor, ypr: Tensor, target: Tensor, orientation_weight: float = 0.1
+) -> Tensor:
+    """``e_p = sqrt(||l* - l||^2 + w_o^2 ||wrap(o* - o)||^2)`` (the norm of eq. 2.24)."""
+    d_l = target[..., :3] - position
+    d_o = torch.remainder(target[..., 3:] - ypr + torch.pi, 2 * torch.pi) - torch.pi
+    sq = d_l.pow(2).sum(-1) + orientation_weight**2 * d_o.pow(2).sum(-1)
+    return torch.sqrt(sq + 1e-24)
+
+
+@dataclass(frozen=True)
+class ControllerResult:
+    """``q_des`` trajectory ``(steps + 1, n)`` and the predicted errors ``e_p`` ``(steps + 1,)``."""
+
+    q: FloatArray
+    predicted_error: FloatArray
+
+    @property
+    def q_final(self) -> FloatArray:
+        return self.q[-1]
+
+
+def gradient_kinematic_controller(
+    predictor: nn.Module,
+    q0: ArrayLike,
+    target_pose: ArrayLike,
+    *,
+    nu: float = 0.5,
+    steps: int = 300,
+    orientation_weight: float = 0.1,
+    backtrack: bool = True,
+    q_limits: Sequence[tuple[float, float]] | ArrayLike | None = None,
+) -> ControllerResult:
+    """Open-loop reference ``q_des`` driving the predicted end pose to ``target_pose`` (eq. 2.24).
+
+    Args:
+        predictor: ``q -> (position, ypr)`` (e.g. :meth:`ForwardKinematicsGP.predictor`).
+        q0: ``(n,)`` initial configuration.
+        target_pose: ``(6,)`` ``[x, y, z, gamma, beta, alpha]``.
+        nu: step size ``nu`` [rad (or m) per unit gradient].
+        steps: number of updates ``delta``.
+        orientation_weight: ``w_o`` [m/rad] of :func:`pose_error`.
+        backtrack: halve the step whenever it would increase the predicted ``e_p`` (and stay
+            put), double it back towards ``nu`` after a successful step (beyond the thesis,
+            which uses a fixed ``nu``; it removes the chattering of a fixed step near the
+            minimum and allows a large ``nu``). ``False`` is plain eq. 2.24.
+        q_limits: ``(n, 2)`` joint limits; the reference is clipped to them.
+    """
+    q = torch.as_tensor(np.asarray(q0, dtype=np.float64)).clone()
+    target = torch.as_tensor(np.asarray(target_pose, dtype=np.float64))
+    if target.shape != (6,):
+        raise ValueError(f"target_pose must have shape (6,), got {tuple(target.shape)}")
+    lo = hi = None
+    if q_limits is not None:
+        lim = torch.as_tensor(np.asarray(q_limits, dtype=np.float64))
+        lo, hi = lim[:, 0], lim[:, 1]
+
+    def error_and_grad(qv: Tensor) -> tuple[float, Tensor]:
+        qv = qv.detach().requires_grad_(True)
+        pos, ypr = predictor(qv)
+        e = pose_error(pos, ypr, target, orientation_weight)
+        (g,) = torch.autograd.grad(e, qv)
+        return float(e.detach()), g
+
+    e, g = error_and_grad(q)
+    qs, errors = [q.numpy().copy()], [e]
+    step = nu
+    for _ in range(steps):
+        q_new = q - step * g
+        if lo is not None:
+            q_new = torch.minimum(torch.maximum(q_new, lo), hi)
+        e_new, g_new = error_and_grad(q_new)
+        if backtrack and e_new > e:
+            step *= 0.5
+            qs.append(q.numpy().copy())
+            errors.append(e)
+            continue
+        q, e, g = q_new, e_new, g_new
+        if backtrack:
+            step = min(2.0 * step, nu)
+        qs.append(q.numpy().copy())
+        errors.append(e)
+    return ControllerResult(q=np.array(qs), predicted_error=np.array(errors))

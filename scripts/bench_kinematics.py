@@ -1,0 +1,637 @@
+r"""Kinematics learning benchmark: structure identification, FK GP, kinematic controller (ch. 2).
+
+Parts (thesis section 2.6):
+
+(a) **Monte Carlo** (2.6.1, Fig. 2.4): ``--robots`` random robots with 6 links (5 joints, 6
+    markers) from :func:`mcpilco.models.kinematics.synthetic.random_chain` (random joint
+    types, DH parameters, marker placements, camera pose); each joint a sum of 10 random
+    sinusoids; ``T = 50`` noiseless samples; all ``15 x 5 = 75`` triplets per robot classified
+    by the three tests (:func:`~mcpilco.models.kinematics.classify_all_triplets`). The data
+    are noiseless, so the thresholds are the exact-feasibility tolerances
+    ``xi_t = xi_o = 1e-6``. Confusion matrices for Prop. 2.3.1, 2.3.2, 2.3.3 and 2.3.2+2.3.3
+    (class 1 = connected through a prismatic, resp. revolute, joint). The iterative
+    algorithm is also run on every robot with shuffled markers and joints.
+(b) **Noise vs samples** (2.6.2, Fig. 2.6): the UR10 of ``mcpilco/MarkerCamera-v0`` with its
+    default AprilTag-like noise follows a trajectory through 25 random waypoints (about
+    ``--samples`` frames); for growing prefixes of it, all 126 triplets are classified with
+    ``xi_t = 0.02`` m, ``xi_o = 0.1`` rad; misclassified triplets and the residual
+    statistics ``f_r1`` (connected) / ``f_r2`` (not connected) of the linear (2.18) and
+    non-linear (2.19) revolute tests are recorded; ``--repeats`` trajectories.
+(c) **FK GP** (2.6.3, Table 2.1): the structure is identified on the whole training
+    trajectory ``D_tr``; the GP with the kernels ``k_R``/``k_l`` (eqs. 2.22-2.23) is trained
+    on ``--fk-train`` (100) random samples of ``D_tr`` and tested on ``D_test`` (the same
+    waypoints in another order). RMSE against the measured (noisy) test poses, as in the
+    thesis, and against the true poses. Baseline: an RBF GP (ARD, on raw ``q``) on the same
+    samples.
+(d) **Controller** (2.6.4, Table 2.2): the GP trained on ``--ctrl-train`` random samples of
+    ``D_tr`` (the thesis uses all of ``D_tr``; a subset keeps the run short); 5 random
+    reachable targets from a fixed start; reference by eq. 2.24 (with backtracking); the env
+    tracks it and the camera measures the reached pose. Online improvement: the frames
+    measured while executing the references are added to the data, the GP is refitted and
+    the targets are tried again (``--online-rounds``).
+
+Outputs (``--out-dir``, default ``results/``): ``kinematics.json``,
+``kinematics_confusion.png``, ``kinematics_noise_vs_samples.png``,
+``kinematics_controller.png`` and ``kinematics.md``.
+
+Examples::
+
+    python -m mcpilco.scripts.bench_kinematics                 # full (~15 min on 2 busy cores)
+    python -m mcpilco.scripts.bench_kinematics --quick         # ~1-2 min smoke run
+    python -m mcpilco.scripts.bench_kinematics --parts a --robots 16
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+import warnings
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+from tqdm.auto import tqdm
+
+from mcpilco.envs.marker_camera import MarkerCameraEnv
+from mcpilco.models.gp import GPRegressor
+from mcpilco.models.kinematics import (
+    classify_all_triplets,
+    identify_structure,
+    random_chain,
+    sum_of_sinusoids,
+)
+from mcpilco.models.kinematics.forward import ForwardKinematicsGP, gradient_kinematic_controller
+from mcpilco.models.kinematics.rotations import matrix_to_ypr, wrap_angle, ypr_to_matrix
+
+PROPS = ("Prop. 2.3.1", "Prop. 2.3.2", "Prop. 2.3.3", "Prop. 2.3.2 + 2.3.3")
+POSE_NAMES = ("x", "y", "z", "gamma", "beta", "alpha")
+ERR_NAMES = (*POSE_NAMES, "geodesic")
+UR10_HOME = np.array([0.0, -np.pi / 2, np.pi / 2, 0.0, np.pi / 2, 0.0])
+"""UR10 configuration at the centre of the sampled region (elbow up, wrist down)."""
+THESIS_TABLE_2_1 = (0.0052, 0.0051, 0.0069, 0.0169, 0.0265, 0.0358)
+QUICK = dict(
+    robots=4, samples=600, sizes=(25, 100, 300, 600), repeats=1, ctrl_train=150, online_rounds=1
+)
+
+
+# ----------------------------------------------------------------------------- (a) Monte Carlo
+
+
+def _confusion(truth: list[bool], pred: list[bool]) -> list[list[int]]:
+    """``[[TP, FP], [FN, TN]]`` (rows: output class 1/2, columns: target class 1/2)."""
+    t, p = np.array(truth), np.array(pred)
+    return [
+        [int((p & t).sum()), int((p & ~t).sum())],
+        [int((~p & t).sum()), int((~p & ~t).sum())],
+    ]
+
+
+def monte_carlo(robots: int, seed: int, progress: bool) -> dict[str, Any]:
+    n_joints, T = 5, 50
+    truth = {k: [] for k in PROPS}
+    pred = {k: [] for k in PROPS}
+    recovered, per_robot = 0, []
+    for i in tqdm(range(robots), desc="(a) Monte Carlo robots", disable=not progress):
+        rng = np.random.default_rng([seed, 0, i])
+        chain = random_chain(n_joints, rng)
+        amp = np.where(np.array(list(chain.joint_types)) == "R", 3 * np.pi, 1.0)
+        q = sum_of_sinusoids(np.linspace(0.0, 10.0, T), n_joints, rng, amplitude=amp)
+        P = chain.marker_poses(q)
+        results = classify_all_triplets(P, q, xi_t=1e-6, xi_o=1e-6, max_nfev=40)
+        errors = 0
+        for r in results:
+            conn = r.marker_b == r.marker_a + 1 and r.joint == r.marker_a
+            is_p = conn and chain.joint_types[r.joint] == "P"
+            is_r = conn and chain.joint_types[r.joint] == "R"
+            truth[PROPS[0]].append(is_p)
+            pred[PROPS[0]].append(r.prismatic)
+            for k, v in zip(
+                PROPS[1:],
+                (
+                    r.revolute_linear,
+                    r.revolute_nonlinear,
+                    r.revolute_linear and r.revolute_nonlinear,
+                ),
+                strict=True,
+            ):
+                truth[k].append(is_r)
+                pred[k].append(bool(v))
+            expected = chain.joint_types[r.joint] if conn else None
+            errors += r.joint_type != expected
+        mperm, qperm = rng.permutation(n_joints + 1), rng.permutation(n_joints)
+        s = identify_structure(P[:, mperm], q[:, qperm], xi_t=1e-6, xi_o=1e-6)
+        ok = (
+            s.complete
+            and mperm[list(s.markers)].tolist() == list(range(n_joints + 1))
+            and qperm[list(s.joints)].tolist() == list(range(n_joints))
+            and s.joint_types == chain.joint_types
+        )
+        recovered += ok
+        per_robot.append(dict(types=chain.joint_types, misclassified=int(errors), structure_ok=ok))
+    confusion = {k: _confusion(truth[k], pred[k]) for k in PROPS}
+    n_trip = len(truth[PROPS[0]])
+    wrong = sum(r["misclassified"] for r in per_robot)
+    return dict(
+        robots=robots,
+        n_joints=n_joints,
+        samples=T,
+        thresholds=dict(xi_t=1e-6, xi_o=1e-6),
+        triplets=n_trip,
+        misclassified_triplets=int(wrong),
+        percent_correct=100.0 * (n_trip - wrong) / max(n_trip, 1),
+        structures_recovered=int(recovered),
+        confusion=confusion,
+        per_robot=per_robot,
+    )
+
+
+# ----------------------------------------------------------------------------- UR10 data
+
+
+def waypoint_trajectory(
+    env: MarkerCameraEnv, first_obs: np.ndarray, waypoints: np.ndarray, samples: int
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Drive ``env`` (at ``waypoints[0]``, observation ``first_obs``) through ``waypoints``
+    (chain order) by equal joint increments, about ``samples`` frames in all.
+
+    Returns the observed marker poses ``(T, n+1, 6)`` and joints ``(T, n)`` (shuffled, as the
+    env gives them) and the true joint positions ``(T, n)`` (chain order).
+    """
+    n = env.n_joints
+    per_segment = max(1, samples // (len(waypoints) - 1))
+    perm = env.joint_permutation
+    rows, q_true = [first_obs], [env.q.copy()]
+    for k in range(len(waypoints) - 1):
+        delta = (waypoints[k + 1] - waypoints[k]) / per_segment
+        for _ in range(per_segment):
+            action = (delta / env.max_increment)[perm].astype(np.float32)
+            obs, _, _, _, info = env.step(action)
+            rows.append(obs)
+            q_true.append(info["q"])
+    rows = np.array(rows)
+    poses = rows[:, : 6 * (n + 1)].reshape(-1, n + 1, 6)
+    return poses, rows[:, 6 * (n + 1) : 6 * (n + 1) + n], np.array(q_true)
+
+
+def ur10_datasets(seed: int, samples: int, span: float = 1.0) -> dict[str, Any]:
+    """``D_tr`` and ``D_test``: 25 random waypoints, visited in two different orders.
+
+    Waypoints: ``UR10_HOME + U(-span, span)`` per joint (the "available region of the
+    workspace" of the thesis; ``span = pi`` explores every joint fully, which 100 samples
+    cannot cover). One env episode (fixed markers and permutations) holds both trajectories.
+    """
+    env = MarkerCameraEnv(max_increment=0.2)
+    rng = np.random.default_rng([seed, 1])
+    waypoints = UR10_HOME + rng.uniform(-span, span, (25, 6))
+    obs, _ = env.reset(seed=seed, options={"q": waypoints[0]})
+    tr = waypoint_trajectory(env, obs, waypoints, samples)
+    order = np.concatenate([[0], 1 + rng.permutation(24)])
+    obs = _drive_to(env, waypoints[0])[-1]  # back to the start (not recorded)
+    te = waypoint_trajectory(env, obs, waypoints[order], samples)
+    return dict(env=env, train=tr, test=te, waypoints=waypoints)
+
+
+# ----------------------------------------------------------------------------- (b) noise
+
+
+def noise_vs_samples(
+    seed: int, samples: int, sizes: tuple[int, ...], repeats: int, progress: bool, span: float
+) -> dict[str, Any]:
+    out = []
+    for rep in range(repeats):
+        data = ur10_datasets(seed + rep, samples, span)
+        env = data["env"]
+        poses, q, _ = data["train"]
+        mperm, qperm = env.marker_permutation, env.joint_permutation
+        for size in tqdm(sizes, desc=f"(b) sample sizes, repeat {rep}", disable=not progress):
+            size = min(size, poses.shape[0])
+            res = classify_all_triplets(poses[:size], q[:size], max_nfev=60)
+            wrong, f_lin, f_ang = 0, {True: [], False: []}, {True: [], False: []}
+            for r in res:
+                a, b, k = int(mperm[r.marker_a]), int(mperm[r.marker_b]), int(qperm[r.joint])
+                conn = abs(a - b) == 1 and k == min(a, b)
+                wrong += r.joint_type != ("R" if conn else None)
+                f_lin[conn].append(r.revolute_linear_rms)
+                f_ang[conn].append(r.revolute_angle_rms)
+            out.append(
+                dict(
+                    repeat=rep,
+                    samples=size,
+                    triplets=len(res),
+                    misclassified=int(wrong),
+                    **{
+                        f"{name}_{'r1' if c else 'r2'}_{stat}": float(fn(d[c]))
+                        for name, d in (("linear", f_lin), ("angle", f_ang))
+                        for c in (True, False)
+                        for stat, fn in (("mean", np.mean), ("min", np.min), ("max", np.max))
+                    },
+                )
+            )
+    return dict(thresholds=dict(xi_t=0.02, xi_o=0.1), rows=out, samples_total=samples)
+
+
+# ----------------------------------------------------------------------------- (c) FK GP
+
+
+def _pose_rmse(pred: np.ndarray, true: np.ndarray) -> list[float]:
+    """RMSE of ``x, y, z, gamma, beta, alpha`` (wrapped) and of the geodesic angle [rad]."""
+    err = np.concatenate([pred[:, :3] - true[:, :3], wrap_angle(pred[:, 3:] - true[:, 3:])], 1)
+    R_err = np.swapaxes(ypr_to_matrix(pred[:, 3:]), -1, -2) @ ypr_to_matrix(true[:, 3:])
+    cos = np.clip((np.trace(R_err, axis1=-2, axis2=-1) - 1.0) / 2.0, -1.0, 1.0)
+    geodesic = float(np.sqrt(np.mean(np.arccos(cos) ** 2)))
+    return [*np.sqrt((err**2).mean(0)).tolist(), geodesic]
+
+
+def _rbf_gp(q: np.ndarray, poses: np.ndarray, q_test: np.ndarray) -> np.ndarray:
+    """RBF GP on raw ``q`` (ARD): the same 8 outputs, orientation by eq. 2.20."""
+    import gpytorch
+
+    def factory(batch):
+        return gpytorch.kernels.ScaleKernel(
+            gpytorch.kernels.RBFKernel(ard_num_dims=q.shape[1], batch_shape=batch),
+            batch_shape=batch,
+        )
+
+    R = ypr_to_matrix(poses[:, 3:])
+    Y = np.column_stack([poses[:, :3], R[:, 0, 0], R[:, 1, 0], R[:, 2, 0], R[:, 2, 1], R[:, 2, 2]])
+    gp = GPRegressor(factory, noise_init=1e-3).fit(q, Y, adam_iters=100, lbfgs_iters=50)
+    m, _ = gp.predict(q_test)
+    m = m.numpy()
+    Rhat = np.zeros((len(m), 3, 3))
+    Rhat[:, 0, 0], Rhat[:, 1, 0], Rhat[:, 2, 0], Rhat[:, 2, 1], Rhat[:, 2, 2] = m[:, 3:].T
+    return np.column_stack([m[:, :3], matrix_to_ypr(Rhat)])
+
+
+def identify_ur10(data: dict[str, Any]) -> dict[str, Any]:
+    env = data["env"]
+    poses, q, _ = data["train"]
+    t0 = time.perf_counter()
+    s = identify_structure(poses, q)
+    elapsed = time.perf_counter() - t0
+    ok = (
+        s.complete
+        and env.marker_permutation[list(s.markers)].tolist() == list(range(7))
+        and env.joint_permutation[list(s.joints)].tolist() == list(range(6))
+    )
+    return dict(structure=s, correct=bool(ok), seconds=elapsed)
+
+
+def fk_gp_part(data: dict[str, Any], structure, n_train: int, seed: int) -> dict[str, Any]:
+    poses, q, _ = data["train"]
+    poses_te, q_te, q_te_true = data["test"]
+    env = data["env"]
+    ee, joints = structure.markers[-1], list(structure.joints)
+    rng = np.random.default_rng([seed, 3])
+    idx = rng.choice(len(q), n_train, replace=False)
+    X, Y = q[idx][:, joints], poses[idx, ee]
+    Xte, Yte = q_te[:, joints], poses_te[:, ee]
+    true_te = np.array([env.marker_poses(qq)[-1] for qq in q_te_true])
+    t0 = time.perf_counter()
+    fk = ForwardKinematicsGP(structure.joint_types).fit(X, Y, adam_iters=50, lbfgs_iters=100)
+    t_fit = time.perf_counter() - t0
+    pred = fk.predict(Xte)
+    pred_rbf = _rbf_gp(X, Y, Xte)
+    noise_floor = _pose_rmse(Yte, true_te)
+    return dict(
+        n_train=n_train,
+        n_test=len(Xte),
+        fit_seconds=t_fit,
+        polynomial_rmse_measured=_pose_rmse(pred, Yte),
+        polynomial_rmse_true=_pose_rmse(pred, true_te),
+        rbf_rmse_measured=_pose_rmse(pred_rbf, Yte),
+        rbf_rmse_true=_pose_rmse(pred_rbf, true_te),
+        measurement_noise_rmse=noise_floor,
+    )
+
+
+# ----------------------------------------------------------------------------- (d) controller
+
+
+def _drive_to(env: MarkerCameraEnv, q_goal: np.ndarray, max_steps: int = 200) -> list[np.ndarray]:
+    """Track a reference to ``q_goal`` (chain order) with increments; returns the observations."""
+    rows = []
+    for _ in range(max_steps):
+        step = np.clip((q_goal - env.q) / env.max_increment, -1, 1)
+        obs, *_ = env.step(step[env.joint_permutation].astype(np.float32))
+        rows.append(obs)
+        if np.abs(env.q - q_goal).max() < 1e-9:
+            break
+    return rows
+
+
+def controller_part(
+    data: dict[str, Any],
+    structure,
+    n_train: int,
+    rounds: int,
+    seed: int,
+    progress: bool,
+    steps: int = 300,
+    span: float = 1.0,
+) -> dict[str, Any]:
+    env = data["env"]
+    poses, q, _ = data["train"]
+    ee, joints = structure.markers[-1], list(structure.joints)
+    rng = np.random.default_rng([seed, 4])
+    idx = rng.choice(len(q), min(n_train, len(q)), replace=False)
+    X, Y = q[idx][:, joints], poses[idx, ee]
+    q_start = data["waypoints"][0]
+    q_targets = UR10_HOME + rng.uniform(-span, span, (5, 6))
+    targets = np.array([env.marker_poses(qt)[-1] for qt in q_targets])
+    # model joint k is observed slot S_q[k], i.e. chain joint joint_permutation[S_q[k]]
+    chain_of_model = env.joint_permutation[joints]
+    n = env.n_joints
+    fk = ForwardKinematicsGP(structure.joint_types)
+    rows = []
+    for rnd in range(rounds + 1):
+        fk.fit(X, Y, adam_iters=50, lbfgs_iters=100)
+        pred = fk.predictor()
+        reached, new_X, new_Y = [], [], []
+        for k in tqdm(range(5), desc=f"(d) controller round {rnd}", disable=not progress):
+            _drive_to(env, q_start)
+            q0 = env.q[chain_of_model]
+            res = gradient_kinematic_controller(pred, q0, targets[k], nu=0.5, steps=steps)
+            q_goal = env.q.copy()
+            q_goal[chain_of_model] = res.q_final
+            obs_rows = _drive_to(env, np.clip(q_goal, env.q_low, env.q_high))
+            for o in obs_rows:
+                new_X.append(o[6 * (n + 1) : 6 * (n + 1) + n][joints])
+                new_Y.append(o[: 6 * (n + 1)].reshape(n + 1, 6)[ee])
+            reached.append(new_Y[-1])
+        reached = np.array(reached)
+        rows.append(
+            dict(
+                round=rnd,
+                n_data=len(X),
+                rmse=_pose_rmse(reached, targets),
+                position_error_norm=np.linalg.norm(
+                    reached[:, :3] - targets[:, :3], axis=1
+                ).tolist(),
+            )
+        )
+        X = np.concatenate([X, np.array(new_X)])
+        Y = np.concatenate([Y, np.array(new_Y)])
+    return dict(n_train=n_train, targets=targets.tolist(), rounds=rows)
+
+
+# ----------------------------------------------------------------------------- outputs
+
+
+def _plots(res: dict[str, Any], out: Path) -> dict[str, str]:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    paths = {}
+    if "monte_carlo" in res:
+        fig, axes = plt.subplots(1, 4, figsize=(14, 4.0))
+        for ax, name in zip(axes, PROPS, strict=True):
+            cm = np.array(res["monte_carlo"]["confusion"][name])
+            ax.imshow(cm, cmap="Blues")
+            for (i, j), v in np.ndenumerate(cm):
+                ax.text(j, i, str(v), ha="center", va="center", fontsize=12)
+            ax.set_xticks([0, 1], ["1", "2"])
+            ax.set_yticks([0, 1], ["1", "2"])
+            ax.set_xlabel("target class")
+            ax.set_ylabel("output class")
+            ax.set_title(f"Eq. {name}")
+        fig.suptitle(f"Monte Carlo, {res['monte_carlo']['robots']} robots (thesis Fig. 2.4)")
+        fig.tight_layout()
+        paths["confusion"] = str(out / "kinematics_confusion.png")
+        fig.savefig(paths["confusion"], dpi=100)
+        plt.close(fig)
+    if "noise_vs_samples" in res:
+        rows = res["noise_vs_samples"]["rows"]
+        fig, axes = plt.subplots(1, 3, figsize=(14, 3.6))
+        for rep in sorted({r["repeat"] for r in rows}):
+            rr = [r for r in rows if r["repeat"] == rep]
+            s = [r["samples"] for r in rr]
+            axes[0].plot(s, [r["misclassified"] for r in rr], "o-", label=f"repeat {rep}")
+            for ax, name, xi in ((axes[1], "linear", 0.02), (axes[2], "angle", 0.1)):
+                for c, color in (("r1", "tab:green"), ("r2", "tab:red")):
+                    ax.plot(s, [r[f"{name}_{c}_mean"] for r in rr], "-", color=color)
+                    ax.fill_between(
+                        s,
+                        [r[f"{name}_{c}_min"] for r in rr],
+                        [r[f"{name}_{c}_max"] for r in rr],
+                        color=color,
+                        alpha=0.15,
+                    )
+                ax.axhline(xi, color="k", ls="--", lw=1)
+        axes[0].set_ylabel("misclassified triplets")
+        axes[1].set_ylabel("f_r linear revolute test (2.18) [m]")
+        axes[2].set_ylabel("f_r non-linear test (2.19) [rad]")
+        axes[1].set_yscale("log")
+        axes[2].set_yscale("log")
+        for ax in axes:
+            ax.set_xlabel("samples")
+        axes[0].legend()
+        fig.suptitle("UR10 with noise: green f_r1 (connected), red f_r2 (not) (thesis Fig. 2.6)")
+        fig.tight_layout()
+        paths["noise"] = str(out / "kinematics_noise_vs_samples.png")
+        fig.savefig(paths["noise"], dpi=100)
+        plt.close(fig)
+    if "controller" in res:
+        rows = res["controller"]["rounds"]
+        fig, ax = plt.subplots(figsize=(6, 3.6))
+        for r in rows:
+            ax.semilogy(range(1, 6), r["position_error_norm"], "o-", label=f"round {r['round']}")
+        ax.set_xlabel("target")
+        ax.set_ylabel("reached position error [m]")
+        ax.legend()
+        ax.set_title("Gradient kinematic controller (thesis Table 2.2)")
+        fig.tight_layout()
+        paths["controller"] = str(out / "kinematics_controller.png")
+        fig.savefig(paths["controller"], dpi=100)
+        plt.close(fig)
+    return paths
+
+
+def _fmt(values, digits=4) -> str:
+    return " | ".join(f"{v:.{digits}f}" for v in values)
+
+
+def _markdown(res: dict[str, Any]) -> str:
+    lines = [
+        "# Kinematics learning benchmark (thesis chapter 2)",
+        "",
+        f"Command: `{res['command']}`",
+        "",
+    ]
+    if "monte_carlo" in res:
+        mc = res["monte_carlo"]
+        lines += [
+            "## (a) Monte Carlo, noiseless (section 2.6.1)",
+            "",
+            f"{mc['robots']} robots x {mc['triplets'] // max(mc['robots'], 1)} triplets, "
+            f"T = {mc['samples']}: **{mc['percent_correct']:.2f}% of {mc['triplets']} triplets "
+            f"correct** ({mc['misclassified_triplets']} misclassified); structure recovered "
+            f"from shuffled data on {mc['structures_recovered']} / {mc['robots']} robots.",
+            "",
+            "| test | TP | FP | FN | TN |",
+            "|---|---|---|---|---|",
+        ]
+        for k in PROPS:
+            (tp, fp), (fn, tn) = mc["confusion"][k]
+            lines.append(f"| Eq. {k} | {tp} | {fp} | {fn} | {tn} |")
+        lines.append("")
+    if "noise_vs_samples" in res:
+        lines += [
+            "## (b) UR10 with noise: misclassified triplets vs samples (Fig. 2.6)",
+            "",
+            "| repeat | samples | misclassified / triplets | f_r1 lin (mean) | f_r2 lin (min) "
+            "| f_r1 ang (mean) | f_r2 ang (min) |",
+            "|---|---|---|---|---|---|---|",
+        ]
+        for r in res["noise_vs_samples"]["rows"]:
+            lines.append(
+                f"| {r['repeat']} | {r['samples']} | {r['misclassified']} / {r['triplets']} | "
+                f"{r['linear_r1_mean']:.4f} | {r['linear_r2_min']:.4f} | "
+                f"{r['angle_r1_mean']:.4f} | {r['angle_r2_min']:.4f} |"
+            )
+        lines.append("")
+    if "identification" in res:
+        idn = res["identification"]
+        lines += [
+            "## UR10 structure identified on D_tr",
+            "",
+            f"{idn['samples']} samples: correct = **{idn['correct']}**, types "
+            f"`{idn['joint_types']}`, {idn['seconds']:.1f} s.",
+            "",
+        ]
+    if "fk_gp" in res:
+        fk = res["fk_gp"]
+        head = " | ".join(ERR_NAMES)
+        lines += [
+            f"## (c) FK GP, {fk['n_train']} training samples, {fk['n_test']} test samples "
+            "(Table 2.1)",
+            "",
+            f"| model | {head} |",
+            "|---|" + "---|" * 7,
+            f"| thesis Table 2.1 (real UR10) | {_fmt(THESIS_TABLE_2_1)} | - |",
+            f"| polynomial k_R/k_l vs measured | {_fmt(fk['polynomial_rmse_measured'])} |",
+            f"| polynomial k_R/k_l vs true | {_fmt(fk['polynomial_rmse_true'])} |",
+            f"| RBF on raw q vs measured | {_fmt(fk['rbf_rmse_measured'])} |",
+            f"| RBF on raw q vs true | {_fmt(fk['rbf_rmse_true'])} |",
+            f"| measurement noise (measured vs true) | {_fmt(fk['measurement_noise_rmse'])} |",
+            "",
+            "Units: m for x, y, z; rad for gamma, beta, alpha and the geodesic angle "
+            "between the predicted and the reference orientation.",
+            "",
+        ]
+    if "controller" in res:
+        c = res["controller"]
+        lines += [
+            f"## (d) Controller, 5 targets, GP on {c['n_train']} samples of D_tr (Table 2.2)",
+            "",
+            f"| data | {' | '.join(ERR_NAMES)} |",
+            "|---|" + "---|" * 7,
+            "| thesis D_tr | 0.0065 | 0.0111 | 0.0228 | 0.1853 | 0.0853 | 0.1167 | - |",
+            "| thesis D̄_tr | 0.0017 | 0.0016 | 0.0020 | 0.0988 | 0.0269 | 0.0419 | - |",
+        ]
+        for r in c["rounds"]:
+            lines.append(f"| round {r['round']} ({r['n_data']} samples) | {_fmt(r['rmse'])} |")
+        lines.append("")
+    lines.append(f"Total time: {res['seconds']:.0f} s.")
+    return "\n".join(lines) + "\n"
+
+
+# ----------------------------------------------------------------------------- main
+
+
+def _parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    p.add_argument("--parts", default="abcd", help="subset of 'abcd' to run")
+    p.add_argument("--robots", type=int, default=64, help="(a) Monte Carlo robots")
+    p.add_argument("--samples", type=int, default=2100, help="(b-d) frames per UR10 trajectory")
+    p.add_argument(
+        "--sizes", type=int, nargs="+", default=[25, 50, 100, 200, 400, 800, 1300, 2100],
+        help="(b) prefixes of the trajectory",
+    )  # fmt: skip
+    p.add_argument("--repeats", type=int, default=1, help="(b) trajectories")
+    p.add_argument("--fk-train", type=int, default=100, help="(c) training samples")
+    p.add_argument("--ctrl-train", type=int, default=300, help="(d) training samples")
+    p.add_argument("--online-rounds", type=int, default=1, help="(d) refits with new data")
+    p.add_argument("--ctrl-steps", type=int, default=300, help="(d) controller updates")
+    p.add_argument("--span", type=float, default=1.0, help="(b-d) waypoints: home +- span rad")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--quick", action="store_true", help="tiny sizes for a smoke run")
+    p.add_argument("--out-dir", default="results")
+    p.add_argument("--no-progress", action="store_true")
+    return p
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Command-line entry point; returns 0."""
+    args = _parser().parse_args(argv)
+    if args.quick:
+        for k, v in QUICK.items():
+            setattr(args, k, v)
+    torch.set_num_threads(1)
+    out = Path(args.out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    progress = not args.no_progress
+    cmd = "python -m mcpilco.scripts.bench_kinematics " + " ".join(
+        sys.argv[1:] if argv is None else argv
+    )
+    res: dict[str, Any] = dict(command=cmd.strip(), seed=args.seed)
+    t0 = time.perf_counter()
+    if "a" in args.parts:
+        res["monte_carlo"] = monte_carlo(args.robots, args.seed, progress)
+    if "b" in args.parts:
+        sizes = tuple(s for s in args.sizes if s <= args.samples) or (args.samples,)
+        res["noise_vs_samples"] = noise_vs_samples(
+            args.seed, args.samples, sizes, args.repeats, progress, args.span
+        )
+    if "c" in args.parts or "d" in args.parts:
+        data = ur10_datasets(args.seed, args.samples, args.span)
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", UserWarning)
+            idn = identify_ur10(data)
+        s = idn["structure"]
+        res["identification"] = dict(
+            samples=int(data["train"][0].shape[0]),
+            correct=idn["correct"],
+            joint_types=s.joint_types,
+            markers=list(s.markers),
+            joints=list(s.joints),
+            seconds=idn["seconds"],
+        )
+        if not idn["correct"]:  # fall back to the true structure so (c)/(d) still run
+            env = data["env"]
+            s = type(s)(
+                markers=tuple(int(np.nonzero(env.marker_permutation == j)[0][0]) for j in range(7)),
+                joint_types="RRRRRR",
+                joints=tuple(int(np.nonzero(env.joint_permutation == j)[0][0]) for j in range(6)),
+                complete=True,
+            )
+            res["identification"]["note"] = "identification failed; (c)/(d) use the true structure"
+        if "c" in args.parts:
+            res["fk_gp"] = fk_gp_part(data, s, args.fk_train, args.seed)
+        if "d" in args.parts:
+            res["controller"] = controller_part(
+                data,
+                s,
+                args.ctrl_train,
+                args.online_rounds,
+                args.seed,
+                progress,
+                args.ctrl_steps,
+                args.span,
+            )
+    res["seconds"] = time.perf_counter() - t0
+    res["paths"] = _plots(res, out)
+    res["paths"]["json"] = str(out / "kinematics.json")
+    res["paths"]["markdown"] = str(out / "kinematics.md")
+    Path(res["paths"]["json"]).write_text(json.dumps(res, indent=1))
+    Path(res["paths"]["markdown"]).write_text(_markdown(res))
+    print(_markdown(res))
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,124 @@
+"""``mcpilco/MarkerCamera-v0``: geometry against a numpy DH chain, shuffling, noise, and the
+structure-identification pipeline on the env's data (the generic contract is in
+test_env_contract.py)."""
+
+import gymnasium as gym
+import numpy as np
+import pytest
+
+import mcpilco.envs  # noqa: F401  (registers the ids)
+from mcpilco.envs.arms import ur10
+from mcpilco.envs.marker_camera import MarkerCameraEnv, ypr_to_matrix
+from mcpilco.models.kinematics import identify_structure
+from mcpilco.models.kinematics.synthetic import SyntheticChain, homogeneous
+
+NOISELESS = dict(position_noise=0.0, angle_noise=0.0, encoder_noise=0.0, time_offset=0.0)
+
+
+def _numpy_chain(env: MarkerCameraEnv) -> SyntheticChain:
+    """The env's arm and markers as a numpy DH chain (independent of MuJoCo)."""
+    arm = env.arm
+    dh = np.array([[j.a, j.alpha, j.d, j.theta] for j in arm.joints])
+    camera = homogeneous(env.camera_R.T, -env.camera_R.T @ env.camera_position)  # c <- world
+    base = homogeneous(np.eye(3), arm.base_pos)  # identity base_quat for these arms
+    pos, R = env.marker_placements()
+    sites = homogeneous(R, pos)  # marker j in body link{j} (marker 0 in the world)
+    markers = np.empty_like(sites)
+    markers[0] = np.linalg.inv(base) @ sites[0]
+    for j, joint in enumerate(arm.joints, start=1):
+        # {j} = B_j Tx(a_j) Rx(alpha_j)  =>  T^{j}_{M_j} = (Tx Rx)^-1 T^{B_j}_{M_j}
+        ca, sa = np.cos(joint.alpha), np.sin(joint.alpha)
+        tx_rx = homogeneous([[1, 0, 0], [0, ca, -sa], [0, sa, ca]], [joint.a, 0, 0])
+        markers[j] = np.linalg.inv(tx_rx) @ sites[j]
+    return SyntheticChain(arm.joint_types, dh, camera @ base, markers)
+
+
+@pytest.mark.parametrize("kwargs", [{}, {"arm": "random", "joint_types": "RPRRP", "arm_seed": 3}])
+def test_marker_poses_match_a_numpy_dh_chain(kwargs):
+    env = MarkerCameraEnv(**kwargs, **NOISELESS)
+    env.reset(seed=1)
+    chain = _numpy_chain(env)
+    rng = np.random.default_rng(0)
+    for _ in range(5):
+        q = rng.uniform(env.q_low.clip(-3, 3), env.q_high.clip(-3, 3))
+        mj, ref = env.marker_poses(q), chain.marker_poses(q[None])[0]
+        np.testing.assert_allclose(mj[:, :3], ref[:, :3], atol=1e-9)
+        np.testing.assert_allclose(ypr_to_matrix(mj[:, 3:]), ypr_to_matrix(ref[:, 3:]), atol=1e-9)
+
+
+def test_registered_and_observation_layout_with_shuffling():
+    env = gym.make("mcpilco/MarkerCamera-v0", **NOISELESS)
+    obs, info = env.reset(seed=4)
+    n = 6
+    assert env.spec.max_episode_steps == 100
+    assert obs.shape == (6 * (n + 1) + n + 6,) and obs.dtype == np.float64
+    perm_m, perm_q = info["marker_permutation"], info["joint_permutation"]
+    assert sorted(perm_m) == list(range(n + 1)) and sorted(perm_q) == list(range(n))
+    np.testing.assert_allclose(obs[: 6 * (n + 1)].reshape(n + 1, 6), info["marker_poses"][perm_m])
+    np.testing.assert_allclose(obs[6 * (n + 1) : 6 * (n + 1) + n], info["q"][perm_q])
+    assert perm_m[info["ee_slot"]] == n
+    # action slot s moves chain joint perm_q[s] by max_increment
+    q0 = info["q"].copy()
+    action = np.zeros(n, dtype=np.float32)
+    action[2] = 1.0
+    _, reward, _, _, info = env.step(action)
+    moved = np.nonzero(np.abs(info["q"] - q0) > 1e-12)[0]
+    assert moved.tolist() == [perm_q[2]]
+    assert np.isclose(info["q"][perm_q[2]] - q0[perm_q[2]], 0.05)
+    assert reward == -info["cost"]
+
+
+def test_cost_is_zero_at_the_target_configuration():
+    env = MarkerCameraEnv(**NOISELESS)
+    _, info = env.reset(seed=2)
+    _, info = env.reset(seed=2, options={"q": info["target_q"]})
+    assert info["cost"] < 1e-7 and info["position_error"] < 1e-9
+
+
+def test_noise_magnitude_is_apriltag_like():
+    env = MarkerCameraEnv(time_offset=0.0)
+    env.reset(seed=0)
+    pos_err, ang_err = [], []
+    for _ in range(40):
+        obs, _, _, _, info = env.step(np.zeros(6, dtype=np.float32))
+        meas = obs[:42].reshape(7, 6)
+        true = info["marker_poses"][info["marker_permutation"]]
+        pos_err.append(meas[:, :3] - true[:, :3])
+        R_err = np.swapaxes(ypr_to_matrix(true[:, 3:]), -1, -2) @ ypr_to_matrix(meas[:, 3:])
+        ang_err.append(np.arccos(np.clip((np.trace(R_err, axis1=-2, axis2=-1) - 1) / 2, -1, 1)))
+    pos_std = np.std(np.concatenate(pos_err))
+    assert 0.5e-3 < pos_std < 6e-3, pos_std  # 1-5 mm at ~2 m
+    assert 0.005 < np.sqrt(np.mean(np.concatenate(ang_err) ** 2)) < 0.06  # ~0.01-0.03 rad
+
+
+def test_outliers_appear_with_their_probability():
+    env = MarkerCameraEnv(outlier_prob=0.5, time_offset=0.0)
+    env.reset(seed=0)
+    obs, _, _, _, info = env.step(np.zeros(6, dtype=np.float32))
+    err = np.linalg.norm(obs[:42].reshape(7, 6)[:, :3] - info["marker_poses"][
+        info["marker_permutation"]][:, :3], axis=1)  # fmt: skip
+    assert (err > 0.03).any()
+
+
+def test_structure_identification_recovers_the_shuffled_ur10():
+    env = MarkerCameraEnv(max_increment=0.4, **NOISELESS)
+    obs, info = env.reset(seed=5)
+    rng = np.random.default_rng(5)
+    rows = [obs]
+    for _ in range(40):
+        rows.append(env.step(rng.uniform(-1, 1, 6).astype(np.float32))[0])
+    rows = np.array(rows)
+    poses, q = rows[:, :42].reshape(-1, 7, 6), rows[:, 42:48]
+    s = identify_structure(poses, q, xi_t=1e-6, xi_o=1e-6)
+    assert s.complete and s.joint_types == ur10().joint_types
+    assert info["marker_permutation"][list(s.markers)].tolist() == list(range(7))
+    assert info["joint_permutation"][list(s.joints)].tolist() == list(range(6))
+
+
+def test_bad_arguments_raise():
+    with pytest.raises(ValueError, match="arm must be"):
+        MarkerCameraEnv(arm="nope")
+    with pytest.raises(ValueError, match="outlier_prob"):
+        MarkerCameraEnv(outlier_prob=2.0)
+    with pytest.raises(ValueError, match="position_noise"):
+        MarkerCameraEnv(position_noise=-1.0)
