@@ -10,8 +10,12 @@ import tomllib
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
-TOP = {"envs": "mcpilco.envs", "agents": "mcpilco.agents", "models": "mcpilco.models",
-       "scripts": "mcpilco.scripts"}
+TOP = {
+    "envs": "mcpilco.envs",
+    "agents": "mcpilco.agents",
+    "models": "mcpilco.models",
+    "scripts": "mcpilco.scripts",
+}
 
 
 def _declared_packages() -> set[str]:

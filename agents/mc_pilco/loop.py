@@ -1,0 +1,537 @@
+"""Outer loop of MC-PILCO (thesis Algorithm 1): explore, fit GP, optimise policy, apply, repeat.
+
+Glossary
+--------
+trial ``k = 0``
+    random exploration for ``H`` steps (3 s): i.i.d. actions ``u ~ U(-1, 1)``.
+trial ``k >= 1``
+    fit the velocity-change GPs on all transitions ``D`` by marginal likelihood (warm start
+    from trial ``k - 1``; subset of data beyond ``max_points``), optimise the policy on the
+    particle estimate ``J^`` (5.8) with the monitoring rule, apply the policy (no dropout)
+    to the env for ``H`` steps, append the transitions to ``D``.
+experience
+    ``3 (k + 1)`` seconds after trial ``k`` (3, 6, 9, 12, 15 s ...).
+record of a trial
+    env cost ``sum_t c(x_t)`` on the true state, ``success`` (env ``info``: upright over the
+    last 1 s with ``|x| < 0.5``), time upright, mean ``|x|``, wall-clock of the GP fit, of
+    the optimisation and of the trial, optimisation steps and seconds per step, the one-step
+    GP error on the trial's data (model fitted before the trial), and the particle
+    predictions of the final policy.
+
+After every trial the run is checkpointed atomically (:mod:`.checkpoint`): data, policy,
+GP state, optimiser and RNG states, records. ``resume=True`` continues from it.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import math
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+
+from mcpilco.agents.mc_pilco.checkpoint import (
+    CHECKPOINT_VERSION,
+    atomic_torch_save,
+    load_checkpoint,
+    rng_state,
+    set_rng_state,
+)
+from mcpilco.agents.mc_pilco.cost import SwingUpCost
+from mcpilco.agents.mc_pilco.dynamics import KERNEL_CHOICES, GPDynamicsModel
+from mcpilco.agents.mc_pilco.loss import MCPilcoLoss
+from mcpilco.agents.mc_pilco.optimize import OptimizationResult, PolicyOptConfig, optimize_policy
+from mcpilco.agents.mc_pilco.policy import SquashedRBFPolicy, make_policy_module
+from mcpilco.agents.mc_pilco.viz import (
+    plot_optimisation,
+    plot_trial_particles,
+    write_rerun_recording,
+)
+
+DEFAULT_ENV_ID = "mcpilco/CartpoleSwingUp-v0"
+CHECKPOINT_NAME = "checkpoint.pt"
+# config fields that must not change when a run is resumed
+_RESUME_FIXED = ("env_id", "seed", "kernel", "horizon", "num_particles", "num_basis")
+
+
+@dataclass
+class MCPilcoConfig:
+    """One MC-PILCO experiment (defaults: the MC-PILCO cartpole setup, thesis 5.5.1).
+
+    Attributes:
+        env_id: registered Gymnasium id (``import mcpilco.envs`` registers ``mcpilco/...``).
+        num_trials: policy trials after the exploration trial.
+        horizon: ``H``, steps per trial and of the particle rollout (must equal the env's
+            episode length).
+        num_particles: ``M``.
+        kernel: ``"rbf+mpk"`` or ``"rbf"``.
+        max_points: GP subset-of-data size.
+        gp_adam_iters, gp_lbfgs_iters: marginal-likelihood budget per fit.
+        num_basis: policy basis functions.
+        policy_weight_scale: initial policy weights ``w ~ U(-s, s)``. Small, so that the
+            initial policy is close to ``u = 0``: with ``s = 0.5`` the sum over 200 basis
+            functions gives a biased action that drives the cart metres away in 3 s, where
+            the cost is flat (1) and its gradient vanishes (seed 1 never left ``J^ = 56``).
+        l_x, l_theta: length scales of the cost optimised on the particles. Default: the
+            values of Amadio et al. 2022 (sec. V-A, cart-pole: ``l_theta = 3``,
+            ``l_x = 1``), wider than the env's evaluation cost (thesis 5.5.1: ``l_theta = 1``,
+            ``l_x = 1.5``): with ``l_theta = 1`` the cost is flat (``1 - 5e-5``) while the pole
+            hangs, its gradient vanishes and, in our first runs, the policy collapsed to
+            "do nothing" on trial 2. Success and the reported cost always come from the env.
+        cost_wrap_angle: wrap theta in the optimised cost (False: MC-PILCO's ``|theta|``,
+            which does not reward spinning the pole; see :mod:`.cost`).
+        init_std: ``sigma_0`` of the initial particles.
+        sim_obs_noise_std: measurement noise simulated on the policy input in rollouts.
+        opt: policy optimisation schedule (:class:`PolicyOptConfig`).
+        opt_steps_first: optimisation steps of the first policy trial, when smaller than
+            ``opt.max_steps`` (thesis 5.5.1: fewer steps while the model is poor); None = same.
+        log_particles: particles kept per trial for the PNG / Rerun plots.
+        seed: seeds torch, numpy and the env resets.
+        torch_threads: ``torch.set_num_threads`` (None: leave as is).
+        compile_rollout: ``torch.compile`` the per-time-step function of the rollout (each
+            trial recompiles, 20-150 s on 2 shared cores; measured gain about 25%, so off).
+    """
+
+    env_id: str = DEFAULT_ENV_ID
+    num_trials: int = 5
+    horizon: int = 60
+    num_particles: int = 400
+    kernel: str = "rbf+mpk"
+    max_points: int | None = 300
+    gp_adam_iters: int = 200
+    gp_lbfgs_iters: int = 50
+    num_basis: int = 200
+    policy_weight_scale: float = 0.01
+    l_x: float = 1.0
+    l_theta: float = 3.0
+    cost_wrap_angle: bool = False
+    init_std: float = 0.01
+    sim_obs_noise_std: float = 0.01
+    opt: PolicyOptConfig = field(default_factory=PolicyOptConfig)
+    opt_steps_first: int | None = None
+    log_particles: int = 100
+    seed: int = 0
+    torch_threads: int | None = None
+    compile_rollout: bool = False
+
+    def __post_init__(self) -> None:
+        if isinstance(self.opt, dict):
+            self.opt = PolicyOptConfig(**self.opt)
+        if int(self.num_particles) != self.num_particles or self.num_particles < 1:
+            raise ValueError(
+                f"num_particles must be a positive integer, got {self.num_particles!r} "
+                "(MC-PILCO uses 400)"
+            )
+        if int(self.num_trials) != self.num_trials or self.num_trials < 0:
+            raise ValueError(f"num_trials must be an integer >= 0, got {self.num_trials!r}")
+        if int(self.horizon) != self.horizon or self.horizon < 1:
+            raise ValueError(f"horizon must be a positive integer, got {self.horizon!r}")
+        if self.kernel not in KERNEL_CHOICES:
+            raise ValueError(f"kernel must be one of {KERNEL_CHOICES}, got {self.kernel!r}")
+        if self.max_points is not None and self.max_points < 10:
+            raise ValueError(f"max_points must be >= 10 or None, got {self.max_points}")
+
+    def to_dict(self) -> dict[str, Any]:
+        return dataclasses.asdict(self)
+
+    @classmethod
+    def from_dict(cls, d: dict[str, Any]) -> MCPilcoConfig:
+        return cls(**d)
+
+
+DEMO_CONFIG = MCPilcoConfig(
+    num_trials=4,
+    num_particles=100,
+    max_points=200,
+    gp_adam_iters=100,
+    gp_lbfgs_iters=30,
+    opt=PolicyOptConfig(max_steps=250, monitor_patience=50),
+    opt_steps_first=150,
+    log_particles=100,
+)
+"""Reduced budget for ``make demo`` (<= 10 minutes on 2 cores)."""
+
+BENCH_CONFIG = MCPilcoConfig(
+    num_trials=4,
+    num_particles=400,
+    max_points=250,
+    opt=PolicyOptConfig(max_steps=1000, monitor_patience=100),
+    opt_steps_first=500,
+)
+"""Budget of ``mcpilco-bench-mcpilco`` per seed (exploration + 4 policy trials = 15 s)."""
+
+
+@dataclass
+class RunSummary:
+    """What :func:`run_mcpilco` returns: per-trial records and the output files."""
+
+    config: dict[str, Any]
+    records: list[dict[str, Any]]
+    out_dir: Path
+    checkpoint: Path
+    rrd: Path | None
+    pngs: list[Path]
+    seconds: float
+    resumed_from_trial: int | None = None
+
+    @property
+    def success(self) -> bool:
+        """Success of the last policy trial."""
+        return bool(self.records and self.records[-1].get("success"))
+
+    @property
+    def first_success_trial(self) -> int | None:
+        for r in self.records:
+            if r["kind"] == "policy" and r["success"]:
+                return int(r["index"])
+        return None
+
+
+# ----------------------------------------------------------------------------------- env
+def registered_ids(prefix: str = "mcpilco/") -> list[str]:
+    import gymnasium as gym
+
+    import mcpilco.envs  # noqa: F401  (registers the ids)
+
+    return sorted(k for k in gym.registry if k.startswith(prefix))
+
+
+def make_env(env_id: str, horizon: int):
+    """``gym.make(env_id)`` with clear errors for an unknown id or a horizon mismatch."""
+    import gymnasium as gym
+
+    ids = registered_ids()
+    if env_id not in gym.registry:
+        raise ValueError(f"unknown env id {env_id!r}; registered mcpilco ids: {', '.join(ids)}")
+    env = gym.make(env_id)
+    steps = env.spec.max_episode_steps if env.spec is not None else None
+    if steps is not None and steps != horizon:
+        env.close()
+        raise ValueError(
+            f"horizon mismatch: the config's horizon is {horizon} steps but {env_id} episodes "
+            f"last {steps} steps; set horizon={steps}"
+        )
+    return env
+
+
+def env_dt(env) -> float:
+    return float(getattr(env.unwrapped, "dt", 0.05))
+
+
+def run_episode(
+    env, act: Callable[[np.ndarray], np.ndarray], seed: int, horizon: int
+) -> dict[str, Any]:
+    """One episode of ``horizon`` steps; returns observations, true states, actions, metrics."""
+    obs, info = env.reset(seed=seed)
+    observations = [np.asarray(obs, dtype=np.float64)]
+    states = [np.asarray(info.get("state", obs), dtype=np.float64)]
+    actions, costs, upright = [], [], []
+    success = False
+    for _ in range(horizon):
+        a = np.asarray(act(observations[-1]), dtype=np.float64).reshape(-1)
+        obs, _, terminated, truncated, info = env.step(a.astype(np.float32))
+        observations.append(np.asarray(obs, dtype=np.float64))
+        states.append(np.asarray(info.get("state", obs), dtype=np.float64))
+        actions.append(a)
+        costs.append(float(info["cost"]))
+        upright.append(bool(info["upright"]))
+        if "success" in info:
+            success = bool(info["success"])
+        if terminated or truncated:
+            break
+    states_arr = np.stack(states)
+    dt = env_dt(env)
+    return {
+        "obs": np.stack(observations),
+        "states": states_arr,
+        "actions": np.stack(actions),
+        "costs": np.asarray(costs),
+        "success": success,
+        "cost": float(np.sum(costs)),
+        "time_upright": float(np.sum(upright) * dt),
+        "mean_abs_x": float(np.mean(np.abs(states_arr[1:, 0]))),
+    }
+
+
+# ------------------------------------------------------------------------------- helpers
+def _policy_act(policy: SquashedRBFPolicy) -> Callable[[np.ndarray], np.ndarray]:
+    policy.eval()
+
+    @torch.no_grad()
+    def act(obs: np.ndarray) -> np.ndarray:
+        return policy(torch.as_tensor(obs, dtype=torch.float32)[None])[0].numpy()
+
+    return act
+
+
+def _dataset(episodes: list[dict[str, Any]]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    s = np.concatenate([e["obs"][:-1] for e in episodes])
+    a = np.concatenate([e["actions"] for e in episodes])
+    s1 = np.concatenate([e["obs"][1:] for e in episodes])
+    return s, a, s1
+
+
+def _trial_seed(seed: int, k: int) -> int:
+    return int(seed) * 10_007 + int(k)
+
+
+def _record_line(r: dict[str, Any]) -> str:
+    line = (
+        f"trial {r['index']} ({r['kind']}, {r['experience_s']:.0f} s of experience): "
+        f"cost {r['cost']:.2f}, success {r['success']}, upright {r['time_upright']:.2f} s, "
+        f"mean |x| {r['mean_abs_x']:.2f} m, time {r['wall_s']:.1f} s"
+    )
+    if r["kind"] == "policy":
+        line += (
+            f" (GP fit {r['gp_fit_s']:.1f} s on N={r['gp_points']}, {r['opt_steps']} opt steps "
+            f"x {r['s_per_opt_step']:.3f} s (CPU {r['cpu_s_per_opt_step']:.3f} s), "
+            f"J^ {r['opt_final_cost']:.2f})"
+        )
+    return line
+
+
+# ---------------------------------------------------------------------------------- main
+def run_mcpilco(
+    config: MCPilcoConfig,
+    out_dir: str | Path,
+    resume: bool = False,
+    progress: bool = True,
+    log: Callable[[str], None] | None = print,
+    write_rrd: bool = True,
+) -> RunSummary:
+    """Run (or resume) MC-PILCO; writes checkpoint, PNGs, ``run.rrd`` and ``records.json``.
+
+    Args:
+        config: the experiment.
+        out_dir: output folder (created).
+        resume: continue from ``out_dir/checkpoint.pt``; finished trials are kept and not
+            re-run; ``config.num_trials`` may be larger than in the first call.
+        progress: tqdm bars on trials and optimisation steps.
+        log: called with one line per trial (None: silent).
+        write_rrd: write the Rerun recording.
+    """
+    t_start = time.perf_counter()
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    ckpt_path = out / CHECKPOINT_NAME
+    if config.torch_threads is not None:
+        torch.set_num_threads(int(config.torch_threads))
+    env = make_env(config.env_id, config.horizon)
+    dt = env_dt(env)
+
+    torch.manual_seed(config.seed)
+    np_rng = np.random.default_rng(config.seed)
+    policy = SquashedRBFPolicy(
+        num_basis=config.num_basis, weight_scale=config.policy_weight_scale, seed=config.seed
+    )
+    policy_module = make_policy_module(policy)
+    model = GPDynamicsModel(
+        kernel=config.kernel,
+        dt=dt,
+        max_points=config.max_points,
+        adam_iters=config.gp_adam_iters,
+        lbfgs_iters=config.gp_lbfgs_iters,
+    )
+    episodes: list[dict[str, Any]] = []
+    records: list[dict[str, Any]] = []
+    arrays: list[dict[str, Any]] = []
+    opt_state = None
+    start_trial = 0
+    resumed_from = None
+    if resume:
+        ckpt = load_checkpoint(ckpt_path)
+        old = ckpt["config"]
+        for key in _RESUME_FIXED:
+            if old[key] != getattr(config, key):
+                raise ValueError(
+                    f"cannot resume: {key}={getattr(config, key)!r} differs from the "
+                    f"checkpoint's {old[key]!r}; use the same value or a new --out folder"
+                )
+        episodes = ckpt["episodes"]
+        records = ckpt["records"]
+        arrays = ckpt["arrays"]
+        policy.load_state_dict(ckpt["policy"])
+        opt_state = ckpt["optimizer"]
+        if ckpt["gp_file"] is not None:
+            model.load(out / ckpt["gp_file"])
+        set_rng_state(ckpt["rng"], np_rng)
+        start_trial = int(ckpt["next_trial"])
+        resumed_from = start_trial
+        if log:
+            log(f"resumed {ckpt_path}: trials 0..{start_trial - 1} done")
+
+    cost_fn = SwingUpCost(l_x=config.l_x, l_theta=config.l_theta, wrap=config.cost_wrap_angle)
+    total = config.num_trials + 1
+    bar = None
+    if progress:
+        from tqdm.auto import tqdm
+
+        bar = tqdm(total=total, initial=min(start_trial, total), desc="trials", unit="trial")
+    pngs: list[Path] = []
+    try:
+        for k in range(start_trial, total):
+            t0 = time.perf_counter()
+            rec: dict[str, Any] = {"index": k, "experience_s": (k + 1) * config.horizon * dt}
+            arr: dict[str, Any] = {"index": k, "particles": None, "opt_costs": None}
+            if k == 0:
+                rec["kind"] = "exploration"
+                explore = np_rng.uniform(-1.0, 1.0, size=(config.horizon, 1))
+                it = iter(explore)
+                ep = run_episode(
+                    env, lambda _o, it=it: next(it), _trial_seed(config.seed, k), config.horizon
+                )
+            else:
+                rec["kind"] = "policy"
+                # 1. model learning
+                t_fit = time.perf_counter()
+                model.fit(*_dataset(episodes))
+                rec["gp_fit_s"] = time.perf_counter() - t_fit
+                rec["gp_points"] = int(model.gp_.train_x_.shape[0])
+                rec["n_data"] = int(sum(len(e["actions"]) for e in episodes))
+                dynamics = model.particle_dynamics(torch.float32)
+                loss = MCPilcoLoss(
+                    policy_module,
+                    dynamics,
+                    cost_fn,
+                    horizon=config.horizon,
+                    num_particles=config.num_particles,
+                    init_std=config.init_std,
+                    obs_noise_std=config.sim_obs_noise_std,
+                )
+                if config.compile_rollout:
+                    loss.compile_step(dynamic=False)
+                # 2. policy update
+                opt_cfg = config.opt
+                if k == 1 and config.opt_steps_first is not None:
+                    opt_cfg = dataclasses.replace(
+                        opt_cfg, max_steps=min(opt_cfg.max_steps, config.opt_steps_first)
+                    )
+                obar = None
+                if progress:
+                    from tqdm.auto import tqdm
+
+                    obar = tqdm(total=opt_cfg.max_steps, desc=f"trial {k} policy opt", leave=False)
+
+                def on_step(i, c, s, lr, obar=obar):
+                    if obar is not None:
+                        obar.update(1)
+                        if i % 10 == 0:
+                            obar.set_postfix(J=f"{c:.2f}", std=f"{s:.2f}", lr=f"{lr:.4f}")
+
+                res: OptimizationResult = optimize_policy(loss, policy, opt_cfg, on_step=on_step)
+                if obar is not None:
+                    obar.close()
+                rec.update(
+                    opt_steps=res.num_steps,
+                    opt_s=res.seconds,
+                    s_per_opt_step=res.seconds_per_step,
+                    cpu_s_per_opt_step=res.cpu_seconds_per_step,
+                    opt_stop=res.stop_reason,
+                    opt_lr_reductions=res.num_lr_reductions,
+                    opt_reinits=res.num_reinits,
+                    opt_final_cost=res.costs[-1] if res.costs else math.nan,
+                )
+                arr["opt_costs"] = np.asarray(res.costs, dtype=np.float32)
+                # particle predictions of the final policy (for the plots)
+                policy.eval()
+                with torch.no_grad():
+                    ro = loss.rollout(num_particles=min(config.log_particles, config.num_particles))
+                arr["particles"] = ro.states.numpy()
+                # 3. apply the policy
+                ep = run_episode(
+                    env, _policy_act(policy), _trial_seed(config.seed, k), config.horizon
+                )
+                rec["gp_rmse"] = model.one_step_rmse(*_dataset([ep])).tolist()
+                arr["gp_rmse"] = rec["gp_rmse"]
+                opt_state = None  # Adam restarts at each trial (MC-PILCO)
+            episodes.append({"obs": ep["obs"], "actions": ep["actions"]})
+            rec.update(
+                cost=ep["cost"],
+                success=ep["success"],
+                time_upright=ep["time_upright"],
+                mean_abs_x=ep["mean_abs_x"],
+                wall_s=time.perf_counter() - t0,
+            )
+            arr.update(real=ep["states"], **{key: rec[key] for key in ("cost", "success")})
+            arr.update(time_upright=rec["time_upright"], mean_abs_x=rec["mean_abs_x"])
+            records.append(rec)
+            arrays.append(arr)
+            # outputs and checkpoint (checkpoint last: it is the commit point of the trial)
+            if arr["particles"] is not None:
+                pngs.append(
+                    plot_trial_particles(
+                        out / f"trial_{k:02d}_particles.png",
+                        arr["particles"],
+                        ep["states"],
+                        dt,
+                        title=f"trial {k}: particles (model) vs real, success={ep['success']}",
+                    )
+                )
+            _write_outputs(out, config, records, arrays, dt, write_rrd)
+            gp_file = None
+            if model.gp_ is not None:
+                gp_file = f"gp_trial{k:02d}.pt"
+                model.save(out / gp_file)
+            atomic_torch_save(
+                {
+                    "version": CHECKPOINT_VERSION,
+                    "config": config.to_dict(),
+                    "next_trial": k + 1,
+                    "episodes": episodes,
+                    "records": records,
+                    "arrays": arrays,
+                    "policy": policy.state_dict(),
+                    "optimizer": opt_state,
+                    "gp_file": gp_file,
+                    "rng": rng_state(np_rng),
+                },
+                ckpt_path,
+            )
+            for old_gp in out.glob("gp_trial*.pt"):
+                if old_gp.name != gp_file:
+                    old_gp.unlink(missing_ok=True)
+            if log:
+                log(_record_line(rec))
+            if bar is not None:
+                bar.update(1)
+    finally:
+        if bar is not None:
+            bar.close()
+        env.close()
+    if not pngs:
+        pngs = sorted(out.glob("trial_*_particles.png"))
+    opt_png = out / "optimisation.png"
+    return RunSummary(
+        config=config.to_dict(),
+        records=records,
+        out_dir=out,
+        checkpoint=ckpt_path,
+        rrd=(out / "run.rrd") if write_rrd else None,
+        pngs=pngs + ([opt_png] if opt_png.exists() else []),
+        seconds=time.perf_counter() - t_start,
+        resumed_from_trial=resumed_from,
+    )
+
+
+def _write_outputs(
+    out: Path,
+    config: MCPilcoConfig,
+    records: list[dict[str, Any]],
+    arrays: list[dict[str, Any]],
+    dt: float,
+    write_rrd: bool,
+) -> None:
+    curves = [(a["opt_costs"], f"trial {a['index']}") for a in arrays if a["opt_costs"] is not None]
+    if curves:
+        plot_optimisation(out / "optimisation.png", [c for c, _ in curves], [n for _, n in curves])
+    if write_rrd:
+        write_rerun_recording(out / "run.rrd", arrays, dt)
+    with open(out / "records.json.tmp", "w") as fh:
+        json.dump({"config": config.to_dict(), "records": records}, fh, indent=1)
+    Path(out / "records.json.tmp").replace(out / "records.json")

@@ -1,0 +1,198 @@
+"""Particle rollout and expected cost of MC-PILCO as a TorchRL ``LossModule``.
+
+Glossary (thesis sections 5.4.1-5.4.2; Amadio et al. 2022, sec. III)
+------------------------------------------------------------------------
+``M``
+    number of particles; ``H`` horizon (time steps, 60 = 3 s for the cartpole).
+``x_0^(m) ~ N(mu_0, Sigma_0)``
+    initial particles, ``Sigma_0 = sigma_0^2 I`` (``sigma_0 = 0.01`` like the env).
+``u_t^(m) = pi_theta(x_t^(m) + sigma_obs nu_t^(m))``
+    policy action; ``nu ~ N(0, I)`` optionally simulates the measurement noise the policy
+    sees on the real system (``sigma_obs = 0`` turns it off).
+``x_{t+1}^(m) = f(x_t^(m), u_t^(m), eps_t^(m))``
+    one step of the GP particle dynamics with the reparameterisation trick,
+    ``eps ~ N(0, I)`` (:class:`~mcpilco.agents.mc_pilco.dynamics.SpeedIntegrationDynamics`).
+``J^(theta) = sum_{t=1}^{H} 1/M sum_m c(x_t^(m))``
+    Monte Carlo estimate of the expected cumulative cost, eq. (5.8) (the ``t = 0`` term
+    does not depend on ``theta`` and is left out). Its gradient is computed by backprop
+    through the whole horizon (5.4.2).
+``s_J``
+    standard deviation over particles of the per-particle cumulative cost
+    ``sum_t c(x_t^(m))``; with it the monitoring rule normalises cost changes.
+
+All particles are propagated together: each time step is a handful of batched tensor ops
+over ``(M, .)``; there is no Python loop over particles.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import torch
+from tensordict import TensorDict, TensorDictBase
+from tensordict.nn import TensorDictModule
+from torch import Tensor, nn
+from torchrl.objectives import LossModule
+
+
+@dataclass
+class ParticleRollout:
+    """Result of :meth:`MCPilcoLoss.rollout`: ``states (M, H+1, 4)``, ``actions (M, H, 1)``,
+    ``costs (M, H)`` (cost of ``x_1..x_H``)."""
+
+    states: Tensor
+    actions: Tensor
+    costs: Tensor
+
+
+class MCPilcoLoss(LossModule):
+    """Expected cumulative cost of the policy under the GP particle dynamics, ``loss_cost``.
+
+    Args:
+        policy: ``TensorDictModule`` (``"observation"`` -> ``"action"``) or a plain module
+            ``obs (..., 4) -> action (..., 1)``.
+        dynamics: module ``(state, action, eps) -> next_state`` (e.g.
+            :class:`~mcpilco.agents.mc_pilco.dynamics.SpeedIntegrationDynamics`); replace it
+            with :meth:`set_dynamics` after each GP re-fit.
+        cost: module ``state (..., 4) -> cost (...)``.
+        horizon: ``H``, number of simulated steps (> 0).
+        num_particles: ``M`` (> 0).
+        init_mean: ``mu_0`` (4,).
+        init_std: ``sigma_0`` (scalar or (4,)).
+        obs_noise_std: ``sigma_obs`` of the simulated measurement noise on the policy input.
+        delta_dim: dimension of ``eps`` per step (number of GPs, 2 for the cartpole).
+
+    ``forward(td)`` reads optional entries ``"initial_state"`` (M, 4) and ``"noise"``
+    (H, M, delta_dim) (common random numbers, tests); otherwise it samples them. It returns
+    a TensorDict with ``loss_cost`` (the differentiable ``J^``) and ``cost_std`` (``s_J``,
+    detached).
+    """
+
+    def __init__(
+        self,
+        policy: nn.Module,
+        dynamics: nn.Module,
+        cost: nn.Module,
+        horizon: int,
+        num_particles: int,
+        init_mean: Sequence[float] | Tensor = (0.0, 0.0, 0.0, 0.0),
+        init_std: float | Sequence[float] | Tensor = 0.01,
+        obs_noise_std: float = 0.0,
+        delta_dim: int = 2,
+    ) -> None:
+        super().__init__()
+        if int(horizon) != horizon or horizon < 1:
+            raise ValueError(f"horizon must be a positive integer, got {horizon!r}")
+        if int(num_particles) != num_particles or num_particles < 1:
+            raise ValueError(
+                f"num_particles must be a positive integer, got {num_particles!r}; use e.g. 400"
+            )
+        if obs_noise_std < 0:
+            raise ValueError(f"obs_noise_std must be >= 0, got {obs_noise_std}")
+        self.policy = policy
+        self.dynamics = dynamics
+        self.cost = cost
+        self.horizon = int(horizon)
+        self.num_particles = int(num_particles)
+        self.obs_noise_std = float(obs_noise_std)
+        self.delta_dim = int(delta_dim)
+        self.register_buffer("init_mean", torch.as_tensor(init_mean, dtype=torch.float32))
+        self.register_buffer(
+            "init_std", torch.as_tensor(init_std, dtype=torch.float32).expand(4).clone()
+        )
+        if isinstance(policy, TensorDictModule):
+            if list(policy.in_keys) != ["observation"] or list(policy.out_keys) != ["action"]:
+                raise ValueError(
+                    "the policy TensorDictModule must read 'observation' and write 'action', "
+                    f"got in_keys={policy.in_keys}, out_keys={policy.out_keys}"
+                )
+            # the hot loop calls the wrapped module directly (no TensorDict per time step)
+            self._policy_fn = policy.module
+        else:
+            self._policy_fn = policy
+        self._compiled_step = None
+
+    def _step(self, x: Tensor, eps: Tensor, nu: Tensor | None) -> tuple[Tensor, Tensor, Tensor]:
+        """One time step for all particles: ``u = pi(x + nu)``, ``x+ = f(x, u, eps)``, ``c(x+)``."""
+        u = self._policy_fn(x if nu is None else x + nu)
+        x_next = self.dynamics(x, u, eps)
+        return x_next, u, self.cost(x_next)
+
+    def compile_step(self, enable: bool = True, **compile_kwargs) -> None:
+        """``torch.compile`` the per-time-step function (fuses the small ops of policy, GP
+        posterior, integration and cost; the first call compiles, forward and backward)."""
+        self._compiled_step = torch.compile(self._step, **compile_kwargs) if enable else None
+
+    @property
+    def functional(self) -> bool:  # the policy is used statefully (no functional params)
+        return False
+
+    def set_dynamics(self, dynamics: nn.Module) -> None:
+        """Use new particle dynamics (after a GP re-fit)."""
+        self.dynamics = dynamics
+
+    def sample_initial_state(self, num_particles: int | None = None) -> Tensor:
+        """``x_0^(m) ~ N(mu_0, Sigma_0)``, (M, 4)."""
+        m = self.num_particles if num_particles is None else int(num_particles)
+        return self.init_mean + self.init_std * torch.randn(m, 4)
+
+    def rollout(
+        self,
+        initial_state: Tensor | None = None,
+        noise: Tensor | None = None,
+        num_particles: int | None = None,
+        keep_states: bool = True,
+    ) -> ParticleRollout:
+        """Propagate ``M`` particles for ``H`` steps; differentiable w.r.t. the policy.
+
+        Args:
+            initial_state: (M, 4) ``x_0``; sampled when None.
+            noise: (H, M, delta_dim) ``eps``; sampled when None. Pass zeros for the mean
+                prediction of a deterministic model.
+            num_particles: ``M`` when ``initial_state`` is None (default: the module's).
+            keep_states: also return the whole trajectory (else ``states`` holds only
+                ``x_0`` and ``x_H``).
+        """
+        x = self.sample_initial_state(num_particles) if initial_state is None else initial_state
+        m = x.shape[0]
+        if x.ndim != 2 or x.shape[1] != 4:
+            raise ValueError(f"initial_state must have shape (M, 4), got {tuple(x.shape)}")
+        if noise is None:
+            noise = torch.randn(self.horizon, m, self.delta_dim, dtype=x.dtype)
+        if noise.shape != (self.horizon, m, self.delta_dim):
+            raise ValueError(
+                f"noise must have shape (H, M, {self.delta_dim}) = "
+                f"({self.horizon}, {m}, {self.delta_dim}), got {tuple(noise.shape)}; the "
+                "horizon of the noise must match the loss's horizon"
+            )
+        obs_noise = None
+        if self.obs_noise_std > 0:
+            obs_noise = self.obs_noise_std * torch.randn(self.horizon, m, 4, dtype=x.dtype)
+        states = [x]
+        actions = []
+        costs = []
+        step = self._compiled_step if self._compiled_step is not None else self._step
+        for t in range(self.horizon):
+            x, u, c = step(x, noise[t], None if obs_noise is None else obs_noise[t])
+            costs.append(c)
+            if keep_states or t == self.horizon - 1:
+                states.append(x)
+            actions.append(u)
+        return ParticleRollout(
+            states=torch.stack(states, dim=1),
+            actions=torch.stack(actions, dim=1),
+            costs=torch.stack(costs, dim=1),
+        )
+
+    def forward(self, tensordict: TensorDictBase | None = None) -> TensorDict:
+        td = TensorDict({}, batch_size=[]) if tensordict is None else tensordict
+        ro = self.rollout(
+            initial_state=td.get("initial_state", None),
+            noise=td.get("noise", None),
+            keep_states=False,
+        )
+        per_particle = ro.costs.sum(dim=1)  # sum_t c(x_t^(m)), (M,)
+        loss = per_particle.mean()
+        std = per_particle.detach().std() if per_particle.numel() > 1 else torch.zeros(())
+        return TensorDict({"loss_cost": loss, "cost_std": std}, batch_size=[])

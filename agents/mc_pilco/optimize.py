@@ -1,0 +1,196 @@
+"""Policy optimisation loop of MC-PILCO: Adam, dropout and the monitoring rule.
+
+Glossary (Amadio et al. 2022, sec. IV-B/C; thesis Algorithm 1)
+----------------------------------------------------------------
+``J^_k``, ``s_J,k``
+    expected-cost estimate (5.8) at optimisation step ``k`` and its spread over particles
+    (:class:`~mcpilco.agents.mc_pilco.loss.MCPilcoLoss` outputs ``loss_cost``/``cost_std``).
+``r_k = (J^_k - J^_{k-1}) / s_J,k``
+    cost change normalised by the Monte Carlo spread.
+``s_k = alpha_s s_{k-1} + (1 - alpha_s) r_k``
+    monitoring signal, an exponential moving average of ``r_k`` (``alpha_s = 0.99``).
+stall
+    ``|s_k| < sigma_s`` (``sigma_s = 0.08``) for ``n_s`` consecutive steps: the optimisation
+    no longer improves by more than the Monte Carlo noise. Then the learning rate ``a`` is
+    halved, the dropout probability ``p`` lowered by ``Delta p`` (``0.25 -> 0.125 -> 0``),
+    Adam is restarted (fresh moments) and the signal reset. Optimisation stops when ``a``
+    would fall below ``a_min`` or after ``N_opt`` steps.
+NaN restart
+    a non-finite ``J^`` re-initialises the policy parameters and Adam (at most
+    ``max_reinits`` times, then ``FloatingPointError``).
+
+The constants are those of the MC-PILCO reference configuration as we know it
+(``a = 0.01``, ``a_min = 0.0025``, ``p = 0.25``, ``Delta p = 0.125``, ``alpha_s = 0.99``,
+``sigma_s = 0.08``, ``n_s = 200``); the experiment configs override ``n_s`` and ``N_opt``
+to fit the compute budget.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+
+import torch
+from torch import nn
+
+
+@dataclass
+class PolicyOptConfig:
+    """Budget and schedule of one policy optimisation (defaults: MC-PILCO)."""
+
+    max_steps: int = 1500
+    lr: float = 0.01
+    lr_min: float = 0.0025
+    dropout: float = 0.25
+    dropout_reduction: float = 0.125
+    monitor_alpha: float = 0.99
+    monitor_threshold: float = 0.08
+    monitor_patience: int = 200
+    max_reinits: int = 3
+
+    def __post_init__(self) -> None:
+        if self.max_steps < 1:
+            raise ValueError(f"max_steps must be >= 1, got {self.max_steps}")
+        if not (self.lr > 0 and self.lr_min > 0):
+            raise ValueError(f"lr and lr_min must be > 0, got {self.lr}, {self.lr_min}")
+        if not 0.0 <= self.dropout < 1.0:
+            raise ValueError(f"dropout must be in [0, 1), got {self.dropout}")
+        if not 0.0 <= self.monitor_alpha < 1.0:
+            raise ValueError(f"monitor_alpha must be in [0, 1), got {self.monitor_alpha}")
+        if self.monitor_patience < 1:
+            raise ValueError(f"monitor_patience must be >= 1, got {self.monitor_patience}")
+
+
+class CostMonitor:
+    """The monitoring signal ``s_k`` and the stall test (see the module glossary)."""
+
+    def __init__(self, alpha: float = 0.99, threshold: float = 0.08, patience: int = 200):
+        self.alpha = float(alpha)
+        self.threshold = float(threshold)
+        self.patience = int(patience)
+        self.reset()
+
+    def reset(self) -> None:
+        """Forget the history (after a learning-rate change)."""
+        self.signal = 0.0
+        self.count = 0
+        self._prev: float | None = None
+
+    def update(self, cost: float, cost_std: float) -> bool:
+        """Feed ``J^_k`` and ``s_J,k``; True when the signal has stalled for ``n_s`` steps."""
+        if self._prev is not None:
+            r = (cost - self._prev) / max(float(cost_std), 1e-12)
+            self.signal = self.alpha * self.signal + (1.0 - self.alpha) * r
+            self.count = self.count + 1 if abs(self.signal) < self.threshold else 0
+        self._prev = float(cost)
+        return self.count >= self.patience
+
+
+@dataclass
+class OptimizationResult:
+    """History of one policy optimisation."""
+
+    costs: list[float] = field(default_factory=list)
+    cost_stds: list[float] = field(default_factory=list)
+    lrs: list[float] = field(default_factory=list)
+    dropouts: list[float] = field(default_factory=list)
+    signals: list[float] = field(default_factory=list)
+    num_lr_reductions: int = 0
+    num_reinits: int = 0
+    seconds: float = 0.0
+    cpu_seconds: float = 0.0
+    stop_reason: str = "max_steps"
+
+    @property
+    def num_steps(self) -> int:
+        return len(self.costs)
+
+    @property
+    def seconds_per_step(self) -> float:
+        """Wall-clock seconds per step."""
+        return self.seconds / max(self.num_steps, 1)
+
+    @property
+    def cpu_seconds_per_step(self) -> float:
+        """CPU seconds of this process per step (robust to other processes on the cores)."""
+        return self.cpu_seconds / max(self.num_steps, 1)
+
+
+def _set_dropout(net: nn.Module, p: float) -> None:
+    if hasattr(net, "dropout"):
+        net.dropout = float(p)
+
+
+def optimize_policy(
+    loss_module: nn.Module,
+    policy: nn.Module,
+    config: PolicyOptConfig,
+    on_step: Callable[[int, float, float, float], None] | None = None,
+) -> OptimizationResult:
+    """Minimise ``loss_module()["loss_cost"]`` over ``policy``'s parameters with Adam.
+
+    Args:
+        loss_module: returns a TensorDict with ``loss_cost`` (scalar) and ``cost_std``.
+        policy: the policy network (the module inside the ``TensorDictModule``); its
+            ``dropout`` attribute is scheduled and it must have ``reset_parameters()`` for the
+            NaN restart.
+        config: schedule and budget.
+        on_step: called as ``on_step(k, J^_k, s_J,k, a_k)`` after each step (progress bars).
+    """
+    res = OptimizationResult()
+    lr = config.lr
+    dropout = config.dropout
+    params = [p for p in policy.parameters() if p.requires_grad]
+    opt = torch.optim.Adam(params, lr=lr)
+    monitor = CostMonitor(config.monitor_alpha, config.monitor_threshold, config.monitor_patience)
+    _set_dropout(policy, dropout)
+    policy.train()
+    t0, c0 = time.perf_counter(), time.process_time()
+    try:
+        for k in range(config.max_steps):
+            opt.zero_grad(set_to_none=True)
+            out = loss_module()
+            loss = out["loss_cost"]
+            cost = float(loss.detach())
+            std = float(out["cost_std"])
+            if not math.isfinite(cost):
+                res.num_reinits += 1
+                if res.num_reinits > config.max_reinits:
+                    res.stop_reason = "nan"
+                    raise FloatingPointError(
+                        f"expected cost is not finite after {config.max_reinits} policy "
+                        "re-initialisations; check the GP model (noise, data) and the policy"
+                    )
+                policy.reset_parameters()
+                lr, dropout = config.lr, config.dropout
+                _set_dropout(policy, dropout)
+                opt = torch.optim.Adam(params, lr=lr)
+                monitor.reset()
+                continue
+            loss.backward()
+            opt.step()
+            res.costs.append(cost)
+            res.cost_stds.append(std)
+            res.lrs.append(lr)
+            res.dropouts.append(dropout)
+            stalled = monitor.update(cost, std)
+            res.signals.append(monitor.signal)
+            if on_step is not None:
+                on_step(k, cost, std, lr)
+            if stalled:
+                if lr * 0.5 < config.lr_min:
+                    res.stop_reason = "lr_min"
+                    break
+                lr *= 0.5
+                dropout = max(dropout - config.dropout_reduction, 0.0)
+                _set_dropout(policy, dropout)
+                opt = torch.optim.Adam(params, lr=lr)
+                monitor.reset()
+                res.num_lr_reductions += 1
+    finally:
+        res.seconds = time.perf_counter() - t0
+        res.cpu_seconds = time.process_time() - c0
+        policy.eval()
+    return res

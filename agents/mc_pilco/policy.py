@@ -1,0 +1,144 @@
+"""Squashed RBF-network policy of MC-PILCO (thesis section 5.5.1; Amadio et al. 2022, eq. (23)).
+
+Glossary
+--------
+``x = [q1, q1_dot, q2, q2_dot]``
+    cartpole state (observation), pole angle ``q2`` not wrapped.
+``x~ = [q1, q1_dot, q2_dot, cos q2, sin q2]``
+    policy input ("x_ext" in thesis 5.5.1): the angle enters through cos and sin.
+``phi_i(x~) = exp(-1/2 ||(x~ - c_i) / l||^2``
+    Gaussian basis function ``i = 1..n_b`` with centre ``c_i`` and lengthscales ``l``
+    (diagonal, shared by all basis functions, learnable).
+``pi_theta(x) = u_max tanh(sum_i w_i phi_i(x~) / u_max)``
+    the squashed policy; ``theta = {w, c, l}``; output in ``(-u_max, u_max)``.
+dropout
+    during policy optimisation, at every call (every simulated time step) each weight
+    ``w_i`` is zeroed with probability ``p`` and the others are scaled by ``1/(1-p)``, i.e.
+    the basis activation ``phi_i`` is dropped for all particles at once. This is the
+    regulariser of MC-PILCO (Amadio et al. 2022, sec. IV-B; the reference code drops the
+    weights), and a mask of ``n_b`` entries per step is far cheaper than one per particle.
+    ``p`` is lowered by the monitoring rule (:mod:`mcpilco.agents.mc_pilco.optimize`).
+    Off in ``eval()`` mode.
+
+``u_max`` is in the units of the env action (the cartpole action in ``[-1, 1]`` maps to
+``+-10`` N), so the default ``u_max = 1``.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import torch
+from tensordict.nn import TensorDictModule
+from torch import Tensor, nn
+
+
+def cartpole_policy_features(obs: Tensor) -> Tensor:
+    """``x~ = [x, x_dot, theta_dot, cos theta, sin theta]`` from ``obs = [x, x_dot, theta,
+    theta_dot]`` (..., 4) -> (..., 5)."""
+    if obs.shape[-1] != 4:
+        raise ValueError(
+            f"observation must have shape (..., 4) = [x, x_dot, theta, theta_dot], got "
+            f"{tuple(obs.shape)}"
+        )
+    theta = obs[..., 2:3]
+    return torch.cat([obs[..., 0:2], obs[..., 3:4], torch.cos(theta), torch.sin(theta)], dim=-1)
+
+
+class SquashedRBFPolicy(nn.Module):
+    """``u = u_max tanh(sum_i w_i phi_i(x~) / u_max)`` with ``n_b`` Gaussian basis functions.
+
+    Args:
+        num_basis: number of basis functions ``n_b`` (MC-PILCO: 200).
+        action_dim: dimension of ``u``.
+        u_max: output bound, in env action units.
+        centers_box: half widths of the box ``[-b, b]`` in which the centres are initialised
+            uniformly, one per input of ``x~``.
+        lengthscale_init: initial lengthscales ``l``, one per input of ``x~``.
+        weight_scale: initial weights ``w ~ U(-weight_scale, weight_scale) u_max``.
+        dropout: initial dropout probability ``p`` on the activations (training mode only).
+        seed: seed of the initialisation (None: torch's global generator).
+
+    Shapes:
+        ``forward(obs (..., 4)) -> action (..., action_dim)``.
+    """
+
+    def __init__(
+        self,
+        num_basis: int = 200,
+        action_dim: int = 1,
+        u_max: float = 1.0,
+        centers_box: Sequence[float] = (1.0, 2.0, 6.0, 1.0, 1.0),
+        lengthscale_init: Sequence[float] = (1.0, 2.0, 6.0, 1.0, 1.0),
+        weight_scale: float = 0.5,
+        dropout: float = 0.25,
+        seed: int | None = None,
+    ) -> None:
+        super().__init__()
+        if num_basis < 1:
+            raise ValueError(f"num_basis must be >= 1, got {num_basis}")
+        if not u_max > 0:
+            raise ValueError(f"u_max must be > 0, got {u_max}")
+        if len(centers_box) != len(lengthscale_init):
+            raise ValueError("centers_box and lengthscale_init need one entry per policy input")
+        self.num_basis = int(num_basis)
+        self.action_dim = int(action_dim)
+        self.input_dim = len(centers_box)
+        self.u_max = float(u_max)
+        self.weight_scale = float(weight_scale)
+        self.dropout = float(dropout)
+        self.register_buffer("centers_box", torch.as_tensor(centers_box, dtype=torch.float32))
+        self.register_buffer(
+            "lengthscale_init", torch.as_tensor(lengthscale_init, dtype=torch.float32)
+        )
+        self.centers = nn.Parameter(torch.empty(self.num_basis, self.input_dim))
+        self.log_lengthscales = nn.Parameter(torch.empty(self.input_dim))
+        self.weights = nn.Parameter(torch.empty(self.num_basis, self.action_dim))
+        self.reset_parameters(seed)
+
+    @torch.no_grad()
+    def reset_parameters(self, seed: int | None = None) -> None:
+        """(Re-)initialise ``c`` uniformly in the box, ``l`` to its initial value and ``w``
+        uniformly in ``+-weight_scale u_max``."""
+        gen = None
+        if seed is not None:
+            gen = torch.Generator().manual_seed(int(seed))
+        c = torch.rand(self.num_basis, self.input_dim, generator=gen) * 2.0 - 1.0
+        self.centers.copy_(c * self.centers_box)
+        self.log_lengthscales.copy_(self.lengthscale_init.log())
+        w = torch.rand(self.num_basis, self.action_dim, generator=gen) * 2.0 - 1.0
+        self.weights.copy_(w * self.weight_scale * self.u_max)
+
+    def basis(self, features: Tensor) -> Tensor:
+        """Activations ``phi(x~)`` (..., n_b), matmul form of ``||(x~ - c)/l||^2``."""
+        inv_l = torch.exp(-self.log_lengthscales)
+        a = features * inv_l
+        b = self.centers * inv_l
+        # -1/2 ||a - b||^2 = a b^T - |a|^2/2 - |b|^2/2 (<= 0 up to rounding)
+        log_phi = a @ b.T - 0.5 * ((a * a).sum(-1, keepdim=True) + (b * b).sum(-1))
+        return torch.exp(log_phi)
+
+    def forward(self, obs: Tensor) -> Tensor:
+        phi = self.basis(cartpole_policy_features(obs))
+        w = self.weights
+        if self.training and self.dropout > 0.0:
+            w = nn.functional.dropout(w, p=self.dropout, training=True)
+        return self.u_max * torch.tanh((phi @ w) / self.u_max)
+
+    def extra_repr(self) -> str:
+        return (
+            f"num_basis={self.num_basis}, action_dim={self.action_dim}, u_max={self.u_max}, "
+            f"dropout={self.dropout}"
+        )
+
+
+def make_policy_module(policy: SquashedRBFPolicy | None = None, **kwargs) -> TensorDictModule:
+    """Wrap a policy as a ``TensorDictModule`` reading ``"observation"``, writing ``"action"``.
+
+    ``kwargs`` go to :class:`SquashedRBFPolicy` when ``policy`` is None.
+    """
+    if policy is None:
+        policy = SquashedRBFPolicy(**kwargs)
+    elif kwargs:
+        raise TypeError("pass either a policy or constructor kwargs, not both")
+    return TensorDictModule(policy, in_keys=["observation"], out_keys=["action"])

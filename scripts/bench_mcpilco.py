@@ -1,0 +1,417 @@
+"""Benchmark MC-PILCO on the cartpole swing-up (console script ``mcpilco-bench-mcpilco``).
+
+Three parts, each optional:
+
+1. ``runs``: S seeds of the whole loop (exploration + policy trials) per env; per trial
+   (3, 6, 9, 12, 15 s of experience) the success rate, mean time upright, mean ``|x|``,
+   wall-clock per trial and per optimisation step. Seeds run in ``--jobs`` parallel
+   processes with one torch thread each.
+2. ``timing``: seconds per policy optimisation step (forward + backward through the
+   ``M x H`` particle rollout + Adam step) at ``M = 400`` particles, ``H = 60``, for several
+   GP sizes ``N`` (GP fitted on random-exploration data), 1 torch thread and 2 threads.
+3. ``rmse``: RBF+MPK vs RBF-only (thesis Fig. 5.5): both GPs fitted on the same 3 s of
+   random exploration; then a fixed policy runs on the env and ``M`` particles are rolled
+   out through each GP; reported: the RMSE of theta between particles and the real
+   trajectory averaged over the 60 steps, mean over seeds.
+
+Writes ``results/mcpilco_cartpole.json`` (merged with an existing file, one section per
+env), ``results/mcpilco_cartpole.md`` and ``results/mcpilco_cartpole.png``.
+
+Usage::
+
+    mcpilco-bench-mcpilco --seeds 20 --jobs 2                  # all parts, default env
+    mcpilco-bench-mcpilco --parts runs --seeds 5 --preset demo
+    mcpilco-bench-mcpilco --parts runs --env mcpilco/DMCCartpoleSwingUp-v0 --seeds 5
+    mcpilco-bench-mcpilco --parts timing rmse
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import json
+import statistics
+import sys
+import time
+from concurrent.futures import ProcessPoolExecutor
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from mcpilco.agents.mc_pilco import BENCH_CONFIG, DEFAULT_ENV_ID, DEMO_CONFIG, MCPilcoConfig
+
+PRESETS = {"bench": BENCH_CONFIG, "demo": DEMO_CONFIG, "default": MCPilcoConfig()}
+PARTS = ("runs", "timing", "rmse")
+
+
+# ------------------------------------------------------------------------------- runs
+def _run_seed(job: tuple[dict[str, Any], str]) -> dict[str, Any]:
+    import torch
+
+    torch.set_num_threads(1)
+    from mcpilco.agents.mc_pilco import run_mcpilco
+
+    cfg_dict, out = job
+    cfg = MCPilcoConfig.from_dict(cfg_dict)
+    summary = run_mcpilco(
+        cfg,
+        out,
+        resume=(Path(out) / "checkpoint.pt").is_file(),
+        progress=False,
+        log=None,
+        write_rrd=False,
+    )
+    return {"seed": cfg.seed, "records": summary.records, "seconds": summary.seconds}
+
+
+def aggregate_runs(runs: list[dict[str, Any]]) -> list[dict[str, Any]]:
+    """Per trial index: success rate, mean time upright, mean |x|, timings over seeds."""
+    rows = []
+    n_trials = min(len(r["records"]) for r in runs)
+    for k in range(n_trials):
+        recs = [r["records"][k] for r in runs]
+        row = {
+            "trial": k,
+            "experience_s": recs[0]["experience_s"],
+            "kind": recs[0]["kind"],
+            "seeds": len(recs),
+            "success_rate": float(np.mean([r["success"] for r in recs])),
+            "time_upright_s": float(np.mean([r["time_upright"] for r in recs])),
+            "mean_abs_x_m": float(np.mean([r["mean_abs_x"] for r in recs])),
+            "cost": float(np.mean([r["cost"] for r in recs])),
+            "wall_s_per_trial": float(np.mean([r["wall_s"] for r in recs])),
+        }
+        if recs[0]["kind"] == "policy":
+            row["opt_steps"] = float(np.mean([r["opt_steps"] for r in recs]))
+            row["s_per_opt_step"] = float(np.mean([r["s_per_opt_step"] for r in recs]))
+            row["cpu_s_per_opt_step"] = float(
+                np.mean([r.get("cpu_s_per_opt_step", np.nan) for r in recs])
+            )
+            row["gp_fit_s"] = float(np.mean([r["gp_fit_s"] for r in recs]))
+        rows.append(row)
+    return rows
+
+
+def bench_runs(cfg: MCPilcoConfig, seeds: list[int], jobs: int, runs_dir: Path) -> dict:
+    jobs_list = [
+        (dataclasses.replace(cfg, seed=s, torch_threads=1).to_dict(), str(runs_dir / f"seed{s}"))
+        for s in seeds
+    ]
+    t0 = time.perf_counter()
+    runs = []
+    try:
+        from tqdm.auto import tqdm
+    except ImportError:  # pragma: no cover
+        tqdm = None
+    bar = tqdm(total=len(seeds), desc=f"seeds {cfg.env_id}") if tqdm else None
+    if jobs > 1:
+        with ProcessPoolExecutor(max_workers=jobs) as pool:
+            for res in pool.map(_run_seed, jobs_list):
+                runs.append(res)
+                if bar:
+                    bar.update(1)
+    else:
+        for job in jobs_list:
+            runs.append(_run_seed(job))
+            if bar:
+                bar.update(1)
+    if bar:
+        bar.close()
+    return {
+        "config": cfg.to_dict(),
+        "seeds": seeds,
+        "jobs": jobs,
+        "wall_s_total": time.perf_counter() - t0,
+        "wall_s_per_run": float(np.mean([r["seconds"] for r in runs])),
+        "per_trial": aggregate_runs(runs),
+        "per_seed": [
+            {
+                "seed": r["seed"],
+                "success": [bool(x["success"]) for x in r["records"]],
+                "seconds": r["seconds"],
+            }
+            for r in runs
+        ],
+    }
+
+
+# ----------------------------------------------------------------------------- timing
+def _exploration_data(env_id: str, n_points: int, seed: int):
+    from mcpilco.agents.mc_pilco.loop import _dataset, make_env, run_episode
+
+    env = make_env(env_id, 60)
+    rng = np.random.default_rng(seed)
+    eps = [
+        run_episode(env, lambda _o: rng.uniform(-1, 1, 1), seed * 1000 + i, 60)
+        for i in range(max(1, -(-n_points // 60)))
+    ]
+    env.close()
+    s, a, s1 = _dataset(eps)
+    return s[:n_points], a[:n_points], s1[:n_points], eps
+
+
+def time_opt_step(
+    n_points: int,
+    num_particles: int = 400,
+    horizon: int = 60,
+    kernel: str = "rbf+mpk",
+    threads: int = 1,
+    repeats: int = 5,
+    env_id: str = DEFAULT_ENV_ID,
+) -> dict[str, float]:
+    """Median wall and CPU seconds of one optimisation step (rollout, backward, Adam)."""
+    import torch
+
+    from mcpilco.agents.mc_pilco import (
+        GPDynamicsModel,
+        MCPilcoLoss,
+        SquashedRBFPolicy,
+        SwingUpCost,
+        make_policy_module,
+    )
+
+    torch.set_num_threads(threads)
+    s, a, s1, _ = _exploration_data(env_id, n_points, 0)
+    model = GPDynamicsModel(kernel=kernel, adam_iters=30, lbfgs_iters=5, max_points=None)
+    model.fit(s, a, s1)
+    policy = SquashedRBFPolicy(seed=0)
+    loss = MCPilcoLoss(
+        make_policy_module(policy),
+        model.particle_dynamics(),
+        SwingUpCost(),
+        horizon,
+        num_particles,
+        obs_noise_std=0.01,
+    )
+    opt = torch.optim.Adam(policy.parameters(), lr=0.01)
+    policy.train()
+    walls, cpus = [], []
+    for i in range(repeats + 1):
+        t, c = time.perf_counter(), time.process_time()
+        opt.zero_grad()
+        loss()["loss_cost"].backward()
+        opt.step()
+        if i:  # first call is warm-up
+            walls.append(time.perf_counter() - t)
+            cpus.append(time.process_time() - c)
+    return {
+        "n_points": n_points,
+        "num_particles": num_particles,
+        "threads": threads,
+        "s_per_step_wall": statistics.median(walls),
+        "s_per_step_cpu": statistics.median(cpus),
+    }
+
+
+# ------------------------------------------------------------------------------- rmse
+def particle_rmse(seed: int, num_particles: int = 400, env_id: str = DEFAULT_ENV_ID) -> dict:
+    """60-step RMSE of theta, particles vs real, for RBF+MPK and RBF-only (same data)."""
+    import torch
+
+    from mcpilco.agents.mc_pilco import (
+        GPDynamicsModel,
+        MCPilcoLoss,
+        SquashedRBFPolicy,
+        SwingUpCost,
+        make_policy_module,
+    )
+    from mcpilco.agents.mc_pilco.loop import _policy_act, make_env, run_episode
+
+    torch.set_num_threads(1)
+    s, a, s1, _ = _exploration_data(env_id, 60, 100 + seed)  # 3 s of random exploration
+    policy = SquashedRBFPolicy(seed=1000 + seed, weight_scale=1.0)  # fixed test policy
+    env = make_env(env_id, 60)
+    real = run_episode(env, _policy_act(policy), 5000 + seed, 60)["states"]
+    env.close()
+    out = {}
+    for kernel in ("rbf+mpk", "rbf"):
+        model = GPDynamicsModel(kernel=kernel).fit(s, a, s1)
+        torch.manual_seed(seed)
+        loss = MCPilcoLoss(
+            make_policy_module(policy), model.particle_dynamics(), SwingUpCost(), 60, num_particles
+        )
+        policy.eval()
+        with torch.no_grad():
+            x0 = torch.as_tensor(real[0], dtype=torch.float32).expand(num_particles, 4)
+            parts = loss.rollout(initial_state=x0.clone()).states.numpy()
+        err = parts[:, 1:, 2] - real[None, 1:, 2]
+        out[kernel] = float(np.sqrt(np.mean(err**2)))
+    return out
+
+
+# ------------------------------------------------------------------------------ report
+def _md_table(env_id: str, section: dict) -> str:
+    lines = [f"### {env_id}", ""]
+    cfg = section["config"]
+    lines.append(
+        f"{len(section['seeds'])} seeds; M={cfg['num_particles']} particles, "
+        f"max {cfg['opt']['max_steps']} opt steps per trial (first: {cfg['opt_steps_first']}), "
+        f"GP subset N<={cfg['max_points']}, kernel {cfg['kernel']}; {section['jobs']} parallel "
+        f"jobs x 1 thread; mean wall-clock per run {section['wall_s_per_run']:.0f} s."
+    )
+    lines += [
+        "",
+        "| experience | success rate | time upright [s] | mean abs x [m] | wall per trial [s] "
+        "| opt steps | s / opt step (wall) | s / opt step (CPU) |",
+        "|---|---|---|---|---|---|---|---|",
+    ]
+    for r in section["per_trial"]:
+        lines.append(
+            f"| {r['experience_s']:.0f} s ({r['kind']}) | {100 * r['success_rate']:.0f}% "
+            f"| {r['time_upright_s']:.2f} | {r['mean_abs_x_m']:.2f} | {r['wall_s_per_trial']:.1f} "
+            f"| {r.get('opt_steps', 0):.0f} | {r.get('s_per_opt_step', float('nan')):.3f} "
+            f"| {r.get('cpu_s_per_opt_step', float('nan')):.3f} |"
+        )
+    return "\n".join(lines) + "\n"
+
+
+def write_report(results: dict, out_dir: Path) -> None:
+    out_dir.mkdir(parents=True, exist_ok=True)
+    md = ["# MC-PILCO on the cartpole swing-up", ""]
+    for env_id, section in results.get("runs", {}).items():
+        md.append(_md_table(env_id, section))
+    if results.get("timing"):
+        md += [
+            "### Seconds per optimisation step (M = 400, H = 60)",
+            "",
+            "| GP points N | threads | wall s/step | CPU s/step |",
+            "|---|---|---|---|",
+        ]
+        for t in results["timing"]:
+            md.append(
+                f"| {t['n_points']} | {t['threads']} | {t['s_per_step_wall']:.3f} "
+                f"| {t['s_per_step_cpu']:.3f} |"
+            )
+        md.append("")
+    if results.get("rmse"):
+        r = results["rmse"]
+        md += [
+            "### Particle RMSE of theta over 60 steps (fixed policy, 3 s of exploration data)",
+            "",
+            "| kernel | RMSE theta [rad], mean +- std over seeds | median |",
+            "|---|---|---|",
+        ]
+        for k in ("rbf+mpk", "rbf"):
+            med = r[k].get("median", float("nan"))
+            md.append(f"| {k} | {r[k]['mean']:.3f} +- {r[k]['std']:.3f} | {med:.3f} |")
+        md.append(f"\n{r['seeds']} seeds; RBF+MPK lower in {r['mpk_better']} of them.\n")
+    (out_dir / "mcpilco_cartpole.md").write_text("\n".join(md))
+    with open(out_dir / "mcpilco_cartpole.json", "w") as fh:
+        json.dump(results, fh, indent=1)
+    if results.get("runs"):
+        import matplotlib
+
+        matplotlib.use("Agg")
+        import matplotlib.pyplot as plt
+
+        fig, axes = plt.subplots(1, 3, figsize=(12, 3.5))
+        for env_id, section in results["runs"].items():
+            rows = section["per_trial"]
+            t = [r["experience_s"] for r in rows]
+            axes[0].plot(t, [100 * r["success_rate"] for r in rows], "o-", label=env_id)
+            axes[1].plot(t, [r["time_upright_s"] for r in rows], "o-", label=env_id)
+            axes[2].plot(t, [r["mean_abs_x_m"] for r in rows], "o-", label=env_id)
+        for ax, lab in zip(
+            axes, ["success rate [%]", "time upright [s]", "mean |x| [m]"], strict=True
+        ):
+            ax.set_xlabel("experience [s]")
+            ax.set_ylabel(lab)
+            ax.grid(alpha=0.3)
+        axes[0].legend(fontsize=7)
+        fig.tight_layout()
+        fig.savefig(out_dir / "mcpilco_cartpole.png", dpi=110)
+        plt.close(fig)
+
+
+def build_parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(
+        prog="mcpilco-bench-mcpilco",
+        description=__doc__,
+        formatter_class=argparse.RawTextHelpFormatter,
+    )
+    p.add_argument("--parts", nargs="+", choices=PARTS, default=list(PARTS))
+    p.add_argument("--env", nargs="+", default=[DEFAULT_ENV_ID], help="env ids for the runs")
+    p.add_argument("--seeds", type=int, default=20, help="number of seeds S (0..S-1)")
+    p.add_argument("--first-seed", type=int, default=0)
+    p.add_argument("--jobs", type=int, default=1, help="parallel processes (1 thread each)")
+    p.add_argument("--preset", choices=sorted(PRESETS), default="bench")
+    p.add_argument("--trials", type=int, help="policy trials (override)")
+    p.add_argument("--particles", type=int, help="particles (override)")
+    p.add_argument("--opt-steps", type=int, help="max opt steps per trial (override)")
+    p.add_argument("--timing-n", type=int, nargs="+", default=[100, 200, 300])
+    p.add_argument("--timing-threads", type=int, nargs="+", default=[1, 2])
+    p.add_argument("--rmse-seeds", type=int, default=5)
+    p.add_argument("--out", type=Path, default=Path("results"))
+    p.add_argument("--runs-dir", type=Path, default=Path("runs/bench_mcpilco"))
+    return p
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    if args.seeds < 1 or args.jobs < 1:
+        parser.error("--seeds and --jobs must be >= 1")
+    from mcpilco.agents.mc_pilco import registered_ids
+
+    ids = registered_ids()
+    for env_id in args.env:
+        if env_id not in ids:
+            parser.error(f"unknown env id {env_id!r}; registered mcpilco ids: {', '.join(ids)}")
+    cfg = PRESETS[args.preset]
+    over: dict[str, Any] = {}
+    if args.trials is not None:
+        over["num_trials"] = args.trials
+    if args.particles is not None:
+        over["num_particles"] = args.particles
+    if args.opt_steps is not None:
+        over["opt"] = dataclasses.replace(cfg.opt, max_steps=args.opt_steps)
+        if cfg.opt_steps_first is not None:
+            over["opt_steps_first"] = min(cfg.opt_steps_first, args.opt_steps)
+    try:
+        cfg = dataclasses.replace(cfg, **over)
+    except ValueError as err:
+        parser.error(str(err))
+
+    json_path = args.out / "mcpilco_cartpole.json"
+    results: dict[str, Any] = {}
+    if json_path.is_file():
+        results = json.loads(json_path.read_text())
+    seeds = list(range(args.first_seed, args.first_seed + args.seeds))
+    if "runs" in args.parts:
+        results.setdefault("runs", {})
+        for env_id in args.env:
+            env_cfg = dataclasses.replace(cfg, env_id=env_id)
+            tag = env_id.split("/")[-1]
+            section = bench_runs(env_cfg, seeds, args.jobs, args.runs_dir / tag)
+            results["runs"][env_id] = section
+            print(_md_table(env_id, section))
+            write_report(results, args.out)
+    if "timing" in args.parts:
+        results["timing"] = []
+        for n in args.timing_n:
+            for th in args.timing_threads:
+                t = time_opt_step(n, threads=th)
+                print(f"N={n} threads={th}: {t['s_per_step_wall']:.3f} s/step wall")
+                results["timing"].append(t)
+        write_report(results, args.out)
+    if "rmse" in args.parts:
+        per_seed = [particle_rmse(s) for s in range(args.rmse_seeds)]
+        rm = {"seeds": len(per_seed), "per_seed": per_seed}
+        for k in ("rbf+mpk", "rbf"):
+            vals = [p[k] for p in per_seed]
+            rm[k] = {
+                "mean": float(np.mean(vals)),
+                "std": float(np.std(vals)),
+                "median": float(np.median(vals)),
+            }
+        rm["mpk_better"] = int(sum(p["rbf+mpk"] < p["rbf"] for p in per_seed))
+        results["rmse"] = rm
+        print(f"theta RMSE: rbf+mpk {rm['rbf+mpk']}, rbf {rm['rbf']}")
+        write_report(results, args.out)
+    print(f"wrote {json_path} and {args.out / 'mcpilco_cartpole.md'}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

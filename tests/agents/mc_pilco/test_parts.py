@@ -1,0 +1,309 @@
+"""Unit tests of the MC-PILCO parts against independent truth (analytic cases, the env's cost)."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+import torch
+from tensordict import TensorDict
+from tensordict.nn import TensorDictModule
+from torch import nn
+
+from mcpilco.agents.mc_pilco import (
+    CostMonitor,
+    MCPilcoLoss,
+    PolicyOptConfig,
+    SpeedIntegrationDynamics,
+    SquashedRBFPolicy,
+    SwingUpCost,
+    make_policy_module,
+    optimize_policy,
+    speed_integration,
+)
+from mcpilco.envs.cartpole_task import cartpole_cost
+
+DT = 0.05
+
+
+# ------------------------------------------------------------------------------ cost
+def test_cost_matches_env_numpy_cost():
+    rng = np.random.default_rng(0)
+    states = rng.normal(size=(500, 4)) * np.array([1.0, 1.0, 8.0, 1.0])
+    states[:5, 2] = [0.0, np.pi, -np.pi, 3 * np.pi, -5 * np.pi]
+    states[:5, 0] = 0.0
+    expected = cartpole_cost(states, l_theta=1.0, l_x=1.5)
+    got = SwingUpCost(l_x=1.5, l_theta=1.0)(torch.as_tensor(states)).numpy()
+    np.testing.assert_allclose(got, expected, atol=1e-12)
+    assert got[1] == pytest.approx(0.0, abs=1e-12)  # upright, cart at origin
+
+
+def test_cost_rejects_bad_shape_and_lengthscale():
+    with pytest.raises(ValueError, match="length scales"):
+        SwingUpCost(l_x=0.0)
+    with pytest.raises(ValueError, match=r"\(\.\.\., 4\)"):
+        SwingUpCost()(torch.zeros(3, 5))
+
+
+# ------------------------------------------------------------------- speed integration
+class ConstantDelta(nn.Module):
+    """Stub velocity-change model: Delta = a * dt, zero variance (constant acceleration)."""
+
+    def __init__(self, accel):
+        super().__init__()
+        self.delta = torch.as_tensor(accel, dtype=torch.float64) * DT
+
+    def forward(self, z):
+        mean = self.delta.expand(*z.shape[:-1], 2)
+        return mean, torch.zeros_like(mean)
+
+
+def test_speed_integration_is_exact_for_constant_acceleration():
+    accel = torch.tensor([0.7, -2.0], dtype=torch.float64)
+    q0 = torch.tensor([0.1, 0.3], dtype=torch.float64)
+    v0 = torch.tensor([-0.5, 1.2], dtype=torch.float64)
+    x = torch.stack([q0, v0], -1).flatten()  # [x, x_dot, theta, theta_dot]
+    dyn = SpeedIntegrationDynamics(ConstantDelta(accel), DT)
+    u = torch.zeros(1, dtype=torch.float64)
+    for _ in range(40):
+        x = dyn(x, u)
+    t = 40 * DT
+    q_true = q0 + v0 * t + 0.5 * accel * t**2  # kinematics of constant acceleration
+    v_true = v0 + accel * t
+    torch.testing.assert_close(x[[0, 2]], q_true, atol=1e-12, rtol=0)
+    torch.testing.assert_close(x[[1, 3]], v_true, atol=1e-12, rtol=0)
+
+
+def test_speed_integration_layout():
+    state = torch.tensor([1.0, 2.0, 3.0, 4.0])
+    nxt = speed_integration(state, torch.tensor([0.5, -1.0]), 0.1)
+    # x+ = 1 + 0.1*2 + 0.05*0.5, xd+ = 2.5, th+ = 3 + 0.4 - 0.05, thd+ = 3
+    torch.testing.assert_close(nxt, torch.tensor([1.225, 2.5, 3.35, 3.0]))
+
+
+# ------------------------------------------------------------- linear-model rollout
+class LinearDelta(nn.Module):
+    """Stub GP: Delta = B [x, x_dot, theta_dot, u] + c, constant variance sigma2 (per output).
+
+    Reads the GP input x~ = [x, x_dot, theta_dot, sin, cos, u]; sin/cos are ignored so the
+    closed loop with a linear policy is linear in the state.
+    """
+
+    def __init__(self, B, c, sigma2):
+        super().__init__()
+        self.B, self.c, self.sigma2 = B, c, sigma2
+
+    def forward(self, z):
+        lin = torch.cat([z[..., 0:3], z[..., 5:6]], -1)
+        mean = lin @ self.B.T + self.c
+        return mean, self.sigma2.expand_as(mean)
+
+
+def _linear_setup(sigma2_val: float):
+    f64 = torch.float64
+    B = torch.tensor([[-0.02, -0.01, 0.0, 0.5], [0.05, 0.0, -0.03, -0.8]], dtype=f64)
+    c = torch.tensor([0.01, -0.02], dtype=f64)
+    k_pol = torch.tensor([[0.3, -0.2, 0.0, 0.1]], dtype=f64)  # u = k x (no theta weight)
+    sigma2 = torch.full((2,), sigma2_val, dtype=f64)
+    policy = nn.Linear(4, 1, bias=False, dtype=f64)
+    with torch.no_grad():
+        policy.weight.copy_(k_pol)
+    dyn = SpeedIntegrationDynamics(LinearDelta(B, c, sigma2), DT)
+    # analytic closed loop x+ = F x + g + E eps with state [x, xd, th, thd]
+    # Delta = B_s x + B_u u + c with B_s acting on [x, xd, thd]
+    Bs = torch.zeros(2, 4, dtype=f64)
+    Bs[:, [0, 1, 3]] = B[:, :3]
+    Bd = Bs + B[:, 3:4] @ k_pol  # Delta = Bd x + c
+    P = torch.zeros(4, 4, dtype=f64)  # speed integration: q+ = q + dt qd + dt/2 Delta
+    P[0, 0] = P[2, 2] = 1.0
+    P[0, 1] = P[2, 3] = DT
+    P[1, 1] = P[3, 3] = 1.0
+    S = torch.zeros(4, 2, dtype=f64)  # how Delta enters the state
+    S[0, 0], S[1, 0], S[2, 1], S[3, 1] = DT / 2, 1.0, DT / 2, 1.0
+    F = P + S @ Bd
+    g = S @ c
+    E = S * sigma2.sqrt()
+    return policy, dyn, F, g, E
+
+
+@pytest.mark.parametrize("horizon", [1, 25])
+def test_rollout_with_linear_model_gives_analytic_mean_without_noise(horizon):
+    policy, dyn, F, g, _ = _linear_setup(0.0)
+    x0 = torch.tensor([[0.2, -0.1, 0.5, 0.3], [0.0, 0.4, -1.0, 0.0]], dtype=torch.float64)
+    loss = MCPilcoLoss(policy, dyn, SwingUpCost(), horizon=horizon, num_particles=2)
+    ro = loss.rollout(initial_state=x0, noise=torch.zeros(horizon, 2, 2, dtype=torch.float64))
+    x = x0.clone()
+    expected_cost = torch.zeros((), dtype=torch.float64)
+    for _ in range(horizon):
+        x = x @ F.T + g
+        expected_cost = expected_cost + SwingUpCost()(x).mean()
+    torch.testing.assert_close(ro.states[:, -1], x, atol=1e-10, rtol=0)
+    td = loss(
+        TensorDict(
+            {"initial_state": x0, "noise": torch.zeros(horizon, 2, 2, dtype=torch.float64)}, []
+        )
+    )
+    torch.testing.assert_close(td["loss_cost"], expected_cost, atol=1e-10, rtol=0)
+
+
+def test_rollout_with_linear_gaussian_model_gives_analytic_mean_and_covariance():
+    torch.manual_seed(0)
+    H, M = 20, 20000
+    policy, dyn, F, g, E = _linear_setup(1e-3)
+    mu0 = torch.tensor([0.1, 0.0, 0.2, 0.0], dtype=torch.float64)
+    std0 = 0.05
+    loss = MCPilcoLoss(policy, dyn, SwingUpCost(), H, M, init_mean=mu0, init_std=std0)
+    x0 = mu0 + std0 * torch.randn(M, 4, dtype=torch.float64)
+    with torch.no_grad():
+        xs = loss.rollout(initial_state=x0).states[:, -1]
+    mean, cov = mu0.clone(), torch.eye(4, dtype=torch.float64) * std0**2
+    for _ in range(H):
+        mean = F @ mean + g
+        cov = F @ cov @ F.T + E @ E.T
+    emp_mean = xs.mean(0)
+    emp_cov = torch.cov(xs.T)
+    se = (cov.diagonal() / M).sqrt()
+    assert torch.all((emp_mean - mean).abs() < 5 * se), (emp_mean, mean)
+    rel = (emp_cov - cov).abs() / (cov.diagonal()[:, None] * cov.diagonal()[None, :]).sqrt()
+    assert rel.max() < 0.05, rel
+
+
+def test_loss_validates_arguments():
+    policy, dyn, *_ = _linear_setup(0.0)
+    with pytest.raises(ValueError, match="num_particles"):
+        MCPilcoLoss(policy, dyn, SwingUpCost(), horizon=10, num_particles=0)
+    with pytest.raises(ValueError, match="horizon"):
+        MCPilcoLoss(policy, dyn, SwingUpCost(), horizon=0, num_particles=3)
+    loss = MCPilcoLoss(policy, dyn, SwingUpCost(), horizon=10, num_particles=3)
+    with pytest.raises(ValueError, match="horizon of the noise"):
+        loss.rollout(
+            initial_state=torch.zeros(3, 4, dtype=torch.float64),
+            noise=torch.zeros(7, 3, 2, dtype=torch.float64),
+        )
+
+
+def test_loss_gradient_reaches_policy_parameters():
+    policy = make_policy_module(SquashedRBFPolicy(num_basis=20, seed=0))
+    _, dyn, *_ = _linear_setup(1e-4)
+    dyn.delta_model.B = dyn.delta_model.B.float()
+    dyn.delta_model.c = dyn.delta_model.c.float()
+    dyn.delta_model.sigma2 = dyn.delta_model.sigma2.float()
+    loss = MCPilcoLoss(policy, dyn, SwingUpCost(), horizon=15, num_particles=8)
+    out = loss()
+    assert set(out.keys()) >= {"loss_cost", "cost_std"}
+    out["loss_cost"].backward()
+    grads = [p.grad for p in policy.parameters()]
+    assert all(g is not None and torch.isfinite(g).all() for g in grads)
+    assert any(g.abs().sum() > 0 for g in grads)
+
+
+# ---------------------------------------------------------------------------- policy
+def test_policy_squashing_bounds_and_tensordict_keys():
+    pol = SquashedRBFPolicy(num_basis=50, u_max=0.7, seed=1)
+    with torch.no_grad():
+        pol.weights.mul_(1e4)  # saturate
+    module = make_policy_module(pol)
+    assert isinstance(module, TensorDictModule)
+    assert module.in_keys == ["observation"] and module.out_keys == ["action"]
+    obs = torch.randn(256, 4) * 3
+    pol.eval()
+    td = module(TensorDict({"observation": obs}, [256]))
+    u = td["action"]
+    assert u.shape == (256, 1)
+    assert u.abs().max() <= 0.7 + 1e-6
+    assert u.abs().max() > 0.69  # really saturates at u_max
+
+
+def test_policy_is_periodic_in_theta_and_matches_formula():
+    pol = SquashedRBFPolicy(num_basis=7, seed=3)
+    pol.eval()
+    obs = torch.tensor([[0.1, -0.2, 0.4, 1.0]])
+    obs2 = obs.clone()
+    obs2[0, 2] += 2 * math.pi
+    torch.testing.assert_close(pol(obs), pol(obs2), atol=1e-5, rtol=0)
+    # independent evaluation of u = u_max tanh(sum_i w_i phi_i / u_max)
+    xt = torch.tensor([0.1, -0.2, 1.0, math.cos(0.4), math.sin(0.4)])
+    ell = pol.log_lengthscales.exp()
+    phi = torch.exp(-0.5 * (((xt - pol.centers) / ell) ** 2).sum(-1))
+    expected = pol.u_max * torch.tanh((phi @ pol.weights) / pol.u_max)
+    torch.testing.assert_close(pol(obs)[0], expected, atol=1e-5, rtol=0)
+
+
+def test_policy_dropout_only_in_training():
+    pol = SquashedRBFPolicy(num_basis=50, dropout=0.5, seed=0)
+    obs = torch.randn(10, 4)
+    pol.eval()
+    torch.testing.assert_close(pol(obs), pol(obs))
+    pol.train()
+    torch.manual_seed(0)
+    a = pol(obs)
+    b = pol(obs)
+    assert not torch.allclose(a, b)
+
+
+# --------------------------------------------------------------- monitoring rule
+def test_monitor_detects_stall_and_not_steady_descent():
+    rng = np.random.default_rng(0)
+    mon = CostMonitor(alpha=0.99, threshold=0.08, patience=50)
+    stalled_at = None
+    for k in range(2000):  # flat cost with Monte Carlo noise: a stall
+        if mon.update(30.0 + rng.normal(scale=0.01), cost_std=1.0):
+            stalled_at = k
+            break
+    assert stalled_at is not None and stalled_at >= 50
+    mon = CostMonitor(alpha=0.99, threshold=0.08, patience=50)
+    for k in range(1000):  # steady descent of 0.5 std per step: never a stall
+        assert not mon.update(30.0 - 0.5 * k, cost_std=1.0)
+
+
+class StalledLoss(nn.Module):
+    """A loss whose cost never changes (a stalled optimisation); tiny gradient."""
+
+    def __init__(self, policy, nan_first: int = 0):
+        super().__init__()
+        self.policy = policy
+        self.calls = 0
+        self.nan_first = nan_first
+
+    def forward(self):
+        self.calls += 1
+        val = 1e-9 * self.policy.weights.sum() + 5.0
+        if self.calls <= self.nan_first:
+            val = val * float("nan")
+        return TensorDict({"loss_cost": val, "cost_std": torch.tensor(1.0)}, [])
+
+
+def test_optimizer_halves_lr_and_reduces_dropout_on_stall():
+    pol = SquashedRBFPolicy(num_basis=5, seed=0)
+    cfg = PolicyOptConfig(max_steps=1000, lr=0.01, lr_min=0.0025, dropout=0.25, monitor_patience=20)
+    res = optimize_policy(StalledLoss(pol), pol, cfg)
+    lrs = sorted(set(res.lrs), reverse=True)
+    assert lrs == [0.01, 0.005, 0.0025]
+    assert sorted(set(res.dropouts), reverse=True) == [0.25, 0.125, 0.0]
+    assert res.num_lr_reductions == 2
+    assert res.stop_reason == "lr_min"
+    assert res.num_steps < 1000
+    first_half = res.lrs.index(0.005)
+    assert 20 <= first_half <= 25  # stall detected after patience steps
+    assert not pol.training  # left in eval mode
+
+
+def test_optimizer_reinitialises_policy_on_nan_cost():
+    pol = SquashedRBFPolicy(num_basis=5, seed=0)
+    cfg = PolicyOptConfig(max_steps=10, monitor_patience=100)
+    res = optimize_policy(StalledLoss(pol, nan_first=2), pol, cfg)
+    assert res.num_reinits == 2
+    assert res.num_steps == 8
+    with pytest.raises(FloatingPointError, match="not finite"):
+        optimize_policy(StalledLoss(pol, nan_first=100), pol, PolicyOptConfig(max_steps=10))
+
+
+def test_unwrapped_cost_penalises_full_rotations():
+    cost = SwingUpCost(l_x=1.0, l_theta=3.0, wrap=False)
+    up_once = torch.tensor([0.0, 0.0, math.pi, 0.0])
+    up_after_spin = torch.tensor([0.0, 0.0, 3 * math.pi, 0.0])
+    assert float(cost(up_once)) == pytest.approx(0.0, abs=1e-12)
+    expected = 1 - math.exp(-((2 * math.pi) ** 2) / 9.0)  # |theta| - pi = 2 pi
+    assert float(cost(up_after_spin)) == pytest.approx(expected, rel=1e-6)
+    assert float(SwingUpCost(wrap=True)(up_after_spin)) == pytest.approx(0.0, abs=1e-12)
