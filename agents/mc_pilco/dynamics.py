@@ -270,13 +270,13 @@ class GPDynamicsModel:
         """Particle dynamics from the GP's cached predictor (dense tensors, ``dtype``).
 
         ``fused=True`` replaces the predictor by the equivalent
-        :class:`~mcpilco.agents.mc_pilco.fused_predictor.FusedRBFMPKPredictor` (fewer, larger
+        :class:`~mcpilco.models.gp.fused.FusedRBFMPKPredictor` (fewer, larger
         ops; same posterior) when the kernel allows it.
         """
         self._check_fitted()
         pred = self.gp_.cached_predictor(dtype=dtype, validate=False)
         if fused:
-            from mcpilco.agents.mc_pilco.fused_predictor import FusedRBFMPKPredictor
+            from mcpilco.models.gp.fused import FusedRBFMPKPredictor
 
             pred = FusedRBFMPKPredictor.from_cached(pred) or pred
         bound = None

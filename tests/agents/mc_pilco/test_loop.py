@@ -110,7 +110,7 @@ def test_bad_arguments_give_clear_errors():
 
 def test_fused_predictor_matches_gp_cached_predictor():
     from mcpilco.agents.mc_pilco.dynamics import GPDynamicsModel
-    from mcpilco.agents.mc_pilco.fused_predictor import FusedRBFMPKPredictor
+    from mcpilco.models.gp.fused import FusedRBFMPKPredictor
 
     gen = torch.Generator().manual_seed(0)
     s = torch.randn(50, 4, generator=gen, dtype=torch.float64)
