@@ -1,0 +1,281 @@
+"""GP inverse-dynamics estimators: GIP, RBF, parametric prior (PP) and semi-parametric (SP).
+
+One independent GP per joint, batched (:class:`~mcpilco.models.gp.GPRegressor` with
+``m = n`` outputs), hyperparameters by maximum marginal likelihood (thesis section 1.3).
+
+=====  ===========================================  =======================================
+name   GP input                                     kernel of joint ``b``
+=====  ===========================================  =======================================
+GIP    ``x_bar = F(q, qd, qdd)`` (eq. 3.8)           ``GIPKernel(joint_types)`` (eq. 3.11)
+RBF    ``x = [q, qd, qdd]``                          ``s_b exp(-||(x - x')/l_b||^2 / 2)``
+PP     ``[phi_1, ..., phi_n]`` (nominal regressor)   ``phi_b^T Sigma_b phi_b'`` (eq. 3.6)
+SP     ``[q, qd, qdd, phi_1, ..., phi_n]``           PP + RBF on ``[q, qd, qdd]`` (eq. 3.7)
+=====  ===========================================  =======================================
+
+Input standardisation: every input column is mapped affinely, ``(x - mu) / s``. For the PP
+kernel this keeps the model exact (``tau_b - mean(tau_b) = (phi_b - mean(phi_b))^T w_b``, and
+the targets are centred too). For GIP an affine map of each column keeps the polynomial
+space spanned by the inhomogeneous MPK factors (degree <= 2 in each ``(cos q_b, sin q_b)``,
+affine in ``[qd_v, qdd]``), so the RKHS is unchanged; only the prior weight of the
+monomials changes. ``GIPEstimator`` leaves the features unstandardised by default
+(``standardize_x=False``): ``cos``/``sin`` are already O(1), and on the SCARA benchmark both
+variants reach the noise floor (``scripts/bench_inverse_dynamics.py --gip-std`` reports them
+side by side; one run at N = 2000: nMSE 7.4e-7 / 4.5e-6 / 2.6e-4 / 3.0e-4 unstandardised vs
+1.0e-6 / 6.7e-6 / 2.4e-4 / 2.9e-4 standardised, noise floor 4.5e-7 / 3.1e-6 / 2.1e-4 /
+2.4e-4).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from typing import Any
+
+import gpytorch
+import numpy as np
+import torch
+from numpy.typing import NDArray
+
+from mcpilco.models.gp import GPRegressor
+from mcpilco.models.inverse_dynamics.base import InverseDynamicsEstimator
+from mcpilco.models.inverse_dynamics.inputs import JointStates, input_names
+from mcpilco.models.inverse_dynamics.kernels import RowLinearKernel
+from mcpilco.models.inverse_dynamics.rigid_body import RigidBodyFeatures
+from mcpilco.models.kernels import GIPKernel, check_joint_types, gip_feature_names, gip_features
+
+FloatArray = NDArray[np.float64]
+
+__all__ = [
+    "GIPEstimator",
+    "GPInverseDynamics",
+    "PPEstimator",
+    "RBFEstimator",
+    "SPEstimator",
+    "rbf_kernel",
+]
+
+
+def rbf_kernel(
+    ard_num_dims: int, batch_shape: torch.Size, active_dims: Sequence[int] | None = None
+) -> gpytorch.kernels.Kernel:
+    """``ScaleKernel(RBFKernel(ARD))`` with batch shape ``batch_shape`` on ``active_dims``."""
+    dims = None if active_dims is None else tuple(active_dims)
+    rbf = gpytorch.kernels.RBFKernel(
+        ard_num_dims=ard_num_dims, batch_shape=batch_shape, active_dims=dims
+    )
+    return gpytorch.kernels.ScaleKernel(rbf, batch_shape=batch_shape)
+
+
+class GPInverseDynamics(InverseDynamicsEstimator):
+    """Base of the GP estimators: a feature map, a kernel factory, a :class:`GPRegressor`.
+
+    Args:
+        n_joints: ``n`` (``None``: from the data).
+        standardize_x: standardise the GP inputs (see the module docstring).
+        noise_init: initial noise variance (fraction of the output variance).
+        noise_min: lower bound of the noise variance (standardised units).
+        adam_iters, adam_lr, lbfgs_iters: marginal-likelihood optimisation
+            (:meth:`GPRegressor.fit`).
+        max_points: condition on at most this many rows (greedy subset) when given.
+        hyper_points: when the data have more rows, the hyperparameters are fitted on a
+            random subset of this many rows (seeded by ``seed``), then the GP is conditioned
+            on all rows (``max_points`` permitting) at those hyperparameters without further
+            optimisation: the ``O(N^3)`` cost is paid once instead of at every iteration.
+            ``None``: optimise on all rows.
+        seed: seed of the ``hyper_points`` subset.
+        predict_chunk: rows per posterior call in ``predict`` (memory ``m x chunk x N``).
+        progress: tqdm bar during fitting.
+
+    Fitted attributes: ``gp_`` (the :class:`GPRegressor`).
+    """
+
+    def __init__(
+        self,
+        n_joints: int | None = None,
+        *,
+        standardize_x: bool = True,
+        noise_init: float = 1e-2,
+        noise_min: float = 1e-8,
+        adam_iters: int = 200,
+        adam_lr: float = 0.05,
+        lbfgs_iters: int = 50,
+        max_points: int | None = None,
+        hyper_points: int | None = None,
+        seed: int = 0,
+        predict_chunk: int = 1000,
+        progress: bool = False,
+    ) -> None:
+        super().__init__(n_joints)
+        if hyper_points is not None and hyper_points < 2:
+            raise ValueError(f"hyper_points must be >= 2 or None, got {hyper_points}")
+        if predict_chunk < 1:
+            raise ValueError(f"predict_chunk must be >= 1, got {predict_chunk}")
+        self.standardize_x = standardize_x
+        self.noise_init = noise_init
+        self.noise_min = noise_min
+        self.adam_iters = adam_iters
+        self.adam_lr = adam_lr
+        self.lbfgs_iters = lbfgs_iters
+        self.max_points = max_points
+        self.hyper_points = hyper_points
+        self.seed = seed
+        self.predict_chunk = int(predict_chunk)
+        self.progress = progress
+        self.gp_: GPRegressor | None = None
+
+    # subclasses: the GP input and its kernel
+    def gp_inputs(self, states: JointStates) -> FloatArray:
+        """``(N, d)`` GP input rows for these joint states."""
+        raise NotImplementedError
+
+    def kernel(self, batch_shape: torch.Size, n_joints: int) -> gpytorch.kernels.Kernel:
+        """The kernel with batch shape ``[n]``."""
+        raise NotImplementedError
+
+    def gp_input_names(self, n_joints: int) -> list[str] | None:
+        return None
+
+    def _fit(self, states: JointStates, y: FloatArray) -> None:
+        n = states.n_joints
+        X = self.gp_inputs(states)
+        self.gp_ = GPRegressor(
+            lambda batch: self.kernel(batch, n),
+            standardize_x=self.standardize_x,
+            noise_init=self.noise_init,
+            noise_min=self.noise_min,
+            input_names=self.gp_input_names(n),
+            output_names=[f"tau{j}" for j in range(1, n + 1)],
+        )
+        opt = dict(adam_iters=self.adam_iters, adam_lr=self.adam_lr, lbfgs_iters=self.lbfgs_iters)
+        if self.hyper_points is not None and X.shape[0] > self.hyper_points:
+            rng = np.random.default_rng(self.seed)
+            rows = np.sort(rng.choice(X.shape[0], self.hyper_points, replace=False))
+            self.gp_.fit(X[rows], y[rows], progress=self.progress, **opt)
+            opt = dict(adam_iters=0, lbfgs_iters=0)  # condition on all rows, keep theta
+        self.gp_.fit(X, y, max_points=self.max_points, progress=self.progress, **opt)
+
+    def _predict(self, states: JointStates) -> tuple[FloatArray, FloatArray]:
+        X = self.gp_inputs(states)
+        means, variances = [], []
+        for start in range(0, X.shape[0], self.predict_chunk):  # bounded (m, chunk, N) memory
+            mean, var = self.gp_.predict(X[start : start + self.predict_chunk])
+            means.append(mean.numpy())
+            variances.append(var.numpy())
+        return np.concatenate(means), np.concatenate(variances)
+
+    @property
+    def noise_variance_(self) -> FloatArray:
+        """``(n,)`` fitted noise variance of each joint (units of ``y`` squared)."""
+        if self.gp_ is None:
+            raise RuntimeError("not fitted")
+        return self.gp_.noise_variance.numpy()
+
+
+class GIPEstimator(GPInverseDynamics):
+    """GIP kernel estimator (thesis eq. 3.8 features, eq. 3.11 kernel).
+
+    Args:
+        joint_types: e.g. ``"RRPR"``; its length is ``n``.
+        standardize_x: default ``False`` (module docstring); other keyword arguments as in
+            :class:`GPInverseDynamics`.
+    """
+
+    name = "GIP"
+
+    def __init__(self, joint_types: str, *, standardize_x: bool = False, **kwargs: Any) -> None:
+        self.joint_types = check_joint_types(joint_types)
+        super().__init__(len(self.joint_types), standardize_x=standardize_x, **kwargs)
+
+    def gp_inputs(self, states: JointStates) -> FloatArray:
+        t = [torch.as_tensor(a) for a in (states.q, states.qd, states.qdd)]
+        return gip_features(*t, self.joint_types).numpy()
+
+    def gp_input_names(self, n_joints: int) -> list[str]:
+        return gip_feature_names(self.joint_types)
+
+    def kernel(self, batch_shape: torch.Size, n_joints: int) -> gpytorch.kernels.Kernel:
+        return GIPKernel(self.joint_types, batch_shape=batch_shape)
+
+
+class RBFEstimator(GPInverseDynamics):
+    """RBF (squared-exponential, ARD) estimator on the raw ``[q, qd, qdd]``."""
+
+    name = "RBF"
+
+    def gp_inputs(self, states: JointStates) -> FloatArray:
+        return states.stacked()
+
+    def gp_input_names(self, n_joints: int) -> list[str]:
+        return input_names(n_joints)
+
+    def kernel(self, batch_shape: torch.Size, n_joints: int) -> gpytorch.kernels.Kernel:
+        return rbf_kernel(3 * n_joints, batch_shape)
+
+
+class PPEstimator(GPInverseDynamics):
+    """Parametric-prior GP (thesis eq. 3.6): linear kernel on the nominal regressor rows.
+
+    Args:
+        model: nominal robot (``pinocchio.Model`` or MJCF/URDF path/text).
+        blocks: feature blocks of :class:`RigidBodyFeatures` (add ``"viscous"``,
+            ``"coulomb"`` for friction).
+        coulomb_velocity: smoothing of ``sign(qd)`` (:class:`RigidBodyFeatures`).
+        **kwargs: as in :class:`GPInverseDynamics`.
+
+    Attributes:
+        features: the :class:`RigidBodyFeatures` (GP input ``features.flat_features``).
+    """
+
+    name = "PP"
+
+    def __init__(
+        self,
+        model: Any,
+        blocks: Sequence[str] = ("rigid", "armature"),
+        coulomb_velocity: float = 0.0,
+        **kwargs: Any,
+    ) -> None:
+        self.features = RigidBodyFeatures(model, blocks, coulomb_velocity)
+        super().__init__(self.features.n_joints, **kwargs)
+
+    def gp_inputs(self, states: JointStates) -> FloatArray:
+        return self.features.flat_features(states)
+
+    def kernel(self, batch_shape: torch.Size, n_joints: int) -> gpytorch.kernels.Kernel:
+        return RowLinearKernel(n_joints, self.features.n_features, batch_shape=batch_shape)
+
+
+class SPEstimator(PPEstimator):
+    """Semi-parametric GP (thesis eq. 3.7): PP kernel plus an RBF kernel on ``[q, qd, qdd]``.
+
+    Args:
+        model, blocks, coulomb_velocity: as in :class:`PPEstimator`.
+        rbf_outputscale_init: initial RBF output scale (standardised units): small, so the
+            optimisation starts from the parametric model.
+        **kwargs: as in :class:`GPInverseDynamics`.
+    """
+
+    name = "SP"
+
+    def __init__(
+        self,
+        model: Any,
+        blocks: Sequence[str] = ("rigid", "armature"),
+        coulomb_velocity: float = 0.0,
+        rbf_outputscale_init: float = 0.1,
+        **kwargs: Any,
+    ) -> None:
+        self.rbf_outputscale_init = rbf_outputscale_init
+        super().__init__(model, blocks, coulomb_velocity, **kwargs)
+
+    def gp_inputs(self, states: JointStates) -> FloatArray:
+        return np.concatenate([states.stacked(), self.features.flat_features(states)], axis=1)
+
+    def kernel(self, batch_shape: torch.Size, n_joints: int) -> gpytorch.kernels.Kernel:
+        raw = 3 * n_joints
+        p = self.features.n_features
+        pp = RowLinearKernel(
+            n_joints, p, batch_shape=batch_shape, active_dims=tuple(range(raw, raw + n_joints * p))
+        )
+        rbf = rbf_kernel(raw, batch_shape, active_dims=range(raw))
+        rbf.outputscale = self.rbf_outputscale_init
+        return pp + rbf

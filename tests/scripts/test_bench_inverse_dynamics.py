@@ -1,0 +1,55 @@
+"""A tiny run of the inverse-dynamics benchmark writes its JSON, PNGs and Markdown."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import torch
+
+from mcpilco.scripts import bench_inverse_dynamics as bench
+
+
+def test_tiny_benchmark_writes_outputs(tmp_path) -> None:
+    threads = torch.get_num_threads()
+    argv = [
+        "--parts", "scara,efficiency,ur10,timing",
+        "--runs", "2", "--n-train", "200", "--n-test", "100", "--n-sinusoids", "20",
+        "--adam-iters", "3", "--lbfgs-iters", "0", "--hyper-points", "60",
+        "--nn-hidden", "16", "--nn-epochs", "3", "--ur10-nn-hidden", "16",
+        "--sizes", "30,60", "--efficiency-estimators", "GIP,PP",
+        "--ur10-train", "300", "--ur10-subset", "100", "--ur10-test-exploration", "100",
+        "--no-ur10-circle", "--ur10-estimators", "FE,GIP,NN",
+        "--timing-n", "60", "--timing-adam-iters", "1", "--timing-lbfgs-iters", "0",
+        "--out-dir", str(tmp_path), "--no-progress",
+    ]  # fmt: skip
+    try:
+        assert bench.main(argv) == 0
+    finally:
+        torch.set_num_threads(threads)
+    res = json.loads((tmp_path / "inverse_dynamics.json").read_text())
+    scara = res["scara"]
+    assert set(scara["nmse"]) == set(bench.ESTIMATORS)
+    assert np.asarray(scara["nmse"]["GIP"]).shape == (2, 4)
+    assert np.all(np.isfinite(np.asarray(scara["nmse"]["FE"])))
+    assert res["efficiency"]["sizes"] == [30, 60]
+    assert len(res["efficiency"]["gmse"]["GIP"]) == 2
+    assert len(res["ur10"]["noise_floor"]) == 6 and res["ur10"]["n_gp"] == 100
+    assert res["timing"]["n"] == 60 and res["timing"]["cholesky_seconds"] > 0
+    for name in ("scara_nmse", "efficiency", "ur10_nmse"):
+        assert (tmp_path / f"inverse_dynamics_{name}.png").stat().st_size > 1000
+    md = (tmp_path / "inverse_dynamics.md").read_text()
+    assert "| GIP |" in md and "Cholesky" in md
+
+
+def test_perturbation_stays_in_the_thesis_ranges() -> None:
+    rng = np.random.default_rng(0)
+    nominal = bench.scara_with_tool()
+    real = bench.perturb_kinematics(nominal, rng)
+    for a, b in zip(nominal.joints, real.joints, strict=True):
+        assert abs(a.a - b.a) <= 0.05 and abs(a.d - b.d) <= 0.05
+        assert abs(a.alpha - b.alpha) <= np.radians(5) + 1e-12
+        assert abs(a.theta - b.theta) <= np.radians(5) + 1e-12
+        assert b.range is None
+    ref = bench.sinusoid_reference(nominal, rng, n_sinusoids=200)
+    assert ref.omegas.shape == (4, 200) and np.abs(ref.omegas).max() <= 2.0
