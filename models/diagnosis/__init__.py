@@ -1,0 +1,86 @@
+"""Model diagnosis: compare a model with measurements, find the missing physical effect.
+
+The loop (see ``scripts/diagnose.py``, console script ``mcpilco-diagnose``):
+
+1. compare: :func:`fit_metrics` (nMSE, RMSE, NRMSE fit %), :func:`~.plots.plot_time`;
+2. where it fails: :func:`residual_report` (binned residuals, velocity reversals,
+   autocorrelation, worst windows and regions in words);
+3. which effect is missing: :func:`diagnose` scores every candidate of :mod:`.effects` on
+   every joint by the log-evidence it adds (:mod:`.linear_gp`), confirms the best on
+   held-out trajectories, groups look-alikes;
+4. add it: ``model = model.add(CoulombFriction(joint=2))`` (a new version);
+5. watch the error fall: :func:`~.plots.plot_waterfall`, :func:`~.plots.write_rerun`.
+"""
+
+from mcpilco.models.diagnosis.analysis import (
+    ResidualReport,
+    fit_metrics,
+    metrics_table,
+    noise_floor,
+    residual_report,
+)
+from mcpilco.models.diagnosis.data import Trajectories, as_trajectories, load_trajectories
+from mcpilco.models.diagnosis.effects import (
+    EFFECTS,
+    Armature,
+    Cogging,
+    CoulombFriction,
+    DeadZone,
+    Delay,
+    Effect,
+    Payload,
+    Spring,
+    StribeckFriction,
+    TorqueOffset,
+    ViscousFriction,
+    default_library,
+    parse_effect,
+)
+from mcpilco.models.diagnosis.linear_gp import JointGP
+from mcpilco.models.diagnosis.model import DiagnosisModel
+from mcpilco.models.diagnosis.search import (
+    Candidate,
+    Diagnosis,
+    auto_improve,
+    diagnose,
+    heldout_rmse,
+    score_candidates,
+    score_effect,
+)
+from mcpilco.models.diagnosis.start_models import GIPStart, NominalStart
+
+__all__ = [
+    "EFFECTS",
+    "Armature",
+    "Candidate",
+    "Cogging",
+    "CoulombFriction",
+    "DeadZone",
+    "Delay",
+    "Diagnosis",
+    "DiagnosisModel",
+    "Effect",
+    "GIPStart",
+    "JointGP",
+    "NominalStart",
+    "Payload",
+    "ResidualReport",
+    "Spring",
+    "StribeckFriction",
+    "TorqueOffset",
+    "Trajectories",
+    "ViscousFriction",
+    "as_trajectories",
+    "auto_improve",
+    "default_library",
+    "diagnose",
+    "fit_metrics",
+    "heldout_rmse",
+    "load_trajectories",
+    "metrics_table",
+    "noise_floor",
+    "parse_effect",
+    "residual_report",
+    "score_candidates",
+    "score_effect",
+]

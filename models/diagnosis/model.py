@@ -1,0 +1,422 @@
+"""A versioned diagnosis model: a start model plus added physical effects, one GP per joint.
+
+Version ``v0`` is the start model (nominal physics or a learned GIP GP); ``model.add(effect)``
+returns version ``v(k+1)`` with the effect's block added (a linear kernel on it, see
+:mod:`mcpilco.models.diagnosis.linear_gp`) and refits it on the same training data:
+
+.. code-block:: python
+
+    model = DiagnosisModel(NominalStart("robot.xml")).fit(train)
+    model = model.add(CoulombFriction(joint=2))      # v1, refitted
+    mean, var = model.predict(test)
+
+Refitting re-optimises, per joint, the start kernel's scale ``alpha``, the noise
+``sigma^2`` and every block's prior variance ``lambda_b`` (type-II ML); the GIP kernel's own
+hyperparameters stay at their version-0 values. Delays shift the training targets
+(``y_j(t + d)``) and the predictions (``mean_j(t - d)``).
+
+Training rows: every sample except the last ``max_delay_samples`` of each file (so that any
+scanned delay keeps the same rows); with a start kernel, at most ``max_points`` of them,
+evenly spaced in time (the exact GP costs ``O(N^3)``).
+"""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from mcpilco.models.diagnosis.data import Trajectories, as_trajectories
+from mcpilco.models.diagnosis.effects import Delay, Effect, FeatureContext, effect_from_spec
+from mcpilco.models.diagnosis.linear_gp import JointGP, single_thread
+from mcpilco.models.diagnosis.start_models import GIPStart, NominalStart, StartModel
+from mcpilco.models.robot_data import RobotDataset
+
+FloatArray = NDArray[np.float64]
+
+__all__ = ["DiagnosisModel"]
+
+
+class DiagnosisModel:
+    """Start model + effects; one :class:`JointGP` per joint.
+
+    Args:
+        start: :class:`NominalStart` or :class:`GIPStart`.
+        effects: effects already in the model (complete variants).
+        version: version number (``v0`` = start model).
+        max_points: most training rows with a start kernel.
+        max_delay_samples: longest delay scanned [samples].
+
+    Fitted attributes: ``train_`` (:class:`Trajectories`), ``rows_`` (training rows),
+    ``ctx_`` (:class:`FeatureContext` of the rows), ``gps_`` / ``theta_`` / ``evidence_`` per
+    joint, ``effects`` calibrated.
+    """
+
+    def __init__(
+        self,
+        start: StartModel,
+        effects: Sequence[Effect] = (),
+        *,
+        version: int = 0,
+        max_points: int = 600,
+        max_delay_samples: int = 10,
+        history: Sequence[str] = (),
+    ) -> None:
+        if not isinstance(start, StartModel):
+            raise TypeError(f"start must be a NominalStart or GIPStart, got {type(start).__name__}")
+        self.start = start
+        self.effects: tuple[Effect, ...] = tuple(effects)
+        for e in self.effects:
+            e.outputs(start.n_joints)
+            if not e.is_complete():
+                raise ValueError(
+                    f"{e.label} has unscanned shape values; add it with model.add(...) so that "
+                    "the scan picks them"
+                )
+        self.version = int(version)
+        self.max_points = int(max_points)
+        self.max_delay_samples = int(max_delay_samples)
+        self.history = tuple(history)
+        self.train_: Trajectories | None = None
+
+    # ------------------------------------------------------------------ identity
+    @property
+    def n_joints(self) -> int:
+        return self.start.n_joints
+
+    @property
+    def name(self) -> str:
+        return f"v{self.version}"
+
+    def describe(self) -> str:
+        added = ", ".join(e.variant_label for e in self.effects) or "no effects"
+        return f"{self.name}: {self.start.describe()} + {added}"
+
+    # ------------------------------------------------------------------ fitting
+    def _training_rows(self, traj: Trajectories) -> NDArray[np.int64]:
+        rows = []
+        for a, b in traj.segments:
+            stop = max(b - self.max_delay_samples, a + 1)
+            rows.append(np.arange(a, stop))
+        rows = np.concatenate(rows)
+        if self.start.has_kernel and rows.size > self.max_points:
+            pick = np.unique(np.round(np.linspace(0, rows.size - 1, self.max_points)).astype(int))
+            rows = rows[pick]
+        return rows
+
+    def context(self, traj: Trajectories, rows: NDArray[np.int64] | None = None) -> FeatureContext:
+        """Feature context of ``traj`` (all rows, or ``rows``)."""
+        sel = slice(None) if rows is None else rows
+        q, qd, qdd = traj.q[sel], traj.qd[sel], traj.qdd[sel]
+        return FeatureContext(
+            q=q,
+            qd=qd,
+            qdd=qdd,
+            base=self.start.torque(q, qd, qdd),
+            joint_types=self.start.joint_types,
+            output=traj.output,
+            last_link_regressor=(
+                (lambda: self.start.last_link_regressor(q, qd, qdd))
+                if self.start.robot is not None
+                else None
+            ),
+        )
+
+    def _delay_samples(self, output: int) -> int:
+        for e in self.effects:
+            if isinstance(e, Delay) and e.joint - 1 == output:
+                return int(e.samples)
+        return 0
+
+    def target(self, output: int, shift: int | None = None) -> FloatArray:
+        """Residual target ``r = y_j(rows + k) - m_j(rows)`` of output ``output`` (0-based)."""
+        k = self._delay_samples(output) if shift is None else shift
+        idx = self.train_.shift_index(self.rows_, k)
+        return self.train_.y[idx, output] - self.mean_train_[:, output]
+
+    def blocks(self, ctx: FeatureContext, output: int) -> list[FloatArray]:
+        """The effect blocks acting on ``output`` (0-based), in effect order."""
+        out = []
+        for e in self.effects:
+            if output in e.outputs(self.n_joints):
+                cols = e.columns(ctx, output)
+                if cols is not None:
+                    out.append(cols)
+        return out
+
+    def block_effects(self, output: int) -> list[Effect]:
+        """Effects with a block on ``output``, in the order of :meth:`blocks`."""
+        return [
+            e
+            for e in self.effects
+            if output in e.outputs(self.n_joints) and not e.is_shift and self._has_columns(e)
+        ]
+
+    def _has_columns(self, e: Effect) -> bool:
+        return not (e.key == "payload" and self.start.robot is None)
+
+    def fit(
+        self,
+        train: Trajectories | RobotDataset | Sequence[RobotDataset],
+        refit_start: bool | None = None,
+        _warm: dict[int, FloatArray] | None = None,
+        backfit: bool = False,
+    ) -> DiagnosisModel:
+        """Fit on training trajectories (whole files).
+
+        Args:
+            train: datasets or :class:`Trajectories`.
+            refit_start: refit a learned start model (default: only when not yet fitted).
+            backfit: with a learned (GIP) start and added effects, re-optimise the GIP's own
+                hyperparameters on ``y`` minus the fitted effects (warm start), then refit
+                (one backfitting pass; :meth:`add` does it, held-out confirmations do not).
+
+        Raises:
+            ValueError: joint count of the data differs from the model's (both named).
+        """
+        traj = as_trajectories(train, self.n_joints)
+        if self.start.robot is not None:
+            self.start.robot.check(traj.n_joints)
+        self.train_ = traj
+        self.rows_ = self._training_rows(traj)
+        q, qd, qdd = traj.q[self.rows_], traj.qd[self.rows_], traj.qdd[self.rows_]
+        fitted = getattr(self.start, "estimator_", True) is not None
+        if refit_start or (refit_start is None and not fitted):
+            self.start.fit(q, qd, qdd, traj.y[self.rows_])
+        self.mean_train_ = self.start.prior_mean(q, qd, qdd)
+        self.ctx_ = self.context(traj, self.rows_)
+        dt = traj.sample_time
+        effects = []
+        for e in self.effects:
+            e = e.calibrate(self.ctx_)
+            if isinstance(e, Delay) and e.sample_time is None:
+                e = type(e)(joint=e.joint, samples=e.samples, sample_time=dt)
+            effects.append(e)
+        self.effects = tuple(effects)
+        K0 = self.start.kernel((q, qd, qdd), (q, qd, qdd)) if self.start.has_kernel else None
+        noise0 = self.start.noise_variance()
+        self.gps_, self.theta_, self.evidence_ = [], [], []
+        self.eig_: list[tuple[FloatArray, FloatArray] | None] = []
+        for j in range(self.n_joints):
+            eig = None
+            if K0 is not None:
+                S, U = np.linalg.eigh(0.5 * (K0[j] + K0[j].T))
+                eig = (U, S)
+            self.eig_.append(eig)
+            base_r = self.train_.y[self.rows_, j] - self.mean_train_[:, j]
+            scale = float(np.sqrt(np.mean(base_r**2)) or 1.0)
+            gp = JointGP(self.target(j), self.blocks(self.ctx_, j), eig=eig, scale=scale)
+            theta0 = gp.default_theta(None if noise0 is None else float(noise0[j]))
+            starts = []
+            if _warm and j in _warm and _warm[j].shape == theta0.shape:
+                starts.append(_warm[j])
+            if gp.sizes:
+                low = theta0.copy()
+                low[-len(gp.sizes) :] = -6.0
+                starts.append(low)
+            with single_thread():
+                theta, ev = gp.optimise(theta0, starts=starts)
+            self.gps_.append(gp)
+            self.theta_.append(theta)
+            self.evidence_.append(ev)
+        if backfit and isinstance(self.start, GIPStart) and self.effects:
+            # backfitting: the learned start model refitted on the output minus the effects
+            y_adj = np.stack(
+                [
+                    self.target(j) + self.mean_train_[:, j] - self._effect_part(j)
+                    for j in range(self.n_joints)
+                ],
+                axis=1,
+            )
+            self.start = self.start.refit(q, qd, qdd, y_adj)
+            return self.fit(traj, refit_start=False, _warm=dict(enumerate(self.theta_)))
+        return self
+
+    def _effect_part(self, output: int) -> FloatArray:
+        """Fitted torque of the added blocks on ``output`` at the training rows."""
+        blocks = self.blocks(self.ctx_, output)
+        if not blocks:
+            return np.zeros(self.rows_.size)
+        mean, _ = self.gps_[output].weights(self.theta_[output])
+        return np.concatenate(blocks, axis=1) @ mean
+
+    def _check_fitted(self) -> None:
+        if self.train_ is None:
+            raise RuntimeError(f"model {self.name} is not fitted; call fit(train) first")
+
+    @property
+    def log_evidence_(self) -> FloatArray:
+        """``(n,)`` log marginal likelihood of each joint's training residual [nats]."""
+        self._check_fitted()
+        return np.array(self.evidence_)
+
+    @property
+    def noise_std_(self) -> FloatArray:
+        """``(n,)`` fitted noise std per joint (output units)."""
+        self._check_fitted()
+        pairs = zip(self.gps_, self.theta_, strict=True)
+        return np.sqrt([gp.noise_variance(th) for gp, th in pairs])
+
+    # ------------------------------------------------------------------ prediction
+    def predict(
+        self, data: Trajectories | RobotDataset | Sequence[RobotDataset], with_var: bool = True
+    ) -> tuple[FloatArray, FloatArray]:
+        """Posterior mean and latent variance of the output at every sample, ``(N, n)``."""
+        self._check_fitted()
+        traj = as_trajectories(data, self.n_joints)
+        ctx = self.context(traj)
+        mean = self.start.prior_mean(traj.q, traj.qd, traj.qdd)
+        var = np.zeros_like(mean)
+        K0x = K0d = None
+        if self.start.has_kernel:
+            tr = (self.ctx_.q, self.ctx_.qd, self.ctx_.qdd)
+            te = (traj.q, traj.qd, traj.qdd)
+            K0x = self.start.kernel(tr, te)
+            K0d = self.start.kernel_diag(te)
+        for j in range(self.n_joints):
+            m, v = self.gps_[j].predict(
+                self.theta_[j],
+                self.blocks(ctx, j),
+                None if K0x is None else K0x[j],
+                None if K0d is None else K0d[j],
+                with_var=with_var,
+                n_test=traj.n_samples,
+            )
+            k = self._delay_samples(j)
+            if k:
+                d = k * self.train_.sample_time
+                m = traj.delayed(mean[:, j] + m, d) - mean[:, j]
+                v = traj.delayed(v, d)
+            mean[:, j] += m
+            var[:, j] = v
+        return mean, var
+
+    # ------------------------------------------------------------------ versions
+    def with_effect(self, effect: Effect, backfit: bool = False) -> DiagnosisModel:
+        """The next version with ``effect`` (complete) appended, fitted if ``self`` is
+        (``backfit``: see :meth:`fit`)."""
+        for e in self.effects:
+            if e.same_slot(effect):
+                raise ValueError(f"{effect.label} is already in model {self.name}")
+        new = DiagnosisModel(
+            self.start,
+            (*self.effects, effect),
+            version=self.version + 1,
+            max_points=self.max_points,
+            max_delay_samples=self.max_delay_samples,
+            history=(*self.history, f"{self.name} + {effect.variant_label}"),
+        )
+        if self.train_ is not None:
+            warm = {j: np.append(th, 0.0) for j, th in enumerate(self.theta_)}
+            new.fit(self.train_, refit_start=False, _warm=warm, backfit=backfit)
+        return new
+
+    def add(self, effect: Effect) -> DiagnosisModel:
+        """``model.add(CoulombFriction(joint=2))``: the next version with the effect added and
+        refitted (a learned start model is backfitted once); unscanned shape values (cogging
+        order, delay, ...) are picked by the evidence scan of
+        :func:`~mcpilco.models.diagnosis.search.score_effect`."""
+        effect.outputs(self.n_joints)
+        if not effect.is_complete():
+            self._check_fitted()
+            from mcpilco.models.diagnosis.search import score_effect
+
+            effect = score_effect(self, effect).effect
+        return self.with_effect(effect, backfit=True)
+
+    # ------------------------------------------------------------------ parameters
+    def parameters(self) -> list[dict[str, Any]]:
+        """Posterior estimates of every added effect's physical parameters (95% intervals)."""
+        self._check_fitted()
+        rows = []
+        for e in self.effects:
+            for j in e.outputs(self.n_joints):
+                if e.is_shift:
+                    ests = e.estimates(np.zeros(1), np.zeros((1, 1)), self.ctx_, j)
+                else:
+                    effs = self.block_effects(j)
+                    if e not in effs:
+                        continue
+                    k = effs.index(e)
+                    sl = self.gps_[j].block_slices()[k]
+                    mean, cov = self.gps_[j].weights(self.theta_[j])
+                    ests = e.estimates(mean[sl], cov[sl, sl], self.ctx_, j)
+                for p in ests:
+                    rows.append(
+                        dict(effect=e.variant_label, output=j + 1, **p.__dict__, text=p.text())
+                    )
+        return rows
+
+    # ------------------------------------------------------------------ persistence
+    def spec(self) -> dict[str, Any]:
+        return {
+            "format": "mcpilco-diagnosis-model/1",
+            "version": self.version,
+            "start": self.start.spec(),
+            "effects": [e.spec() for e in self.effects],
+            "max_points": self.max_points,
+            "max_delay_samples": self.max_delay_samples,
+            "history": list(self.history),
+        }
+
+    def save(self, directory: str | Path) -> Path:
+        """Write ``<directory>/model_v<k>.json`` (spec, fitted hyperparameters, parameter
+        estimates, training files). Never overwrites: an existing name gets ``-2``, ``-3``..
+
+        Returns:
+            the path written.
+        """
+        directory = Path(directory)
+        directory.mkdir(parents=True, exist_ok=True)
+        path = directory / f"model_v{self.version}.json"
+        k = 2
+        while path.exists():
+            path = directory / f"model_v{self.version}-{k}.json"
+            k += 1
+        payload = self.spec()
+        if self.train_ is not None:
+            payload["fitted"] = {
+                "train_files": self.train_.names,
+                "theta": [th.tolist() for th in self.theta_],
+                "log_evidence": [float(v) for v in self.evidence_],
+                "noise_std": self.noise_std_.tolist(),
+                "parameters": [
+                    {k: v for k, v in p.items() if k != "text"} for p in self.parameters()
+                ],
+            }
+        path.write_text(json.dumps(payload, indent=1))
+        return path
+
+    @classmethod
+    def from_spec(cls, spec: dict[str, Any]) -> DiagnosisModel:
+        """Rebuild an (unfitted) model from :meth:`spec`; call :meth:`fit` on its data."""
+        start_spec = spec["start"]
+        if start_spec["kind"] == "nominal":
+            start: StartModel = NominalStart(start_spec["robot_text"], name=start_spec.get("name"))
+        elif start_spec["kind"] == "gip":
+            start = GIPStart(
+                start_spec["joint_types"],
+                robot=start_spec.get("robot_text"),
+                adam_iters=start_spec.get("adam_iters", 100),
+                lbfgs_iters=start_spec.get("lbfgs_iters", 30),
+            )
+        else:
+            raise ValueError(f"unknown start model kind {start_spec['kind']!r}")
+        return cls(
+            start,
+            [effect_from_spec(e) for e in spec["effects"]],
+            version=spec["version"],
+            max_points=spec.get("max_points", 600),
+            max_delay_samples=spec.get("max_delay_samples", 10),
+            history=spec.get("history", ()),
+        )
+
+    @classmethod
+    def load(cls, path: str | Path) -> DiagnosisModel:
+        """An unfitted model from a saved JSON (refit it with :meth:`fit`: the fit is
+        deterministic, so the same training files give the same model)."""
+        return cls.from_spec(json.loads(Path(path).read_text()))

@@ -1,0 +1,371 @@
+"""Which effect is missing: score every candidate on every joint by the evidence it adds.
+
+Score (Bayesian model comparison, thesis eq. 1.9 for the evidence)
+    For candidate effect ``e`` with scan variants ``v = 1..G`` on output joint ``j``:
+    ``Delta_v = max_{sigma^2, lambda_e} log p(r_j | current + e_v) - log p(r_j | current)``
+    (the current model's other hyperparameters held at their fitted values; the new block's
+    prior variance and the noise re-optimised), and with a uniform prior over the scan
+    ``Delta = log( (1/G) sum_v exp(Delta_v) )``. An effect acting on every joint (payload)
+    sums ``Delta`` over the joints (independent GPs).
+Significance
+    ``Delta > evidence_threshold`` (default 5 nats: a Bayes factor above e^5 ~ 150, "very
+    strong" on Kass & Raftery's scale ``2 Delta > 10``), the physical sign respected, and the
+    held-out RMSE of the joints it acts on lower by more than ``min_heldout_gain`` percent
+    (default 1%) when the effect is added and the model refitted (trajectories held out
+    whole: the held-out files never enter the fit).
+Groups (what the data cannot tell apart)
+    Two candidates on the same joint are in one group when their fitted torque contributions
+    on the training rows correlate with ``|rho| > group_correlation`` (default 0.9); the
+    table then names them together, and when their evidences differ by less than
+    ``indistinct_nats`` (default 2 nats, Bayes factor < e^2) the verdict says so.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+from scipy.special import logsumexp
+
+from mcpilco.models.diagnosis.data import Trajectories, as_trajectories
+from mcpilco.models.diagnosis.effects import Effect, ParamEstimate, default_library
+from mcpilco.models.diagnosis.linear_gp import single_thread
+from mcpilco.models.diagnosis.model import DiagnosisModel
+
+FloatArray = NDArray[np.float64]
+
+__all__ = [
+    "Candidate",
+    "Diagnosis",
+    "auto_improve",
+    "diagnose",
+    "heldout_rmse",
+    "score_candidates",
+    "score_effect",
+]
+
+EVIDENCE_THRESHOLD = 5.0
+MIN_HELDOUT_GAIN = 1.0
+GROUP_CORRELATION = 0.9
+INDISTINCT_NATS = 2.0
+
+
+@dataclass
+class Candidate:
+    """A scored candidate: its best variant, evidence gain, estimates, verdict."""
+
+    effect: Effect
+    delta: float
+    best_delta: float
+    n_variants: int
+    estimates: list[ParamEstimate]
+    outputs: list[int]
+    contributions: dict[int, FloatArray] = field(default_factory=dict, repr=False)
+    heldout_delta_pct: float | None = None
+    group: int = 0
+    significant: bool = False
+
+    @property
+    def label(self) -> str:
+        return self.effect.label
+
+    @property
+    def wrong_sign(self) -> bool:
+        return any(p.wrong_sign for p in self.estimates)
+
+    @property
+    def joint_text(self) -> str:
+        return "all" if self.effect.joint is None else str(self.effect.joint)
+
+    def estimate_text(self) -> str:
+        return "; ".join(p.text() for p in self.estimates)
+
+
+def _score_variant(
+    model: DiagnosisModel, effect: Effect, output: int
+) -> tuple[float, list[ParamEstimate], FloatArray | None]:
+    """``(Delta_v, estimates, contribution)`` of one complete variant on one output joint."""
+    gp, theta = model.gps_[output], model.theta_[output]
+    base = model.evidence_[output]
+    e = effect.calibrate(model.ctx_)
+    n_head = int(gp.has_kernel)
+    if e.is_shift:
+        shift = int(e.samples)
+        g = gp.with_target(model.target(output, shift=shift))
+        free = np.ones(gp.n_theta, bool)
+        if n_head:
+            free[0] = False
+        th, ev = g.optimise(theta, free=free)
+        if e.sample_time is None:
+            e = type(e)(joint=e.joint, samples=e.samples, sample_time=model.train_.sample_time)
+        return ev - base, e.estimates(np.zeros(1), np.zeros((1, 1)), model.ctx_, output), None
+    cols = e.columns(model.ctx_, output)
+    if cols is None:
+        return float("nan"), [], None
+    g = gp.with_block(cols)
+    theta0 = np.append(theta, 0.0)
+    free = np.zeros(g.n_theta, bool)
+    free[n_head] = True  # noise
+    free[-1] = True  # the new block's lambda
+    th, ev = g.optimise(theta0, free=free)
+    mean, cov = g.weights(th)
+    sl = g.block_slices()[-1]
+    contribution = cols @ mean[sl]
+    return ev - base, e.estimates(mean[sl], cov[sl, sl], model.ctx_, output), contribution
+
+
+def score_effect(model: DiagnosisModel, effect: Effect, **scan: Any) -> Candidate:
+    """Score one candidate (all its scan variants) against the current model.
+
+    Returns:
+        the :class:`Candidate` with its best variant.
+    """
+    model._check_fitted()
+    outputs = effect.outputs(model.n_joints)
+    variants = effect.variants(max_delay_samples=model.max_delay_samples, **scan)
+    variants = [v.calibrate(model.ctx_) for v in variants]
+    deltas, ests, contribs = [], [], []
+    for v in variants:
+        total, best_est, con = 0.0, [], {}
+        best_d = -math.inf
+        for j in outputs:
+            d, est, c = _score_variant(model, v, j)
+            if not math.isfinite(d):
+                total = float("nan")
+                break
+            total += d
+            if c is not None:
+                con[j] = c
+            if d > best_d:  # estimates from the joint that gains most
+                best_est, best_d = est, d
+        deltas.append(total)
+        ests.append(best_est)
+        contribs.append(con)
+    deltas_arr = np.array(deltas)
+    if not np.any(np.isfinite(deltas_arr)):
+        return Candidate(effect, float("nan"), float("nan"), len(variants), [], outputs)
+    finite = np.where(np.isfinite(deltas_arr), deltas_arr, -np.inf)
+    k = int(np.argmax(finite))
+    delta = float(logsumexp(finite) - math.log(len(variants)))
+    v = variants[k]
+    if v.is_shift and getattr(v, "sample_time", None) is None:
+        v = type(v)(joint=v.joint, samples=v.samples, sample_time=model.train_.sample_time)
+    return Candidate(
+        effect=v,
+        delta=delta,
+        best_delta=float(finite[k]),
+        n_variants=len(variants),
+        estimates=ests[k],
+        outputs=[j + 1 for j in outputs],
+        contributions=contribs[k],
+    )
+
+
+def score_candidates(
+    model: DiagnosisModel, library: Sequence[Effect] | None = None, progress: bool = False
+) -> list[Candidate]:
+    """Score every candidate not already in the model, best first."""
+    model._check_fitted()
+    if library is None:
+        library = default_library(model.n_joints, with_payload=model.start.robot is not None)
+    todo = [e for e in library if not any(e.same_slot(m) for m in model.effects)]
+    if progress:
+        from tqdm import tqdm
+
+        todo = tqdm(todo, desc="scoring candidates", unit="candidate")
+    with single_thread():
+        out = [score_effect(model, e) for e in todo]
+    out = [c for c in out if math.isfinite(c.delta)]
+    out.sort(key=lambda c: -c.delta)
+    return out
+
+
+def heldout_rmse(model: DiagnosisModel, heldout: Trajectories) -> FloatArray:
+    """``(n,)`` RMSE of the posterior mean on held-out trajectories."""
+    mean, _ = model.predict(heldout, with_var=False)
+    return np.sqrt(np.mean((heldout.y - mean) ** 2, axis=0))
+
+
+def _group(cands: Sequence[Candidate], threshold: float) -> None:
+    """Single-linkage groups by correlation of the fitted contributions on a shared joint."""
+    parent = list(range(len(cands)))
+
+    def find(i: int) -> int:
+        while parent[i] != i:
+            parent[i] = parent[parent[i]]
+            i = parent[i]
+        return i
+
+    for a in range(len(cands)):
+        for b in range(a + 1, len(cands)):
+            shared = set(cands[a].contributions) & set(cands[b].contributions)
+            for j in shared:
+                x, y = cands[a].contributions[j], cands[b].contributions[j]
+                if np.std(x) > 0 and np.std(y) > 0 and abs(np.corrcoef(x, y)[0, 1]) > threshold:
+                    parent[find(b)] = find(a)
+    roots: dict[int, int] = {}
+    for i, c in enumerate(cands):
+        c.group = roots.setdefault(find(i), len(roots) + 1)
+
+
+@dataclass
+class Diagnosis:
+    """Result of :func:`diagnose`: the ranked candidates and the verdict."""
+
+    model_name: str
+    candidates: list[Candidate]
+    threshold: float
+    min_heldout_gain: float
+    indistinct_nats: float
+
+    @property
+    def significant(self) -> list[Candidate]:
+        return [c for c in self.candidates if c.significant]
+
+    @property
+    def best(self) -> Candidate | None:
+        sig = self.significant
+        return sig[0] if sig else None
+
+    def verdict(self) -> str:
+        best = self.best
+        if best is None:
+            return (
+                f"{self.model_name}: no significant missing effect (no candidate gains more "
+                f"than {self.threshold:g} nats of evidence with a physical sign and a held-out "
+                f"improvement above {self.min_heldout_gain:g}%)"
+            )
+        alike = [
+            c
+            for c in self.candidates
+            if c is not best
+            and c.group == best.group
+            and best.delta - c.delta < self.indistinct_nats
+            and not c.wrong_sign
+        ]
+        text = (
+            f"{self.model_name}: missing effect: {best.effect.title} on joint {best.joint_text} "
+            f"({best.effect.variant_label}, +{best.delta:.1f} nats, held-out RMSE "
+            f"{best.heldout_delta_pct:+.1f}%; {best.estimate_text()})"
+        )
+        if alike:
+            names = ", ".join(c.effect.variant_label for c in alike)
+            text += f"; the data cannot tell it apart from {names}"
+        return text
+
+    def table(self, top: int = 12) -> str:
+        """The ranked table as fixed-width text."""
+        head = (
+            f"{'#':>2}  {'effect':<34} {'joint':>5} {'Δlog-ev':>9} {'held-out ΔRMSE':>15} "
+            f"{'grp':>3}  {'estimate ± 95% CI':<40} verdict"
+        )
+        lines = [head, "-" * len(head)]
+        for i, c in enumerate(self.candidates[:top], 1):
+            held = "" if c.heldout_delta_pct is None else f"{c.heldout_delta_pct:+.1f} %"
+            if c.significant:
+                verdict = "SIGNIFICANT"
+            elif c.wrong_sign:
+                verdict = "wrong sign"
+            elif c.delta <= self.threshold:
+                verdict = "weak"
+            elif c.heldout_delta_pct is None:
+                verdict = "untested"
+            else:
+                verdict = "no held-out gain"
+            lines.append(
+                f"{i:>2}  {c.effect.variant_label:<34} {c.joint_text:>5} {c.delta:>9.1f} "
+                f"{held:>15} {c.group:>3}  {c.estimate_text():<40} {verdict}"
+            )
+        lines.append("")
+        lines.append(self.verdict())
+        return "\n".join(lines)
+
+    def to_dict(self) -> dict[str, Any]:
+        return {
+            "model": self.model_name,
+            "threshold_nats": self.threshold,
+            "verdict": self.verdict(),
+            "candidates": [
+                {
+                    "effect": c.effect.variant_label,
+                    "key": c.effect.key,
+                    "joint": c.effect.joint,
+                    "delta_log_evidence": c.delta,
+                    "heldout_delta_rmse_pct": c.heldout_delta_pct,
+                    "group": c.group,
+                    "significant": c.significant,
+                    "wrong_sign": c.wrong_sign,
+                    "estimates": [p.__dict__ for p in c.estimates],
+                }
+                for c in self.candidates
+            ],
+        }
+
+
+def diagnose(
+    model: DiagnosisModel,
+    heldout: Any,
+    *,
+    library: Sequence[Effect] | None = None,
+    n_confirm: int = 3,
+    threshold: float = EVIDENCE_THRESHOLD,
+    min_heldout_gain: float = MIN_HELDOUT_GAIN,
+    group_correlation: float = GROUP_CORRELATION,
+    indistinct_nats: float = INDISTINCT_NATS,
+    progress: bool = False,
+) -> Diagnosis:
+    """Score all candidates, confirm the top ``n_confirm`` on held-out trajectories, group.
+
+    Args:
+        model: a fitted :class:`DiagnosisModel`.
+        heldout: held-out trajectories (files never used in the fit).
+        library: candidates (default: :func:`default_library`).
+
+    Returns:
+        a :class:`Diagnosis` (``.table()``, ``.verdict()``, ``.best``).
+    """
+    held = as_trajectories(heldout, model.n_joints)
+    cands = score_candidates(model, library, progress=progress)
+    _group(cands[:12], group_correlation)
+    base_rmse = None
+    confirmed = 0
+    for c in cands:
+        if confirmed >= n_confirm or c.delta <= threshold:
+            break
+        if c.wrong_sign:
+            continue
+        if base_rmse is None:
+            base_rmse = heldout_rmse(model, held)
+        new = model.with_effect(c.effect)
+        rmse = heldout_rmse(new, held)
+        j = np.array(c.outputs) - 1
+        before = math.sqrt(float(np.mean(base_rmse[j] ** 2)))
+        after = math.sqrt(float(np.mean(rmse[j] ** 2)))
+        c.heldout_delta_pct = 100.0 * (after / before - 1.0)
+        c.significant = c.heldout_delta_pct < -min_heldout_gain
+        confirmed += 1
+    cands.sort(key=lambda c: (not c.significant, -c.delta))
+    return Diagnosis(model.name, cands, threshold, min_heldout_gain, indistinct_nats)
+
+
+def auto_improve(
+    model: DiagnosisModel, heldout: Any, max_steps: int = 4, **kwargs: Any
+) -> tuple[list[DiagnosisModel], list[Diagnosis]]:
+    """Add the best significant effect, refit, re-diagnose, until none is left.
+
+    Returns:
+        ``(versions, diagnoses)``: ``versions[0] = model``; ``diagnoses[k]`` of ``versions[k]``
+        (the last one says what remains).
+    """
+    versions, diags = [model], []
+    for _ in range(max_steps + 1):
+        d = diagnose(versions[-1], heldout, **kwargs)
+        diags.append(d)
+        if d.best is None or len(versions) > max_steps:
+            break
+        versions.append(versions[-1].with_effect(d.best.effect, backfit=True))
+    return versions, diags

@@ -1,0 +1,280 @@
+"""Start models of the diagnosis loop: nominal rigid-body physics, or a learned GIP GP.
+
+=========  ====================================================  ==========================
+kind       prior mean ``m_j`` / start kernel ``K_0``              torque ``tau_hat``
+=========  ====================================================  ==========================
+nominal    ``m = RNEA(q, qd, qdd)`` of the MJCF/URDF (pinocchio;  ``m``
+           armature included), ``K_0 = 0``
+gip        ``m_j`` = the GP's constant mean, ``K_0`` = the GIP   the GIP posterior mean
+           kernel (thesis eq. 3.11) fitted by marginal            (version 0)
+           likelihood on the training rows
+           (:class:`~mcpilco.models.inverse_dynamics.GIPEstimator`)
+=========  ====================================================  ==========================
+
+Both can give the last link's columns of the joint-torque regressor (pinocchio's
+``computeJointTorqueRegressor``) for the payload candidate when a robot file is known.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+from numpy.typing import NDArray
+
+from mcpilco.models.inverse_dynamics import GIPEstimator, load_pinocchio_model
+
+FloatArray = NDArray[np.float64]
+
+__all__ = ["GIPStart", "NominalStart", "StartModel", "read_robot_text"]
+
+
+def read_robot_text(source: str | Path) -> str:
+    """The MJCF/URDF text of a path or the text itself (kept so that a saved model is whole)."""
+    if isinstance(source, Path) or ("<" not in str(source) and len(str(source)) < 4096):
+        path = Path(source)
+        if not path.exists():
+            raise ValueError(f"no robot description at {path}; give an MJCF (.xml) or URDF file")
+        return path.read_text()
+    return str(source)
+
+
+def _joint_types(model: Any) -> str:
+    """``"RRPR"`` from a pinocchio model's joints (revolute R, prismatic P)."""
+    out = []
+    for j in range(1, model.njoints):
+        name = model.joints[j].shortname()
+        core = name.replace("JointModel", "")
+        if core.startswith(("R", "Revolute")):
+            out.append("R")
+        elif core.startswith(("P", "Prismatic")):
+            out.append("P")
+        else:
+            raise ValueError(f"joint {j} is a {name}; only revolute and prismatic are supported")
+    return "".join(out)
+
+
+class _Robot:
+    """Pinocchio model of a robot file: RNEA and the last link's regressor columns."""
+
+    def __init__(self, text: str) -> None:
+        import pinocchio
+
+        self._pin = pinocchio
+        self.text = text
+        self.model = load_pinocchio_model(text)
+        if self.model.nq != self.model.nv:
+            raise ValueError("only revolute/prismatic joints (nq == nv) are supported")
+        self.data = self.model.createData()
+        self.n_joints = int(self.model.nv)
+        self.joint_types = _joint_types(self.model)
+
+    def check(self, n_joints: int) -> None:
+        if n_joints != self.n_joints:
+            raise ValueError(
+                f"joint count mismatch: the data has {n_joints} joints but the model file has "
+                f"{self.n_joints} (nv={self.n_joints})"
+            )
+
+    def rnea(self, q: FloatArray, qd: FloatArray, qdd: FloatArray) -> FloatArray:
+        out = np.empty_like(q)
+        for k in range(q.shape[0]):
+            out[k] = self._pin.rnea(self.model, self.data, q[k], qd[k], qdd[k])
+        return out
+
+    def last_link_regressor(self, q: FloatArray, qd: FloatArray, qdd: FloatArray) -> FloatArray:
+        """``(N, n, 10)``: columns of the last body in the joint-torque regressor."""
+        out = np.empty((q.shape[0], self.n_joints, 10))
+        reg = self._pin.computeJointTorqueRegressor
+        for k in range(q.shape[0]):
+            out[k] = reg(self.model, self.data, q[k], qd[k], qdd[k])[:, -10:]
+        return out
+
+
+class StartModel:
+    """Interface: ``fit``, ``prior_mean``, ``torque``, optional kernel ``K_0``."""
+
+    kind = "start"
+    joint_types: str = ""
+    n_joints: int = 0
+    robot: _Robot | None = None
+
+    def fit(self, q: FloatArray, qd: FloatArray, qdd: FloatArray, y: FloatArray) -> None:
+        """Fit on training rows (nothing to do for a physics model)."""
+
+    def prior_mean(self, q: FloatArray, qd: FloatArray, qdd: FloatArray) -> FloatArray:
+        raise NotImplementedError
+
+    def torque(self, q: FloatArray, qd: FloatArray, qdd: FloatArray) -> FloatArray:
+        """``tau_hat (N, n)``: the start model's own prediction."""
+        raise NotImplementedError
+
+    @property
+    def has_kernel(self) -> bool:
+        return False
+
+    def kernel(self, a: tuple[FloatArray, ...], b: tuple[FloatArray, ...]) -> FloatArray:
+        """``(n, Na, Nb)`` start kernel between the states ``a = (q, qd, qdd)`` and ``b``."""
+        raise NotImplementedError
+
+    def kernel_diag(self, a: tuple[FloatArray, ...]) -> FloatArray:
+        raise NotImplementedError
+
+    def noise_variance(self) -> FloatArray | None:
+        return None
+
+    def last_link_regressor(self, q: FloatArray, qd: FloatArray, qdd: FloatArray) -> Any:
+        if self.robot is None:
+            return None
+        return self.robot.last_link_regressor(q, qd, qdd)
+
+    def spec(self) -> dict[str, Any]:
+        raise NotImplementedError
+
+    def describe(self) -> str:
+        raise NotImplementedError
+
+
+class NominalStart(StartModel):
+    """Nominal rigid-body physics from an MJCF or URDF file (path or text).
+
+    Raises:
+        ValueError: a missing file, a non-MJCF/URDF text, unsupported joints.
+    """
+
+    kind = "nominal"
+
+    def __init__(self, robot: str | Path, name: str | None = None) -> None:
+        self.name = name or (str(robot) if len(str(robot)) < 200 else "<text>")
+        self.robot = _Robot(read_robot_text(robot))
+        self.n_joints = self.robot.n_joints
+        self.joint_types = self.robot.joint_types
+
+    def prior_mean(self, q: FloatArray, qd: FloatArray, qdd: FloatArray) -> FloatArray:
+        return self.robot.rnea(q, qd, qdd)
+
+    def torque(self, q: FloatArray, qd: FloatArray, qdd: FloatArray) -> FloatArray:
+        return self.robot.rnea(q, qd, qdd)
+
+    def spec(self) -> dict[str, Any]:
+        return {"kind": self.kind, "robot_text": self.robot.text, "name": self.name}
+
+    def describe(self) -> str:
+        return f"nominal rigid-body model ({self.name}, joints {self.joint_types})"
+
+
+class GIPStart(StartModel):
+    """A GIP GP (thesis eq. 3.8/3.11) fitted by marginal likelihood on the training rows.
+
+    Args:
+        joint_types: e.g. ``"RRPR"``.
+        robot: optional MJCF/URDF (path or text) for the payload candidate's columns.
+        adam_iters, lbfgs_iters: optimisation of the GIP hyperparameters
+            (:class:`~mcpilco.models.inverse_dynamics.GIPEstimator`).
+    """
+
+    kind = "gip"
+
+    def __init__(
+        self,
+        joint_types: str,
+        robot: str | Path | None = None,
+        adam_iters: int = 100,
+        lbfgs_iters: int = 30,
+    ) -> None:
+        self.joint_types = joint_types
+        self.n_joints = len(joint_types)
+        self.adam_iters = adam_iters
+        self.lbfgs_iters = lbfgs_iters
+        self.robot = None if robot is None else _Robot(read_robot_text(robot))
+        if self.robot is not None and self.robot.joint_types != joint_types:
+            raise ValueError(
+                f"joint types {joint_types!r} differ from the robot file's "
+                f"{self.robot.joint_types!r}"
+            )
+        self.estimator_: GIPEstimator | None = None
+
+    def fit(self, q: FloatArray, qd: FloatArray, qdd: FloatArray, y: FloatArray) -> None:
+        est = GIPEstimator(
+            self.joint_types, adam_iters=self.adam_iters, lbfgs_iters=self.lbfgs_iters
+        )
+        est.fit(np.concatenate([q, qd, qdd], axis=1), y)
+        self.estimator_ = est
+
+    def refit(self, q: FloatArray, qd: FloatArray, qdd: FloatArray, y: FloatArray) -> GIPStart:
+        """A copy whose GIP hyperparameters are re-optimised on ``y`` (warm start from the
+        current ones, ``adam_iters // 3`` + ``lbfgs_iters // 3`` iterations): backfitting
+        after effects were added, so that the GIP stops absorbing them."""
+        import copy
+
+        new = copy.deepcopy(self)
+        X = new.estimator_.gp_inputs(_States(q, qd, qdd))
+        new.estimator_.gp_.fit(
+            X, y, adam_iters=max(self.adam_iters // 3, 1), lbfgs_iters=max(self.lbfgs_iters // 3, 1)
+        )
+        return new
+
+    def _gp(self) -> Any:
+        if self.estimator_ is None:
+            raise RuntimeError("the GIP start model is not fitted")
+        return self.estimator_.gp_
+
+    def prior_mean(self, q: FloatArray, qd: FloatArray, qdd: FloatArray) -> FloatArray:
+        mean = self._gp().y_mean_.numpy()
+        return np.broadcast_to(mean, q.shape).copy()
+
+    def torque(self, q: FloatArray, qd: FloatArray, qdd: FloatArray) -> FloatArray:
+        return self.estimator_.predict(np.concatenate([q, qd, qdd], axis=1))[0]
+
+    @property
+    def has_kernel(self) -> bool:
+        return True
+
+    def _x(self, a: tuple[FloatArray, ...]) -> torch.Tensor:
+        gp = self._gp()
+        x = torch.as_tensor(self.estimator_.gp_inputs(_States(*a)), dtype=torch.float64)
+        return gp._standardize_x(x)
+
+    @torch.no_grad()
+    def kernel(self, a: tuple[FloatArray, ...], b: tuple[FloatArray, ...]) -> FloatArray:
+        from mcpilco.models.gp import dense_covar
+
+        gp = self._gp()
+        m = self.n_joints
+        xa, xb = self._x(a), self._x(b)
+        k = dense_covar(gp.model_.covar_module, xa.expand(m, *xa.shape), xb.expand(m, *xb.shape))
+        return (k * (gp.y_scale_**2)[:, None, None]).numpy()
+
+    @torch.no_grad()
+    def kernel_diag(self, a: tuple[FloatArray, ...]) -> FloatArray:
+        from mcpilco.models.gp import dense_diag
+
+        gp = self._gp()
+        m = self.n_joints
+        xa = self._x(a)
+        k = dense_diag(gp.model_.covar_module, xa.expand(m, *xa.shape))
+        return (k.expand(m, xa.shape[0]) * (gp.y_scale_**2)[:, None]).numpy()
+
+    def noise_variance(self) -> FloatArray:
+        return self._gp().noise_variance.numpy()
+
+    def spec(self) -> dict[str, Any]:
+        return {
+            "kind": self.kind,
+            "joint_types": self.joint_types,
+            "robot_text": None if self.robot is None else self.robot.text,
+            "adam_iters": self.adam_iters,
+            "lbfgs_iters": self.lbfgs_iters,
+        }
+
+    def describe(self) -> str:
+        return f"learned GIP GP (joints {self.joint_types})"
+
+
+class _States:
+    """Minimal ``JointStates`` look-alike for ``GIPEstimator.gp_inputs``."""
+
+    def __init__(self, q: FloatArray, qd: FloatArray, qdd: FloatArray) -> None:
+        self.q, self.qd, self.qdd = q, qd, qdd

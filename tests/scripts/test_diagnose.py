@@ -1,0 +1,110 @@
+"""mcpilco-diagnose end to end on a tiny generated case, and its bad-input errors."""
+
+import json
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from mcpilco.scripts import diagnose, make_hidden_effect_data
+
+
+@pytest.fixture(scope="module")
+def case_dir(tmp_path_factory):
+    out = tmp_path_factory.mktemp("hidden")
+    argv = [
+        "--robot",
+        "scara",
+        "--effect",
+        "viscous:1",
+        "--seed",
+        "3",
+        "--duration",
+        "8",
+        "--out",
+        str(out),
+    ]
+    assert make_hidden_effect_data.main(argv) == 0
+    return out
+
+
+def test_cli_loop_writes_versions_plots_and_recording(case_dir, tmp_path, capsys):
+    out = tmp_path / "run"
+    argv = [
+        "--model",
+        str(case_dir / "robot.xml"),
+        "--train",
+        str(case_dir / "train_1.csv"),
+        str(case_dir / "train_2.csv"),
+        "--test",
+        str(case_dir / "test_1.csv"),
+        "--add",
+        "viscous:1",
+        "--out",
+        str(out),
+    ]
+    assert diagnose.main(argv) == 0
+    text = capsys.readouterr().out
+    assert "SIGNIFICANT" in text and "viscous:1" in text
+    for name in (
+        "compare_v0.png",
+        "compare_v1.png",
+        "residuals_v0.png",
+        "waterfall.png",
+        "diagnosis.rrd",
+        "models/model_v0.json",
+        "models/model_v1.json",
+    ):
+        assert (out / name).exists(), name
+    summary = json.loads((out / "summary.json").read_text())
+    rmse = np.array(summary["heldout_rmse"])
+    assert rmse[1, 0] < 0.5 * rmse[0, 0]
+
+
+def test_saved_versions_are_never_overwritten(case_dir, tmp_path):
+    from mcpilco.models.diagnosis import DiagnosisModel, NominalStart, load_trajectories
+
+    train = load_trajectories([case_dir / "train_1.csv"])
+    model = DiagnosisModel(NominalStart(case_dir / "robot.xml")).fit(train)
+    first, second = model.save(tmp_path), model.save(tmp_path)
+    assert first.name == "model_v0.json" and second.name == "model_v0-2.json"
+    again = DiagnosisModel.load(first).fit(train)
+    np.testing.assert_allclose(again.log_evidence_, model.log_evidence_)
+
+
+def _bad(case_dir, tmp_path, edit):
+    df = pd.read_csv(case_dir / "train_1.csv")
+    df = edit(df)
+    path = tmp_path / "bad.csv"
+    df.to_csv(path, index=False)
+    return path
+
+
+@pytest.mark.parametrize(
+    "edit, message",
+    [
+        (lambda df: df.drop(columns=["tau2"]), "missing column 'tau2'"),
+        (lambda df: df.rename(columns={"q3": "pos3"}), "missing column 'q3'"),
+        (lambda df: df.assign(qd1=df["qd1"].where(df.index != 17)), "row 17"),
+        (lambda df: df.assign(t=df["t"].where(df.index != 40, 0.0)), "not strictly increasing"),
+        (lambda df: df.drop(columns=["q4", "qd4", "qdd4", "tau4"]), "joint count mismatch"),
+    ],
+)
+def test_bad_input_gives_clear_error(case_dir, tmp_path, capsys, edit, message):
+    bad = _bad(case_dir, tmp_path, edit)
+    argv = ["--model", str(case_dir / "robot.xml"), "--train", str(bad), "--out", str(tmp_path)]
+    assert diagnose.main(argv) == 2
+    err = capsys.readouterr().err
+    assert message in err, err
+
+
+def test_joint_count_of_model_file_is_named(case_dir, tmp_path, capsys):
+    from mcpilco.envs.arm_builder import arm_to_xml
+    from mcpilco.envs.arms import ur10
+
+    xml = tmp_path / "ur10.xml"
+    xml.write_text(arm_to_xml(ur10(), friction=False))
+    argv = ["--model", str(xml), "--train", str(case_dir / "train_1.csv"), "--out", str(tmp_path)]
+    assert diagnose.main(argv) == 2
+    err = capsys.readouterr().err
+    assert "4 joints" in err and "6" in err, err
