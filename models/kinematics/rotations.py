@@ -74,7 +74,18 @@ def ypr_to_matrix(o: ArrayLike) -> FloatArray:
     o = np.asarray(o, dtype=np.float64)
     if o.shape[-1:] != (3,):
         raise ValueError(f"yaw-pitch-roll angles need a last axis of size 3, got {o.shape}")
-    return rot_z(o[..., 0]) @ rot_y(o[..., 1]) @ rot_x(o[..., 2])
+    # the product Rz Ry Rx written out (one stack, no matmuls: used inside least squares)
+    cg, cb, ca = np.cos(o[..., 0]), np.cos(o[..., 1]), np.cos(o[..., 2])
+    sg, sb, sa = np.sin(o[..., 0]), np.sin(o[..., 1]), np.sin(o[..., 2])
+    R = np.stack(
+        [
+            cg * cb, cg * sb * sa - sg * ca, cg * sb * ca + sg * sa,
+            sg * cb, sg * sb * sa + cg * ca, sg * sb * ca - cg * sa,
+            -sb, cb * sa, cb * ca,
+        ],
+        axis=-1,
+    )  # fmt: skip
+    return R.reshape(*o.shape[:-1], 3, 3)
 
 
 def matrix_to_ypr(R: ArrayLike) -> FloatArray:

@@ -119,21 +119,6 @@ def revolute_linear_test(l_ab: ArrayLike, R_ab: ArrayLike) -> tuple[float, Float
     return rms(y - A @ b_bar), b_bar
 
 
-def _ypr_matrices(o: FloatArray) -> FloatArray:
-    """``Rz(o[..., 0]) Ry(o[..., 1]) Rx(o[..., 2])`` written out: ``(..., 3) -> (..., 3, 3)``."""
-    cg, cb, ca = np.cos(o).T
-    sg, sb, sa = np.sin(o).T
-    R = np.stack(
-        [
-            cg * cb, cg * sb * sa - sg * ca, cg * sb * ca + sg * sa,
-            sg * cb, sg * sb * sa + cg * ca, sg * sb * ca - cg * sa,
-            -sb, cb * sa, cb * ca,
-        ],
-        axis=-1,
-    )  # fmt: skip
-    return R.reshape(*o.shape[:-1], 3, 3)
-
-
 # elements (row, col) of R used by eq. 2.20: R11, R21, R31, R32, R33
 _YPR_ELEMENTS = ([0, 1, 2, 2, 2], [0, 0, 0, 1, 2])
 
@@ -147,8 +132,8 @@ def _fo(params: FloatArray, cos_sin: FloatArray) -> FloatArray:
     with columns ``[1, cos q, sin q]``.
     """
     rows, cols = _YPR_ELEMENTS
-    Ar = _ypr_matrices(params[:, :3])[:, rows]  # (K, 5, 3): rows of A
-    Bc = _ypr_matrices(params[:, 3:])[:, :, cols]  # (K, 3, 5): columns of B
+    Ar = ypr_to_matrix(params[:, :3])[:, rows]  # (K, 5, 3): rows of A
+    Bc = ypr_to_matrix(params[:, 3:])[:, :, cols]  # (K, 3, 5): columns of B
     C = np.stack(
         [
             Ar[..., 2] * Bc[:, 2],
