@@ -44,6 +44,11 @@ def main(argv: Sequence[str] | None = None) -> int:
     print()
     print("MC-PILCO cart-pole swing-up demo")
     print(f"  env               : {config.env_id}")
+    for r in summary.records:
+        print(
+            f"  trial {r['index']} ({r['kind']:<11}): success {'YES' if r['success'] else 'no '}"
+            f"  cost {r['cost']:.1f}"
+        )
     print(f"  success (last trial): {'YES' if summary.success else 'no'}")
     if first is not None:
         seconds = 3.0 * (first + 1)  # exploration trial + `first` policy trials of 3 s
