@@ -35,6 +35,15 @@ def _plt():  # noqa: ANN202
     return plt
 
 
+def _save(fig, path: str | Path, dpi: int) -> Path:  # noqa: ANN001
+    """Write ``fig`` to ``path`` (parent folders created) and close it."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=dpi)
+    _plt().close(fig)
+    return path
+
+
 def plot_time(
     traj: Trajectories,
     mean: FloatArray,
@@ -64,11 +73,7 @@ def plot_time(
     axes[-1, 0].set_xlabel("t [s]")
     fig.suptitle(f"{title} ({traj.names[segment]})", fontsize=10)
     fig.tight_layout()
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=90)
-    plt.close(fig)
-    return path
+    return _save(fig, path, dpi=90)
 
 
 def plot_residuals(report: ResidualReport, path: str | Path) -> Path:
@@ -101,11 +106,7 @@ def plot_residuals(report: ResidualReport, path: str | Path) -> Path:
         ax.set_ylim(-1, 1)
     fig.suptitle(f"residuals of {report.model_name}", fontsize=10)
     fig.tight_layout()
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=80)
-    plt.close(fig)
-    return path
+    return _save(fig, path, dpi=80)
 
 
 def plot_waterfall(
@@ -136,11 +137,7 @@ def plot_waterfall(
     ax.legend(fontsize=7)
     ax.set_title("held-out error per model version")
     fig.tight_layout()
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=90)
-    plt.close(fig)
-    return path
+    return _save(fig, path, dpi=90)
 
 
 def write_rerun(
