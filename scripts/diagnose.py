@@ -8,12 +8,13 @@ Example (data from ``python -m mcpilco.scripts.make_hidden_effect_data``)::
         --test results/hidden_effect/test_1.csv --auto 3 --out results/diagnosis_run
 
 Start model: ``--model robot.xml`` (MJCF or URDF, nominal rigid-body physics), or
-``--gip RRPR`` (a GIP GP learned on the training files; ``--model`` then only gives the
-payload candidate its regressor). Without ``--test`` the last training file (or, with one
-file, its last 30%) is held out. ``--add coulomb:2`` adds an effect (repeatable; keys:
-viscous, coulomb, stribeck, offset, spring, cogging, payload, armature, deadzone, delay);
-``--auto N`` adds up to N significant effects, best first. Every version is saved as
-``<out>/models/model_v<k>.json`` (never overwritten).
+``--gip RRPR`` (a GIP GP learned on the training files) or ``--rbf RRPR`` (a black-box RBF GP;
+the joint types set the joint count and which joints are angles); with a learned start
+``--model`` only gives the payload candidate its regressor. Without ``--test`` the last
+training file (or, with one file, its last 30%) is held out. ``--add coulomb:2`` adds an
+effect (repeatable; keys: viscous, coulomb, stribeck, offset, spring, cogging, payload,
+armature, deadzone, delay); ``--auto N`` adds up to N significant effects, best first.
+Every version is saved as ``<out>/models/model_v<k>.json`` (never overwritten).
 
 Outputs under ``--out``: ``compare_v<k>.png`` (measured vs predicted ±2σ),
 ``residuals_v<k>.png``, ``waterfall.png``, ``diagnosis.rrd`` (Rerun), ``summary.json``.
@@ -38,14 +39,20 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--train", nargs="+", required=True, help="training files (.csv/.parquet)")
     p.add_argument("--test", nargs="*", default=None, help="held-out files")
     p.add_argument("--model", default=None, help="nominal robot file (MJCF .xml or URDF)")
-    p.add_argument(
+    learned = p.add_mutually_exclusive_group()
+    learned.add_argument(
         "--gip", default=None, metavar="JOINT_TYPES", help="learned GIP start, e.g. RRPR"
+    )
+    learned.add_argument(
+        "--rbf", default=None, metavar="JOINT_TYPES", help="learned RBF start, e.g. RRPR"
     )
     p.add_argument("--add", action="append", default=[], metavar="EFFECT", help="e.g. coulomb:2")
     p.add_argument("--auto", type=int, default=0, metavar="N", help="add up to N effects")
     p.add_argument("--threshold", type=float, default=5.0, help="Δlog-evidence threshold [nats]")
-    p.add_argument("--max-points", type=int, default=600, help="GP rows with a GIP start")
-    p.add_argument("--gip-iters", type=int, default=100, help="Adam iterations of the GIP fit")
+    p.add_argument("--max-points", type=int, default=600, help="GP rows with a learned start")
+    p.add_argument(
+        "--gip-iters", type=int, default=100, help="Adam iterations of a learned start's fit"
+    )
     p.add_argument("--out", default="results/diagnosis_run")
     p.add_argument("--no-plots", action="store_true")
     p.add_argument("--no-rerun", action="store_true")
@@ -64,8 +71,8 @@ def main(argv: Sequence[str] | None = None) -> int:
 
 def _run(args: argparse.Namespace) -> int:
     from mcpilco.models.diagnosis import (
+        LEARNED_STARTS,
         DiagnosisModel,
-        GIPStart,
         NominalStart,
         diagnose,
         fit_metrics,
@@ -77,11 +84,15 @@ def _run(args: argparse.Namespace) -> int:
     )
 
     t_start = time.perf_counter()
-    if (args.model is None) == (args.gip is None) and args.model is None:
-        raise ValueError("give a start model: --model robot.xml (nominal) or --gip RRPR (learned)")
+    learned = {k: getattr(args, k) for k in LEARNED_STARTS if getattr(args, k) is not None}
+    if args.model is None and not learned:
+        raise ValueError(
+            "give a start model: --model robot.xml (nominal), or --gip RRPR / --rbf RRPR (learned)"
+        )
     effects_to_add = [parse_effect(a) for a in args.add]
-    if args.gip is not None:
-        start = GIPStart(args.gip, robot=args.model, adam_iters=args.gip_iters)
+    if learned:
+        ((kind, joint_types),) = learned.items()
+        start = LEARNED_STARTS[kind](joint_types, robot=args.model, adam_iters=args.gip_iters)
     else:
         start = NominalStart(args.model)
     n = start.n_joints

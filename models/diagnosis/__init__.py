@@ -47,10 +47,17 @@ from mcpilco.models.diagnosis.search import (
     score_candidates,
     score_effect,
 )
-from mcpilco.models.diagnosis.start_models import GIPStart, NominalStart
+from mcpilco.models.diagnosis.start_models import (
+    LEARNED_STARTS,
+    GIPStart,
+    LearnedStart,
+    NominalStart,
+    RBFStart,
+)
 
 __all__ = [
     "EFFECTS",
+    "LEARNED_STARTS",
     "Armature",
     "Candidate",
     "Cogging",
@@ -62,8 +69,10 @@ __all__ = [
     "Effect",
     "GIPStart",
     "JointGP",
+    "LearnedStart",
     "NominalStart",
     "Payload",
+    "RBFStart",
     "ResidualReport",
     "Spring",
     "StribeckFriction",

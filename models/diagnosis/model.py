@@ -33,7 +33,12 @@ from numpy.typing import NDArray
 from mcpilco.models.diagnosis.data import Trajectories, as_trajectories
 from mcpilco.models.diagnosis.effects import Delay, Effect, FeatureContext, effect_from_spec
 from mcpilco.models.diagnosis.linear_gp import JointGP, single_thread
-from mcpilco.models.diagnosis.start_models import GIPStart, NominalStart, StartModel
+from mcpilco.models.diagnosis.start_models import (
+    LEARNED_STARTS,
+    LearnedStart,
+    NominalStart,
+    StartModel,
+)
 from mcpilco.models.robot_data import RobotDataset
 
 FloatArray = NDArray[np.float64]
@@ -45,7 +50,7 @@ class DiagnosisModel:
     """Start model + effects; one :class:`JointGP` per joint.
 
     Args:
-        start: :class:`NominalStart` or :class:`GIPStart`.
+        start: :class:`NominalStart`, :class:`GIPStart` or :class:`RBFStart`.
         effects: effects already in the model (complete variants).
         version: version number (``v0`` = start model).
         max_points: most training rows with a start kernel.
@@ -67,7 +72,9 @@ class DiagnosisModel:
         history: Sequence[str] = (),
     ) -> None:
         if not isinstance(start, StartModel):
-            raise TypeError(f"start must be a NominalStart or GIPStart, got {type(start).__name__}")
+            raise TypeError(
+                f"start must be a NominalStart, GIPStart or RBFStart, got {type(start).__name__}"
+            )
         self.start = start
         self.effects: tuple[Effect, ...] = tuple(effects)
         for e in self.effects:
@@ -171,7 +178,7 @@ class DiagnosisModel:
         Args:
             train: datasets or :class:`Trajectories`.
             refit_start: refit a learned start model (default: only when not yet fitted).
-            backfit: with a learned (GIP) start and added effects, re-optimise the GIP's own
+            backfit: with a learned (GIP/RBF) start and added effects, re-optimise the GP's own
                 hyperparameters on ``y`` minus the fitted effects (warm start), then refit
                 (one backfitting pass; :meth:`add` does it, held-out confirmations do not).
 
@@ -223,7 +230,7 @@ class DiagnosisModel:
             self.gps_.append(gp)
             self.theta_.append(theta)
             self.evidence_.append(ev)
-        if backfit and isinstance(self.start, GIPStart) and self.effects:
+        if backfit and isinstance(self.start, LearnedStart) and self.effects:
             # backfitting: the learned start model refitted on the output minus the effects
             y_adj = np.stack(
                 [
@@ -397,8 +404,8 @@ class DiagnosisModel:
         start_spec = spec["start"]
         if start_spec["kind"] == "nominal":
             start: StartModel = NominalStart(start_spec["robot_text"], name=start_spec.get("name"))
-        elif start_spec["kind"] == "gip":
-            start = GIPStart(
+        elif start_spec["kind"] in LEARNED_STARTS:
+            start = LEARNED_STARTS[start_spec["kind"]](
                 start_spec["joint_types"],
                 robot=start_spec.get("robot_text"),
                 adam_iters=start_spec.get("adam_iters", 100),

@@ -1,4 +1,4 @@
-"""Start models of the diagnosis loop: nominal rigid-body physics, or a learned GIP GP.
+"""Start models of the diagnosis loop: nominal rigid-body physics, or a learned GIP/RBF GP.
 
 =========  ====================================================  ==========================
 kind       prior mean ``m_j`` / start kernel ``K_0``              torque ``tau_hat``
@@ -9,6 +9,8 @@ gip        ``m_j`` = the GP's constant mean, ``K_0`` = the GIP   the GIP posteri
            kernel (thesis eq. 3.11) fitted by marginal            (version 0)
            likelihood on the training rows
            (:class:`~mcpilco.models.inverse_dynamics.GIPEstimator`)
+rbf        as ``gip`` with an ARD RBF kernel on ``[q, qd, qdd]``  the RBF posterior mean
+           (:class:`~mcpilco.models.inverse_dynamics.RBFEstimator`)
 =========  ====================================================  ==========================
 
 Both can give the last link's columns of the joint-torque regressor (pinocchio's
@@ -24,11 +26,25 @@ import numpy as np
 import torch
 from numpy.typing import NDArray
 
-from mcpilco.models.inverse_dynamics import GIPEstimator, load_pinocchio_model
+from mcpilco.models.inverse_dynamics import (
+    GIPEstimator,
+    GPInverseDynamics,
+    JointStates,
+    RBFEstimator,
+    load_pinocchio_model,
+)
 
 FloatArray = NDArray[np.float64]
 
-__all__ = ["GIPStart", "NominalStart", "StartModel", "read_robot_text"]
+__all__ = [
+    "LEARNED_STARTS",
+    "GIPStart",
+    "LearnedStart",
+    "NominalStart",
+    "RBFStart",
+    "StartModel",
+    "read_robot_text",
+]
 
 
 def read_robot_text(source: str | Path) -> str:
@@ -165,17 +181,18 @@ class NominalStart(StartModel):
         return f"nominal rigid-body model ({self.name}, joints {self.joint_types})"
 
 
-class GIPStart(StartModel):
-    """A GIP GP (thesis eq. 3.8/3.11) fitted by marginal likelihood on the training rows.
+class LearnedStart(StartModel):
+    """A GP start model fitted by marginal likelihood on the training rows (base class).
+
+    Subclasses choose the estimator (its feature map and kernel ``K_0``):
+    :class:`GIPStart` (thesis eq. 3.8/3.11) or :class:`RBFStart` (ARD RBF on ``[q, qd, qdd]``).
+    ``m_j`` is the GP's constant mean and ``tau_hat`` its posterior mean.
 
     Args:
-        joint_types: e.g. ``"RRPR"``.
+        joint_types: e.g. ``"RRPR"`` (one letter per joint).
         robot: optional MJCF/URDF (path or text) for the payload candidate's columns.
-        adam_iters, lbfgs_iters: optimisation of the GIP hyperparameters
-            (:class:`~mcpilco.models.inverse_dynamics.GIPEstimator`).
+        adam_iters, lbfgs_iters: optimisation of the start kernel's hyperparameters.
     """
-
-    kind = "gip"
 
     def __init__(
         self,
@@ -194,23 +211,26 @@ class GIPStart(StartModel):
                 f"joint types {joint_types!r} differ from the robot file's "
                 f"{self.robot.joint_types!r}"
             )
-        self.estimator_: GIPEstimator | None = None
+        self.estimator_: GPInverseDynamics | None = None
+
+    def make_estimator(self) -> GPInverseDynamics:
+        """The unfitted GP estimator whose kernel is ``K_0``."""
+        raise NotImplementedError
 
     def fit(self, q: FloatArray, qd: FloatArray, qdd: FloatArray, y: FloatArray) -> None:
-        est = GIPEstimator(
-            self.joint_types, adam_iters=self.adam_iters, lbfgs_iters=self.lbfgs_iters
-        )
+        est = self.make_estimator()
         est.fit(np.concatenate([q, qd, qdd], axis=1), y)
         self.estimator_ = est
 
-    def refit(self, q: FloatArray, qd: FloatArray, qdd: FloatArray, y: FloatArray) -> GIPStart:
-        """A copy whose GIP hyperparameters are re-optimised on ``y`` (warm start from the
+    def refit(self, q: FloatArray, qd: FloatArray, qdd: FloatArray, y: FloatArray) -> LearnedStart:
+        """A copy whose kernel hyperparameters are re-optimised on ``y`` (warm start from the
         current ones, ``adam_iters // 3`` + ``lbfgs_iters // 3`` iterations): backfitting
-        after effects were added, so that the GIP stops absorbing them."""
+        after effects were added, so that the learned start stops absorbing them."""
         import copy
 
-        new = copy.deepcopy(self)
-        X = new.estimator_.gp_inputs(_States(q, qd, qdd))
+        new = copy.copy(self)  # the robot (pinocchio) is shared; the estimator is copied
+        new.estimator_ = copy.deepcopy(self.estimator_)
+        X = new.estimator_.gp_inputs(JointStates(q, qd, qdd))
         new.estimator_.gp_.fit(
             X, y, adam_iters=max(self.adam_iters // 3, 1), lbfgs_iters=max(self.lbfgs_iters // 3, 1)
         )
@@ -218,7 +238,7 @@ class GIPStart(StartModel):
 
     def _gp(self) -> Any:
         if self.estimator_ is None:
-            raise RuntimeError("the GIP start model is not fitted")
+            raise RuntimeError(f"the {self.kind} start model is not fitted")
         return self.estimator_.gp_
 
     def prior_mean(self, q: FloatArray, qd: FloatArray, qdd: FloatArray) -> FloatArray:
@@ -234,7 +254,7 @@ class GIPStart(StartModel):
 
     def _x(self, a: tuple[FloatArray, ...]) -> torch.Tensor:
         gp = self._gp()
-        x = torch.as_tensor(self.estimator_.gp_inputs(_States(*a)), dtype=torch.float64)
+        x = torch.as_tensor(self.estimator_.gp_inputs(JointStates(*a)), dtype=torch.float64)
         return gp._standardize_x(x)
 
     @torch.no_grad()
@@ -269,12 +289,34 @@ class GIPStart(StartModel):
             "lbfgs_iters": self.lbfgs_iters,
         }
 
+
+class GIPStart(LearnedStart):
+    """A GIP GP (thesis eq. 3.8/3.11): ``K_0`` = the GIP kernel of the joint types
+    (:class:`~mcpilco.models.inverse_dynamics.GIPEstimator`); see :class:`LearnedStart`."""
+
+    kind = "gip"
+
+    def make_estimator(self) -> GPInverseDynamics:
+        return GIPEstimator(
+            self.joint_types, adam_iters=self.adam_iters, lbfgs_iters=self.lbfgs_iters
+        )
+
     def describe(self) -> str:
         return f"learned GIP GP (joints {self.joint_types})"
 
 
-class _States:
-    """Minimal ``JointStates`` look-alike for ``GIPEstimator.gp_inputs``."""
+class RBFStart(LearnedStart):
+    """A black-box GP: ``K_0`` = ARD RBF on the standardised ``[q, qd, qdd]``
+    (:class:`~mcpilco.models.inverse_dynamics.RBFEstimator`); see :class:`LearnedStart`.
+    The joint types only set the joint count and the effect features (``R``: angles)."""
 
-    def __init__(self, q: FloatArray, qd: FloatArray, qdd: FloatArray) -> None:
-        self.q, self.qd, self.qdd = q, qd, qdd
+    kind = "rbf"
+
+    def make_estimator(self) -> GPInverseDynamics:
+        return RBFEstimator(self.n_joints, adam_iters=self.adam_iters, lbfgs_iters=self.lbfgs_iters)
+
+    def describe(self) -> str:
+        return f"learned RBF GP ({self.n_joints} joints)"
+
+
+LEARNED_STARTS: dict[str, type[LearnedStart]] = {"gip": GIPStart, "rbf": RBFStart}

@@ -1,0 +1,50 @@
+"""Learned start models of the diagnosis loop: the RBF start's kernel against a second,
+closed-form implementation; save/load keeps the kind; a bad start type is named."""
+
+import numpy as np
+import pytest
+
+from mcpilco.models.diagnosis import DiagnosisModel, GIPStart, RBFStart
+
+
+def _planar_data(n: int, seed: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    rng = np.random.default_rng(seed)
+    q = rng.uniform(-2, 2, (n, 2))
+    qd = rng.normal(0, 1, (n, 2))
+    qdd = rng.normal(0, 1, (n, 2))
+    y = np.stack([np.sin(q[:, 0]) + 0.3 * qd[:, 0], np.cos(q[:, 1]) + 0.5 * qdd[:, 1]], 1)
+    return q, qd, qdd, y + 0.01 * rng.normal(size=y.shape)
+
+
+def test_rbf_start_kernel_is_the_scaled_ard_rbf_of_standardised_states():
+    q, qd, qdd, y = _planar_data(60, 0)
+    start = RBFStart("RR", adam_iters=5, lbfgs_iters=2)
+    start.fit(q, qd, qdd, y)
+    gp = start.estimator_.gp_
+    x = np.concatenate([q, qd, qdd], 1)
+    xs = (x - gp.x_mean_.numpy()) / gp.x_scale_.numpy()
+    cov = gp.model_.covar_module
+    ell = cov.base_kernel.lengthscale.detach().numpy().reshape(2, 1, 6)
+    s2 = cov.outputscale.detach().numpy().reshape(2, 1, 1)
+    a, b = xs[:7], xs[10:15]
+    d2 = (((a[None, :, None, :] - b[None, None, :, :]) / ell[:, :, None, :]) ** 2).sum(-1)
+    expected = s2 * np.exp(-0.5 * d2) * (gp.y_scale_.numpy() ** 2)[:, None, None]
+    got = start.kernel((q[:7], qd[:7], qdd[:7]), (q[10:15], qd[10:15], qdd[10:15]))
+    np.testing.assert_allclose(got, expected, rtol=1e-10, atol=1e-12)
+    diag = start.kernel_diag((q[:7], qd[:7], qdd[:7]))
+    np.testing.assert_allclose(
+        diag, np.broadcast_to(s2[:, :, 0] * gp.y_scale_.numpy()[:, None] ** 2, (2, 7))
+    )
+
+
+@pytest.mark.parametrize("cls", [RBFStart, GIPStart])
+def test_learned_start_spec_round_trip_keeps_kind(cls):
+    model = DiagnosisModel(cls("RR", adam_iters=7, lbfgs_iters=3))
+    again = DiagnosisModel.from_spec(model.spec())
+    assert type(again.start) is cls
+    assert (again.start.adam_iters, again.start.lbfgs_iters) == (7, 3)
+
+
+def test_start_of_wrong_type_is_named():
+    with pytest.raises(TypeError, match="NominalStart, GIPStart or RBFStart"):
+        DiagnosisModel("robot.xml")
