@@ -59,6 +59,7 @@ def run_case(
     start: str = "nominal",
     max_points: int = 600,
     iters: int = 100,
+    train_files: int = 2,
     max_steps: int = 4,
 ) -> dict[str, Any]:
     """Generate a case, diagnose it, add the ranked effects until none is significant.
@@ -80,6 +81,7 @@ def run_case(
         [] if n_effects == 0 else None,
         n_effects=max(n_effects, 1),
         seed=seed,
+        n_train=train_files,
         duration=duration,
     )
     test = as_trajectories(case.datasets("test"))
@@ -122,16 +124,28 @@ def run_case(
     return rec
 
 
+ABSORBED = 1.5
+"""An injected effect is *absorbed* by the start model when the start model's held-out RMSE
+on the affected joints is already within this many noise stds (a learned GIP start spans
+e.g. armature and payload torques): nothing is missing, so such cases are left out of the
+top-k accuracy and counted apart."""
+
+
 def summarise(records: list[dict[str, Any]]) -> dict[str, Any]:
-    """Accuracy over single-effect cases; all-found and RMSE over every effect case."""
-    eff = [r for r in records if len(r["truth"]) == 1]
-    multi = [r for r in records if len(r["truth"]) > 1]
+    """Top-k over visible single-effect cases; all-found over visible multi-effect cases;
+    RMSE after the loop over every effect case; false alarms over the control cases."""
+    visible = [r for r in records if r["truth"] and r["rmse_over_noise_before"] > ABSORBED]
+    absorbed = [r for r in records if r["truth"] and r["rmse_over_noise_before"] <= ABSORBED]
+    eff = [r for r in visible if len(r["truth"]) == 1]
+    multi = [r for r in visible if len(r["truth"]) > 1]
     ctl = [r for r in records if not r["truth"]]
-    after = [r["rmse_over_noise_after"] for r in eff + multi]
+    after = [r["rmse_over_noise_after"] for r in records if r["truth"]]
     by_key: dict[str, list[bool]] = {}
     for r in eff:
         by_key.setdefault(r["truth"][0].split(":")[0], []).append(bool(r["top1"]))
     return {
+        "n_absorbed_by_start_model": len(absorbed),
+        "absorbed": [", ".join(r["truth"]) for r in absorbed],
         "n_effect_cases": len(eff),
         "n_multi_effect_cases": len(multi),
         "n_control_cases": len(ctl),
@@ -158,7 +172,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     p.add_argument("--start", choices=("nominal", "gip", "rbf"), default="nominal")
     p.add_argument("--max-points", type=int, default=600, help="GP rows with a learned start")
     p.add_argument("--iters", type=int, default=100, help="Adam iterations of a learned start")
-    p.add_argument("--duration", type=float, default=12.0)
+    p.add_argument("--duration", type=float, default=12.0, help="seconds per file")
+    p.add_argument("--train-files", type=int, default=2, help="training files per case")
     p.add_argument("--workers", type=int, default=1)
     p.add_argument("--out", default="results/diagnosis")
     args = p.parse_args(argv)
@@ -172,7 +187,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         else:
             n_effects.append(1)
     jobs = [
-        (args.robot, s, n, args.duration, args.start, args.max_points, args.iters)
+        (args.robot, s, n, args.duration, args.start, args.max_points, args.iters, args.train_files)
         for s, n in zip(seeds, n_effects, strict=True)
     ]
     from tqdm import tqdm

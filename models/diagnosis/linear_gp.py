@@ -47,6 +47,7 @@ from collections.abc import Iterator, Sequence
 
 import numpy as np
 from numpy.typing import NDArray
+from scipy.linalg import solve_triangular
 from scipy.optimize import minimize
 
 FloatArray = NDArray[np.float64]
@@ -56,6 +57,9 @@ __all__ = ["JointGP", "single_thread"]
 LOG_ALPHA_BOUNDS = (-12.0, 6.0)
 LOG_NOISE_BOUNDS = (-18.0, 3.0)
 LOG_LAMBDA_BOUNDS = (-20.0, 12.0)
+DEAD_COLUMN = 1e-8
+"""A block column whose rms is below this fraction of the block's largest is treated as zero
+(columns are scaled to unit rms; rounding noise must not become a regressor)."""
 
 
 _CONTROLLER: list = []
@@ -135,6 +139,7 @@ class JointGP:
 
     # ------------------------------------------------------------------ construction
     def _set_target(self, r: FloatArray) -> None:
+        self._ls = None
         self.r = r / self.scale
         if self.eig is not None:
             self.rho = self._shared["U"].T @ self.r
@@ -147,9 +152,13 @@ class JointGP:
         if not np.all(np.isfinite(block)):
             raise ValueError("an effect block has NaN/inf values")
         rms = np.sqrt(np.mean(block**2, axis=0))
-        rms = np.where(rms > 0, rms, 1.0)
-        scaled = block / rms
+        # a column that is rounding noise next to the block's largest (e.g. a payload
+        # parameter that cannot move this joint) is zeroed, not blown up to unit rms
+        alive = rms > DEAD_COLUMN * rms.max(initial=0.0)
+        rms = np.where(alive, rms, 1.0)
+        scaled = np.where(alive, block / rms, 0.0)
         self._raw_blocks.append(scaled)
+        self._ls = None
         self.col_scale = np.concatenate([self.col_scale, rms])
         if self.eig is not None:
             self.Psi = np.concatenate([self.Psi, self._shared["U"].T @ scaled], axis=1)
@@ -238,6 +247,41 @@ class JointGP:
             raise np.linalg.LinAlgError("B is not positive definite even with jitter")
         return logdet_d, quad_d, sl, L, sl * b
 
+    def _least_squares(self) -> tuple[FloatArray, FloatArray, float]:
+        """No start kernel: ``Phi = Q R`` (thin QR of the scaled blocks), ``c = Q^T r`` and
+        ``|r - Q c|^2``, computed once per target (cached)."""
+        if self._ls is None:
+            full = np.concatenate(self._raw_blocks, axis=1)
+            Q, R = np.linalg.qr(full)
+            c = Q.T @ self.r
+            rp = self.r - Q @ c
+            self._ls = (R, c, float(rp @ rp))
+        return self._ls
+
+    def _ridge(self, s2: float, sl: FloatArray) -> tuple[FloatArray, FloatArray, float, float]:
+        """No start kernel, stable ridge solve with ``w = sqrt(Lambda) z``, ``z ~ N(0, I)``.
+
+        ``M = [R sqrt(Lambda) / sigma ; I] = Q_2 R_2`` gives ``B = M^T M = R_2^T R_2``,
+        ``z = R_2^-1 Q_2^T [c / sigma ; 0]`` and ``|r - Phi w|^2 = |r - Q c|^2 + |c - R w|^2``
+        without forming ``Phi^T Phi / sigma^2`` (whose condition number, squared, ruins the
+        cancellation in ``r^T K^-1 r`` when the noise is small and the fit close).
+
+        Returns:
+            ``(z, B^-1, log|B|, |r - Phi w|^2)``.
+        """
+        R, c, rp2 = self._least_squares()
+        P = sl.shape[0]
+        sig = math.sqrt(s2)
+        M = np.vstack([R * sl[None, :] / sig, np.eye(P)])
+        Q2, R2 = np.linalg.qr(M)
+        rhs = Q2[: R.shape[0]].T @ (c / sig)
+        z = solve_triangular(R2, rhs)
+        R2inv = solve_triangular(R2, np.eye(P))
+        Binv = R2inv @ R2inv.T
+        logdet_b = 2.0 * float(np.sum(np.log(np.abs(np.diag(R2)))))
+        e = c - R @ (sl * z)
+        return z, Binv, logdet_b, rp2 + float(e @ e)
+
     def log_evidence(self, theta: FloatArray) -> float:
         """``log p(r | theta)`` in original units (module docstring)."""
         return self.value_and_grad(theta)[0]
@@ -269,6 +313,21 @@ class JointGP:
             v = self.Ptr / s2
         grad = np.zeros(theta.shape[0])
         k = int(self.has_kernel)
+        if P and not self.has_kernel:
+            sl = np.sqrt(lam)
+            z, Binv, logdet_b, ee = self._ridge(s2, sl)
+            quad = ee / s2 + float(z @ z)
+            logdet = logdet_d + logdet_b
+            bdiag = np.diag(Binv)
+            off = 0
+            for b, p in enumerate(self.sizes):
+                zb = z[off : off + p]
+                grad[k + 1 + b] = 0.5 * (float(zb @ zb) - p + float(np.sum(bdiag[off : off + p])))
+                off += p
+            tr_kinv = (self.n - P + float(np.trace(Binv))) / s2
+            grad[k] = 0.5 * s2 * (ee / s2**2 - tr_kinv)
+            lml = -0.5 * quad - 0.5 * logdet - 0.5 * self.n * math.log(2 * math.pi)
+            return lml - self.n * math.log(self.scale), grad
         if P:
             sl = np.sqrt(lam)
             B = np.eye(P) + sl[:, None] * A * sl[None, :]
@@ -366,12 +425,19 @@ class JointGP:
     def weights(self, theta: FloatArray) -> tuple[FloatArray, FloatArray]:
         """Posterior mean ``(P,)`` and covariance ``(P, P)`` of all block weights, original
         units (columns not scaled)."""
-        _, _, sl, L, c = self._parts(np.asarray(theta, dtype=np.float64))
-        if not c.size:
+        theta = np.asarray(theta, dtype=np.float64)
+        if not self.sizes:
             return np.zeros(0), np.zeros((0, 0))
-        Linv = np.linalg.inv(L)
-        Binv = Linv.T @ Linv
-        mean = sl * (Binv @ c)
+        if self.has_kernel:
+            _, _, sl, L, c = self._parts(theta)
+            Linv = np.linalg.inv(L)
+            Binv = Linv.T @ Linv
+            mean = sl * (Binv @ c)
+        else:
+            _, s2, lam = self._unpack(theta)
+            sl = np.sqrt(lam)
+            z, Binv, _, _ = self._ridge(s2, sl)
+            mean = sl * z
         cov = sl[:, None] * Binv * sl[None, :]
         f = self.scale / self.col_scale
         return mean * f, cov * f[:, None] * f[None, :]
