@@ -1,0 +1,246 @@
+"""What every baseline shares: task envs, the learning-curve format, evaluation of a policy.
+
+Glossary
+--------
+task env
+    a registered ``mcpilco/...`` env whose episodes end with ``info["success"]`` (the
+    cartpole swing-ups: upright over the last 1 s with ``|x| < 0.5`` m, see
+    :mod:`mcpilco.envs.cartpole_task`). Only these can be compared by success rate.
+control period ``dt``
+    seconds per env step (``env.unwrapped.dt``; 0.05 s on the cartpoles).
+experience ``T``
+    seconds of real interaction, ``T = n dt`` after ``n`` env steps. For MC-PILCO and PILCO
+    ``n = (k + 1) H`` after trial ``k`` (exploration included), i.e. ``T = 3 (k + 1)`` s.
+success rate ``p(T)``
+    fraction of evaluation episodes that end with ``info["success"]``: for SB3, 10
+    deterministic episodes every ``K`` env steps; for MC-PILCO / PILCO, the one episode of
+    each trial (as in thesis Table 5.1, the rate over seeds is the fraction of seeds).
+learning curve
+    one run (method, env, seed): a list of points ``(steps n, experience T, p(T))`` plus the
+    run's config and timings, stored as JSON with ``format = CURVE_FORMAT``.
+"""
+
+from __future__ import annotations
+
+import functools
+import json
+import os
+from collections.abc import Callable, Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from mcpilco.agents.mc_pilco.loop import env_dt, make_env, registered_ids, run_episode
+
+CURVE_FORMAT = "mcpilco-curve/1"
+"""Tag of a learning-curve JSON file (one run: method, env, seed, points)."""
+
+POINT_KEYS = ("steps", "experience_s", "success_rate", "episodes")
+"""Keys every point of a learning curve must have."""
+
+
+# ------------------------------------------------------------------------------- tasks
+@functools.cache
+def env_has_task(env_id: str) -> bool:
+    """True when an episode of ``env_id`` (zero actions, until truncation) reports success.
+
+    Raises:
+        ValueError: ``env_id`` is not registered (the message lists the registered ids).
+    """
+    import gymnasium as gym
+
+    ids = registered_ids()
+    if env_id not in ids:
+        raise ValueError(f"unknown env id {env_id!r}; registered mcpilco ids: {', '.join(ids)}")
+    env = gym.make(env_id)
+    try:
+        env.reset(seed=0)
+        action = np.zeros(env.action_space.shape, dtype=env.action_space.dtype)
+        info: dict[str, Any] = {}
+        for _ in range(100_000):
+            _, _, terminated, truncated, info = env.step(action)
+            if terminated or truncated:
+                break
+        return "success" in info
+    finally:
+        env.close()
+
+
+def task_env_ids() -> list[str]:
+    """Registered ``mcpilco/...`` ids whose episodes report ``info["success"]``."""
+    return [i for i in registered_ids() if env_has_task(i)]
+
+
+def check_task_env(env_id: str) -> None:
+    """Raise ``ValueError`` naming the valid ids when ``env_id`` is not a task env."""
+    if env_id not in registered_ids() or not env_has_task(env_id):
+        raise ValueError(
+            f"env {env_id!r} is not a registered env with a task (info['success'] at the end "
+            f"of an episode); valid env ids: {', '.join(task_env_ids())}"
+        )
+
+
+def episode_steps(env_id: str) -> int:
+    """Steps per episode of a registered id (its ``max_episode_steps``, where success is scored)."""
+    import gymnasium as gym
+
+    import mcpilco.envs  # noqa: F401  (registers the ids)
+
+    steps = gym.spec(env_id).max_episode_steps
+    if steps is None:
+        raise ValueError(
+            f"{env_id} has no max_episode_steps; register it with a fixed episode length so "
+            "that success is scored at a known step"
+        )
+    return int(steps)
+
+
+# -------------------------------------------------------------------------- evaluation
+def evaluate_success(
+    env, act: Callable[[np.ndarray], np.ndarray], seeds: Sequence[int], horizon: int
+) -> dict[str, Any]:
+    """Run one episode per reset seed with ``act`` and score it as MC-PILCO's trials are.
+
+    Uses :func:`mcpilco.agents.mc_pilco.loop.run_episode`, so the success flag, cost, time
+    upright and mean ``|x|`` are the same quantities as in MC-PILCO's records.
+
+    Returns:
+        ``success_rate`` = (number of episodes with ``info["success"]``) / ``len(seeds)``,
+        the mean episode cost, mean time upright, mean ``|x|``, and the per-episode flags.
+    """
+    if len(seeds) == 0:
+        raise ValueError("evaluate_success needs at least one seed (one evaluation episode)")
+    eps = [run_episode(env, act, int(s), horizon) for s in seeds]
+    flags = [bool(e["success"]) for e in eps]
+    return {
+        "success_rate": float(np.mean(flags)),
+        "episodes": len(eps),
+        "successes": flags,
+        "mean_cost": float(np.mean([e["cost"] for e in eps])),
+        "time_upright_s": float(np.mean([e["time_upright"] for e in eps])),
+        "mean_abs_x_m": float(np.mean([e["mean_abs_x"] for e in eps])),
+    }
+
+
+def eval_seeds(seed: int, n: int) -> list[int]:
+    """Reset seeds of the ``n`` evaluation episodes of run ``seed`` (fixed for the whole run,
+    disjoint from the training trials' seeds ``10007 seed + k`` of MC-PILCO / PILCO)."""
+    return [1_000_000 + 1_000 * int(seed) + i for i in range(int(n))]
+
+
+# ----------------------------------------------------------------------- curve records
+def trial_records_to_points(records: Sequence[dict[str, Any]], horizon: int) -> list[dict]:
+    """Learning-curve points of an MC-PILCO / PILCO run: one per trial (exploration too).
+
+    ``steps = (k + 1) H``, ``experience_s`` as recorded (``3 (k + 1)`` s on the cartpoles),
+    ``success_rate`` = 1.0 or 0.0 from the trial's single episode.
+    """
+    pts = []
+    for r in records:
+        k = int(r["index"])
+        pts.append(
+            {
+                "steps": (k + 1) * int(horizon),
+                "experience_s": float(r["experience_s"]),
+                "success_rate": float(bool(r["success"])),
+                "episodes": 1,
+                "kind": r.get("kind"),
+                "mean_cost": float(r.get("cost", float("nan"))),
+                "time_upright_s": float(r.get("time_upright", float("nan"))),
+            }
+        )
+    return pts
+
+
+def make_curve(
+    method: str,
+    env_id: str,
+    seed: int,
+    dt: float,
+    points: list[dict[str, Any]],
+    **extra: Any,
+) -> dict[str, Any]:
+    """A learning-curve dict (validated)."""
+    curve = {
+        "format": CURVE_FORMAT,
+        "method": str(method),
+        "env_id": str(env_id),
+        "seed": int(seed),
+        "dt": float(dt),
+        "points": list(points),
+        **extra,
+    }
+    validate_curve(curve)
+    return curve
+
+
+def validate_curve(curve: dict[str, Any], source: str = "curve") -> None:
+    """Check the keys and values of a learning curve; ``ValueError`` says what is wrong."""
+    if not isinstance(curve, dict):
+        raise TypeError(f"{source}: a learning curve is a JSON object, got {type(curve).__name__}")
+    if curve.get("format") != CURVE_FORMAT:
+        raise ValueError(
+            f"{source}: format is {curve.get('format')!r}, expected {CURVE_FORMAT!r} "
+            "(write curves with mcpilco.agents.baselines.common.save_curve)"
+        )
+    for key in ("method", "env_id", "seed", "dt", "points"):
+        if key not in curve:
+            raise ValueError(f"{source}: missing key {key!r}")
+    if not curve["dt"] > 0:
+        raise ValueError(f"{source}: dt must be > 0 s, got {curve['dt']}")
+    last = -np.inf
+    for i, p in enumerate(curve["points"]):
+        missing = [k for k in POINT_KEYS if k not in p]
+        if missing:
+            raise ValueError(f"{source}: point {i} lacks {missing} (needs {POINT_KEYS})")
+        if not 0.0 <= float(p["success_rate"]) <= 1.0:
+            raise ValueError(
+                f"{source}: point {i} success_rate={p['success_rate']} is outside [0, 1]"
+            )
+        if float(p["experience_s"]) < last:
+            raise ValueError(f"{source}: points must be in increasing experience_s (point {i})")
+        last = float(p["experience_s"])
+
+
+def save_curve(path: str | os.PathLike, curve: dict[str, Any]) -> Path:
+    """Write a learning curve atomically (``.tmp`` then ``os.replace``)."""
+    validate_curve(curve, str(path))
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(path.name + ".tmp")
+    tmp.write_text(json.dumps(curve, indent=1))
+    os.replace(tmp, path)
+    return path
+
+
+def load_curves(path: str | os.PathLike) -> list[dict[str, Any]]:
+    """Learning curves of a JSON file: one curve, a list of curves, or ``{"curves": [...]}``."""
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"no result file at {path}")
+    data = json.loads(path.read_text())
+    if isinstance(data, dict) and "curves" in data:
+        data = data["curves"]
+    curves = data if isinstance(data, list) else [data]
+    for i, c in enumerate(curves):
+        validate_curve(c, f"{path}[{i}]")
+    return curves
+
+
+__all__ = [
+    "CURVE_FORMAT",
+    "check_task_env",
+    "env_dt",
+    "env_has_task",
+    "episode_steps",
+    "eval_seeds",
+    "evaluate_success",
+    "load_curves",
+    "make_curve",
+    "make_env",
+    "save_curve",
+    "task_env_ids",
+    "trial_records_to_points",
+    "validate_curve",
+]

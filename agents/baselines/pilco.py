@@ -1,0 +1,475 @@
+"""PILCO baseline from TorchRL's own parts, run in MC-PILCO's outer loop.
+
+Glossary (Deisenroth & Rasmussen, ICML 2011; thesis section 5.2)
+-----------------------------------------------------------------
+``x_t ~ N(mu_t, Sigma_t)``
+    Gaussian state belief propagated by moment matching (no particles).
+GP model
+    :class:`torchrl.modules.models.GPWorldModel`: one SE-ARD GP per state coordinate on the
+    change ``Delta = x_{t+1} - x_t`` from ``x~ = [x, u]``, hyper-parameters by evidence
+    maximisation (botorch ``fit_gpytorch_mll``), exact moment matching (PILCO eqs. 10-23).
+policy ``pi(x) = u_max sin(sum_i w_i exp(-(x - c_i)^T Lambda^-1 (x - c_i) / 2))``
+    :class:`torchrl.modules.models.RBFController` (``num_basis`` centres ``c_i``), its action
+    moments computed analytically for a Gaussian input; ``u_max = 1`` (the env's action
+    bound, force ``10 u`` N).
+cost ``c(x) = 1 - exp(-(x - x*)^T W (x - x*) / 2)``, ``E[c(x_t)]`` in closed form
+    :class:`torchrl.objectives.ExponentialQuadraticCost` with target
+    ``x* = [0, 0, pi, 0]`` and ``W = diag(2 / l_x^2, 0, 2 / l_theta^2, 0)``, so that on a
+    point belief ``c`` equals the swing-up cost of thesis 5.5.1 (``theta`` in ``[0, pi]``).
+    The state is PILCO's raw ``[x, x_dot, theta, theta_dot]``: TorchRL's parts have no
+    ``sin/cos`` augmentation of the angle, so the target is the single upright ``theta = pi``.
+``J(theta) = sum_{t=1..H} E[c(x_t)]``
+    expected cost of an ``H``-step imagined rollout (TorchRL ``ImaginedEnv``), minimised with
+    Adam as in TorchRL's ``sota-implementations/pilco`` example.
+outer loop
+    exactly MC-PILCO's (:mod:`mcpilco.agents.mc_pilco.loop`): the same exploration trial
+    (``u ~ U(-1, 1)`` from the same generator and seed), the same env, reset seeds and
+    success flag; after trial ``k`` the experience is ``3 (k + 1)`` s. Data for the GP: the
+    latest ``max_points`` transitions (the example's ``max_rollout_length``), since the
+    moment-matching cost grows as ``O(n^2 D^2)`` memory per step.
+
+After every trial the run is checkpointed atomically (``checkpoint.pt``); ``resume=True``
+continues from it. ``records.json`` has one record per trial in MC-PILCO's format.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import math
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+
+from mcpilco.agents.mc_pilco.checkpoint import (
+    CHECKPOINT_VERSION,
+    atomic_torch_save,
+    load_checkpoint,
+    rng_state,
+    set_rng_state,
+)
+from mcpilco.agents.mc_pilco.loop import (
+    DEFAULT_ENV_ID,
+    RunSummary,
+    _dataset,
+    _record_line,
+    _trial_seed,
+    env_dt,
+    make_env,
+    run_episode,
+)
+from mcpilco.agents.mc_pilco.viz import plot_optimisation
+
+CHECKPOINT_NAME = "checkpoint.pt"
+_RESUME_FIXED = ("env_id", "seed", "horizon", "num_basis")
+DTYPE = torch.float64
+
+
+@dataclass
+class PilcoConfig:
+    """One PILCO run (TorchRL parts, MC-PILCO's outer loop).
+
+    Attributes:
+        env_id: registered cartpole swing-up id (4 states ``[x, x_dot, theta, theta_dot]``,
+            1 action).
+        num_trials: policy trials after the exploration trial.
+        horizon: ``H``, steps per trial and of the imagined rollout (= the env's episode).
+        num_basis: RBF centres of the controller (50: the size of PILCO's cart-pole policy).
+        max_points: GP training set = the latest ``max_points`` transitions. Measured on one
+            core: one optimisation step (60-step moment-matching rollout, forward and backward)
+            takes about 1.3-1.8 s at ``n = 60`` and 4.2 s at ``n = 120``, with about 3 GB
+            of memory at ``n = 120`` (it grows as ``n^2``).
+        opt_steps: Adam steps on ``J`` per trial.
+        lr: Adam learning rate.
+        l_x, l_theta: cost length scales (MC-PILCO's optimisation cost, Amadio et al. 2022:
+            ``l_x = 1``, ``l_theta = 3``), giving ``W = diag(2/l_x^2, 0, 2/l_theta^2, 0)``.
+        init_std: ``Sigma_0 = init_std^2 I`` of the initial belief (the env's 0.01); must be
+            > 1e-3 so that TorchRL's world model takes its moment-matching path.
+        seed: seeds torch, numpy and the env resets (same trial seeds as MC-PILCO).
+        torch_threads: ``torch.set_num_threads`` (None: leave as is).
+    """
+
+    env_id: str = DEFAULT_ENV_ID
+    num_trials: int = 5
+    horizon: int = 60
+    num_basis: int = 50
+    max_points: int = 100
+    opt_steps: int = 100
+    lr: float = 0.02
+    l_x: float = 1.0
+    l_theta: float = 3.0
+    init_std: float = 0.01
+    seed: int = 0
+    torch_threads: int | None = None
+
+    def __post_init__(self) -> None:
+        for name in ("num_trials",):
+            v = getattr(self, name)
+            if int(v) != v or v < 0:
+                raise ValueError(f"{name} must be an integer >= 0, got {v!r}")
+        for name in ("horizon", "num_basis", "opt_steps"):
+            v = getattr(self, name)
+            if int(v) != v or v < 1:
+                raise ValueError(f"{name} must be a positive integer, got {v!r}")
+        if int(self.max_points) != self.max_points or self.max_points < 10:
+            raise ValueError(f"max_points must be an integer >= 10, got {self.max_points!r}")
+        if not (self.lr > 0 and self.l_x > 0 and self.l_theta > 0):
+            raise ValueError(
+                f"lr, l_x and l_theta must be > 0, got {self.lr}, {self.l_x}, {self.l_theta}"
+            )
+        if not self.init_std >= 1e-3:
+            raise ValueError(
+                f"init_std must be >= 1e-3 (TorchRL's GPWorldModel treats a smaller covariance "
+                f"as zero and stops gradients), got {self.init_std}"
+            )
+
+    def to_dict(self) -> dict[str, Any]:
+        return dataclasses.asdict(self)
+
+    @classmethod
+    def from_dict(cls, d: dict[str, Any]) -> PilcoConfig:
+        return cls(**d)
+
+
+# ------------------------------------------------------------------------ TorchRL parts
+def make_controller(obs_dim: int, action_dim: int, num_basis: int, seed: int):
+    """TorchRL's :class:`RBFController` (float64, ``u_max = 1``) as a ``TensorDictModule``."""
+    from tensordict.nn import TensorDictModule
+    from torchrl.modules.models import RBFController
+
+    torch.manual_seed(seed)
+    controller = RBFController(
+        input_dim=obs_dim, output_dim=action_dim, max_action=1.0, n_basis=num_basis
+    ).to(DTYPE)
+    module = TensorDictModule(
+        controller,
+        in_keys=[("observation", "mean"), ("observation", "var")],
+        out_keys=[("action", "mean"), ("action", "var"), ("action", "cross_covariance")],
+    )
+    return controller, module
+
+
+def make_cost(l_x: float, l_theta: float):
+    """TorchRL's :class:`ExponentialQuadraticCost` for the swing-up (see the glossary)."""
+    from torchrl.objectives import ExponentialQuadraticCost
+
+    target = torch.tensor([0.0, 0.0, math.pi, 0.0], dtype=DTYPE)
+    weights = torch.diag(torch.tensor([2.0 / l_x**2, 0.0, 2.0 / l_theta**2, 0.0], dtype=DTYPE))
+    return ExponentialQuadraticCost(target=target, weights=weights, reduction="none")
+
+
+def fit_world_model(obs: np.ndarray, actions: np.ndarray, next_obs: np.ndarray):
+    """TorchRL's :class:`GPWorldModel` fitted on transitions ``(x_t, u_t, x_{t+1})``."""
+    from tensordict import TensorDict
+    from torchrl.modules.models import GPWorldModel
+
+    n, d = obs.shape
+    data = TensorDict(
+        {
+            "observation": torch.as_tensor(obs, dtype=DTYPE),
+            "action": torch.as_tensor(actions, dtype=DTYPE).reshape(n, -1),
+            ("next", "observation"): torch.as_tensor(next_obs, dtype=DTYPE),
+        },
+        batch_size=[n],
+    )
+    model = GPWorldModel(obs_dim=d, action_dim=data["action"].shape[-1])
+    model.fit(data)
+    model.eval()
+    return model
+
+
+def controller_act(controller) -> Callable[[np.ndarray], np.ndarray]:
+    """The deterministic action ``E[pi(x)]`` for a point observation (zero covariance)."""
+
+    @torch.no_grad()
+    def act(obs: np.ndarray) -> np.ndarray:
+        x = torch.as_tensor(obs, dtype=DTYPE).reshape(1, -1)
+        mean, _, _ = controller(x, torch.zeros(1, x.shape[1], x.shape[1], dtype=DTYPE))
+        return mean[0].numpy()
+
+    return act
+
+
+class ImaginedCost:
+    """``J = sum_{t=1..H} E[c(x_t)]`` of a moment-matching rollout (TorchRL ``ImaginedEnv``)."""
+
+    def __init__(self, world_model, base_env, policy_module, cost, horizon: int, init_std: float):
+        from tensordict import TensorDict
+        from torchrl.envs.model_based import ImaginedEnv
+
+        self.env = ImaginedEnv(world_model_module=world_model, base_env=base_env)
+        d = world_model.obs_dim
+        self.reset_td = TensorDict(
+            {
+                ("observation", "mean"): torch.zeros(d, dtype=DTYPE),
+                ("observation", "var"): init_std**2 * torch.eye(d, dtype=DTYPE),
+            }
+        ).expand(*self.env.batch_size)
+        self.policy_module = policy_module
+        self.cost = cost
+        self.horizon = int(horizon)
+
+    def __call__(self) -> torch.Tensor:
+        data = self.env.rollout(
+            max_steps=self.horizon, policy=self.policy_module, tensordict=self.reset_td
+        )
+        return self.cost(data["next"])["loss_cost"].sum(-1).mean()
+
+
+def _torchrl_env(env_id: str):
+    """TorchRL ``GymEnv`` of a registered id (its specs shape the imagined env)."""
+    import warnings
+
+    import mcpilco.envs  # noqa: F401  (registers the ids)
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        from torchrl.envs import GymEnv
+
+        return GymEnv(env_id)
+
+
+def optimize_controller(
+    objective: ImaginedCost,
+    controller,
+    steps: int,
+    lr: float,
+    on_step: Callable[[int, float], None] | None = None,
+) -> dict[str, Any]:
+    """Adam on ``J``; non-finite ``J`` skips the step; the best parameters seen are kept."""
+    opt = torch.optim.Adam(controller.parameters(), lr=lr)
+    costs: list[float] = []
+    best, best_state, skipped = math.inf, None, 0
+    t0, c0 = time.perf_counter(), time.process_time()
+    for i in range(steps):
+        opt.zero_grad()
+        try:
+            J = objective()
+        except RuntimeError:  # e.g. a singular matrix in the moment matching
+            J = torch.tensor(math.nan)
+        value = float(J.detach())
+        costs.append(value)
+        if math.isfinite(value) and value < best:
+            best = value
+            best_state = {k: v.detach().clone() for k, v in controller.state_dict().items()}
+        if not math.isfinite(value):
+            skipped += 1
+        else:
+            J.backward()
+            grads_ok = all(
+                p.grad is None or bool(torch.isfinite(p.grad).all())
+                for p in controller.parameters()
+            )
+            if grads_ok:
+                opt.step()
+            else:
+                skipped += 1
+        if on_step is not None:
+            on_step(i, value)
+    if best_state is not None:
+        controller.load_state_dict(best_state)
+    n = max(len(costs), 1)
+    return {
+        "costs": costs,
+        "best": best,
+        "skipped": skipped,
+        "seconds": time.perf_counter() - t0,
+        "s_per_step": (time.perf_counter() - t0) / n,
+        "cpu_s_per_step": (time.process_time() - c0) / n,
+    }
+
+
+# ---------------------------------------------------------------------------------- loop
+def run_pilco(
+    config: PilcoConfig,
+    out_dir: str | Path,
+    resume: bool = False,
+    progress: bool = True,
+    log: Callable[[str], None] | None = print,
+) -> RunSummary:
+    """Run (or resume) PILCO in MC-PILCO's outer loop; writes checkpoint, records, PNG.
+
+    Args:
+        config: the experiment.
+        out_dir: output folder (created).
+        resume: continue from ``out_dir/checkpoint.pt`` (``num_trials`` may grow).
+        progress: tqdm bars on trials and optimisation steps.
+        log: called with one line per trial (None: silent).
+    """
+    t_start = time.perf_counter()
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    ckpt_path = out / CHECKPOINT_NAME
+    if config.torch_threads is not None:
+        torch.set_num_threads(int(config.torch_threads))
+    env = make_env(config.env_id, config.horizon)
+    obs_dim = int(np.prod(env.observation_space.shape))
+    act_dim = int(np.prod(env.action_space.shape))
+    if (obs_dim, act_dim) != (4, 1):
+        env.close()
+        raise ValueError(
+            f"{config.env_id}: PILCO's swing-up target needs 4 states [x, x_dot, theta, "
+            f"theta_dot] and 1 action, got {obs_dim} and {act_dim}; use a cartpole env"
+        )
+    dt = env_dt(env)
+    base_env = _torchrl_env(config.env_id)
+
+    torch.manual_seed(config.seed)
+    np_rng = np.random.default_rng(config.seed)
+    controller, policy_module = make_controller(obs_dim, act_dim, config.num_basis, config.seed)
+    cost = make_cost(config.l_x, config.l_theta)
+    episodes: list[dict[str, Any]] = []
+    records: list[dict[str, Any]] = []
+    opt_curves: list[list[float]] = []
+    start_trial = 0
+    resumed_from = None
+    if resume:
+        ckpt = load_checkpoint(ckpt_path)
+        old = ckpt["config"]
+        for key in _RESUME_FIXED:
+            if old[key] != getattr(config, key):
+                raise ValueError(
+                    f"cannot resume: {key}={getattr(config, key)!r} differs from the "
+                    f"checkpoint's {old[key]!r}; use the same value or a new output folder"
+                )
+        episodes, records = ckpt["episodes"], ckpt["records"]
+        opt_curves = ckpt["opt_curves"]
+        controller.load_state_dict(ckpt["policy"])
+        set_rng_state(ckpt["rng"], np_rng)
+        start_trial = resumed_from = int(ckpt["next_trial"])
+        if log:
+            log(f"resumed {ckpt_path}: trials 0..{start_trial - 1} done")
+
+    total = config.num_trials + 1
+    bar = None
+    if progress:
+        from tqdm.auto import tqdm
+
+        bar = tqdm(total=total, initial=min(start_trial, total), desc="PILCO trials")
+    try:
+        for k in range(start_trial, total):
+            t0 = time.perf_counter()
+            rec: dict[str, Any] = {"index": k, "experience_s": (k + 1) * config.horizon * dt}
+            if k == 0:
+                rec["kind"] = "exploration"
+                it = iter(np_rng.uniform(-1.0, 1.0, size=(config.horizon, 1)))
+                ep = run_episode(
+                    env, lambda _o, it=it: next(it), _trial_seed(config.seed, k), config.horizon
+                )
+            else:
+                rec["kind"] = "policy"
+                s, a, s1 = _dataset(episodes)
+                s, a, s1 = (
+                    s[-config.max_points :],
+                    a[-config.max_points :],
+                    s1[-config.max_points :],
+                )
+                t_fit = time.perf_counter()
+                world_model = fit_world_model(s, a, s1)
+                rec["gp_fit_s"] = time.perf_counter() - t_fit
+                rec["gp_points"] = int(s.shape[0])
+                objective = ImaginedCost(
+                    world_model, base_env, policy_module, cost, config.horizon, config.init_std
+                )
+                obar = None
+                if progress:
+                    from tqdm.auto import tqdm
+
+                    obar = tqdm(total=config.opt_steps, desc=f"trial {k} PILCO opt", leave=False)
+
+                def on_step(i, c, obar=obar):
+                    if obar is not None:
+                        obar.update(1)
+                        obar.set_postfix(J=f"{c:.2f}")
+
+                res = optimize_controller(
+                    objective, controller, config.opt_steps, config.lr, on_step
+                )
+                if obar is not None:
+                    obar.close()
+                opt_curves.append(res["costs"])
+                rec.update(
+                    opt_steps=len(res["costs"]),
+                    opt_s=res["seconds"],
+                    s_per_opt_step=res["s_per_step"],
+                    cpu_s_per_opt_step=res["cpu_s_per_step"],
+                    opt_skipped=res["skipped"],
+                    opt_final_cost=res["best"],
+                )
+                ep = run_episode(
+                    env, controller_act(controller), _trial_seed(config.seed, k), config.horizon
+                )
+            episodes.append({"obs": ep["obs"], "actions": ep["actions"]})
+            rec.update(
+                cost=ep["cost"],
+                success=ep["success"],
+                time_upright=ep["time_upright"],
+                mean_abs_x=ep["mean_abs_x"],
+                wall_s=time.perf_counter() - t0,
+            )
+            records.append(rec)
+            _write_outputs(out, config, records, opt_curves)
+            atomic_torch_save(
+                {
+                    "version": CHECKPOINT_VERSION,
+                    "config": config.to_dict(),
+                    "next_trial": k + 1,
+                    "episodes": episodes,
+                    "records": records,
+                    "opt_curves": opt_curves,
+                    "policy": controller.state_dict(),
+                    "rng": rng_state(np_rng),
+                },
+                ckpt_path,
+            )
+            if log:
+                log("PILCO " + _record_line(rec))
+            if bar is not None:
+                bar.update(1)
+    finally:
+        if bar is not None:
+            bar.close()
+        env.close()
+        base_env.close()
+    png = out / "optimisation.png"
+    return RunSummary(
+        config=config.to_dict(),
+        records=records,
+        out_dir=out,
+        checkpoint=ckpt_path,
+        rrd=None,
+        pngs=[png] if png.exists() else [],
+        seconds=time.perf_counter() - t_start,
+        resumed_from_trial=resumed_from,
+    )
+
+
+def _write_outputs(
+    out: Path, config: PilcoConfig, records: list[dict[str, Any]], opt_curves: list[list[float]]
+) -> None:
+    if opt_curves:
+        plot_optimisation(
+            out / "optimisation.png",
+            [np.asarray(c) for c in opt_curves],
+            [f"trial {i + 1}" for i in range(len(opt_curves))],
+        )
+    tmp = out / "records.json.tmp"
+    tmp.write_text(json.dumps({"config": config.to_dict(), "records": records}, indent=1))
+    tmp.replace(out / "records.json")
+
+
+__all__ = [
+    "ImaginedCost",
+    "PilcoConfig",
+    "controller_act",
+    "fit_world_model",
+    "make_controller",
+    "make_cost",
+    "optimize_controller",
+    "run_pilco",
+]

@@ -1,0 +1,126 @@
+"""PILCO from TorchRL's parts: the cost it optimises, the outer loop it shares with MC-PILCO.
+
+Truth used: the env's own swing-up cost (:func:`mcpilco.envs.cartpole_task.cartpole_cost`),
+a Monte Carlo estimate of the expected cost, and MC-PILCO's exploration trial.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+
+import numpy as np
+import pytest
+import torch
+from tensordict import TensorDict
+
+from mcpilco.agents.baselines.pilco import PilcoConfig, controller_act, make_controller, make_cost
+from mcpilco.agents.mc_pilco import MCPilcoConfig, run_mcpilco
+from mcpilco.envs.cartpole_task import cartpole_cost
+from mcpilco.scripts.compare import run_method
+
+ENV = "mcpilco/CartpoleSwingUp-v0"
+
+
+def _expected_cost(cost, mean, cov) -> np.ndarray:
+    td = TensorDict(
+        {
+            ("observation", "mean"): torch.as_tensor(mean, dtype=torch.float64),
+            ("observation", "var"): torch.as_tensor(cov, dtype=torch.float64),
+        },
+        batch_size=[len(mean)],
+    )
+    return cost(td)["loss_cost"].numpy()
+
+
+@pytest.mark.parametrize(("l_x", "l_theta"), [(1.5, 1.0), (1.0, 3.0)])
+def test_cost_on_a_point_state_is_the_env_cost(l_x, l_theta):
+    rng = np.random.default_rng(0)
+    states = np.column_stack(
+        [
+            rng.uniform(-2, 2, 50),
+            rng.normal(size=50),
+            rng.uniform(0, np.pi, 50),
+            rng.normal(size=50),
+        ]
+    )
+    got = _expected_cost(make_cost(l_x, l_theta), states, np.zeros((50, 4, 4)))
+    # ExponentialQuadraticCost adds a 1e-5 jitter to its covariance term
+    np.testing.assert_allclose(got, cartpole_cost(states, l_theta, l_x), atol=1e-4)
+
+
+def test_expected_cost_matches_monte_carlo():
+    rng = np.random.default_rng(1)
+    mean = np.array([0.3, 0.1, 2.2, -0.2])
+    a = rng.normal(size=(4, 4)) * 0.05
+    cov = a @ a.T + 0.01 * np.eye(4)
+    closed = _expected_cost(make_cost(1.0, 3.0), mean[None], cov[None])[0]
+    samples = rng.multivariate_normal(mean, cov, size=200_000)
+    assert np.all(samples[:, 2] < np.pi)  # the quadratic and the wrapped cost agree there
+    mc = cartpole_cost(samples, 3.0, 1.0).mean()
+    assert closed == pytest.approx(mc, abs=1e-3)
+
+
+def test_controller_action_is_bounded_and_deterministic():
+    controller, _ = make_controller(4, 1, num_basis=10, seed=0)
+    with torch.no_grad():
+        controller.weights.mul_(100.0)  # saturate: |u| must still be <= u_max = 1
+    act = controller_act(controller)
+    obs = np.random.default_rng(2).normal(size=(20, 4))
+    u = np.array([act(o) for o in obs])
+    assert u.shape == (20, 1) and np.all(np.abs(u) <= 1.0) and np.abs(u).max() > 0.5
+    np.testing.assert_array_equal(u, np.array([act(o) for o in obs]))
+
+
+def test_config_validation():
+    with pytest.raises(ValueError, match="init_std must be >= 1e-3"):
+        PilcoConfig(init_std=1e-5)
+    with pytest.raises(ValueError, match="max_points must be an integer >= 10"):
+        PilcoConfig(max_points=3)
+    with pytest.raises(ValueError, match="num_trials must be an integer >= 0"):
+        PilcoConfig(num_trials=-1)
+
+
+TINY = {"max_points": 30, "opt_steps": 2, "num_basis": 5}
+
+
+@pytest.fixture(scope="module")
+def pilco_run(tmp_path_factory):
+    out = tmp_path_factory.mktemp("pilco")
+    opts = {"trials": 1, "pilco": TINY, "threads": 1, "log": False}
+    curve = run_method("pilco", ENV, 2, out, opts)
+    return out, opts, curve
+
+
+def test_smoke_run_through_the_compare_entry_point(pilco_run):
+    out, _, curve = pilco_run
+    recs = json.loads((out / "records.json").read_text())["records"]
+    assert [r["kind"] for r in recs] == ["exploration", "policy"]
+    assert recs[1]["opt_steps"] == 2 and recs[1]["gp_points"] == 30
+    assert math.isfinite(recs[1]["opt_final_cost"]) and 0 <= recs[1]["opt_final_cost"] <= 60
+    assert [(p["steps"], p["experience_s"]) for p in curve["points"]] == [(60, 3.0), (120, 6.0)]
+    assert (out / "checkpoint.pt").is_file() and (out / "optimisation.png").is_file()
+
+
+def test_exploration_trial_is_mc_pilcos(pilco_run, tmp_path):
+    out, _, _ = pilco_run
+    pilco0 = json.loads((out / "records.json").read_text())["records"][0]
+    mc = run_mcpilco(
+        MCPilcoConfig(num_trials=0, seed=2, torch_threads=1),
+        tmp_path,
+        progress=False,
+        log=None,
+        write_rrd=False,
+    )
+    mc0 = mc.records[0]
+    for key in ("cost", "success", "time_upright", "mean_abs_x", "experience_s"):
+        assert pilco0[key] == mc0[key], key
+
+
+def test_resume_adds_a_trial_and_keeps_the_old_ones(pilco_run):
+    out, opts, curve = pilco_run
+    more = run_method("pilco", ENV, 2, out, {**opts, "trials": 2})
+    assert more["points"][:2] == curve["points"]
+    assert [p["steps"] for p in more["points"]] == [60, 120, 180]
+    with pytest.raises(ValueError, match="cannot resume: num_basis"):
+        run_method("pilco", ENV, 2, out, {**opts, "pilco": {**TINY, "num_basis": 6}})

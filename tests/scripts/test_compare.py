@@ -1,0 +1,263 @@
+"""``mcpilco-compare``: table, plot and headline from fake result files; argument errors.
+
+The expected numbers are computed by hand from the fake curves below, not by the script.
+"""
+
+from __future__ import annotations
+
+import json
+
+import pytest
+
+from mcpilco.agents.baselines.common import make_curve, save_curve
+from mcpilco.scripts.compare import aggregate_method, main
+
+ENV = "mcpilco/CartpoleSwingUp-v0"
+
+
+def _trial_curve(seed: int, successes: list[bool]) -> dict:
+    pts = [
+        {
+            "steps": 60 * (k + 1),
+            "experience_s": 3.0 * (k + 1),
+            "success_rate": float(ok),
+            "episodes": 1,
+        }
+        for k, ok in enumerate(successes)
+    ]
+    return make_curve("mcpilco", ENV, seed, 0.05, pts, complete=True)
+
+
+def _sb3_curve(seed: int, rates: list[float], every: int = 20_000) -> dict:
+    pts = [
+        {
+            "steps": every * (i + 1),
+            "experience_s": every * (i + 1) * 0.05,
+            "success_rate": r,
+            "episodes": 10,
+        }
+        for i, r in enumerate(rates)
+    ]
+    return make_curve(
+        "sac", ENV, seed, 0.05, pts, cpu_s=50.0, steps_done=every * len(rates), complete=True
+    )
+
+
+@pytest.fixture()
+def fake_files(tmp_path):
+    # MC-PILCO, 2 seeds: first success at trial 2 (9 s) and trial 3 (12 s)
+    # -> mean success 0, 0, 0.5, 1, 1 at 3, 6, 9, 12, 15 s -> T90 = 12 s.
+    mc = [
+        _trial_curve(0, [False, False, True, True, True]),
+        _trial_curve(1, [False, False, False, True, True]),
+    ]
+    # SAC, 2 seeds, evaluations every 20k steps = 1000 s:
+    # seed 0: 0.2, 0.9, 1.0; seed 1: 0.0, 0.7, 0.9 -> mean 0.1, 0.8, 0.95 -> T90 = 3000 s.
+    sac = [_sb3_curve(0, [0.2, 0.9, 1.0]), _sb3_curve(1, [0.0, 0.7, 0.9])]
+    a = tmp_path / "mcpilco.json"
+    a.write_text(json.dumps(mc))
+    b = tmp_path / "sac.json"
+    b.write_text(json.dumps({"curves": sac}))
+    return a, b
+
+
+def test_two_fake_files_give_table_plot_and_ratios(fake_files, tmp_path, capsys):
+    a, b = fake_files
+    out = tmp_path / "results"
+    argv = [
+        "--collect-only",
+        "--methods",
+        "mcpilco",
+        "sac",
+        "--inputs",
+        str(a),
+        str(b),
+        "--out",
+        str(out),
+        "--runs-dir",
+        str(tmp_path / "none"),
+        "--tag",
+        "fake",
+    ]
+    assert main(argv) == 0
+    stem = out / "compare_CartpoleSwingUp-v0_fake"
+    report = json.loads(stem.with_suffix(".json").read_text())
+    mc, sac = report["methods"]["mcpilco"], report["methods"]["sac"]
+    assert mc["success_mean"] == pytest.approx([0, 0, 0.5, 1, 1])
+    assert mc["t90_s"] == pytest.approx(12.0)
+    assert sac["success_mean"] == pytest.approx([0.1, 0.8, 0.95])
+    assert sac["t90_s"] == pytest.approx(3000.0)
+    ratio = report["headline"]["ratios"]["sac"]["value"]
+    assert ratio == pytest.approx(3000.0 / 12.0)  # 250x >= 100x: goal met
+    assert report["headline"]["goal"]["sb3"]["status"] == "met"
+    # per seed: MC-PILCO seeds reach 90% at 9 s and 12 s, SAC seeds at 2000 s and 3000 s
+    assert [s["t90_s"] for s in mc["per_seed"]] == [9.0, 12.0]
+    assert [s["t90_s"] for s in sac["per_seed"]] == [2000.0, 3000.0]
+    # s.e.m. of SAC at 1000 s: values 0.2, 0.0 -> std (ddof 1) 0.1414 / sqrt(2) = 0.1
+    assert sac["success_sem"][0] == pytest.approx(0.1)
+    assert sac["cpu_s_per_1k_steps"] == pytest.approx(50.0 / 60.0)
+    md = stem.with_suffix(".md").read_text()
+    assert "| MC-PILCO | 2 |" in md and "| SAC | 2 |" in md
+    assert "250.0x" in md and "**met**" in md
+    png = stem.with_suffix(".png").read_bytes()
+    assert png[:8] == b"\x89PNG\r\n\x1a\n" and len(png) > 5_000
+    assert "wrote" in capsys.readouterr().out
+
+
+def test_unreached_target_gives_a_lower_bound(tmp_path):
+    mc = [_trial_curve(0, [False, True, True])]  # T90 = 6 s
+    slow = [_sb3_curve(0, [0.0, 0.5])]  # never 90% within 2000 s
+    a = tmp_path / "a.json"
+    a.write_text(json.dumps(mc + slow))
+    out = tmp_path / "r"
+    assert (
+        main(
+            [
+                "--collect-only",
+                "--inputs",
+                str(a),
+                "--out",
+                str(out),
+                "--runs-dir",
+                str(tmp_path / "none"),
+            ]
+        )
+        == 0
+    )
+    report = json.loads((out / "compare_CartpoleSwingUp-v0.json").read_text())
+    r = report["headline"]["ratios"]["sac"]
+    assert r["value"] is None and r["lower_bound"] == pytest.approx(2000.0 / 6.0)
+    assert report["headline"]["goal"]["sb3"]["status"] == "met"  # > 333x is >= 100x
+    md = (out / "compare_CartpoleSwingUp-v0.md").read_text()
+    assert "not reached (> 2,000 s)" in md and "> 333.3x" in md
+
+
+@pytest.mark.parametrize(
+    ("pilco", "ratio", "bound", "status"),
+    [
+        ([False, False], 1.0, True, "met"),  # not reached within 6 s: T90 > 6 s
+        ([False, True], 1.0, False, "not met"),  # as fast as MC-PILCO
+        ([False, False, True], 1.5, False, "met"),
+    ],
+)
+def test_pilco_goal(pilco, ratio, bound, status, tmp_path):
+    mc = _trial_curve(0, [False, True, True])  # T90 = 6 s
+    pc = dict(_trial_curve(0, pilco), method="pilco")
+    a = tmp_path / "a.json"
+    a.write_text(json.dumps([mc, pc]))
+    out = tmp_path / "r"
+    assert (
+        main(
+            [
+                "--collect-only",
+                "--inputs",
+                str(a),
+                "--out",
+                str(out),
+                "--runs-dir",
+                str(tmp_path / "none"),
+            ]
+        )
+        == 0
+    )
+    goal = json.loads((out / "compare_CartpoleSwingUp-v0.json").read_text())["headline"]["goal"]
+    assert goal["pilco"]["ratio"] == pytest.approx(ratio)
+    assert goal["pilco"]["ratio_is_lower_bound"] is bound and goal["pilco"]["status"] == status
+
+
+def test_mean_is_held_between_evaluations_and_cut_at_the_shortest_seed():
+    c0 = _sb3_curve(0, [0.5, 1.0, 1.0], every=100)  # 5, 10, 15 s
+    c1 = _sb3_curve(1, [1.0], every=200)  # 10 s only
+    agg = aggregate_method([c0, c1])
+    # grid up to 10 s: at 5 s seed 1 has no evaluation yet (0) -> 0.25; at 10 s -> 1.0
+    assert agg["experience_s"] == [5.0, 10.0]
+    assert agg["success_mean"] == pytest.approx([0.25, 1.0])
+    assert agg["t90_s"] == 10.0
+
+
+def _error_of(argv, capsys) -> str:
+    with pytest.raises(SystemExit) as exc:
+        main(argv)
+    assert exc.value.code == 2
+    return capsys.readouterr().err
+
+
+def test_unknown_method_lists_valid_names(capsys, tmp_path):
+    err = _error_of(["--methods", "sac", "dqn", "--out", str(tmp_path)], capsys)
+    assert "unknown method(s) 'dqn'" in err
+    assert "mcpilco, pilco, sac, td3, ppo" in err
+
+
+def test_unknown_env_lists_task_envs(capsys, tmp_path):
+    err = _error_of(["--env", "mcpilco/Nope-v0", "--out", str(tmp_path)], capsys)
+    assert "mcpilco/Nope-v0" in err
+    assert "mcpilco/CartpoleSwingUp-v0" in err and "mcpilco/DMCCartpoleSwingUp-v0" in err
+
+
+def test_env_without_task_is_refused(capsys, tmp_path):
+    err = _error_of(["--env", "mcpilco/MarkerCamera-v0", "--out", str(tmp_path)], capsys)
+    assert "not a registered env with a task" in err
+    assert "valid env ids: mcpilco/CartpoleSwingUp-v0, mcpilco/DMCCartpoleSwingUp-v0" in err
+
+
+@pytest.mark.parametrize(
+    ("flag", "value", "message"),
+    [
+        ("--steps", "dqn=10", "unknown SB3 method 'dqn'"),
+        ("--steps", "ten", "not an integer"),
+        ("--sb3-hp", "learning_rate=1", "ALGO.KEY=VALUE"),
+    ],
+)
+def test_bad_budget_or_hyperparameter(flag, value, message, capsys, tmp_path):
+    err = _error_of([flag, value, "--out", str(tmp_path)], capsys)
+    assert message in err
+
+
+def test_collect_only_with_nothing_is_an_error(capsys, tmp_path):
+    err = _error_of(
+        ["--collect-only", "--out", str(tmp_path), "--runs-dir", str(tmp_path / "none")], capsys
+    )
+    assert "no learning curves" in err
+
+
+def test_bad_input_file_is_an_error(capsys, tmp_path):
+    bad = tmp_path / "bad.json"
+    bad.write_text(json.dumps({"format": "other", "points": []}))
+    err = _error_of(["--collect-only", "--inputs", str(bad), "--out", str(tmp_path)], capsys)
+    assert "format is 'other'" in err
+
+
+def test_runs_dir_curves_are_collected(tmp_path):
+    runs = tmp_path / "runs"
+    c = _trial_curve(4, [False, True])
+    save_curve(runs / "CartpoleSwingUp-v0" / "mcpilco" / "seed4" / "curve.json", c)
+    out = tmp_path / "r"
+    assert (
+        main(
+            [
+                "--collect-only",
+                "--methods",
+                "mcpilco",
+                "--seeds",
+                "1",
+                "--first-seed",
+                "4",
+                "--runs-dir",
+                str(runs),
+                "--out",
+                str(out),
+            ]
+        )
+        == 0
+    )
+    report = json.loads((out / "compare_CartpoleSwingUp-v0.json").read_text())
+    assert report["methods"]["mcpilco"]["seeds"] == [4]
+    assert report["methods"]["mcpilco"]["t90_s"] == 6.0
+
+
+def test_a_failing_run_is_reported_not_raised(tmp_path):
+    from mcpilco.scripts.compare import _job
+
+    res = _job(("pilco", ENV, 0, str(tmp_path), {"pilco": {"max_points": 3}, "log": False}))
+    assert res["failed"] and res["method"] == "pilco" and res["seed"] == 0
+    assert "max_points must be an integer >= 10" in res["error"]
