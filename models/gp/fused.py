@@ -26,6 +26,9 @@ import gpytorch
 import torch
 from torch import Tensor, nn
 
+INV_L2_MAX = 1e12
+"""Largest ``1 / l^2`` kept (standardised inputs): a shorter lengthscale is a delta kernel."""
+
 
 def _split_kernel(kernel) -> tuple[object, object | None] | None:
     """``(ScaleKernel(RBF), MPKernel | None)`` if ``kernel`` has that structure, else None."""
@@ -106,6 +109,10 @@ class FusedRBFMPKPredictor(nn.Module):
         m = pred.weights.shape[0]
         inv_l2 = rbf.base_kernel.lengthscale.to(f64).reshape(-1, d).expand(m, -1) ** -2  # (m, d)
         os_ = rbf.outputscale.to(f64).reshape(-1).expand(m)
+        # degenerate fits: an RBF switched off (lambda^2 underflows to 0; its lengthscales then
+        # drift anywhere, even to 0) contributes exactly 0, and a lengthscale -> 0 is a delta
+        # kernel; keep every buffer finite so that 0 * inf never makes a NaN
+        inv_l2 = torch.where(os_[:, None] > 0, inv_l2.clamp(max=INV_L2_MAX), 0.0)
         blocks = [X[None] * inv_l2[:, None, :]]  # (m, N, d) per part
         offset = os_.log()[:, None] - 0.5 * (X[None] ** 2 * inv_l2[:, None, :]).sum(-1)
         diag = [inv_l2]  # (m, d) per part

@@ -129,3 +129,29 @@ def test_fused_predictor_matches_gp_cached_predictor():
         g1 = torch.autograd.grad((m1 + v1).sum(), z)[0]
         g2 = torch.autograd.grad((m2 + v2).sum(), z)[0]
         torch.testing.assert_close(g2, g1, atol=1e-8, rtol=1e-8)
+
+
+def test_fused_predictor_stays_finite_when_the_rbf_is_switched_off():
+    """A fit where marginal likelihood switches the RBF off (lambda^2 underflows to 0) and one
+    of its then-irrelevant lengthscales collapses to 0 (seen on the dm-control cartpole):
+    the fused float32 predictor must give the float64 GP posterior, not NaN."""
+    from mcpilco.agents.mc_pilco.dynamics import GPDynamicsModel
+    from mcpilco.models.gp.fused import FusedRBFMPKPredictor
+
+    gen = torch.Generator().manual_seed(1)
+    s = torch.randn(40, 4, generator=gen, dtype=torch.float64)
+    a = torch.rand(40, 1, generator=gen, dtype=torch.float64) * 2 - 1
+    s1 = s + 0.05 * torch.randn(40, 4, generator=gen, dtype=torch.float64)
+    model = GPDynamicsModel(kernel="rbf+mpk", adam_iters=5, lbfgs_iters=0).fit(s, a, s1)
+    rbf = model.gp_.model_.covar_module.kernels[0]
+    with torch.no_grad():
+        rbf.raw_outputscale.fill_(-900.0)  # softplus -> exactly 0 in float64
+        rbf.base_kernel.raw_lengthscale[..., 2] = -60.0  # lengthscale ~ 1e-26
+    pred = model.gp_.cached_predictor(dtype=torch.float64)
+    fused = FusedRBFMPKPredictor.from_cached(model.gp_.cached_predictor(dtype=torch.float32))
+    z = torch.randn(30, 6, generator=gen, dtype=torch.float64)
+    m1, v1 = pred(z)
+    m2, v2 = fused(z.float())
+    assert torch.isfinite(m2).all() and torch.isfinite(v2).all()
+    torch.testing.assert_close(m2.double(), m1, atol=1e-4, rtol=1e-3)
+    torch.testing.assert_close(v2.double(), v1, atol=1e-4, rtol=1e-3)
