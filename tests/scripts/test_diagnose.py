@@ -108,3 +108,23 @@ def test_joint_count_of_model_file_is_named(case_dir, tmp_path, capsys):
     assert diagnose.main(argv) == 2
     err = capsys.readouterr().err
     assert "4 joints" in err and "6" in err, err
+
+
+def test_shipped_example_finds_its_hidden_effect(tmp_path):
+    """The README walk-through: the shipped SCARA example's hidden effect (truth.json) is
+    added by --auto, and the held-out error of its joint falls to the noise level."""
+    from importlib.resources import files
+
+    ex = files("mcpilco.models.diagnosis") / "examples" / "scara_coulomb2"
+    truth = json.loads((ex / "truth.json").read_text())
+    out = tmp_path / "run"
+    argv = ["--model", str(ex / "robot.xml"), "--train"]
+    argv += [str(ex / "train_1.parquet"), str(ex / "train_2.parquet")]
+    argv += ["--test", str(ex / "test_1.parquet"), "--auto", "2", "--out", str(out)]
+    assert diagnose.main([*argv, "--no-plots", "--no-rerun"]) == 0
+    summary = json.loads((out / "summary.json").read_text())
+    (label,) = truth["labels"]
+    assert len(summary["versions"]) == 2 and label in summary["versions"][1]
+    j = truth["effects"][0]["joint"] - 1
+    rmse = np.array(summary["heldout_rmse"])
+    assert rmse[-1, j] <= 1.5 * truth["noise_std"][j] < rmse[0, j]
