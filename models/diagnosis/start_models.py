@@ -224,16 +224,15 @@ class LearnedStart(StartModel):
 
     def refit(self, q: FloatArray, qd: FloatArray, qdd: FloatArray, y: FloatArray) -> LearnedStart:
         """A copy whose kernel hyperparameters are re-optimised on ``y`` (warm start from the
-        current ones, ``adam_iters // 3`` + ``lbfgs_iters // 3`` iterations): backfitting
-        after effects were added, so that the learned start stops absorbing them."""
+        current ones, the full ``adam_iters`` + ``lbfgs_iters`` budget): backfitting after
+        effects were added, so that the learned start stops absorbing them (a third of the
+        budget left a viscous case at 2x the noise; the full budget reaches it)."""
         import copy
 
         new = copy.copy(self)  # the robot (pinocchio) is shared; the estimator is copied
         new.estimator_ = copy.deepcopy(self.estimator_)
         X = new.estimator_.gp_inputs(JointStates(q, qd, qdd))
-        new.estimator_.gp_.fit(
-            X, y, adam_iters=max(self.adam_iters // 3, 1), lbfgs_iters=max(self.lbfgs_iters // 3, 1)
-        )
+        new.estimator_.gp_.fit(X, y, adam_iters=self.adam_iters, lbfgs_iters=self.lbfgs_iters)
         return new
 
     def _gp(self) -> Any:
