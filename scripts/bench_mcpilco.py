@@ -138,7 +138,7 @@ def bench_runs(cfg: MCPilcoConfig, seeds: list[int], jobs: int, runs_dir: Path) 
 
 # ----------------------------------------------------------------------------- timing
 def _exploration_data(env_id: str, n_points: int, seed: int):
-    from mcpilco.agents.mc_pilco.loop import _dataset, make_env, run_episode
+    from mcpilco.agents.mc_pilco.loop import make_env, run_episode, transitions
 
     env = make_env(env_id, 60)
     rng = np.random.default_rng(seed)
@@ -147,7 +147,7 @@ def _exploration_data(env_id: str, n_points: int, seed: int):
         for i in range(max(1, -(-n_points // 60)))
     ]
     env.close()
-    s, a, s1 = _dataset(eps)
+    s, a, s1 = transitions(eps)
     return s[:n_points], a[:n_points], s1[:n_points], eps
 
 

@@ -56,12 +56,14 @@ from mcpilco.agents.mc_pilco.checkpoint import (
 from mcpilco.agents.mc_pilco.loop import (
     DEFAULT_ENV_ID,
     RunSummary,
-    _dataset,
-    _record_line,
-    _trial_seed,
+    check_resume,
     env_dt,
+    exploration_episode,
     make_env,
+    record_line,
     run_episode,
+    transitions,
+    trial_seed,
 )
 from mcpilco.agents.mc_pilco.viz import plot_optimisation
 
@@ -330,13 +332,7 @@ def run_pilco(
     resumed_from = None
     if resume:
         ckpt = load_checkpoint(ckpt_path)
-        old = ckpt["config"]
-        for key in _RESUME_FIXED:
-            if old[key] != getattr(config, key):
-                raise ValueError(
-                    f"cannot resume: {key}={getattr(config, key)!r} differs from the "
-                    f"checkpoint's {old[key]!r}; use the same value or a new output folder"
-                )
+        check_resume(ckpt["config"], config, _RESUME_FIXED)
         episodes, records = ckpt["episodes"], ckpt["records"]
         opt_curves = ckpt["opt_curves"]
         controller.load_state_dict(ckpt["policy"])
@@ -357,13 +353,10 @@ def run_pilco(
             rec: dict[str, Any] = {"index": k, "experience_s": (k + 1) * config.horizon * dt}
             if k == 0:
                 rec["kind"] = "exploration"
-                it = iter(np_rng.uniform(-1.0, 1.0, size=(config.horizon, 1)))
-                ep = run_episode(
-                    env, lambda _o, it=it: next(it), _trial_seed(config.seed, k), config.horizon
-                )
+                ep = exploration_episode(env, np_rng, config.seed, config.horizon)
             else:
                 rec["kind"] = "policy"
-                s, a, s1 = _dataset(episodes)
+                s, a, s1 = transitions(episodes)
                 s, a, s1 = (
                     s[-config.max_points :],
                     a[-config.max_points :],
@@ -402,7 +395,7 @@ def run_pilco(
                     opt_final_cost=res["best"],
                 )
                 ep = run_episode(
-                    env, controller_act(controller), _trial_seed(config.seed, k), config.horizon
+                    env, controller_act(controller), trial_seed(config.seed, k), config.horizon
                 )
             episodes.append({"obs": ep["obs"], "actions": ep["actions"]})
             rec.update(
@@ -428,7 +421,7 @@ def run_pilco(
                 ckpt_path,
             )
             if log:
-                log("PILCO " + _record_line(rec))
+                log("PILCO " + record_line(rec))
             if bar is not None:
                 bar.update(1)
     finally:

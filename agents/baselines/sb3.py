@@ -54,7 +54,7 @@ from mcpilco.agents.baselines.common import (
     make_curve,
     save_curve,
 )
-from mcpilco.agents.mc_pilco.loop import DEFAULT_ENV_ID, env_dt, make_env
+from mcpilco.agents.mc_pilco.loop import DEFAULT_ENV_ID, check_resume, env_dt, make_env
 
 ALGOS: tuple[str, ...] = ("sac", "td3", "ppo")
 """stable-baselines3 algorithms of the comparison."""
@@ -403,13 +403,11 @@ def run_sb3(
         if not curve_path.is_file():
             raise FileNotFoundError(f"no {curve_path} to resume; run without resume first")
         prev = json.loads(curve_path.read_text())
-        old = prev["config"]
-        for key in ("algo", "env_id", "seed", "preset", "eval_every", "eval_episodes"):
-            if old[key] != getattr(config, key):
-                raise ValueError(
-                    f"cannot resume: {key}={getattr(config, key)!r} differs from the run's "
-                    f"{old[key]!r}; use the same value or a new output folder"
-                )
+        check_resume(
+            prev["config"],
+            config,
+            ("algo", "env_id", "seed", "preset", "eval_every", "eval_episodes"),
+        )
         ckpt = prev.get("checkpoint")
         if ckpt is not None:
             points = [p for p in prev["points"] if p["steps"] <= ckpt["steps"]]

@@ -272,18 +272,39 @@ def _policy_act(policy: SquashedRBFPolicy) -> Callable[[np.ndarray], np.ndarray]
     return act
 
 
-def _dataset(episodes: list[dict[str, Any]]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def transitions(episodes: list[dict[str, Any]]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``(s_t, a_t, s_{t+1})`` of all episodes, stacked."""
     s = np.concatenate([e["obs"][:-1] for e in episodes])
     a = np.concatenate([e["actions"] for e in episodes])
     s1 = np.concatenate([e["obs"][1:] for e in episodes])
     return s, a, s1
 
 
-def _trial_seed(seed: int, k: int) -> int:
+def trial_seed(seed: int, k: int) -> int:
+    """Env reset seed of trial ``k`` of run ``seed`` (shared by MC-PILCO and its baselines)."""
     return int(seed) * 10_007 + int(k)
 
 
-def _record_line(r: dict[str, Any]) -> str:
+def exploration_episode(env, rng: np.random.Generator, seed: int, horizon: int) -> dict[str, Any]:
+    """Trial 0: ``u_t ~ U(-1, 1)`` i.i.d. from ``rng`` for ``horizon`` steps."""
+    it = iter(rng.uniform(-1.0, 1.0, size=(horizon, 1)))
+    return run_episode(env, lambda _o: next(it), trial_seed(seed, 0), horizon)
+
+
+def check_resume(saved: dict[str, Any], config: Any, keys: tuple[str, ...]) -> None:
+    """Raise ``ValueError`` naming the first of ``keys`` whose value in ``config`` differs
+    from the checkpoint's ``saved`` config (a run resumes only what it started)."""
+    for key in keys:
+        if saved[key] != getattr(config, key):
+            raise ValueError(
+                f"cannot resume: {key}={getattr(config, key)!r} differs from the "
+                f"checkpoint's {saved[key]!r}; use the same value or a new output folder"
+            )
+
+
+def record_line(r: dict[str, Any]) -> str:
+    """One line per trial: cost, success, time upright, mean |x|, wall time (and the
+    optimisation figures of a policy trial)."""
     line = (
         f"trial {r['index']} ({r['kind']}, {r['experience_s']:.0f} s of experience): "
         f"cost {r['cost']:.2f}, success {r['success']}, upright {r['time_upright']:.2f} s, "
@@ -348,13 +369,7 @@ def run_mcpilco(
     resumed_from = None
     if resume:
         ckpt = load_checkpoint(ckpt_path)
-        old = ckpt["config"]
-        for key in _RESUME_FIXED:
-            if old[key] != getattr(config, key):
-                raise ValueError(
-                    f"cannot resume: {key}={getattr(config, key)!r} differs from the "
-                    f"checkpoint's {old[key]!r}; use the same value or a new --out folder"
-                )
+        check_resume(ckpt["config"], config, _RESUME_FIXED)
         episodes = ckpt["episodes"]
         records = ckpt["records"]
         arrays = ckpt["arrays"]
@@ -383,16 +398,12 @@ def run_mcpilco(
             arr: dict[str, Any] = {"index": k, "particles": None, "opt_costs": None}
             if k == 0:
                 rec["kind"] = "exploration"
-                explore = np_rng.uniform(-1.0, 1.0, size=(config.horizon, 1))
-                it = iter(explore)
-                ep = run_episode(
-                    env, lambda _o, it=it: next(it), _trial_seed(config.seed, k), config.horizon
-                )
+                ep = exploration_episode(env, np_rng, config.seed, config.horizon)
             else:
                 rec["kind"] = "policy"
                 # 1. model learning
                 t_fit = time.perf_counter()
-                model.fit(*_dataset(episodes))
+                model.fit(*transitions(episodes))
                 rec["gp_fit_s"] = time.perf_counter() - t_fit
                 rec["gp_points"] = int(model.gp_.train_x_.shape[0])
                 rec["n_data"] = int(sum(len(e["actions"]) for e in episodes))
@@ -447,9 +458,9 @@ def run_mcpilco(
                 arr["particles"] = ro.states.numpy()
                 # 3. apply the policy
                 ep = run_episode(
-                    env, _policy_act(policy), _trial_seed(config.seed, k), config.horizon
+                    env, _policy_act(policy), trial_seed(config.seed, k), config.horizon
                 )
-                rec["gp_rmse"] = model.one_step_rmse(*_dataset([ep])).tolist()
+                rec["gp_rmse"] = model.one_step_rmse(*transitions([ep])).tolist()
                 arr["gp_rmse"] = rec["gp_rmse"]
                 opt_state = None  # Adam restarts at each trial (MC-PILCO)
             episodes.append({"obs": ep["obs"], "actions": ep["actions"]})
@@ -499,7 +510,7 @@ def run_mcpilco(
                 if old_gp.name != gp_file:
                     old_gp.unlink(missing_ok=True)
             if log:
-                log(_record_line(rec))
+                log(record_line(rec))
             if bar is not None:
                 bar.update(1)
     finally:
