@@ -451,7 +451,8 @@ def rollout(
 
     Returns:
         arrays ``t (N,)``, ``q, qd, qdd, tau, i, i_cmd, e_q, e_qd, q_ref, qd_ref (N, n)``,
-        ``contact (N,)`` int, ``f_ext (N, 3)``; units as in ``models.robot_data``.
+        ``contact (N,)`` int, ``f_ext (N, 3)``, ``tau_ext (N, n)`` (joint torques of the
+        push, ground truth); units as in ``models.robot_data``.
     """
     duration = reference.duration if duration is None else float(duration)
     if not math.isfinite(duration) or duration <= 0:
@@ -474,7 +475,7 @@ def rollout(
         rows.append(info)
     names = {"i": "current", "i_cmd": "current_cmd"}
     out = {}
-    for key in (*ROLLOUT_KEYS, "q_ref", "qd_ref", "f_ext"):
+    for key in (*ROLLOUT_KEYS, "q_ref", "qd_ref", "f_ext", "tau_ext"):
         out[key] = np.array([r[names.get(key, key)] for r in rows])
     out["contact"] = out["contact"].astype(np.int64)
     return out

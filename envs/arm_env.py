@@ -146,8 +146,10 @@ PUSH_RANGES: dict[str, tuple[float, float]] = dict(
     magnitude=(10.0, 80.0),  # [N]
     duration=(0.2, 1.5),  # [s]
     gap=(1.0, 4.0),  # time between pushes [s]
+    ramp=(0.02, 0.1),  # onset/release ramp [s]
 )
-"""Ranges of the minimal random push generator of ``disturbances=True`` (issue 6 extends)."""
+"""Uniform ranges of the random pushes of ``disturbances=True`` (:meth:`random_pushes`):
+force magnitude, total duration, pause before each push, onset/release ramp time."""
 
 
 # ----------------------------------------------------------------------------- env
@@ -201,7 +203,7 @@ class ArmTrackingEnv(gym.Env):
     (``i_c``); ``tau`` (mean applied motor torque ``tau_m``); ``qdd`` (measured
     acceleration); ``q_ref``, ``qd_ref``, ``qdd_ref``; ``e_q``, ``e_qd``; ``contact``
     (1 while an external push is active); ``f_ext`` (world force on the pushed link [N]);
-    ``t`` [s].
+    ``tau_ext`` (its joint torques ``J_c^T f_ext``, mean over the sample [N m]); ``t`` [s].
 
     ## Arguments
     ``arm``; controller gains ``kp``, ``kd``; ``action_scale``; ``current_noise_std`` [A];
@@ -366,8 +368,10 @@ class ArmTrackingEnv(gym.Env):
         return push
 
     def random_pushes(self, duration: float, rng: np.random.Generator) -> list[Push]:
-        """Minimal random push schedule over ``[0, duration]`` (ranges in :data:`PUSH_RANGES`;
-        links drawn among the last half of the chain, directions uniform on the sphere)."""
+        """Random push schedule over ``[0, duration]``: pushes at random times (a pause drawn
+        from ``PUSH_RANGES["gap"]`` before each), so they fall in motion and in rest phases
+        alike. Magnitude, duration and ramp from :data:`PUSH_RANGES`; links drawn among the
+        last half of the chain; directions uniform on the sphere."""
         pushes, t = [], float(rng.uniform(*PUSH_RANGES["gap"]))
         first_link = max(1, self.n_joints // 2 + 1)
         while t < duration:
@@ -376,9 +380,20 @@ class ArmTrackingEnv(gym.Env):
             direction /= np.linalg.norm(direction)
             force = float(rng.uniform(*PUSH_RANGES["magnitude"])) * direction
             link = int(rng.integers(first_link, self.n_joints + 1))
-            pushes.append(Push(t, length, link, tuple(force.tolist()), 0.05))
+            ramp = min(float(rng.uniform(*PUSH_RANGES["ramp"])), 0.5 * length)
+            pushes.append(Push(t, length, link, tuple(force.tolist()), ramp))
             t += length + float(rng.uniform(*PUSH_RANGES["gap"]))
         return pushes
+
+    def external_joint_torque(self, force: ArrayLike, link: int) -> FloatArray:
+        """``tau_ext = J_c(q)^T f``: joint torques of the world force ``f`` [N] on the centre
+        of mass of ``link`` (1-based; 0 = none) at the current state (``J_c`` the body's
+        centre-of-mass position Jacobian)."""
+        if link == 0:
+            return np.zeros(self.n_joints)
+        jacp = np.zeros((3, self.model.nv))
+        mujoco.mj_jacBodyCom(self.model, self.data, jacp, None, self._link_body[link])
+        return jacp.T @ np.asarray(force, dtype=np.float64)
 
     def random_reference(self, rng: np.random.Generator) -> SumOfSinusoids:
         """The task's reference: sinusoids around ``home`` within the joint range."""
@@ -423,6 +438,7 @@ class ArmTrackingEnv(gym.Env):
         self._qdd_meas = np.zeros(self.n_joints)
         self._tau_mean = self.gravity_torque(self.data.qpos)
         self._tau_cmd_mean = self._tau_mean.copy()
+        self._tau_ext_mean = np.zeros(self.n_joints)
         return self._get_obs()
 
     def step(self, action: ArrayLike) -> tuple[FloatArray, float, bool, bool, dict[str, Any]]:
@@ -438,6 +454,7 @@ class ArmTrackingEnv(gym.Env):
         u = a * self.action_scale
         tau_sum = np.zeros(self.n_joints)
         cmd_sum = np.zeros(self.n_joints)
+        ext_sum = np.zeros(self.n_joints)
         contact = 0
         for _ in range(self.n_substeps):
             q, qd = self.data.qpos.copy(), self.data.qvel.copy()
@@ -451,6 +468,7 @@ class ArmTrackingEnv(gym.Env):
             if link:
                 self.data.xfrc_applied[self._link_body[link], :3] = force
                 contact = 1
+                ext_sum += self.external_joint_torque(force, link)
             mujoco.mj_step(self.model, self.data)
             tau_sum += tau_m
             cmd_sum += tau_c
@@ -460,6 +478,7 @@ class ArmTrackingEnv(gym.Env):
             )
         self._tau_mean = tau_sum / self.n_substeps
         self._tau_cmd_mean = cmd_sum / self.n_substeps
+        self._tau_ext_mean = ext_sum / self.n_substeps
         self._q_meas, self._qd_meas = self._measure()
         diff = (self._qd_meas - self._qd_meas_prev) / self.sample_time
         self._qdd_meas = self.qdd_filter * diff + (1.0 - self.qdd_filter) * self._qdd_meas
@@ -512,6 +531,7 @@ class ArmTrackingEnv(gym.Env):
             e_qd=qd_ref - self._qd_meas,
             contact=int(contact),
             f_ext=force,
+            tau_ext=self._tau_ext_mean.copy(),
             action=np.asarray(action, dtype=np.float64),
         )
 
