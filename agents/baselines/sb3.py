@@ -62,6 +62,19 @@ ALGOS: tuple[str, ...] = ("sac", "td3", "ppo")
 DEFAULT_STEPS: dict[str, int] = {"sac": 200_000, "td3": 200_000, "ppo": 1_000_000}
 """Default budgets in environment steps (10 000 s / 50 000 s of experience at 0.05 s)."""
 
+_ZOO_TD3: dict[str, Any] = {
+    "gamma": 0.98,
+    "buffer_size": 200_000,
+    "learning_starts": 10_000,
+    "noise_type": "normal",
+    "noise_std": 0.1,
+    "gradient_steps": -1,
+    "train_freq": [1, "episode"],
+    "learning_rate": 1e-3,
+    "policy_kwargs": {"net_arch": [400, 300]},
+}
+"""TD3: the zoo's td3.yml gives the same values for both presets' envs."""
+
 HYPERPARAMS: dict[str, dict[str, dict[str, Any]]] = {
     # rl-baselines3-zoo hyperparams/*.yml, InvertedPendulumSwingupBulletEnv-v0
     "swingup": {
@@ -78,17 +91,7 @@ HYPERPARAMS: dict[str, dict[str, dict[str, Any]]] = {
             "use_sde": True,
             "policy_kwargs": {"log_std_init": -3, "net_arch": [400, 300]},
         },
-        "td3": {  # td3.yml ("Tuned"), n_timesteps 3e5, without TimeFeatureWrapper
-            "gamma": 0.98,
-            "buffer_size": 200_000,
-            "learning_starts": 10_000,
-            "noise_type": "normal",
-            "noise_std": 0.1,
-            "gradient_steps": -1,
-            "train_freq": [1, "episode"],
-            "learning_rate": 1e-3,
-            "policy_kwargs": {"net_arch": [400, 300]},
-        },
+        "td3": _ZOO_TD3,  # td3.yml ("Tuned"), n_timesteps 3e5, without TimeFeatureWrapper
         "ppo": {  # ppo.yml, n_timesteps 2e6
             "normalize": True,
             "n_envs": 8,
@@ -105,17 +108,7 @@ HYPERPARAMS: dict[str, dict[str, dict[str, Any]]] = {
     # rl-baselines3-zoo hyperparams/*.yml, Pendulum-v1 (td3.yml: Pendulum-v0)
     "pendulum": {
         "sac": {"learning_rate": 1e-3},  # n_timesteps 2e4
-        "td3": {  # n_timesteps 2e4
-            "gamma": 0.98,
-            "buffer_size": 200_000,
-            "learning_starts": 10_000,
-            "noise_type": "normal",
-            "noise_std": 0.1,
-            "gradient_steps": -1,
-            "train_freq": [1, "episode"],
-            "learning_rate": 1e-3,
-            "policy_kwargs": {"net_arch": [400, 300]},
-        },
+        "td3": _ZOO_TD3,  # n_timesteps 2e4
         "ppo": {  # "Tuned", n_timesteps 1e5
             "n_envs": 4,
             "n_steps": 1024,

@@ -131,8 +131,6 @@ class JointGP:
         self._set_target(r)
         self.col_scale = np.ones(0)
         self.Psi = np.zeros((self.n if eig is not None else 0, 0))
-        self.PtP = np.zeros((0, 0))
-        self.Ptr = np.zeros(0)
         self._raw_blocks: list[FloatArray] = []
         for b in blocks:
             self._append(np.asarray(b, dtype=np.float64))
@@ -162,10 +160,6 @@ class JointGP:
         self.col_scale = np.concatenate([self.col_scale, rms])
         if self.eig is not None:
             self.Psi = np.concatenate([self.Psi, self._shared["U"].T @ scaled], axis=1)
-        else:
-            full = np.concatenate(self._raw_blocks, axis=1)
-            self.PtP = full.T @ full
-            self.Ptr = full.T @ self.r
 
     def with_block(self, block: FloatArray) -> JointGP:
         """A copy with one more block (shares the eigendecomposition)."""
@@ -181,8 +175,6 @@ class JointGP:
         new = object.__new__(JointGP)
         new.__dict__.update(self.__dict__)
         new._set_target(np.asarray(r, dtype=np.float64))
-        if self.eig is None and self._raw_blocks:
-            new.Ptr = np.concatenate(self._raw_blocks, axis=1).T @ new.r
         return new
 
     # ------------------------------------------------------------------ hyperparameters
@@ -226,20 +218,15 @@ class JointGP:
 
     # ------------------------------------------------------------------ evidence
     def _parts(self, theta: FloatArray) -> tuple[float, float, FloatArray, FloatArray, FloatArray]:
-        """``(sum log D, rho^T D^-1 rho, sqrt(Lambda), chol(B), c)``."""
+        """With a start kernel: ``(sum log D, rho^T D^-1 rho, sqrt(Lambda), chol(B), c)``
+        (without one, :meth:`_ridge` is the stable counterpart)."""
         alpha, s2, lam = self._unpack(theta)
         sl = np.sqrt(lam)
-        if self.has_kernel:
-            D = alpha * self.S + s2
-            logdet_d = float(np.sum(np.log(D)))
-            quad_d = float(np.sum(self.rho**2 / D))
-            A = (self.Psi / D[:, None]).T @ self.Psi
-            b = self.Psi.T @ (self.rho / D)
-        else:
-            logdet_d = self.n * math.log(s2)
-            quad_d = self.rtr / s2
-            A = self.PtP / s2
-            b = self.Ptr / s2
+        D = alpha * self.S + s2
+        logdet_d = float(np.sum(np.log(D)))
+        quad_d = float(np.sum(self.rho**2 / D))
+        A = (self.Psi / D[:, None]).T @ self.Psi
+        b = self.Psi.T @ (self.rho / D)
         P = sl.shape[0]
         B = np.eye(P) + sl[:, None] * A * sl[None, :]
         L = _chol(B)
@@ -296,38 +283,19 @@ class JointGP:
         ``dL/dlog alpha = alpha (a^T S a - tr(K^-1 S)) / 2`` (Rasmussen & Williams eq. 5.9).
         """
         theta = np.asarray(theta, dtype=np.float64)
+        if not self.has_kernel:
+            return self._value_and_grad_blocks(theta)
         alpha, s2, lam = self._unpack(theta)
         P = lam.shape[0]
-        if self.has_kernel:
-            D = alpha * self.S + s2
-            Dinv = 1.0 / D
-            logdet_d = float(np.sum(np.log(D)))
-            quad_d = float(np.sum(self.rho**2 * Dinv))
-            PD = self.Psi * Dinv[:, None]
-            A = PD.T @ self.Psi
-            v = PD.T @ self.rho
-        else:
-            logdet_d = self.n * math.log(s2)
-            quad_d = self.rtr / s2
-            A = self.PtP / s2
-            v = self.Ptr / s2
+        D = alpha * self.S + s2
+        Dinv = 1.0 / D
+        logdet_d = float(np.sum(np.log(D)))
+        quad_d = float(np.sum(self.rho**2 * Dinv))
+        PD = self.Psi * Dinv[:, None]
+        A = PD.T @ self.Psi
+        v = PD.T @ self.rho
         grad = np.zeros(theta.shape[0])
-        k = int(self.has_kernel)
-        if P and not self.has_kernel:
-            sl = np.sqrt(lam)
-            z, Binv, logdet_b, ee = self._ridge(s2, sl)
-            quad = ee / s2 + float(z @ z)
-            logdet = logdet_d + logdet_b
-            bdiag = np.diag(Binv)
-            off = 0
-            for b, p in enumerate(self.sizes):
-                zb = z[off : off + p]
-                grad[k + 1 + b] = 0.5 * (float(zb @ zb) - p + float(np.sum(bdiag[off : off + p])))
-                off += p
-            tr_kinv = (self.n - P + float(np.trace(Binv))) / s2
-            grad[k] = 0.5 * s2 * (ee / s2**2 - tr_kinv)
-            lml = -0.5 * quad - 0.5 * logdet - 0.5 * self.n * math.log(2 * math.pi)
-            return lml - self.n * math.log(self.scale), grad
+        k = 1
         if P:
             sl = np.sqrt(lam)
             B = np.eye(P) + sl[:, None] * A * sl[None, :]
@@ -354,26 +322,44 @@ class JointGP:
             G = np.zeros((0, 0))
             quad, logdet = quad_d, logdet_d
         # noise and start-kernel scale
-        if self.has_kernel:
-            e = self.rho - self.Psi @ mu if P else self.rho
-            a = e * Dinv
-            tr_kinv = float(np.sum(Dinv))
-            if P:
-                A2 = PD.T @ PD
-                tr_kinv -= float(np.sum(G * A2))
-            grad[k] = 0.5 * s2 * (float(a @ a) - tr_kinv)
-            tr_ks = float(np.sum(self.S * Dinv))
-            if P:
-                AS = (PD * self.S[:, None]).T @ PD
-                tr_ks -= float(np.sum(G * AS))
-            grad[0] = 0.5 * alpha * (float(np.sum(self.S * a * a)) - tr_ks)
+        e = self.rho - self.Psi @ mu if P else self.rho
+        a = e * Dinv
+        tr_kinv = float(np.sum(Dinv))
+        if P:
+            A2 = PD.T @ PD
+            tr_kinv -= float(np.sum(G * A2))
+        grad[k] = 0.5 * s2 * (float(a @ a) - tr_kinv)
+        tr_ks = float(np.sum(self.S * Dinv))
+        if P:
+            AS = (PD * self.S[:, None]).T @ PD
+            tr_ks -= float(np.sum(G * AS))
+        grad[0] = 0.5 * alpha * (float(np.sum(self.S * a * a)) - tr_ks)
+        lml = -0.5 * quad - 0.5 * logdet - 0.5 * self.n * math.log(2 * math.pi)
+        return lml - self.n * math.log(self.scale), grad
+
+    def _value_and_grad_blocks(self, theta: FloatArray) -> tuple[float, FloatArray]:
+        """:meth:`value_and_grad` without a start kernel, ``K = sigma^2 I + Phi Lambda Phi^T``
+        through :meth:`_ridge`: ``r^T K^-1 r = |r - Phi w|^2 / sigma^2 + |z|^2``,
+        ``log|K| = N log sigma^2 + log|B|``, ``tr K^-1 = (N - P + tr B^-1) / sigma^2`` and
+        ``dL/dlog lambda_b = (|z_b|^2 - p_b + tr (B^-1)_bb) / 2``."""
+        _, s2, lam = self._unpack(theta)
+        P = lam.shape[0]
+        grad = np.zeros(theta.shape[0])
+        if P:
+            z, Binv, logdet_b, ee = self._ridge(s2, np.sqrt(lam))
+            quad = ee / s2 + float(z @ z)
+            tr_kinv = (self.n - P + float(np.trace(Binv))) / s2
+            bdiag = np.diag(Binv)
+            off = 0
+            for b, p in enumerate(self.sizes):
+                zb = z[off : off + p]
+                grad[1 + b] = 0.5 * (float(zb @ zb) - p + float(np.sum(bdiag[off : off + p])))
+                off += p
         else:
-            if P:
-                ee = self.rtr - 2.0 * float(mu @ self.Ptr) + float(mu @ self.PtP @ mu)
-                tr_kinv = self.n / s2 - float(np.sum(G * self.PtP)) / s2**2
-            else:
-                ee, tr_kinv = self.rtr, self.n / s2
-            grad[k] = 0.5 * s2 * (ee / s2**2 - tr_kinv)
+            logdet_b, ee = 0.0, self.rtr
+            quad, tr_kinv = ee / s2, self.n / s2
+        grad[0] = 0.5 * s2 * (ee / s2**2 - tr_kinv)
+        logdet = self.n * math.log(s2) + logdet_b
         lml = -0.5 * quad - 0.5 * logdet - 0.5 * self.n * math.log(2 * math.pi)
         return lml - self.n * math.log(self.scale), grad
 
@@ -466,10 +452,8 @@ class JointGP:
         W = V / s2
         if sl.size:
             full = np.concatenate(self._raw_blocks, axis=1)
-            _, _, _, L, _ = self._parts(theta)
-            T = sl[:, None] * (full.T @ W)
-            T = np.linalg.solve(L.T, np.linalg.solve(L, T))
-            W = W - (full * sl[None, :]) @ T / s2
+            _, Binv, _, _ = self._ridge(s2, sl)
+            W = W - (full * sl[None, :]) @ (Binv @ (sl[:, None] * (full.T @ W))) / s2
         return W
 
     def predict(
