@@ -22,6 +22,7 @@ from torch import Tensor
 
 from mcpilco.models.kernels._base import NO_BATCH, DenseKernel
 from mcpilco.models.kernels.mpk import MPKernel
+from mcpilco.models.kernels.product import linear_product_gram
 
 __all__ = [
     "GIPKernel",
@@ -183,7 +184,24 @@ class GIPKernel(DenseKernel):
     ) -> Tensor:
         self._check_inputs(x1, x2, last_dim_is_batch, self.ard_num_dims)
         s = self._dyn_start
+        if not diag:
+            return linear_product_gram(x1, x2, self.linear_factors())
         out = self.dynamics_kernel.forward(x1[..., s:], x2[..., s:], diag=diag)
         for b, k in enumerate(self.joint_kernels):
             out = out * k.forward(self._joint_slice(x1, b), self._joint_slice(x2, b), diag=diag)
+        return out
+
+    def linear_factors(self) -> list[tuple[slice | list[int], Tensor, Tensor]]:
+        """The kernel as a product of linear factors ``(columns, diag Sigma_s, sigma_s^2)``:
+        the ``p`` factors of every MPK (joints, then the dynamics MPK), for
+        :func:`~mcpilco.models.kernels.product.linear_product_gram`."""
+        kernels = [*self.joint_kernels, self.dynamics_kernel]
+        columns = [*self._joint_columns, slice(self._dyn_start, None)]
+        out = []
+        for k, cols in zip(kernels, columns, strict=True):
+            cols = (
+                slice(cols[0], cols[0] + 1) if isinstance(cols, list) and len(cols) == 1 else cols
+            )
+            Sigma, sigma2 = k.Sigma_diag, k.sigma2
+            out += [(cols, Sigma[..., j, :], sigma2[..., j]) for j in range(k.degree)]
         return out
