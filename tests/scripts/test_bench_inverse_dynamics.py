@@ -36,6 +36,7 @@ def test_tiny_benchmark_writes_outputs(tmp_path) -> None:
     assert len(res["efficiency"]["gmse"]["GIP"]) == 2
     assert len(res["ur10"]["noise_floor"]) == 6 and res["ur10"]["n_gp"] == 100
     assert res["timing"]["n"] == 60 and res["timing"]["cholesky_seconds"] > 0
+    assert res["timing"]["gram_forward_backward_seconds"]["ratio"] > 0
     for name in ("scara_nmse", "efficiency", "ur10_nmse"):
         assert (tmp_path / f"inverse_dynamics_{name}.png").stat().st_size > 1000
     md = (tmp_path / "inverse_dynamics.md").read_text()
