@@ -7,8 +7,11 @@ posterior call (mean and variance) at ``n_test`` points for:
 * ``cached64`` / ``cached32``: :class:`mcpilco.models.gp.CachedPredictor` in float64 / float32,
   forward only and forward + backward w.r.t. the test inputs.
 
-All timings come from one process with warm-up; each is the median over ``--repeats`` blocks.
-Writes ``results/bench_gp_predictor.json`` and prints a Markdown table and the speed ratio.
+All timings come from one process with warm-up. The paths are timed in interleaved rounds
+(round r times a block of calls of every path in turn), so that a change of load on a shared
+machine hits all paths alike; each timing is the median over ``--repeats`` rounds of the CPU
+time (and, separately recorded, the wall time) per call. Writes
+``results/bench_gp_predictor.json`` and prints a Markdown table and the speed ratio.
 
 Usage::
 
@@ -31,19 +34,30 @@ import torch
 from mcpilco.models.gp import GPRegressor, exact_gp_settings
 
 
-def _time_call(
-    fn: Callable[[], object], repeats: int, inner: int, warmup: int, clock: Callable[[], float]
-) -> float:
-    """Median over ``repeats`` of the mean seconds per call over ``inner`` calls."""
-    for _ in range(warmup):
-        fn()
-    samples = []
-    for _ in range(repeats):
-        t0 = clock()
-        for _ in range(inner):
+def _time_interleaved(
+    calls: dict[str, tuple[Callable[[], object], int, int]], repeats: int
+) -> tuple[dict[str, float], dict[str, float]]:
+    """Median seconds per call (CPU, wall) of each ``name: (fn, inner, warmup)``.
+
+    After ``warmup`` calls of each, ``repeats`` rounds each time ``inner`` calls of every
+    path in turn; a sample is the mean over its ``inner`` calls.
+    """
+    for fn, _, warmup in calls.values():
+        for _ in range(warmup):
             fn()
-        samples.append((clock() - t0) / inner)
-    return statistics.median(samples)
+    cpu: dict[str, list[float]] = {k: [] for k in calls}
+    wall: dict[str, list[float]] = {k: [] for k in calls}
+    for _ in range(repeats):
+        for name, (fn, inner, _) in calls.items():
+            c0, w0 = time.process_time(), time.perf_counter()
+            for _ in range(inner):
+                fn()
+            cpu[name].append((time.process_time() - c0) / inner)
+            wall[name].append((time.perf_counter() - w0) / inner)
+    return (
+        {k: statistics.median(v) for k, v in cpu.items()},
+        {k: statistics.median(v) for k, v in wall.items()},
+    )
 
 
 def _make_gp(n_train: int, d: int, m: int, seed: int) -> tuple[GPRegressor, torch.Tensor]:
@@ -101,7 +115,7 @@ def run(
     m64, v64 = pred64(x64)
     max_err = max(float((m64 - m_ref).abs().max()), float((v64 - v_ref).abs().max()))
 
-    calls = {
+    calls = {  # name: (call, calls per block, warm-up calls)
         "gpytorch_eval": (gpytorch_call, 3, 2),
         "cached64": (cached(pred64, x64), 10, 3),
         "cached32": (cached(pred32, x32), 10, 3),
@@ -110,8 +124,7 @@ def run(
     }
     # CPU time of this (single-threaded) process is robust to other jobs on a shared machine;
     # wall-clock time is reported too.
-    timings = {k: _time_call(*v[:1], repeats, *v[1:], time.process_time) for k, v in calls.items()}
-    wall = {k: _time_call(*v[:1], repeats, *v[1:], time.perf_counter) for k, v in calls.items()}
+    timings, wall = _time_interleaved(calls, repeats)
     ref = timings["gpytorch_eval"]
     return {
         "config": {
@@ -123,9 +136,10 @@ def run(
             "torch_threads": torch.get_num_threads(),
             "torch": torch.__version__,
             "gpytorch": gpytorch.__version__,
+            "linv_panels": pred64.linv.num_panels,
         },
         "seconds_per_call": timings,
-        "clock": "process_time (CPU seconds of this process)",
+        "clock": "process_time (CPU seconds of this process); paths interleaved per round",
         "wall_seconds_per_call": wall,
         "speedup_vs_gpytorch": {k: ref / v for k, v in timings.items() if k != "gpytorch_eval"},
         "speedup_vs_gpytorch_wall": {
@@ -157,7 +171,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--n-test", type=int, default=400, help="test points per call")
     parser.add_argument("--dim", type=int, default=6, help="input dimension d")
     parser.add_argument("--outputs", type=int, default=2, help="number of outputs m")
-    parser.add_argument("--repeats", type=int, default=7, help="timing blocks (median)")
+    parser.add_argument("--repeats", type=int, default=7, help="interleaved timing rounds (median)")
     parser.add_argument("--threads", type=int, default=1, help="torch threads")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--out", type=Path, default=Path("results/bench_gp_predictor.json"))

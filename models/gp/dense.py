@@ -49,20 +49,37 @@ def rbf_sq_dist(a: Tensor, b: Tensor) -> Tensor:
 
 
 def _scaled_rbf(outputscale: Tensor, lengthscale: Tensor, x1: Tensor, x2: Tensor) -> Tensor:
-    """Fused :math:`\\theta_s \\exp(-\\tfrac12 \\lVert (x - x')/\\ell \\rVert^2)`.
+    """Fused :math:`\\theta_s \\exp(-\\tfrac12 \\lVert (x - x')/\\ell \\rVert^2)` from ONE matmul.
 
-    Computed as :math:`\\exp(\\min(\\log\\theta_s - \\lVert a\\rVert^2 - \\lVert b\\rVert^2
-    + 2 a b^T, \\log\\theta_s))` with :math:`a = x / (\\sqrt2\\,\\ell)`: one matmul and three
-    element-wise passes over the ``(n, N)`` result (the min is the clamp of the squared
-    distance at zero).
+    With :math:`a = x / (\\sqrt2\\,\\ell)`, :math:`b = x' / (\\sqrt2\\,\\ell)` the exponent
+    :math:`\\log\\theta_s - \\lVert a_i\\rVert^2 - \\lVert b_j\\rVert^2 + 2 a_i^T b_j = u_i^T w_j`
+    is the product of the augmented rows
+
+    .. math::
+        u_i = [a_i,\\ 1,\\ \\log\\theta_s - \\lVert a_i\\rVert^2], \\qquad
+        w_j = [2 b_j,\\ -\\lVert b_j\\rVert^2,\\ 1],
+
+    so the ``(n, N)`` exponent is written once by the matmul; then
+    :math:`\\exp(\\min(u_i^T w_j, \\log\\theta_s))` (the min is the clamp of the squared distance
+    at zero). Without a gradient to record, the clamp and the exp act in place. An outputscale
+    of exactly 0 is floored at the smallest normal float so that no ``-inf`` enters the matmul
+    (whose backward would turn ``0 * inf`` into NaN); the result is then at most that float.
     """
     scale = lengthscale.mul(2.0**0.5).reciprocal()  # (*batch, 1, d)
     a = x1 * scale
     b = x2 * scale
-    log_os = outputscale.log().unsqueeze(-1).unsqueeze(-1)
-    base = (log_os - a.pow(2).sum(-1, keepdim=True)) - b.pow(2).sum(-1).unsqueeze(-2)
-    arg = torch.add(base, a @ b.transpose(-1, -2), alpha=2.0)
-    return torch.minimum(arg, log_os).exp()
+    log_os = outputscale.clamp_min(torch.finfo(outputscale.dtype).tiny).log()[..., None, None]
+    batch = torch.broadcast_shapes(a.shape[:-2], b.shape[:-2], log_os.shape[:-2])
+    a = a.expand(*batch, *a.shape[-2:])
+    b = b.expand(*batch, *b.shape[-2:])
+    ones_a = a.new_ones(*a.shape[:-1], 1)
+    ones_b = b.new_ones(*b.shape[:-1], 1)
+    u = torch.cat([a, ones_a, log_os - a.pow(2).sum(-1, keepdim=True)], dim=-1)
+    w = torch.cat([2.0 * b, -b.pow(2).sum(-1, keepdim=True), ones_b], dim=-1)
+    arg = u @ w.transpose(-1, -2)
+    if torch.is_grad_enabled() and arg.requires_grad:
+        return torch.minimum(arg, log_os).exp()
+    return arg.clamp_(max=log_os).exp_()
 
 
 def _select(kernel: gpytorch.kernels.Kernel, x: Tensor) -> Tensor:

@@ -11,13 +11,17 @@ Glossary (standardised inputs ``x^ = (x - mu_x) / s_x``; one GP per output ``b =
 x^^T Sigma_bs x^')``
     RBF (thesis eq. 5.2) plus MPK of degree ``p`` (eq. 5.10); the MPK part is optional.
 ``exp(-1/2 ||(x^ - X_j)/l||^2) = exp(x^^T (X_j / l^2) - 1/2 ||X_j/l||^2 - 1/2 ||x^/l||^2)``
-    matmul form: the products ``x^^T (X_j / l^2)`` of all outputs, and the MPK factors
-    ``x^^T Sigma_bs X_j``, come out of ONE matrix product ``x^ W`` with
-    ``W = [X/l_1^2 | ... | Sigma_11 X | ...]^T``.
-``[m_b | L_b^{-1} k_b] = k_b(x^, X) [alpha_b | L_b^{-T}]``
-    one batched product for mean and variance (as in the GP core).
+    matmul form: the products ``(X_j / l^2)^T x^`` of all outputs, and the MPK factors
+    ``X_j^T Sigma_bs x^``, come out of ONE matrix product ``W x^^T`` with
+    ``W = [X/l_1^2 ; ... ; X Sigma_11 ; ...]`` (rows: parts, outputs, training points), so
+    the cross-covariance ``k_b(X, x^)`` comes out as ``(m, N, k)``: training points on rows.
+``m_b = alpha_b^T k_b(X, x^)``
+    posterior mean (standardised).
 ``v_b = k_b(x^, x^) - ||L_b^{-1} k_b(X, x^)||^2``
-    latent variance; outputs in original units (``s_y m + mu_y``, ``s_y^2 v``).
+    latent variance; ``L_b^{-1}`` is shared with the cached predictor as column panels without its
+    zero half (:class:`~mcpilco.models.gp.linalg.LowerTriangularBlocks`, about ``N^2 k`` flops
+    per output instead of ``2 N^2 k``); outputs in original units (``s_y m + mu_y``,
+    ``s_y^2 v``).
 """
 
 from __future__ import annotations
@@ -25,6 +29,8 @@ from __future__ import annotations
 import gpytorch
 import torch
 from torch import Tensor, nn
+
+from mcpilco.models.gp.linalg import LowerTriangularBlocks
 
 INV_L2_MAX = 1e12
 """Largest ``1 / l^2`` kept (standardised inputs): a shorter lengthscale is a delta kernel."""
@@ -56,7 +62,7 @@ class FusedRBFMPKPredictor(nn.Module):
 
     Build it with :meth:`from_cached`; the call has the interface of ``CachedPredictor``:
     ``mean, var = pred(x)`` with ``x (..., d)`` -> ``(..., m)`` each, original units.
-    All linear forms of the kernel come from one product ``x^ W``; its parts are taken with
+    All linear forms of the kernel come from one product ``W x^^T``; its parts are taken with
     ``unbind`` (whose backward is one ``stack``, where slicing would fill full-size zero
     tensors per slice).
     """
@@ -69,7 +75,7 @@ class FusedRBFMPKPredictor(nn.Module):
         diag_W: Tensor,
         outputscale: Tensor,
         alpha: Tensor,
-        linv_t: Tensor,
+        linv: LowerTriangularBlocks,
         x_mean: Tensor,
         x_scale: Tensor,
         y_mean: Tensor,
@@ -77,16 +83,16 @@ class FusedRBFMPKPredictor(nn.Module):
         noise_variance: Tensor,
     ) -> None:
         super().__init__()
-        self.m, self.n = rbf_offset.shape
-        self.input_dim = int(W.shape[0])
-        self.p = W.shape[1] // (self.m * self.n) - 1
-        self.register_buffer("W", W)  # (d, (1 + p) m N): [X/l_b^2 | X Sigma_b1 | ...]^T
-        self.register_buffer("rbf_offset", rbf_offset)  # (m, N): log lambda^2 - ||X/l||^2/2
-        self.register_buffer("mp_sigma2", mp_sigma2)  # (p, m, 1)
-        self.register_buffer("diag_W", diag_W)  # (d, (1 + p) m): [1/l_b^2 | Sigma_bs]
-        self.register_buffer("outputscale", outputscale)  # (m,)
-        self.register_buffer("alpha", alpha)  # (m, N, 1)
-        self.register_buffer("linv_t", linv_t)  # (m, N, N): L_b^{-T}
+        self.m, self.n = rbf_offset.shape[:2]
+        self.input_dim = int(W.shape[1])
+        self.p = W.shape[0] // (self.m * self.n) - 1
+        self.register_buffer("W", W)  # ((1 + p) m N, d): [X/l_b^2 ; X Sigma_b1 ; ...]
+        self.register_buffer("rbf_offset", rbf_offset)  # (m, N, 1): log lambda^2 - ||X/l||^2/2
+        self.register_buffer("mp_sigma2", mp_sigma2)  # (p, m, 1, 1)
+        self.register_buffer("diag_W", diag_W)  # ((1 + p) m, d): [1/l_b^2 ; Sigma_bs]
+        self.register_buffer("outputscale", outputscale)  # (m, 1, 1)
+        self.register_buffer("alpha", alpha)  # (m, 1, N): alpha_b^T
+        self.linv = linv  # L_b^{-1} (m, N, N) as column panels, shared with the cached predictor
         self.register_buffer("x_mean", x_mean)
         self.register_buffer("x_scale", x_scale)
         self.register_buffer("y_mean", y_mean)
@@ -97,16 +103,17 @@ class FusedRBFMPKPredictor(nn.Module):
     @torch.no_grad()
     def from_cached(cls, pred: nn.Module) -> FusedRBFMPKPredictor | None:
         """Fuse a ``CachedPredictor`` whose kernel is ``ScaleKernel(RBF) [+ MPKernel]`` (no
-        ``active_dims``); returns None for any other kernel (use ``pred`` as is then)."""
+        ``active_dims``); returns None for any other kernel, or for a mean-only predictor (use
+        ``pred`` as is then). The panels of :math:`L^{-1}` are shared, not copied."""
         parts = _split_kernel(pred.kernel)
-        if parts is None:
+        if parts is None or pred.linv is None:
             return None
         rbf, mpk = parts
         f64 = torch.float64
-        dtype = pred.weights.dtype
+        dtype = pred.alpha.dtype
         X = pred.train_x.to(f64)  # (N, d) standardised
         n, d = X.shape
-        m = pred.weights.shape[0]
+        m = pred.alpha.shape[0]
         inv_l2 = rbf.base_kernel.lengthscale.to(f64).reshape(-1, d).expand(m, -1) ** -2  # (m, d)
         os_ = rbf.outputscale.to(f64).reshape(-1).expand(m)
         # degenerate fits: an RBF switched off (lambda^2 underflows to 0; its lengthscales then
@@ -123,18 +130,17 @@ class FusedRBFMPKPredictor(nn.Module):
             s2 = mpk.sigma2.to(f64).reshape(-1, p).expand(m, -1)  # (m, p)
             blocks += [X[None] * Sig[:, s, None, :] for s in range(p)]
             diag += [Sig[:, s, :] for s in range(p)]
-            sigma2 = s2.T.reshape(p, m, 1)
-        W = torch.stack(blocks).reshape(-1, d).T  # (d, (1 + p) m N), order [part][b][j]
-        weights = pred.weights
+            sigma2 = s2.T.reshape(p, m, 1, 1)
+        W = torch.stack(blocks).reshape(-1, d)  # ((1 + p) m N, d), order [part][b][j]
         cast = lambda t: None if t is None else t.to(dtype).contiguous()
         return cls(
             W=cast(W),
-            rbf_offset=cast(offset),
+            rbf_offset=cast(offset[..., None]),
             mp_sigma2=cast(sigma2),
-            diag_W=cast(torch.stack(diag).reshape(-1, d).T),
-            outputscale=cast(os_),
-            alpha=weights[..., :1].contiguous(),
-            linv_t=weights[..., 1:].contiguous(),
+            diag_W=cast(torch.stack(diag).reshape(-1, d)),
+            outputscale=cast(os_.reshape(m, 1, 1)),
+            alpha=pred.alpha,
+            linv=pred.linv,
             x_mean=pred.x_mean,
             x_scale=pred.x_scale,
             y_mean=pred.y_mean,
@@ -147,22 +153,21 @@ class FusedRBFMPKPredictor(nn.Module):
         m, n, p = self.m, self.n, self.p
         xs = ((x - self.x_mean) / self.x_scale).reshape(-1, self.input_dim)  # (k, d)
         k = xs.shape[0]
-        G = (xs @ self.W).view(k, 1 + p, m, n).unbind(1)  # linear forms, each (k, m, N)
-        D = ((xs * xs) @ self.diag_W).view(k, 1 + p, m).unbind(1)  # ||x/l||^2, x Sigma x
-        K = torch.exp(G[0] + self.rbf_offset - 0.5 * D[0].unsqueeze(-1))  # (k, m, N)
-        prior = self.outputscale
+        xt = xs.T  # (d, k)
+        G = (self.W @ xt).view(1 + p, m, n, k).unbind(0)  # linear forms, each (m, N, k)
+        D = (self.diag_W @ (xt * xt)).view(1 + p, m, 1, k).unbind(0)  # ||x/l||^2, x Sigma x
+        K = torch.exp(G[0] + self.rbf_offset - 0.5 * D[0])  # (m, N, k)
+        prior = self.outputscale  # (m, 1, 1)
         if p:
             prod = G[1] + self.mp_sigma2[0]
-            prod_d = D[1] + self.mp_sigma2[0, :, 0]
+            prod_d = D[1] + self.mp_sigma2[0]
             for s in range(1, p):
                 prod = prod * (G[s + 1] + self.mp_sigma2[s])
-                prod_d = prod_d * (D[s + 1] + self.mp_sigma2[s, :, 0])
+                prod_d = prod_d * (D[s + 1] + self.mp_sigma2[s])
             K = K + prod
-            prior = prior + prod_d  # (k, m)
-        Kt = K.transpose(0, 1)  # (m, k, N), a view: bmm takes the strides as they are
-        mean = torch.bmm(Kt, self.alpha)[..., 0].T  # (k, m)
-        V = torch.bmm(Kt, self.linv_t)  # (m, k, N)
-        var = (prior - V.pow(2).sum(-1).T).clamp_min(0.0)
+            prior = prior + prod_d  # (m, 1, k)
+        mean = (self.alpha @ K)[:, 0].T  # (k, m)
+        var = (prior[:, 0] - self.linv.sq_col_norms(K)).clamp_min(0.0).T  # (k, m)
         mean = mean * self.y_scale + self.y_mean
         var = var * self.y_scale.pow(2)
         return mean.reshape(*lead, m), var.reshape(*lead, m)

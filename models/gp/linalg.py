@@ -1,13 +1,21 @@
-"""Cholesky factorisation with jitter escalation and an actionable error."""
+"""Cholesky factorisation with jitter escalation, and triangular products without the zero half."""
 
 from __future__ import annotations
 
 import warnings
+from collections.abc import Sequence
 
 import torch
-from torch import Tensor
+from torch import Tensor, nn
 
-__all__ = ["CHOLESKY_FIX_HINT", "JITTER_START", "JITTER_MAX", "jittered_cholesky"]
+__all__ = [
+    "CHOLESKY_FIX_HINT",
+    "JITTER_MAX",
+    "JITTER_START",
+    "TRI_PANEL_WIDTH",
+    "LowerTriangularBlocks",
+    "jittered_cholesky",
+]
 
 JITTER_START = 1e-8
 """First relative jitter tried (times the mean diagonal of the matrix)."""
@@ -72,3 +80,123 @@ def jittered_cholesky(
         f"Cholesky of {what} (N={A.shape[-1]}) failed even with a relative jitter of "
         f"{jitter_max:.0e}: the matrix is singular. To fix: {CHOLESKY_FIX_HINT}."
     )
+
+
+TRI_PANEL_WIDTH = 64
+"""Columns per panel of :class:`LowerTriangularBlocks` (panels of about equal width). Measured
+(one thread, float64, N=500, 400 right-hand sides, 2 batched factors, interleaved medians on a
+shared 2-core machine): widths 16 to 64 within 5% of each other, 96 to 128 5-10% slower,
+250 (2 panels) 20% slower; with 64 the product takes 4.9 ms against 8.1 ms for the dense
+matmul (1.67x; the flop ratio is 1.78x)."""
+
+
+def _panel_product(panels: Sequence[Tensor], B: Tensor) -> Tensor:
+    """:math:`M B = \\sum_i [0; P_i] B_{[i]}`, accumulated in place (no autograd graph)."""
+    starts = [P.shape[-1] for P in panels]
+    starts = [sum(starts[:i]) for i in range(len(panels))]
+    n = panels[0].shape[-2]
+    batch = torch.broadcast_shapes(panels[0].shape[:-2], B.shape[:-2])
+    B3 = B.expand(*batch, *B.shape[-2:]).reshape(-1, *B.shape[-2:])
+    out = None
+    for P, s in zip(panels, starts, strict=True):
+        P3 = P.expand(*batch, *P.shape[-2:]).reshape(-1, *P.shape[-2:])
+        rhs = B3[:, s : s + P.shape[-1]]
+        if out is None:  # the first panel covers all rows
+            out = torch.bmm(P3, rhs)
+        else:
+            out[:, s:].baddbmm_(P3, rhs)
+    return out.reshape(*batch, n, B.shape[-1])
+
+
+class _TriangularMatmul(torch.autograd.Function):
+    """:math:`V = M B` for a constant lower-triangular :math:`M` given as column panels.
+
+    Backward: :math:`\\partial B = M^T \\partial V`, whose row chunk :math:`i` is
+    :math:`P_i^T\\, \\partial V_{[s_i{:}]}` (one matmul per chunk, written once); built from
+    differentiable ops, so higher-order gradients w.r.t. ``B`` work too. No gradient flows to
+    :math:`M`.
+    """
+
+    @staticmethod
+    def forward(ctx, B: Tensor, *panels: Tensor) -> Tensor:
+        ctx.save_for_backward(*panels)
+        ctx.batch_b = B.shape[:-2]
+        return _panel_product(panels, B)
+
+    @staticmethod
+    def backward(ctx, grad: Tensor) -> tuple[Tensor | None, ...]:
+        panels = ctx.saved_tensors
+        n = panels[0].shape[-2]
+        chunks = [P.transpose(-1, -2) @ grad[..., n - P.shape[-2] :, :] for P in panels]
+        gB = torch.cat(chunks, dim=-2)
+        if gB.shape[:-2] != ctx.batch_b:  # B was broadcast over the batch of M
+            gB = gB.sum_to_size(*ctx.batch_b, *gB.shape[-2:])
+        return (gB, *([None] * len(panels)))
+
+
+class LowerTriangularBlocks(nn.Module):
+    """A constant lower-triangular matrix :math:`M` (``(..., N, N)``) without its zero half.
+
+    :math:`M` is split into column panels :math:`i = 1..J` of about :data:`TRI_PANEL_WIDTH`
+    columns :math:`s_i{:}e_i`; panel :math:`P_i = M_{[s_i{:}N,\\, s_i{:}e_i]}` keeps only the
+    rows from the diagonal down (above them the panel is zero):
+
+    .. math::
+        M B = \\sum_{i=1}^{J} \\begin{bmatrix} 0 \\\\ P_i \\end{bmatrix} B_{[s_i{:}e_i]},
+
+    accumulated in place into one output, so a product with ``B (..., N, n)`` costs
+    :math:`\\sum_i 2 (N - s_i)(e_i - s_i)\\, n \\approx (1 + 1/J) N^2 n` flops against
+    :math:`2 N^2 n` for the dense matmul. The product is differentiable w.r.t. ``B`` (custom
+    backward :math:`M^T \\partial V`, by row chunks, without the full-size zero fills that
+    slicing would cost). For the GP variance :math:`M = L^{-1}` and :math:`B = k(X, x)`.
+
+    Args:
+        M: ``(..., N, N)`` lower-triangular matrix (exact zeros above the diagonal); stored
+            detached (no gradient w.r.t. ``M``).
+        panel_width: columns per panel (about ``N / panel_width`` panels of equal width).
+
+    Raises:
+        ValueError: ``M`` is not square, or has a non-zero entry above the diagonal.
+    """
+
+    def __init__(self, M: Tensor, panel_width: int = TRI_PANEL_WIDTH) -> None:
+        super().__init__()
+        if M.dim() < 2 or M.shape[-1] != M.shape[-2]:
+            raise ValueError(f"M must have shape (..., N, N), got {tuple(M.shape)}")
+        if panel_width < 1:
+            raise ValueError(f"panel_width must be >= 1, got {panel_width}")
+        if bool(torch.triu(M, diagonal=1).any()):
+            raise ValueError(
+                "M must be lower triangular: it has non-zero entries above the diagonal"
+            )
+        n = M.shape[-1]
+        num = max(1, round(n / panel_width))
+        ends = [round(n * (i + 1) / num) for i in range(num)]
+        starts = [0, *ends[:-1]]
+        self.num_panels = num
+        self.size = n
+        M = M.detach()
+        for i, (s0, s1) in enumerate(zip(starts, ends, strict=True)):
+            self.register_buffer(f"panel{i}", M[..., s0:, s0:s1].contiguous())
+
+    @property
+    def panels(self) -> tuple[Tensor, ...]:
+        """The column panels :math:`P_i`, each ``(..., N - s_i, e_i - s_i)``."""
+        return tuple(getattr(self, f"panel{i}") for i in range(self.num_panels))
+
+    def _check(self, B: Tensor) -> None:
+        if B.dim() < 2 or B.shape[-2] != self.size:
+            raise ValueError(f"B must have shape (..., {self.size}, n), got {tuple(B.shape)}")
+
+    def matmul(self, B: Tensor) -> Tensor:
+        """:math:`M B`, shape ``(..., N, n)`` (batch dims broadcast)."""
+        self._check(B)
+        return _TriangularMatmul.apply(B, *self.panels)
+
+    def sq_col_norms(self, B: Tensor) -> Tensor:
+        """Squared column norms :math:`\\lVert M b_c \\rVert^2`, shape ``(..., n)``."""
+        V = self.matmul(B)
+        return torch.linalg.vecdot(V, V, dim=-2)
+
+    def extra_repr(self) -> str:
+        return f"size={self.size}, num_panels={self.num_panels}"

@@ -80,3 +80,28 @@ def test_dense_rbf_is_differentiable_wrt_hyperparameters() -> None:
     dense_covar(kernel, x, x).sum().backward()
     assert kernel.base_kernel.raw_lengthscale.grad is not None
     assert torch.isfinite(kernel.base_kernel.raw_lengthscale.grad).all()
+
+
+def test_scaled_rbf_grad_path_equals_inplace_path_and_zero_outputscale_is_finite() -> None:
+    """With and without autograd (the latter clamps and exps in place) the values agree with
+    GPyTorch; an outputscale of exactly 0 gives a matrix of at most the smallest normal float
+    (the documented floor) and finite input gradients."""
+    kernel = _randomize(KERNELS["scale_rbf_ard_batch"](), seed=5)
+    gen = torch.Generator().manual_seed(2)
+    x1 = torch.randn(2, 6, 4, generator=gen, dtype=torch.float64)
+    x2 = torch.randn(2, 3, 4, generator=gen, dtype=torch.float64).requires_grad_(True)
+    with torch.no_grad():
+        ref = kernel(x1, x2).to_dense()
+        nograd = dense_covar(kernel, x1, x2)
+    withgrad = dense_covar(kernel, x1, x2)
+    assert withgrad.requires_grad
+    torch.testing.assert_close(nograd, ref, rtol=1e-10, atol=1e-12)
+    torch.testing.assert_close(withgrad.detach(), ref, rtol=1e-10, atol=1e-12)
+    with torch.no_grad():
+        kernel.raw_outputscale.fill_(-800.0)  # softplus underflows to exactly 0
+    assert float(kernel.outputscale.detach().abs().max()) == 0.0
+    zero = dense_covar(kernel, x1, x2)
+    assert 0.0 <= float(zero.detach().min())
+    assert float(zero.detach().max()) <= torch.finfo(torch.float64).tiny
+    (g,) = torch.autograd.grad(zero.sum(), x2)
+    assert torch.isfinite(g).all()

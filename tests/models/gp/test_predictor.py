@@ -30,9 +30,14 @@ def fitted() -> dict[str, GPRegressor]:
     X = rng.uniform(-2, 2, size=(60, 3))
     Y = np.stack([np.sin(X[:, 0]) + 0.3 * X[:, 2], 10.0 + 5.0 * np.cos(X[:, 1] * X[:, 0])], axis=1)
     Y += 0.05 * rng.standard_normal(Y.shape)
+    # N = 200: L^{-1} is split into several column panels (the panel product path)
+    X2 = rng.uniform(-2, 2, size=(200, 3))
+    Y2 = np.stack([np.sin(2 * X2[:, 0]) * X2[:, 1], np.cos(X2[:, 2] + X2[:, 0])], axis=1)
+    Y2 += 0.01 * rng.standard_normal(Y2.shape)
     return {
         "rbf": GPRegressor(rbf_factory(3)).fit(X, Y, adam_iters=30, lbfgs_iters=10),
         "composite": GPRegressor(composite_factory).fit(X, Y, adam_iters=30, lbfgs_iters=0),
+        "rbf_n200": GPRegressor(rbf_factory(3)).fit(X2, Y2, adam_iters=15, lbfgs_iters=0),
     }
 
 
@@ -41,12 +46,14 @@ def _test_points(n: int = 40, seed: int = 1) -> torch.Tensor:
     return torch.rand(n, 3, generator=gen, dtype=torch.float64) * 5 - 2.5
 
 
-@pytest.mark.parametrize("name", ["rbf", "composite"])
+@pytest.mark.parametrize("name", ["rbf", "composite", "rbf_n200"])
 def test_float64_predictor_matches_gpytorch_posterior(fitted, name) -> None:
     gp = fitted[name]
     x = _test_points()
     ref_mean, ref_var = gp.predict_gpytorch(x)
     pred = gp.cached_predictor(torch.float64)
+    if name == "rbf_n200":
+        assert pred.linv.num_panels > 1
     mean, var = pred(x)
     assert mean.dtype == var.dtype == torch.float64
     torch.testing.assert_close(mean, ref_mean, rtol=0, atol=1e-8)
@@ -70,15 +77,16 @@ def test_float32_predictor_close_to_float64(fitted) -> None:
 
 
 def test_predictor_gradcheck_wrt_inputs(fitted) -> None:
-    for name in ("rbf", "composite"):
+    for name in ("rbf", "composite", "rbf_n200"):
         pred = fitted[name].cached_predictor(torch.float64)
         x = _test_points(4, seed=2).requires_grad_(True)
         assert torch.autograd.gradcheck(pred, (x,), eps=1e-6, atol=1e-6)
 
 
-def test_predictor_gradient_matches_gpytorch_autograd(fitted) -> None:
+@pytest.mark.parametrize("name", ["rbf", "rbf_n200"])
+def test_predictor_gradient_matches_gpytorch_autograd(fitted, name) -> None:
     """d mean / dx and d var / dx agree with autograd through GPyTorch's posterior."""
-    gp = fitted["rbf"]
+    gp = fitted[name]
     x = _test_points(5, seed=3)
     pred = gp.cached_predictor(torch.float64)
     x1 = x.clone().requires_grad_(True)
@@ -116,7 +124,8 @@ def test_predictor_call_path_is_plain_tensors(fitted) -> None:
     assert type(mean) is torch.Tensor and type(var) is torch.Tensor
     assert not any(p.requires_grad for p in pred.parameters())
     names = {n for n, _ in pred.named_buffers()}
-    assert {"weights", "train_x", "x_mean", "x_scale", "y_mean", "y_scale"} <= names
+    assert {"alpha", "train_x", "x_mean", "x_scale", "y_mean", "y_scale"} <= names
+    assert {f"linv.panel{j}" for j in range(pred.linv.num_panels)} <= names
 
 
 def test_predictor_rejects_wrong_dimension_and_nan(fitted) -> None:
