@@ -12,12 +12,13 @@ symbol              meaning
 :math:`z_k`         noiseless output; :math:`y_k = z_k + e_k`, :math:`e_k\sim N(0,\sigma_n^2)`
 PK                  :math:`K^{(r)}_{pk} = \sum_{i=1}^r (\mathbf u^T\Sigma^{(i)}\mathbf u')^i+\rho_0`
                     (6.18)
-IPK                 :math:`(\sigma^2 + \mathbf u^T\Sigma\mathbf u')^r` (6.23)
+IPK                 :math:`(1 + \mathbf u^T\Sigma\mathbf u')^r` (6.23)
 MPK                 :math:`K^{(r)}_{mpk} = \sum_{i=1}^r \rho_i\prod_{p=1}^i
                     \mathbf u^T\Sigma_p^{(i)}\mathbf u' + \rho_0` (6.24)-(6.25)
 SED-MPK             :math:`K^{(r)}_{sed} = \sum_{i=1}^r \rho_i\prod_{p=1}^i
                     \mathbf u^T\Sigma_p^{(i)}\mathbf u' + \rho_0`,
-                    :math:`\Sigma_p(i,j)=e^{-\alpha_p|i-j|}e^{-\beta_p(i+j)}` (6.29)-(6.30)
+                    :math:`\Sigma_p(i,j)=e^{-\alpha_p|i-j|}e^{-\beta_p(i+j)}` (6.29)-(6.30);
+                    tied (6.35): all :math:`\alpha_p=\alpha`, :math:`\beta_p=\beta`
 Fit%                :math:`100(1-\|z-\hat z\|_1/\|z-\bar z\|_1)` (section 6.5.1)
 ==================  ==========================================================================
 
@@ -52,7 +53,7 @@ __all__ = [
 ]
 
 #: Kernel families accepted by :class:`VolterraGP` and :func:`volterra_kernel_factory`.
-KINDS = ("pk", "ipk", "mpk", "sed_mpk", "sed_mpk_eq")
+KINDS = ("pk", "ipk", "mpk", "sed_mpk", "sed_mpk_tied")
 
 #: Numerator and denominator of :math:`G(q) = 10q^{-1}/(1 - 1.8036q^{-1} + 0.8338q^{-2})`
 #: (eq. 6.38, Stoddard and Welsh 2018) in :func:`scipy.signal.lfilter` convention.
@@ -188,51 +189,23 @@ def wiener_system(u: np.ndarray | torch.Tensor | list[float], order: int) -> np.
 KernelFactory = Callable[[torch.Size], "gpytorch.kernels.Kernel"]  # noqa: F821
 
 
-def _power_kernel_class():
-    """Build (lazily, gpytorch is heavy) the :class:`PowerKernel` wrapper class."""
-    import gpytorch
-
-    class PowerKernel(gpytorch.kernels.Kernel):
-        r""":math:`k(\mathbf x, \mathbf x')^{q}` of a base kernel (dense, shares its parameters).
-
-        With a degree-1 :class:`~mcpilco.models.kernels.SEDMPKernel` base this is the SED-MPK
-        building block with all :math:`\alpha_p` (resp. :math:`\beta_p`) equal, the special case
-        (6.35) used in the thesis experiments: :math:`(\mathbf u^T\Sigma(\alpha,\beta)\mathbf
-        u')^q`.
-        """
-
-        def __init__(self, base_kernel: gpytorch.kernels.Kernel, power: int, **kwargs) -> None:
-            super().__init__(**kwargs)
-            self.base_kernel = base_kernel
-            self.power = int(power)
-
-        def forward(self, x1, x2, diag: bool = False, last_dim_is_batch: bool = False, **params):
-            k = self.base_kernel.forward(x1, x2, diag=diag, last_dim_is_batch=last_dim_is_batch)
-            out = k
-            for _ in range(1, self.power):
-                out = out * k
-            return out
-
-    return PowerKernel
-
-
 def volterra_kernel_factory(kind: str, order: int, memory: int) -> KernelFactory:
     r"""Kernel factory (``batch_shape -> gpytorch Kernel``) for a Volterra model of order r.
 
-    ``kind`` (all built by :func:`mcpilco.models.kernels.volterra_kernel` except the last):
+    ``kind`` (all built by :func:`mcpilco.models.kernels.volterra_kernel`):
 
     * ``"pk"``: :math:`\sum_{i=1}^r (\mathbf u^T\Sigma^{(i)}\mathbf u')^i + \rho_0` (6.18),
       one diagonal :math:`\Sigma^{(i)}` (ARD) per order.
-    * ``"ipk"``: :math:`(\sigma^2 + \mathbf u^T\Sigma\mathbf u')^r` (6.23), diagonal
-      :math:`\Sigma`, :math:`\sigma^2` trained (the thesis fixes it to 1; since the overall
-      scale is free this is the same model with a trainable output scale).
+    * ``"ipk"``: :math:`(1 + \mathbf u^T\Sigma\mathbf u')^r` (6.23), diagonal :math:`\Sigma`,
+      offset fixed to 1 as in the thesis.
     * ``"mpk"``: :math:`\sum_{i=1}^r \rho_i k^{(i)}_{mpk} + \rho_0` (6.25), homogeneous
       blocks (6.24) with the hierarchical parametrisation (6.28).
     * ``"sed_mpk"``: :math:`\sum_{i=1}^r \rho_i k^{(i)}_{sed} + \rho_0` (6.30), every factor
       :math:`p` of block :math:`i` with its own :math:`(\alpha_p, \beta_p)` (hierarchical).
-    * ``"sed_mpk_eq"``: the special case (6.35) used in the thesis experiment 2: within block
-      :math:`i` all :math:`\alpha_p = \alpha^{(i)}`, :math:`\beta_p = \beta^{(i)}`, i.e.
-      :math:`k^{(i)}_{sed} = (\mathbf u^T\Sigma(\alpha^{(i)},\beta^{(i)})\mathbf u')^i`.
+    * ``"sed_mpk_tied"``: the special case (6.35) used in the thesis' experiment 2, all
+      :math:`\alpha_p = \alpha`, :math:`\beta_p = \beta`:
+      :math:`\sum_{i=1}^r \rho_i (\mathbf u^T\Sigma(\alpha,\beta)\mathbf u')^i + \rho_0`
+      (:class:`~mcpilco.models.kernels.TiedSEDMPKernel`, :math:`r + 3` hyperparameters).
     """
     if kind not in KINDS:
         raise ValueError(f"kind must be one of {KINDS}, got {kind!r}")
@@ -243,23 +216,9 @@ def volterra_kernel_factory(kind: str, order: int, memory: int) -> KernelFactory
     order, memory = int(order), int(memory)
 
     def factory(batch_shape: torch.Size = torch.Size([])):  # noqa: B008
-        import gpytorch
+        from mcpilco.models.kernels import volterra_kernel
 
-        from mcpilco.models.kernels import SEDMPKernel, volterra_kernel
-
-        if kind != "sed_mpk_eq":
-            return volterra_kernel(kind, order, memory, batch_shape=batch_shape)
-        power_kernel = _power_kernel_class()
-        terms = [
-            gpytorch.kernels.ScaleKernel(
-                power_kernel(SEDMPKernel(1, memory, batch_shape=batch_shape), i),
-                batch_shape=batch_shape,
-            )
-            for i in range(1, order + 1)
-        ]
-        return gpytorch.kernels.AdditiveKernel(
-            *terms, gpytorch.kernels.ConstantKernel(batch_shape=batch_shape)
-        )
+        return volterra_kernel(kind, order, memory, batch_shape=batch_shape)
 
     return factory
 

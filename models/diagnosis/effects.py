@@ -450,7 +450,8 @@ class DeadZone(Effect):
 class Delay(Effect):
     """Measurement/input delay: the output lags the states, ``y_j(t) = tau_j(x(t - d))``,
     ``d = samples * dt``; found by a scan over ``samples = 1..max_delay_samples`` of the
-    training files (the target is shifted, the states stay)."""
+    training files (the measured targets stay, each joint's states are read ``k`` samples
+    earlier: every variant is scored on the same samples)."""
 
     samples: int | None = None
     sample_time: float | None = None

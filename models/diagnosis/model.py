@@ -12,12 +12,22 @@ returns version ``v(k+1)`` with the effect's block added (a linear kernel on it,
 
 Refitting re-optimises, per joint, the start kernel's scale ``alpha``, the noise
 ``sigma^2`` and every block's prior variance ``lambda_b`` (type-II ML); the GIP kernel's own
-hyperparameters stay at their version-0 values. Delays shift the training targets
-(``y_j(t + d)``) and the predictions (``mean_j(t - d)``).
+hyperparameters stay at their version-0 values (a learned start is backfitted by
+:meth:`DiagnosisModel.add`).
 
-Training rows: every sample except the last ``max_delay_samples`` of each file (so that any
-scanned delay keeps the same rows); with a start kernel, at most ``max_points`` of them,
-evenly spaced in time (the exact GP costs ``O(N^3)``).
+Delays: ``y_j(t) = f_j(x(t - d))``. The targets always stay the measured ``y_j`` at the
+training rows ``t``; a delay of ``k`` samples on joint ``j`` moves that joint's *inputs* to
+the states ``k`` samples earlier (its effect blocks, its start-kernel Gram matrix and its
+prior mean are evaluated at ``x(t - d)``), and its predictions are ``mean_j(t - d)``. So
+every delay of the scan is scored on the same measured samples, i.e. on the same noise
+realisation: shifting the targets instead would compare different noise samples whenever
+the rows are a subset (with a start kernel), whose log-likelihoods differ by
+``~ sqrt(N / 2)`` nats by chance alone.
+
+Training rows: every sample except the first and last ``max_delay_samples`` of each file
+(so that any scanned delay reads states, and the start model's backfit reads outputs,
+inside the same file); with a start kernel, at most ``max_points`` of them, evenly spaced
+in time (the exact GP costs ``O(N^3)``).
 """
 
 from __future__ import annotations
@@ -58,7 +68,8 @@ class DiagnosisModel:
 
     Fitted attributes: ``train_`` (:class:`Trajectories`), ``rows_`` (training rows),
     ``ctx_`` (:class:`FeatureContext` of the rows), ``gps_`` / ``theta_`` / ``evidence_`` per
-    joint, ``effects`` calibrated.
+    joint (each joint's GP reads its inputs at ``rows_ - delay``, :meth:`joint_context`),
+    ``effects`` calibrated.
     """
 
     def __init__(
@@ -106,9 +117,12 @@ class DiagnosisModel:
     # ------------------------------------------------------------------ fitting
     def _training_rows(self, traj: Trajectories) -> NDArray[np.int64]:
         rows = []
+        k = self.max_delay_samples
         for a, b in traj.segments:
-            stop = max(b - self.max_delay_samples, a + 1)
-            rows.append(np.arange(a, stop))
+            if b - a > 2 * k:
+                rows.append(np.arange(a + k, b - k))
+            else:  # a file too short to spare both ends: keep its middle sample
+                rows.append(np.array([(a + b) // 2]))
         rows = np.concatenate(rows)
         if self.start.has_kernel and rows.size > self.max_points:
             pick = np.unique(np.round(np.linspace(0, rows.size - 1, self.max_points)).astype(int))
@@ -139,11 +153,73 @@ class DiagnosisModel:
                 return int(e.samples)
         return 0
 
-    def target(self, output: int, shift: int | None = None) -> FloatArray:
-        """Residual target ``r = y_j(rows + k) - m_j(rows)`` of output ``output`` (0-based)."""
+    def _shifted(self, shift: int) -> tuple[FeatureContext, FloatArray, tuple[FloatArray, ...]]:
+        """``(context, prior mean (N, n), (q, qd, qdd))`` at the input rows ``rows - shift``
+        (cached until the next :meth:`fit`)."""
+        if shift not in self._shift_cache:
+            traj = self.train_
+            rows = traj.shift_index(self.rows_, -shift)
+            states = (traj.q[rows], traj.qd[rows], traj.qdd[rows])
+            self._shift_cache[shift] = (
+                self.context(traj, rows),
+                self.start.prior_mean(*states),
+                states,
+            )
+        return self._shift_cache[shift]
+
+    def joint_context(self, output: int, shift: int | None = None) -> FeatureContext:
+        """Feature context of output ``output``'s inputs, ``x(rows - k)`` (``k``: ``shift``,
+        default the joint's delay in samples)."""
         k = self._delay_samples(output) if shift is None else shift
-        idx = self.train_.shift_index(self.rows_, k)
-        return self.train_.y[idx, output] - self.mean_train_[:, output]
+        return self._shifted(k)[0]
+
+    def target(self, output: int, shift: int | None = None) -> FloatArray:
+        """Residual target ``r = y_j(rows) - m_j(x(rows - k))`` of output ``output``
+        (0-based; ``k``: ``shift``, default the joint's delay in samples)."""
+        k = self._delay_samples(output) if shift is None else shift
+        mean = self._shifted(k)[1]
+        return self.train_.y[self.rows_, output] - mean[:, output]
+
+    def _start_eig(
+        self, states: tuple[FloatArray, ...], joints: Sequence[int] | None = None
+    ) -> dict[int, tuple[FloatArray, FloatArray]]:
+        """``{j: (U, S)}`` of the start kernel's Gram matrix at ``states`` for the output
+        joints ``joints`` (0-based; default all)."""
+        K0 = self.start.kernel(states, states)
+        out = {}
+        for j in range(self.n_joints) if joints is None else joints:
+            S, U = np.linalg.eigh(0.5 * (K0[j] + K0[j].T))
+            out[j] = (U, S)
+        return out
+
+    def joint_gp(self, output: int, shift: int) -> JointGP:
+        """Output ``output``'s GP with the current blocks, its inputs at ``x(rows - shift)``
+        and the same target samples ``y_j(rows)`` and scale as the fitted one (the delay
+        scan: evidences of different ``shift`` compare models of the same data)."""
+        self._check_fitted()
+        ctx, _, states = self._shifted(shift)
+        eig = None
+        if self.start.has_kernel:
+            if shift == self._delay_samples(output):
+                eig = self.eig_[output]
+            else:
+                eig = self._start_eig(states, [output])[output]
+        return JointGP(
+            self.target(output, shift),
+            self.blocks(ctx, output),
+            eig=eig,
+            scale=self.gps_[output].scale,
+        )
+
+    def _start_targets(self) -> FloatArray:
+        """``(N, n)`` outputs that the start model sees at the states ``x(rows)``:
+        ``y_j(rows + k_j)`` for a joint delayed by ``k_j`` samples."""
+        traj = self.train_
+        cols = [
+            traj.y[traj.shift_index(self.rows_, self._delay_samples(j)), j]
+            for j in range(self.n_joints)
+        ]
+        return np.stack(cols, axis=1)
 
     def blocks(self, ctx: FeatureContext, output: int) -> list[FloatArray]:
         """The effect blocks acting on ``output`` (0-based), in effect order."""
@@ -190,12 +266,12 @@ class DiagnosisModel:
             self.start.robot.check(traj.n_joints)
         self.train_ = traj
         self.rows_ = self._training_rows(traj)
+        self._shift_cache: dict[int, tuple] = {}
         q, qd, qdd = traj.q[self.rows_], traj.qd[self.rows_], traj.qdd[self.rows_]
         fitted = getattr(self.start, "estimator_", True) is not None
         if refit_start or (refit_start is None and not fitted):
-            self.start.fit(q, qd, qdd, traj.y[self.rows_])
-        self.mean_train_ = self.start.prior_mean(q, qd, qdd)
-        self.ctx_ = self.context(traj, self.rows_)
+            self.start.fit(q, qd, qdd, self._start_targets())
+        self.ctx_ = self._shifted(0)[0]
         dt = traj.sample_time
         effects = []
         for e in self.effects:
@@ -204,19 +280,23 @@ class DiagnosisModel:
                 e = type(e)(joint=e.joint, samples=e.samples, sample_time=dt)
             effects.append(e)
         self.effects = tuple(effects)
-        K0 = self.start.kernel((q, qd, qdd), (q, qd, qdd)) if self.start.has_kernel else None
+        shifts = [self._delay_samples(j) for j in range(self.n_joints)]
+        eigs: dict[int, tuple[FloatArray, FloatArray]] = {}
+        if self.start.has_kernel:
+            for k in sorted(set(shifts)):  # the Gram matrix at each joint's inputs
+                joints = [j for j in range(self.n_joints) if shifts[j] == k]
+                eigs.update(self._start_eig(self._shifted(k)[2], joints))
         noise0 = self.start.noise_variance()
         self.gps_, self.theta_, self.evidence_ = [], [], []
         self.eig_: list[tuple[FloatArray, FloatArray] | None] = []
         for j in range(self.n_joints):
-            eig = None
-            if K0 is not None:
-                S, U = np.linalg.eigh(0.5 * (K0[j] + K0[j].T))
-                eig = (U, S)
+            eig = eigs.get(j)
             self.eig_.append(eig)
-            base_r = self.train_.y[self.rows_, j] - self.mean_train_[:, j]
+            base_r = self.target(j, shift=0)
             scale = float(np.sqrt(np.mean(base_r**2)) or 1.0)
-            gp = JointGP(self.target(j), self.blocks(self.ctx_, j), eig=eig, scale=scale)
+            gp = JointGP(
+                self.target(j), self.blocks(self.joint_context(j), j), eig=eig, scale=scale
+            )
             theta0 = gp.default_theta(None if noise0 is None else float(noise0[j]))
             starts = []
             if _warm and j in _warm and _warm[j].shape == theta0.shape:
@@ -231,21 +311,18 @@ class DiagnosisModel:
             self.theta_.append(theta)
             self.evidence_.append(ev)
         if backfit and isinstance(self.start, LearnedStart) and self.effects:
-            # backfitting: the learned start model refitted on the output minus the effects
-            y_adj = np.stack(
-                [
-                    self.target(j) + self.mean_train_[:, j] - self._effect_part(j)
-                    for j in range(self.n_joints)
-                ],
-                axis=1,
+            # backfitting: the learned start model refitted on the output minus the effects,
+            # both at the states x(rows) it reads
+            y_adj = self._start_targets() - np.stack(
+                [self._effect_part(j, self.ctx_) for j in range(self.n_joints)], axis=1
             )
             self.start = self.start.refit(q, qd, qdd, y_adj)
             return self.fit(traj, refit_start=False, _warm=dict(enumerate(self.theta_)))
         return self
 
-    def _effect_part(self, output: int) -> FloatArray:
-        """Fitted torque of the added blocks on ``output`` at the training rows."""
-        blocks = self.blocks(self.ctx_, output)
+    def _effect_part(self, output: int, ctx: FeatureContext) -> FloatArray:
+        """Fitted torque of the added blocks on ``output`` at the states of ``ctx``."""
+        blocks = self.blocks(ctx, output)
         if not blocks:
             return np.zeros(self.rows_.size)
         mean, _ = self.gps_[output].weights(self.theta_[output])
@@ -278,17 +355,19 @@ class DiagnosisModel:
         ctx = self.context(traj)
         mean = self.start.prior_mean(traj.q, traj.qd, traj.qdd)
         var = np.zeros_like(mean)
-        K0x = K0d = None
+        K0x: dict[int, FloatArray] = {}
+        K0d = None
+        shifts = [self._delay_samples(j) for j in range(self.n_joints)]
         if self.start.has_kernel:
-            tr = (self.ctx_.q, self.ctx_.qd, self.ctx_.qdd)
             te = (traj.q, traj.qd, traj.qdd)
-            K0x = self.start.kernel(tr, te)
+            for k in sorted(set(shifts)):  # each joint's training inputs x(rows - k_j)
+                K0x[k] = self.start.kernel(self._shifted(k)[2], te)
             K0d = self.start.kernel_diag(te)
         for j in range(self.n_joints):
             m, v = self.gps_[j].predict(
                 self.theta_[j],
                 self.blocks(ctx, j),
-                None if K0x is None else K0x[j],
+                K0x[shifts[j]][j] if K0x else None,
                 None if K0d is None else K0d[j],
                 with_var=with_var,
                 n_test=traj.n_samples,

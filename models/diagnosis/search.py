@@ -4,7 +4,9 @@ Score (Bayesian model comparison, thesis eq. 1.9 for the evidence)
     For candidate effect ``e`` with scan variants ``v = 1..G`` on output joint ``j``:
     ``Delta_v = max_{sigma^2, lambda_e} log p(r_j | current + e_v) - log p(r_j | current)``
     (the current model's other hyperparameters held at their fitted values; the new block's
-    prior variance and the noise re-optimised), and with a uniform prior over the scan
+    prior variance and the noise re-optimised; a delay re-optimises them all, its inputs
+    ``k`` samples earlier and its targets the same measured samples), and with a uniform
+    prior over the scan
     ``Delta = log( (1/G) sum_v exp(Delta_v) )``. An effect acting on every joint (payload)
     sums ``Delta`` over the joints (independent GPs).
 Significance
@@ -12,7 +14,8 @@ Significance
     strong" on Kass & Raftery's scale ``2 Delta > 10``), the physical sign respected, and the
     held-out RMSE of the joints it acts on lower by more than ``min_heldout_gain`` percent
     (default 1%) when the effect is added and the model refitted (trajectories held out
-    whole: the held-out files never enter the fit).
+    whole: the held-out files never enter the fit; several joints are pooled in units of
+    their noise std, :func:`heldout_change_pct`).
 Groups (what the data cannot tell apart)
     Two candidates on the same joint are in one group when their fitted torque contributions
     on the training rows correlate with ``|rho| > group_correlation`` (default 0.9); the
@@ -43,6 +46,7 @@ __all__ = [
     "Diagnosis",
     "auto_improve",
     "diagnose",
+    "heldout_change_pct",
     "heldout_rmse",
     "score_candidates",
     "score_effect",
@@ -94,16 +98,14 @@ def _score_variant(
     e = effect.calibrate(model.ctx_)
     n_head = int(gp.has_kernel)
     if e.is_shift:
-        shift = int(e.samples)
-        g = gp.with_target(model.target(output, shift=shift))
-        free = np.ones(gp.n_theta, bool)
-        if n_head:
-            free[0] = False
-        th, ev = g.optimise(theta, free=free)
+        # the same measured samples y_j(rows), the inputs k samples earlier; every
+        # hyperparameter re-optimised (as for the base evidence)
+        g = model.joint_gp(output, shift=int(e.samples))
+        th, ev = g.optimise(theta)
         if e.sample_time is None:
             e = type(e)(joint=e.joint, samples=e.samples, sample_time=model.train_.sample_time)
         return ev - base, e.estimates(np.zeros(1), np.zeros((1, 1)), model.ctx_, output), None
-    cols = e.columns(model.ctx_, output)
+    cols = e.columns(model.joint_context(output), output)
     if cols is None:
         return float("nan"), [], None
     g = gp.with_block(cols)
@@ -188,6 +190,20 @@ def heldout_rmse(model: DiagnosisModel, heldout: Trajectories) -> FloatArray:
     """``(n,)`` RMSE of the posterior mean on held-out trajectories."""
     mean, _ = model.predict(heldout, with_var=False)
     return np.sqrt(np.mean((heldout.y - mean) ** 2, axis=0))
+
+
+def heldout_change_pct(
+    before: FloatArray, after: FloatArray, noise_std: FloatArray, outputs: FloatArray
+) -> float:
+    """Held-out change ``100 (e_after / e_before - 1)`` [%] on the joints ``outputs``
+    (0-based), ``e = sqrt(mean_j (RMSE_j / sigma_j)^2)``: each joint's RMSE in units of its
+    fitted noise std ``sigma_j``, so that an effect acting on several joints (payload) is
+    judged on every one of them and not only on the one with the largest torque units."""
+    j = np.asarray(outputs, dtype=int)
+    s = np.where(noise_std[j] > 0, noise_std[j], 1.0)
+    e_before = math.sqrt(float(np.mean((before[j] / s) ** 2)))
+    e_after = math.sqrt(float(np.mean((after[j] / s) ** 2)))
+    return 100.0 * (e_after / e_before - 1.0)
 
 
 def _group(cands: Sequence[Candidate], threshold: float) -> None:
@@ -332,6 +348,7 @@ def diagnose(
     cands = score_candidates(model, library, progress=progress)
     _group(cands[:12], group_correlation)
     base_rmse = None
+    noise = model.noise_std_
     confirmed = 0
     for c in cands:
         if confirmed >= n_confirm or c.delta <= threshold:
@@ -342,10 +359,7 @@ def diagnose(
             base_rmse = heldout_rmse(model, held)
         new = model.with_effect(c.effect)
         rmse = heldout_rmse(new, held)
-        j = np.array(c.outputs) - 1
-        before = math.sqrt(float(np.mean(base_rmse[j] ** 2)))
-        after = math.sqrt(float(np.mean(rmse[j] ** 2)))
-        c.heldout_delta_pct = 100.0 * (after / before - 1.0)
+        c.heldout_delta_pct = heldout_change_pct(base_rmse, rmse, noise, np.array(c.outputs) - 1)
         c.significant = c.heldout_delta_pct < -min_heldout_gain
         confirmed += 1
     cands.sort(key=lambda c: (not c.significant, -c.delta))

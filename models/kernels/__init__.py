@@ -14,7 +14,7 @@ from mcpilco.models.kernels.gip import (
 from mcpilco.models.kernels.linear import LinearKernel
 from mcpilco.models.kernels.mpk import MPKernel
 from mcpilco.models.kernels.polynomial import PolynomialKernel
-from mcpilco.models.kernels.sed_mpk import SEDMPKernel, sed_matrix
+from mcpilco.models.kernels.sed_mpk import SEDMPKernel, TiedSEDMPKernel, sed_matrix
 from mcpilco.models.kernels.volterra import VOLTERRA_KINDS, volterra_kernel
 
 __all__ = [
@@ -23,6 +23,7 @@ __all__ = [
     "MPKernel",
     "PolynomialKernel",
     "SEDMPKernel",
+    "TiedSEDMPKernel",
     "VOLTERRA_KINDS",
     "check_joint_types",
     "gip_feature_dim",

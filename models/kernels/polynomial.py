@@ -36,7 +36,9 @@ class PolynomialKernel(DenseKernel):
     with :math:`\Sigma = \operatorname{diag}(\sigma_1, \dots, \sigma_d) \ge 0` and
     :math:`\sigma^2 \ge 0`. The PK spans the monomials of degree exactly :math:`p`, the IPK all
     monomials of degree :math:`\le p` (with weights tied by the binomial expansion, which is
-    what the MPK relaxes).
+    what the MPK relaxes). The thesis' IPK (6.23) fixes :math:`\sigma^2 = 1`
+    (``fixed_sigma2=1.0``); then the kernel has no free overall scale and the offset sets the
+    prior variance of the constant term (1 on standardised outputs).
 
     Args:
         degree: :math:`p \ge 1`.
@@ -44,9 +46,12 @@ class PolynomialKernel(DenseKernel):
         homogeneous: True for PK (no :math:`\sigma^2`), False for IPK.
         batch_shape, active_dims: as for every GPyTorch kernel.
         sigma2_constraint, Sigma_constraint: default ``Positive()``.
+        fixed_sigma2: IPK only: hold :math:`\sigma^2` at this value (a buffer, not trained);
+            ``None`` (default) trains it.
 
     Attributes:
-        raw_sigma2: ``(*batch_shape, 1)``, only when ``homogeneous=False``.
+        raw_sigma2: ``(*batch_shape, 1)``, only when ``homogeneous=False`` and
+            ``fixed_sigma2`` is None (else the buffer ``fixed_sigma2``).
         raw_Sigma_diag: ``(*batch_shape, d)``.
         sigma2: the offset (zeros for the PK), ``Sigma_diag``: the weights.
     """
@@ -60,18 +65,29 @@ class PolynomialKernel(DenseKernel):
         active_dims: tuple[int, ...] | None = None,
         sigma2_constraint: Interval | None = None,
         Sigma_constraint: Interval | None = None,
+        fixed_sigma2: float | None = None,
     ) -> None:
         d = check_positive_int(ard_num_dims, "ard_num_dims")
         self.degree = check_positive_int(degree, "degree")
         if not isinstance(homogeneous, bool):
             raise TypeError(f"homogeneous must be a bool, got {type(homogeneous).__name__}")
+        if fixed_sigma2 is not None:
+            if homogeneous:
+                raise ValueError("fixed_sigma2 needs homogeneous=False (the PK has no offset)")
+            if not (isinstance(fixed_sigma2, int | float) and fixed_sigma2 >= 0):
+                raise ValueError(f"fixed_sigma2 must be a float >= 0, got {fixed_sigma2!r}")
         super().__init__(ard_num_dims=d, batch_shape=batch_shape, active_dims=active_dims)
         self.homogeneous = homogeneous
+        self.sigma2_is_fixed = fixed_sigma2 is not None
         self.register_parameter(
             "raw_Sigma_diag", torch.nn.Parameter(torch.zeros(*self.batch_shape, d))
         )
         self.register_constraint("raw_Sigma_diag", Sigma_constraint or Positive())
-        if not homogeneous:
+        if self.sigma2_is_fixed:
+            self.register_buffer(
+                "fixed_sigma2", torch.full((*self.batch_shape, 1), float(fixed_sigma2))
+            )
+        elif not homogeneous:
             self.register_parameter(
                 "raw_sigma2", torch.nn.Parameter(torch.zeros(*self.batch_shape, 1))
             )
@@ -84,12 +100,16 @@ class PolynomialKernel(DenseKernel):
         """Offset :math:`\\sigma^2`, ``(*batch_shape, 1)`` (zeros for the homogeneous PK)."""
         if self.homogeneous:
             return torch.zeros_like(self.raw_Sigma_diag[..., :1])
+        if self.sigma2_is_fixed:
+            return self.fixed_sigma2
         return self.raw_sigma2_constraint.transform(self.raw_sigma2)
 
     @sigma2.setter
     def sigma2(self, value: Tensor | float) -> None:
         if self.homogeneous:
             raise AttributeError("the homogeneous PK has no sigma2; use homogeneous=False (IPK)")
+        if self.sigma2_is_fixed:
+            raise AttributeError("sigma2 is fixed (fixed_sigma2); build the kernel without it")
         value = as_parameter_value(value, self.raw_sigma2, "sigma2")
         self.initialize(raw_sigma2=self.raw_sigma2_constraint.inverse_transform(value))
 

@@ -99,3 +99,19 @@ def test_quick_mode_and_argument_validation(tmp_path):
     with pytest.raises(ValueError, match="runs"):
         bench.run_benchmark(runs=0, experiments=(1,), out_dir=tmp_path, progress=False)
     assert bench.QUICK["experiments"] == (1,)
+
+
+def test_run_task_runs_each_kind_only_for_its_orders():
+    """EXP2["kind_orders"] restricts MPK to r = 2, 3 (thesis figure 6.3); SED-MPK runs always."""
+    tiny = {"n_train": 40, "n_test": 30, "ml_points": None, "adam_iters": 1, "lbfgs_iters": 0}
+    exp2 = {**bench.EXP2, **tiny}
+    assert exp2["kind_orders"] == {"mpk": [2, 3]} and "sed_mpk_tied" in exp2["kinds"]
+    fits = {}
+    for r in (2, 4):
+        task = bench.Task(
+            2, bench.config_name(r, 20.0), 0, 0, {"order": r, "snr_db": 20.0, "config_index": 0}
+        )
+        fits[r] = bench.run_task(task, bench.EXP1, exp2)["fit"]
+    assert set(fits[2]) == {"mpk", "sed_mpk_tied"}
+    assert set(fits[4]) == {"sed_mpk_tied"}
+    assert all(np.isfinite(v) for f in fits.values() for v in f.values())

@@ -10,6 +10,7 @@ from mcpilco.models.kernels import (
     MPKernel,
     PolynomialKernel,
     SEDMPKernel,
+    TiedSEDMPKernel,
     gip_feature_dim,
     gip_features,
     volterra_kernel,
@@ -72,6 +73,13 @@ class TestSEDMPKernel(KernelContract):
         return SEDMPKernel(3, memory=4, batch_shape=batch_shape, active_dims=active_dims)
 
 
+class TestTiedSEDMPKernel(KernelContract):
+    input_dim = 5
+
+    def make_kernel(self, batch_shape=EMPTY, active_dims=None):
+        return TiedSEDMPKernel(3, memory=4, batch_shape=batch_shape, active_dims=active_dims)
+
+
 class TestGIPKernel(KernelContract):
     joint_types = "RPR"
     input_dim = gip_feature_dim("RPR")
@@ -118,4 +126,13 @@ class TestVolterraSEDMPK(KernelContract):
     def make_kernel(self, batch_shape=EMPTY, active_dims=None):
         return volterra_kernel(
             "sed_mpk", order=3, memory=2, batch_shape=batch_shape, active_dims=active_dims
+        )
+
+
+class TestVolterraSEDMPKTied(KernelContract):
+    input_dim = 3
+
+    def make_kernel(self, batch_shape=EMPTY, active_dims=None):
+        return volterra_kernel(
+            "sed_mpk_tied", order=3, memory=2, batch_shape=batch_shape, active_dims=active_dims
         )

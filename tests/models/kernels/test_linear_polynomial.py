@@ -69,3 +69,21 @@ def test_float64_kernel_on_float32_inputs_returns_float32(make):
     K32 = k(x).to_dense()
     assert K32.dtype == torch.float32
     torch.testing.assert_close(K32.double(), k(x.double()).to_dense(), rtol=1e-5, atol=1e-5)
+
+
+def test_ipk_with_fixed_offset_is_thesis_6_23_and_trains_only_sigma():
+    """``fixed_sigma2=1``: (1 + x^T Sigma x')^p, no offset parameter, setter refused."""
+    rng = np.random.default_rng(7)
+    x, y = rng.normal(size=(5, 3)), rng.normal(size=(4, 3))
+    w = [0.2, 0.6, 1.1]
+    k = PolynomialKernel(3, 3, homogeneous=False, fixed_sigma2=1.0).double()
+    k.Sigma_diag = torch.tensor(w, dtype=torch.float64)
+    assert [n for n, _ in k.named_parameters()] == ["raw_Sigma_diag"]
+    K = k(torch.from_numpy(x), torch.from_numpy(y)).to_dense().detach().numpy()
+    np.testing.assert_allclose(K, loop_kernel(x, y, 1.0, w, 3), rtol=1e-12)
+    with pytest.raises(AttributeError, match="fixed"):
+        k.sigma2 = 2.0
+    with pytest.raises(ValueError, match="homogeneous=False"):
+        PolynomialKernel(2, 3, homogeneous=True, fixed_sigma2=1.0)
+    with pytest.raises(ValueError, match="fixed_sigma2"):
+        PolynomialKernel(2, 3, homogeneous=False, fixed_sigma2=-1.0)
