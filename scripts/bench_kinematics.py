@@ -22,15 +22,24 @@ Parts (thesis section 2.6):
     on ``--fk-train`` (100) random samples of ``D_tr`` and tested on ``D_test`` (the same
     waypoints in another order). RMSE against the measured (noisy) test poses, as in the
     thesis, and against the true poses. Baseline: an RBF GP (ARD, on raw ``q``) on the same
-    samples.
+    samples. Diagnostics: the measurement noise itself (measured vs true test poses: the
+    floor of any RMSE against measured poses), the same GP trained on the noise-free poses
+    of the same 100 configurations (is the gap noise or data?), and the errors restricted to
+    test poses with ``|beta| < 1`` (yaw and roll of eq. 2.20 are ill-conditioned near
+    ``beta = +-pi/2``).
 (d) **Controller** (2.6.4, Table 2.2): the GP trained on ``--ctrl-train`` random samples of
     ``D_tr`` (the thesis uses all of ``D_tr``; a subset keeps the run short); 5 random
-    reachable targets from a fixed start; reference by eq. 2.24 (with backtracking); the env
-    tracks it and the camera measures the reached pose. Online improvement: the frames
-    measured while executing the references are added to the data, the GP is refitted and
-    the targets are tried again (``--online-rounds``).
+    targets (configurations uniform in the joint box of the waypoints) from a fixed start;
+    reference by eq. 2.24 (with backtracking), from the start and from the
+    ``--ctrl-starts`` data configurations nearest to the target (the lowest predicted
+    ``e_p`` wins; against local minima), clipped to the joint box of the training data
+    (against extrapolation); the env tracks it and the camera measures the reached pose.
+    Online improvement: the frames measured while executing the references are added to
+    the data, the GP is refitted and the targets are tried again (``--online-rounds``).
+    ``--ctrl-starts 0 --ctrl-unlimited`` is the thesis' plain controller.
 
-Outputs (``--out-dir``, default ``results/``): ``kinematics.json``,
+Outputs (``--out-dir``, default ``results/``; ``--merge`` keeps the parts not run from an
+existing ``kinematics.json``): ``kinematics.json``,
 ``kinematics_confusion.png``, ``kinematics_noise_vs_samples.png``,
 ``kinematics_controller.png`` and ``kinematics.md``.
 
@@ -39,6 +48,7 @@ Examples::
     python -m mcpilco.scripts.bench_kinematics                 # full (~15 min on 2 busy cores)
     python -m mcpilco.scripts.bench_kinematics --quick         # ~1-2 min smoke run
     python -m mcpilco.scripts.bench_kinematics --parts a --robots 16
+    python -m mcpilco.scripts.bench_kinematics --parts cd --online-rounds 2 --merge
 """
 
 from __future__ import annotations
@@ -63,7 +73,11 @@ from mcpilco.models.kinematics import (
     random_chain,
     sum_of_sinusoids,
 )
-from mcpilco.models.kinematics.forward import ForwardKinematicsGP, gradient_kinematic_controller
+from mcpilco.models.kinematics.forward import (
+    ForwardKinematicsGP,
+    multi_start_controller,
+    nearest_data_starts,
+)
 from mcpilco.models.kinematics.rotations import matrix_to_ypr, wrap_angle, ypr_to_matrix
 
 PROPS = ("Prop. 2.3.1", "Prop. 2.3.2", "Prop. 2.3.3", "Prop. 2.3.2 + 2.3.3")
@@ -72,6 +86,8 @@ ERR_NAMES = (*POSE_NAMES, "geodesic")
 UR10_HOME = np.array([0.0, -np.pi / 2, np.pi / 2, 0.0, np.pi / 2, 0.0])
 """UR10 configuration at the centre of the sampled region (elbow up, wrist down)."""
 THESIS_TABLE_2_1 = (0.0052, 0.0051, 0.0069, 0.0169, 0.0265, 0.0358)
+PART_KEYS = ("monte_carlo", "noise_vs_samples", "fk_gp", "controller")
+"""Result keys of the parts a, b, c, d."""
 QUICK = dict(
     robots=4, samples=600, sizes=(25, 100, 300, 600), repeats=1, ctrl_train=150, online_rounds=1
 )
@@ -295,6 +311,15 @@ def fk_gp_part(data: dict[str, Any], structure, n_train: int, seed: int) -> dict
     pred = fk.predict(Xte)
     pred_rbf = _rbf_gp(X, Y, Xte)
     noise_floor = _pose_rmse(Yte, true_te)
+    # diagnostic: the same 100 configurations with noise-free q and poses (is it the noise?)
+    _, _, q_tr_true = data["train"]
+    q_clean = q_tr_true[idx][:, env.joint_permutation[joints]]
+    Y_clean = np.array([env.marker_poses(qq)[-1] for qq in q_tr_true[idx]])
+    fk_clean = ForwardKinematicsGP(structure.joint_types).fit(
+        q_clean, Y_clean, adam_iters=50, lbfgs_iters=100
+    )
+    q_te_model = q_te_true[:, env.joint_permutation[joints]]
+    small_beta = np.abs(true_te[:, 4]) < 1.0  # away from the yaw-pitch-roll singularity
     return dict(
         n_train=n_train,
         n_test=len(Xte),
@@ -304,6 +329,10 @@ def fk_gp_part(data: dict[str, Any], structure, n_train: int, seed: int) -> dict
         rbf_rmse_measured=_pose_rmse(pred_rbf, Yte),
         rbf_rmse_true=_pose_rmse(pred_rbf, true_te),
         measurement_noise_rmse=noise_floor,
+        polynomial_noiseless_training_rmse_true=_pose_rmse(fk_clean.predict(q_te_model), true_te),
+        small_beta_test_samples=int(small_beta.sum()),
+        polynomial_rmse_true_small_beta=_pose_rmse(pred[small_beta], true_te[small_beta]),
+        measurement_noise_rmse_small_beta=_pose_rmse(Yte[small_beta], true_te[small_beta]),
     )
 
 
@@ -331,7 +360,22 @@ def controller_part(
     progress: bool,
     steps: int = 300,
     span: float = 1.0,
+    starts: int = 4,
+    limit_to_data: bool = True,
+    orientation: str = "ypr",
 ) -> dict[str, Any]:
+    """Table 2.2: reach 5 random targets with eq. 2.24, then refit with the executed frames.
+
+    ``starts`` > 0 adds that many data configurations nearest to the target to the start
+    ``q(0)`` (:func:`multi_start_controller`); ``limit_to_data`` clips ``q_des`` to the joint
+    box of the GP's training data. ``starts=0, limit_to_data=False`` is the thesis' plain
+    controller; ``orientation`` is the orientation error of
+    :func:`~mcpilco.models.kinematics.forward.pose_error` (``"ypr"``: the thesis). The target
+    configurations are uniform in the joint box of the waypoints (the region the robot
+    explored while collecting ``D_tr``: the "workspace" of the thesis' targets). Errors of the
+    reached poses are reported as measured by the camera (as in the thesis) and against the
+    true (noise-free) poses.
+    """
     env = data["env"]
     poses, q, _ = data["train"]
     ee, joints = structure.markers[-1], list(structure.joints)
@@ -339,7 +383,8 @@ def controller_part(
     idx = rng.choice(len(q), min(n_train, len(q)), replace=False)
     X, Y = q[idx][:, joints], poses[idx, ee]
     q_start = data["waypoints"][0]
-    q_targets = UR10_HOME + rng.uniform(-span, span, (5, 6))
+    wp = data["waypoints"]
+    q_targets = rng.uniform(wp.min(0), wp.max(0), (5, wp.shape[1]))
     targets = np.array([env.marker_poses(qt)[-1] for qt in q_targets])
     # model joint k is observed slot S_q[k], i.e. chain joint joint_permutation[S_q[k]]
     chain_of_model = env.joint_permutation[joints]
@@ -349,32 +394,57 @@ def controller_part(
     for rnd in range(rounds + 1):
         fk.fit(X, Y, adam_iters=50, lbfgs_iters=100)
         pred = fk.predictor()
-        reached, new_X, new_Y = [], [], []
+        limits = np.column_stack([X.min(0), X.max(0)]) if limit_to_data else None
+        reached, reached_true, predicted, chosen, new_X, new_Y = [], [], [], [], [], []
         for k in tqdm(range(5), desc=f"(d) controller round {rnd}", disable=not progress):
             _drive_to(env, q_start)
             q0 = env.q[chain_of_model]
-            res = gradient_kinematic_controller(pred, q0, targets[k], nu=0.5, steps=steps)
-            q_goal = env.q.copy()
-            q_goal[chain_of_model] = res.q_final
-            obs_rows = _drive_to(env, np.clip(q_goal, env.q_low, env.q_high))
+            q_starts = [q0]
+            if starts > 0:
+                q_starts += list(nearest_data_starts(X, Y, targets[k], starts, 0.1, orientation))
+            res, s = multi_start_controller(
+                pred, q_starts, targets[k], nu=0.5, steps=steps, q_limits=limits,
+                orientation=orientation,
+            )  # fmt: skip
+            predicted.append(float(res.predicted_error[-1]))
+            chosen.append(s)
+            obs_rows = []
+            for q_model in (res.q[0], res.q_final):  # via the chosen start, then q_des
+                q_goal = env.q.copy()
+                q_goal[chain_of_model] = q_model
+                obs_rows += _drive_to(env, np.clip(q_goal, env.q_low, env.q_high))
             for o in obs_rows:
                 new_X.append(o[6 * (n + 1) : 6 * (n + 1) + n][joints])
                 new_Y.append(o[: 6 * (n + 1)].reshape(n + 1, 6)[ee])
             reached.append(new_Y[-1])
-        reached = np.array(reached)
+            reached_true.append(env.marker_poses(env.q)[-1])
+        reached, reached_true = np.array(reached), np.array(reached_true)
         rows.append(
             dict(
                 round=rnd,
                 n_data=len(X),
                 rmse=_pose_rmse(reached, targets),
+                rmse_true=_pose_rmse(reached_true, targets),
                 position_error_norm=np.linalg.norm(
                     reached[:, :3] - targets[:, :3], axis=1
                 ).tolist(),
+                position_error_norm_true=np.linalg.norm(
+                    reached_true[:, :3] - targets[:, :3], axis=1
+                ).tolist(),
+                predicted_error=predicted,
+                chosen_start=chosen,
             )
         )
         X = np.concatenate([X, np.array(new_X)])
         Y = np.concatenate([Y, np.array(new_Y)])
-    return dict(n_train=n_train, targets=targets.tolist(), rounds=rows)
+    return dict(
+        n_train=n_train,
+        starts=starts,
+        limit_to_data=limit_to_data,
+        orientation=orientation,
+        targets=targets.tolist(),
+        rounds=rows,
+    )
 
 
 # ----------------------------------------------------------------------------- outputs
@@ -455,6 +525,12 @@ def _fmt(values, digits=4) -> str:
     return " | ".join(f"{v:.{digits}f}" for v in values)
 
 
+def _part_command(res: dict[str, Any], part: dict[str, Any]) -> list[str]:
+    """``Command: ...`` line for a part produced by another run (``--merge``)."""
+    cmd = part.get("command")
+    return [f"Command: `{cmd}`", ""] if cmd and cmd != res["command"] else []
+
+
 def _markdown(res: dict[str, Any]) -> str:
     lines = [
         "# Kinematics learning benchmark (thesis chapter 2)",
@@ -467,6 +543,7 @@ def _markdown(res: dict[str, Any]) -> str:
         lines += [
             "## (a) Monte Carlo, noiseless (section 2.6.1)",
             "",
+            *_part_command(res, mc),
             f"{mc['robots']} robots x {mc['triplets'] // max(mc['robots'], 1)} triplets, "
             f"T = {mc['samples']}: **{mc['percent_correct']:.2f}% of {mc['triplets']} triplets "
             f"correct** ({mc['misclassified_triplets']} misclassified); structure recovered "
@@ -483,6 +560,7 @@ def _markdown(res: dict[str, Any]) -> str:
         lines += [
             "## (b) UR10 with noise: misclassified triplets vs samples (Fig. 2.6)",
             "",
+            *_part_command(res, res["noise_vs_samples"]),
             "| repeat | samples | misclassified / triplets | f_r1 lin (mean) | f_r2 lin (min) "
             "| f_r1 ang (mean) | f_r2 ang (min) |",
             "|---|---|---|---|---|---|---|",
@@ -510,6 +588,7 @@ def _markdown(res: dict[str, Any]) -> str:
             f"## (c) FK GP, {fk['n_train']} training samples, {fk['n_test']} test samples "
             "(Table 2.1)",
             "",
+            *_part_command(res, fk),
             f"| model | {head} |",
             "|---|" + "---|" * 7,
             f"| thesis Table 2.1 (real UR10) | {_fmt(THESIS_TABLE_2_1)} | - |",
@@ -518,6 +597,12 @@ def _markdown(res: dict[str, Any]) -> str:
             f"| RBF on raw q vs measured | {_fmt(fk['rbf_rmse_measured'])} |",
             f"| RBF on raw q vs true | {_fmt(fk['rbf_rmse_true'])} |",
             f"| measurement noise (measured vs true) | {_fmt(fk['measurement_noise_rmse'])} |",
+            f"| polynomial, noise-free training data, vs true | "
+            f"{_fmt(fk['polynomial_noiseless_training_rmse_true'])} |",
+            f"| polynomial vs true, {fk['small_beta_test_samples']} test samples with "
+            f"abs(beta) < 1 | {_fmt(fk['polynomial_rmse_true_small_beta'])} |",
+            "| measurement noise, same samples | "
+            f"{_fmt(fk['measurement_noise_rmse_small_beta'])} |",
             "",
             "Units: m for x, y, z; rad for gamma, beta, alpha and the geodesic angle "
             "between the predicted and the reference orientation.",
@@ -528,14 +613,34 @@ def _markdown(res: dict[str, Any]) -> str:
         lines += [
             f"## (d) Controller, 5 targets, GP on {c['n_train']} samples of D_tr (Table 2.2)",
             "",
+            *_part_command(res, c),
+            f"Extra starts: {c.get('starts', 0)} nearest data configurations; q_des clipped to "
+            f"the data's joint box: {c.get('limit_to_data', False)}; orientation error in e_p: "
+            f"{c.get('orientation', 'ypr')}. RMSE of the reached pose "
+            "as measured by the camera (as in the thesis) and against the true pose.",
+            "",
             f"| data | {' | '.join(ERR_NAMES)} |",
             "|---|" + "---|" * 7,
             "| thesis D_tr | 0.0065 | 0.0111 | 0.0228 | 0.1853 | 0.0853 | 0.1167 | - |",
             "| thesis D̄_tr | 0.0017 | 0.0016 | 0.0020 | 0.0988 | 0.0269 | 0.0419 | - |",
         ]
         for r in c["rounds"]:
-            lines.append(f"| round {r['round']} ({r['n_data']} samples) | {_fmt(r['rmse'])} |")
+            lines.append(
+                f"| round {r['round']} ({r['n_data']} samples), measured | {_fmt(r['rmse'])} |"
+            )
+            if "rmse_true" in r:
+                lines.append(f"| round {r['round']}, true | {_fmt(r['rmse_true'])} |")
         lines.append("")
+        if c["rounds"] and "predicted_error" in c["rounds"][0]:
+            lines += ["| round | predicted e_p per target | true position error [m] | start |",
+                      "|---|---|---|---|"]  # fmt: skip
+            for r in c["rounds"]:
+                lines.append(
+                    f"| {r['round']} | {', '.join(f'{v:.4f}' for v in r['predicted_error'])} | "
+                    f"{', '.join(f'{v:.4f}' for v in r['position_error_norm_true'])} | "
+                    f"{r['chosen_start']} |"
+                )
+            lines.append("")
     lines.append(f"Total time: {res['seconds']:.0f} s.")
     return "\n".join(lines) + "\n"
 
@@ -557,7 +662,23 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--ctrl-train", type=int, default=300, help="(d) training samples")
     p.add_argument("--online-rounds", type=int, default=1, help="(d) refits with new data")
     p.add_argument("--ctrl-steps", type=int, default=300, help="(d) controller updates")
+    p.add_argument(
+        "--ctrl-starts", type=int, default=4,
+        help="(d) data configurations nearest to the target tried as extra starts (0: thesis)",
+    )  # fmt: skip
+    p.add_argument(
+        "--ctrl-unlimited", action="store_true",
+        help="(d) do not clip q_des to the joint box of the training data (thesis)",
+    )  # fmt: skip
+    p.add_argument(
+        "--ctrl-orientation", choices=("ypr", "chordal"), default="ypr",
+        help="(d) orientation error in e_p: wrapped yaw-pitch-roll (thesis) or chordal",
+    )  # fmt: skip
     p.add_argument("--span", type=float, default=1.0, help="(b-d) waypoints: home +- span rad")
+    p.add_argument(
+        "--merge", action="store_true",
+        help="keep the results of the parts not run from an existing kinematics.json in --out-dir",
+    )  # fmt: skip
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--quick", action="store_true", help="tiny sizes for a smoke run")
     p.add_argument("--out-dir", default="results")
@@ -579,6 +700,17 @@ def main(argv: list[str] | None = None) -> int:
         sys.argv[1:] if argv is None else argv
     )
     res: dict[str, Any] = dict(command=cmd.strip(), seed=args.seed)
+    old_json = out / "kinematics.json"
+    if args.merge and old_json.exists():
+        old = json.loads(old_json.read_text())
+        for key in (*PART_KEYS, "identification"):
+            if key in old:
+                if key != "identification":
+                    old[key].setdefault("command", old.get("command", ""))
+                res[key] = old[key]
+    for key, part in zip(PART_KEYS, "abcd", strict=True):
+        if part in args.parts:
+            res.pop(key, None)  # recomputed below
     t0 = time.perf_counter()
     if "a" in args.parts:
         res["monte_carlo"] = monte_carlo(args.robots, args.seed, progress)
@@ -622,7 +754,13 @@ def main(argv: list[str] | None = None) -> int:
                 progress,
                 args.ctrl_steps,
                 args.span,
+                starts=args.ctrl_starts,
+                limit_to_data=not args.ctrl_unlimited,
+                orientation=args.ctrl_orientation,
             )
+    for key in PART_KEYS:  # which command produced each part (they may come from --merge)
+        if key in res:
+            res[key].setdefault("command", res["command"])
     res["seconds"] = time.perf_counter() - t0
     res["paths"] = _plots(res, out)
     res["paths"]["json"] = str(out / "kinematics.json")

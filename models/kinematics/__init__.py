@@ -17,6 +17,8 @@ from mcpilco.models.kinematics.forward import (
     ForwardKinematicsGP,
     fk_features,
     gradient_kinematic_controller,
+    multi_start_controller,
+    nearest_data_starts,
 )
 from mcpilco.models.kinematics.rotations import (
     matrix_to_ypr,
@@ -42,6 +44,8 @@ __all__ = [
     "ForwardKinematicsGP",
     "fk_features",
     "gradient_kinematic_controller",
+    "multi_start_controller",
+    "nearest_data_starts",
     "KinematicStructure",
     "SyntheticChain",
     "TripletResult",

@@ -23,6 +23,12 @@ controller (eq. 2.24)
     yaw-pitch-roll error [rad] weighted by ``w_o`` [m/rad] (default 0.1: 0.1 rad of
     orientation error costs as much as 1 cm). The gradient is autograd through the GPs'
     cached predictors.
+multi-start (beyond the thesis, which names local minima of ``e_p`` and model errors away
+    from the data as the controller's limits)
+    :func:`multi_start_controller` runs eq. 2.24 from ``q(0)`` and from the training
+    configurations whose measured poses are nearest to ``p*`` (:func:`nearest_data_starts`)
+    and keeps the reference with the smallest predicted ``e_p``; ``q_limits`` set to the
+    joint box of the data keeps ``q_des`` where the GP has seen data.
 
 Each output is one independent GP (``mcpilco.models.gp.GPRegressor``, hyperparameters by
 marginal likelihood); only the joint types are known, no kinematic parameter.
@@ -40,7 +46,11 @@ from torch import Tensor, nn
 
 from mcpilco.models.gp import GPRegressor, KernelFactory
 from mcpilco.models.kernels import LinearKernel
-from mcpilco.models.kinematics.rotations import elements_to_ypr_torch, ypr_to_matrix
+from mcpilco.models.kinematics.rotations import (
+    elements_to_ypr_torch,
+    ypr_to_matrix,
+    ypr_to_matrix_torch,
+)
 
 __all__ = [
     "ControllerResult",
@@ -48,6 +58,8 @@ __all__ = [
     "ForwardKinematicsGP",
     "fk_features",
     "gradient_kinematic_controller",
+    "multi_start_controller",
+    "nearest_data_starts",
     "pose_error",
     "position_kernel_factory",
     "rotation_kernel_factory",
@@ -297,13 +309,35 @@ class ForwardKinematicsGP:
 # ----------------------------------------------------------------------------- controller
 
 
+ORIENTATION_ERRORS = ("ypr", "chordal")
+
+
 def pose_error(
-    position: Tensor, ypr: Tensor, target: Tensor, orientation_weight: float = 0.1
+    position: Tensor,
+    ypr: Tensor,
+    target: Tensor,
+    orientation_weight: float = 0.1,
+    orientation: str = "ypr",
 ) -> Tensor:
-    """``e_p = sqrt(||l* - l||^2 + w_o^2 ||wrap(o* - o)||^2)`` (the norm of eq. 2.24)."""
+    """``e_p = sqrt(||l* - l||^2 + w_o^2 d_o^2)`` (the norm of eq. 2.24).
+
+    ``orientation="ypr"`` (the thesis): ``d_o = ||wrap(o* - o)||`` on yaw-pitch-roll, which
+    is ill-conditioned near ``beta = +-pi/2`` (gimbal lock: ``gamma`` and ``alpha`` are
+    then undetermined) and jumps where an angle wraps. ``"chordal"`` (beyond the thesis):
+    ``d_o = ||R(o*) - R(o)||_F / sqrt(2)``, smooth everywhere and equal to the rotation
+    angle ``theta`` between the two orientations to first order
+    (``||R* - R||_F = 2 sqrt(2) sin(theta / 2)``).
+    """
+    if orientation not in ORIENTATION_ERRORS:
+        raise ValueError(f"orientation must be one of {ORIENTATION_ERRORS}, got {orientation!r}")
     d_l = target[..., :3] - position
-    d_o = torch.remainder(target[..., 3:] - ypr + torch.pi, 2 * torch.pi) - torch.pi
-    sq = d_l.pow(2).sum(-1) + orientation_weight**2 * d_o.pow(2).sum(-1)
+    if orientation == "ypr":
+        d_o = torch.remainder(target[..., 3:] - ypr + torch.pi, 2 * torch.pi) - torch.pi
+        sq_o = d_o.pow(2).sum(-1)
+    else:
+        diff = ypr_to_matrix_torch(target[..., 3:]) - ypr_to_matrix_torch(ypr)
+        sq_o = 0.5 * diff.pow(2).sum((-2, -1))
+    sq = d_l.pow(2).sum(-1) + orientation_weight**2 * sq_o
     return torch.sqrt(sq + 1e-24)
 
 
@@ -329,6 +363,7 @@ def gradient_kinematic_controller(
     orientation_weight: float = 0.1,
     backtrack: bool = True,
     q_limits: Sequence[tuple[float, float]] | ArrayLike | None = None,
+    orientation: str = "ypr",
 ) -> ControllerResult:
     """Open-loop reference ``q_des`` driving the predicted end pose to ``target_pose`` (eq. 2.24).
 
@@ -344,11 +379,14 @@ def gradient_kinematic_controller(
             which uses a fixed ``nu``; it removes the chattering of a fixed step near the
             minimum and allows a large ``nu``). ``False`` is plain eq. 2.24.
         q_limits: ``(n, 2)`` joint limits; the reference is clipped to them.
+        orientation: orientation error of :func:`pose_error` (``"ypr"``: the thesis).
     """
     q = torch.as_tensor(np.asarray(q0, dtype=np.float64)).clone()
     target = torch.as_tensor(np.asarray(target_pose, dtype=np.float64))
     if target.shape != (6,):
         raise ValueError(f"target_pose must have shape (6,), got {tuple(target.shape)}")
+    if orientation not in ORIENTATION_ERRORS:
+        raise ValueError(f"orientation must be one of {ORIENTATION_ERRORS}, got {orientation!r}")
     lo = hi = None
     if q_limits is not None:
         lim = torch.as_tensor(np.asarray(q_limits, dtype=np.float64))
@@ -357,7 +395,7 @@ def gradient_kinematic_controller(
     def error_and_grad(qv: Tensor) -> tuple[float, Tensor]:
         qv = qv.detach().requires_grad_(True)
         pos, ypr = predictor(qv)
-        e = pose_error(pos, ypr, target, orientation_weight)
+        e = pose_error(pos, ypr, target, orientation_weight, orientation)
         (g,) = torch.autograd.grad(e, qv)
         return float(e.detach()), g
 
@@ -380,3 +418,70 @@ def gradient_kinematic_controller(
         qs.append(q.numpy().copy())
         errors.append(e)
     return ControllerResult(q=np.array(qs), predicted_error=np.array(errors))
+
+
+def nearest_data_starts(
+    q_data: ArrayLike,
+    poses_data: ArrayLike,
+    target_pose: ArrayLike,
+    k: int,
+    orientation_weight: float = 0.1,
+    orientation: str = "ypr",
+) -> FloatArray:
+    """The ``k`` data configurations whose measured poses minimise ``e_p`` to ``target_pose``.
+
+    Args:
+        q_data: ``(N, n)`` joint positions of the data (the GP's training inputs).
+        poses_data: ``(N, 6)`` measured poses ``[x, y, z, gamma, beta, alpha]``.
+        target_pose: ``(6,)`` ``p*``.
+        k: number of configurations (``min(k, N)`` are returned), nearest first.
+        orientation_weight: ``w_o`` of :func:`pose_error`.
+        orientation: orientation error of :func:`pose_error`.
+
+    Returns:
+        ``(min(k, N), n)`` joint configurations.
+    """
+    q_data = np.asarray(q_data, dtype=np.float64)
+    poses_data = np.asarray(poses_data, dtype=np.float64)
+    if q_data.ndim != 2 or poses_data.shape != (q_data.shape[0], 6):
+        raise ValueError(
+            f"need q_data (N, n) and poses_data (N, 6), got {q_data.shape} and {poses_data.shape}"
+        )
+    if not isinstance(k, int | np.integer) or k < 1:
+        raise ValueError(f"k must be a positive int, got {k!r}")
+    poses = torch.as_tensor(poses_data)
+    target = torch.as_tensor(np.asarray(target_pose, dtype=np.float64))
+    e = pose_error(poses[:, :3], poses[:, 3:], target, orientation_weight, orientation)
+    order = np.argsort(e.numpy(), kind="stable")[:k]
+    return q_data[order]
+
+
+def multi_start_controller(
+    predictor: nn.Module,
+    q_starts: ArrayLike,
+    target_pose: ArrayLike,
+    **controller_kwargs,
+) -> tuple[ControllerResult, int]:
+    """Eq. 2.24 from each row of ``q_starts``; the result with the smallest final ``e_p``.
+
+    Args:
+        predictor: ``q -> (position, ypr)``.
+        q_starts: ``(S, n)`` initial configurations (row 0 is typically the robot's
+            ``q(0)``; the others e.g. from :func:`nearest_data_starts`).
+        target_pose: ``(6,)`` ``p*``.
+        **controller_kwargs: passed to :func:`gradient_kinematic_controller`.
+
+    Returns:
+        ``(result, s)``: the best :class:`ControllerResult` and the index of its start (ties
+        go to the earlier start). The robot reaches ``q_starts[s]`` first, then tracks
+        ``result.q``.
+    """
+    q_starts = np.atleast_2d(np.asarray(q_starts, dtype=np.float64))
+    if q_starts.ndim != 2 or q_starts.shape[0] == 0:
+        raise ValueError(f"q_starts must have shape (S, n) with S >= 1, got {q_starts.shape}")
+    results = [
+        gradient_kinematic_controller(predictor, q0, target_pose, **controller_kwargs)
+        for q0 in q_starts
+    ]
+    best = int(np.argmin([r.predicted_error[-1] for r in results]))
+    return results[best], best

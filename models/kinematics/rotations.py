@@ -38,6 +38,7 @@ __all__ = [
     "rot_z",
     "wrap_angle",
     "ypr_to_matrix",
+    "ypr_to_matrix_torch",
 ]
 
 FloatArray = NDArray[np.float64]
@@ -110,6 +111,21 @@ def elements_to_ypr_torch(elements: torch.Tensor) -> torch.Tensor:
     beta = torch.atan2(-r31, torch.sqrt(r32**2 + r33**2 + 1e-18))
     alpha = torch.atan2(r32, r33)
     return torch.stack([gamma, beta, alpha], dim=-1)
+
+
+def ypr_to_matrix_torch(o: torch.Tensor) -> torch.Tensor:
+    """``Rz(gamma) Ry(beta) Rx(alpha)`` in torch (differentiable), ``(..., 3) -> (..., 3, 3)``."""
+    cg, cb, ca = torch.cos(o).unbind(-1)
+    sg, sb, sa = torch.sin(o).unbind(-1)
+    R = torch.stack(
+        [
+            cg * cb, cg * sb * sa - sg * ca, cg * sb * ca + sg * sa,
+            sg * cb, sg * sb * sa + cg * ca, sg * sb * ca - cg * sa,
+            -sb, cb * sa, cb * ca,
+        ],
+        dim=-1,
+    )  # fmt: skip
+    return R.reshape(*o.shape[:-1], 3, 3)
 
 
 def relative_poses(pose_a: ArrayLike, pose_b: ArrayLike) -> tuple[FloatArray, FloatArray]:

@@ -19,6 +19,27 @@ def test_bench_monte_carlo_part_is_exact_on_noiseless_robots(tmp_path):
     assert "100.00% of 75 triplets" in (tmp_path / "kinematics.md").read_text()
 
 
+def test_bench_merge_keeps_the_parts_not_run(tmp_path):
+    out = ["--out-dir", str(tmp_path), "--no-progress"]
+    assert main(["--parts", "a", "--robots", "1", *out]) == 0
+    path = tmp_path / "kinematics.json"
+    res = json.loads(path.read_text())
+    row = {f"{n}_{c}_{s}": 0.01 for n in ("linear", "angle") for c in ("r1", "r2")
+           for s in ("mean", "min", "max")}  # fmt: skip
+    row.update(repeat=0, samples=25, triplets=126, misclassified=3)
+    res["noise_vs_samples"] = dict(rows=[row], command="an earlier run of part b")
+    path.write_text(json.dumps(res))
+    assert main(["--parts", "a", "--robots", "1", "--merge", *out]) == 0
+    merged = json.loads(path.read_text())
+    assert merged["noise_vs_samples"]["rows"] == [row]
+    assert merged["monte_carlo"]["command"].endswith("--merge --out-dir " + str(tmp_path)
+                                                     + " --no-progress")  # fmt: skip
+    md = (tmp_path / "kinematics.md").read_text()
+    assert "Command: `an earlier run of part b`" in md and "| 0 | 25 | 3 / 126 |" in md
+    assert main(["--parts", "a", "--robots", "1", *out]) == 0  # without --merge: dropped
+    assert "noise_vs_samples" not in json.loads(path.read_text())
+
+
 @pytest.mark.slow
 def test_bench_kinematics_tiny_run_writes_outputs(tmp_path):
     rc = main(

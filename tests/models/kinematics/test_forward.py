@@ -7,15 +7,19 @@ checked against the closed form of eq. 2.22 written out by hand.
 import numpy as np
 import pytest
 import torch
+from scipy.spatial.transform import Rotation
 
 from mcpilco.models.kinematics.forward import (
     ForwardKinematicsGP,
     fk_features,
     gradient_kinematic_controller,
+    multi_start_controller,
+    nearest_data_starts,
+    pose_error,
     position_kernel_factory,
     rotation_kernel_factory,
 )
-from mcpilco.models.kinematics.rotations import wrap_angle
+from mcpilco.models.kinematics.rotations import matrix_to_ypr, wrap_angle, ypr_to_matrix_torch
 from mcpilco.models.kinematics.synthetic import SyntheticChain, homogeneous, random_rotation
 
 FIT = dict(adam_iters=10, lbfgs_iters=30)
@@ -104,6 +108,64 @@ def test_gradient_controller_reaches_a_reachable_target(planar_tilted):
         fk.predictor(), np.zeros(2), target, nu=0.05, steps=20, backtrack=False
     )
     assert plain.predicted_error[-1] < plain.predicted_error[0]
+
+
+def test_ypr_to_matrix_torch_matches_scipy():
+    rng = np.random.default_rng(3)
+    o = np.column_stack(
+        [rng.uniform(-np.pi, np.pi, 10), rng.uniform(-1.5, 1.5, 10), rng.uniform(-np.pi, np.pi, 10)]
+    )
+    R = ypr_to_matrix_torch(torch.as_tensor(o)).numpy()
+    np.testing.assert_allclose(R, Rotation.from_euler("ZYX", o).as_matrix(), atol=1e-12)
+
+
+def test_chordal_orientation_error_is_2_sin_half_angle_even_at_gimbal_lock():
+    rng = np.random.default_rng(4)
+    R0 = Rotation.from_euler("ZYX", [0.3, np.pi / 2 - 1e-4, -0.2])  # beta ~ pi/2: gimbal lock
+    for theta in (0.05, 0.5, 2.0):
+        axis = rng.standard_normal(3)
+        R1 = Rotation.from_rotvec(theta * axis / np.linalg.norm(axis)) * R0
+        o0, o1 = (torch.as_tensor(matrix_to_ypr(R.as_matrix())) for R in (R0, R1))
+        target = torch.cat([torch.zeros(3), o0])
+        e = pose_error(torch.zeros(3), o1, target, orientation_weight=1.0, orientation="chordal")
+        np.testing.assert_allclose(float(e), 2 * np.sin(theta / 2), rtol=1e-6)
+    # position part: a pure translation of (3, 4, 0) cm gives 5 cm with either metric
+    o = torch.tensor([0.1, 0.2, 0.3], dtype=torch.float64)
+    shift = torch.tensor([0.03, 0.04, 0.0], dtype=torch.float64)
+    for kind in ("ypr", "chordal"):
+        e = pose_error(shift, o, torch.cat([torch.zeros(3, dtype=torch.float64), o]),
+                       orientation=kind)  # fmt: skip
+        np.testing.assert_allclose(float(e), 0.05, rtol=1e-9)
+    with pytest.raises(ValueError, match="orientation must be one of"):
+        pose_error(torch.zeros(3), o, torch.zeros(6), orientation="quaternion")
+
+
+def test_nearest_data_starts_orders_by_pose_error():
+    q = np.arange(8.0).reshape(4, 2)
+    poses = np.zeros((4, 6))
+    poses[:, 0] = [0.3, 0.1, 0.2, 0.0]  # x distances to the target at x = 0.0
+    poses[1, 3] = 1.0  # 1 rad of yaw: 0.1 m at w_o = 0.1 -> e_p = sqrt(0.01 + 0.01)
+    starts = nearest_data_starts(q, poses, np.zeros(6), k=3)
+    np.testing.assert_array_equal(starts, q[[3, 1, 2]])  # 0.0 < 0.141 < 0.2
+    assert nearest_data_starts(q, poses, np.zeros(6), k=10).shape == (4, 2)
+    with pytest.raises(ValueError, match="positive int"):
+        nearest_data_starts(q, poses, np.zeros(6), k=0)
+
+
+def test_multi_start_controller_escapes_a_bad_start(planar_tilted):
+    chain, fk = planar_tilted
+    q_target = np.array([0.7, -1.2])
+    target = chain.marker_poses(q_target[None])[0, -1]
+    kw = dict(steps=60, orientation="chordal")
+    # from q = (0.7 + pi, 1.2) the arm starts on the far side of the workspace; a start near
+    # q_target (as nearest_data_starts would give) must win
+    starts = np.array([[0.7 + np.pi, 1.2], q_target + 0.05])
+    res, s = multi_start_controller(fk.predictor(), starts, target, **kw)
+    single = gradient_kinematic_controller(fk.predictor(), starts[1], target, **kw)
+    assert s == 1
+    np.testing.assert_allclose(res.predicted_error, single.predicted_error)
+    reached = chain.marker_poses(res.q_final[None])[0, -1]
+    assert np.linalg.norm(reached[:3] - target[:3]) < 2e-3
 
 
 def test_bad_inputs_raise():
