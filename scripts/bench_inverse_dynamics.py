@@ -74,6 +74,7 @@ from mcpilco.envs.arms import scara, ur10
 from mcpilco.models.inverse_dynamics import (
     FisherianEstimator,
     GIPEstimator,
+    GIPFrictionEstimator,
     InverseDynamicsEstimator,
     NNEstimator,
     PPEstimator,
@@ -196,6 +197,7 @@ def make_estimator(
         "SP": lambda: SPEstimator(nominal_xml, blocks=blocks, **gp),
         "GIP": lambda: GIPEstimator(joint_types, **gp),
         "GIP-std": lambda: GIPEstimator(joint_types, standardize_x=True, **gp),
+        "GIP+F": lambda: GIPFrictionEstimator(joint_types, **gp),
         "RBF": lambda: RBFEstimator(**gp),
         "NN": lambda: NNEstimator(**nn),
     }

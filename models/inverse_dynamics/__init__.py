@@ -9,6 +9,7 @@ One interface (:class:`InverseDynamicsEstimator`): ``fit(X, y)`` with ``X`` a
 estimator                          model
 =================================  =========================================================
 :class:`GIPEstimator`              GP, GIP kernel on ``F(q, qd, qdd)`` (eq. 3.8, 3.11)
+:class:`GIPFrictionEstimator`      GIP + linear kernel on the joint's ``[qd, sign qd]``
 :class:`RBFEstimator`              GP, RBF-ARD kernel on ``[q, qd, qdd]``
 :class:`NNEstimator`               MLP 2 x 400, Adam, early stopping
 :class:`FisherianEstimator`        least squares on the nominal regressor (FE, eq. 3.2)
@@ -24,6 +25,7 @@ path or text (:func:`load_pinocchio_model`); their features come in composable b
 from mcpilco.models.inverse_dynamics.base import InverseDynamicsEstimator, gmse, nmse
 from mcpilco.models.inverse_dynamics.gp_estimators import (
     GIPEstimator,
+    GIPFrictionEstimator,
     GPInverseDynamics,
     PPEstimator,
     RBFEstimator,
@@ -52,6 +54,7 @@ __all__ = [
     "LOCAL_BLOCKS",
     "FisherianEstimator",
     "GIPEstimator",
+    "GIPFrictionEstimator",
     "GPInverseDynamics",
     "InverseDynamicsEstimator",
     "JointStates",

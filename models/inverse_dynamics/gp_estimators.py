@@ -7,6 +7,7 @@ One independent GP per joint, batched (:class:`~mcpilco.models.gp.GPRegressor` w
 name   GP input                                     kernel of joint ``b``
 =====  ===========================================  =======================================
 GIP    ``x_bar = F(q, qd, qdd)`` (eq. 3.8)           ``GIPKernel(joint_types)`` (eq. 3.11)
+GIP+F  ``[x_bar, qd_1, sign qd_1, ...]``             GIP + linear on ``[qd_b, sign qd_b]``
 RBF    ``x = [q, qd, qdd]``                          ``s_b exp(-||(x - x')/l_b||^2 / 2)``
 PP     ``[phi_1, ..., phi_n]`` (nominal regressor)   ``phi_b^T Sigma_b phi_b'`` (eq. 3.6)
 SP     ``[q, qd, qdd, phi_1, ..., phi_n]``           PP + RBF on ``[q, qd, qdd]`` (eq. 3.7)
@@ -46,6 +47,7 @@ FloatArray = NDArray[np.float64]
 
 __all__ = [
     "GIPEstimator",
+    "GIPFrictionEstimator",
     "GPInverseDynamics",
     "PPEstimator",
     "RBFEstimator",
@@ -194,6 +196,59 @@ class GIPEstimator(GPInverseDynamics):
 
     def kernel(self, batch_shape: torch.Size, n_joints: int) -> gpytorch.kernels.Kernel:
         return GIPKernel(self.joint_types, batch_shape=batch_shape)
+
+
+class GIPFrictionEstimator(GIPEstimator):
+    r"""GIP plus joint friction (beyond thesis ch. 3; the friction features of ch. 4, eq. 4.7).
+
+    .. math::
+
+        k_b(\mathbf x, \mathbf x') = k_{GIP}(\bar{\mathbf x}, \bar{\mathbf x}')
+        + \boldsymbol\phi_b^T \Sigma_b\, \boldsymbol\phi_b', \qquad
+        \boldsymbol\phi_b = [\dot q_b,\ \operatorname{sign}_\epsilon(\dot q_b)],
+
+    i.e. the GIP's rigid-body function space plus a viscous and a Coulomb coefficient of the
+    joint's own friction with a Gaussian prior; ``sign_eps(v) = tanh(v / eps)`` when
+    ``coulomb_velocity = eps > 0``, the sign otherwise (as :class:`PPEstimator`). Motor
+    currents of a real arm carry this friction, which no polynomial in ``qd`` represents.
+
+    Args:
+        joint_types: e.g. ``"RRPR"``.
+        coulomb_velocity: ``eps`` [rad/s or m/s] (0: the sign).
+        **kwargs: as in :class:`GIPEstimator`.
+    """
+
+    name = "GIP+F"
+
+    def __init__(self, joint_types: str, *, coulomb_velocity: float = 0.0, **kwargs: Any) -> None:
+        if coulomb_velocity < 0:
+            raise ValueError(f"coulomb_velocity must be >= 0, got {coulomb_velocity}")
+        self.coulomb_velocity = float(coulomb_velocity)
+        super().__init__(joint_types, **kwargs)
+
+    def friction_features(self, qd: FloatArray) -> FloatArray:
+        """``(N, 2n)`` rows ``[qd_1, sign(qd_1), ..., qd_n, sign(qd_n)]``."""
+        eps = self.coulomb_velocity
+        sign = np.tanh(qd / eps) if eps > 0 else np.sign(qd)
+        return np.stack([qd, sign], axis=-1).reshape(qd.shape[0], -1)
+
+    def gp_inputs(self, states: JointStates) -> FloatArray:
+        return np.concatenate([super().gp_inputs(states), self.friction_features(states.qd)], 1)
+
+    def gp_input_names(self, n_joints: int) -> list[str]:
+        fr = [f"{f}(qd{j})" for j in range(1, n_joints + 1) for f in ("", "sign")]
+        return super().gp_input_names(n_joints) + fr
+
+    def kernel(self, batch_shape: torch.Size, n_joints: int) -> gpytorch.kernels.Kernel:
+        gamma = len(super().gp_input_names(n_joints))
+        gip = GIPKernel(self.joint_types, batch_shape=batch_shape, active_dims=tuple(range(gamma)))
+        friction = RowLinearKernel(
+            n_joints,
+            2,
+            batch_shape=batch_shape,
+            active_dims=tuple(range(gamma, gamma + 2 * n_joints)),
+        )
+        return gip + friction
 
 
 class RBFEstimator(GPInverseDynamics):
