@@ -76,17 +76,20 @@ def ypr_to_matrix(o: ArrayLike) -> FloatArray:
     if o.shape[-1:] != (3,):
         raise ValueError(f"yaw-pitch-roll angles need a last axis of size 3, got {o.shape}")
     # the product Rz Ry Rx written out (one stack, no matmuls: used inside least squares)
-    cg, cb, ca = np.cos(o[..., 0]), np.cos(o[..., 1]), np.cos(o[..., 2])
-    sg, sb, sa = np.sin(o[..., 0]), np.sin(o[..., 1]), np.sin(o[..., 2])
-    R = np.stack(
-        [
-            cg * cb, cg * sb * sa - sg * ca, cg * sb * ca + sg * sa,
-            sg * cb, sg * sb * sa + cg * ca, sg * sb * ca - cg * sa,
-            -sb, cb * sa, cb * ca,
-        ],
-        axis=-1,
-    )  # fmt: skip
+    R = np.stack(_rz_ry_rx_entries(np.cos(o), np.sin(o)), axis=-1)
     return R.reshape(*o.shape[:-1], 3, 3)
+
+
+def _rz_ry_rx_entries(c, s) -> list:
+    """The 9 entries (row-major) of ``Rz(gamma) Ry(beta) Rx(alpha)`` from ``c = cos(o)``,
+    ``s = sin(o)`` with ``o = [gamma, beta, alpha]`` on the last axis (numpy or torch)."""
+    cg, cb, ca = (c[..., i] for i in range(3))
+    sg, sb, sa = (s[..., i] for i in range(3))
+    return [
+        cg * cb, cg * sb * sa - sg * ca, cg * sb * ca + sg * sa,
+        sg * cb, sg * sb * sa + cg * ca, sg * sb * ca - cg * sa,
+        -sb, cb * sa, cb * ca,
+    ]  # fmt: skip
 
 
 def matrix_to_ypr(R: ArrayLike) -> FloatArray:
@@ -115,16 +118,7 @@ def elements_to_ypr_torch(elements: torch.Tensor) -> torch.Tensor:
 
 def ypr_to_matrix_torch(o: torch.Tensor) -> torch.Tensor:
     """``Rz(gamma) Ry(beta) Rx(alpha)`` in torch (differentiable), ``(..., 3) -> (..., 3, 3)``."""
-    cg, cb, ca = torch.cos(o).unbind(-1)
-    sg, sb, sa = torch.sin(o).unbind(-1)
-    R = torch.stack(
-        [
-            cg * cb, cg * sb * sa - sg * ca, cg * sb * ca + sg * sa,
-            sg * cb, sg * sb * sa + cg * ca, sg * sb * ca - cg * sa,
-            -sb, cb * sa, cb * ca,
-        ],
-        dim=-1,
-    )  # fmt: skip
+    R = torch.stack(_rz_ry_rx_entries(torch.cos(o), torch.sin(o)), dim=-1)
     return R.reshape(*o.shape[:-1], 3, 3)
 
 
