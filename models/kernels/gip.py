@@ -183,9 +183,15 @@ class GIPKernel(DenseKernel):
         self, x1: Tensor, x2: Tensor, diag: bool = False, last_dim_is_batch: bool = False, **params
     ) -> Tensor:
         self._check_inputs(x1, x2, last_dim_is_batch, self.ard_num_dims)
-        s = self._dyn_start
         if not diag:
             return linear_product_gram(x1, x2, self.linear_factors())
+        return self.mpk_product(x1, x2, diag=True)
+
+    def mpk_product(self, x1: Tensor, x2: Tensor, diag: bool = False) -> Tensor:
+        """The product of the MPK factors' own forwards, one autograd op per factor (the
+        diagonal path; the full Gram matrix goes through the leaner
+        :func:`~mcpilco.models.kernels.product.linear_product_gram`)."""
+        s = self._dyn_start
         out = self.dynamics_kernel.forward(x1[..., s:], x2[..., s:], diag=diag)
         for b, k in enumerate(self.joint_kernels):
             out = out * k.forward(self._joint_slice(x1, b), self._joint_slice(x2, b), diag=diag)

@@ -75,16 +75,21 @@ class _LinearProductGram(torch.autograd.Function):
     def forward(ctx, x1: Tensor, x2: Tensor, columns: tuple, *params: Tensor) -> Tensor:
         ws, ss = params[0::2], params[1::2]
         x2cs = [x2[..., cols] for cols in columns]
-        blocks = []
-        for r0, r1 in _row_blocks(x1, x2, ws):
+        blocks = _row_blocks(x1, x2, ws)
+        out = None
+        for r0, r1 in blocks:
             x1r = x1[..., r0:r1, :]
-            out = None
+            block = None
             for cols, x2c, w, s in zip(columns, x2cs, ws, ss, strict=True):
                 f = _factor(x1r[..., cols], x2c, w, s)
-                out = f if out is None else out.mul_(f)
-            blocks.append(out)
+                block = f if block is None else block.mul_(f)
+            if len(blocks) == 1:
+                out = block
+            else:
+                if out is None:
+                    out = block.new_empty(block.shape[:-2] + (x1.shape[-2], x2.shape[-2]))
+                out[..., r0:r1, :] = block
         ctx.columns = columns
-        out = blocks[0] if len(blocks) == 1 else torch.cat(blocks, dim=-2)
         ctx.save_for_backward(x1, x2, *params)
         return out
 

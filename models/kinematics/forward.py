@@ -385,8 +385,6 @@ def gradient_kinematic_controller(
     target = torch.as_tensor(np.asarray(target_pose, dtype=np.float64))
     if target.shape != (6,):
         raise ValueError(f"target_pose must have shape (6,), got {tuple(target.shape)}")
-    if orientation not in ORIENTATION_ERRORS:
-        raise ValueError(f"orientation must be one of {ORIENTATION_ERRORS}, got {orientation!r}")
     lo = hi = None
     if q_limits is not None:
         lim = torch.as_tensor(np.asarray(q_limits, dtype=np.float64))
