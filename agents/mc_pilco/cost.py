@@ -63,12 +63,36 @@ class SwingUpCost(nn.Module):
                 f"state must have shape (..., 4) = [x, x_dot, theta, theta_dot], got "
                 f"{tuple(state.shape)}"
             )
-        x = state[..., 0]
-        theta = state[..., 2]
-        if self.wrap:
-            theta = torch.atan2(torch.sin(theta), torch.cos(theta))
-        d_theta = theta.abs() - math.pi
-        return 1.0 - torch.exp(-((d_theta / self.l_theta) ** 2) - (x / self.l_x) ** 2)
+        return _SwingUpCostFn.apply(state, self.l_x, self.l_theta, self.wrap)
 
     def extra_repr(self) -> str:
         return f"l_x={self.l_x}, l_theta={self.l_theta}, wrap={self.wrap}"
+
+
+class _SwingUpCostFn(torch.autograd.Function):
+    """``c = 1 - E``, ``E = exp(-(d/l_theta)^2 - (q1/l_x)^2)``, ``d = |q2'| - pi`` with ``q2'`` the
+    (optionally wrapped) angle; one autograd node. Backward: ``dc/dq1 = 2 E q1 / l_x^2``,
+    ``dc/dq2 = 2 E d sign(q2') / l_theta^2`` (``d wrap(q2) / d q2 = 1``; ``sign(0) = 0``, the
+    subgradient of ``abs`` in torch)."""
+
+    @staticmethod
+    def forward(ctx, state, l_x, l_theta, wrap):  # noqa: D102
+        x = state[..., 0]
+        theta = state[..., 2]
+        if wrap:
+            theta = torch.atan2(torch.sin(theta), torch.cos(theta))
+        d_theta = theta.abs() - math.pi
+        E = torch.exp(-((d_theta / l_theta) ** 2) - (x / l_x) ** 2)
+        ctx.save_for_backward(x, d_theta, torch.sign(theta), E)
+        ctx.scales = (l_x, l_theta)
+        return 1.0 - E
+
+    @staticmethod
+    def backward(ctx, g):  # noqa: D102
+        x, d_theta, sgn, E = ctx.saved_tensors
+        l_x, l_theta = ctx.scales
+        gE2 = 2.0 * g * E
+        zero = torch.zeros_like(x)
+        g_x = gE2 * x / (l_x * l_x)
+        g_theta = gE2 * d_theta * sgn / (l_theta * l_theta)
+        return torch.stack([g_x, zero, g_theta, zero], dim=-1), None, None, None

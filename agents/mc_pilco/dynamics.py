@@ -51,11 +51,28 @@ KERNEL_CHOICES: tuple[str, ...] = ("rbf+mpk", "rbf")
 
 
 def cartpole_gp_inputs(state: Tensor, action: Tensor) -> Tensor:
-    """``x~ = [x, x_dot, theta_dot, sin theta, cos theta, u]``: (..., 4), (..., 1) -> (..., 6)."""
-    theta = state[..., 2:3]
-    return torch.cat(
-        [state[..., 0:2], state[..., 3:4], torch.sin(theta), torch.cos(theta), action], dim=-1
-    )
+    """``x~ = [x, x_dot, theta_dot, sin theta, cos theta, u]``: (..., 4), (..., 1) -> (..., 6).
+
+    Differentiable (one autograd node, analytic backward)."""
+    return _CartpoleGPInputs.apply(state, action)
+
+
+class _CartpoleGPInputs(torch.autograd.Function):
+    """:func:`cartpole_gp_inputs`; backward ``dtheta = g_sin cos theta - g_cos sin theta``."""
+
+    @staticmethod
+    def forward(ctx, state: Tensor, action: Tensor) -> Tensor:  # noqa: D102
+        theta = state[..., 2:3]
+        sin_t, cos_t = torch.sin(theta), torch.cos(theta)
+        ctx.save_for_backward(sin_t, cos_t)
+        return torch.cat([state[..., 0:2], state[..., 3:4], sin_t, cos_t, action], dim=-1)
+
+    @staticmethod
+    def backward(ctx, g: Tensor) -> tuple[Tensor, Tensor]:  # noqa: D102
+        sin_t, cos_t = ctx.saved_tensors
+        g_theta = g[..., 3:4] * cos_t - g[..., 4:5] * sin_t
+        g_state = torch.cat([g[..., 0:2], g_theta, g[..., 2:3]], dim=-1)
+        return g_state, g[..., 5:6]
 
 
 def speed_integration(state: Tensor, delta: Tensor, dt: float) -> Tensor:
@@ -164,11 +181,50 @@ class SpeedIntegrationDynamics(nn.Module):
 
     def forward(self, state: Tensor, action: Tensor, eps: Tensor | None = None) -> Tensor:
         mean, var = self.delta_distribution(state, action)
-        delta = mean if eps is None else mean + torch.sqrt(var.clamp_min(1e-12)) * eps
-        if self.delta_bound is not None:
-            b = self.delta_bound.to(delta.dtype)
+        return _SampleClipIntegrate.apply(state, mean, var, eps, self.delta_bound, self.dt)
+
+
+VAR_FLOOR = 1e-12
+"""``var`` is clamped to at least this before the square root of the reparameterised sample."""
+
+
+class _SampleClipIntegrate(torch.autograd.Function):
+    """``Delta = clip(mean + sqrt(max(var, VAR_FLOOR)) eps, -b, b)``, ``x+ = x A^T + Delta S^T``
+    (eq. 5.9), one autograd node. Backward: ``g_x = g A``, ``g_Delta = (g S) 1[|Delta| <= b]``,
+    ``g_mean = g_Delta``, ``g_var = g_Delta eps / (2 sqrt(var)) 1[var >= VAR_FLOOR]`` (the
+    subgradients torch's ``clamp`` and ``sqrt`` use). ``eps = None``: ``Delta = mean``."""
+
+    @staticmethod
+    def forward(ctx, state, mean, var, eps, bound, dt):  # noqa: D102
+        A, S = _integration_matrices(dt, state.dtype, state.device)
+        if eps is None:
+            delta, sd, var_on = mean, None, None
+        else:
+            var_on = var >= VAR_FLOOR
+            sd = var.clamp_min(VAR_FLOOR).sqrt()
+            delta = torch.addcmul(mean, sd, eps)
+        inside = None
+        if bound is not None:
+            b = bound.to(delta.dtype)
+            inside = (delta >= -b) & (delta <= b)
             delta = torch.clamp(delta, -b, b)
-        return speed_integration(state, delta, self.dt)
+        lead = state.shape[:-1]
+        nxt = torch.addmm(state.reshape(-1, 4) @ A, delta.reshape(-1, S.shape[0]), S)
+        ctx.save_for_backward(eps, sd, var_on, inside, A, S)
+        return nxt.reshape(*lead, 4)
+
+    @staticmethod
+    def backward(ctx, g):  # noqa: D102
+        eps, sd, var_on, inside, A, S = ctx.saved_tensors
+        g2 = g.reshape(-1, 4)
+        g_state = (g2 @ A.T).reshape(g.shape)
+        g_delta = (g2 @ S.T).reshape(*g.shape[:-1], S.shape[0])
+        if inside is not None:
+            g_delta = g_delta * inside
+        g_var = None
+        if eps is not None and ctx.needs_input_grad[2]:
+            g_var = g_delta * eps / (2.0 * sd) * var_on
+        return g_state, g_delta, g_var, None, None, None
 
 
 def make_kernel_factory(kernel: str, input_dim: int = 6) -> Callable[[torch.Size], nn.Module]:

@@ -111,25 +111,87 @@ class SquashedRBFPolicy(nn.Module):
 
     def basis(self, features: Tensor) -> Tensor:
         """Activations ``phi(x~)`` (..., n_b), matmul form of ``||(x~ - c)/l||^2``."""
-        inv_l = torch.exp(-self.log_lengthscales)
-        a = features * inv_l
-        b = self.centers * inv_l
-        # -1/2 ||a - b||^2 = a b^T - |a|^2/2 - |b|^2/2 (<= 0 up to rounding)
-        log_phi = a @ b.T - 0.5 * ((a * a).sum(-1, keepdim=True) + (b * b).sum(-1))
-        return torch.exp(log_phi)
+        lead = features.shape[:-1]
+        *_, log_phi = _log_basis(
+            features.reshape(-1, self.input_dim), self.centers, self.log_lengthscales
+        )
+        return log_phi.exp_().reshape(*lead, self.num_basis)
 
     def forward(self, obs: Tensor) -> Tensor:
-        phi = self.basis(cartpole_policy_features(obs))
+        if obs.shape[-1] != 4:
+            raise ValueError(
+                f"observation must have shape (..., 4) = [x, x_dot, theta, theta_dot], got "
+                f"{tuple(obs.shape)}"
+            )
         w = self.weights
         if self.training and self.dropout > 0.0:
             w = nn.functional.dropout(w, p=self.dropout, training=True)
-        return self.u_max * torch.tanh((phi @ w) / self.u_max)
+        return _SquashedRBF.apply(obs, self.centers, self.log_lengthscales, w, self.u_max)
 
     def extra_repr(self) -> str:
         return (
             f"num_basis={self.num_basis}, action_dim={self.action_dim}, u_max={self.u_max}, "
             f"dropout={self.dropout}"
         )
+
+
+def _log_basis(feats: Tensor, centers: Tensor, log_l: Tensor) -> tuple[Tensor, ...]:
+    """``a = x~ / l`` (k, 5), ``b = c / l`` (n_b, 5), ``1 / l`` and ``log phi (k, n_b) = a b^T -
+    |a|^2/2 - |b|^2/2 = -1/2 ||a - b||^2`` (<= 0 up to rounding)."""
+    inv_l = torch.exp(-log_l)
+    a = feats * inv_l
+    b = centers * inv_l
+    log_phi = torch.addmm((b * b).sum(-1).mul_(-0.5), a, b.T)
+    log_phi.sub_((a * a).sum(-1, keepdim=True).mul_(0.5))
+    return a, b, inv_l, log_phi
+
+
+class _SquashedRBF(torch.autograd.Function):
+    """``u = u_max tanh(phi(x~(obs)) w / u_max)`` with an analytic backward (one autograd node
+    per call instead of about fifteen; the rollout calls the policy at every time step).
+
+    With ``a = x~ / l``, ``b = c / l``, ``log phi = a b^T - |a|^2/2 - |b|^2/2`` and
+    ``G = dJ/d log phi = ((g_u (1 - tanh^2)) w^T) o phi``:
+    ``dJ/da = G b - a o rowsum(G)``, ``dJ/db = G^T a - b o colsum(G)``,
+    ``dJ/dw = phi^T (g_u (1 - tanh^2))``, ``dJ/dx~ = dJ/da / l``, ``dJ/dc = dJ/db / l``,
+    ``dJ/dlog l = -(sum (dJ/da o a) + sum (dJ/db o b))``; ``x~ -> obs`` through
+    ``d cos q2 = -sin q2``, ``d sin q2 = cos q2``.
+    """
+
+    @staticmethod
+    def forward(ctx, obs, centers, log_l, w, u_max):  # noqa: D102
+        lead = obs.shape[:-1]
+        feats = cartpole_policy_features(obs.reshape(-1, 4))  # (k, 5)
+        a, b, inv_l, log_phi = _log_basis(feats, centers, log_l)
+        phi = log_phi.exp_()  # (k, n_b)
+        t = torch.tanh(phi @ w / u_max)  # (k, A)
+        ctx.save_for_backward(a, b, phi, t, w, feats, inv_l)
+        ctx.lead = lead
+        return (u_max * t).reshape(*lead, w.shape[-1])
+
+    @staticmethod
+    def backward(ctx, g_u):  # noqa: D102
+        a, b, phi, t, w, feats, inv_l = ctx.saved_tensors
+        cos_t, sin_t = feats[:, 3], feats[:, 4]
+        need_obs, need_c, need_l, need_w = ctx.needs_input_grad[:4]
+        gs = g_u.reshape(t.shape) * (1.0 - t * t)  # (k, A), dJ/d(phi w)
+        g_w = phi.T @ gs if need_w else None
+        g_obs = g_c = g_l = None
+        if need_obs or need_c or need_l:
+            G = torch.mm(gs, w.T).mul_(phi)  # (k, n_b), dJ/d log phi
+            # (b^T G^T)^T and (a^T G)^T: the wide-output products are 5x faster than G b, G^T a
+            g_a = torch.addcmul(torch.mm(b.T, G.T).T, a, G.sum(1, keepdim=True), value=-1.0)
+            g_b = torch.addcmul(torch.mm(a.T, G).T, b, G.sum(0).unsqueeze(1), value=-1.0)
+            if need_l:
+                g_l = -((g_a * a).sum(0) + (g_b * b).sum(0))
+            if need_c:
+                g_c = g_b * inv_l
+            if need_obs:
+                gf = g_a * inv_l  # (k, 5), dJ/dx~
+                g_theta = gf[:, 4] * cos_t - gf[:, 3] * sin_t
+                g_obs = torch.stack([gf[:, 0], gf[:, 1], g_theta, gf[:, 2]], dim=1)
+                g_obs = g_obs.reshape(*ctx.lead, 4)
+        return g_obs, g_c, g_l, g_w, None
 
 
 def make_policy_module(policy: SquashedRBFPolicy | None = None, **kwargs) -> TensorDictModule:

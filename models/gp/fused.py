@@ -2,26 +2,44 @@
 
 The GP core's :class:`~mcpilco.models.gp.CachedPredictor` evaluates the kernel tree at each
 call (constraint transforms, one op per kernel node). In the rollout hot loop (60 steps,
-forward and backward, per optimisation step) those small ops dominate. This module reads the
-fitted hyperparameters once and evaluates the same posterior with a few large ops.
+forward and backward, per optimisation step) those small ops, and the autograd nodes they
+record, dominate. This module reads the fitted hyperparameters once, evaluates the same
+posterior with a few large ops, and differentiates it with a hand-written backward (one
+autograd node per call).
 
-Glossary (standardised inputs ``x^ = (x - mu_x) / s_x``; one GP per output ``b = 1..m``)
+Glossary (standardised inputs ``x^ = (x - mu_x) / s_x``; one GP per output ``b = 1..m``;
+``k`` test points)
 ---------------------------------------------------------------------------------------
 ``k_b(x^, x^') = lambda_b^2 exp(-1/2 ||(x^ - x^')/l_b||^2) + prod_{s=1}^{p} (sigma_bs^2 +
 x^^T Sigma_bs x^')``
-    RBF (thesis eq. 5.2) plus MPK of degree ``p`` (eq. 5.10); the MPK part is optional.
-``exp(-1/2 ||(x^ - X_j)/l||^2) = exp(x^^T (X_j / l^2) - 1/2 ||X_j/l||^2 - 1/2 ||x^/l||^2)``
-    matmul form: the products ``(X_j / l^2)^T x^`` of all outputs, and the MPK factors
-    ``X_j^T Sigma_bs x^``, come out of ONE matrix product ``W x^^T`` with
-    ``W = [X/l_1^2 ; ... ; X Sigma_11 ; ...]`` (rows: parts, outputs, training points), so
-    the cross-covariance ``k_b(X, x^)`` comes out as ``(m, N, k)``: training points on rows.
-``m_b = alpha_b^T k_b(X, x^)``
+    RBF (thesis eq. 5.2) plus MPK of degree ``p <= 2`` (eq. 5.10); the MPK part is optional.
+``r_b(X_j, x^) = exp(E_bj),  E_bj = (X_j/l_b^2)^T x^ + (log lambda_b^2 - 1/2 ||X_j/l_b||^2)
+- 1/2 ||x^/l_b||^2``
+    RBF part in matmul form: ``E_b = W_b [x^; 1; -1/2 ||x^/l_b||^2]`` with the constant
+    ``W_b = [X/l_b^2, log lambda_b^2 - 1/2 ||X/l_b||^2, 1]`` (N, d + 2): one batched
+    product, then one ``exp``; training points on rows, ``(m, N, k)``.
+``z = [1, x^]``, ``a_bs(X_j) = [sigma_bs^2, X_j o Sigma_bs]``
+    each MPK factor is linear in ``z``: ``sigma_bs^2 + X_j^T Sigma_bs x^ = a_bs(X_j)^T z``, so
+    the MPK part is a polynomial of degree ``p`` in ``x^``:
+    ``prod_s a_bs^T z = Phi_b(X_j)^T psi(x^)`` with the monomials ``psi`` of ``z``
+    (``p = 1``: ``psi = z``; ``p = 2``: ``psi = (z_a z_c)_{a <= c}``, ``Phi_{ac} = a_1a a_2c +
+    a_1c a_2a`` for ``a < c`` and ``a_1a a_2a`` for ``a = c``).
+``V_b = L_b^{-1} k_b(X, x^) = L_b^{-1} r_b + (L_b^{-1} Phi_b) psi``
+    ``L_b^{-1} Phi_b`` (N, F) is computed once per GP fit; ``L_b^{-1} r_b`` uses the column
+    panels of :class:`~mcpilco.models.gp.linalg.LowerTriangularBlocks` (about ``N^2 k``
+    flops per output instead of ``2 N^2 k``), accumulated into the same output.
+``m_b = alpha_b^T r_b + (alpha_b^T Phi_b) psi``
     posterior mean (standardised).
-``v_b = k_b(x^, x^) - ||L_b^{-1} k_b(X, x^)||^2``
-    latent variance; ``L_b^{-1}`` is shared with the cached predictor as column panels without its
-    zero half (:class:`~mcpilco.models.gp.linalg.LowerTriangularBlocks`, about ``N^2 k`` flops
-    per output instead of ``2 N^2 k``); outputs in original units (``s_y m + mu_y``,
-    ``s_y^2 v``).
+``v_b = max(k_b(x^, x^) - ||V_b||^2, 0)``,  ``k_b(x^, x^) = lambda_b^2 + prod_s (sigma_bs^2 +
+x^^T Sigma_bs x^)``
+    latent variance; outputs in original units (``s_y m + mu_y``, ``s_y^2 v``).
+backward (``g_m``, ``g_v``: gradients of the standardised mean and variance, ``g_v`` zero
+where the clamp is active)
+    ``dV_b = -2 g_v V_b``; ``dr_b = L_b^{-1 T} dV_b + alpha_b g_m^T``; ``dE_b = r_b o dr_b``;
+    ``dx^ += sum_b (X/l_b^2)^T dE_b - (1^T dE_b) (x^ o 1/l_b^2)``;
+    ``dpsi = sum_b (L_b^{-1} Phi_b)^T dV_b + (alpha_b^T Phi_b)^T g_m``, chained through
+    ``psi(z)``; ``dk_b(x^, x^)/dx^ = sum_s prod_{s' != s}(sigma_bs'^2 + x^^T Sigma_bs' x^)
+    2 Sigma_bs x^``.
 """
 
 from __future__ import annotations
@@ -30,10 +48,13 @@ import gpytorch
 import torch
 from torch import Tensor, nn
 
-from mcpilco.models.gp.linalg import LowerTriangularBlocks
+from mcpilco.models.gp.linalg import LowerTriangularBlocks, _panel_product
 
 INV_L2_MAX = 1e12
 """Largest ``1 / l^2`` kept (standardised inputs): a shorter lengthscale is a delta kernel."""
+
+MAX_MPK_DEGREE = 2
+"""Largest MPK degree the fused predictor handles (its monomial features grow as ``d^p``)."""
 
 
 def _split_kernel(kernel) -> tuple[object, object | None] | None:
@@ -57,22 +78,96 @@ def _split_kernel(kernel) -> tuple[object, object | None] | None:
     return None
 
 
+class _FusedPosterior(torch.autograd.Function):
+    """``(mean, var) = posterior(x)`` of a :class:`FusedRBFMPKPredictor`; analytic backward
+    (module glossary). Differentiable once, w.r.t. ``x`` only."""
+
+    @staticmethod
+    def forward(ctx, x: Tensor, pred: FusedRBFMPKPredictor) -> tuple[Tensor, Tensor]:
+        m, n, d = pred.m, pred.n, pred.input_dim
+        lead = x.shape[:-1]
+        xs = ((x.to(pred.W_aug.dtype) - pred.x_mean) / pred.x_scale).reshape(-1, d)  # (k, d)
+        k = xs.shape[0]
+        opts = {"dtype": xs.dtype, "device": xs.device}
+        sq = xs * xs
+        xaug = torch.empty(m, d + 2, k, **opts)
+        xaug[:, :d] = xs.T
+        xaug[:, d] = 1.0
+        torch.mm(pred.inv_l2, sq.T, out=xaug[:, d + 1]).mul_(-0.5)  # -||x^/l_b||^2 / 2
+        r = torch.bmm(pred.W_aug, xaug).exp_()  # (m, N, k)
+        mean = torch.bmm(pred.alpha, r).view(m, k)  # (m, k)
+        prior = pred.outputscale.expand(m, k)
+        z = fac = None
+        V = None
+        for P, _, s, e in pred.tri_panels:  # V = L^{-1} r, panel by panel
+            if V is None:  # the first panel covers all rows
+                V = torch.bmm(P, r[:, s:e])
+            else:
+                V[:, s:].baddbmm_(P, r[:, s:e])
+        if pred.p:
+            z = torch.cat([torch.ones(1, k, **opts), xs.T], dim=0)
+            psi = z if pred.p == 1 else z[pred.idx_a] * z[pred.idx_c]  # (F, k), row gathers
+            V.view(m * n, k).addmm_(pred.linv_phi.view(m * n, -1), psi)  # + (L^{-1} Phi) psi
+            mean = mean.addmm(pred.alpha_phi, psi)
+            fac = torch.matmul(pred.mp_sigma_diag, sq.T) + pred.mp_sigma2  # (p, m, k)
+            prior = prior + fac.prod(0)
+        v = prior - torch.linalg.vecdot(V, V, dim=1)  # (m, k)
+        active = v >= 0  # clamp_min passes the gradient where v >= 0
+        v = v.clamp_min(0.0)
+        ctx.pred = pred
+        ctx.x_dtype = x.dtype
+        ctx.lead = lead
+        ctx.save_for_backward(xs, z, r, V, active, fac)
+        mean_out = (mean.T * pred.y_scale + pred.y_mean).reshape(*lead, m)
+        var_out = (v.T * pred.y_scale.pow(2)).reshape(*lead, m)
+        return mean_out.to(x.dtype), var_out.to(x.dtype)
+
+    @staticmethod
+    def backward(ctx, g_mean: Tensor, g_var: Tensor) -> tuple[Tensor, None]:
+        pred = ctx.pred
+        xs, z, r, V, active, fac = ctx.saved_tensors
+        m, n, d = pred.m, pred.n, pred.input_dim
+        k = xs.shape[0]
+        dt = xs.dtype
+        # (m, k), standardised; contiguous, so that the broadcasts below stay vectorised
+        gm = (g_mean.to(dt).reshape(k, m) * pred.y_scale).T.contiguous()
+        gv = (g_var.to(dt).reshape(k, m) * pred.y_scale.pow(2)).T.contiguous() * active
+        dV = V * (-2.0 * gv).unsqueeze(1)  # (m, N, k)
+        dr = pred.alpha.transpose(1, 2) * gm.unsqueeze(1)  # alpha_b g_m^T
+        for _, Pt, s, e in pred.tri_panels:  # dr += L^{-T} dV, row chunk by row chunk
+            dr[:, s:e].baddbmm_(Pt, dV[:, s:])
+        dE = dr.mul_(r)
+        dx = torch.bmm(pred.W_t, dE)  # (m, d + 1, k): [(X/l^2)^T dE ; 1^T dE]
+        dxs = dx[:, :d].sum(0).T - xs * (dx[:, d].T @ pred.inv_l2)  # (k, d)
+        if pred.p:
+            dpsi = torch.mm(pred.linv_phi.view(m * n, -1).T, dV.view(m * n, k))  # (F, k)
+            dpsi.addmm_(pred.alpha_phi.T, gm)
+            if pred.p == 1:
+                dz = dpsi
+            else:  # psi_f = z_a(f) z_c(f): dz = S_a (dpsi o z_c) + S_c (dpsi o z_a)
+                dz = pred.psi_select @ torch.cat([dpsi * z[pred.idx_c], dpsi * z[pred.idx_a]])
+            dxs = dxs + dz[1:].T
+            # prior: d/dx^ prod_s f_s = sum_s prod_{s' != s} f_s' 2 Sigma_s x^
+            others = torch.ones_like(fac) if pred.p == 1 else fac.flip(0)  # p <= 2
+            w = gv * others  # (p, m, k)
+            dxs = dxs + 2.0 * xs * (w.view(-1, k).T @ pred.mp_sigma_diag.view(-1, d))
+        dx_out = (dxs / pred.x_scale).reshape(*ctx.lead, d).to(ctx.x_dtype)
+        return dx_out, None
+
+
 class FusedRBFMPKPredictor(nn.Module):
     """Posterior mean and latent variance of ``m`` GPs with kernel RBF (+ MPK), fused.
 
     Build it with :meth:`from_cached`; the call has the interface of ``CachedPredictor``:
-    ``mean, var = pred(x)`` with ``x (..., d)`` -> ``(..., m)`` each, original units.
-    All linear forms of the kernel come from one product ``W x^^T``; its parts are taken with
-    ``unbind`` (whose backward is one ``stack``, where slicing would fill full-size zero
-    tensors per slice).
+    ``mean, var = pred(x)`` with ``x (..., d)`` -> ``(..., m)`` each, original units, in the
+    input's dtype (computed in the predictor's). One autograd node per call (analytic
+    backward w.r.t. ``x``; see the module glossary).
     """
 
     def __init__(
         self,
-        W: Tensor,
-        rbf_offset: Tensor,
-        mp_sigma2: Tensor | None,
-        diag_W: Tensor,
+        W_aug: Tensor,
+        inv_l2: Tensor,
         outputscale: Tensor,
         alpha: Tensor,
         linv: LowerTriangularBlocks,
@@ -81,34 +176,57 @@ class FusedRBFMPKPredictor(nn.Module):
         y_mean: Tensor,
         y_scale: Tensor,
         noise_variance: Tensor,
+        mp_sigma_diag: Tensor | None = None,
+        mp_sigma2: Tensor | None = None,
+        linv_phi: Tensor | None = None,
+        alpha_phi: Tensor | None = None,
     ) -> None:
         super().__init__()
-        self.m, self.n = rbf_offset.shape[:2]
-        self.input_dim = int(W.shape[1])
-        self.p = W.shape[0] // (self.m * self.n) - 1
-        self.register_buffer("W", W)  # ((1 + p) m N, d): [X/l_b^2 ; X Sigma_b1 ; ...]
-        self.register_buffer("rbf_offset", rbf_offset)  # (m, N, 1): log lambda^2 - ||X/l||^2/2
-        self.register_buffer("mp_sigma2", mp_sigma2)  # (p, m, 1, 1)
-        self.register_buffer("diag_W", diag_W)  # ((1 + p) m, d): [1/l_b^2 ; Sigma_bs]
-        self.register_buffer("outputscale", outputscale)  # (m, 1, 1)
-        self.register_buffer("alpha", alpha)  # (m, 1, N): alpha_b^T
-        self.linv = linv  # L_b^{-1} (m, N, N) as column panels, shared with the cached predictor
+        self.m, self.n = W_aug.shape[:2]
+        self.input_dim = int(W_aug.shape[2]) - 2
+        d = self.input_dim
+        self.p = 0 if mp_sigma_diag is None else int(mp_sigma_diag.shape[0])
+        if self.p > MAX_MPK_DEGREE:
+            raise ValueError(f"MPK degree {self.p} > {MAX_MPK_DEGREE} is not supported")
+        self.register_buffer("W_aug", W_aug)  # (m, N, d + 2)
+        w_t = torch.cat([W_aug[:, :, :d], torch.ones_like(W_aug[:, :, :1])], dim=2)
+        self.register_buffer("W_t", w_t.transpose(1, 2).contiguous())  # (m, d + 1, N)
+        self.register_buffer("inv_l2", inv_l2)  # (m, d)
+        self.register_buffer("outputscale", outputscale)  # (m, 1)
+        self.register_buffer("alpha", alpha)  # (m, 1, N)
+        self.linv = linv  # L_b^{-1} as column panels, shared with the cached predictor
+        self._tri_panels: list[tuple[Tensor, Tensor, int, int]] = []
+        self._tri_key: Tensor | None = None
         self.register_buffer("x_mean", x_mean)
         self.register_buffer("x_scale", x_scale)
         self.register_buffer("y_mean", y_mean)
         self.register_buffer("y_scale", y_scale)
         self.register_buffer("noise_variance", noise_variance)
+        self.register_buffer("mp_sigma_diag", mp_sigma_diag)  # (p, m, d)
+        self.register_buffer("mp_sigma2", mp_sigma2)  # (p, m, 1)
+        self.register_buffer("linv_phi", linv_phi)  # (m, N, F)
+        self.register_buffer("alpha_phi", alpha_phi)  # (m, F)
+        ia, ic = torch.triu_indices(d + 1, d + 1)
+        self.register_buffer("idx_a", ia)
+        self.register_buffer("idx_c", ic)
+        # one-hot (d + 1, 2F): [S_a | S_c], S_a[a, f] = 1 if a(f) = a
+        select = torch.zeros(d + 1, 2 * ia.numel(), dtype=W_aug.dtype, device=W_aug.device)
+        select[torch.cat([ia, ic]), torch.arange(2 * ia.numel())] = 1.0
+        self.register_buffer("psi_select", select)
 
     @classmethod
     @torch.no_grad()
     def from_cached(cls, pred: nn.Module) -> FusedRBFMPKPredictor | None:
         """Fuse a ``CachedPredictor`` whose kernel is ``ScaleKernel(RBF) [+ MPKernel]`` (no
-        ``active_dims``); returns None for any other kernel, or for a mean-only predictor (use
-        ``pred`` as is then). The panels of :math:`L^{-1}` are shared, not copied."""
+        ``active_dims``, MPK degree <= 2); returns None for any other kernel, or for a
+        mean-only predictor (use ``pred`` as is then). The panels of :math:`L^{-1}` are
+        shared, not copied; :math:`L^{-1} \\Phi` is formed from them in float64."""
         parts = _split_kernel(pred.kernel)
         if parts is None or pred.linv is None:
             return None
         rbf, mpk = parts
+        if mpk is not None and mpk.degree > MAX_MPK_DEGREE:
+            return None
         f64 = torch.float64
         dtype = pred.alpha.dtype
         X = pred.train_x.to(f64)  # (N, d) standardised
@@ -117,28 +235,38 @@ class FusedRBFMPKPredictor(nn.Module):
         inv_l2 = rbf.base_kernel.lengthscale.to(f64).reshape(-1, d).expand(m, -1) ** -2  # (m, d)
         os_ = rbf.outputscale.to(f64).reshape(-1).expand(m)
         # degenerate fits: an RBF switched off (lambda^2 underflows to 0; its lengthscales then
-        # drift anywhere, even to 0) contributes exactly 0, and a lengthscale -> 0 is a delta
-        # kernel; keep every buffer finite so that 0 * inf never makes a NaN
+        # drift anywhere, even to 0) contributes exactly 0 (offset -inf, exp -> 0), and a
+        # lengthscale -> 0 is a delta kernel; the gradient path never reads the offset
         inv_l2 = torch.where(os_[:, None] > 0, inv_l2.clamp(max=INV_L2_MAX), 0.0)
-        blocks = [X[None] * inv_l2[:, None, :]]  # (m, N, d) per part
-        offset = os_.log()[:, None] - 0.5 * (X[None] ** 2 * inv_l2[:, None, :]).sum(-1)
-        diag = [inv_l2]  # (m, d) per part
-        sigma2 = None
+        Xl = X[None] * inv_l2[:, None, :]  # (m, N, d)
+        offset = os_.log()[:, None] - 0.5 * (X[None] * Xl).sum(-1)  # (m, N)
+        W_aug = torch.cat([Xl, offset[..., None], torch.ones(m, n, 1, dtype=f64)], dim=2)
+        extra = {}
         if mpk is not None:
             p = mpk.degree
             Sig = mpk.Sigma_diag.to(f64).reshape(-1, p, d).expand(m, -1, -1)  # (m, p, d)
             s2 = mpk.sigma2.to(f64).reshape(-1, p).expand(m, -1)  # (m, p)
-            blocks += [X[None] * Sig[:, s, None, :] for s in range(p)]
-            diag += [Sig[:, s, :] for s in range(p)]
-            sigma2 = s2.T.reshape(p, m, 1, 1)
-        W = torch.stack(blocks).reshape(-1, d)  # ((1 + p) m N, d), order [part][b][j]
-        cast = lambda t: None if t is None else t.to(dtype).contiguous()
+            a = torch.cat([s2[:, :, None, None].expand(m, p, n, 1), X * Sig[:, :, None, :]], -1)
+            if p == 1:
+                Phi = a[:, 0]  # (m, N, d + 1)
+            else:
+                ia, ic = torch.triu_indices(d + 1, d + 1)
+                a1, a2 = a[:, 0], a[:, 1]
+                Phi = a1[..., ia] * a2[..., ic] + torch.where(
+                    ia == ic, 0.0, a1[..., ic] * a2[..., ia]
+                )  # (m, N, F)
+            linv64 = [P.to(f64) for P in pred.linv.panels]
+            extra = {
+                "mp_sigma_diag": Sig.transpose(0, 1),
+                "mp_sigma2": s2.T[..., None],
+                "linv_phi": _panel_product(linv64, Phi),
+                "alpha_phi": (pred.alpha.to(f64) @ Phi)[:, 0],
+            }
+        cast = lambda t: t.to(dtype).contiguous()  # noqa: E731
         return cls(
-            W=cast(W),
-            rbf_offset=cast(offset[..., None]),
-            mp_sigma2=cast(sigma2),
-            diag_W=cast(torch.stack(diag).reshape(-1, d)),
-            outputscale=cast(os_.reshape(m, 1, 1)),
+            W_aug=cast(W_aug),
+            inv_l2=cast(inv_l2),
+            outputscale=cast(os_[:, None]),
             alpha=pred.alpha,
             linv=pred.linv,
             x_mean=pred.x_mean,
@@ -146,28 +274,36 @@ class FusedRBFMPKPredictor(nn.Module):
             y_mean=pred.y_mean,
             y_scale=pred.y_scale,
             noise_variance=pred.noise_variance,
+            **{key: cast(val) for key, val in extra.items()},
         )
 
+    @property
+    def tri_panels(self) -> list[tuple[Tensor, Tensor, int, int]]:
+        """``(P_i, P_i^T, s_i, e_i)`` of the panels of :math:`L^{-1}` (batch ``m``), for the
+        panel loops of the hot path; rebuilt when the panels change (e.g. after ``.to()``)."""
+        panels = self.linv.panels
+        if self._tri_key is not panels[0]:
+            self._tri_key = panels[0]
+            starts = [0]
+            for P in panels:
+                starts.append(starts[-1] + P.shape[-1])
+            self._tri_panels = [
+                (Pm, Pm.transpose(1, 2), s, e)
+                for Pm, s, e in zip(
+                    (P.expand(self.m, -1, -1) for P in panels), starts[:-1], starts[1:], strict=True
+                )
+            ]
+        return self._tri_panels
+
+    @property
+    def dtype(self) -> torch.dtype:
+        """Dtype of the buffers (and of the computation)."""
+        return self.W_aug.dtype
+
     def forward(self, x: Tensor) -> tuple[Tensor, Tensor]:
-        lead = x.shape[:-1]
-        m, n, p = self.m, self.n, self.p
-        xs = ((x - self.x_mean) / self.x_scale).reshape(-1, self.input_dim)  # (k, d)
-        k = xs.shape[0]
-        xt = xs.T  # (d, k)
-        G = (self.W @ xt).view(1 + p, m, n, k).unbind(0)  # linear forms, each (m, N, k)
-        D = (self.diag_W @ (xt * xt)).view(1 + p, m, 1, k).unbind(0)  # ||x/l||^2, x Sigma x
-        K = torch.exp(G[0] + self.rbf_offset - 0.5 * D[0])  # (m, N, k)
-        prior = self.outputscale  # (m, 1, 1)
-        if p:
-            prod = G[1] + self.mp_sigma2[0]
-            prod_d = D[1] + self.mp_sigma2[0]
-            for s in range(1, p):
-                prod = prod * (G[s + 1] + self.mp_sigma2[s])
-                prod_d = prod_d * (D[s + 1] + self.mp_sigma2[s])
-            K = K + prod
-            prior = prior + prod_d  # (m, 1, k)
-        mean = (self.alpha @ K)[:, 0].T  # (k, m)
-        var = (prior[:, 0] - self.linv.sq_col_norms(K)).clamp_min(0.0).T  # (k, m)
-        mean = mean * self.y_scale + self.y_mean
-        var = var * self.y_scale.pow(2)
-        return mean.reshape(*lead, m), var.reshape(*lead, m)
+        if x.shape[-1] != self.input_dim:
+            raise ValueError(f"x must have shape (..., {self.input_dim}), got {tuple(x.shape)}")
+        return _FusedPosterior.apply(x, self)
+
+    def extra_repr(self) -> str:
+        return f"m={self.m}, N={self.n}, d={self.input_dim}, mpk_degree={self.p}"
