@@ -121,6 +121,17 @@ class DenseKernel(Kernel):
 
     has_lengthscale = False
 
+    def _get(self, name: str) -> Tensor:
+        """The constrained value of the parameter ``raw_<name>``."""
+        return getattr(self, f"raw_{name}_constraint").transform(getattr(self, f"raw_{name}"))
+
+    def _set(self, name: str, value: Tensor | float) -> None:
+        """Set ``raw_<name>`` so that its constrained value is ``value`` (validated)."""
+        raw = getattr(self, f"raw_{name}")
+        value = as_parameter_value(value, raw, name)
+        constraint = getattr(self, f"raw_{name}_constraint")
+        self.initialize(**{f"raw_{name}": constraint.inverse_transform(value)})
+
     def _check_inputs(self, x1: Tensor, x2: Tensor, last_dim_is_batch: bool, dim: int) -> None:
         if last_dim_is_batch:
             raise NotImplementedError(

@@ -115,15 +115,6 @@ class SEDMPKernel(DenseKernel):
         self.alpha_increment = 0.1
         self.beta_increment = 0.05
 
-    def _get(self, name: str) -> Tensor:
-        return getattr(self, f"raw_{name}_constraint").transform(getattr(self, f"raw_{name}"))
-
-    def _set(self, name: str, value: Tensor | float) -> None:
-        raw = getattr(self, f"raw_{name}")
-        value = as_parameter_value(value, raw, name)
-        constraint = getattr(self, f"raw_{name}_constraint")
-        self.initialize(**{f"raw_{name}": constraint.inverse_transform(value)})
-
     @property
     def alpha_increment(self) -> Tensor:
         """:math:`a^{\\alpha}_s`, ``(*batch_shape, p)``."""
@@ -257,15 +248,6 @@ class TiedSEDMPKernel(DenseKernel):
         powers = torch.arange(1, r + 1, dtype=self.raw_rho.dtype)
         self.rho = 1.0 / ((r + 1) * trace**powers)
         self.rho0 = 1.0 / (r + 1)
-
-    def _get(self, name: str) -> Tensor:
-        return getattr(self, f"raw_{name}_constraint").transform(getattr(self, f"raw_{name}"))
-
-    def _set(self, name: str, value: Tensor | float) -> None:
-        raw = getattr(self, f"raw_{name}")
-        value = as_parameter_value(value, raw, name)
-        constraint = getattr(self, f"raw_{name}_constraint")
-        self.initialize(**{f"raw_{name}": constraint.inverse_transform(value)})
 
     @property
     def alpha(self) -> Tensor:
