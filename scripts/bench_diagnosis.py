@@ -102,6 +102,7 @@ def run_case(
         "ranking": ranking[:5],
         "deltas": [round(c.delta, 1) for c in first.candidates[:5]],
         "added": added,
+        "start_rounds": getattr(model.start, "rounds_", None),
     }
     if truth:
         ranks = [ranking.index(t) + 1 if t in ranking else None for t in truth]

@@ -489,6 +489,8 @@ class DiagnosisModel:
                 robot=start_spec.get("robot_text"),
                 adam_iters=start_spec.get("adam_iters", 100),
                 lbfgs_iters=start_spec.get("lbfgs_iters", 30),
+                converge_nats=start_spec.get("converge_nats", 0.5),
+                max_rounds=start_spec.get("max_rounds", 10),
             )
         else:
             raise ValueError(f"unknown start model kind {start_spec['kind']!r}")

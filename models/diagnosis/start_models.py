@@ -188,10 +188,22 @@ class LearnedStart(StartModel):
     :class:`GIPStart` (thesis eq. 3.8/3.11) or :class:`RBFStart` (ARD RBF on ``[q, qd, qdd]``).
     ``m_j`` is the GP's constant mean and ``tau_hat`` its posterior mean.
 
+    Convergence (why it matters here)
+        Candidates are scored by the evidence they add to this start (significance at 5 nats,
+        :mod:`~mcpilco.models.diagnosis.search`). A start whose hyperparameters stopped short
+        of the optimum leaves structure its kernel spans (armature: ``qdd`` times a constant)
+        for a candidate block to claim: an apparent gain of several nats with no missing
+        effect. So after ``adam_iters`` + ``lbfgs_iters`` the fit continues in rounds of
+        ``lbfgs_iters`` L-BFGS iterations while a round raises
+        :math:`\\sum_j \\log p(y_j)` by more than ``converge_nats`` (default 0.5, a tenth of the
+        significance threshold), at most ``max_rounds`` rounds (then a warning).
+
     Args:
         joint_types: e.g. ``"RRPR"`` (one letter per joint).
         robot: optional MJCF/URDF (path or text) for the payload candidate's columns.
         adam_iters, lbfgs_iters: optimisation of the start kernel's hyperparameters.
+        converge_nats: stop the extra L-BFGS rounds when one gains less than this (nats).
+        max_rounds: most extra rounds (0: the fixed budget only).
     """
 
     def __init__(
@@ -200,11 +212,21 @@ class LearnedStart(StartModel):
         robot: str | Path | None = None,
         adam_iters: int = 100,
         lbfgs_iters: int = 30,
+        converge_nats: float = 0.5,
+        max_rounds: int = 10,
     ) -> None:
+        if converge_nats <= 0 or max_rounds < 0 or lbfgs_iters < 0 or adam_iters < 0:
+            raise ValueError(
+                "need converge_nats > 0 and max_rounds, adam_iters, lbfgs_iters >= 0; got "
+                f"{converge_nats}, {max_rounds}, {adam_iters}, {lbfgs_iters}"
+            )
         self.joint_types = joint_types
         self.n_joints = len(joint_types)
         self.adam_iters = adam_iters
         self.lbfgs_iters = lbfgs_iters
+        self.converge_nats = converge_nats
+        self.max_rounds = max_rounds
+        self.rounds_: int = 0
         self.robot = None if robot is None else _Robot(read_robot_text(robot))
         if self.robot is not None and self.robot.joint_types != joint_types:
             raise ValueError(
@@ -221,6 +243,33 @@ class LearnedStart(StartModel):
         est = self.make_estimator()
         est.fit(np.concatenate([q, qd, qdd], axis=1), y)
         self.estimator_ = est
+        self._converge(q, qd, qdd, y)
+
+    def _converge(self, q: FloatArray, qd: FloatArray, qdd: FloatArray, y: FloatArray) -> None:
+        """Extra L-BFGS rounds (warm start) until one gains ``< converge_nats`` in
+        :math:`\\sum_j \\log p(y_j)`; sets ``rounds_`` (see the class docstring)."""
+        import warnings
+
+        gp = self._gp()
+        self.rounds_ = 0
+        if self.max_rounds == 0 or self.lbfgs_iters == 0:
+            return
+        X = self.estimator_.gp_inputs(JointStates(q, qd, qdd))
+        lml = float(gp.log_marginal_likelihood().sum())
+        for _ in range(self.max_rounds):
+            gp.fit(X, y, adam_iters=0, lbfgs_iters=self.lbfgs_iters)
+            self.rounds_ += 1
+            new = float(gp.log_marginal_likelihood().sum())
+            gain, lml = new - lml, new
+            if gain < self.converge_nats:
+                return
+        warnings.warn(
+            f"the {self.kind} start model still gained {gain:.2f} nats in its last L-BFGS round "
+            f"after {self.max_rounds} rounds (converge_nats={self.converge_nats}); candidate "
+            "evidences may be inflated by under-fitting: raise max_rounds or lbfgs_iters",
+            RuntimeWarning,
+            stacklevel=3,
+        )
 
     def refit(self, q: FloatArray, qd: FloatArray, qdd: FloatArray, y: FloatArray) -> LearnedStart:
         """A copy whose kernel hyperparameters are re-optimised on ``y`` (warm start from the
@@ -233,6 +282,7 @@ class LearnedStart(StartModel):
         new.estimator_ = copy.deepcopy(self.estimator_)
         X = new.estimator_.gp_inputs(JointStates(q, qd, qdd))
         new.estimator_.gp_.fit(X, y, adam_iters=self.adam_iters, lbfgs_iters=self.lbfgs_iters)
+        new._converge(q, qd, qdd, y)
         return new
 
     def _gp(self) -> Any:
@@ -286,6 +336,8 @@ class LearnedStart(StartModel):
             "robot_text": None if self.robot is None else self.robot.text,
             "adam_iters": self.adam_iters,
             "lbfgs_iters": self.lbfgs_iters,
+            "converge_nats": self.converge_nats,
+            "max_rounds": self.max_rounds,
         }
 
 

@@ -1,5 +1,7 @@
 """Learned start models of the diagnosis loop: the RBF start's kernel against a second,
-closed-form implementation; save/load keeps the kind; a bad start type is named."""
+closed-form implementation; the fit continues until converged (one more round gains less
+than converge_nats, or a warning); save/load keeps the kind and budget; a bad start type is
+named."""
 
 import numpy as np
 import pytest
@@ -18,7 +20,7 @@ def _planar_data(n: int, seed: int) -> tuple[np.ndarray, np.ndarray, np.ndarray,
 
 def test_rbf_start_kernel_is_the_scaled_ard_rbf_of_standardised_states():
     q, qd, qdd, y = _planar_data(60, 0)
-    start = RBFStart("RR", adam_iters=5, lbfgs_iters=2)
+    start = RBFStart("RR", adam_iters=5, lbfgs_iters=2, max_rounds=0)
     start.fit(q, qd, qdd, y)
     gp = start.estimator_.gp_
     x = np.concatenate([q, qd, qdd], 1)
@@ -43,6 +45,42 @@ def test_learned_start_spec_round_trip_keeps_kind(cls):
     again = DiagnosisModel.from_spec(model.spec())
     assert type(again.start) is cls
     assert (again.start.adam_iters, again.start.lbfgs_iters) == (7, 3)
+    assert (again.start.converge_nats, again.start.max_rounds) == (0.5, 10)
+
+
+def test_learned_start_fit_runs_until_one_more_round_gains_little():
+    """Independent check of the stopping rule: after ``fit``, a further L-BFGS round of the
+    same size, run here by hand, raises the summed log evidence by less than converge_nats;
+    without the extra rounds the same tiny budget leaves much more on the table."""
+    q, qd, qdd, y = _planar_data(80, 1)
+
+    def next_round_gain(start: RBFStart) -> float:
+        gp = start.estimator_.gp_
+        x = np.concatenate([q, qd, qdd], 1)
+        before = float(gp.log_marginal_likelihood().sum())
+        gp.fit(x, y, adam_iters=0, lbfgs_iters=start.lbfgs_iters)
+        return float(gp.log_marginal_likelihood().sum()) - before
+
+    short = RBFStart("RR", adam_iters=2, lbfgs_iters=1, max_rounds=0)
+    short.fit(q, qd, qdd, y)
+    assert short.rounds_ == 0
+    assert next_round_gain(short) > 2.0
+    converged = RBFStart("RR", adam_iters=2, lbfgs_iters=1, converge_nats=0.5, max_rounds=200)
+    converged.fit(q, qd, qdd, y)
+    assert converged.rounds_ > 1
+    assert next_round_gain(converged) < 0.5
+
+
+def test_learned_start_warns_when_rounds_run_out():
+    q, qd, qdd, y = _planar_data(80, 1)
+    start = RBFStart("RR", adam_iters=2, lbfgs_iters=1, max_rounds=1)
+    with pytest.warns(RuntimeWarning, match="max_rounds"):
+        start.fit(q, qd, qdd, y)
+
+
+def test_learned_start_rejects_bad_convergence_settings():
+    with pytest.raises(ValueError, match="converge_nats"):
+        RBFStart("RR", converge_nats=0.0)
 
 
 def test_start_of_wrong_type_is_named():
