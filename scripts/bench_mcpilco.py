@@ -10,9 +10,10 @@ Three parts, each optional:
    ``M x H`` particle rollout + Adam step) at ``M = 400`` particles, ``H = 60``, for several
    GP sizes ``N`` (GP fitted on random-exploration data), 1 torch thread and 2 threads.
 3. ``rmse``: RBF+MPK vs RBF-only (thesis Fig. 5.5): both GPs fitted on the same 3 s of
-   random exploration; then a fixed policy runs on the env and ``M`` particles are rolled
-   out through each GP; reported: the RMSE of theta between particles and the real
-   trajectory averaged over the 60 steps, mean over seeds.
+   random exploration; a fixed learned swing-up policy (the final policy of a successful
+   run of part 1, or ``--rmse-policy``) runs on the env and ``M`` particles are rolled out
+   through each GP; reported: the RMSE of theta between particles and the real trajectory
+   per time step and averaged over the 60 steps, over ``--rmse-seeds`` exploration seeds.
 
 Writes ``results/mcpilco_cartpole.json`` (merged with an existing file, one section per
 env), ``results/mcpilco_cartpole.md`` and ``results/mcpilco_cartpole.png``.
@@ -205,8 +206,30 @@ def time_opt_step(
 
 
 # ------------------------------------------------------------------------------- rmse
-def particle_rmse(seed: int, num_particles: int = 400, env_id: str = DEFAULT_ENV_ID) -> dict:
-    """60-step RMSE of theta, particles vs real, for RBF+MPK and RBF-only (same data)."""
+def find_swingup_policy(runs_dir: Path) -> Path:
+    """The checkpoint of the first run under ``runs_dir`` (sorted) whose last trial swung the
+    pole up; its policy is the fixed "learned policy that correctly executes the swing-up" of
+    thesis Fig. 5.5."""
+    from mcpilco.agents.mc_pilco.checkpoint import load_checkpoint
+
+    for ckpt_path in sorted(Path(runs_dir).glob("**/checkpoint.pt")):
+        ckpt = load_checkpoint(ckpt_path)
+        if ckpt["records"] and ckpt["records"][-1]["success"]:
+            return ckpt_path
+    raise FileNotFoundError(
+        f"no run under {runs_dir} ends with a successful swing-up; run the 'runs' part first "
+        "or pass --rmse-policy CHECKPOINT"
+    )
+
+
+def particle_rmse(
+    seed: int, policy_ckpt: Path, num_particles: int = 400, env_id: str = DEFAULT_ENV_ID
+) -> dict:
+    """Thesis Fig. 5.5: RBF+MPK and RBF-only GPs fitted on the same 3 s of random exploration
+    (seed ``seed``); ``M`` particles rolled out through each under a fixed learned swing-up
+    policy, from the real initial state; per time step, the RMSE of theta between the
+    particles and the real trajectory of that policy (root mean over particles), and its
+    mean over the 60 steps."""
     import torch
 
     from mcpilco.agents.mc_pilco import (
@@ -216,15 +239,18 @@ def particle_rmse(seed: int, num_particles: int = 400, env_id: str = DEFAULT_ENV
         SwingUpCost,
         make_policy_module,
     )
+    from mcpilco.agents.mc_pilco.checkpoint import load_checkpoint
     from mcpilco.agents.mc_pilco.loop import _policy_act, make_env, run_episode
 
     torch.set_num_threads(1)
     s, a, s1, _ = _exploration_data(env_id, 60, 100 + seed)  # 3 s of random exploration
-    policy = SquashedRBFPolicy(seed=1000 + seed, weight_scale=1.0)  # fixed test policy
+    ckpt = load_checkpoint(policy_ckpt)
+    policy = SquashedRBFPolicy(num_basis=ckpt["config"]["num_basis"])
+    policy.load_state_dict(ckpt["policy"])
     env = make_env(env_id, 60)
     real = run_episode(env, _policy_act(policy), 5000 + seed, 60)["states"]
     env.close()
-    out = {}
+    out: dict[str, Any] = {"seed": seed, "real_success_theta_end": float(real[-1, 2])}
     for kernel in ("rbf+mpk", "rbf"):
         model = GPDynamicsModel(kernel=kernel).fit(s, a, s1)
         torch.manual_seed(seed)
@@ -237,7 +263,43 @@ def particle_rmse(seed: int, num_particles: int = 400, env_id: str = DEFAULT_ENV
             parts = loss.rollout(initial_state=x0.clone()).states.numpy()
         err = parts[:, 1:, 2] - real[None, 1:, 2]
         out[kernel] = float(np.sqrt(np.mean(err**2)))
+        out[f"{kernel}_per_step"] = np.sqrt(np.mean(err**2, axis=0)).tolist()
+        if seed == 0:
+            out[f"{kernel}_particles"] = parts[:100, :, 2].tolist()
+            out["real_theta"] = real[:, 2].tolist()
     return out
+
+
+def plot_rmse(rm: dict, path: Path) -> None:
+    """Thesis Fig. 5.5: theta particles of both models against the real trajectory (seed 0),
+    and the per-step RMSE (median over seeds) of both."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    first = rm["per_seed"][0]
+    t = np.arange(len(first["real_theta"])) * 0.05
+    fig, axes = plt.subplots(3, 1, figsize=(7, 8), sharex=True)
+    for ax, k in zip(axes[:2], ("rbf+mpk", "rbf"), strict=True):
+        ax.plot(t, np.asarray(first[f"{k}_particles"]).T, color="tab:blue", alpha=0.12, lw=0.7)
+        ax.plot(t, first["real_theta"], "o", color="black", ms=2.5, label="real")
+        ax.set_ylabel("theta [rad]")
+        ax.set_title(f"GP kernel {k}: particles vs real (exploration seed 0)")
+        ax.set_ylim(-2 * np.pi, 2 * np.pi)
+        ax.grid(alpha=0.3)
+    axes[0].legend(loc="upper left", fontsize=8)
+    for k, col in (("rbf+mpk", "tab:blue"), ("rbf", "tab:red")):
+        per = np.median([p[f"{k}_per_step"] for p in rm["per_seed"]], axis=0)
+        axes[2].semilogy(t[1:], per, color=col, label=k)
+    axes[2].set_ylabel("RMSE theta [rad]")
+    axes[2].set_xlabel("time [s]")
+    axes[2].set_title(f"median over {rm['seeds']} exploration seeds")
+    axes[2].legend(fontsize=8)
+    axes[2].grid(alpha=0.3, which="both")
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
 
 
 # ------------------------------------------------------------------------------ report
@@ -287,7 +349,8 @@ def write_report(results: dict, out_dir: Path) -> None:
     if results.get("rmse"):
         r = results["rmse"]
         md += [
-            "### Particle RMSE of theta over 60 steps (fixed policy, 3 s of exploration data)",
+            "### Particle RMSE of theta over 60 steps (thesis Fig. 5.5: learned swing-up "
+            "policy, GPs on 3 s of exploration)",
             "",
             "| kernel | RMSE theta [rad], mean +- std over seeds | median |",
             "|---|---|---|",
@@ -295,7 +358,10 @@ def write_report(results: dict, out_dir: Path) -> None:
         for k in ("rbf+mpk", "rbf"):
             med = r[k].get("median", float("nan"))
             md.append(f"| {k} | {r[k]['mean']:.3f} +- {r[k]['std']:.3f} | {med:.3f} |")
-        md.append(f"\n{r['seeds']} seeds; RBF+MPK lower in {r['mpk_better']} of them.\n")
+        md.append(
+            f"\n{r['seeds']} exploration seeds; RBF+MPK lower in {r['mpk_better']} of them; "
+            f"policy from `{r.get('policy', '?')}`. Plot: `mcpilco_cartpole_rmse.png`.\n"
+        )
     (out_dir / "mcpilco_cartpole.md").write_text("\n".join(md))
     with open(out_dir / "mcpilco_cartpole.json", "w") as fh:
         json.dump(results, fh, indent=1)
@@ -341,7 +407,13 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--opt-steps", type=int, help="max opt steps per trial (override)")
     p.add_argument("--timing-n", type=int, nargs="+", default=[100, 200, 300])
     p.add_argument("--timing-threads", type=int, nargs="+", default=[1, 2])
-    p.add_argument("--rmse-seeds", type=int, default=5)
+    p.add_argument("--rmse-seeds", type=int, default=10)
+    p.add_argument(
+        "--rmse-policy",
+        type=Path,
+        help="checkpoint.pt of a run whose last trial swung up (default: the first such run "
+        "under --runs-dir)",
+    )
     p.add_argument("--out", type=Path, default=Path("results"))
     p.add_argument("--runs-dir", type=Path, default=Path("runs/bench_mcpilco"))
     return p
@@ -396,8 +468,12 @@ def main(argv: list[str] | None = None) -> int:
                 results["timing"].append(t)
         write_report(results, args.out)
     if "rmse" in args.parts:
-        per_seed = [particle_rmse(s) for s in range(args.rmse_seeds)]
-        rm = {"seeds": len(per_seed), "per_seed": per_seed}
+        try:
+            policy_ckpt = args.rmse_policy or find_swingup_policy(args.runs_dir)
+        except FileNotFoundError as err:
+            parser.error(str(err))
+        per_seed = [particle_rmse(s, policy_ckpt) for s in range(args.rmse_seeds)]
+        rm = {"seeds": len(per_seed), "per_seed": per_seed, "policy": str(policy_ckpt)}
         for k in ("rbf+mpk", "rbf"):
             vals = [p[k] for p in per_seed]
             rm[k] = {
@@ -406,6 +482,12 @@ def main(argv: list[str] | None = None) -> int:
                 "median": float(np.median(vals)),
             }
         rm["mpk_better"] = int(sum(p["rbf+mpk"] < p["rbf"] for p in per_seed))
+        args.out.mkdir(parents=True, exist_ok=True)
+        plot_rmse(rm, args.out / "mcpilco_cartpole_rmse.png")
+        for p_ in rm["per_seed"]:  # keep the JSON small: particles only in the plot
+            for k in list(p_):
+                if k.endswith("_particles"):
+                    del p_[k]
         results["rmse"] = rm
         print(f"theta RMSE: rbf+mpk {rm['rbf+mpk']}, rbf {rm['rbf']}")
         write_report(results, args.out)

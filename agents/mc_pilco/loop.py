@@ -5,8 +5,8 @@ Glossary
 trial ``k = 0``
     random exploration for ``H`` steps (3 s): i.i.d. actions ``u ~ U(-1, 1)``.
 trial ``k >= 1``
-    fit the velocity-change GPs on all transitions ``D`` by marginal likelihood (warm start
-    from trial ``k - 1``; subset of data beyond ``max_points``), optimise the policy on the
+    fit the velocity-change GPs on all transitions ``D`` by marginal likelihood (fresh
+    hyperparameters each trial; subset of data beyond ``max_points``), optimise the policy on the
     particle estimate ``J^`` (5.8) with the monitoring rule, apply the policy (no dropout)
     to the env for ``H`` steps, append the transitions to ``D``.
 experience
@@ -105,7 +105,7 @@ class MCPilcoConfig:
     kernel: str = "rbf+mpk"
     max_points: int | None = 300
     gp_adam_iters: int = 200
-    gp_lbfgs_iters: int = 50
+    gp_lbfgs_iters: int = 100
     num_basis: int = 200
     policy_weight_scale: float = 0.01
     l_x: float = 1.0
@@ -149,8 +149,6 @@ DEMO_CONFIG = MCPilcoConfig(
     num_trials=4,
     num_particles=100,
     max_points=200,
-    gp_adam_iters=100,
-    gp_lbfgs_iters=30,
     opt=PolicyOptConfig(max_steps=500, monitor_patience=100),
     opt_steps_first=300,
     log_particles=100,

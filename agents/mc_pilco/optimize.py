@@ -2,27 +2,33 @@
 
 Glossary (Amadio et al. 2022, sec. IV-B/C; thesis Algorithm 1)
 ----------------------------------------------------------------
-``J^_k``, ``s_J,k``
-    expected-cost estimate (5.8) at optimisation step ``k`` and its spread over particles
-    (:class:`~mcpilco.agents.mc_pilco.loss.MCPilcoLoss` outputs ``loss_cost``/``cost_std``).
-``r_k = (J^_k - J^_{k-1}) / s_J,k``
-    cost change normalised by the Monte Carlo spread.
-``s_k = alpha_s s_{k-1} + (1 - alpha_s) r_k``
-    monitoring signal, an exponential moving average of ``r_k`` (``alpha_s = 0.99``).
+``J^_k``
+    expected-cost estimate (5.8) at optimisation step ``k``
+    (:class:`~mcpilco.agents.mc_pilco.loss.MCPilcoLoss` output ``loss_cost``).
+``d_k = J^_k - J^_{k-1}``
+    cost change of one step; it has a trend (the optimisation progress) and Monte Carlo
+    noise (fresh particles at every step).
+``m_k = alpha_s m_{k-1} + (1 - alpha_s) d_k``,  ``v_k = alpha_s (v_{k-1} + (1 - alpha_s)
+(d_k - m_{k-1})^2)``
+    exponentially weighted mean and variance of ``d`` (``alpha_s = 0.99``).
+``s_k = alpha_s s_{k-1} + (1 - alpha_s) m_k / sqrt(v_k)``
+    monitoring signal: the smoothed ratio of the cost change to its own spread. ``|s|`` is
+    large while the cost falls steadily and near 0 once the change is within the noise.
 stall
-    ``|s_k| < sigma_s`` (``sigma_s = 0.08``) for ``n_s`` consecutive steps: the optimisation
-    no longer improves by more than the Monte Carlo noise. Then the learning rate ``a`` is
-    halved, the dropout probability ``p`` lowered by ``Delta p`` (``0.25 -> 0.125 -> 0``),
-    Adam is restarted (fresh moments) and the signal reset. Optimisation stops when ``a``
-    would fall below ``a_min`` or after ``N_opt`` steps.
+    ``|s_k| < sigma_s`` for ``n_s`` consecutive steps (``sigma_s = 0.08``, ``n_s = 200``),
+    and not within the first ``min_steps`` steps. Then the learning rate ``a`` is halved
+    (down to ``a_min``), the dropout probability ``p`` lowered by ``Delta p``
+    (``0.25 -> 0.125 -> 0``), ``sigma_s`` halved (down to ``0.01``), Adam restarted (fresh
+    moments) and the count reset (the filters run on). A stall at ``a = a_min`` ends the
+    optimisation, as does ``N_opt`` steps.
 NaN restart
     a non-finite ``J^`` re-initialises the policy parameters and Adam (at most
     ``max_reinits`` times, then ``FloatingPointError``).
 
-The constants are those of the MC-PILCO reference configuration as we know it
-(``a = 0.01``, ``a_min = 0.0025``, ``p = 0.25``, ``Delta p = 0.125``, ``alpha_s = 0.99``,
-``sigma_s = 0.08``, ``n_s = 200``); the experiment configs override ``n_s`` and ``N_opt``
-to fit the compute budget.
+The constants are those of the MC-PILCO reference cart-pole configuration (``a = 0.01``,
+``a_min = 0.0025``, ``p = 0.25``, ``Delta p = 0.125``, ``alpha_s = 0.99``, ``sigma_s = 0.08``,
+``n_s = 200``, ``min_steps = 200``); the experiment configs set ``N_opt`` (and may shorten
+``n_s``) to fit the compute budget.
 """
 
 from __future__ import annotations
@@ -47,7 +53,9 @@ class PolicyOptConfig:
     dropout_reduction: float = 0.125
     monitor_alpha: float = 0.99
     monitor_threshold: float = 0.08
+    monitor_threshold_min: float = 0.01
     monitor_patience: int = 200
+    min_steps: int = 200
     max_reinits: int = 3
 
     def __post_init__(self) -> None:
@@ -61,31 +69,51 @@ class PolicyOptConfig:
             raise ValueError(f"monitor_alpha must be in [0, 1), got {self.monitor_alpha}")
         if self.monitor_patience < 1:
             raise ValueError(f"monitor_patience must be >= 1, got {self.monitor_patience}")
+        if self.min_steps < 0:
+            raise ValueError(f"min_steps must be >= 0, got {self.min_steps}")
 
 
 class CostMonitor:
     """The monitoring signal ``s_k`` and the stall test (see the module glossary)."""
 
-    def __init__(self, alpha: float = 0.99, threshold: float = 0.08, patience: int = 200):
+    def __init__(
+        self,
+        alpha: float = 0.99,
+        threshold: float = 0.08,
+        patience: int = 200,
+        min_steps: int = 0,
+        threshold_min: float = 0.01,
+    ):
         self.alpha = float(alpha)
         self.threshold = float(threshold)
+        self.threshold_min = float(threshold_min)
         self.patience = int(patience)
-        self.reset()
-
-    def reset(self) -> None:
-        """Forget the history (after a learning-rate change)."""
+        self.min_steps = int(min_steps)
         self.signal = 0.0
         self.count = 0
+        self.steps = 0
+        self._mean = 0.0
+        self._var = 0.0
         self._prev: float | None = None
 
-    def update(self, cost: float, cost_std: float) -> bool:
-        """Feed ``J^_k`` and ``s_J,k``; True when the signal has stalled for ``n_s`` steps."""
+    def update(self, cost: float) -> bool:
+        """Feed ``J^_k``; True when the signal has stalled (see the glossary)."""
+        a = self.alpha
         if self._prev is not None:
-            r = (cost - self._prev) / max(float(cost_std), 1e-12)
-            self.signal = self.alpha * self.signal + (1.0 - self.alpha) * r
+            d = cost - self._prev
+            self._var = a * (self._var + (1.0 - a) * (d - self._mean) ** 2)
+            self._mean = a * self._mean + (1.0 - a) * d
+            ratio = self._mean / max(math.sqrt(self._var), 1e-300)
+            self.signal = a * self.signal + (1.0 - a) * ratio
             self.count = self.count + 1 if abs(self.signal) < self.threshold else 0
         self._prev = float(cost)
-        return self.count >= self.patience
+        self.steps += 1
+        return self.count >= self.patience and self.steps > self.min_steps
+
+    def on_stall(self) -> None:
+        """After a stall: halve the threshold (not below ``threshold_min``) and count anew."""
+        self.threshold = max(self.threshold / 2.0, self.threshold_min)
+        self.count = 0
 
 
 @dataclass
@@ -144,7 +172,17 @@ def optimize_policy(
     dropout = config.dropout
     params = [p for p in policy.parameters() if p.requires_grad]
     opt = torch.optim.Adam(params, lr=lr)
-    monitor = CostMonitor(config.monitor_alpha, config.monitor_threshold, config.monitor_patience)
+
+    def new_monitor() -> CostMonitor:
+        return CostMonitor(
+            config.monitor_alpha,
+            config.monitor_threshold,
+            config.monitor_patience,
+            config.min_steps,
+            config.monitor_threshold_min,
+        )
+
+    monitor = new_monitor()
     _set_dropout(policy, dropout)
     policy.train()
     t0, c0 = time.perf_counter(), time.process_time()
@@ -167,7 +205,7 @@ def optimize_policy(
                 lr, dropout = config.lr, config.dropout
                 _set_dropout(policy, dropout)
                 opt = torch.optim.Adam(params, lr=lr)
-                monitor.reset()
+                monitor = new_monitor()
                 continue
             loss.backward()
             opt.step()
@@ -175,19 +213,19 @@ def optimize_policy(
             res.cost_stds.append(std)
             res.lrs.append(lr)
             res.dropouts.append(dropout)
-            stalled = monitor.update(cost, std)
+            stalled = monitor.update(cost)
             res.signals.append(monitor.signal)
             if on_step is not None:
                 on_step(k, cost, std, lr)
             if stalled:
-                if lr * 0.5 < config.lr_min:
+                if lr <= config.lr_min:
                     res.stop_reason = "lr_min"
                     break
-                lr *= 0.5
+                lr = max(lr * 0.5, config.lr_min)
                 dropout = max(dropout - config.dropout_reduction, 0.0)
                 _set_dropout(policy, dropout)
                 opt = torch.optim.Adam(params, lr=lr)
-                monitor.reset()
+                monitor.on_stall()
                 res.num_lr_reductions += 1
     finally:
         res.seconds = time.perf_counter() - t0

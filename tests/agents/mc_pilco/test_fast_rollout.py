@@ -26,7 +26,7 @@ from mcpilco.agents.mc_pilco import (
     cartpole_gp_inputs,
     make_policy_module,
 )
-from mcpilco.agents.mc_pilco.policy import _SquashedRBF
+from mcpilco.agents.mc_pilco.policy import _SquashedRBF, dropout_mask
 from mcpilco.models.gp.fused import FusedRBFMPKPredictor
 
 f64 = torch.float64
@@ -56,9 +56,12 @@ def test_policy_backward_matches_finite_differences():
     c = pol.centers.detach().clone().requires_grad_(True)
     log_l = pol.log_lengthscales.detach().clone().requires_grad_(True)
     w = (3.0 * pol.weights.detach()).requires_grad_(True)  # reach the tanh's curvature
-    assert torch.autograd.gradcheck(
-        lambda o, c_, l_, w_: _SquashedRBF.apply(o, c_, l_, w_, pol.u_max), (obs, c, log_l, w)
-    )
+    mask = (torch.rand(5, 6, generator=torch.Generator().manual_seed(3)) < 0.6).to(f64) / 0.6
+    for m in (None, mask):  # without and with a dropout mask on the activations
+        assert torch.autograd.gradcheck(
+            lambda o, c_, l_, w_, m=m: _SquashedRBF.apply(o, c_, l_, w_, pol.u_max, m),
+            (obs, c, log_l, w),
+        )
 
 
 def test_gp_inputs_and_cost_backward_match_finite_differences():
@@ -106,8 +109,8 @@ def _reference_rollout(pol, pred, bound, cost_l, x0, noise, obs_noise_std, seed)
         )
         ell = pol.log_lengthscales.exp()
         phi = torch.exp(-0.5 * (((feats[:, None, :] - pol.centers) / ell) ** 2).sum(-1))
-        w = nn.functional.dropout(pol.weights, p=pol.dropout, training=True)
-        u = pol.u_max * torch.tanh(phi @ w / pol.u_max)
+        d = dropout_mask((M, pol.num_basis), pol.dropout, f64)  # per particle and basis
+        u = pol.u_max * torch.tanh((d * phi) @ pol.weights / pol.u_max)
         gp_in = torch.cat(
             [x[:, 0:1], x[:, 1:2], x[:, 3:4], torch.sin(x[:, 2:3]), torch.cos(x[:, 2:3]), u], -1
         )

@@ -22,6 +22,7 @@ from mcpilco.agents.mc_pilco import (
     optimize_policy,
     speed_integration,
 )
+from mcpilco.agents.mc_pilco.policy import dropout_mask
 from mcpilco.envs.cartpole_task import cartpole_cost
 
 DT = 0.05
@@ -248,27 +249,57 @@ def test_monitor_detects_stall_and_not_steady_descent():
     mon = CostMonitor(alpha=0.99, threshold=0.08, patience=50)
     stalled_at = None
     for k in range(2000):  # flat cost with Monte Carlo noise: a stall
-        if mon.update(30.0 + rng.normal(scale=0.01), cost_std=1.0):
+        if mon.update(30.0 + rng.normal(scale=0.3)):
             stalled_at = k
             break
     assert stalled_at is not None and stalled_at >= 50
-    mon = CostMonitor(alpha=0.99, threshold=0.08, patience=50)
-    for k in range(1000):  # steady descent of 0.5 std per step: never a stall
-        assert not mon.update(30.0 - 0.5 * k, cost_std=1.0)
+    # steady descent of 0.1 per step under the same noise (a quarter of the std of d_k):
+    # once the filters have settled (min_steps), never a stall
+    mon = CostMonitor(alpha=0.99, threshold=0.08, patience=50, min_steps=300)
+    for k in range(3000):
+        assert not mon.update(30.0 - 0.1 * k + rng.normal(scale=0.3))
+
+
+def test_monitor_signal_is_the_smoothed_change_over_its_spread():
+    """Second implementation of the filters of the glossary, on a random cost sequence."""
+    rng = np.random.default_rng(1)
+    costs = 40.0 - 0.02 * np.arange(300) + rng.normal(scale=0.5, size=300)
+    mon = CostMonitor(alpha=0.9, threshold=0.08, patience=10**6)
+    m = v = s = 0.0
+    for k, c in enumerate(costs):
+        mon.update(float(c))
+        if k:
+            d = costs[k] - costs[k - 1]
+            v = 0.9 * (v + 0.1 * (d - m) ** 2)
+            m = 0.9 * m + 0.1 * d
+            s = 0.9 * s + 0.1 * m / np.sqrt(v)
+        assert mon.signal == pytest.approx(s, rel=1e-12, abs=1e-15)
+
+
+def test_monitor_waits_min_steps_and_halves_threshold_on_stall():
+    mon = CostMonitor(alpha=0.99, threshold=0.08, patience=5, min_steps=40, threshold_min=0.03)
+    first = next(k for k in range(100) if mon.update(1.0 + 1e-3 * (-1) ** k))
+    assert first == 40  # stalled long before, reported after min_steps
+    mon.on_stall()
+    assert mon.threshold == 0.04 and mon.count == 0
+    mon.on_stall()
+    assert mon.threshold == 0.03  # not below threshold_min
 
 
 class StalledLoss(nn.Module):
-    """A loss whose cost never changes (a stalled optimisation); tiny gradient."""
+    """A loss whose cost only fluctuates (Monte Carlo noise, no trend): a stalled
+    optimisation; tiny gradient."""
 
     def __init__(self, policy, nan_first: int = 0):
         super().__init__()
         self.policy = policy
         self.calls = 0
         self.nan_first = nan_first
+        self.rng = np.random.default_rng(0)
 
     def forward(self):
         self.calls += 1
-        val = 1e-9 * self.policy.weights.sum() + 5.0
+        val = 1e-9 * self.policy.weights.sum() + 5.0 + float(self.rng.normal(scale=0.1))
         if self.calls <= self.nan_first:
             val = val * float("nan")
         return TensorDict({"loss_cost": val, "cost_std": torch.tensor(1.0)}, [])
@@ -276,16 +307,18 @@ class StalledLoss(nn.Module):
 
 def test_optimizer_halves_lr_and_reduces_dropout_on_stall():
     pol = SquashedRBFPolicy(num_basis=5, seed=0)
-    cfg = PolicyOptConfig(max_steps=1000, lr=0.01, lr_min=0.0025, dropout=0.25, monitor_patience=20)
+    cfg = PolicyOptConfig(
+        max_steps=5000, lr=0.01, lr_min=0.0025, dropout=0.25, monitor_patience=20, min_steps=20
+    )
     res = optimize_policy(StalledLoss(pol), pol, cfg)
     lrs = sorted(set(res.lrs), reverse=True)
-    assert lrs == [0.01, 0.005, 0.0025]
+    assert lrs == [0.01, 0.005, 0.0025]  # halved twice, then a stall at a_min ends it
     assert sorted(set(res.dropouts), reverse=True) == [0.25, 0.125, 0.0]
     assert res.num_lr_reductions == 2
     assert res.stop_reason == "lr_min"
-    assert res.num_steps < 1000
+    assert res.num_steps < 5000
     first_half = res.lrs.index(0.005)
-    assert 20 <= first_half <= 25  # stall detected after patience steps
+    assert first_half >= 20  # not before min_steps and patience
     assert not pol.training  # left in eval mode
 
 
@@ -307,3 +340,22 @@ def test_unwrapped_cost_penalises_full_rotations():
     expected = 1 - math.exp(-((2 * math.pi) ** 2) / 9.0)  # |theta| - pi = 2 pi
     assert float(cost(up_after_spin)) == pytest.approx(expected, rel=1e-6)
     assert float(SwingUpCost(wrap=True)(up_after_spin)) == pytest.approx(0.0, abs=1e-12)
+
+
+@pytest.mark.parametrize("p", [0.25, 0.125, 0.5])
+def test_dropout_mask_is_bernoulli_with_unit_mean(p):
+    torch.manual_seed(0)
+    d = dropout_mask((400, 250), p, torch.float64)
+    keep = 1.0 - p
+    assert set(torch.unique(d).tolist()) == {0.0, 1.0 / keep}
+    n = d.numel()
+    frac = float((d == 0).double().mean())
+    assert abs(frac - p) < 4 * math.sqrt(p * keep / n)  # binomial 4-sigma band
+    assert abs(float(d.mean()) - 1.0) < 4 * math.sqrt(p / keep / n)
+    # independent entries: neighbouring bytes of the same 64-bit word are uncorrelated
+    flat = (d.flatten() == 0).double()
+    corr = float(((flat[:-1] - p) * (flat[1:] - p)).mean() / (p * keep))
+    assert abs(corr) < 4 / math.sqrt(n)
+    assert torch.equal(dropout_mask((3, 4), 0.0, torch.float32), torch.ones(3, 4))
+    with pytest.raises(ValueError, match="dropout"):
+        dropout_mask((3,), 1.0, torch.float32)
