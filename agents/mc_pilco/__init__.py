@@ -38,6 +38,7 @@ from mcpilco.agents.mc_pilco.optimize import (
     optimize_policy,
 )
 from mcpilco.agents.mc_pilco.policy import (
+    PolicyPopulation,
     SquashedRBFPolicy,
     cartpole_policy_features,
     make_policy_module,
@@ -54,6 +55,7 @@ __all__ = [
     "OptimizationResult",
     "ParticleRollout",
     "PolicyOptConfig",
+    "PolicyPopulation",
     "RunSummary",
     "SpeedIntegrationDynamics",
     "SquashedRBFPolicy",

@@ -15,7 +15,7 @@ from typing import Any
 import numpy as np
 import torch
 
-CHECKPOINT_VERSION = 1
+CHECKPOINT_VERSION = 2
 
 
 def atomic_torch_save(obj: Any, path: str | os.PathLike) -> None:

@@ -47,7 +47,11 @@ from mcpilco.agents.mc_pilco.cost import SwingUpCost
 from mcpilco.agents.mc_pilco.dynamics import KERNEL_CHOICES, GPDynamicsModel
 from mcpilco.agents.mc_pilco.loss import MCPilcoLoss
 from mcpilco.agents.mc_pilco.optimize import OptimizationResult, PolicyOptConfig, optimize_policy
-from mcpilco.agents.mc_pilco.policy import SquashedRBFPolicy, make_policy_module
+from mcpilco.agents.mc_pilco.policy import (
+    PolicyPopulation,
+    SquashedRBFPolicy,
+    make_policy_module,
+)
 from mcpilco.agents.mc_pilco.viz import (
     plot_optimisation,
     plot_trial_particles,
@@ -57,7 +61,17 @@ from mcpilco.agents.mc_pilco.viz import (
 DEFAULT_ENV_ID = "mcpilco/CartpoleSwingUp-v0"
 CHECKPOINT_NAME = "checkpoint.pt"
 # config fields that must not change when a run is resumed
-_RESUME_FIXED = ("env_id", "seed", "kernel", "horizon", "num_particles", "num_basis")
+_RESUME_FIXED = (
+    "env_id",
+    "seed",
+    "kernel",
+    "horizon",
+    "num_particles",
+    "num_basis",
+    "num_candidates",
+)
+CANDIDATE_SEED_STRIDE = 7919
+"""Candidate ``k`` of run ``seed`` is initialised with seed ``seed + 7919 k``."""
 
 
 @dataclass
@@ -86,6 +100,9 @@ class MCPilcoConfig:
             "do nothing" on trial 2. Success and the reported cost always come from the env.
         cost_wrap_angle: wrap theta in the optimised cost (False: MC-PILCO's ``|theta|``,
             which does not reward spinning the pole; see :mod:`.cost`).
+        num_candidates: ``K`` candidate policies optimised side by side (``M`` particles
+            each; :class:`~mcpilco.agents.mc_pilco.policy.PolicyPopulation`); the one with
+            the lowest ``J^`` (fresh particles, no dropout) is applied. 1: plain MC-PILCO.
         init_std: ``sigma_0`` of the initial particles.
         sim_obs_noise_std: measurement noise simulated on the policy input in rollouts.
         opt: policy optimisation schedule (:class:`PolicyOptConfig`).
@@ -111,6 +128,7 @@ class MCPilcoConfig:
     l_x: float = 1.0
     l_theta: float = 3.0
     cost_wrap_angle: bool = False
+    num_candidates: int = 1
     init_std: float = 0.01
     sim_obs_noise_std: float = 0.01
     opt: PolicyOptConfig = field(default_factory=PolicyOptConfig)
@@ -132,6 +150,10 @@ class MCPilcoConfig:
             raise ValueError(f"num_trials must be an integer >= 0, got {self.num_trials!r}")
         if int(self.horizon) != self.horizon or self.horizon < 1:
             raise ValueError(f"horizon must be a positive integer, got {self.horizon!r}")
+        if int(self.num_candidates) != self.num_candidates or self.num_candidates < 1:
+            raise ValueError(
+                f"num_candidates must be a positive integer, got {self.num_candidates!r}"
+            )
         if self.kernel not in KERNEL_CHOICES:
             raise ValueError(f"kernel must be one of {KERNEL_CHOICES}, got {self.kernel!r}")
         if self.max_points is not None and self.max_points < 10:
@@ -270,6 +292,18 @@ def _policy_act(policy: SquashedRBFPolicy) -> Callable[[np.ndarray], np.ndarray]
     return act
 
 
+@torch.no_grad()
+def choose_candidate(
+    loss: MCPilcoLoss, population: PolicyPopulation, policy: SquashedRBFPolicy, repeats: int = 4
+) -> torch.Tensor:
+    """``J^_k`` of every candidate (mean of ``repeats`` rollouts with fresh particles, no
+    dropout); copies the best candidate into ``policy`` and returns the ``J^_k`` (K,)."""
+    population.eval()
+    costs = torch.stack([loss()["candidate_costs"] for _ in range(repeats)]).mean(0)
+    population.copy_to(int(costs.argmin()), policy)
+    return costs
+
+
 def transitions(episodes: list[dict[str, Any]]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """``(s_t, a_t, s_{t+1})`` of all episodes, stacked."""
     s = np.concatenate([e["obs"][:-1] for e in episodes])
@@ -348,10 +382,17 @@ def run_mcpilco(
 
     torch.manual_seed(config.seed)
     np_rng = np.random.default_rng(config.seed)
-    policy = SquashedRBFPolicy(
-        num_basis=config.num_basis, weight_scale=config.policy_weight_scale, seed=config.seed
-    )
-    policy_module = make_policy_module(policy)
+    candidates = [
+        SquashedRBFPolicy(
+            num_basis=config.num_basis,
+            weight_scale=config.policy_weight_scale,
+            seed=config.seed + CANDIDATE_SEED_STRIDE * k,
+        )
+        for k in range(config.num_candidates)
+    ]
+    policy = candidates[0]  # the policy applied to the system (the chosen candidate)
+    population = PolicyPopulation(candidates)
+    policy_module = make_policy_module(population)
     model = GPDynamicsModel(
         kernel=config.kernel,
         dt=dt,
@@ -372,6 +413,7 @@ def run_mcpilco(
         records = ckpt["records"]
         arrays = ckpt["arrays"]
         policy.load_state_dict(ckpt["policy"])
+        population.load_state_dict(ckpt["population"])
         opt_state = ckpt["optimizer"]
         if ckpt["gp_file"] is not None:
             model.load(out / ckpt["gp_file"])
@@ -433,11 +475,15 @@ def run_mcpilco(
                     if obar is not None:
                         obar.update(1)
                         if i % 10 == 0:
-                            obar.set_postfix(J=f"{c:.2f}", std=f"{s:.2f}", lr=f"{lr:.4f}")
+                            J = c / config.num_candidates
+                            obar.set_postfix(J=f"{J:.2f}", std=f"{s:.2f}", lr=f"{lr:.4f}")
 
-                res: OptimizationResult = optimize_policy(loss, policy, opt_cfg, on_step=on_step)
+                res: OptimizationResult = optimize_policy(
+                    loss, population, opt_cfg, on_step=on_step
+                )
                 if obar is not None:
                     obar.close()
+                cand_costs = choose_candidate(loss, population, policy)
                 rec.update(
                     opt_steps=res.num_steps,
                     opt_s=res.seconds,
@@ -446,13 +492,27 @@ def run_mcpilco(
                     opt_stop=res.stop_reason,
                     opt_lr_reductions=res.num_lr_reductions,
                     opt_reinits=res.num_reinits,
-                    opt_final_cost=res.costs[-1] if res.costs else math.nan,
+                    opt_final_cost=res.costs[-1] / config.num_candidates if res.costs else math.nan,
+                    candidate_costs=cand_costs.tolist(),
+                    chosen_candidate=int(cand_costs.argmin()),
+                    chosen_cost=float(cand_costs.min()),
                 )
-                arr["opt_costs"] = np.asarray(res.costs, dtype=np.float32)
-                # particle predictions of the final policy (for the plots)
+                # mean J^_k over candidates per step (J^ itself for one candidate)
+                arr["opt_costs"] = np.asarray(res.costs, dtype=np.float32) / config.num_candidates
+                # particle predictions of the applied policy (for the plots)
                 policy.eval()
+                log_loss = MCPilcoLoss(
+                    make_policy_module(policy),
+                    dynamics,
+                    cost_fn,
+                    horizon=config.horizon,
+                    num_particles=config.num_particles,
+                    init_std=config.init_std,
+                    obs_noise_std=config.sim_obs_noise_std,
+                )
                 with torch.no_grad():
-                    ro = loss.rollout(num_particles=min(config.log_particles, config.num_particles))
+                    n_log = min(config.log_particles, config.num_particles)
+                    ro = log_loss.rollout(num_particles=n_log)
                 arr["particles"] = ro.states.numpy()
                 # 3. apply the policy
                 ep = run_episode(
@@ -498,6 +558,7 @@ def run_mcpilco(
                     "records": records,
                     "arrays": arrays,
                     "policy": policy.state_dict(),
+                    "population": population.state_dict(),
                     "optimizer": opt_state,
                     "gp_file": gp_file,
                     "rng": rng_state(np_rng),

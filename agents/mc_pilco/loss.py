@@ -18,7 +18,12 @@ Glossary (thesis sections 5.4.1-5.4.2; Amadio et al. 2022, sec. III)
     through the whole horizon (5.4.2).
 ``s_J``
     standard deviation over particles of the per-particle cumulative cost
-    ``sum_t c(x_t^(m))``; with it the monitoring rule normalises cost changes.
+    ``sum_t c(x_t^(m))`` (reported with the loss).
+candidates ``k = 1..K``
+    with a :class:`~mcpilco.agents.mc_pilco.policy.PolicyPopulation` the rollout carries
+    ``M`` particles per candidate, stacked candidate-major (``K M`` in all);
+    ``J^_k`` is the estimate (5.8) of candidate ``k`` and ``loss_cost = sum_k J^_k`` (the
+    candidates' parameters are disjoint, so each gets the gradient of its own ``J^_k``).
 
 All particles are propagated together: each time step is a handful of batched tensor ops
 over ``(M, .)``; there is no Python loop over particles.
@@ -63,10 +68,11 @@ class MCPilcoLoss(LossModule):
         obs_noise_std: ``sigma_obs`` of the simulated measurement noise on the policy input.
         delta_dim: dimension of ``eps`` per step (number of GPs, 2 for the cartpole).
 
-    ``forward(td)`` reads optional entries ``"initial_state"`` (M, 4) and ``"noise"``
-    (H, M, delta_dim) (common random numbers, tests); otherwise it samples them. It returns
-    a TensorDict with ``loss_cost`` (the differentiable ``J^``) and ``cost_std`` (``s_J``,
-    detached).
+    ``forward(td)`` reads optional entries ``"initial_state"`` (K M, 4) and ``"noise"``
+    (H, K M, delta_dim) (common random numbers, tests); otherwise it samples them. It returns
+    a TensorDict with ``loss_cost`` (the differentiable ``sum_k J^_k``), ``cost_std``
+    (``s_J``, mean over candidates, detached) and ``candidate_costs`` (``J^_k``, (K,),
+    detached). A plain policy is ``K = 1``.
     """
 
     def __init__(
@@ -111,6 +117,7 @@ class MCPilcoLoss(LossModule):
             self._policy_fn = policy.module
         else:
             self._policy_fn = policy
+        self.num_candidates = int(getattr(self._policy_fn, "num_candidates", 1))
         self._compiled_step = None
 
     def _step(self, x: Tensor, eps: Tensor, nu: Tensor | None) -> tuple[Tensor, Tensor, Tensor]:
@@ -133,9 +140,9 @@ class MCPilcoLoss(LossModule):
         self.dynamics = dynamics
 
     def sample_initial_state(self, num_particles: int | None = None) -> Tensor:
-        """``x_0^(m) ~ N(mu_0, Sigma_0)``, (M, 4)."""
+        """``x_0^(m) ~ N(mu_0, Sigma_0)``, (K M, 4) (``M`` per candidate)."""
         m = self.num_particles if num_particles is None else int(num_particles)
-        return self.init_mean + self.init_std * torch.randn(m, 4)
+        return self.init_mean + self.init_std * torch.randn(self.num_candidates * m, 4)
 
     def rollout(
         self,
@@ -147,17 +154,21 @@ class MCPilcoLoss(LossModule):
         """Propagate ``M`` particles for ``H`` steps; differentiable w.r.t. the policy.
 
         Args:
-            initial_state: (M, 4) ``x_0``; sampled when None.
-            noise: (H, M, delta_dim) ``eps``; sampled when None. Pass zeros for the mean
+            initial_state: (K M, 4) ``x_0``; sampled when None.
+            noise: (H, K M, delta_dim) ``eps``; sampled when None. Pass zeros for the mean
                 prediction of a deterministic model.
-            num_particles: ``M`` when ``initial_state`` is None (default: the module's).
+            num_particles: ``M`` per candidate when ``initial_state`` is None (default: the
+                module's).
             keep_states: also return the whole trajectory (else ``states`` holds only
                 ``x_0`` and ``x_H``).
         """
         x = self.sample_initial_state(num_particles) if initial_state is None else initial_state
         m = x.shape[0]
-        if x.ndim != 2 or x.shape[1] != 4:
-            raise ValueError(f"initial_state must have shape (M, 4), got {tuple(x.shape)}")
+        if x.ndim != 2 or x.shape[1] != 4 or m % self.num_candidates:
+            raise ValueError(
+                f"initial_state must have shape (K M, 4) with K = {self.num_candidates}, got "
+                f"{tuple(x.shape)}"
+            )
         if noise is None:
             noise = torch.randn(self.horizon, m, self.delta_dim, dtype=x.dtype)
         if noise.shape != (self.horizon, m, self.delta_dim):
@@ -192,7 +203,15 @@ class MCPilcoLoss(LossModule):
             noise=td.get("noise", None),
             keep_states=False,
         )
-        per_particle = ro.costs.sum(dim=1)  # sum_t c(x_t^(m)), (M,)
-        loss = per_particle.mean()
-        std = per_particle.detach().std() if per_particle.numel() > 1 else torch.zeros(())
-        return TensorDict({"loss_cost": loss, "cost_std": std}, batch_size=[])
+        per_particle = ro.costs.sum(dim=1).view(self.num_candidates, -1)  # sum_t c, (K, M)
+        per_candidate = per_particle.mean(dim=1)  # J^_k
+        with torch.no_grad():
+            std = per_particle.std(dim=1).mean() if per_particle.shape[1] > 1 else torch.zeros(())
+        return TensorDict(
+            {
+                "loss_cost": per_candidate.sum(),
+                "cost_std": std,
+                "candidate_costs": per_candidate.detach(),
+            },
+            batch_size=[],
+        )

@@ -29,6 +29,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
+from typing import Any
 
 import torch
 from tensordict.nn import TensorDictModule
@@ -123,11 +124,25 @@ class SquashedRBFPolicy(nn.Module):
         w = torch.rand(self.num_basis, self.action_dim, generator=gen) * 2.0 - 1.0
         self.weights.copy_(w * self.weight_scale * self.u_max)
 
+    def settings(self) -> dict[str, Any]:
+        """Constructor arguments that define the architecture and initialisation."""
+        return {
+            "num_basis": self.num_basis,
+            "action_dim": self.action_dim,
+            "u_max": self.u_max,
+            "centers_box": self.centers_box.tolist(),
+            "lengthscale_init": self.lengthscale_init.tolist(),
+            "weight_scale": self.weight_scale,
+            "dropout": self.dropout,
+        }
+
     def basis(self, features: Tensor) -> Tensor:
         """Activations ``phi(x~)`` (..., n_b), matmul form of ``||(x~ - c)/l||^2``."""
         lead = features.shape[:-1]
         *_, log_phi = _log_basis(
-            features.reshape(-1, self.input_dim), self.centers, self.log_lengthscales
+            features.reshape(1, -1, self.input_dim),
+            self.centers.unsqueeze(0),
+            self.log_lengthscales.unsqueeze(0),
         )
         return log_phi.exp_().reshape(*lead, self.num_basis)
 
@@ -137,18 +152,117 @@ class SquashedRBFPolicy(nn.Module):
                 f"observation must have shape (..., 4) = [x, x_dot, theta, theta_dot], got "
                 f"{tuple(obs.shape)}"
             )
+        lead = obs.shape[:-1]
+        flat = obs.reshape(1, -1, 4)
         mask = None
         if self.training and self.dropout > 0.0:
-            shape = (obs[..., 0].numel(), self.num_basis)
+            shape = (1, flat.shape[1], self.num_basis)
             mask = dropout_mask(shape, self.dropout, obs.dtype, obs.device)
-        return _SquashedRBF.apply(
-            obs, self.centers, self.log_lengthscales, self.weights, self.u_max, mask
+        u = _SquashedRBF.apply(
+            flat,
+            self.centers.unsqueeze(0),
+            self.log_lengthscales.unsqueeze(0),
+            self.weights.unsqueeze(0),
+            self.u_max,
+            mask,
         )
+        return u.reshape(*lead, self.action_dim)
 
     def extra_repr(self) -> str:
         return (
             f"num_basis={self.num_basis}, action_dim={self.action_dim}, u_max={self.u_max}, "
             f"dropout={self.dropout}"
+        )
+
+
+class PolicyPopulation(nn.Module):
+    """``K`` candidate :class:`SquashedRBFPolicy` optimised side by side on the same model.
+
+    Why: the particle estimate ``J^`` is non-convex in ``theta``, and from one start the
+    optimisation can stall in a local optimum (e.g. a slow pumping that brings the pole up
+    only at the end of the horizon). Candidates share the GP model and the rollout: their
+    particles are stacked candidate-major, so ``K`` candidates with ``M`` particles each are
+    one rollout of ``K M`` particles, and at these sizes a rollout's cost is mostly fixed per
+    time step. Each candidate ``k`` has its own ``J^_k`` and gradient (``J^ = sum_k J^_k``:
+    parameters are disjoint). After the optimisation the candidate with the lowest ``J^_k``
+    is the policy applied to the system; all candidates go on at the next trial.
+
+    Args:
+        candidates: the starting policies (same architecture); their parameters are copied.
+
+    Shapes:
+        ``forward(obs (K M, 4)) -> (K M, A)``: rows ``k M .. (k + 1) M - 1`` use candidate
+        ``k``. Parameters: ``centers (K, n_b, 5)``, ``log_lengthscales (K, 5)``,
+        ``weights (K, n_b, A)``.
+    """
+
+    def __init__(self, candidates: Sequence[SquashedRBFPolicy]) -> None:
+        super().__init__()
+        if not candidates:
+            raise ValueError("a population needs at least one candidate policy")
+        first = candidates[0]
+        for p in candidates[1:]:
+            if p.settings() != first.settings():
+                raise ValueError("all candidates must have the same architecture and settings")
+        self._settings = first.settings()
+        self.num_candidates = len(candidates)
+        self.num_basis = first.num_basis
+        self.action_dim = first.action_dim
+        self.u_max = first.u_max
+        self.dropout = first.dropout
+        self.centers = nn.Parameter(torch.stack([p.centers.detach() for p in candidates]))
+        self.log_lengthscales = nn.Parameter(
+            torch.stack([p.log_lengthscales.detach() for p in candidates])
+        )
+        self.weights = nn.Parameter(torch.stack([p.weights.detach() for p in candidates]))
+
+    def forward(self, obs: Tensor) -> Tensor:
+        if obs.shape[-1] != 4 or obs[..., 0].numel() % self.num_candidates:
+            raise ValueError(
+                f"observation must have shape (K M, 4) with K = {self.num_candidates} "
+                f"candidates, got {tuple(obs.shape)}"
+            )
+        lead = obs.shape[:-1]
+        flat = obs.reshape(self.num_candidates, -1, 4)
+        mask = None
+        if self.training and self.dropout > 0.0:
+            shape = (*flat.shape[:2], self.num_basis)
+            mask = dropout_mask(shape, self.dropout, obs.dtype, obs.device)
+        u = _SquashedRBF.apply(
+            flat, self.centers, self.log_lengthscales, self.weights, self.u_max, mask
+        )
+        return u.reshape(*lead, self.action_dim)
+
+    def candidate(self, k: int) -> SquashedRBFPolicy:
+        """Candidate ``k`` as a stand-alone policy (parameters copied)."""
+        pol = SquashedRBFPolicy(**self._settings)
+        self.copy_to(k, pol)
+        return pol
+
+    @torch.no_grad()
+    def copy_to(self, k: int, policy: SquashedRBFPolicy) -> None:
+        """Write candidate ``k``'s parameters into ``policy``."""
+        if not 0 <= k < self.num_candidates:
+            raise IndexError(f"candidate {k} out of range 0..{self.num_candidates - 1}")
+        policy.centers.copy_(self.centers[k])
+        policy.log_lengthscales.copy_(self.log_lengthscales[k])
+        policy.weights.copy_(self.weights[k])
+
+    @torch.no_grad()
+    def reset_parameters(self, seed: int | None = None) -> None:
+        """Re-initialise every candidate as :meth:`SquashedRBFPolicy.reset_parameters`."""
+        for k in range(self.num_candidates):
+            pol = SquashedRBFPolicy(
+                **self._settings, seed=None if seed is None else int(seed) + 7919 * k
+            )
+            self.centers[k] = pol.centers
+            self.log_lengthscales[k] = pol.log_lengthscales
+            self.weights[k] = pol.weights
+
+    def extra_repr(self) -> str:
+        return (
+            f"num_candidates={self.num_candidates}, num_basis={self.num_basis}, "
+            f"action_dim={self.action_dim}, u_max={self.u_max}, dropout={self.dropout}"
         )
 
 
@@ -175,21 +289,24 @@ def dropout_mask(
 
 
 def _log_basis(feats: Tensor, centers: Tensor, log_l: Tensor) -> tuple[Tensor, ...]:
-    """``a = x~ / l`` (k, 5), ``b = c / l`` (n_b, 5), ``1 / l`` and ``log phi (k, n_b) = a b^T -
-    |a|^2/2 - |b|^2/2 = -1/2 ||a - b||^2`` (<= 0 up to rounding)."""
-    inv_l = torch.exp(-log_l)
+    """Batched over ``K`` policies: ``a = x~ / l`` (K, k, 5), ``b = c / l`` (K, n_b, 5),
+    ``1 / l`` (K, 1, 5) and ``log phi (K, k, n_b) = a b^T - |a|^2/2 - |b|^2/2 =
+    -1/2 ||a - b||^2`` (<= 0 up to rounding)."""
+    inv_l = torch.exp(-log_l).unsqueeze(1)
     a = feats * inv_l
     b = centers * inv_l
-    log_phi = torch.addmm((b * b).sum(-1).mul_(-0.5), a, b.T)
+    log_phi = torch.baddbmm((b * b).sum(-1).mul_(-0.5).unsqueeze(1), a, b.transpose(1, 2))
     log_phi.sub_((a * a).sum(-1, keepdim=True).mul_(0.5))
     return a, b, inv_l, log_phi
 
 
 class _SquashedRBF(torch.autograd.Function):
-    """``u = u_max tanh((D o phi(x~(obs))) w / u_max)`` with an analytic backward (one autograd
-    node per call instead of about fifteen; the rollout calls the policy at every time step).
-    ``D`` (k, n_b) is the dropout mask (None: all ones); below ``phi`` stands for ``D o phi``,
-    which is also ``d(D o phi) / d log phi``.
+    """``u = u_max tanh((D o phi(x~(obs))) w / u_max)`` for ``K`` policies at once, with an
+    analytic backward (one autograd node per call instead of about fifteen; the rollout calls
+    the policy at every time step). Shapes: ``obs (K, k, 4)``, ``c (K, n_b, 5)``,
+    ``log l (K, 5)``, ``w (K, n_b, A)``, ``D (K, k, n_b)`` the dropout mask (None: all ones).
+    Below ``phi`` stands for ``D o phi``, which is also ``d(D o phi) / d log phi``, and the
+    products are per policy (batched).
 
     With ``a = x~ / l``, ``b = c / l``, ``log phi = a b^T - |a|^2/2 - |b|^2/2`` and
     ``G = dJ/d log phi = ((g_u (1 - tanh^2)) w^T) o phi``:
@@ -201,43 +318,45 @@ class _SquashedRBF(torch.autograd.Function):
 
     @staticmethod
     def forward(ctx, obs, centers, log_l, w, u_max, mask=None):  # noqa: D102
-        lead = obs.shape[:-1]
-        feats = cartpole_policy_features(obs.reshape(-1, 4))  # (k, 5)
+        feats = cartpole_policy_features(obs)  # (K, k, 5)
         a, b, inv_l, log_phi = _log_basis(feats, centers, log_l)
-        phi = log_phi.exp_()  # (k, n_b)
+        phi = log_phi.exp_()  # (K, k, n_b)
         if mask is not None:
             phi.mul_(mask)
-        t = torch.tanh(phi @ w / u_max)  # (k, A)
+        t = torch.tanh(torch.bmm(phi, w).div_(u_max))  # (K, k, A)
         ctx.save_for_backward(a, b, phi, t, w, feats, inv_l)
-        ctx.lead = lead
-        return (u_max * t).reshape(*lead, w.shape[-1])
+        return u_max * t
 
     @staticmethod
     def backward(ctx, g_u):  # noqa: D102
         a, b, phi, t, w, feats, inv_l = ctx.saved_tensors
-        cos_t, sin_t = feats[:, 3], feats[:, 4]
         need_obs, need_c, need_l, need_w = ctx.needs_input_grad[:4]
-        gs = g_u.reshape(t.shape) * (1.0 - t * t)  # (k, A), dJ/d(phi w)
-        g_w = phi.T @ gs if need_w else None
+        gs = g_u * (1.0 - t * t)  # (K, k, A), dJ/d(phi w)
+        g_w = torch.bmm(phi.transpose(1, 2), gs) if need_w else None
         g_obs = g_c = g_l = None
         if need_obs or need_c or need_l:
-            G = torch.mm(gs, w.T).mul_(phi)  # (k, n_b), dJ/d log phi
+            G = torch.bmm(gs, w.transpose(1, 2)).mul_(phi)  # (K, k, n_b), dJ/d log phi
+            Gt = G.transpose(1, 2)
             # (b^T G^T)^T and (a^T G)^T: the wide-output products are 5x faster than G b, G^T a
-            g_a = torch.addcmul(torch.mm(b.T, G.T).T, a, G.sum(1, keepdim=True), value=-1.0)
-            g_b = torch.addcmul(torch.mm(a.T, G).T, b, G.sum(0).unsqueeze(1), value=-1.0)
+            g_a = torch.bmm(b.transpose(1, 2), Gt).transpose(1, 2)
+            g_a = g_a.addcmul(a, G.sum(2, keepdim=True), value=-1.0)
+            g_b = torch.bmm(a.transpose(1, 2), G).transpose(1, 2)
+            g_b = g_b.addcmul(b, Gt.sum(2, keepdim=True), value=-1.0)
             if need_l:
-                g_l = -((g_a * a).sum(0) + (g_b * b).sum(0))
+                g_l = -((g_a * a).sum(1) + (g_b * b).sum(1))
             if need_c:
                 g_c = g_b * inv_l
             if need_obs:
-                gf = g_a * inv_l  # (k, 5), dJ/dx~
-                g_theta = gf[:, 4] * cos_t - gf[:, 3] * sin_t
-                g_obs = torch.stack([gf[:, 0], gf[:, 1], g_theta, gf[:, 2]], dim=1)
-                g_obs = g_obs.reshape(*ctx.lead, 4)
+                gf = g_a * inv_l  # (K, k, 5), dJ/dx~
+                cos_t, sin_t = feats[..., 3], feats[..., 4]
+                g_theta = gf[..., 4] * cos_t - gf[..., 3] * sin_t
+                g_obs = torch.stack([gf[..., 0], gf[..., 1], g_theta, gf[..., 2]], dim=-1)
         return g_obs, g_c, g_l, g_w, None, None
 
 
-def make_policy_module(policy: SquashedRBFPolicy | None = None, **kwargs) -> TensorDictModule:
+def make_policy_module(
+    policy: SquashedRBFPolicy | PolicyPopulation | None = None, **kwargs
+) -> TensorDictModule:
     """Wrap a policy as a ``TensorDictModule`` reading ``"observation"``, writing ``"action"``.
 
     ``kwargs`` go to :class:`SquashedRBFPolicy` when ``policy`` is None.

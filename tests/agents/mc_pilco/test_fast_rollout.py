@@ -51,15 +51,18 @@ def test_fused_posterior_backward_matches_finite_differences(kernel):
 
 
 def test_policy_backward_matches_finite_differences():
-    pol = SquashedRBFPolicy(num_basis=6, action_dim=2, u_max=0.8, seed=0).to(f64)
-    obs = torch.randn(5, 4, dtype=f64).requires_grad_(True)
-    c = pol.centers.detach().clone().requires_grad_(True)
-    log_l = pol.log_lengthscales.detach().clone().requires_grad_(True)
-    w = (3.0 * pol.weights.detach()).requires_grad_(True)  # reach the tanh's curvature
-    mask = (torch.rand(5, 6, generator=torch.Generator().manual_seed(3)) < 0.6).to(f64) / 0.6
+    """Two policies batched (K = 2, different parameters), with and without a mask."""
+    pols = [SquashedRBFPolicy(num_basis=6, action_dim=2, u_max=0.8, seed=s).to(f64) for s in (0, 1)]
+    obs = torch.randn(2, 5, 4, dtype=f64).requires_grad_(True)
+    c = torch.stack([p.centers.detach() for p in pols]).requires_grad_(True)
+    log_l = torch.stack([p.log_lengthscales.detach() + 0.1 * i for i, p in enumerate(pols)])
+    log_l.requires_grad_(True)
+    w = torch.stack([3.0 * p.weights.detach() for p in pols]).requires_grad_(True)  # tanh curvature
+    gen = torch.Generator().manual_seed(3)
+    mask = (torch.rand(2, 5, 6, generator=gen) < 0.6).to(f64) / 0.6
     for m in (None, mask):  # without and with a dropout mask on the activations
         assert torch.autograd.gradcheck(
-            lambda o, c_, l_, w_, m=m: _SquashedRBF.apply(o, c_, l_, w_, pol.u_max, m),
+            lambda o, c_, l_, w_, m=m: _SquashedRBF.apply(o, c_, l_, w_, 0.8, m),
             (obs, c, log_l, w),
         )
 

@@ -1,0 +1,117 @@
+"""Candidate policies optimised side by side (``PolicyPopulation``) against independent truth:
+each candidate on its own, with the same initial states and noise (common random numbers)."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import pytest
+import torch
+from torch import nn
+
+from mcpilco.agents.mc_pilco import (
+    MCPilcoLoss,
+    PolicyPopulation,
+    SpeedIntegrationDynamics,
+    SquashedRBFPolicy,
+    SwingUpCost,
+    make_policy_module,
+    run_mcpilco,
+)
+from mcpilco.agents.mc_pilco.checkpoint import load_checkpoint
+from mcpilco.agents.mc_pilco.loop import choose_candidate
+
+f64 = torch.float64
+
+
+class LinearDelta(nn.Module):
+    """A known smooth stand-in for the GP: mean and variance of Delta from the GP input."""
+
+    def forward(self, z):
+        return 0.3 * torch.tanh(z[..., :2] - z[..., 5:6]), 0.01 + 0.01 * z[..., 3:5] ** 2
+
+
+def _candidates(k: int) -> list[SquashedRBFPolicy]:
+    return [SquashedRBFPolicy(num_basis=20, weight_scale=0.8, seed=s).to(f64) for s in range(k)]
+
+
+def test_population_rows_use_their_own_candidate():
+    cands = _candidates(3)
+    pop = PolicyPopulation(cands).to(f64).eval()
+    obs = torch.randn(3 * 7, 4, dtype=f64)
+    u = pop(obs)
+    for k, p in enumerate(cands):
+        p.eval()
+        torch.testing.assert_close(u[7 * k : 7 * (k + 1)], p(obs[7 * k : 7 * (k + 1)]))
+        c = pop.candidate(k).to(f64)
+        torch.testing.assert_close(c.weights, p.weights)
+    with pytest.raises(ValueError, match="K = 3"):
+        pop(torch.randn(8, 4, dtype=f64))
+    with pytest.raises(ValueError, match="same architecture"):
+        PolicyPopulation([SquashedRBFPolicy(num_basis=5), SquashedRBFPolicy(num_basis=6)])
+
+
+def test_population_loss_and_gradients_equal_each_candidate_alone():
+    K, M, H = 3, 16, 10
+    cands = _candidates(K)
+    dyn = SpeedIntegrationDynamics(LinearDelta(), 0.05)
+    cost = SwingUpCost(l_x=1.0, l_theta=3.0, wrap=False)
+    pop = PolicyPopulation(cands).to(f64)
+    pop.eval()  # no dropout: deterministic given the noise
+    gen = torch.Generator().manual_seed(0)
+    x0 = 0.1 * torch.randn(K * M, 4, generator=gen, dtype=f64)
+    eps = torch.randn(H, K * M, 2, generator=gen, dtype=f64)
+    loss = MCPilcoLoss(make_policy_module(pop), dyn, cost, H, M)
+    from tensordict import TensorDict
+
+    out = loss(TensorDict({"initial_state": x0, "noise": eps}, []))
+    grads = torch.autograd.grad(out["loss_cost"], [pop.centers, pop.weights, pop.log_lengthscales])
+    for k, p in enumerate(cands):
+        p.eval()
+        rows = slice(k * M, (k + 1) * M)
+        single = MCPilcoLoss(make_policy_module(p), dyn, cost, H, M)
+        o = single(TensorDict({"initial_state": x0[rows], "noise": eps[:, rows]}, []))
+        torch.testing.assert_close(out["candidate_costs"][k], o["loss_cost"].detach())
+        g = torch.autograd.grad(o["loss_cost"], [p.centers, p.weights, p.log_lengthscales])
+        for g_pop, g_one in zip(grads, g, strict=True):
+            torch.testing.assert_close(g_pop[k], g_one, atol=1e-12, rtol=1e-9)
+    torch.testing.assert_close(out["loss_cost"].detach(), out["candidate_costs"].sum())
+
+
+def test_choose_candidate_copies_the_lowest_expected_cost():
+    K, M, H = 3, 64, 20  # float32, as in the loop
+    cands = [SquashedRBFPolicy(num_basis=20, weight_scale=0.8, seed=s) for s in range(K)]
+    with torch.no_grad():
+        cands[1].weights.zero_()  # u = 0: the pole stays down, the highest cost
+    dyn = SpeedIntegrationDynamics(LinearDelta(), 0.05)
+    pop = PolicyPopulation(cands)
+    loss = MCPilcoLoss(make_policy_module(pop), dyn, SwingUpCost(wrap=False), H, M)
+    applied = SquashedRBFPolicy(num_basis=20, weight_scale=0.8)
+    costs = choose_candidate(loss, pop, applied)
+    best = int(costs.argmin())
+    assert costs.shape == (K,) and best != 1
+    torch.testing.assert_close(applied.weights, cands[best].weights)
+
+
+def test_loop_with_two_candidates_applies_the_chosen_one_and_resumes(tmp_path):
+    from tests.agents.mc_pilco.test_loop import SMOKE
+
+    cfg = dataclasses.replace(SMOKE, num_candidates=2)
+    summary = run_mcpilco(cfg, tmp_path, progress=False, log=None, write_rrd=False)
+    rec = summary.records[1]
+    assert len(rec["candidate_costs"]) == 2
+    assert rec["chosen_candidate"] == int(torch.tensor(rec["candidate_costs"]).argmin())
+    ckpt = load_checkpoint(summary.checkpoint)
+    pop = ckpt["population"]
+    torch.testing.assert_close(ckpt["policy"]["weights"], pop["weights"][rec["chosen_candidate"]])
+    resumed = run_mcpilco(
+        dataclasses.replace(cfg, num_trials=2),
+        tmp_path,
+        resume=True,
+        progress=False,
+        log=None,
+        write_rrd=False,
+    )
+    assert [r["index"] for r in resumed.records] == [0, 1, 2]
+    with pytest.raises(ValueError, match="num_candidates"):
+        run_mcpilco(SMOKE, tmp_path, resume=True, progress=False, log=None, write_rrd=False)
