@@ -39,8 +39,9 @@ Parts (thesis section 2.6):
     ``e_p`` wins; against local minima), clipped to the joint box of the training data
     (against extrapolation); the env tracks it and the camera measures the reached pose.
     Online improvement: the frames measured while executing the references are added to
-    the data, the GP is refitted and the targets are tried again (``--online-rounds``),
-    by default from the reference reached in the previous round (``--ctrl-refine``).
+    the data with ``--ctrl-hold`` more frames measured at rest at each reached reference,
+    the GP is refitted and the targets are tried again (``--online-rounds``), from the
+    reference reached in the previous round and from the round-0 starts (``--ctrl-refine``).
     ``--ctrl-starts 0 --ctrl-unlimited`` is the thesis' plain controller.
 
 Outputs (``--out-dir``, default ``results/``; ``--merge`` keeps the parts not run from an
@@ -50,10 +51,10 @@ existing ``kinematics.json``): ``kinematics.json``,
 
 Examples::
 
-    python -m mcpilco.scripts.bench_kinematics                 # full (~15 min on 2 busy cores)
+    python -m mcpilco.scripts.bench_kinematics                 # full (~30 min on 2 busy cores)
     python -m mcpilco.scripts.bench_kinematics --quick         # ~1-2 min smoke run
     python -m mcpilco.scripts.bench_kinematics --parts a --robots 16
-    python -m mcpilco.scripts.bench_kinematics --parts cd --online-rounds 2 --merge
+    python -m mcpilco.scripts.bench_kinematics --parts cd --merge
 """
 
 from __future__ import annotations
@@ -91,6 +92,8 @@ ERR_NAMES = (*POSE_NAMES, "geodesic")
 UR10_HOME = np.array([0.0, -np.pi / 2, np.pi / 2, 0.0, np.pi / 2, 0.0])
 """UR10 configuration at the centre of the sampled region (elbow up, wrist down)."""
 THESIS_TABLE_2_1 = (0.0052, 0.0051, 0.0069, 0.0169, 0.0265, 0.0358)
+REFINE_CHOICES = ("previous", "restart", "both")
+"""(d) starts of the online rounds: see :func:`controller_part`."""
 PART_KEYS = ("monte_carlo", "noise_vs_samples", "fk_gp", "controller")
 """Result keys of the parts a, b, c, d."""
 QUICK = dict(
@@ -440,8 +443,9 @@ def controller_part(
     starts: int = 4,
     limit_to_data: bool = True,
     orientation: str = "ypr",
-    refine: str = "previous",
+    refine: str = "both",
     rotation_outputs: str = "five",
+    hold: int = 5,
 ) -> dict[str, Any]:
     """Table 2.2: reach 5 random targets with eq. 2.24, then refit with the executed frames.
 
@@ -458,11 +462,17 @@ def controller_part(
     ``refine`` sets the starts of the online rounds (``rnd >= 1``): ``"previous"`` runs
     eq. 2.24 once more from the reference reached in the previous round for the same target
     (the refitted GP now holds the frames measured around it, so the update corrects the
-    remaining local model error); ``"restart"`` repeats the round-0 multi-start search.
-    ``rotation_outputs`` is that of :class:`ForwardKinematicsGP`.
+    remaining local model error); ``"restart"`` repeats the round-0 multi-start search;
+    ``"both"`` puts the previous reference first among the round-0 starts (the lowest
+    predicted ``e_p`` wins, ties go to the previous reference).
+    ``rotation_outputs`` is that of :class:`ForwardKinematicsGP`. ``hold`` more frames are
+    measured while the robot rests at each reached reference (they join the data; the
+    reported reached pose is the single frame at arrival).
     """
-    if refine not in ("previous", "restart"):
-        raise ValueError(f"refine must be 'previous' or 'restart', got {refine!r}")
+    if hold < 0:
+        raise ValueError(f"hold must be >= 0, got {hold}")
+    if refine not in REFINE_CHOICES:
+        raise ValueError(f"refine must be one of {REFINE_CHOICES}, got {refine!r}")
     env = data["env"]
     poses, q, _ = data["train"]
     ee, joints = structure.markers[-1], list(structure.joints)
@@ -487,29 +497,31 @@ def controller_part(
         for k in tqdm(range(5), desc=f"(d) controller round {rnd}", disable=not progress):
             _drive_to(env, q_start)
             q0 = env.q[chain_of_model]
+            q_starts = [q0]
+            if starts > 0:
+                q_starts += list(nearest_data_starts(X, Y, targets[k], starts, 0.1, orientation))
             if rnd > 0 and refine == "previous":
                 q_starts = [previous[k]]
-            else:
-                q_starts = [q0]
-                if starts > 0:
-                    q_starts += list(
-                        nearest_data_starts(X, Y, targets[k], starts, 0.1, orientation)
-                    )
+            elif rnd > 0 and refine == "both":
+                q_starts = [previous[k], *q_starts]
             res, s = multi_start_controller(
                 pred, q_starts, targets[k], nu=0.5, steps=steps, q_limits=limits,
                 orientation=orientation,
             )  # fmt: skip
             predicted.append(float(res.predicted_error[-1]))
-            chosen.append(-1 if rnd > 0 and refine == "previous" else s)
+            chosen.append(s - 1 if rnd > 0 and refine != "restart" else s)
             obs_rows = []
             for q_model in (res.q[0], res.q_final):  # via the chosen start, then q_des
                 q_goal = env.q.copy()
                 q_goal[chain_of_model] = q_model
                 obs_rows += _drive_to(env, np.clip(q_goal, env.q_low, env.q_high))
+            arrival = obs_rows[-1][: 6 * (n + 1)].reshape(n + 1, 6)[ee]
+            for _ in range(hold):  # the robot rests at q_des while the camera keeps measuring
+                obs_rows.append(env.step(np.zeros(n, dtype=np.float32))[0])
             for o in obs_rows:
                 new_X.append(o[6 * (n + 1) : 6 * (n + 1) + n][joints])
                 new_Y.append(o[: 6 * (n + 1)].reshape(n + 1, 6)[ee])
-            reached.append(new_Y[-1])
+            reached.append(arrival)
             reached_true.append(env.marker_poses(env.q)[-1])
             if rnd == 0:
                 previous.append(res.q_final.copy())
@@ -541,6 +553,7 @@ def controller_part(
         orientation=orientation,
         refine=refine,
         rotation_outputs=rotation_outputs,
+        hold=hold,
         targets=targets.tolist(),
         rounds=rows,
     )
@@ -760,7 +773,8 @@ def _markdown(res: dict[str, Any]) -> str:
             f"the data's joint box: {c.get('limit_to_data', False)}; orientation error in e_p: "
             f"{c.get('orientation', 'ypr')}; rotation outputs: "
             f"{c.get('rotation_outputs', 'five')}; online rounds start from: "
-            f"{c.get('refine', 'restart')}. RMSE of the reached pose "
+            f"{c.get('refine', 'restart')}; frames measured at rest after each reference: "
+            f"{c.get('hold', 0)}. RMSE of the reached pose (one frame at arrival) "
             "as measured by the camera (as in the thesis) and against the true pose.",
             "",
             f"| data | {' | '.join(ERR_NAMES)} |",
@@ -804,7 +818,7 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--repeats", type=int, default=1, help="(b) trajectories")
     p.add_argument("--fk-train", type=int, default=100, help="(c) training samples")
     p.add_argument("--ctrl-train", type=int, default=300, help="(d) training samples")
-    p.add_argument("--online-rounds", type=int, default=1, help="(d) refits with new data")
+    p.add_argument("--online-rounds", type=int, default=3, help="(d) refits with new data")
     p.add_argument("--ctrl-steps", type=int, default=300, help="(d) controller updates")
     p.add_argument(
         "--ctrl-starts", type=int, default=4,
@@ -819,8 +833,12 @@ def _parser() -> argparse.ArgumentParser:
         help="(d) orientation error in e_p: wrapped yaw-pitch-roll (thesis) or chordal",
     )  # fmt: skip
     p.add_argument(
-        "--ctrl-refine", choices=("previous", "restart"), default="previous",
-        help="(d) online rounds: refine the previous round's reference, or search again",
+        "--ctrl-refine", choices=REFINE_CHOICES, default="both",
+        help="(d) online rounds: refine the previous reference, search again, or both",
+    )  # fmt: skip
+    p.add_argument(
+        "--ctrl-hold", type=int, default=5,
+        help="(d) extra frames measured at rest at each reached reference (added to the data)",
     )  # fmt: skip
     p.add_argument(
         "--rotation-outputs", choices=("five", "nine"), default="five",
@@ -911,6 +929,7 @@ def main(argv: list[str] | None = None) -> int:
                 orientation=args.ctrl_orientation,
                 refine=args.ctrl_refine,
                 rotation_outputs=args.rotation_outputs,
+                hold=args.ctrl_hold,
             )
     for key in PART_KEYS:  # which command produced each part (they may come from --merge)
         if key in res:

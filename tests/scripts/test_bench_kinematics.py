@@ -57,7 +57,8 @@ def test_bench_kinematics_tiny_run_writes_outputs(tmp_path):
         [
             "--parts", "abcd", "--robots", "1", "--samples", "72", "--sizes", "36", "72",
             "--repeats", "1", "--fk-train", "20", "--ctrl-train", "25", "--online-rounds", "1",
-            "--ctrl-steps", "5", "--out-dir", str(tmp_path), "--no-progress",
+            "--ctrl-steps", "5", "--ctrl-refine", "previous", "--ctrl-hold", "2",
+            "--out-dir", str(tmp_path), "--no-progress",
         ]
     )  # fmt: skip
     assert rc == 0
@@ -69,6 +70,7 @@ def test_bench_kinematics_tiny_run_writes_outputs(tmp_path):
     assert len(res["fk_gp"]["noise_free_training_rmse_true"]) == 4
     rounds = res["controller"]["rounds"]
     assert len(rounds) == 2 and rounds[1]["chosen_start"] == [-1] * 5  # refined from round 0
+    assert rounds[1]["n_data"] - rounds[0]["n_data"] >= 5 * 2  # + the frames held at rest
     for name in ("kinematics_confusion.png", "kinematics_noise_vs_samples.png",
                  "kinematics_controller.png", "kinematics.md"):  # fmt: skip
         assert (tmp_path / name).stat().st_size > 0
