@@ -71,7 +71,7 @@ import numpy as np
 import torch
 from tqdm.auto import tqdm
 
-from mcpilco.envs.marker_camera import MarkerCameraEnv
+from mcpilco.envs.marker_camera import NOISE_DEFAULTS, MarkerCameraEnv
 from mcpilco.models.gp import GPRegressor
 from mcpilco.models.kinematics import (
     classify_all_triplets,
@@ -200,14 +200,24 @@ def waypoint_trajectory(
     return poses, rows[:, 6 * (n + 1) : 6 * (n + 1) + n], np.array(q_true)
 
 
-def ur10_datasets(seed: int, samples: int, span: float = 1.0) -> dict[str, Any]:
+def ur10_datasets(
+    seed: int, samples: int, span: float = 1.0, noise_scale: float = 1.0
+) -> dict[str, Any]:
     """``D_tr`` and ``D_test``: 25 random waypoints, visited in two different orders.
 
     Waypoints: ``UR10_HOME + U(-span, span)`` per joint (the "available region of the
     workspace" of the thesis; ``span = pi`` explores every joint fully, which 100 samples
     cannot cover). One env episode (fixed markers and permutations) holds both trajectories.
+    ``noise_scale`` multiplies the env's default ``position_noise`` and ``angle_noise`` (a
+    sensitivity study; 1 = the env's defaults).
     """
-    env = MarkerCameraEnv(max_increment=0.2)
+    if not noise_scale >= 0:
+        raise ValueError(f"noise_scale must be >= 0, got {noise_scale}")
+    env = MarkerCameraEnv(
+        max_increment=0.2,
+        position_noise=noise_scale * NOISE_DEFAULTS["position_noise"],
+        angle_noise=noise_scale * NOISE_DEFAULTS["angle_noise"],
+    )
     rng = np.random.default_rng([seed, 1])
     waypoints = UR10_HOME + rng.uniform(-span, span, (25, 6))
     obs, _ = env.reset(seed=seed, options={"q": waypoints[0]})
@@ -750,8 +760,8 @@ def _markdown(res: dict[str, Any]) -> str:
                 f"{mn['distance_mean']:.2f} m from the camera on average "
                 f"({mn['distance_range'][0]:.2f}-{mn['distance_range'][1]:.2f} m), mean "
                 f"abs(cos theta) = {mn['abs_cos_incidence_mean']:.2f}: noise scale "
-                f"f = {mn['scale_mean']:.2f} on average (1 = {mn['reference_position_std']} m "
-                f"per axis and {mn['reference_angle_std']} rad per rotation-vector component "
+                f"f = {mn['scale_mean']:.2f} on average (1 = {mn['reference_position_std']:.4g} m "
+                f"per axis and {mn['reference_angle_std']:.4g} rad per rotation-vector component "
                 "at 2 m, face-on).",
                 "",
             ]
@@ -846,6 +856,10 @@ def _parser() -> argparse.ArgumentParser:
     )  # fmt: skip
     p.add_argument("--span", type=float, default=1.0, help="(b-d) waypoints: home +- span rad")
     p.add_argument(
+        "--noise-scale", type=float, default=1.0,
+        help="(c, d) multiply the env's default marker position and angle noise (sensitivity)",
+    )  # fmt: skip
+    p.add_argument(
         "--merge", action="store_true",
         help="keep the results of the parts not run from an existing kinematics.json in --out-dir",
     )  # fmt: skip
@@ -869,7 +883,9 @@ def main(argv: list[str] | None = None) -> int:
     cmd = "python -m mcpilco.scripts.bench_kinematics " + " ".join(
         sys.argv[1:] if argv is None else argv
     )
-    res: dict[str, Any] = dict(command=cmd.strip(), seed=args.seed)
+    res: dict[str, Any] = dict(
+        command=cmd.strip(), seed=args.seed, span=args.span, noise_scale=args.noise_scale
+    )
     old_json = out / "kinematics.json"
     if args.merge and old_json.exists():
         old = json.loads(old_json.read_text())
@@ -890,7 +906,7 @@ def main(argv: list[str] | None = None) -> int:
             args.seed, args.samples, sizes, args.repeats, progress, args.span
         )
     if "c" in args.parts or "d" in args.parts:
-        data = ur10_datasets(args.seed, args.samples, args.span)
+        data = ur10_datasets(args.seed, args.samples, args.span, args.noise_scale)
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", UserWarning)
             idn = identify_ur10(data)
