@@ -22,11 +22,15 @@ Parts (thesis section 2.6):
     on ``--fk-train`` (100) random samples of ``D_tr`` and tested on ``D_test`` (the same
     waypoints in another order). RMSE against the measured (noisy) test poses, as in the
     thesis, and against the true poses. Baseline: an RBF GP (ARD, on raw ``q``) on the same
-    samples. Diagnostics: the measurement noise itself (measured vs true test poses: the
-    floor of any RMSE against measured poses), the same GP trained on the noise-free poses
-    of the same 100 configurations (is the gap noise or data?), and the errors restricted to
-    test poses with ``|beta| < 1`` (yaw and roll of eq. 2.20 are ill-conditioned near
-    ``beta = +-pi/2``).
+    samples. Option beyond the thesis, reported separately: the GP on all nine rotation
+    elements with the mean projected onto SO(3). Diagnostics: the measurement noise itself
+    (measured vs true test poses: the floor of any RMSE against measured poses; per axis, as
+    a 3-D norm, and the distance / incidence that scale it), the same GP trained on
+    noise-free poses of the same 100 configurations, of 100 configurations drawn i.i.d. in
+    the waypoint box, and of 4x as many of each (is the gap noise, the number of samples or
+    the trajectory design?), the numerical rank of the ``3^6`` monomials of ``k_R`` on
+    ``D_tr``, and the errors restricted to test poses with ``|beta| < 1`` (yaw and roll of
+    eq. 2.20 are ill-conditioned near ``beta = +-pi/2``).
 (d) **Controller** (2.6.4, Table 2.2): the GP trained on ``--ctrl-train`` random samples of
     ``D_tr`` (the thesis uses all of ``D_tr``; a subset keeps the run short); 5 random
     targets (configurations uniform in the joint box of the waypoints) from a fixed start;
@@ -35,7 +39,9 @@ Parts (thesis section 2.6):
     ``e_p`` wins; against local minima), clipped to the joint box of the training data
     (against extrapolation); the env tracks it and the camera measures the reached pose.
     Online improvement: the frames measured while executing the references are added to
-    the data, the GP is refitted and the targets are tried again (``--online-rounds``).
+    the data with ``--ctrl-hold`` more frames measured at rest at each reached reference,
+    the GP is refitted and the targets are tried again (``--online-rounds``), from the
+    reference reached in the previous round and from the round-0 starts (``--ctrl-refine``).
     ``--ctrl-starts 0 --ctrl-unlimited`` is the thesis' plain controller.
 
 Outputs (``--out-dir``, default ``results/``; ``--merge`` keeps the parts not run from an
@@ -45,10 +51,10 @@ existing ``kinematics.json``): ``kinematics.json``,
 
 Examples::
 
-    python -m mcpilco.scripts.bench_kinematics                 # full (~15 min on 2 busy cores)
+    python -m mcpilco.scripts.bench_kinematics                 # full (~30 min on 2 busy cores)
     python -m mcpilco.scripts.bench_kinematics --quick         # ~1-2 min smoke run
     python -m mcpilco.scripts.bench_kinematics --parts a --robots 16
-    python -m mcpilco.scripts.bench_kinematics --parts cd --online-rounds 2 --merge
+    python -m mcpilco.scripts.bench_kinematics --parts cd --merge
 """
 
 from __future__ import annotations
@@ -65,7 +71,7 @@ import numpy as np
 import torch
 from tqdm.auto import tqdm
 
-from mcpilco.envs.marker_camera import MarkerCameraEnv
+from mcpilco.envs.marker_camera import NOISE_DEFAULTS, MarkerCameraEnv
 from mcpilco.models.gp import GPRegressor
 from mcpilco.models.kinematics import (
     classify_all_triplets,
@@ -86,6 +92,8 @@ ERR_NAMES = (*POSE_NAMES, "geodesic")
 UR10_HOME = np.array([0.0, -np.pi / 2, np.pi / 2, 0.0, np.pi / 2, 0.0])
 """UR10 configuration at the centre of the sampled region (elbow up, wrist down)."""
 THESIS_TABLE_2_1 = (0.0052, 0.0051, 0.0069, 0.0169, 0.0265, 0.0358)
+REFINE_CHOICES = ("previous", "restart", "both")
+"""(d) starts of the online rounds: see :func:`controller_part`."""
 PART_KEYS = ("monte_carlo", "noise_vs_samples", "fk_gp", "controller")
 """Result keys of the parts a, b, c, d."""
 QUICK = dict(
@@ -192,14 +200,24 @@ def waypoint_trajectory(
     return poses, rows[:, 6 * (n + 1) : 6 * (n + 1) + n], np.array(q_true)
 
 
-def ur10_datasets(seed: int, samples: int, span: float = 1.0) -> dict[str, Any]:
+def ur10_datasets(
+    seed: int, samples: int, span: float = 1.0, noise_scale: float = 1.0
+) -> dict[str, Any]:
     """``D_tr`` and ``D_test``: 25 random waypoints, visited in two different orders.
 
     Waypoints: ``UR10_HOME + U(-span, span)`` per joint (the "available region of the
     workspace" of the thesis; ``span = pi`` explores every joint fully, which 100 samples
     cannot cover). One env episode (fixed markers and permutations) holds both trajectories.
+    ``noise_scale`` multiplies the env's default ``position_noise`` and ``angle_noise`` (a
+    sensitivity study; 1 = the env's defaults).
     """
-    env = MarkerCameraEnv(max_increment=0.2)
+    if not noise_scale >= 0:
+        raise ValueError(f"noise_scale must be >= 0, got {noise_scale}")
+    env = MarkerCameraEnv(
+        max_increment=0.2,
+        position_noise=noise_scale * NOISE_DEFAULTS["position_noise"],
+        angle_noise=noise_scale * NOISE_DEFAULTS["angle_noise"],
+    )
     rng = np.random.default_rng([seed, 1])
     waypoints = UR10_HOME + rng.uniform(-span, span, (25, 6))
     obs, _ = env.reset(seed=seed, options={"q": waypoints[0]})
@@ -295,7 +313,46 @@ def identify_ur10(data: dict[str, Any]) -> dict[str, Any]:
     return dict(structure=s, correct=bool(ok), seconds=elapsed)
 
 
+def _feature_rank(q: np.ndarray, rtol: float = 1e-8) -> int:
+    """Numerical rank of the ``3^n`` monomials spanning the RKHS of ``k_R`` (Prop. 2.5.1 (i))
+    evaluated at the rows of ``q`` (all revolute): products over ``b`` of ``[1, cos q_b,
+    sin q_b]``. Directions of that space outside the span are fixed by the prior alone."""
+    F = np.stack([np.ones_like(q), np.cos(q), np.sin(q)], -1)
+    phi = np.ones((len(q), 1))
+    for b in range(q.shape[1]):
+        phi = (phi[:, :, None] * F[:, b, None, :]).reshape(len(q), -1)
+    s = np.linalg.svd(phi, compute_uv=False)
+    return int((s > rtol * s[0]).sum())
+
+
+def measurement_noise_stats(env: MarkerCameraEnv, measured: np.ndarray, q_true: np.ndarray):
+    """End-marker measurement error of ``measured`` poses ``(T, 6)`` against the truth at the
+    true joint positions ``q_true`` ``(T, n)`` (chain order); the camera distance ``d``, the
+    incidence ``|cos theta|`` and the env's noise scale ``f`` along the data."""
+    l, R = zip(*(env.marker_transforms(qq) for qq in q_true), strict=True)
+    l, R = np.array(l)[:, -1], np.array(R)[:, -1]
+    err = measured[:, :3] - l
+    R_err = np.swapaxes(R, -1, -2) @ ypr_to_matrix(measured[:, 3:])
+    ang = np.arccos(np.clip((np.trace(R_err, axis1=-2, axis2=-1) - 1.0) / 2.0, -1.0, 1.0))
+    d = np.linalg.norm(l, axis=1)
+    cos = np.abs(R[:, 2, 2])
+    f = np.array([env.noise_scale(qq)[-1] for qq in q_true])
+    return dict(
+        position_rmse_per_axis=np.sqrt((err**2).mean(0)).tolist(),
+        position_rmse_3d=float(np.sqrt((err**2).sum(1).mean())),
+        geodesic_rmse=float(np.sqrt((ang**2).mean())),
+        distance_mean=float(d.mean()),
+        distance_range=[float(d.min()), float(d.max())],
+        abs_cos_incidence_mean=float(cos.mean()),
+        scale_mean=float(f.mean()),
+        scale_rms=float(np.sqrt((f**2).mean())),
+        reference_position_std=env.position_noise,
+        reference_angle_std=env.angle_noise,
+    )
+
+
 def fk_gp_part(data: dict[str, Any], structure, n_train: int, seed: int) -> dict[str, Any]:
+    """Table 2.1 and the diagnostics of the module docstring (part (c))."""
     poses, q, _ = data["train"]
     poses_te, q_te, q_te_true = data["test"]
     env = data["env"]
@@ -305,33 +362,66 @@ def fk_gp_part(data: dict[str, Any], structure, n_train: int, seed: int) -> dict
     X, Y = q[idx][:, joints], poses[idx, ee]
     Xte, Yte = q_te[:, joints], poses_te[:, ee]
     true_te = np.array([env.marker_poses(qq)[-1] for qq in q_te_true])
+    fit_kw = dict(adam_iters=50, lbfgs_iters=100)
     t0 = time.perf_counter()
-    fk = ForwardKinematicsGP(structure.joint_types).fit(X, Y, adam_iters=50, lbfgs_iters=100)
+    fk = ForwardKinematicsGP(structure.joint_types).fit(X, Y, **fit_kw)
     t_fit = time.perf_counter() - t0
     pred = fk.predict(Xte)
+    pred9 = ForwardKinematicsGP(structure.joint_types, rotation_outputs="nine").fit(X, Y, **fit_kw)
+    pred9 = pred9.predict(Xte)
     pred_rbf = _rbf_gp(X, Y, Xte)
     noise_floor = _pose_rmse(Yte, true_te)
-    # diagnostic: the same 100 configurations with noise-free q and poses (is it the noise?)
+    # diagnostics with noise-free q and poses (chain order = model order when the structure
+    # is right): is the gap noise, the number of samples, or the trajectory design?
     _, _, q_tr_true = data["train"]
-    q_clean = q_tr_true[idx][:, env.joint_permutation[joints]]
-    Y_clean = np.array([env.marker_poses(qq)[-1] for qq in q_tr_true[idx]])
-    fk_clean = ForwardKinematicsGP(structure.joint_types).fit(
-        q_clean, Y_clean, adam_iters=50, lbfgs_iters=100
-    )
-    q_te_model = q_te_true[:, env.joint_permutation[joints]]
+    chain_of_model = env.joint_permutation[joints]
+    q_te_model = q_te_true[:, chain_of_model]
+
+    def noise_free(q_chain: np.ndarray) -> list[float]:
+        Y_clean = np.array([env.marker_poses(qq)[-1] for qq in q_chain])
+        m = ForwardKinematicsGP(structure.joint_types).fit(
+            q_chain[:, chain_of_model], Y_clean, **fit_kw
+        )
+        return _pose_rmse(m.predict(q_te_model), true_te)
+
+    idx_big = rng.choice(len(q), min(4 * n_train, len(q)), replace=False)
+    box = data["waypoints"].min(0), data["waypoints"].max(0)
+    noise_free_rows = {
+        f"{n_train} samples of D_tr": noise_free(q_tr_true[idx]),
+        f"{n_train} i.i.d. uniform in the waypoint box": noise_free(
+            rng.uniform(*box, (n_train, 6))
+        ),
+        f"{len(idx_big)} samples of D_tr": noise_free(q_tr_true[idx_big]),
+        f"{len(idx_big)} i.i.d. uniform in the waypoint box": noise_free(
+            rng.uniform(*box, (len(idx_big), 6))
+        ),
+    }
     small_beta = np.abs(true_te[:, 4]) < 1.0  # away from the yaw-pitch-roll singularity
+    all_revolute = set(structure.joint_types) == {"R"}
     return dict(
         n_train=n_train,
         n_test=len(Xte),
         fit_seconds=t_fit,
         polynomial_rmse_measured=_pose_rmse(pred, Yte),
         polynomial_rmse_true=_pose_rmse(pred, true_te),
+        nine_elements_rmse_measured=_pose_rmse(pred9, Yte),
+        nine_elements_rmse_true=_pose_rmse(pred9, true_te),
         rbf_rmse_measured=_pose_rmse(pred_rbf, Yte),
         rbf_rmse_true=_pose_rmse(pred_rbf, true_te),
         measurement_noise_rmse=noise_floor,
-        polynomial_noiseless_training_rmse_true=_pose_rmse(fk_clean.predict(q_te_model), true_te),
+        measurement_noise=measurement_noise_stats(env, Yte, q_te_true),
+        polynomial_noiseless_training_rmse_true=noise_free_rows[f"{n_train} samples of D_tr"],
+        noise_free_training_rmse_true=noise_free_rows,
+        feature_rank=dict(
+            D_tr=_feature_rank(q_tr_true) if all_revolute else None,
+            iid_same_size=_feature_rank(rng.uniform(*box, (len(q_tr_true), 6)))
+            if all_revolute
+            else None,
+            monomials=3 ** len(structure.joint_types),
+        ),
         small_beta_test_samples=int(small_beta.sum()),
         polynomial_rmse_true_small_beta=_pose_rmse(pred[small_beta], true_te[small_beta]),
+        nine_elements_rmse_true_small_beta=_pose_rmse(pred9[small_beta], true_te[small_beta]),
         measurement_noise_rmse_small_beta=_pose_rmse(Yte[small_beta], true_te[small_beta]),
     )
 
@@ -363,6 +453,9 @@ def controller_part(
     starts: int = 4,
     limit_to_data: bool = True,
     orientation: str = "ypr",
+    refine: str = "both",
+    rotation_outputs: str = "five",
+    hold: int = 5,
 ) -> dict[str, Any]:
     """Table 2.2: reach 5 random targets with eq. 2.24, then refit with the executed frames.
 
@@ -375,7 +468,21 @@ def controller_part(
     explored while collecting ``D_tr``: the "workspace" of the thesis' targets). Errors of the
     reached poses are reported as measured by the camera (as in the thesis) and against the
     true (noise-free) poses.
+
+    ``refine`` sets the starts of the online rounds (``rnd >= 1``): ``"previous"`` runs
+    eq. 2.24 once more from the reference reached in the previous round for the same target
+    (the refitted GP now holds the frames measured around it, so the update corrects the
+    remaining local model error); ``"restart"`` repeats the round-0 multi-start search;
+    ``"both"`` puts the previous reference first among the round-0 starts (the lowest
+    predicted ``e_p`` wins, ties go to the previous reference).
+    ``rotation_outputs`` is that of :class:`ForwardKinematicsGP`. ``hold`` more frames are
+    measured while the robot rests at each reached reference (they join the data; the
+    reported reached pose is the single frame at arrival).
     """
+    if hold < 0:
+        raise ValueError(f"hold must be >= 0, got {hold}")
+    if refine not in REFINE_CHOICES:
+        raise ValueError(f"refine must be one of {REFINE_CHOICES}, got {refine!r}")
     env = data["env"]
     poses, q, _ = data["train"]
     ee, joints = structure.markers[-1], list(structure.joints)
@@ -389,8 +496,9 @@ def controller_part(
     # model joint k is observed slot S_q[k], i.e. chain joint joint_permutation[S_q[k]]
     chain_of_model = env.joint_permutation[joints]
     n = env.n_joints
-    fk = ForwardKinematicsGP(structure.joint_types)
+    fk = ForwardKinematicsGP(structure.joint_types, rotation_outputs=rotation_outputs)
     rows = []
+    previous: list[np.ndarray] = []
     for rnd in range(rounds + 1):
         fk.fit(X, Y, adam_iters=50, lbfgs_iters=100)
         pred = fk.predictor()
@@ -402,22 +510,33 @@ def controller_part(
             q_starts = [q0]
             if starts > 0:
                 q_starts += list(nearest_data_starts(X, Y, targets[k], starts, 0.1, orientation))
+            if rnd > 0 and refine == "previous":
+                q_starts = [previous[k]]
+            elif rnd > 0 and refine == "both":
+                q_starts = [previous[k], *q_starts]
             res, s = multi_start_controller(
                 pred, q_starts, targets[k], nu=0.5, steps=steps, q_limits=limits,
                 orientation=orientation,
             )  # fmt: skip
             predicted.append(float(res.predicted_error[-1]))
-            chosen.append(s)
+            chosen.append(s - 1 if rnd > 0 and refine != "restart" else s)
             obs_rows = []
             for q_model in (res.q[0], res.q_final):  # via the chosen start, then q_des
                 q_goal = env.q.copy()
                 q_goal[chain_of_model] = q_model
                 obs_rows += _drive_to(env, np.clip(q_goal, env.q_low, env.q_high))
+            arrival = obs_rows[-1][: 6 * (n + 1)].reshape(n + 1, 6)[ee]
+            for _ in range(hold):  # the robot rests at q_des while the camera keeps measuring
+                obs_rows.append(env.step(np.zeros(n, dtype=np.float32))[0])
             for o in obs_rows:
                 new_X.append(o[6 * (n + 1) : 6 * (n + 1) + n][joints])
                 new_Y.append(o[: 6 * (n + 1)].reshape(n + 1, 6)[ee])
-            reached.append(new_Y[-1])
+            reached.append(arrival)
             reached_true.append(env.marker_poses(env.q)[-1])
+            if rnd == 0:
+                previous.append(res.q_final.copy())
+            else:
+                previous[k] = res.q_final.copy()
         reached, reached_true = np.array(reached), np.array(reached_true)
         rows.append(
             dict(
@@ -442,6 +561,9 @@ def controller_part(
         starts=starts,
         limit_to_data=limit_to_data,
         orientation=orientation,
+        refine=refine,
+        rotation_outputs=rotation_outputs,
+        hold=hold,
         targets=targets.tolist(),
         rounds=rows,
     )
@@ -594,13 +716,34 @@ def _markdown(res: dict[str, Any]) -> str:
             f"| thesis Table 2.1 (real UR10) | {_fmt(THESIS_TABLE_2_1)} | - |",
             f"| polynomial k_R/k_l vs measured | {_fmt(fk['polynomial_rmse_measured'])} |",
             f"| polynomial k_R/k_l vs true | {_fmt(fk['polynomial_rmse_true'])} |",
+        ]
+        if "nine_elements_rmse_true" in fk:
+            lines += [
+                "| polynomial, nine elements + SO(3) projection, vs measured | "
+                f"{_fmt(fk['nine_elements_rmse_measured'])} |",
+                "| polynomial, nine elements + SO(3) projection, vs true | "
+                f"{_fmt(fk['nine_elements_rmse_true'])} |",
+            ]
+        lines += [
             f"| RBF on raw q vs measured | {_fmt(fk['rbf_rmse_measured'])} |",
             f"| RBF on raw q vs true | {_fmt(fk['rbf_rmse_true'])} |",
             f"| measurement noise (measured vs true) | {_fmt(fk['measurement_noise_rmse'])} |",
-            f"| polynomial, noise-free training data, vs true | "
-            f"{_fmt(fk['polynomial_noiseless_training_rmse_true'])} |",
+        ]
+        rows = fk.get("noise_free_training_rmse_true") or {
+            f"{fk['n_train']} samples of D_tr": fk["polynomial_noiseless_training_rmse_true"]
+        }
+        for name, v in rows.items():
+            lines.append(f"| polynomial, noise-free training: {name}, vs true | {_fmt(v)} |")
+        lines += [
             f"| polynomial vs true, {fk['small_beta_test_samples']} test samples with "
             f"abs(beta) < 1 | {_fmt(fk['polynomial_rmse_true_small_beta'])} |",
+        ]
+        if "nine_elements_rmse_true_small_beta" in fk:
+            lines.append(
+                "| nine elements vs true, same samples | "
+                f"{_fmt(fk['nine_elements_rmse_true_small_beta'])} |"
+            )
+        lines += [
             "| measurement noise, same samples | "
             f"{_fmt(fk['measurement_noise_rmse_small_beta'])} |",
             "",
@@ -608,6 +751,28 @@ def _markdown(res: dict[str, Any]) -> str:
             "between the predicted and the reference orientation.",
             "",
         ]
+        if "measurement_noise" in fk:
+            mn = fk["measurement_noise"]
+            lines += [
+                f"End-marker measurement noise on D_test: {_fmt(mn['position_rmse_per_axis'])} m "
+                f"per axis, {mn['position_rmse_3d']:.4f} m as a 3-D norm, "
+                f"{mn['geodesic_rmse']:.4f} rad geodesic (RMS). The marker is "
+                f"{mn['distance_mean']:.2f} m from the camera on average "
+                f"({mn['distance_range'][0]:.2f}-{mn['distance_range'][1]:.2f} m), mean "
+                f"abs(cos theta) = {mn['abs_cos_incidence_mean']:.2f}: noise scale "
+                f"f = {mn['scale_mean']:.2f} on average (1 = {mn['reference_position_std']:.4g} m "
+                f"per axis and {mn['reference_angle_std']:.4g} rad per rotation-vector component "
+                "at 2 m, face-on).",
+                "",
+            ]
+        if fk.get("feature_rank", {}).get("D_tr") is not None:
+            r = fk["feature_rank"]
+            lines += [
+                f"Numerical rank (1e-8) of the {r['monomials']} monomials of k_R on D_tr: "
+                f"{r['D_tr']}; on as many i.i.d. configurations in the waypoint box: "
+                f"{r['iid_same_size']}.",
+                "",
+            ]
     if "controller" in res:
         c = res["controller"]
         lines += [
@@ -616,7 +781,10 @@ def _markdown(res: dict[str, Any]) -> str:
             *_part_command(res, c),
             f"Extra starts: {c.get('starts', 0)} nearest data configurations; q_des clipped to "
             f"the data's joint box: {c.get('limit_to_data', False)}; orientation error in e_p: "
-            f"{c.get('orientation', 'ypr')}. RMSE of the reached pose "
+            f"{c.get('orientation', 'ypr')}; rotation outputs: "
+            f"{c.get('rotation_outputs', 'five')}; online rounds start from: "
+            f"{c.get('refine', 'restart')}; frames measured at rest after each reference: "
+            f"{c.get('hold', 0)}. RMSE of the reached pose (one frame at arrival) "
             "as measured by the camera (as in the thesis) and against the true pose.",
             "",
             f"| data | {' | '.join(ERR_NAMES)} |",
@@ -638,7 +806,7 @@ def _markdown(res: dict[str, Any]) -> str:
                 lines.append(
                     f"| {r['round']} | {', '.join(f'{v:.4f}' for v in r['predicted_error'])} | "
                     f"{', '.join(f'{v:.4f}' for v in r['position_error_norm_true'])} | "
-                    f"{r['chosen_start']} |"
+                    f"{', '.join('prev' if v < 0 else str(v) for v in r['chosen_start'])} |"
                 )
             lines.append("")
     lines.append(f"Total time: {res['seconds']:.0f} s.")
@@ -660,7 +828,7 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--repeats", type=int, default=1, help="(b) trajectories")
     p.add_argument("--fk-train", type=int, default=100, help="(c) training samples")
     p.add_argument("--ctrl-train", type=int, default=300, help="(d) training samples")
-    p.add_argument("--online-rounds", type=int, default=1, help="(d) refits with new data")
+    p.add_argument("--online-rounds", type=int, default=3, help="(d) refits with new data")
     p.add_argument("--ctrl-steps", type=int, default=300, help="(d) controller updates")
     p.add_argument(
         "--ctrl-starts", type=int, default=4,
@@ -674,7 +842,23 @@ def _parser() -> argparse.ArgumentParser:
         "--ctrl-orientation", choices=("ypr", "chordal"), default="ypr",
         help="(d) orientation error in e_p: wrapped yaw-pitch-roll (thesis) or chordal",
     )  # fmt: skip
+    p.add_argument(
+        "--ctrl-refine", choices=REFINE_CHOICES, default="both",
+        help="(d) online rounds: refine the previous reference, search again, or both",
+    )  # fmt: skip
+    p.add_argument(
+        "--ctrl-hold", type=int, default=5,
+        help="(d) extra frames measured at rest at each reached reference (added to the data)",
+    )  # fmt: skip
+    p.add_argument(
+        "--rotation-outputs", choices=("five", "nine"), default="five",
+        help="(d) GP rotation outputs: five elements + eq. 2.20 (thesis) or nine + SO(3)",
+    )  # fmt: skip
     p.add_argument("--span", type=float, default=1.0, help="(b-d) waypoints: home +- span rad")
+    p.add_argument(
+        "--noise-scale", type=float, default=1.0,
+        help="(c, d) multiply the env's default marker position and angle noise (sensitivity)",
+    )  # fmt: skip
     p.add_argument(
         "--merge", action="store_true",
         help="keep the results of the parts not run from an existing kinematics.json in --out-dir",
@@ -699,7 +883,9 @@ def main(argv: list[str] | None = None) -> int:
     cmd = "python -m mcpilco.scripts.bench_kinematics " + " ".join(
         sys.argv[1:] if argv is None else argv
     )
-    res: dict[str, Any] = dict(command=cmd.strip(), seed=args.seed)
+    res: dict[str, Any] = dict(
+        command=cmd.strip(), seed=args.seed, span=args.span, noise_scale=args.noise_scale
+    )
     old_json = out / "kinematics.json"
     if args.merge and old_json.exists():
         old = json.loads(old_json.read_text())
@@ -720,7 +906,7 @@ def main(argv: list[str] | None = None) -> int:
             args.seed, args.samples, sizes, args.repeats, progress, args.span
         )
     if "c" in args.parts or "d" in args.parts:
-        data = ur10_datasets(args.seed, args.samples, args.span)
+        data = ur10_datasets(args.seed, args.samples, args.span, args.noise_scale)
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", UserWarning)
             idn = identify_ur10(data)
@@ -757,6 +943,9 @@ def main(argv: list[str] | None = None) -> int:
                 starts=args.ctrl_starts,
                 limit_to_data=not args.ctrl_unlimited,
                 orientation=args.ctrl_orientation,
+                refine=args.ctrl_refine,
+                rotation_outputs=args.rotation_outputs,
+                hold=args.ctrl_hold,
             )
     for key in PART_KEYS:  # which command produced each part (they may come from --merge)
         if key in res:

@@ -17,6 +17,13 @@ Glossary (thesis section 2.5; ``N_r`` revolute and ``N_p`` prismatic joints, in 
 orientation (eq. 2.20)
     ``gamma = atan2(R21, R11)``, ``beta = atan2(-R31, sqrt(R32^2 + R33^2))``,
     ``alpha = atan2(R32, R33)`` from the five GP means (``R = Rz(gamma) Ry(beta) Rx(alpha)``).
+    Near ``beta = +-pi/2`` the five elements barely depend on the remaining degree of freedom
+    (``gamma - alpha`` or ``gamma + alpha``): ``R11, R21, R32, R33 -> 0`` and atan2 of their
+    errors is arbitrary, so the rotation itself (not only the angles) is lost there.
+``rotation_outputs="nine"`` (beyond the thesis, an option)
+    one GP with the same ``k_R`` per element of ``R`` (all nine); the mean matrix ``M`` is
+    projected onto SO(3) (the nearest rotation, :func:`~mcpilco.models.kinematics.rotations.
+    nearest_rotation_torch`) and eq. 2.20 is applied to the projection.
 controller (eq. 2.24)
     ``q_des(t + delta) = q_des(t) - nu grad_q e_p``, ``e_p = ||p* - p_hat(q)||`` with
     ``p = [l, w_o o]``: the pose error stacks the position error [m] and the 2 pi-wrapped
@@ -48,6 +55,7 @@ from mcpilco.models.gp import GPRegressor, KernelFactory
 from mcpilco.models.kernels import LinearKernel
 from mcpilco.models.kinematics.rotations import (
     elements_to_ypr_torch,
+    nearest_rotation_torch,
     ypr_to_matrix,
     ypr_to_matrix_torch,
 )
@@ -68,6 +76,8 @@ __all__ = [
 
 FloatArray = NDArray[np.float64]
 ROTATION_OUTPUTS = ("R11", "R21", "R31", "R32", "R33")
+ALL_ROTATION_OUTPUTS = ("R11", "R12", "R13", "R21", "R22", "R23", "R31", "R32", "R33")
+ROTATION_CHOICES = ("five", "nine")
 POSITION_OUTPUTS = ("x", "y", "z")
 
 
@@ -128,9 +138,17 @@ def position_kernel_factory(joint_types: str) -> KernelFactory:
     return factory
 
 
-def rotation_elements(poses: ArrayLike) -> FloatArray:
-    """``[R11, R21, R31, R32, R33]`` ``(N, 5)`` of poses ``[x, y, z, gamma, beta, alpha]``."""
+def rotation_elements(poses: ArrayLike, which: str = "five") -> FloatArray:
+    """Rotation elements of poses ``[x, y, z, gamma, beta, alpha]`` ``(N, 6)``.
+
+    ``which="five"``: ``[R11, R21, R31, R32, R33]`` ``(N, 5)`` (thesis 2.5.3); ``"nine"``:
+    all of ``R`` row-major ``(N, 9)``.
+    """
+    if which not in ROTATION_CHOICES:
+        raise ValueError(f"which must be one of {ROTATION_CHOICES}, got {which!r}")
     R = ypr_to_matrix(np.asarray(poses, dtype=np.float64)[..., 3:])
+    if which == "nine":
+        return R.reshape(*R.shape[:-2], 9)
     return np.stack([R[..., 0, 0], R[..., 1, 0], R[..., 2, 0], R[..., 2, 1], R[..., 2, 2]], -1)
 
 
@@ -168,17 +186,36 @@ class FKPredictor(nn.Module):
     """Differentiable ``q -> (l_hat, o_hat)`` from the two GPs' cached predictors.
 
     Call: ``position, ypr = pred(q)`` with ``q`` ``(..., n)`` -> ``(..., 3)`` each.
+    ``rotation`` gives the five elements of eq. 2.20 (``rotation_outputs="five"``) or all
+    nine, which are projected onto SO(3) first (``"nine"``).
     """
 
-    def __init__(self, joint_types: str, rotation: nn.Module, position: nn.Module) -> None:
+    def __init__(
+        self,
+        joint_types: str,
+        rotation: nn.Module,
+        position: nn.Module,
+        rotation_outputs: str = "five",
+    ) -> None:
         super().__init__()
+        if rotation_outputs not in ROTATION_CHOICES:
+            raise ValueError(
+                f"rotation_outputs must be one of {ROTATION_CHOICES}, got {rotation_outputs!r}"
+            )
         self.joint_types = joint_types
         self.rotation = rotation
         self.position = position
+        self.rotation_outputs = rotation_outputs
 
     def forward(self, q: Tensor) -> tuple[Tensor, Tensor]:
         x = fk_features(q, self.joint_types)
-        return self.position(x), elements_to_ypr_torch(self.rotation(x))
+        elements = self.rotation(x)
+        if self.rotation_outputs == "nine":
+            R = nearest_rotation_torch(elements.reshape(*elements.shape[:-1], 3, 3))
+            elements = torch.stack(
+                [R[..., 0, 0], R[..., 1, 0], R[..., 2, 0], R[..., 2, 1], R[..., 2, 2]], -1
+            )
+        return self.position(x), elements_to_ypr_torch(elements)
 
 
 class ForwardKinematicsGP:
@@ -191,6 +228,9 @@ class ForwardKinematicsGP:
         noise_min: lower bound of the noise variance (standardised units).
         standardize_x: standardise the features (off by default: ``cos q``, ``sin q`` are
             already in ``[-1, 1]``, and the prior of eq. 2.22 is then the thesis's).
+        rotation_outputs: ``"five"`` (the thesis: ``R11, R21, R31, R32, R33``, then eq. 2.20)
+            or ``"nine"`` (all elements, mean projected onto SO(3), then eq. 2.20; better
+            conditioned near ``beta = +-pi/2``, see the module glossary).
 
     Fitted attributes: ``rotation_gp_`` (the outputs among ``R11..R33`` that vary in the
     data, kernel ``k_R``), ``position_gp_`` (those among ``x, y, z``, kernel ``k_l``);
@@ -205,8 +245,14 @@ class ForwardKinematicsGP:
         noise_init: float = 1e-3,
         noise_min: float = 1e-8,
         standardize_x: bool = False,
+        rotation_outputs: str = "five",
     ) -> None:
         _check_types(joint_types)
+        if rotation_outputs not in ROTATION_CHOICES:
+            raise ValueError(
+                f"rotation_outputs must be one of {ROTATION_CHOICES}, got {rotation_outputs!r}"
+            )
+        self.rotation_outputs = rotation_outputs
         self.joint_types = joint_types
         self.standardize_x = standardize_x
         self.noise_init = noise_init
@@ -246,7 +292,8 @@ class ForwardKinematicsGP:
         lbfgs_iters: int = 50,
         progress: bool = False,
     ) -> ForwardKinematicsGP:
-        """Fit the 8 GPs by marginal likelihood (a second call warm-starts).
+        """Fit the 8 (12 with ``rotation_outputs="nine"``) GPs by marginal likelihood (a
+        second call warm-starts).
 
         Args:
             q: ``(N, n)`` joint positions in chain order.
@@ -254,8 +301,14 @@ class ForwardKinematicsGP:
         """
         x, poses = self._validate(q, poses)
         kw = dict(adam_iters=adam_iters, adam_lr=adam_lr, lbfgs_iters=lbfgs_iters)
+        nine = self.rotation_outputs == "nine"
         for name, Y, factory, names in (
-            ("rotation", rotation_elements(poses), rotation_kernel_factory, ROTATION_OUTPUTS),
+            (
+                "rotation",
+                rotation_elements(poses, self.rotation_outputs),
+                rotation_kernel_factory,
+                ALL_ROTATION_OUTPUTS if nine else ROTATION_OUTPUTS,
+            ),
             ("position", poses[:, :3], position_kernel_factory, POSITION_OUTPUTS),
         ):
             varying, constants = _split_constant(Y)
@@ -302,7 +355,10 @@ class ForwardKinematicsGP:
         """Differentiable :class:`FKPredictor` over the cached GP predictors."""
         self._check_fitted()
         return FKPredictor(
-            self.joint_types, self._outputs("rotation", dtype), self._outputs("position", dtype)
+            self.joint_types,
+            self._outputs("rotation", dtype),
+            self._outputs("position", dtype),
+            self.rotation_outputs,
         )
 
 

@@ -32,6 +32,8 @@ from numpy.typing import ArrayLike, NDArray
 __all__ = [
     "elements_to_ypr_torch",
     "matrix_to_ypr",
+    "nearest_rotation",
+    "nearest_rotation_torch",
     "relative_poses",
     "rot_x",
     "rot_y",
@@ -114,6 +116,50 @@ def elements_to_ypr_torch(elements: torch.Tensor) -> torch.Tensor:
     beta = torch.atan2(-r31, torch.sqrt(r32**2 + r33**2 + 1e-18))
     alpha = torch.atan2(r32, r33)
     return torch.stack([gamma, beta, alpha], dim=-1)
+
+
+def nearest_rotation(M: ArrayLike) -> FloatArray:
+    """The rotation closest to ``M`` ``(..., 3, 3)`` in the Frobenius norm (SVD).
+
+    .. math:: \\hat R = U \\operatorname{diag}(1, 1, \\det(U V^T)) V^T, \\qquad M = U S V^T,
+
+    the solution of ``min_{R in SO(3)} ||R - M||_F`` (orthogonal Procrustes); for
+    ``det M > 0`` it is the orthogonal polar factor of ``M``. Used to turn nine independently
+    estimated rotation elements into a rotation.
+    """
+    M = np.asarray(M, dtype=np.float64)
+    if M.shape[-2:] != (3, 3):
+        raise ValueError(f"matrices need trailing shape (3, 3), got {M.shape}")
+    U, _, Vt = np.linalg.svd(M)
+    d = np.sign(np.linalg.det(U @ Vt))
+    d = np.where(d == 0, 1.0, d)
+    return (U * np.stack([np.ones_like(d), np.ones_like(d), d], -1)[..., None, :]) @ Vt
+
+
+def nearest_rotation_torch(M: torch.Tensor, iters: int = 12) -> torch.Tensor:
+    """Orthogonal polar factor of ``M`` ``(..., 3, 3)`` by the scaled Newton iteration.
+
+    .. math::
+        X_0 = M,\\quad X_{k+1} = \\tfrac12\\big(\\zeta_k X_k + \\zeta_k^{-1} X_k^{-T}\\big),
+        \\quad \\zeta_k = \\big(\\lVert X_k^{-1}\\rVert_F / \\lVert X_k \\rVert_F\\big)^{1/2}
+
+    (Higham's Frobenius-norm scaling; quadratic convergence). Differentiable with plain
+    ops, unlike an SVD, whose backward divides by ``s_i^2 - s_j^2`` and breaks down when
+    ``M`` is close to a rotation (all singular values near 1). For ``det M > 0`` the result
+    equals :func:`nearest_rotation`; for ``det M < 0`` it is orthogonal with determinant -1
+    (no rotation is then uniquely nearest by this route), and a singular ``M`` gives
+    non-finite values. A GP mean of the nine elements near its data has ``det M ~ 1``.
+    """
+    if M.shape[-2:] != (3, 3):
+        raise ValueError(f"matrices need trailing shape (3, 3), got {tuple(M.shape)}")
+    X = M
+    for _ in range(iters):
+        Xi = torch.linalg.inv(X)
+        zeta = torch.sqrt(torch.linalg.matrix_norm(Xi) / torch.linalg.matrix_norm(X))[
+            ..., None, None
+        ]
+        X = 0.5 * (zeta * X + Xi.mT / zeta)
+    return X
 
 
 def ypr_to_matrix_torch(o: torch.Tensor) -> torch.Tensor:

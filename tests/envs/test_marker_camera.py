@@ -122,3 +122,25 @@ def test_bad_arguments_raise():
         MarkerCameraEnv(outlier_prob=2.0)
     with pytest.raises(ValueError, match="position_noise"):
         MarkerCameraEnv(position_noise=-1.0)
+
+
+def test_noise_std_follows_distance_and_incidence_and_matches_the_draws():
+    env = MarkerCameraEnv(time_offset=0.0, encoder_noise=0.0)
+    env.reset(seed=3)
+    q = env.q.copy()
+    # independent geometry: the numpy DH chain gives d and the marker normal in the camera
+    T = _numpy_chain(env).marker_transforms(q[None])[0]
+    d = np.linalg.norm(T[:, :3, 3], axis=1)
+    f = (d / 2.0) ** 2 * (2.0 - np.abs(T[:, 2, 2]))
+    pos_std, ang_std = env.measurement_noise_std(q)
+    np.testing.assert_allclose(pos_std, 0.002 * f, rtol=1e-9)
+    np.testing.assert_allclose(ang_std, 0.007 * f, rtol=1e-9)
+    # the draws: standing still, 400 frames; per-marker std of the 3 position errors
+    errs, true = [], env.marker_poses(q)
+    for _ in range(400):
+        obs, *_ = env.step(np.zeros(6, dtype=np.float32))
+        meas = np.empty((7, 6))
+        meas[env.marker_permutation] = obs[:42].reshape(7, 6)
+        errs.append(meas[:, :3] - true[:, :3])
+    std = np.sqrt((np.array(errs) ** 2).mean(axis=(0, 2)))
+    np.testing.assert_allclose(std, pos_std, rtol=0.12)  # 1200 draws each: ~2 % sampling error

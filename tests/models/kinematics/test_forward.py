@@ -19,7 +19,14 @@ from mcpilco.models.kinematics.forward import (
     position_kernel_factory,
     rotation_kernel_factory,
 )
-from mcpilco.models.kinematics.rotations import matrix_to_ypr, wrap_angle, ypr_to_matrix_torch
+from mcpilco.models.kinematics.rotations import (
+    matrix_to_ypr,
+    nearest_rotation,
+    nearest_rotation_torch,
+    wrap_angle,
+    ypr_to_matrix,
+    ypr_to_matrix_torch,
+)
 from mcpilco.models.kinematics.synthetic import SyntheticChain, homogeneous, random_rotation
 
 FIT = dict(adam_iters=10, lbfgs_iters=30)
@@ -183,3 +190,47 @@ def test_bad_inputs_raise():
         fk.fit(q, bad)
     with pytest.raises(ValueError, match="joint_types"):
         ForwardKinematicsGP("RX")
+
+
+def test_nearest_rotation_is_the_polar_factor_in_numpy_and_torch():
+    rng = np.random.default_rng(5)
+    R = random_rotation(rng, 20)
+    A = rng.standard_normal((20, 3, 3))
+    S = A @ np.swapaxes(A, -1, -2) + 0.1 * np.eye(3)  # symmetric positive definite
+    M = R @ S  # polar decomposition: its orthogonal factor is R
+    np.testing.assert_allclose(nearest_rotation(M), R, atol=1e-10)
+    np.testing.assert_allclose(nearest_rotation_torch(torch.as_tensor(M)).numpy(), R, atol=1e-10)
+    # det M < 0: the nearest *rotation* flips the direction of the smallest singular value
+    D = np.diag([2.0, 1.5, -0.2])
+    np.testing.assert_allclose(nearest_rotation(R[0] @ D), R[0], atol=1e-12)
+    with pytest.raises(ValueError, match="3, 3"):
+        nearest_rotation(np.eye(2))
+
+
+def test_nearest_rotation_torch_has_finite_gradients_at_a_rotation():
+    # an SVD backward divides by s_i^2 - s_j^2, which vanishes here
+    R = torch.as_tensor(random_rotation(np.random.default_rng(6)))
+    M = (R + 1e-3 * torch.randn(3, 3, dtype=torch.float64)).requires_grad_(True)
+    assert torch.autograd.gradcheck(nearest_rotation_torch, (M,))
+    M0 = R.clone().requires_grad_(True)
+    (g,) = torch.autograd.grad(nearest_rotation_torch(M0)[0, 0], M0)
+    assert torch.isfinite(g).all()
+
+
+@pytest.mark.parametrize("tilted", [True, False])
+def test_nine_element_fk_gp_is_accurate_and_keeps_constant_elements(tilted):
+    chain = _planar_arm(tilted)
+    rng = np.random.default_rng(1)
+    q_train, q_test = rng.uniform(-np.pi, np.pi, (40, 2)), rng.uniform(-np.pi, np.pi, (100, 2))
+    fk = ForwardKinematicsGP("RR", rotation_outputs="nine")
+    fk.fit(q_train, chain.marker_poses(q_train)[:, -1], **FIT)
+    truth = chain.marker_transforms(q_test)[:, -1]
+    pred = fk.predict(q_test)
+    np.testing.assert_allclose(pred[:, :3], truth[:, :3, 3], atol=1e-3)
+    R_err = np.swapaxes(truth[:, :3, :3], -1, -2) @ ypr_to_matrix(pred[:, 3:])
+    angle = np.arccos(np.clip((np.trace(R_err, axis1=-2, axis2=-1) - 1) / 2, -1, 1))
+    assert angle.max() < 1e-3, angle.max()
+    if not tilted:  # rotation about the camera z axis: R13, R23, R31, R32, R33 constant
+        assert fk.rotation_varying_.tolist() == [True, True, False, True, True] + [False] * 4
+    with pytest.raises(ValueError, match="rotation_outputs"):
+        ForwardKinematicsGP("RR", rotation_outputs="six")
