@@ -13,7 +13,8 @@ the joint types set the joint count and which joints are angles); with a learned
 ``--model`` only gives the payload candidate its regressor. Without ``--test`` the last
 training file (or, with one file, its last 30%) is held out. ``--add coulomb:2`` adds an
 effect (repeatable; keys: viscous, coulomb, stribeck, offset, spring, cogging, payload,
-armature, deadzone, delay); ``--auto N`` adds up to N significant effects, best first.
+armature, deadzone, delay); ``--auto N`` adds up to N significant effects, best first
+(missing effects before refinements inside a learned start's span).
 Every version is saved as ``<out>/models/model_v<k>.json`` (never overwritten).
 
 Outputs under ``--out``: ``compare_v<k>.png`` (measured vs predicted ±2σ),
@@ -159,10 +160,10 @@ def _run(args: argparse.Namespace) -> int:
         if model.name not in diag_obj:
             diag_obj[model.name] = diagnose(model, test, threshold=args.threshold)
             print(diag_obj[model.name].table(6))
-        best = diag_obj[model.name].best
-        if best is None:
+        lead = diag_obj[model.name].lead  # the missing effect, else an in-span refinement
+        if lead is None:
             break
-        model = model.with_effect(best.effect, backfit=True)
+        model = model.with_effect(lead.effect, backfit=True)
         versions.append(model)
         print(f"   {model.describe()}")
     saved = [str(v.save(out / "models")) for v in versions]

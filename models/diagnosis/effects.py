@@ -200,6 +200,14 @@ class Effect:
         """``(N, p)`` block of output joint ``output`` (0-based); ``None``: no block."""
         raise NotImplementedError
 
+    def in_gip_span(self, joint_types: str) -> bool:
+        """Whether every torque this effect can add lies in the function space of the GIP
+        kernel of ``joint_types`` (thesis eq. 3.8/3.11): sums of ``[1, qdd, qd_i qd_j]``
+        times polynomials of degree <= 2 in ``(cos q_b, sin q_b)`` of each revolute and in
+        ``q_b`` of each prismatic joint. Such an effect cannot be *missing* from a GIP model
+        fitted on data that hold it; its block only re-weights the GIP prior. Default: no."""
+        return False
+
     def estimates(
         self, mean: FloatArray, cov: FloatArray, ctx: FeatureContext, output: int
     ) -> list[ParamEstimate]:
@@ -309,6 +317,9 @@ class TorqueOffset(Effect):
     def columns(self, ctx: FeatureContext, output: int) -> FloatArray:
         return np.ones((ctx.q.shape[0], 1))
 
+    def in_gip_span(self, joint_types: str) -> bool:
+        return True  # the constant 1
+
 
 @dataclass(frozen=True)
 class Spring(Effect):
@@ -329,6 +340,10 @@ class Spring(Effect):
     def columns(self, ctx: FeatureContext, output: int) -> FloatArray:
         q = ctx.q[:, self.joint - 1]
         return np.stack([q - self.q_ref, np.ones_like(q)], axis=1)
+
+    def in_gip_span(self, joint_types: str) -> bool:
+        return joint_types[self.joint - 1] == "P"  # q_b (prismatic); q_b itself is not in
+        # the span of (cos q_b, sin q_b)
 
 
 COGGING_SCAN: tuple[int, ...] = tuple(range(3, 25))
@@ -359,6 +374,10 @@ class Cogging(Effect):
         nq = self.order * ctx.q[:, self.joint - 1]
         return np.stack([np.sin(nq), np.cos(nq)], axis=1)
 
+    def in_gip_span(self, joint_types: str) -> bool:
+        # sin/cos(n q) of a revolute joint is a polynomial of degree n in (cos q, sin q)
+        return joint_types[self.joint - 1] == "R" and self.order is not None and self.order <= 2
+
     def estimates(
         self, mean: FloatArray, cov: FloatArray, ctx: FeatureContext, output: int
     ) -> list[ParamEstimate]:
@@ -378,6 +397,9 @@ class Armature(Effect):
 
     def columns(self, ctx: FeatureContext, output: int) -> FloatArray:
         return _col(ctx.qdd[:, self.joint - 1])
+
+    def in_gip_span(self, joint_types: str) -> bool:
+        return True  # 1 * qdd_j
 
 
 PAYLOAD_PARAMS = ("m", "mc_x", "mc_y", "mc_z", "I_xx", "I_xy", "I_yy", "I_xz", "I_yz", "I_zz")
@@ -399,6 +421,9 @@ class Payload(Effect):
     def columns(self, ctx: FeatureContext, output: int) -> FloatArray | None:
         cols = ctx.payload_columns()
         return None if cols is None else cols[:, output, :]
+
+    def in_gip_span(self, joint_types: str) -> bool:
+        return True  # rigid-body torques: the GIP kernel is built to span them (thesis 3.3)
 
     def estimates(
         self, mean: FloatArray, cov: FloatArray, ctx: FeatureContext, output: int

@@ -141,6 +141,11 @@ class StartModel:
     def noise_variance(self) -> FloatArray | None:
         return None
 
+    def spans(self, effect: Any) -> bool:
+        """Whether the start kernel ``K_0`` already spans every torque of ``effect`` (then the
+        effect cannot be missing, only under-learned). Default: no kernel, nothing spanned."""
+        return False
+
     def last_link_regressor(self, q: FloatArray, qd: FloatArray, qdd: FloatArray) -> Any:
         if self.robot is None:
             return None
@@ -351,6 +356,11 @@ class GIPStart(LearnedStart):
         return GIPEstimator(
             self.joint_types, adam_iters=self.adam_iters, lbfgs_iters=self.lbfgs_iters
         )
+
+    def spans(self, effect: Any) -> bool:
+        """:meth:`Effect.in_gip_span` of the joint types (the GIP feature space is finite
+        and known: offset, armature, payload, prismatic spring, cogging of order <= 2)."""
+        return bool(effect.in_gip_span(self.joint_types))
 
     def describe(self) -> str:
         return f"learned GIP GP (joints {self.joint_types})"
