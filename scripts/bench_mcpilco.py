@@ -309,7 +309,8 @@ def _md_table(env_id: str, section: dict) -> str:
     lines.append(
         f"{len(section['seeds'])} seeds; M={cfg['num_particles']} particles, "
         f"max {cfg['opt']['max_steps']} opt steps per trial (first: {cfg['opt_steps_first']}), "
-        f"GP subset N<={cfg['max_points']}, kernel {cfg['kernel']}; {section['jobs']} parallel "
+        f"GP subset N<={cfg['max_points']}, kernel {cfg['kernel']}, "
+        f"K={cfg.get('num_candidates', 1)} candidate policies; {section['jobs']} parallel "
         f"jobs x 1 thread; mean wall-clock per run {section['wall_s_per_run']:.0f} s."
     )
     lines += [
@@ -405,6 +406,12 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--trials", type=int, help="policy trials (override)")
     p.add_argument("--particles", type=int, help="particles (override)")
     p.add_argument("--opt-steps", type=int, help="max opt steps per trial (override)")
+    p.add_argument("--candidates", type=int, help="K policies side by side (override)")
+    p.add_argument(
+        "--label",
+        default="",
+        help="suffix of the results section and run folder (e.g. 'K2'), to keep variants apart",
+    )
     p.add_argument("--timing-n", type=int, nargs="+", default=[100, 200, 300])
     p.add_argument("--timing-threads", type=int, nargs="+", default=[1, 2])
     p.add_argument("--rmse-seeds", type=int, default=10)
@@ -436,6 +443,8 @@ def main(argv: list[str] | None = None) -> int:
         over["num_trials"] = args.trials
     if args.particles is not None:
         over["num_particles"] = args.particles
+    if args.candidates is not None:
+        over["num_candidates"] = args.candidates
     if args.opt_steps is not None:
         over["opt"] = dataclasses.replace(cfg.opt, max_steps=args.opt_steps)
         if cfg.opt_steps_first is not None:
@@ -454,10 +463,11 @@ def main(argv: list[str] | None = None) -> int:
         results.setdefault("runs", {})
         for env_id in args.env:
             env_cfg = dataclasses.replace(cfg, env_id=env_id)
-            tag = env_id.split("/")[-1]
+            tag = env_id.split("/")[-1] + (f"_{args.label}" if args.label else "")
+            key = env_id + (f" ({args.label})" if args.label else "")
             section = bench_runs(env_cfg, seeds, args.jobs, args.runs_dir / tag)
-            results["runs"][env_id] = section
-            print(_md_table(env_id, section))
+            results["runs"][key] = section
+            print(_md_table(key, section))
             write_report(results, args.out)
     if "timing" in args.parts:
         results["timing"] = []

@@ -11,6 +11,7 @@ Usage::
     mcpilco-train --trials 5 --out runs/seed0 --resume     # continue a killed / shorter run
     mcpilco-train --preset demo --out runs/demo            # the reduced demo budget
     mcpilco-train --env mcpilco/DMCCartpoleSwingUp-v0 --kernel rbf --seed 3
+    mcpilco-train --preset demo --candidates 2 --out runs/k2   # 2 policies side by side
 """
 
 from __future__ import annotations
@@ -58,6 +59,11 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--horizon", type=_positive_int, help="steps per trial (env episode length)")
     p.add_argument("--max-points", type=_positive_int, help="GP subset-of-data size")
     p.add_argument("--kernel", choices=KERNEL_CHOICES, help="GP kernel (default rbf+mpk)")
+    p.add_argument(
+        "--candidates",
+        type=_positive_int,
+        help="K policies optimised side by side; the lowest expected cost is applied (default 1)",
+    )
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--threads", type=_positive_int, help="torch threads (default: torch's)")
     p.add_argument("--out", type=Path, default=Path("runs/mcpilco"), help="output folder")
@@ -77,6 +83,7 @@ def config_from_args(args: argparse.Namespace) -> MCPilcoConfig:
         ("horizon", "horizon"),
         ("max_points", "max_points"),
         ("kernel", "kernel"),
+        ("candidates", "num_candidates"),
         ("threads", "torch_threads"),
     ):
         if getattr(args, arg) is not None:

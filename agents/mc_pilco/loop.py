@@ -448,15 +448,19 @@ def run_mcpilco(
                 rec["gp_points"] = int(model.gp_.train_x_.shape[0])
                 rec["n_data"] = int(sum(len(e["actions"]) for e in episodes))
                 dynamics = model.particle_dynamics(torch.float32)
-                loss = MCPilcoLoss(
-                    policy_module,
-                    dynamics,
-                    cost_fn,
-                    horizon=config.horizon,
-                    num_particles=config.num_particles,
-                    init_std=config.init_std,
-                    obs_noise_std=config.sim_obs_noise_std,
-                )
+
+                def make_loss(module, dynamics=dynamics) -> MCPilcoLoss:
+                    return MCPilcoLoss(
+                        module,
+                        dynamics,
+                        cost_fn,
+                        horizon=config.horizon,
+                        num_particles=config.num_particles,
+                        init_std=config.init_std,
+                        obs_noise_std=config.sim_obs_noise_std,
+                    )
+
+                loss = make_loss(policy_module)
                 if config.compile_rollout:
                     loss.compile_step(dynamic=False)
                 # 2. policy update
@@ -501,15 +505,7 @@ def run_mcpilco(
                 arr["opt_costs"] = np.asarray(res.costs, dtype=np.float32) / config.num_candidates
                 # particle predictions of the applied policy (for the plots)
                 policy.eval()
-                log_loss = MCPilcoLoss(
-                    make_policy_module(policy),
-                    dynamics,
-                    cost_fn,
-                    horizon=config.horizon,
-                    num_particles=config.num_particles,
-                    init_std=config.init_std,
-                    obs_noise_std=config.sim_obs_noise_std,
-                )
+                log_loss = make_loss(make_policy_module(policy))
                 with torch.no_grad():
                     n_log = min(config.log_particles, config.num_particles)
                     ro = log_loss.rollout(num_particles=n_log)
