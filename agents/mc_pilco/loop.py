@@ -175,9 +175,9 @@ DEMO_CONFIG = MCPilcoConfig(
     opt_steps_first=300,
     log_particles=100,
 )
-"""Reduced budget for ``make demo``: 7.4 min on a quiet 2-core machine (seed 0: first success
-at policy trial 3 = 12 s of experience; trial 4 had 0.95 s upright). Half this budget (250
-steps) took 4.3 min and did not succeed."""
+"""Reduced budget for ``make demo``: 4.8 min on a quiet 2-core machine (seed 0, 2026-11-25:
+success at policy trials 3 and 4 = 12 and 15 s of experience). Half this budget (250 steps)
+did not succeed on seeds 0 and 1 with an earlier version of the agent."""
 
 BENCH_CONFIG = MCPilcoConfig(
     num_trials=4,
