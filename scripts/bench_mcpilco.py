@@ -48,6 +48,10 @@ PARTS = ("runs", "timing", "rmse")
 
 # ------------------------------------------------------------------------------- runs
 def _run_seed(job: tuple[dict[str, Any], str]) -> dict[str, Any]:
+    """One seed's run in ``out``; a finished or killed run found there is resumed, so that
+    seeds can be added to a section later (``--first-seed 0 --seeds 12`` after 6 seeds reruns
+    only seeds 6..11). ``seconds`` is the sum of the trials' ``wall_s`` (GP fit, policy
+    optimisation, episode), the same whether the trials ran now or in an earlier call."""
     import torch
 
     torch.set_num_threads(1)
@@ -63,7 +67,8 @@ def _run_seed(job: tuple[dict[str, Any], str]) -> dict[str, Any]:
         log=None,
         write_rrd=False,
     )
-    return {"seed": cfg.seed, "records": summary.records, "seconds": summary.seconds}
+    seconds = float(sum(r["wall_s"] for r in summary.records))
+    return {"seed": cfg.seed, "records": summary.records, "seconds": seconds}
 
 
 def aggregate_runs(runs: list[dict[str, Any]]) -> list[dict[str, Any]]:
@@ -408,6 +413,13 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--opt-steps", type=int, help="max opt steps per trial (override)")
     p.add_argument("--candidates", type=int, help="K policies side by side (override)")
     p.add_argument(
+        "--candidate-scales",
+        type=float,
+        nargs="+",
+        help="initial weight scale of each candidate (K values; sets K when --candidates "
+        "is not given)",
+    )
+    p.add_argument(
         "--label",
         default="",
         help="suffix of the results section and run folder (e.g. 'K2'), to keep variants apart",
@@ -445,6 +457,9 @@ def main(argv: list[str] | None = None) -> int:
         over["num_particles"] = args.particles
     if args.candidates is not None:
         over["num_candidates"] = args.candidates
+    if args.candidate_scales is not None:
+        over["candidate_weight_scales"] = args.candidate_scales
+        over.setdefault("num_candidates", len(args.candidate_scales))
     if args.opt_steps is not None:
         over["opt"] = dataclasses.replace(cfg.opt, max_steps=args.opt_steps)
         if cfg.opt_steps_first is not None:

@@ -103,6 +103,10 @@ class MCPilcoConfig:
         num_candidates: ``K`` candidate policies optimised side by side (``M`` particles
             each; :class:`~mcpilco.agents.mc_pilco.policy.PolicyPopulation`); the one with
             the lowest ``J^`` (fresh particles, no dropout) is applied. 1: plain MC-PILCO.
+        candidate_weight_scales: initial weight scale ``s_k`` of each candidate ``k``
+            (length ``K``); None: ``policy_weight_scale`` for all. Candidates that all start
+            near ``u = 0`` tend to follow the same gradient path into the same optimum;
+            a larger ``s_k`` starts candidate ``k`` from a different random policy.
         init_std: ``sigma_0`` of the initial particles.
         sim_obs_noise_std: measurement noise simulated on the policy input in rollouts.
         opt: policy optimisation schedule (:class:`PolicyOptConfig`).
@@ -129,6 +133,7 @@ class MCPilcoConfig:
     l_theta: float = 3.0
     cost_wrap_angle: bool = False
     num_candidates: int = 1
+    candidate_weight_scales: list[float] | None = None
     init_std: float = 0.01
     sim_obs_noise_std: float = 0.01
     opt: PolicyOptConfig = field(default_factory=PolicyOptConfig)
@@ -154,6 +159,14 @@ class MCPilcoConfig:
             raise ValueError(
                 f"num_candidates must be a positive integer, got {self.num_candidates!r}"
             )
+        if self.candidate_weight_scales is not None:
+            scales = [float(v) for v in self.candidate_weight_scales]
+            if len(scales) != self.num_candidates or not all(v > 0 for v in scales):
+                raise ValueError(
+                    f"candidate_weight_scales must hold num_candidates={self.num_candidates} "
+                    f"positive values, got {self.candidate_weight_scales!r}"
+                )
+            self.candidate_weight_scales = scales
         if self.kernel not in KERNEL_CHOICES:
             raise ValueError(f"kernel must be one of {KERNEL_CHOICES}, got {self.kernel!r}")
         if self.max_points is not None and self.max_points < 10:
@@ -386,7 +399,11 @@ def run_mcpilco(
     candidates = [
         SquashedRBFPolicy(
             num_basis=config.num_basis,
-            weight_scale=config.policy_weight_scale,
+            weight_scale=(
+                config.candidate_weight_scales[k]
+                if config.candidate_weight_scales
+                else config.policy_weight_scale
+            ),
             seed=config.seed + CANDIDATE_SEED_STRIDE * k,
         )
         for k in range(config.num_candidates)

@@ -188,7 +188,8 @@ class PolicyPopulation(nn.Module):
     is the policy applied to the system; all candidates go on at the next trial.
 
     Args:
-        candidates: the starting policies (same architecture); their parameters are copied.
+        candidates: the starting policies (same architecture; their initial weight scales may
+            differ); their parameters are copied.
 
     Shapes:
         ``forward(obs (K M, 4)) -> (K M, A)``: rows ``k M .. (k + 1) M - 1`` use candidate
@@ -201,8 +202,12 @@ class PolicyPopulation(nn.Module):
         if not candidates:
             raise ValueError("a population needs at least one candidate policy")
         first = candidates[0]
+
+        def arch(p: SquashedRBFPolicy) -> dict:  # settings less the initial weight scale
+            return {k: v for k, v in p.settings().items() if k != "weight_scale"}
+
         for p in candidates[1:]:
-            if p.settings() != first.settings():
+            if arch(p) != arch(first):
                 raise ValueError("all candidates must have the same architecture and settings")
         self._settings = first.settings()
         self.num_candidates = len(candidates)

@@ -115,3 +115,24 @@ def test_loop_with_two_candidates_applies_the_chosen_one_and_resumes(tmp_path):
     assert [r["index"] for r in resumed.records] == [0, 1, 2]
     with pytest.raises(ValueError, match="num_candidates"):
         run_mcpilco(SMOKE, tmp_path, resume=True, progress=False, log=None, write_rrd=False)
+
+
+def test_candidates_may_differ_only_in_initial_weight_scale(tmp_path):
+    """Weights start as w ~ U(-s_k, s_k): candidate k's initial weights lie within its own s_k
+    (and fill most of it); anything but the weight scale must still agree."""
+    from tests.agents.mc_pilco.test_loop import SMOKE
+
+    scales = [0.01, 0.5]
+    cfg = dataclasses.replace(SMOKE, num_trials=0, num_candidates=2, candidate_weight_scales=scales)
+    summary = run_mcpilco(cfg, tmp_path, progress=False, log=None, write_rrd=False)
+    w = load_checkpoint(summary.checkpoint)["population"]["weights"]  # after exploration only
+    for k, s in enumerate(scales):
+        assert float(w[k].abs().max()) <= s and float(w[k].abs().max()) > 0.8 * s
+    with pytest.raises(ValueError, match="same architecture"):
+        PolicyPopulation(
+            [SquashedRBFPolicy(num_basis=5, dropout=0.1), SquashedRBFPolicy(num_basis=5)]
+        )
+    with pytest.raises(ValueError, match="candidate_weight_scales"):
+        dataclasses.replace(SMOKE, num_candidates=2, candidate_weight_scales=[0.1])
+    with pytest.raises(ValueError, match="candidate_weight_scales"):
+        dataclasses.replace(SMOKE, num_candidates=2, candidate_weight_scales=[0.1, 0.0])
