@@ -493,14 +493,18 @@ def _covers(curve: dict[str, Any], method: str, opts: dict[str, Any]) -> bool:
     return len(curve["points"]) >= trials + 1
 
 
-def curves_from_bench_json(path: Path, env_id: str) -> list[dict[str, Any]]:
-    """MC-PILCO curves from ``mcpilco-bench-mcpilco``'s JSON (per-seed success per trial)."""
+def curves_from_bench_json(path: Path, env_id: str, label: str = "") -> list[dict[str, Any]]:
+    """MC-PILCO curves from ``mcpilco-bench-mcpilco``'s JSON (per-seed success per trial);
+    ``label``: the section written with ``mcpilco-bench-mcpilco --label LABEL``."""
     data = json.loads(Path(path).read_text())
-    section = data.get("runs", {}).get(env_id)
+    key = env_id + (f" ({label})" if label else "")
+    section = data.get("runs", {}).get(key)
     if section is None:
         raise ValueError(
-            f"{path} has no MC-PILCO runs for {env_id} (sections: {sorted(data.get('runs', {}))}); "
-            f"run mcpilco-bench-mcpilco --parts runs --env {env_id} first"
+            f"{path} has no MC-PILCO runs {key!r} (sections: {sorted(data.get('runs', {}))}); "
+            f"run mcpilco-bench-mcpilco --parts runs --env {env_id}"
+            + (f" --label {label}" if label else "")
+            + " first"
         )
     horizon = int(section["config"]["horizon"])
     times = [r["experience_s"] for r in section["per_trial"]]
@@ -605,6 +609,11 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument(
         "--mcpilco-json", type=Path, help="collect MC-PILCO from mcpilco-bench-mcpilco's JSON"
     )
+    p.add_argument(
+        "--mcpilco-label",
+        default="",
+        help="with --mcpilco-json: the section's --label (e.g. K2); default: unlabelled",
+    )
     p.add_argument("--pilco-max-points", type=int, help="PILCO GP points (default 100)")
     p.add_argument("--pilco-opt-steps", type=int, help="PILCO Adam steps per trial (default 100)")
     p.add_argument("--pilco-basis", type=int, help="PILCO RBF centres (default 50)")
@@ -679,7 +688,7 @@ def main(argv: list[str] | None = None) -> int:
     methods = list(args.methods)
     if args.mcpilco_json is not None and "mcpilco" in methods:
         try:
-            curves += curves_from_bench_json(args.mcpilco_json, args.env)
+            curves += curves_from_bench_json(args.mcpilco_json, args.env, args.mcpilco_label)
         except (OSError, ValueError) as err:
             parser.error(f"--mcpilco-json: {err}")
         methods.remove("mcpilco")

@@ -261,3 +261,31 @@ def test_a_failing_run_is_reported_not_raised(tmp_path):
     res = _job(("pilco", ENV, 0, str(tmp_path), {"pilco": {"max_points": 3}, "log": False}))
     assert res["failed"] and res["method"] == "pilco" and res["seed"] == 0
     assert "max_points must be an integer >= 10" in res["error"]
+
+
+def test_mcpilco_from_a_labelled_bench_section(tmp_path, capsys):
+    """Three seeds of a bench JSON section: successes from trial 3, 2 and 4 (12, 9, 15 s)
+    -> mean 0, 0, 1/3, 2/3, 1 at 3..15 s -> T90 = 15 s; the unlabelled section is ignored."""
+    section = {
+        "config": {"horizon": 60},
+        "per_trial": [{"experience_s": 3.0 * (k + 1)} for k in range(5)],
+        "per_seed": [
+            {"seed": 0, "success": [False, False, False, True, True], "seconds": 10.0},
+            {"seed": 1, "success": [False, False, True, True, True], "seconds": 10.0},
+            {"seed": 2, "success": [False, False, False, False, True], "seconds": 10.0},
+        ],
+    }
+    other = dict(section, per_seed=[{"seed": 0, "success": [True] * 5}])
+    bench = tmp_path / "bench.json"
+    bench.write_text(json.dumps({"runs": {ENV: other, f"{ENV} (K2)": section}}))
+    out = tmp_path / "results"
+    common = ["--methods", "mcpilco", "--mcpilco-json", str(bench), "--out", str(out)]
+    common += ["--runs-dir", str(tmp_path / "none"), "--collect-only"]
+    assert main([*common, "--mcpilco-label", "K2"]) == 0
+    report = json.loads((out / "compare_CartpoleSwingUp-v0.json").read_text())
+    mc = report["methods"]["mcpilco"]
+    assert mc["success_mean"] == pytest.approx([0, 0, 1 / 3, 2 / 3, 1])
+    assert mc["t90_s"] == pytest.approx(15.0)
+    with pytest.raises(SystemExit):
+        main([*common, "--mcpilco-label", "K9"])
+    assert "--label K9" in capsys.readouterr().err
