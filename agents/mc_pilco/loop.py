@@ -189,9 +189,9 @@ DEMO_CONFIG = MCPilcoConfig(
     opt_steps_first=300,
     log_particles=100,
 )
-"""Reduced budget for ``make demo``, with 2 candidate policies (6 seeds: 83 % success at 12 s
-of experience against 50 % with one; ``results/mcpilco_cartpole.md``): 4.2 min on a quiet
-2-core machine (seed 0: success at 9, 12 and 15 s of experience)."""
+"""Reduced budget for ``make demo``, with 2 candidate policies (12 seeds: 58 % / 83 % success at
+12 / 15 s of experience; one policy, 6 seeds: 50 % / 67 %; ``results/mcpilco_cartpole.md``):
+4.2 min on a quiet 2-core machine (seed 0: success at 9, 12 and 15 s of experience)."""
 
 BENCH_CONFIG = MCPilcoConfig(
     num_trials=4,
