@@ -47,6 +47,11 @@ PARTS = ("runs", "timing", "rmse")
 
 
 # ------------------------------------------------------------------------------- runs
+def section_key(env_id: str, label: str = "") -> str:
+    """Key of a ``--label``-ed section under ``runs`` in ``mcpilco_cartpole.json``."""
+    return env_id + (f" ({label})" if label else "")
+
+
 def _run_seed(job: tuple[dict[str, Any], str]) -> dict[str, Any]:
     """One seed's run in ``out``; a finished or killed run found there is resumed, so that
     seeds can be added to a section later (``--first-seed 0 --seeds 12`` after 6 seeds reruns
@@ -479,7 +484,7 @@ def main(argv: list[str] | None = None) -> int:
         for env_id in args.env:
             env_cfg = dataclasses.replace(cfg, env_id=env_id)
             tag = env_id.split("/")[-1] + (f"_{args.label}" if args.label else "")
-            key = env_id + (f" ({args.label})" if args.label else "")
+            key = section_key(env_id, args.label)
             section = bench_runs(env_cfg, seeds, args.jobs, args.runs_dir / tag)
             results["runs"][key] = section
             print(_md_table(key, section))

@@ -496,8 +496,10 @@ def _covers(curve: dict[str, Any], method: str, opts: dict[str, Any]) -> bool:
 def curves_from_bench_json(path: Path, env_id: str, label: str = "") -> list[dict[str, Any]]:
     """MC-PILCO curves from ``mcpilco-bench-mcpilco``'s JSON (per-seed success per trial);
     ``label``: the section written with ``mcpilco-bench-mcpilco --label LABEL``."""
+    from mcpilco.scripts.bench_mcpilco import section_key
+
     data = json.loads(Path(path).read_text())
-    key = env_id + (f" ({label})" if label else "")
+    key = section_key(env_id, label)
     section = data.get("runs", {}).get(key)
     if section is None:
         raise ValueError(

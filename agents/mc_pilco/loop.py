@@ -396,17 +396,14 @@ def run_mcpilco(
 
     torch.manual_seed(config.seed)
     np_rng = np.random.default_rng(config.seed)
+    scales = config.candidate_weight_scales or [config.policy_weight_scale] * config.num_candidates
     candidates = [
         SquashedRBFPolicy(
             num_basis=config.num_basis,
-            weight_scale=(
-                config.candidate_weight_scales[k]
-                if config.candidate_weight_scales
-                else config.policy_weight_scale
-            ),
+            weight_scale=scale,
             seed=config.seed + CANDIDATE_SEED_STRIDE * k,
         )
-        for k in range(config.num_candidates)
+        for k, scale in enumerate(scales)
     ]
     policy = candidates[0]  # the policy applied to the system (the chosen candidate)
     population = PolicyPopulation(candidates)
