@@ -35,7 +35,6 @@ continues from it. ``records.json`` has one record per trial in MC-PILCO's forma
 from __future__ import annotations
 
 import dataclasses
-import json
 import math
 import time
 from collections.abc import Callable
@@ -58,12 +57,14 @@ from mcpilco.agents.mc_pilco.loop import (
     RunSummary,
     check_resume,
     env_dt,
+    episode_outcome,
     exploration_episode,
     make_env,
     record_line,
     run_episode,
     transitions,
     trial_seed,
+    write_records,
 )
 from mcpilco.agents.mc_pilco.viz import plot_optimisation
 
@@ -398,13 +399,7 @@ def run_pilco(
                     env, controller_act(controller), trial_seed(config.seed, k), config.horizon
                 )
             episodes.append({"obs": ep["obs"], "actions": ep["actions"]})
-            rec.update(
-                cost=ep["cost"],
-                success=ep["success"],
-                time_upright=ep["time_upright"],
-                mean_abs_x=ep["mean_abs_x"],
-                wall_s=time.perf_counter() - t0,
-            )
+            rec.update(episode_outcome(ep, t0))
             records.append(rec)
             _write_outputs(out, config, records, opt_curves)
             atomic_torch_save(
@@ -451,9 +446,7 @@ def _write_outputs(
             [np.asarray(c) for c in opt_curves],
             [f"trial {i + 1}" for i in range(len(opt_curves))],
         )
-    tmp = out / "records.json.tmp"
-    tmp.write_text(json.dumps({"config": config.to_dict(), "records": records}, indent=1))
-    tmp.replace(out / "records.json")
+    write_records(out, config, records)
 
 
 __all__ = [

@@ -365,6 +365,25 @@ def record_line(r: dict[str, Any]) -> str:
     return line
 
 
+def episode_outcome(ep: dict[str, Any], t0: float) -> dict[str, Any]:
+    """The real-system part of a trial record: env cost, ``success``, time upright, mean
+    ``|x|`` of episode ``ep``, and the wall-clock since ``t0`` (``time.perf_counter``)."""
+    return {
+        "cost": ep["cost"],
+        "success": ep["success"],
+        "time_upright": ep["time_upright"],
+        "mean_abs_x": ep["mean_abs_x"],
+        "wall_s": time.perf_counter() - t0,
+    }
+
+
+def write_records(out: Path, config: Any, records: list[dict[str, Any]]) -> None:
+    """Write ``out/records.json`` (the config and one record per trial) atomically."""
+    tmp = out / "records.json.tmp"
+    tmp.write_text(json.dumps({"config": config.to_dict(), "records": records}, indent=1))
+    tmp.replace(out / "records.json")
+
+
 # ---------------------------------------------------------------------------------- main
 def run_mcpilco(
     config: MCPilcoConfig,
@@ -533,13 +552,7 @@ def run_mcpilco(
                 arr["gp_rmse"] = rec["gp_rmse"]
                 opt_state = None  # Adam restarts at each trial (MC-PILCO)
             episodes.append({"obs": ep["obs"], "actions": ep["actions"]})
-            rec.update(
-                cost=ep["cost"],
-                success=ep["success"],
-                time_upright=ep["time_upright"],
-                mean_abs_x=ep["mean_abs_x"],
-                wall_s=time.perf_counter() - t0,
-            )
+            rec.update(episode_outcome(ep, t0))
             arr.update(real=ep["states"], **{key: rec[key] for key in ("cost", "success")})
             arr.update(time_upright=rec["time_upright"], mean_abs_x=rec["mean_abs_x"])
             records.append(rec)
@@ -615,6 +628,4 @@ def _write_outputs(
         plot_optimisation(out / "optimisation.png", [c for c, _ in curves], [n for _, n in curves])
     if write_rrd:
         write_rerun_recording(out / "run.rrd", arrays, dt)
-    with open(out / "records.json.tmp", "w") as fh:
-        json.dump({"config": config.to_dict(), "records": records}, fh, indent=1)
-    Path(out / "records.json.tmp").replace(out / "records.json")
+    write_records(out, config, records)
