@@ -330,10 +330,35 @@ def plot(report: dict[str, Any], path: Path) -> Path:
     return path
 
 
+def unique_curves(curves: list[dict[str, Any]]) -> tuple[list[dict[str, Any]], list[str]]:
+    """One curve per ``(env, method, seed)``: a run passed twice (``--inputs`` and the runs
+    folder) must count once. Keeps the curve reaching the most experience (the first of
+    equals); returns the kept curves in input order and a line per dropped duplicate."""
+    best: dict[tuple, int] = {}
+
+    def reach(c: dict[str, Any]) -> float:
+        return c["points"][-1]["experience_s"] if c["points"] else -1.0
+
+    for i, c in enumerate(curves):
+        key = (c["env_id"], c["method"], c["seed"])
+        if key not in best or reach(c) > reach(curves[best[key]]):
+            best[key] = i
+    keep = sorted(best.values())
+    dropped = [
+        f"{c['method']} seed {c['seed']} ({reach(c):,.0f} s) duplicates a kept curve "
+        f"({reach(curves[best[(c['env_id'], c['method'], c['seed'])]]):,.0f} s)"
+        for i, c in enumerate(curves)
+        if i not in best.values()
+    ]
+    return [curves[i] for i in keep], dropped
+
+
 def build_report(
     env_id: str, curves: list[dict[str, Any]], tag: str | None = None, note: str | None = None
 ) -> dict[str, Any]:
-    """Aggregate the curves of ``env_id`` per method (order of :data:`METHODS`)."""
+    """Aggregate the curves of ``env_id`` per method (order of :data:`METHODS`); a seed given
+    more than once counts once (:func:`unique_curves`)."""
+    curves, dropped = unique_curves(curves)
     by_method: dict[str, list[dict[str, Any]]] = {}
     for c in curves:
         if c["env_id"] == env_id:
@@ -348,6 +373,7 @@ def build_report(
         "note": note,
         "methods": aggs,
         "headline": headline(aggs),
+        "duplicates_dropped": dropped,
         "curves": [c for m in order for c in by_method[m]],
     }
 
@@ -726,6 +752,8 @@ def main(argv: list[str] | None = None) -> int:
     except ValueError as err:
         parser.error(str(err) + (f" ({len(failed)} run(s) failed, see above)" if failed else ""))
     report["failed"] = failed
+    for line in report["duplicates_dropped"]:
+        print(f"note: {line}: counted once", file=sys.stderr)
     if "mcpilco" not in report["methods"] and any(f["method"] == "mcpilco" for f in failed):
         report["headline"]["goal"]["note"] = "MC-PILCO has no finished run (it failed, see above)"
     report["settings"] = {

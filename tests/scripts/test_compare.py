@@ -255,6 +255,28 @@ def test_runs_dir_curves_are_collected(tmp_path):
     assert report["methods"]["mcpilco"]["t90_s"] == 6.0
 
 
+def test_a_seed_given_twice_counts_once(tmp_path, capsys):
+    # SAC seed 0 in the runs folder (2 evaluations: 0.0, 1.0) and, longer, in --inputs
+    # (3 evaluations: 0.0, 1.0, 0.5); seed 1 only in --inputs (0.0, 0.0, 1.0).
+    # Kept: the 3-evaluation seed 0 and seed 1 -> 2 seeds, mean 0.0, 0.5, 0.75 at 1000,
+    # 2000, 3000 s -> 90 % never reached; final success 0.75.
+    runs = tmp_path / "runs"
+    save_curve(runs / "CartpoleSwingUp-v0" / "sac" / "seed0" / "curve.json", _sb3_curve(0, [0, 1]))
+    extra = tmp_path / "sac.json"
+    extra.write_text(json.dumps([_sb3_curve(0, [0.0, 1.0, 0.5]), _sb3_curve(1, [0, 0, 1.0])]))
+    out = tmp_path / "r"
+    argv = ["--collect-only", "--methods", "sac", "--seeds", "2", "--runs-dir", str(runs)]
+    assert main([*argv, "--inputs", str(extra), "--out", str(out)]) == 0
+    report = json.loads((out / "compare_CartpoleSwingUp-v0.json").read_text())
+    sac = report["methods"]["sac"]
+    assert sorted(sac["seeds"]) == [0, 1]
+    assert sac["success_mean"] == pytest.approx([0.0, 0.5, 0.75])
+    assert sac["t90_s"] is None
+    assert len(report["duplicates_dropped"]) == 1
+    assert "sac seed 0 (2,000 s)" in report["duplicates_dropped"][0]
+    assert "counted once" in capsys.readouterr().err
+
+
 def test_a_failing_run_is_reported_not_raised(tmp_path):
     from mcpilco.scripts.compare import _job
 
