@@ -343,14 +343,14 @@ def unique_curves(curves: list[dict[str, Any]]) -> tuple[list[dict[str, Any]], l
         key = (c["env_id"], c["method"], c["seed"])
         if key not in best or reach(c) > reach(curves[best[key]]):
             best[key] = i
-    keep = sorted(best.values())
+    keep = set(best.values())
     dropped = [
         f"{c['method']} seed {c['seed']} ({reach(c):,.0f} s) duplicates a kept curve "
         f"({reach(curves[best[(c['env_id'], c['method'], c['seed'])]]):,.0f} s)"
         for i, c in enumerate(curves)
-        if i not in best.values()
+        if i not in keep
     ]
-    return [curves[i] for i in keep], dropped
+    return [c for i, c in enumerate(curves) if i in keep], dropped
 
 
 def build_report(
