@@ -14,6 +14,7 @@ from stable_baselines3.common.save_util import load_from_pkl
 from mcpilco.scripts.compare import run_method
 
 ENV = "mcpilco/CartpoleSwingUp-v0"
+DMC_ENV = "mcpilco/DMCCartpoleSwingUp-v0"
 TINY = {
     "sac": {"learning_starts": 100, "batch_size": 64, "policy_kwargs": {"net_arch": [32, 32]}},
     "td3": {"learning_starts": 100, "batch_size": 64, "policy_kwargs": {"net_arch": [32, 32]}},
@@ -33,10 +34,12 @@ def _opts(algo: str, steps: int) -> dict:
     }
 
 
-@pytest.mark.parametrize("algo", ["sac", "td3", "ppo"])
-def test_smoke_run_records_success_vs_experience(algo, tmp_path):
-    curve = run_method(algo, ENV, 0, tmp_path, _opts(algo, 300))
-    assert curve["method"] == algo and curve["complete"]
+@pytest.mark.parametrize(
+    ("algo", "env_id"), [("sac", ENV), ("td3", ENV), ("ppo", ENV), ("sac", DMC_ENV)]
+)
+def test_smoke_run_records_success_vs_experience(algo, env_id, tmp_path):
+    curve = run_method(algo, env_id, 0, tmp_path, _opts(algo, 300))
+    assert curve["method"] == algo and curve["env_id"] == env_id and curve["complete"]
     assert curve["budget_steps"] == 300 and curve["steps_done"] >= 300
     pts = curve["points"]
     assert [p["steps"] for p in pts] == [150, 300]
