@@ -643,7 +643,16 @@ def build_parser() -> argparse.ArgumentParser:
         help="with --mcpilco-json: the section's --label (e.g. K2); default: unlabelled",
     )
     p.add_argument("--pilco-max-points", type=int, help="PILCO GP points (default 100)")
-    p.add_argument("--pilco-opt-steps", type=int, help="PILCO Adam steps per trial (default 100)")
+    p.add_argument(
+        "--pilco-opt-steps",
+        type=int,
+        help="PILCO evaluations of J (L-BFGS) or Adam steps per trial (default 100)",
+    )
+    p.add_argument(
+        "--pilco-optimizer",
+        choices=["lbfgs", "adam"],
+        help="PILCO policy optimiser (default lbfgs, as PILCO's own line-search optimiser)",
+    )
     p.add_argument("--pilco-basis", type=int, help="PILCO RBF centres (default 50)")
     p.add_argument(
         "--inputs", nargs="+", type=Path, default=[], help="extra learning-curve JSON files"
@@ -689,6 +698,7 @@ def main(argv: list[str] | None = None) -> int:
         for k, v in (
             ("max_points", args.pilco_max_points),
             ("opt_steps", args.pilco_opt_steps),
+            ("optimizer", args.pilco_optimizer),
             ("num_basis", args.pilco_basis),
         )
         if v is not None

@@ -19,8 +19,15 @@ cost ``c(x) = 1 - exp(-(x - x*)^T W (x - x*) / 2)``, ``E[c(x_t)]`` in closed for
     The state is PILCO's raw ``[x, x_dot, theta, theta_dot]``: TorchRL's parts have no
     ``sin/cos`` augmentation of the angle, so the target is the single upright ``theta = pi``.
 ``J(theta) = sum_{t=1..H} E[c(x_t)]``
-    expected cost of an ``H``-step imagined rollout (TorchRL ``ImaginedEnv``), minimised with
-    Adam as in TorchRL's ``sota-implementations/pilco`` example.
+    expected cost of an ``H``-step imagined rollout (TorchRL ``ImaginedEnv``). It is
+    deterministic, so it is minimised as PILCO minimises it, with a quasi-Newton method and
+    line searches (here L-BFGS with strong-Wolfe line searches, ``opt_steps`` evaluations per
+    trial); Adam, as in TorchRL's ``sota-implementations/pilco`` example, is an option.
+units fix
+    TorchRL 0.14's ``GPWorldModel`` keeps the signal and noise variances of botorch's
+    standardised targets next to the raw targets, which inflates every predicted variance
+    (``x``: ``0.08`` instead of ``1e-4`` m^2 per step); :func:`rescale_to_raw_targets` puts
+    them back in target units after each fit (tested against botorch's own posterior).
 outer loop
     exactly MC-PILCO's (:mod:`mcpilco.agents.mc_pilco.loop`): the same exploration trial
     (``u ~ U(-1, 1)`` from the same generator and seed), the same env, reset seeds and
@@ -69,6 +76,7 @@ from mcpilco.agents.mc_pilco.loop import (
 from mcpilco.agents.mc_pilco.viz import plot_optimisation
 
 CHECKPOINT_NAME = "checkpoint.pt"
+OPTIMIZERS = ("lbfgs", "adam")
 _RESUME_FIXED = ("env_id", "seed", "horizon", "num_basis")
 DTYPE = torch.float64
 
@@ -87,8 +95,14 @@ class PilcoConfig:
             core: one optimisation step (60-step moment-matching rollout, forward and backward)
             takes about 1.3-1.8 s at ``n = 60`` and 4.2 s at ``n = 120``, with about 3 GB
             of memory at ``n = 120`` (it grows as ``n^2``).
-        opt_steps: Adam steps on ``J`` per trial.
-        lr: Adam learning rate.
+        optimizer: ``"lbfgs"`` (default): L-BFGS with a strong-Wolfe line search on the
+            deterministic ``J``, the kind of quasi-Newton search PILCO itself uses (its
+            ``minimize``, conjugate gradients / BFGS with line searches); ``"adam"``: Adam as
+            in TorchRL's ``sota-implementations/pilco`` example.
+        opt_steps: evaluations of ``J`` and its gradient per trial (L-BFGS: this many, line
+            search evaluations included, plus at most the rest of the last line search;
+            Adam: this many steps).
+        lr: Adam learning rate (L-BFGS takes the usual initial step 1).
         l_x, l_theta: cost length scales (MC-PILCO's optimisation cost, Amadio et al. 2022:
             ``l_x = 1``, ``l_theta = 3``), giving ``W = diag(2/l_x^2, 0, 2/l_theta^2, 0)``.
         init_std: ``Sigma_0 = init_std^2 I`` of the initial belief (the env's 0.01); must be
@@ -102,6 +116,7 @@ class PilcoConfig:
     horizon: int = 60
     num_basis: int = 50
     max_points: int = 100
+    optimizer: str = "lbfgs"
     opt_steps: int = 100
     lr: float = 0.02
     l_x: float = 1.0
@@ -121,6 +136,8 @@ class PilcoConfig:
                 raise ValueError(f"{name} must be a positive integer, got {v!r}")
         if int(self.max_points) != self.max_points or self.max_points < 10:
             raise ValueError(f"max_points must be an integer >= 10, got {self.max_points!r}")
+        if self.optimizer not in OPTIMIZERS:
+            raise ValueError(f"optimizer must be one of {OPTIMIZERS}, got {self.optimizer!r}")
         if not (self.lr > 0 and self.l_x > 0 and self.l_theta > 0):
             raise ValueError(
                 f"lr, l_x and l_theta must be > 0, got {self.lr}, {self.l_x}, {self.l_theta}"
@@ -182,8 +199,58 @@ def fit_world_model(obs: np.ndarray, actions: np.ndarray, next_obs: np.ndarray):
     )
     model = GPWorldModel(obs_dim=d, action_dim=data["action"].shape[-1])
     model.fit(data)
+    rescale_to_raw_targets(model, data[("next", "observation")] - data["observation"])
     model.eval()
     return model
+
+
+def rescale_to_raw_targets(model, delta: torch.Tensor) -> torch.Tensor:
+    """Put a fitted ``GPWorldModel``'s ``alpha_a^2``, ``sigma_eps_a^2`` in the units of ``Delta_a``.
+
+    TorchRL 0.14's ``GPWorldModel.fit`` builds botorch ``SingleTaskGP`` models, which by
+    default standardise each target (``Standardize``: ``y~_a = (Delta_a - m_a) / s_a``), and
+    then copies their signal and noise variances, fitted on ``y~_a``, next to the raw targets
+    ``Delta_a``. The predictive mean ``k_*^T (K_a + sigma_eps_a^2 I)^{-1} Delta_a`` does not
+    depend on a common scale of ``K_a`` and ``sigma_eps_a^2``, but every variance does: the
+    belief of ``x`` (``s_x ~ 0.04`` m per step) grew by ``sigma_eps^2 ~ 0.08`` m^2 per step
+    instead of ``~1e-4``, so every imagined rollout spread over the whole state space and
+    the expected cost stayed near its maximum whatever the policy. Here
+
+        ``alpha_a^2 <- s_a^2 alpha_a^2``,  ``sigma_eps_a^2 <- s_a^2 sigma_eps_a^2``,
+
+    and the cached ``(K_a + sigma_eps_a^2 I)^{-1}`` and ``beta_a`` are rebuilt exactly as
+    TorchRL builds them (same ``1e-6`` jitter). The GP's constant prior mean ``m_a`` stays
+    dropped, as in TorchRL and in PILCO (zero prior mean on ``Delta``).
+
+    Args:
+        model: a ``GPWorldModel`` right after ``fit``.
+        delta: its training targets ``Delta = x_{t+1} - x_t``, shape ``(n, D)``.
+
+    Returns:
+        ``s_a^2`` per state dimension (ones when a model was fitted without standardisation).
+    """
+    scales = []
+    for gp in model.model_list.models:
+        transform = getattr(gp, "outcome_transform", None)
+        stdvs = getattr(transform, "stdvs", None)
+        scales.append(torch.ones(()) if stdvs is None else stdvs.reshape(()).detach())
+    s2 = torch.stack(scales).to(model.alpha_sq) ** 2
+    model.alpha_sq = model.alpha_sq * s2.unsqueeze(-1)
+    model.sigma_sq_eps = model.sigma_sq_eps * s2
+    X = model.X_tilde_train
+    n = X.shape[0]
+    eye = torch.eye(n, dtype=X.dtype, device=X.device)
+    inv_list, beta_list = [], []
+    for a in range(model.obs_dim):
+        sq = torch.cdist(X / model.ell[a], X / model.ell[a]) ** 2
+        chol = torch.linalg.cholesky(
+            model.alpha_sq[a] * torch.exp(-0.5 * sq) + (model.sigma_sq_eps[a] + 1e-6) * eye
+        )
+        inv_list.append(torch.cholesky_solve(eye, chol))
+        beta_list.append(torch.cholesky_solve(delta[:, a : a + 1].to(X), chol).squeeze(-1))
+    model._cached_inv_K_noisy = torch.stack(inv_list)
+    model._cached_beta = torch.stack(beta_list)
+    return s2
 
 
 def controller_act(controller) -> Callable[[np.ndarray], np.ndarray]:
@@ -243,44 +310,86 @@ def optimize_controller(
     steps: int,
     lr: float,
     on_step: Callable[[int, float], None] | None = None,
+    optimizer: str = "adam",
 ) -> dict[str, Any]:
-    """Adam on ``J``; non-finite ``J`` skips the step; the best parameters seen are kept."""
-    opt = torch.optim.Adam(controller.parameters(), lr=lr)
+    """Minimise ``J`` over the controller's parameters; the best parameters seen are kept.
+
+    ``optimizer="adam"``: ``steps`` Adam steps; a non-finite ``J`` or gradient skips the step.
+    ``optimizer="lbfgs"``: one L-BFGS run (strong-Wolfe line search, initial step ``lr``) that
+    stops after the iteration in which the evaluations of ``J`` reach ``steps`` (its last line
+    search may add a few), at a non-finite ``J``, or when L-BFGS converges. Every evaluation
+    is recorded in ``costs`` and reported to ``on_step``.
+    """
+    if optimizer not in OPTIMIZERS:
+        raise ValueError(f"optimizer must be one of {OPTIMIZERS}, got {optimizer!r}")
+    params = list(controller.parameters())
     costs: list[float] = []
-    best, best_state, skipped = math.inf, None, 0
+    state = {"best": math.inf, "best_state": None, "skipped": 0}
     t0, c0 = time.perf_counter(), time.process_time()
-    for i in range(steps):
-        opt.zero_grad()
+
+    def evaluate() -> tuple[torch.Tensor, bool]:
+        """``J`` with its gradient in ``.grad``; False when ``J`` or a gradient is not finite."""
+        for p in params:
+            p.grad = None
         try:
             J = objective()
         except RuntimeError:  # e.g. a singular matrix in the moment matching
-            J = torch.tensor(math.nan)
+            J = torch.tensor(math.nan, dtype=DTYPE)
         value = float(J.detach())
         costs.append(value)
-        if math.isfinite(value) and value < best:
-            best = value
-            best_state = {k: v.detach().clone() for k, v in controller.state_dict().items()}
-        if not math.isfinite(value):
-            skipped += 1
-        else:
+        ok = math.isfinite(value)
+        if ok:
+            if value < state["best"]:
+                state["best"] = value
+                state["best_state"] = {
+                    k: v.detach().clone() for k, v in controller.state_dict().items()
+                }
             J.backward()
-            grads_ok = all(
-                p.grad is None or bool(torch.isfinite(p.grad).all())
-                for p in controller.parameters()
-            )
-            if grads_ok:
-                opt.step()
-            else:
-                skipped += 1
+            ok = all(p.grad is None or bool(torch.isfinite(p.grad).all()) for p in params)
+        if not ok:
+            state["skipped"] += 1
         if on_step is not None:
-            on_step(i, value)
-    if best_state is not None:
-        controller.load_state_dict(best_state)
+            on_step(len(costs) - 1, value)
+        return J.detach(), ok
+
+    if optimizer == "adam":
+        opt = torch.optim.Adam(params, lr=lr)
+        for _ in range(steps):
+            _, ok = evaluate()
+            if ok:
+                opt.step()
+    else:
+
+        class _NonFinite(Exception):
+            pass
+
+        def closure() -> torch.Tensor:
+            J, ok = evaluate()
+            if not ok:
+                raise _NonFinite
+            return J
+
+        opt = torch.optim.LBFGS(
+            params,
+            lr=lr,
+            max_iter=steps,
+            max_eval=steps,
+            tolerance_grad=1e-9,
+            tolerance_change=1e-12,
+            history_size=50,
+            line_search_fn="strong_wolfe",
+        )
+        try:
+            opt.step(closure)
+        except _NonFinite:
+            pass
+    if state["best_state"] is not None:
+        controller.load_state_dict(state["best_state"])
     n = max(len(costs), 1)
     return {
         "costs": costs,
-        "best": best,
-        "skipped": skipped,
+        "best": state["best"],
+        "skipped": state["skipped"],
         "seconds": time.perf_counter() - t0,
         "s_per_step": (time.perf_counter() - t0) / n,
         "cpu_s_per_step": (time.process_time() - c0) / n,
@@ -381,8 +490,9 @@ def run_pilco(
                         obar.update(1)
                         obar.set_postfix(J=f"{c:.2f}")
 
+                lr = config.lr if config.optimizer == "adam" else 1.0
                 res = optimize_controller(
-                    objective, controller, config.opt_steps, config.lr, on_step
+                    objective, controller, config.opt_steps, lr, on_step, config.optimizer
                 )
                 if obar is not None:
                     obar.close()

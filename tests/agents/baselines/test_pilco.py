@@ -1,7 +1,8 @@
 """PILCO from TorchRL's parts: the cost it optimises, the outer loop it shares with MC-PILCO.
 
 Truth used: the env's own swing-up cost (:func:`mcpilco.envs.cartpole_task.cartpole_cost`),
-a Monte Carlo estimate of the expected cost, and MC-PILCO's exploration trial.
+a Monte Carlo estimate of the expected cost, botorch's own GP posterior, and MC-PILCO's
+exploration trial.
 """
 
 from __future__ import annotations
@@ -14,7 +15,14 @@ import pytest
 import torch
 from tensordict import TensorDict
 
-from mcpilco.agents.baselines.pilco import PilcoConfig, controller_act, make_controller, make_cost
+from mcpilco.agents.baselines.pilco import (
+    PilcoConfig,
+    controller_act,
+    fit_world_model,
+    make_controller,
+    make_cost,
+    optimize_controller,
+)
 from mcpilco.agents.mc_pilco import MCPilcoConfig, run_mcpilco
 from mcpilco.envs.cartpole_task import cartpole_cost
 from mcpilco.scripts.compare import run_method
@@ -61,6 +69,52 @@ def test_expected_cost_matches_monte_carlo():
     assert closed == pytest.approx(mc, abs=1e-3)
 
 
+def test_moment_matching_at_a_point_belief_is_the_gp_posterior_in_target_units():
+    """As ``Sigma_x -> 0`` PILCO's moment matching must return botorch's predictive variance.
+
+    The targets differ in scale by 600x, so a variance left in botorch's standardised units
+    (TorchRL 0.14's ``GPWorldModel.fit`` alone) is off by ``s_a^2`` (down to 1/400).
+    """
+    rng = np.random.default_rng(3)
+    n, scales = 60, np.array([0.05, 1.0, 30.0, 0.3])
+    obs = rng.uniform(-1.5, 1.5, size=(n, 4))
+    act = rng.uniform(-1, 1, size=(n, 1))
+    clean = np.column_stack(
+        [
+            np.sin(obs[:, 0] + act[:, 0]),
+            obs[:, 1] * act[:, 0],
+            np.cos(obs[:, 2]),
+            obs[:, 3] ** 2 - 0.5,
+        ]
+    )
+    delta = scales * (clean + 0.05 * rng.normal(size=(n, 4)))
+    model = fit_world_model(obs, act, obs + delta)
+    x = torch.as_tensor(rng.uniform(-1, 1, size=(5, 4)))
+    u = torch.as_tensor(rng.uniform(-0.5, 0.5, size=(5, 1)))
+    td = TensorDict(
+        {
+            ("observation", "mean"): x,
+            ("observation", "var"): 1e-10 * torch.eye(4, dtype=torch.float64).expand(5, 4, 4),
+            ("action", "mean"): u,
+            ("action", "var"): torch.zeros(5, 1, 1, dtype=torch.float64),
+            ("action", "cross_covariance"): torch.zeros(5, 4, 1, dtype=torch.float64),
+        },
+        batch_size=[5],
+    )
+    with torch.no_grad():
+        out = model.uncertain_forward(td)
+        var_mm = torch.diagonal(out["next", "observation", "var"], dim1=-2, dim2=-1)
+        var_gp = torch.stack(
+            [
+                gp.posterior(torch.cat([x, u], -1), observation_noise=True).variance[:, 0]
+                for gp in model.model_list.models
+            ],
+            -1,
+        )
+    # atol: the 1e-6 jitter TorchRL adds to K_a + sigma_eps_a^2 I (in target units)
+    np.testing.assert_allclose(var_mm.numpy(), var_gp.numpy(), rtol=0.02, atol=1e-6)
+
+
 def test_controller_action_is_bounded_and_deterministic():
     controller, _ = make_controller(4, 1, num_basis=10, seed=0)
     with torch.no_grad():
@@ -79,6 +133,8 @@ def test_config_validation():
         PilcoConfig(max_points=3)
     with pytest.raises(ValueError, match="num_trials must be an integer >= 0"):
         PilcoConfig(num_trials=-1)
+    with pytest.raises(ValueError, match="optimizer must be one of"):
+        PilcoConfig(optimizer="bfgs")
 
 
 TINY = {"max_points": 30, "opt_steps": 2, "num_basis": 5}
@@ -96,7 +152,9 @@ def test_smoke_run_through_the_compare_entry_point(pilco_run):
     out, _, curve = pilco_run
     recs = json.loads((out / "records.json").read_text())["records"]
     assert [r["kind"] for r in recs] == ["exploration", "policy"]
-    assert recs[1]["opt_steps"] == 2 and recs[1]["gp_points"] == 30
+    # L-BFGS stops after the iteration that reaches opt_steps evaluations (its line search
+    # may add up to 25)
+    assert 2 <= recs[1]["opt_steps"] <= 2 + 25 and recs[1]["gp_points"] == 30
     assert math.isfinite(recs[1]["opt_final_cost"]) and 0 <= recs[1]["opt_final_cost"] <= 60
     assert [(p["steps"], p["experience_s"]) for p in curve["points"]] == [(60, 3.0), (120, 6.0)]
     assert (out / "checkpoint.pt").is_file() and (out / "optimisation.png").is_file()
@@ -124,3 +182,39 @@ def test_resume_adds_a_trial_and_keeps_the_old_ones(pilco_run):
     assert [p["steps"] for p in more["points"]] == [60, 120, 180]
     with pytest.raises(ValueError, match="cannot resume: num_basis"):
         run_method("pilco", ENV, 2, out, {**opts, "pilco": {**TINY, "num_basis": 6}})
+
+
+class _Quadratic(torch.nn.Module):
+    """``J(w) = sum_i c_i (w_i - w*_i)^2``: minimum 0 at ``w*`` (closed form)."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.w = torch.nn.Parameter(torch.zeros(5, dtype=torch.float64))
+        self.target = torch.linspace(-2.0, 3.0, 5, dtype=torch.float64)
+        self.curv = torch.logspace(-1, 2, 5, dtype=torch.float64)
+
+    def __call__(self) -> torch.Tensor:
+        return (self.curv * (self.w - self.target) ** 2).sum()
+
+
+def test_lbfgs_reaches_the_minimum_of_a_quadratic_and_keeps_the_best_on_nan():
+    q = _Quadratic()
+    res = optimize_controller(q, q, steps=40, lr=1.0, optimizer="lbfgs")
+    np.testing.assert_allclose(q.w.detach().numpy(), q.target.numpy(), atol=1e-6)
+    assert res["best"] < 1e-10 and len(res["costs"]) <= 40 + 25
+    # Adam with the same budget is far from it on this ill-conditioned quadratic
+    q2 = _Quadratic()
+    assert optimize_controller(q2, q2, steps=40, lr=0.02, optimizer="adam")["best"] > 1.0
+
+    q3, calls = _Quadratic(), []
+
+    def nan_after_three() -> torch.Tensor:
+        calls.append(1)
+        return q3() * (math.nan if len(calls) > 3 else 1.0)
+
+    res = optimize_controller(nan_after_three, q3, steps=40, lr=1.0, optimizer="lbfgs")
+    assert len(res["costs"]) == 4 and res["skipped"] == 1
+    assert res["best"] == min(res["costs"][:3])
+    assert float(q3().detach()) == pytest.approx(res["best"])  # the best parameters were restored
+    with pytest.raises(ValueError, match="optimizer must be one of"):
+        optimize_controller(q3, q3, steps=1, lr=1.0, optimizer="sgd")
