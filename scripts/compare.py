@@ -646,7 +646,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument(
         "--pilco-opt-steps",
         type=int,
-        help="PILCO evaluations of J (L-BFGS) or Adam steps per trial (default 100)",
+        help="PILCO evaluations of J (L-BFGS) or Adam steps per trial (default 150)",
     )
     p.add_argument(
         "--pilco-optimizer",
