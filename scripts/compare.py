@@ -642,7 +642,7 @@ def build_parser() -> argparse.ArgumentParser:
         default="",
         help="with --mcpilco-json: the section's --label (e.g. K2); default: unlabelled",
     )
-    p.add_argument("--pilco-max-points", type=int, help="PILCO GP points (default 100)")
+    p.add_argument("--pilco-max-points", type=int, help="PILCO GP points (default 180)")
     p.add_argument(
         "--pilco-opt-steps",
         type=int,
