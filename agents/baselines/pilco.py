@@ -96,7 +96,7 @@ class PilcoConfig:
             60). It matters: with 100 (the last 1.7 trials) neither seed 0 nor seed 1 swung up
             in 27 s; with 180 seed 1 succeeds at 15 s. Measured with two runs on two cores:
             one evaluation of ``J`` (60-step moment-matching rollout, forward and backward)
-            takes about 1.6-1.9 s at ``n = 100`` and 5.4-8.6 s at ``n = 180``; memory grows as
+            takes about 1.6-2.0 s at ``n = 100`` and 5.4-8.6 s at ``n = 180``; memory grows as
             ``n^2`` (about 2.4 GB per process at ``n = 100``).
         optimizer: ``"lbfgs"`` (default): L-BFGS with a strong-Wolfe line search on the
             deterministic ``J``, the kind of quasi-Newton search PILCO itself uses (its
@@ -203,12 +203,12 @@ def fit_world_model(obs: np.ndarray, actions: np.ndarray, next_obs: np.ndarray):
     )
     model = GPWorldModel(obs_dim=d, action_dim=data["action"].shape[-1])
     model.fit(data)
-    rescale_to_raw_targets(model, data[("next", "observation")] - data["observation"])
+    rescale_to_raw_targets(model)
     model.eval()
     return model
 
 
-def rescale_to_raw_targets(model, delta: torch.Tensor) -> torch.Tensor:
+def rescale_to_raw_targets(model) -> torch.Tensor:
     """Put a fitted ``GPWorldModel``'s ``alpha_a^2``, ``sigma_eps_a^2`` in the units of ``Delta_a``.
 
     TorchRL 0.14's ``GPWorldModel.fit`` builds botorch ``SingleTaskGP`` models, which by
@@ -222,38 +222,28 @@ def rescale_to_raw_targets(model, delta: torch.Tensor) -> torch.Tensor:
 
         ``alpha_a^2 <- s_a^2 alpha_a^2``,  ``sigma_eps_a^2 <- s_a^2 sigma_eps_a^2``,
 
-    and the cached ``(K_a + sigma_eps_a^2 I)^{-1}`` and ``beta_a`` are rebuilt exactly as
-    TorchRL builds them (same ``1e-6`` jitter). The GP's constant prior mean ``m_a`` stays
-    dropped, as in TorchRL and in PILCO (zero prior mean on ``Delta``).
+    and TorchRL's cached factors follow from the same common scale without a new solve:
+    ``(K_a + sigma_eps_a^2 I)^{-1} <- (K_a + sigma_eps_a^2 I)^{-1} / s_a^2`` and
+    ``beta_a <- beta_a / s_a^2`` (TorchRL's ``1e-6`` jitter is scaled with them, to
+    ``1e-6 s_a^2``). The GP's constant prior mean ``m_a`` stays dropped, as in TorchRL and in
+    PILCO (zero prior mean on ``Delta``).
 
     Args:
         model: a ``GPWorldModel`` right after ``fit``.
-        delta: its training targets ``Delta = x_{t+1} - x_t``, shape ``(n, D)``.
 
     Returns:
         ``s_a^2`` per state dimension (ones when a model was fitted without standardisation).
     """
     scales = []
     for gp in model.model_list.models:
-        transform = getattr(gp, "outcome_transform", None)
-        stdvs = getattr(transform, "stdvs", None)
+        stdvs = getattr(getattr(gp, "outcome_transform", None), "stdvs", None)
         scales.append(torch.ones(()) if stdvs is None else stdvs.reshape(()).detach())
     s2 = torch.stack(scales).to(model.alpha_sq) ** 2
+    inv_k, beta = model.compute_factorizations()
     model.alpha_sq = model.alpha_sq * s2.unsqueeze(-1)
     model.sigma_sq_eps = model.sigma_sq_eps * s2
-    X = model.X_tilde_train
-    n = X.shape[0]
-    eye = torch.eye(n, dtype=X.dtype, device=X.device)
-    inv_list, beta_list = [], []
-    for a in range(model.obs_dim):
-        sq = torch.cdist(X / model.ell[a], X / model.ell[a]) ** 2
-        chol = torch.linalg.cholesky(
-            model.alpha_sq[a] * torch.exp(-0.5 * sq) + (model.sigma_sq_eps[a] + 1e-6) * eye
-        )
-        inv_list.append(torch.cholesky_solve(eye, chol))
-        beta_list.append(torch.cholesky_solve(delta[:, a : a + 1].to(X), chol).squeeze(-1))
-    model._cached_inv_K_noisy = torch.stack(inv_list)
-    model._cached_beta = torch.stack(beta_list)
+    model._cached_inv_K_noisy = inv_k / s2.view(-1, 1, 1)
+    model._cached_beta = beta / s2.view(-1, 1)
     return s2
 
 

@@ -111,7 +111,7 @@ def test_moment_matching_at_a_point_belief_is_the_gp_posterior_in_target_units()
             ],
             -1,
         )
-    # atol: the 1e-6 jitter TorchRL adds to K_a + sigma_eps_a^2 I (in target units)
+    # atol: the jitter TorchRL adds to K_a + sigma_eps_a^2 I (1e-6 s_a^2 in target units)
     np.testing.assert_allclose(var_mm.numpy(), var_gp.numpy(), rtol=0.02, atol=1e-6)
 
 
