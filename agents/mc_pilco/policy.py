@@ -35,6 +35,8 @@ import torch
 from tensordict.nn import TensorDictModule
 from torch import Tensor, nn
 
+from mcpilco.models.numerics import exp_floor_
+
 SQRT_HALF = math.sqrt(0.5)
 """Default initial lengthscale: ``exp(-1/2 ||(x~ - c)/l||^2)`` with ``l = sqrt(1/2)`` is the
 reference code's ``exp(-||x~ - c||^2)`` (unit lengthscales there)."""
@@ -144,7 +146,7 @@ class SquashedRBFPolicy(nn.Module):
             self.centers.unsqueeze(0),
             self.log_lengthscales.unsqueeze(0),
         )
-        return log_phi.exp_().reshape(*lead, self.num_basis)
+        return exp_floor_(log_phi).reshape(*lead, self.num_basis)
 
     def forward(self, obs: Tensor) -> Tensor:
         if obs.shape[-1] != 4:
@@ -325,7 +327,7 @@ class _SquashedRBF(torch.autograd.Function):
     def forward(ctx, obs, centers, log_l, w, u_max, mask=None):  # noqa: D102
         feats = cartpole_policy_features(obs)  # (K, k, 5)
         a, b, inv_l, log_phi = _log_basis(feats, centers, log_l)
-        phi = log_phi.exp_()  # (K, k, n_b)
+        phi = exp_floor_(log_phi)  # (K, k, n_b)
         if mask is not None:
             phi.mul_(mask)
         t = torch.tanh(torch.bmm(phi, w).div_(u_max))  # (K, k, A)

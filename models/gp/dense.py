@@ -26,6 +26,8 @@ import torch
 from linear_operator import to_dense
 from torch import Tensor
 
+from mcpilco.models.numerics import exp_floor, exp_floor_arg
+
 __all__ = ["dense_covar", "dense_diag", "rbf_sq_dist"]
 
 
@@ -60,10 +62,11 @@ def _scaled_rbf(outputscale: Tensor, lengthscale: Tensor, x1: Tensor, x2: Tensor
         w_j = [2 b_j,\\ -\\lVert b_j\\rVert^2,\\ 1],
 
     so the ``(n, N)`` exponent is written once by the matmul; then
-    :math:`\\exp(\\min(u_i^T w_j, \\log\\theta_s))` (the min is the clamp of the squared distance
-    at zero). Without a gradient to record, the clamp and the exp act in place. An outputscale
+    :math:`\\exp(\\min(\\max(u_i^T w_j, \\log \\mathrm{tiny}), \\log\\theta_s))` (the min is the
+    clamp of the squared distance at zero; the max keeps ``exp`` on its fast path, see
+    :mod:`mcpilco.models.numerics`). Without a gradient to record, the clamp and the exp act in place. An outputscale
     of exactly 0 is floored at the smallest normal float so that no ``-inf`` enters the matmul
-    (whose backward would turn ``0 * inf`` into NaN); the result is then at most that float.
+    (whose backward would turn ``0 * inf`` into NaN); the result is then that float (up to the rounding of exp(log tiny)).
     """
     scale = lengthscale.mul(2.0**0.5).reciprocal()  # (*batch, 1, d)
     a = x1 * scale
@@ -77,9 +80,10 @@ def _scaled_rbf(outputscale: Tensor, lengthscale: Tensor, x1: Tensor, x2: Tensor
     u = torch.cat([a, ones_a, log_os - a.pow(2).sum(-1, keepdim=True)], dim=-1)
     w = torch.cat([2.0 * b, -b.pow(2).sum(-1, keepdim=True), ones_b], dim=-1)
     arg = u @ w.transpose(-1, -2)
+    floor = exp_floor_arg(arg.dtype)  # keeps exp on its fast path (mcpilco.models.numerics)
     if torch.is_grad_enabled() and arg.requires_grad:
-        return torch.minimum(arg, log_os).exp()
-    return arg.clamp_(max=log_os).exp_()
+        return torch.minimum(arg.clamp(min=floor), log_os).exp()
+    return arg.clamp_(min=floor).clamp_(max=log_os).exp_()
 
 
 def _select(kernel: gpytorch.kernels.Kernel, x: Tensor) -> Tensor:
@@ -137,8 +141,8 @@ def dense_covar(
         a = x1 / ls
         b = x2 / ls
         if diag:
-            return torch.exp(-0.5 * (a - b).pow(2).sum(-1))
-        return torch.exp(-0.5 * rbf_sq_dist(a, b))
+            return exp_floor(-0.5 * (a - b).pow(2).sum(-1))
+        return exp_floor(-0.5 * rbf_sq_dist(a, b))
     if type(kernel) is kernels.ConstantKernel:
         c = kernel.constant  # (*batch, 1)
         if diag:

@@ -49,6 +49,7 @@ import torch
 from torch import Tensor, nn
 
 from mcpilco.models.gp.linalg import LowerTriangularBlocks, _panel_product
+from mcpilco.models.numerics import exp_floor_
 
 INV_L2_MAX = 1e12
 """Largest ``1 / l^2`` kept (standardised inputs): a shorter lengthscale is a delta kernel."""
@@ -94,7 +95,7 @@ class _FusedPosterior(torch.autograd.Function):
         xaug[:, :d] = xs.T
         xaug[:, d] = 1.0
         torch.mm(pred.inv_l2, sq.T, out=xaug[:, d + 1]).mul_(-0.5)  # -||x^/l_b||^2 / 2
-        r = torch.bmm(pred.W_aug, xaug).exp_()  # (m, N, k)
+        r = exp_floor_(torch.bmm(pred.W_aug, xaug))  # (m, N, k)
         mean = torch.bmm(pred.alpha, r).view(m, k)  # (m, k)
         prior = pred.outputscale.expand(m, k)
         z = fac = None
