@@ -41,6 +41,7 @@ from typing import Any
 import numpy as np
 
 from mcpilco.agents.mc_pilco import BENCH_CONFIG, DEFAULT_ENV_ID, DEMO_CONFIG, MCPilcoConfig
+from mcpilco.agents.mc_pilco.dynamics import KERNEL_CHOICES
 
 PRESETS = {"bench": BENCH_CONFIG, "demo": DEMO_CONFIG, "default": MCPilcoConfig()}
 PARTS = ("runs", "timing", "rmse")
@@ -418,6 +419,11 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--opt-steps", type=int, help="max opt steps per trial (override)")
     p.add_argument("--candidates", type=int, help="K policies side by side (override)")
     p.add_argument(
+        "--kernel",
+        choices=KERNEL_CHOICES,
+        help="GP kernel of the runs (override; e.g. rbf for the RBF-only ablation)",
+    )
+    p.add_argument(
         "--candidate-scales",
         type=float,
         nargs="+",
@@ -462,6 +468,8 @@ def main(argv: list[str] | None = None) -> int:
         over["num_particles"] = args.particles
     if args.candidates is not None:
         over["num_candidates"] = args.candidates
+    if args.kernel is not None:
+        over["kernel"] = args.kernel
     if args.candidate_scales is not None:
         over["candidate_weight_scales"] = args.candidate_scales
         over.setdefault("num_candidates", len(args.candidate_scales))
