@@ -64,9 +64,10 @@ def _scaled_rbf(outputscale: Tensor, lengthscale: Tensor, x1: Tensor, x2: Tensor
     so the ``(n, N)`` exponent is written once by the matmul; then
     :math:`\\exp(\\min(\\max(u_i^T w_j, \\log \\mathrm{tiny}), \\log\\theta_s))` (the min is the
     clamp of the squared distance at zero; the max keeps ``exp`` on its fast path, see
-    :mod:`mcpilco.models.numerics`). Without a gradient to record, the clamp and the exp act in place. An outputscale
-    of exactly 0 is floored at the smallest normal float so that no ``-inf`` enters the matmul
-    (whose backward would turn ``0 * inf`` into NaN); the result is then that float (up to the rounding of exp(log tiny)).
+    :mod:`mcpilco.models.numerics`). Without a gradient to record, the clamps and the exp act
+    in place. An outputscale of exactly 0 is floored at the smallest normal float so that no
+    ``-inf`` enters the matmul (whose backward would turn ``0 * inf`` into NaN); the result is
+    then that float (up to the rounding of ``exp(log tiny)``).
     """
     scale = lengthscale.mul(2.0**0.5).reciprocal()  # (*batch, 1, d)
     a = x1 * scale
