@@ -58,6 +58,7 @@ from mcpilco.agents.baselines.common import (
     save_curve,
     trial_records_to_points,
 )
+from mcpilco.agents.baselines.pilco import OPTIMIZERS
 from mcpilco.agents.mc_pilco.loop import BENCH_CONFIG, DEFAULT_ENV_ID, DEMO_CONFIG, MCPilcoConfig
 
 SB3_METHODS = ("sac", "td3", "ppo")
@@ -650,7 +651,7 @@ def build_parser() -> argparse.ArgumentParser:
     )
     p.add_argument(
         "--pilco-optimizer",
-        choices=["lbfgs", "adam"],
+        choices=OPTIMIZERS,
         help="PILCO policy optimiser (default lbfgs, as PILCO's own line-search optimiser)",
     )
     p.add_argument("--pilco-basis", type=int, help="PILCO RBF centres (default 50)")

@@ -84,7 +84,7 @@ def _scaled_rbf(outputscale: Tensor, lengthscale: Tensor, x1: Tensor, x2: Tensor
     floor = exp_floor_arg(arg.dtype)  # keeps exp on its fast path (mcpilco.models.numerics)
     if torch.is_grad_enabled() and arg.requires_grad:
         return torch.minimum(arg.clamp(min=floor), log_os).exp()
-    return arg.clamp_(min=floor).clamp_(max=log_os).exp_()
+    return arg.clamp_(min=arg.new_tensor(floor), max=log_os).exp_()  # one pass
 
 
 def _select(kernel: gpytorch.kernels.Kernel, x: Tensor) -> Tensor:
