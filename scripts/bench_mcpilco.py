@@ -16,7 +16,9 @@ Three parts, each optional:
    per time step and averaged over the 60 steps, over ``--rmse-seeds`` exploration seeds.
 
 Writes ``results/mcpilco_cartpole.json`` (merged with an existing file, one section per
-env), ``results/mcpilco_cartpole.md`` and ``results/mcpilco_cartpole.png``.
+env), ``results/mcpilco_cartpole.md`` and ``results/mcpilco_cartpole.png``. ``--pool`` merges
+sections of the same config run on other seeds (e.g. 12 seeds, then 8 more with
+``--first-seed 12 --label bench5``) into one section over all of them.
 
 Usage::
 
@@ -24,6 +26,7 @@ Usage::
     mcpilco-bench-mcpilco --parts runs --seeds 5 --preset demo
     mcpilco-bench-mcpilco --parts runs --env mcpilco/DMCCartpoleSwingUp-v0 --seeds 5
     mcpilco-bench-mcpilco --parts timing rmse
+    mcpilco-bench-mcpilco --pool bench bench5                  # one section, seeds of both
 """
 
 from __future__ import annotations
@@ -130,11 +133,18 @@ def bench_runs(cfg: MCPilcoConfig, seeds: list[int], jobs: int, runs_dir: Path) 
                 bar.update(1)
     if bar:
         bar.close()
+    return make_section(cfg.to_dict(), runs, jobs, time.perf_counter() - t0)
+
+
+def make_section(
+    config: dict[str, Any], runs: list[dict[str, Any]], jobs: int, wall_s_total: float
+) -> dict[str, Any]:
+    """The results section of ``runs`` (the dicts of :func:`_run_seed`, one per seed)."""
     return {
-        "config": cfg.to_dict(),
-        "seeds": seeds,
+        "config": config,
+        "seeds": [r["seed"] for r in runs],
         "jobs": jobs,
-        "wall_s_total": time.perf_counter() - t0,
+        "wall_s_total": wall_s_total,
         "wall_s_per_run": float(np.mean([r["seconds"] for r in runs])),
         "per_trial": aggregate_runs(runs),
         "per_seed": [
@@ -145,6 +155,79 @@ def bench_runs(cfg: MCPilcoConfig, seeds: list[int], jobs: int, runs_dir: Path) 
             }
             for r in runs
         ],
+    }
+
+
+POOLED_MEANS = (
+    "success_rate",
+    "time_upright_s",
+    "mean_abs_x_m",
+    "cost",
+    "wall_s_per_trial",
+    "opt_steps",
+    "s_per_opt_step",
+    "cpu_s_per_opt_step",
+    "gp_fit_s",
+)
+"""Per-trial fields of a section that are means over seeds (pooled weighted by seed count)."""
+
+_RUN_ONLY_FIELDS = ("num_trials", "seed", "torch_threads")
+"""Config fields that may differ between sections that are pooled."""
+
+
+def pool_sections(sections: list[dict[str, Any]]) -> dict[str, Any]:
+    """One section over the union of the seeds of ``sections`` (same experiment, other seeds).
+
+    Each per-trial field in :data:`POOLED_MEANS` is a mean over seeds, so the pooled value
+    is exact: :math:`\\bar v = \\sum_j S_j \\bar v_j / \\sum_j S_j` over the sections ``j``
+    that ran trial ``k`` (``S_j`` seeds each). Trials that only some sections ran are pooled
+    over those (their ``seeds`` count says how many).
+
+    Raises:
+        ValueError: if the configs differ in anything but the number of trials (and the
+            seed), or if a seed appears in two sections.
+    """
+    if len(sections) < 2:
+        raise ValueError(f"pooling needs at least 2 sections, got {len(sections)}")
+
+    def experiment(cfg: dict[str, Any]) -> dict[str, Any]:
+        return {k: v for k, v in cfg.items() if k not in _RUN_ONLY_FIELDS}
+
+    ref = experiment(sections[0]["config"])
+    for sec in sections[1:]:
+        other = experiment(sec["config"])
+        if other != ref:
+            diff = sorted(k for k in set(ref) | set(other) if ref.get(k) != other.get(k))
+            raise ValueError(f"sections differ in config fields {diff}; only seeds may differ")
+    seeds = [s for sec in sections for s in sec["seeds"]]
+    if len(set(seeds)) != len(seeds):
+        raise ValueError(f"a seed appears in two sections: {sorted(seeds)}")
+    n_trials = max(len(sec["per_trial"]) for sec in sections)
+    rows = []
+    for k in range(n_trials):
+        have = [sec["per_trial"][k] for sec in sections if len(sec["per_trial"]) > k]
+        total = sum(r["seeds"] for r in have)
+        row = {key: have[0][key] for key in ("trial", "experience_s", "kind")}
+        row["seeds"] = total
+        for key in POOLED_MEANS:
+            if all(key in r for r in have):
+                row[key] = float(sum(r["seeds"] * r[key] for r in have) / total)
+        rows.append(row)
+    config = dict(sections[0]["config"])
+    config["num_trials"] = max(sec["config"]["num_trials"] for sec in sections)
+    n_seeds = [len(sec["seeds"]) for sec in sections]
+    return {
+        "config": config,
+        "seeds": seeds,
+        "jobs": sections[0]["jobs"],
+        "wall_s_total": float(sum(sec["wall_s_total"] for sec in sections)),
+        "wall_s_per_run": float(
+            sum(n * sec["wall_s_per_run"] for n, sec in zip(n_seeds, sections, strict=True))
+            / sum(n_seeds)
+        ),
+        "per_trial": rows,
+        "per_seed": [p for sec in sections for p in sec["per_seed"]],
+        "pooled_from": [len(sec["seeds"]) for sec in sections],
     }
 
 
@@ -317,8 +400,16 @@ def plot_rmse(rm: dict, path: Path) -> None:
 def _md_table(env_id: str, section: dict) -> str:
     lines = [f"### {env_id}", ""]
     cfg = section["config"]
+    seeds = section["seeds"]
+    pooled = ""
+    if section.get("pooled_from"):
+        pooled = (
+            f"Pooled from {len(section['pooled_from'])} runs of the same config "
+            f"({' + '.join(str(n) for n in section['pooled_from'])} seeds; a trial that "
+            "only some ran is over those seeds, see `seeds` in the JSON). "
+        )
     lines.append(
-        f"{len(section['seeds'])} seeds; M={cfg['num_particles']} particles, "
+        pooled + f"{len(seeds)} seeds ({_seed_ranges(seeds)}); M={cfg['num_particles']} particles, "
         f"max {cfg['opt']['max_steps']} opt steps per trial (first: {cfg['opt_steps_first']}), "
         f"GP subset N<={cfg['max_points']}, kernel {cfg['kernel']}, "
         f"K={cfg.get('num_candidates', 1)} candidate policies; {section['jobs']} parallel "
@@ -326,13 +417,17 @@ def _md_table(env_id: str, section: dict) -> str:
     )
     lines += [
         "",
-        "| experience | success rate | time upright [s] | mean abs x [m] | wall per trial [s] "
-        "| opt steps | s / opt step (wall) | s / opt step (CPU) |",
-        "|---|---|---|---|---|---|---|---|",
+        "| experience | policy trained on | success rate | time upright [s] | mean abs x [m] "
+        "| wall per trial [s] | opt steps | s / opt step (wall) | s / opt step (CPU) |",
+        "|---|---|---|---|---|---|---|---|---|",
     ]
+    prev = None
     for r in section["per_trial"]:
+        trained = f"{prev:.0f} s" if prev is not None and r["kind"] == "policy" else "-"
+        prev = r["experience_s"]
         lines.append(
-            f"| {r['experience_s']:.0f} s ({r['kind']}) | {100 * r['success_rate']:.0f}% "
+            f"| {r['experience_s']:.0f} s ({r['kind']}) | {trained} "
+            f"| {100 * r['success_rate']:.0f}% "
             f"| {r['time_upright_s']:.2f} | {r['mean_abs_x_m']:.2f} | {r['wall_s_per_trial']:.1f} "
             f"| {r.get('opt_steps', 0):.0f} | {r.get('s_per_opt_step', float('nan')):.3f} "
             f"| {r.get('cpu_s_per_opt_step', float('nan')):.3f} |"
@@ -340,9 +435,28 @@ def _md_table(env_id: str, section: dict) -> str:
     return "\n".join(lines) + "\n"
 
 
+def _seed_ranges(seeds: list[int]) -> str:
+    """``[0, 1, 2, 5, 6]`` -> ``"0-2, 5-6"``."""
+    out: list[str] = []
+    for s in sorted(seeds):
+        if out and int(out[-1].split("-")[-1]) == s - 1:
+            out[-1] = f"{out[-1].split('-')[0]}-{s}"
+        else:
+            out.append(str(s))
+    return ", ".join(out)
+
+
+CONVENTION_NOTE = (
+    "Rows: `experience` counts the seconds of interaction up to the end of that trial (the "
+    "trial included); `policy trained on` is the data the trial's policy was optimised on. "
+    "Thesis Table 5.1 indexes its columns by the latter (its 3.8 % at 3 s is a policy trial, "
+    "not the random exploration)."
+)
+
+
 def write_report(results: dict, out_dir: Path) -> None:
     out_dir.mkdir(parents=True, exist_ok=True)
-    md = ["# MC-PILCO on the cartpole swing-up", ""]
+    md = ["# MC-PILCO on the cartpole swing-up", "", CONVENTION_NOTE, ""]
     for env_id, section in results.get("runs", {}).items():
         md.append(_md_table(env_id, section))
     if results.get("timing"):
@@ -408,7 +522,20 @@ def build_parser() -> argparse.ArgumentParser:
         description=__doc__,
         formatter_class=argparse.RawTextHelpFormatter,
     )
-    p.add_argument("--parts", nargs="+", choices=PARTS, default=list(PARTS))
+    p.add_argument(
+        "--parts",
+        nargs="+",
+        choices=PARTS,
+        help=f"parts to run (default: all of {', '.join(PARTS)}; none when --pool is given)",
+    )
+    p.add_argument(
+        "--pool",
+        nargs="+",
+        metavar="LABEL",
+        help="pool the existing sections with these labels ('' for the unlabelled one) of "
+        "each --env into a section labelled LABEL1+LABEL2 (same config, other seeds), after "
+        "the parts",
+    )
     p.add_argument("--env", nargs="+", default=[DEFAULT_ENV_ID], help="env ids for the runs")
     p.add_argument("--seeds", type=int, default=20, help="number of seeds S (0..S-1)")
     p.add_argument("--first-seed", type=int, default=0)
@@ -452,6 +579,8 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
+    if args.parts is None:
+        args.parts = [] if args.pool else list(PARTS)
     if args.seeds < 1 or args.jobs < 1:
         parser.error("--seeds and --jobs must be >= 1")
     from mcpilco.agents.mc_pilco import registered_ids
@@ -528,6 +657,21 @@ def main(argv: list[str] | None = None) -> int:
                     del p_[k]
         results["rmse"] = rm
         print(f"theta RMSE: rbf+mpk {rm['rbf+mpk']}, rbf {rm['rbf']}")
+        write_report(results, args.out)
+    if args.pool:
+        sections = results.get("runs", {})
+        for env_id in args.env:
+            keys = [section_key(env_id, label) for label in args.pool]
+            missing = [k for k in keys if k not in sections]
+            if missing:
+                parser.error(f"--pool: no section {missing} in {json_path}; have {list(sections)}")
+            try:
+                pooled = pool_sections([sections[k] for k in keys])
+            except ValueError as err:
+                parser.error(f"--pool: {err}")
+            key = section_key(env_id, "+".join(args.pool))
+            sections[key] = pooled
+            print(_md_table(key, pooled))
         write_report(results, args.out)
     print(f"wrote {json_path} and {args.out / 'mcpilco_cartpole.md'}")
     return 0

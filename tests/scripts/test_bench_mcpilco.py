@@ -29,3 +29,122 @@ def test_candidate_scales_must_match_candidates(tmp_path, capsys):
             + ["--out", str(tmp_path), "--runs-dir", str(tmp_path / "runs")]
         )
     assert "candidate_weight_scales must hold num_candidates=3" in capsys.readouterr().err
+
+
+def _fake_runs(seeds, n_trials, rng):
+    """Run dicts as :func:`_run_seed` returns them, with random per-trial outcomes."""
+    runs = []
+    for seed in seeds:
+        records = [
+            {"experience_s": 3.0, "kind": "exploration", "success": False, "time_upright": 0.0}
+            | {"mean_abs_x": float(rng.uniform(0, 2)), "cost": 60.0, "wall_s": 0.1}
+        ]
+        for k in range(1, n_trials + 1):
+            records.append(
+                {
+                    "experience_s": 3.0 * (k + 1),
+                    "kind": "policy",
+                    "success": bool(rng.random() < 0.6),
+                    "time_upright": float(rng.uniform(0, 2.5)),
+                    "mean_abs_x": float(rng.uniform(0, 1)),
+                    "cost": float(rng.uniform(5, 60)),
+                    "wall_s": float(rng.uniform(50, 300)),
+                    "opt_steps": int(rng.integers(100, 1000)),
+                    "s_per_opt_step": float(rng.uniform(0.1, 0.3)),
+                    "cpu_s_per_opt_step": float(rng.uniform(0.1, 0.3)),
+                    "gp_fit_s": float(rng.uniform(1, 10)),
+                }
+            )
+        runs.append(
+            {"seed": seed, "records": records, "seconds": sum(r["wall_s"] for r in records)}
+        )
+    return runs
+
+
+def test_pooled_sections_equal_the_aggregate_over_all_seeds():
+    """Pooling per-trial means of two seed sets must give the per-trial means of their union
+    (computed directly from the per-seed records), and a trial only the second set ran is
+    the mean over that set alone."""
+    import numpy as np
+
+    from mcpilco.agents.mc_pilco import BENCH_CONFIG
+    from mcpilco.scripts.bench_mcpilco import aggregate_runs, make_section, pool_sections
+
+    rng = np.random.default_rng(0)
+    runs_a, runs_b = _fake_runs(range(0, 7), 4, rng), _fake_runs(range(7, 12), 5, rng)
+    cfg_a = dataclasses.replace(BENCH_CONFIG, num_trials=4).to_dict()
+    cfg_b = dataclasses.replace(BENCH_CONFIG, num_trials=5).to_dict()
+    pooled = pool_sections(
+        [make_section(cfg_a, runs_a, 2, 10.0), make_section(cfg_b, runs_b, 2, 20.0)]
+    )
+    union = aggregate_runs(runs_a + runs_b)  # truncated to the 5 common trials
+    assert len(pooled["per_trial"]) == 6 and len(union) == 5
+    for got, want in zip(pooled["per_trial"], union, strict=False):
+        assert got["seeds"] == 12
+        for key in ("success_rate", "time_upright_s", "mean_abs_x_m", "wall_s_per_trial"):
+            assert got[key] == pytest.approx(want[key], rel=1e-12)
+    last = pooled["per_trial"][5]
+    assert last["seeds"] == 5
+    want = np.mean([r["records"][5]["time_upright"] for r in runs_b])
+    assert last["time_upright_s"] == pytest.approx(want, rel=1e-12)
+    assert pooled["seeds"] == list(range(12)) and pooled["config"]["num_trials"] == 5
+
+
+def test_pooling_refuses_other_configs_and_repeated_seeds():
+    import numpy as np
+
+    from mcpilco.agents.mc_pilco import BENCH_CONFIG
+    from mcpilco.scripts.bench_mcpilco import make_section, pool_sections
+
+    rng = np.random.default_rng(1)
+    cfg = BENCH_CONFIG.to_dict()
+    a = make_section(cfg, _fake_runs([0, 1], 4, rng), 1, 1.0)
+    other = dataclasses.replace(BENCH_CONFIG, kernel="rbf").to_dict()
+    with pytest.raises(ValueError, match="kernel"):
+        pool_sections([a, make_section(other, _fake_runs([2], 4, rng), 1, 1.0)])
+    with pytest.raises(ValueError, match="a seed appears in two sections"):
+        pool_sections([a, make_section(cfg, _fake_runs([1, 2], 4, rng), 1, 1.0)])
+
+
+def test_report_states_what_each_policy_was_trained_on(tmp_path):
+    import numpy as np
+
+    from mcpilco.agents.mc_pilco import BENCH_CONFIG
+    from mcpilco.scripts.bench_mcpilco import _md_table, make_section
+
+    section = make_section(
+        BENCH_CONFIG.to_dict(), _fake_runs([0, 1, 2, 5], 2, np.random.default_rng(2)), 1, 1.0
+    )
+    table = _md_table("env", section)
+    assert "4 seeds (0-2, 5)" in table
+    rows = [line for line in table.splitlines() if line.startswith("| ") and " s (" in line]
+    assert [r.split("|")[1:3] for r in rows] == [
+        [" 3 s (exploration) ", " - "],
+        [" 6 s (policy) ", " 3 s "],
+        [" 9 s (policy) ", " 6 s "],
+    ]
+
+
+def test_pool_option_adds_a_pooled_section(tmp_path, capsys):
+    import json
+
+    import numpy as np
+
+    from mcpilco.agents.mc_pilco import BENCH_CONFIG, DEFAULT_ENV_ID
+    from mcpilco.scripts.bench_mcpilco import make_section, section_key
+
+    rng = np.random.default_rng(3)
+    cfg = BENCH_CONFIG.to_dict()
+    runs = {
+        section_key(DEFAULT_ENV_ID, "a"): make_section(cfg, _fake_runs([0, 1], 4, rng), 1, 1.0),
+        section_key(DEFAULT_ENV_ID, "b"): make_section(cfg, _fake_runs([2], 4, rng), 1, 1.0),
+    }
+    (tmp_path / "mcpilco_cartpole.json").write_text(json.dumps({"runs": runs}))
+    argv = ["--out", str(tmp_path), "--runs-dir", str(tmp_path / "runs")]
+    assert main(["--pool", "a", "b"] + argv) == 0  # no parts run when only --pool is given
+    out = json.loads((tmp_path / "mcpilco_cartpole.json").read_text())
+    assert out["runs"][section_key(DEFAULT_ENV_ID, "a+b")]["seeds"] == [0, 1, 2]
+    assert "(a+b)" in (tmp_path / "mcpilco_cartpole.md").read_text()
+    with pytest.raises(SystemExit):
+        main(["--pool", "a", "c"] + argv)
+    assert "--pool: no section" in capsys.readouterr().err
