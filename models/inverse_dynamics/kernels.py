@@ -16,7 +16,6 @@ from torch import Tensor
 from mcpilco.models.kernels._base import (
     NO_BATCH,
     DenseKernel,
-    as_parameter_value,
     check_positive_int,
     weighted_inner,
 )
@@ -76,12 +75,11 @@ class RowLinearKernel(DenseKernel):
     @property
     def Sigma_diag(self) -> Tensor:
         """``(n_rows, row_dim)`` prior variances of the parameters of each row."""
-        return self.raw_Sigma_diag_constraint.transform(self.raw_Sigma_diag)
+        return self._get("Sigma_diag")
 
     @Sigma_diag.setter
     def Sigma_diag(self, value: Tensor | float) -> None:
-        value = as_parameter_value(value, self.raw_Sigma_diag, "Sigma_diag")
-        self.initialize(raw_Sigma_diag=self.raw_Sigma_diag_constraint.inverse_transform(value))
+        self._set("Sigma_diag", value)
 
     def full_weights(self) -> Tensor:
         """``(n_rows, n_rows * row_dim)``: ``Sigma_b`` placed on row ``b``'s columns."""

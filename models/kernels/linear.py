@@ -9,7 +9,6 @@ from torch import Tensor
 from mcpilco.models.kernels._base import (
     NO_BATCH,
     DenseKernel,
-    as_parameter_value,
     check_positive_int,
     weighted_inner,
 )
@@ -66,22 +65,20 @@ class LinearKernel(DenseKernel):
     @property
     def sigma2(self) -> Tensor:
         """Offset :math:`\\sigma^2`, shape ``(*batch_shape, 1)``."""
-        return self.raw_sigma2_constraint.transform(self.raw_sigma2)
+        return self._get("sigma2")
 
     @sigma2.setter
     def sigma2(self, value: Tensor | float) -> None:
-        value = as_parameter_value(value, self.raw_sigma2, "sigma2")
-        self.initialize(raw_sigma2=self.raw_sigma2_constraint.inverse_transform(value))
+        self._set("sigma2", value)
 
     @property
     def Sigma_diag(self) -> Tensor:
         """Diagonal of :math:`\\Sigma`, shape ``(*batch_shape, d)``."""
-        return self.raw_Sigma_diag_constraint.transform(self.raw_Sigma_diag)
+        return self._get("Sigma_diag")
 
     @Sigma_diag.setter
     def Sigma_diag(self, value: Tensor | float) -> None:
-        value = as_parameter_value(value, self.raw_Sigma_diag, "Sigma_diag")
-        self.initialize(raw_Sigma_diag=self.raw_Sigma_diag_constraint.inverse_transform(value))
+        self._set("Sigma_diag", value)
 
     def forward(
         self, x1: Tensor, x2: Tensor, diag: bool = False, last_dim_is_batch: bool = False, **params

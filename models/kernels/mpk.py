@@ -109,32 +109,24 @@ class MPKernel(DenseKernel):
     @property
     def Sigma_increment(self) -> Tensor:
         """:math:`A_s` (diagonals), shape ``(*batch_shape, p, d)``."""
-        return self.raw_Sigma_increment_constraint.transform(self.raw_Sigma_increment)
+        return self._get("Sigma_increment")
 
     @Sigma_increment.setter
     def Sigma_increment(self, value: Tensor | float) -> None:
-        raw = self.raw_Sigma_increment
-        value = as_parameter_value(value, raw, "Sigma_increment")
-        self.initialize(
-            raw_Sigma_increment=self.raw_Sigma_increment_constraint.inverse_transform(value)
-        )
+        self._set("Sigma_increment", value)
 
     @property
     def sigma2_increment(self) -> Tensor:
         """:math:`b_s`, shape ``(*batch_shape, p)`` (zeros if homogeneous)."""
         if self.homogeneous:
             return torch.zeros_like(self.raw_Sigma_increment[..., 0])
-        return self.raw_sigma2_increment_constraint.transform(self.raw_sigma2_increment)
+        return self._get("sigma2_increment")
 
     @sigma2_increment.setter
     def sigma2_increment(self, value: Tensor | float) -> None:
         if self.homogeneous:
             raise AttributeError("a homogeneous MPK has no offsets; use homogeneous=False")
-        raw = self.raw_sigma2_increment
-        value = as_parameter_value(value, raw, "sigma2_increment")
-        self.initialize(
-            raw_sigma2_increment=self.raw_sigma2_increment_constraint.inverse_transform(value)
-        )
+        self._set("sigma2_increment", value)
 
     # --- effective values --------------------------------------------------------------------
     @property

@@ -9,7 +9,6 @@ from torch import Tensor
 from mcpilco.models.kernels._base import (
     NO_BATCH,
     DenseKernel,
-    as_parameter_value,
     check_positive_int,
     weighted_inner,
 )
@@ -102,7 +101,7 @@ class PolynomialKernel(DenseKernel):
             return torch.zeros_like(self.raw_Sigma_diag[..., :1])
         if self.sigma2_is_fixed:
             return self.fixed_sigma2
-        return self.raw_sigma2_constraint.transform(self.raw_sigma2)
+        return self._get("sigma2")
 
     @sigma2.setter
     def sigma2(self, value: Tensor | float) -> None:
@@ -110,18 +109,16 @@ class PolynomialKernel(DenseKernel):
             raise AttributeError("the homogeneous PK has no sigma2; use homogeneous=False (IPK)")
         if self.sigma2_is_fixed:
             raise AttributeError("sigma2 is fixed (fixed_sigma2); build the kernel without it")
-        value = as_parameter_value(value, self.raw_sigma2, "sigma2")
-        self.initialize(raw_sigma2=self.raw_sigma2_constraint.inverse_transform(value))
+        self._set("sigma2", value)
 
     @property
     def Sigma_diag(self) -> Tensor:
         """Diagonal of :math:`\\Sigma`, shape ``(*batch_shape, d)``."""
-        return self.raw_Sigma_diag_constraint.transform(self.raw_Sigma_diag)
+        return self._get("Sigma_diag")
 
     @Sigma_diag.setter
     def Sigma_diag(self, value: Tensor | float) -> None:
-        value = as_parameter_value(value, self.raw_Sigma_diag, "Sigma_diag")
-        self.initialize(raw_Sigma_diag=self.raw_Sigma_diag_constraint.inverse_transform(value))
+        self._set("Sigma_diag", value)
 
     def forward(
         self, x1: Tensor, x2: Tensor, diag: bool = False, last_dim_is_batch: bool = False, **params
