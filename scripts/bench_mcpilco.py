@@ -45,6 +45,7 @@ import numpy as np
 
 from mcpilco.agents.mc_pilco import BENCH_CONFIG, DEFAULT_ENV_ID, DEMO_CONFIG, MCPilcoConfig
 from mcpilco.agents.mc_pilco.dynamics import KERNEL_CHOICES
+from mcpilco.agents.mc_pilco.loop import ROLLOUT_DTYPES
 
 PRESETS = {"bench": BENCH_CONFIG, "demo": DEMO_CONFIG, "default": MCPilcoConfig()}
 PARTS = ("runs", "timing", "rmse")
@@ -191,7 +192,9 @@ def pool_sections(sections: list[dict[str, Any]]) -> dict[str, Any]:
         raise ValueError(f"pooling needs at least 2 sections, got {len(sections)}")
 
     def experiment(cfg: dict[str, Any]) -> dict[str, Any]:
-        return {k: v for k, v in cfg.items() if k not in _RUN_ONLY_FIELDS}
+        # fields a section written by an older version lacks take their default
+        full = MCPilcoConfig.from_dict(cfg).to_dict()
+        return {k: v for k, v in full.items() if k not in _RUN_ONLY_FIELDS}
 
     ref = experiment(sections[0]["config"])
     for sec in sections[1:]:
@@ -412,7 +415,8 @@ def _md_table(env_id: str, section: dict) -> str:
         pooled + f"{len(seeds)} seeds ({_seed_ranges(seeds)}); M={cfg['num_particles']} particles, "
         f"max {cfg['opt']['max_steps']} opt steps per trial (first: {cfg['opt_steps_first']}), "
         f"GP subset N<={cfg['max_points']}, kernel {cfg['kernel']}, "
-        f"K={cfg.get('num_candidates', 1)} candidate policies; {section['jobs']} parallel "
+        f"K={cfg.get('num_candidates', 1)} candidate policies, "
+        f"rollout GP {cfg.get('rollout_dtype', 'float32')}; {section['jobs']} parallel "
         f"jobs x 1 thread; mean wall-clock per run {section['wall_s_per_run']:.0f} s."
     )
     lines += [
@@ -551,6 +555,11 @@ def build_parser() -> argparse.ArgumentParser:
         help="GP kernel of the runs (override; e.g. rbf for the RBF-only ablation)",
     )
     p.add_argument(
+        "--rollout-dtype",
+        choices=ROLLOUT_DTYPES,
+        help="dtype of the GP posterior in the particle rollouts (override; float32 default)",
+    )
+    p.add_argument(
         "--candidate-scales",
         type=float,
         nargs="+",
@@ -599,6 +608,8 @@ def main(argv: list[str] | None = None) -> int:
         over["num_candidates"] = args.candidates
     if args.kernel is not None:
         over["kernel"] = args.kernel
+    if args.rollout_dtype is not None:
+        over["rollout_dtype"] = args.rollout_dtype
     if args.candidate_scales is not None:
         over["candidate_weight_scales"] = args.candidate_scales
         over.setdefault("num_candidates", len(args.candidate_scales))

@@ -23,6 +23,7 @@ from pathlib import Path
 
 from mcpilco.agents.mc_pilco import BENCH_CONFIG, DEFAULT_ENV_ID, DEMO_CONFIG, MCPilcoConfig
 from mcpilco.agents.mc_pilco.dynamics import KERNEL_CHOICES
+from mcpilco.agents.mc_pilco.loop import ROLLOUT_DTYPES
 
 PRESETS = {"default": MCPilcoConfig(), "demo": DEMO_CONFIG, "bench": BENCH_CONFIG}
 
@@ -64,6 +65,11 @@ def build_parser() -> argparse.ArgumentParser:
         type=_positive_int,
         help="K policies optimised side by side; the lowest expected cost is applied (default 1)",
     )
+    p.add_argument(
+        "--rollout-dtype",
+        choices=ROLLOUT_DTYPES,
+        help="dtype of the GP posterior in the particle rollouts (default float32)",
+    )
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--threads", type=_positive_int, help="torch threads (default: torch's)")
     p.add_argument("--out", type=Path, default=Path("runs/mcpilco"), help="output folder")
@@ -85,6 +91,7 @@ def config_from_args(args: argparse.Namespace) -> MCPilcoConfig:
         ("kernel", "kernel"),
         ("candidates", "num_candidates"),
         ("threads", "torch_threads"),
+        ("rollout_dtype", "rollout_dtype"),
     ):
         if getattr(args, arg) is not None:
             over[key] = getattr(args, arg)

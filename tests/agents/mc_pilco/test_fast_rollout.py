@@ -167,3 +167,25 @@ def test_rollout_and_policy_gradient_match_plain_autograd_reference(kernel):
     torch.testing.assert_close(ro.costs, costs, atol=1e-10, rtol=0)
     for g, g_ref in zip(grads, grads_ref, strict=True):
         torch.testing.assert_close(g, g_ref, atol=1e-10 * g_ref.abs().max(), rtol=0)
+
+
+def test_float32_rollout_matches_the_float64_gp_posterior():
+    """The default rollout evaluates the GP posterior in float32; with the same particles,
+    noise and policy, a float64 posterior (``rollout_dtype="float64"``) must give the same
+    expected cost and policy gradient to float32 accuracy over a whole horizon."""
+    model = _gp_model("rbf+mpk", n=60, seed=4)
+    pol = SquashedRBFPolicy(num_basis=30, weight_scale=1.0, seed=0)  # float32 parameters
+    pol.eval()
+    out = {}
+    for dtype in (torch.float32, torch.float64):
+        dyn = model.particle_dynamics(dtype)
+        assert dyn.delta_model.dtype == dtype
+        loss = MCPilcoLoss(make_policy_module(pol), dyn, SwingUpCost(), 30, 64, obs_noise_std=0.01)
+        torch.manual_seed(0)
+        J = loss()["loss_cost"]
+        assert J.dtype == torch.float32  # particles stay float32 either way
+        out[dtype] = (J, torch.autograd.grad(J, list(pol.parameters())))
+    (J32, g32), (J64, g64) = out[torch.float32], out[torch.float64]
+    torch.testing.assert_close(J32, J64, rtol=1e-5, atol=0)
+    for a, b in zip(g32, g64, strict=True):
+        torch.testing.assert_close(a, b, rtol=0, atol=1e-4 * b.abs().max().item())

@@ -106,6 +106,8 @@ def test_bad_arguments_give_clear_errors():
         MCPilcoConfig(num_particles=0)
     with pytest.raises(ValueError, match="kernel"):
         MCPilcoConfig(kernel="linear")
+    with pytest.raises(ValueError, match="rollout_dtype must be one of"):
+        MCPilcoConfig(rollout_dtype="float16")
 
 
 def test_fused_predictor_matches_gp_cached_predictor():
