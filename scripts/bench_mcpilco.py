@@ -231,6 +231,7 @@ def pool_sections(sections: list[dict[str, Any]]) -> dict[str, Any]:
         "per_trial": rows,
         "per_seed": [p for sec in sections for p in sec["per_seed"]],
         "pooled_from": [len(sec["seeds"]) for sec in sections],
+        "pooled_num_trials": [int(sec["config"]["num_trials"]) for sec in sections],
     }
 
 
@@ -409,8 +410,12 @@ def _md_table(env_id: str, section: dict) -> str:
         pooled = (
             f"Pooled from {len(section['pooled_from'])} runs of the same config "
             f"({' + '.join(str(n) for n in section['pooled_from'])} seeds; a trial that "
-            "only some ran is over those seeds, see `seeds` in the JSON). "
+            "only some ran is over those seeds, as its row says"
         )
+        trials = sorted(set(section.get("pooled_num_trials", [])))
+        if len(trials) > 1:
+            pooled += f"; the wall-clock per run averages runs of {trials} policy trials"
+        pooled += "). "
     lines.append(
         pooled + f"{len(seeds)} seeds ({_seed_ranges(seeds)}); M={cfg['num_particles']} particles, "
         f"max {cfg['opt']['max_steps']} opt steps per trial (first: {cfg['opt_steps_first']}), "
@@ -429,8 +434,13 @@ def _md_table(env_id: str, section: dict) -> str:
     for r in section["per_trial"]:
         trained = f"{prev:.0f} s" if prev is not None and r["kind"] == "policy" else "-"
         prev = r["experience_s"]
+        kind = (
+            r["kind"]
+            if r.get("seeds", len(seeds)) == len(seeds)
+            else f"{r['kind']}, {r['seeds']} seeds"
+        )
         lines.append(
-            f"| {r['experience_s']:.0f} s ({r['kind']}) | {trained} "
+            f"| {r['experience_s']:.0f} s ({kind}) | {trained} "
             f"| {100 * r['success_rate']:.0f}% "
             f"| {r['time_upright_s']:.2f} | {r['mean_abs_x_m']:.2f} | {r['wall_s_per_trial']:.1f} "
             f"| {r.get('opt_steps', 0):.0f} | {r.get('s_per_opt_step', float('nan')):.3f} "

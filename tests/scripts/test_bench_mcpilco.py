@@ -148,3 +148,20 @@ def test_pool_option_adds_a_pooled_section(tmp_path, capsys):
     with pytest.raises(SystemExit):
         main(["--pool", "a", "c"] + argv)
     assert "--pool: no section" in capsys.readouterr().err
+
+
+def test_pooled_report_names_the_seeds_of_a_trial_only_some_ran():
+    import numpy as np
+
+    from mcpilco.agents.mc_pilco import BENCH_CONFIG
+    from mcpilco.scripts.bench_mcpilco import _md_table, make_section, pool_sections
+
+    rng = np.random.default_rng(4)
+    cfg_a = dataclasses.replace(BENCH_CONFIG, num_trials=1).to_dict()
+    a = make_section(cfg_a, _fake_runs([0, 1], 1, rng), 1, 1.0)
+    cfg_b = dataclasses.replace(BENCH_CONFIG, num_trials=2).to_dict()
+    b = make_section(cfg_b, _fake_runs([2], 2, rng), 1, 1.0)
+    table = _md_table("env", pool_sections([a, b]))
+    assert "Pooled from 2 runs of the same config (2 + 1 seeds" in table
+    assert "averages runs of [1, 2] policy trials" in table
+    assert "| 6 s (policy) |" in table and "| 9 s (policy, 1 seeds) |" in table
