@@ -608,27 +608,19 @@ def main(argv: list[str] | None = None) -> int:
     for env_id in args.env:
         if env_id not in ids:
             parser.error(f"unknown env id {env_id!r}; registered mcpilco ids: {', '.join(ids)}")
-    cfg = PRESETS[args.preset]
-    over: dict[str, Any] = {}
-    if args.trials is not None:
-        over["num_trials"] = args.trials
-    if args.particles is not None:
-        over["num_particles"] = args.particles
-    if args.candidates is not None:
-        over["num_candidates"] = args.candidates
-    if args.kernel is not None:
-        over["kernel"] = args.kernel
-    if args.rollout_dtype is not None:
-        over["rollout_dtype"] = args.rollout_dtype
-    if args.candidate_scales is not None:
-        over["candidate_weight_scales"] = args.candidate_scales
-        over.setdefault("num_candidates", len(args.candidate_scales))
-    if args.opt_steps is not None:
-        over["opt"] = dataclasses.replace(cfg.opt, max_steps=args.opt_steps)
-        if cfg.opt_steps_first is not None:
-            over["opt_steps_first"] = min(cfg.opt_steps_first, args.opt_steps)
+    scales = args.candidate_scales
     try:
-        cfg = dataclasses.replace(cfg, **over)
+        cfg = PRESETS[args.preset].with_overrides(
+            num_trials=args.trials,
+            num_particles=args.particles,
+            num_candidates=(
+                args.candidates if args.candidates is not None or not scales else len(scales)
+            ),
+            kernel=args.kernel,
+            rollout_dtype=args.rollout_dtype,
+            candidate_weight_scales=scales,
+            opt_steps=args.opt_steps,
+        )
     except ValueError as err:
         parser.error(str(err))
 

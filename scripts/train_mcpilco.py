@@ -17,7 +17,6 @@ Usage::
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import sys
 from pathlib import Path
 
@@ -81,25 +80,19 @@ def build_parser() -> argparse.ArgumentParser:
 
 def config_from_args(args: argparse.Namespace) -> MCPilcoConfig:
     """The preset with the command-line overrides applied (validated by MCPilcoConfig)."""
-    base = PRESETS[args.preset]
-    over: dict = {"env_id": args.env, "seed": args.seed}
-    for arg, key in (
-        ("trials", "num_trials"),
-        ("particles", "num_particles"),
-        ("horizon", "horizon"),
-        ("max_points", "max_points"),
-        ("kernel", "kernel"),
-        ("candidates", "num_candidates"),
-        ("threads", "torch_threads"),
-        ("rollout_dtype", "rollout_dtype"),
-    ):
-        if getattr(args, arg) is not None:
-            over[key] = getattr(args, arg)
-    if args.opt_steps is not None:
-        over["opt"] = dataclasses.replace(base.opt, max_steps=args.opt_steps)
-        if base.opt_steps_first is not None:
-            over["opt_steps_first"] = min(base.opt_steps_first, args.opt_steps)
-    return dataclasses.replace(base, **over)
+    return PRESETS[args.preset].with_overrides(
+        env_id=args.env,
+        seed=args.seed,
+        num_trials=args.trials,
+        num_particles=args.particles,
+        horizon=args.horizon,
+        max_points=args.max_points,
+        kernel=args.kernel,
+        num_candidates=args.candidates,
+        torch_threads=args.threads,
+        rollout_dtype=args.rollout_dtype,
+        opt_steps=args.opt_steps,
+    )
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -187,6 +187,19 @@ class MCPilcoConfig:
     def to_dict(self) -> dict[str, Any]:
         return dataclasses.asdict(self)
 
+    def with_overrides(self, opt_steps: int | None = None, **fields: Any) -> MCPilcoConfig:
+        """A validated copy with ``fields`` replaced; ``None`` values leave a field as is.
+
+        ``opt_steps`` sets ``opt.max_steps`` and caps ``opt_steps_first`` at it (the
+        command-line ``--opt-steps`` of the scripts).
+        """
+        over = {k: v for k, v in fields.items() if v is not None}
+        if opt_steps is not None:
+            over["opt"] = dataclasses.replace(self.opt, max_steps=opt_steps)
+            if self.opt_steps_first is not None:
+                over["opt_steps_first"] = min(self.opt_steps_first, opt_steps)
+        return dataclasses.replace(self, **over)
+
     @classmethod
     def from_dict(cls, d: dict[str, Any]) -> MCPilcoConfig:
         return cls(**d)

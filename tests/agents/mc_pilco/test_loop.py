@@ -157,3 +157,14 @@ def test_fused_predictor_stays_finite_when_the_rbf_is_switched_off():
     assert torch.isfinite(m2).all() and torch.isfinite(v2).all()
     torch.testing.assert_close(m2.double(), m1, atol=1e-4, rtol=1e-3)
     torch.testing.assert_close(v2.double(), v1, atol=1e-4, rtol=1e-3)
+
+
+def test_config_overrides_keep_unset_fields_and_cap_the_first_trial_steps():
+    from mcpilco.agents.mc_pilco import BENCH_CONFIG
+
+    cfg = BENCH_CONFIG.with_overrides(num_trials=None, kernel="rbf", opt_steps=300)
+    assert cfg.num_trials == BENCH_CONFIG.num_trials and cfg.kernel == "rbf"
+    assert cfg.opt.max_steps == 300 and cfg.opt_steps_first == 300  # was 500
+    assert BENCH_CONFIG.with_overrides(opt_steps=2000).opt_steps_first == 500
+    with pytest.raises(ValueError, match="num_particles"):
+        BENCH_CONFIG.with_overrides(num_particles=0)
