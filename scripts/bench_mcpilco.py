@@ -511,7 +511,8 @@ def write_report(results: dict, out_dir: Path) -> None:
         matplotlib.use("Agg")
         import matplotlib.pyplot as plt
 
-        fig, axes = plt.subplots(1, 3, figsize=(12, 3.5))
+        n_sections = len(results["runs"])
+        fig, axes = plt.subplots(1, 3, figsize=(12, 3.5 + 0.25 * -(-n_sections // 3)))
         for env_id, section in results["runs"].items():
             rows = section["per_trial"]
             t = [r["experience_s"] for r in rows]
@@ -524,8 +525,11 @@ def write_report(results: dict, out_dir: Path) -> None:
             ax.set_xlabel("experience [s]")
             ax.set_ylabel(lab)
             ax.grid(alpha=0.3)
-        axes[0].legend(fontsize=7)
-        fig.tight_layout()
+        handles, labels = axes[0].get_legend_handles_labels()
+        ncol = 3
+        fig.legend(handles, labels, loc="lower center", ncol=ncol, fontsize=8, frameon=False)
+        rows = -(-len(labels) // ncol)
+        fig.tight_layout(rect=(0, 0.06 * rows, 1, 1))  # the legend below the panels
         fig.savefig(out_dir / "mcpilco_cartpole.png", dpi=110)
         plt.close(fig)
 
