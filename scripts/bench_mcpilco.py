@@ -528,8 +528,8 @@ def write_report(results: dict, out_dir: Path) -> None:
         handles, labels = axes[0].get_legend_handles_labels()
         ncol = 3
         fig.legend(handles, labels, loc="lower center", ncol=ncol, fontsize=8, frameon=False)
-        rows = -(-len(labels) // ncol)
-        fig.tight_layout(rect=(0, 0.06 * rows, 1, 1))  # the legend below the panels
+        legend_rows = -(-len(labels) // ncol)
+        fig.tight_layout(rect=(0, 0.06 * legend_rows, 1, 1))  # the legend below the panels
         fig.savefig(out_dir / "mcpilco_cartpole.png", dpi=110)
         plt.close(fig)
 
