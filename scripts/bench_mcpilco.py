@@ -43,11 +43,10 @@ from typing import Any
 
 import numpy as np
 
-from mcpilco.agents.mc_pilco import BENCH_CONFIG, DEFAULT_ENV_ID, DEMO_CONFIG, MCPilcoConfig
+from mcpilco.agents.mc_pilco import DEFAULT_ENV_ID, PRESETS, MCPilcoConfig
 from mcpilco.agents.mc_pilco.dynamics import KERNEL_CHOICES
 from mcpilco.agents.mc_pilco.loop import ROLLOUT_DTYPES
 
-PRESETS = {"bench": BENCH_CONFIG, "demo": DEMO_CONFIG, "default": MCPilcoConfig()}
 PARTS = ("runs", "timing", "rmse")
 
 
@@ -451,13 +450,13 @@ def _md_table(env_id: str, section: dict) -> str:
 
 def _seed_ranges(seeds: list[int]) -> str:
     """``[0, 1, 2, 5, 6]`` -> ``"0-2, 5-6"``."""
-    out: list[str] = []
+    runs: list[list[int]] = []  # [first, last] of each run of consecutive seeds
     for s in sorted(seeds):
-        if out and int(out[-1].split("-")[-1]) == s - 1:
-            out[-1] = f"{out[-1].split('-')[0]}-{s}"
+        if runs and runs[-1][1] == s - 1:
+            runs[-1][1] = s
         else:
-            out.append(str(s))
-    return ", ".join(out)
+            runs.append([s, s])
+    return ", ".join(str(a) if a == b else f"{a}-{b}" for a, b in runs)
 
 
 CONVENTION_NOTE = (

@@ -59,7 +59,7 @@ from mcpilco.agents.baselines.common import (
     trial_records_to_points,
 )
 from mcpilco.agents.baselines.pilco import OPTIMIZERS
-from mcpilco.agents.mc_pilco.loop import BENCH_CONFIG, DEFAULT_ENV_ID, DEMO_CONFIG, MCPilcoConfig
+from mcpilco.agents.mc_pilco.loop import BENCH_CONFIG, DEFAULT_ENV_ID, PRESETS
 
 SB3_METHODS = ("sac", "td3", "ppo")
 METHODS = ("mcpilco", "pilco", *SB3_METHODS)
@@ -70,7 +70,6 @@ LABELS = {
     "td3": "TD3",
     "ppo": "PPO",
 }
-MCPILCO_PRESETS = {"bench": BENCH_CONFIG, "demo": DEMO_CONFIG, "default": MCPilcoConfig()}
 SUCCESS_LEVEL = 0.9
 GOAL_SB3_RATIO = 100.0
 
@@ -447,7 +446,7 @@ def run_method(
     if method == "mcpilco":
         from mcpilco.agents.mc_pilco import run_mcpilco
 
-        base = MCPILCO_PRESETS[opts.get("mcpilco_preset", "bench")]
+        base = PRESETS[opts.get("mcpilco_preset", "bench")]
         over: dict[str, Any] = {"env_id": env_id, "seed": seed, "torch_threads": threads}
         if trials is not None:
             over["num_trials"] = trials
@@ -516,7 +515,7 @@ def _covers(curve: dict[str, Any], method: str, opts: dict[str, Any]) -> bool:
         return curve.get("budget_steps", 0) >= (want or DEFAULT_STEPS[method])
     trials = opts.get("trials")
     if trials is None:
-        trials = MCPILCO_PRESETS[opts.get("mcpilco_preset", "bench")].num_trials
+        trials = PRESETS[opts.get("mcpilco_preset", "bench")].num_trials
     return len(curve["points"]) >= trials + 1
 
 
@@ -634,7 +633,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument(
         "--trials", type=int, help="MC-PILCO / PILCO policy trials (default: bench preset, 4)"
     )
-    p.add_argument("--mcpilco-preset", choices=sorted(MCPILCO_PRESETS), default="bench")
+    p.add_argument("--mcpilco-preset", choices=sorted(PRESETS), default="bench")
     p.add_argument(
         "--mcpilco-json", type=Path, help="collect MC-PILCO from mcpilco-bench-mcpilco's JSON"
     )

@@ -20,11 +20,9 @@ import argparse
 import sys
 from pathlib import Path
 
-from mcpilco.agents.mc_pilco import BENCH_CONFIG, DEFAULT_ENV_ID, DEMO_CONFIG, MCPilcoConfig
+from mcpilco.agents.mc_pilco import DEFAULT_ENV_ID, PRESETS, MCPilcoConfig
 from mcpilco.agents.mc_pilco.dynamics import KERNEL_CHOICES
 from mcpilco.agents.mc_pilco.loop import ROLLOUT_DTYPES
-
-PRESETS = {"default": MCPilcoConfig(), "demo": DEMO_CONFIG, "bench": BENCH_CONFIG}
 
 
 def _positive_int(text: str) -> int:

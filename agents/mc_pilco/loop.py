@@ -227,6 +227,13 @@ BENCH_CONFIG = MCPilcoConfig(
 )
 """Budget of ``mcpilco-bench-mcpilco`` per seed (exploration + 4 policy trials = 15 s)."""
 
+PRESETS: dict[str, MCPilcoConfig] = {
+    "default": MCPilcoConfig(),
+    "demo": DEMO_CONFIG,
+    "bench": BENCH_CONFIG,
+}
+"""The named configs of the scripts' ``--preset`` option."""
+
 
 @dataclass
 class RunSummary:
