@@ -573,6 +573,12 @@ def build_parser() -> argparse.ArgumentParser:
         help="dtype of the GP posterior in the particle rollouts (override; float32 default)",
     )
     p.add_argument(
+        "--explore-hold",
+        type=int,
+        help="steps each random exploration action is held (override; 2 default, 1 = i.i.d. "
+        "per step as in the runs before this option)",
+    )
+    p.add_argument(
         "--candidate-scales",
         type=float,
         nargs="+",
@@ -621,6 +627,7 @@ def main(argv: list[str] | None = None) -> int:
             ),
             kernel=args.kernel,
             rollout_dtype=args.rollout_dtype,
+            explore_hold=args.explore_hold,
             candidate_weight_scales=scales,
             opt_steps=args.opt_steps,
         )

@@ -67,6 +67,11 @@ def build_parser() -> argparse.ArgumentParser:
         choices=ROLLOUT_DTYPES,
         help="dtype of the GP posterior in the particle rollouts (default float32)",
     )
+    p.add_argument(
+        "--explore-hold",
+        type=_positive_int,
+        help="steps each random action of the exploration trial is held (default 2 = 0.1 s)",
+    )
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--threads", type=_positive_int, help="torch threads (default: torch's)")
     p.add_argument("--out", type=Path, default=Path("runs/mcpilco"), help="output folder")
@@ -89,6 +94,7 @@ def config_from_args(args: argparse.Namespace) -> MCPilcoConfig:
         num_candidates=args.candidates,
         torch_threads=args.threads,
         rollout_dtype=args.rollout_dtype,
+        explore_hold=args.explore_hold,
         opt_steps=args.opt_steps,
     )
 

@@ -61,6 +61,7 @@ from mcpilco.agents.mc_pilco.checkpoint import (
 )
 from mcpilco.agents.mc_pilco.loop import (
     DEFAULT_ENV_ID,
+    LEGACY_FIELD_VALUES,
     RunSummary,
     check_resume,
     env_dt,
@@ -77,7 +78,7 @@ from mcpilco.agents.mc_pilco.viz import plot_optimisation
 
 CHECKPOINT_NAME = "checkpoint.pt"
 OPTIMIZERS = ("lbfgs", "adam")
-_RESUME_FIXED = ("env_id", "seed", "horizon", "num_basis")
+_RESUME_FIXED = ("env_id", "seed", "horizon", "num_basis", "explore_hold")
 DTYPE = torch.float64
 
 
@@ -109,6 +110,9 @@ class PilcoConfig:
         lr: Adam learning rate (L-BFGS takes the usual initial step 1).
         l_x, l_theta: cost length scales (MC-PILCO's optimisation cost, Amadio et al. 2022:
             ``l_x = 1``, ``l_theta = 3``), giving ``W = diag(2/l_x^2, 0, 2/l_theta^2, 0)``.
+        explore_hold: steps each random exploration action is held (as
+            :attr:`MCPilcoConfig.explore_hold <mcpilco.agents.mc_pilco.MCPilcoConfig>`, so that
+            both agents start from the same exploration trial).
         init_std: ``Sigma_0 = init_std^2 I`` of the initial belief (the env's 0.01); must be
             > 1e-3 so that TorchRL's world model takes its moment-matching path.
         seed: seeds torch, numpy and the env resets (same trial seeds as MC-PILCO).
@@ -125,6 +129,7 @@ class PilcoConfig:
     lr: float = 0.02
     l_x: float = 1.0
     l_theta: float = 3.0
+    explore_hold: int = 2
     init_std: float = 0.01
     seed: int = 0
     torch_threads: int | None = None
@@ -134,7 +139,7 @@ class PilcoConfig:
             v = getattr(self, name)
             if int(v) != v or v < 0:
                 raise ValueError(f"{name} must be an integer >= 0, got {v!r}")
-        for name in ("horizon", "num_basis", "opt_steps"):
+        for name in ("horizon", "num_basis", "opt_steps", "explore_hold"):
             v = getattr(self, name)
             if int(v) != v or v < 1:
                 raise ValueError(f"{name} must be a positive integer, got {v!r}")
@@ -157,7 +162,8 @@ class PilcoConfig:
 
     @classmethod
     def from_dict(cls, d: dict[str, Any]) -> PilcoConfig:
-        return cls(**d)
+        """Inverse of :meth:`to_dict` (fields added later: ``LEGACY_FIELD_VALUES``)."""
+        return cls(**{**LEGACY_FIELD_VALUES, **d})
 
 
 # ------------------------------------------------------------------------ TorchRL parts
@@ -457,7 +463,9 @@ def run_pilco(
             rec: dict[str, Any] = {"index": k, "experience_s": (k + 1) * config.horizon * dt}
             if k == 0:
                 rec["kind"] = "exploration"
-                ep = exploration_episode(env, np_rng, config.seed, config.horizon)
+                ep = exploration_episode(
+                    env, np_rng, config.seed, config.horizon, config.explore_hold
+                )
             else:
                 rec["kind"] = "policy"
                 s, a, s1 = transitions(episodes)

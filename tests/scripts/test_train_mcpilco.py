@@ -41,10 +41,11 @@ def test_unknown_kernel_is_an_error(capsys, tmp_path):
 def test_overrides_reach_the_config():
     args = build_parser().parse_args(
         ["--preset", "demo", "--trials", "2", "--particles", "7", "--opt-steps", "9"]
-        + ["--candidates", "3"]
+        + ["--candidates", "3", "--explore-hold", "1"]
     )
     cfg = config_from_args(args)
     assert (cfg.num_trials, cfg.num_particles, cfg.opt.max_steps) == (2, 7, 9)
+    assert cfg.explore_hold == 1
     assert cfg.opt_steps_first <= 9 and cfg.num_candidates == 3
 
 

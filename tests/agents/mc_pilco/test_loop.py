@@ -168,3 +168,36 @@ def test_config_overrides_keep_unset_fields_and_cap_the_first_trial_steps():
     assert BENCH_CONFIG.with_overrides(opt_steps=2000).opt_steps_first == 500
     with pytest.raises(ValueError, match="num_particles"):
         BENCH_CONFIG.with_overrides(num_particles=0)
+
+
+def test_exploration_actions_hold_each_draw_and_keep_the_iid_stream():
+    import numpy as np
+
+    from mcpilco.agents.mc_pilco.loop import exploration_actions
+
+    iid = np.random.default_rng(5).uniform(-1.0, 1.0, size=(60, 1))
+    np.testing.assert_array_equal(exploration_actions(np.random.default_rng(5), 60, 1), iid)
+    held = exploration_actions(np.random.default_rng(5), 7, 2)
+    assert held.shape == (7, 1)
+    # draws 0..3 of the same stream, each repeated twice, cut at 7 steps
+    np.testing.assert_array_equal(held[:, 0], np.repeat(iid[:4, 0], 2)[:7])
+    with pytest.raises(ValueError, match="hold must be an integer >= 1"):
+        exploration_actions(np.random.default_rng(0), 60, 0)
+    with pytest.raises(ValueError, match="explore_hold"):
+        MCPilcoConfig(explore_hold=0)
+
+
+def test_configs_saved_before_explore_hold_read_as_iid_exploration():
+    from mcpilco.agents.baselines.pilco import PilcoConfig
+    from mcpilco.agents.mc_pilco.loop import check_resume
+
+    assert MCPilcoConfig().explore_hold == 2
+    old = MCPilcoConfig().to_dict()
+    del old["explore_hold"]  # a run saved before the field existed explored i.i.d.
+    assert MCPilcoConfig.from_dict(old).explore_hold == 1
+    old_pilco = PilcoConfig().to_dict()
+    del old_pilco["explore_hold"]
+    assert PilcoConfig.from_dict(old_pilco).explore_hold == 1
+    check_resume(old, MCPilcoConfig(explore_hold=1), ("explore_hold",))
+    with pytest.raises(ValueError, match="cannot resume: explore_hold=2 differs .* 1"):
+        check_resume(old, MCPilcoConfig(), ("explore_hold",))
