@@ -10,10 +10,11 @@ Three parts, each optional:
    ``M x H`` particle rollout + Adam step) at ``M = 400`` particles, ``H = 60``, for several
    GP sizes ``N`` (GP fitted on random-exploration data), 1 torch thread and 2 threads.
 3. ``rmse``: RBF+MPK vs RBF-only (thesis Fig. 5.5): both GPs fitted on the same 3 s of
-   random exploration; a fixed learned swing-up policy (the final policy of a successful
-   run of part 1, or ``--rmse-policy``) runs on the env and ``M`` particles are rolled out
-   through each GP; reported: the RMSE of theta between particles and the real trajectory
-   per time step and averaged over the 60 steps, over ``--rmse-seeds`` exploration seeds.
+   random exploration (actions held the preset's ``explore_hold`` steps, ``--explore-hold``);
+   a fixed learned swing-up policy (the final policy of a successful run of part 1, or
+   ``--rmse-policy``) runs on the env and ``M`` particles are rolled out through each GP;
+   reported: the RMSE of theta between particles and the real trajectory per time step
+   and averaged over the 60 steps, over ``--rmse-seeds`` exploration seeds.
 
 Writes ``results/mcpilco_cartpole.json`` (merged with an existing file, one section per
 env), ``results/mcpilco_cartpole.md`` and ``results/mcpilco_cartpole.png``. ``--pool`` merges
@@ -235,15 +236,17 @@ def pool_sections(sections: list[dict[str, Any]]) -> dict[str, Any]:
 
 
 # ----------------------------------------------------------------------------- timing
-def _exploration_data(env_id: str, n_points: int, seed: int):
-    from mcpilco.agents.mc_pilco.loop import make_env, run_episode, transitions
+def _exploration_data(env_id: str, n_points: int, seed: int, hold: int = 1):
+    """``n_points`` transitions of random-exploration episodes (actions held ``hold`` steps,
+    :func:`~mcpilco.agents.mc_pilco.loop.exploration_actions`)."""
+    from mcpilco.agents.mc_pilco.loop import exploration_actions, make_env, run_episode, transitions
 
     env = make_env(env_id, 60)
     rng = np.random.default_rng(seed)
-    eps = [
-        run_episode(env, lambda _o: rng.uniform(-1, 1, 1), seed * 1000 + i, 60)
-        for i in range(max(1, -(-n_points // 60)))
-    ]
+    eps = []
+    for i in range(max(1, -(-n_points // 60))):
+        it = iter(exploration_actions(rng, 60, hold))
+        eps.append(run_episode(env, lambda _o, it=it: next(it), seed * 1000 + i, 60))
     env.close()
     s, a, s1 = transitions(eps)
     return s[:n_points], a[:n_points], s1[:n_points], eps
@@ -320,13 +323,17 @@ def find_swingup_policy(runs_dir: Path) -> Path:
 
 
 def particle_rmse(
-    seed: int, policy_ckpt: Path, num_particles: int = 400, env_id: str = DEFAULT_ENV_ID
+    seed: int,
+    policy_ckpt: Path,
+    num_particles: int = 400,
+    env_id: str = DEFAULT_ENV_ID,
+    explore_hold: int = 1,
 ) -> dict:
     """Thesis Fig. 5.5: RBF+MPK and RBF-only GPs fitted on the same 3 s of random exploration
-    (seed ``seed``); ``M`` particles rolled out through each under a fixed learned swing-up
-    policy, from the real initial state; per time step, the RMSE of theta between the
-    particles and the real trajectory of that policy (root mean over particles), and its
-    mean over the 60 steps."""
+    (seed ``seed``, actions held ``explore_hold`` steps); ``M`` particles rolled out through
+    each under a fixed learned swing-up policy, from the real initial state; per time step,
+    the RMSE of theta between the particles and the real trajectory of that policy (root mean
+    over particles), and its mean over the 60 steps."""
     import torch
 
     from mcpilco.agents.mc_pilco import (
@@ -340,7 +347,7 @@ def particle_rmse(
     from mcpilco.agents.mc_pilco.loop import _policy_act, make_env, run_episode
 
     torch.set_num_threads(1)
-    s, a, s1, _ = _exploration_data(env_id, 60, 100 + seed)  # 3 s of random exploration
+    s, a, s1, _ = _exploration_data(env_id, 60, 100 + seed, explore_hold)  # 3 s
     ckpt = load_checkpoint(policy_ckpt)
     policy = SquashedRBFPolicy(num_basis=ckpt["config"]["num_basis"])
     policy.load_state_dict(ckpt["policy"])
@@ -498,7 +505,8 @@ def write_report(results: dict, out_dir: Path) -> None:
             med = r[k].get("median", float("nan"))
             md.append(f"| {k} | {r[k]['mean']:.3f} +- {r[k]['std']:.3f} | {med:.3f} |")
         md.append(
-            f"\n{r['seeds']} exploration seeds; RBF+MPK lower in {r['mpk_better']} of them; "
+            f"\n{r['seeds']} exploration seeds (actions held {r.get('explore_hold', 1)} steps); "
+            f"RBF+MPK lower in {r['mpk_better']} of them; "
             f"policy from `{r.get('policy', '?')}`. Plot: `mcpilco_cartpole_rmse.png`.\n"
         )
     (out_dir / "mcpilco_cartpole.md").write_text("\n".join(md))
@@ -662,8 +670,16 @@ def main(argv: list[str] | None = None) -> int:
             policy_ckpt = args.rmse_policy or find_swingup_policy(args.runs_dir)
         except FileNotFoundError as err:
             parser.error(str(err))
-        per_seed = [particle_rmse(s, policy_ckpt) for s in range(args.rmse_seeds)]
-        rm = {"seeds": len(per_seed), "per_seed": per_seed, "policy": str(policy_ckpt)}
+        hold = cfg.explore_hold
+        per_seed = [
+            particle_rmse(s, policy_ckpt, explore_hold=hold) for s in range(args.rmse_seeds)
+        ]
+        rm = {
+            "seeds": len(per_seed),
+            "per_seed": per_seed,
+            "policy": str(policy_ckpt),
+            "explore_hold": hold,
+        }
         for k in ("rbf+mpk", "rbf"):
             vals = [p[k] for p in per_seed]
             rm[k] = {
