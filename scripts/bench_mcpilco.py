@@ -46,7 +46,7 @@ import numpy as np
 
 from mcpilco.agents.mc_pilco import DEFAULT_ENV_ID, PRESETS, MCPilcoConfig
 from mcpilco.agents.mc_pilco.dynamics import KERNEL_CHOICES
-from mcpilco.agents.mc_pilco.loop import ROLLOUT_DTYPES
+from mcpilco.agents.mc_pilco.loop import LEGACY_FIELD_VALUES, ROLLOUT_DTYPES
 
 PARTS = ("runs", "timing", "rmse")
 
@@ -427,7 +427,9 @@ def _md_table(env_id: str, section: dict) -> str:
         f"max {cfg['opt']['max_steps']} opt steps per trial (first: {cfg['opt_steps_first']}), "
         f"GP subset N<={cfg['max_points']}, kernel {cfg['kernel']}, "
         f"K={cfg.get('num_candidates', 1)} candidate policies, "
-        f"rollout GP {cfg.get('rollout_dtype', 'float32')}; {section['jobs']} parallel "
+        f"rollout GP {cfg.get('rollout_dtype', 'float32')}, exploration actions held "
+        f"{cfg.get('explore_hold', LEGACY_FIELD_VALUES['explore_hold'])} step(s); "
+        f"{section['jobs']} parallel "
         f"jobs x 1 thread; mean wall-clock per run {section['wall_s_per_run']:.0f} s."
     )
     lines += [

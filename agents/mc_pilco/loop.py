@@ -230,9 +230,10 @@ DEMO_CONFIG = MCPilcoConfig(
     opt_steps_first=300,
     log_particles=100,
 )
-"""Reduced budget for ``make demo``, with 2 candidate policies (12 seeds: 58 % / 83 % success at
-12 / 15 s of experience; one policy, 6 seeds: 50 % / 67 %; ``results/mcpilco_cartpole.md``):
-4.2 min on a quiet 2-core machine (seed 0: success at 9, 12 and 15 s of experience)."""
+"""Reduced budget for ``make demo``, with 2 candidate policies. With i.i.d. exploration
+(``explore_hold=1``), 12 seeds: 58 % / 83 % success at 12 / 15 s of experience; one policy,
+6 seeds: 50 % / 67 % (``results/mcpilco_cartpole.md``). With the default held exploration,
+seed 0: success at 9, 12 and 15 s of experience, 4.7 min on 2 cores (2026-11-26)."""
 
 BENCH_CONFIG = MCPilcoConfig(
     num_trials=4,
@@ -241,7 +242,9 @@ BENCH_CONFIG = MCPilcoConfig(
     opt=PolicyOptConfig(max_steps=1000, monitor_patience=100),
     opt_steps_first=500,
 )
-"""Budget of ``mcpilco-bench-mcpilco`` per seed (exploration + 4 policy trials = 15 s)."""
+"""Budget of ``mcpilco-bench-mcpilco`` per seed (exploration + 4 policy trials = 15 s). With
+the default held exploration, seeds 0-19 all swing up at 12 s and at 15 s of experience
+(section "hold2" of ``results/mcpilco_cartpole.md``; i.i.d. exploration: 60 % / 95 %)."""
 
 PRESETS: dict[str, MCPilcoConfig] = {
     "default": MCPilcoConfig(),

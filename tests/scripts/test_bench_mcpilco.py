@@ -125,6 +125,25 @@ def test_report_states_what_each_policy_was_trained_on(tmp_path):
     ]
 
 
+def test_sections_saved_before_explore_hold_are_kept_apart_and_labelled_iid():
+    """A section whose config predates ``explore_hold`` ran i.i.d. exploration: its header
+    says 1 step, and pooling it with a held-exploration section is refused."""
+    import numpy as np
+
+    from mcpilco.agents.mc_pilco import BENCH_CONFIG
+    from mcpilco.scripts.bench_mcpilco import _md_table, make_section, pool_sections
+
+    rng = np.random.default_rng(3)
+    old_cfg = BENCH_CONFIG.to_dict()
+    del old_cfg["explore_hold"]
+    old = make_section(old_cfg, _fake_runs([0, 1], 2, rng), 1, 1.0)
+    new = make_section(BENCH_CONFIG.to_dict(), _fake_runs([2, 3], 2, rng), 1, 1.0)
+    assert "exploration actions held 1 step(s)" in _md_table("env", old)
+    assert "exploration actions held 2 step(s)" in _md_table("env", new)
+    with pytest.raises(ValueError, match="explore_hold"):
+        pool_sections([old, new])
+
+
 def test_pool_option_adds_a_pooled_section(tmp_path, capsys):
     import json
 
