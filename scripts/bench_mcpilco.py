@@ -507,7 +507,8 @@ def write_report(results: dict, out_dir: Path) -> None:
             med = r[k].get("median", float("nan"))
             md.append(f"| {k} | {r[k]['mean']:.3f} +- {r[k]['std']:.3f} | {med:.3f} |")
         md.append(
-            f"\n{r['seeds']} exploration seeds (actions held {r.get('explore_hold', 1)} steps); "
+            f"\n{r['seeds']} exploration seeds (actions held "
+            f"{r.get('explore_hold', LEGACY_FIELD_VALUES['explore_hold'])} steps); "
             f"RBF+MPK lower in {r['mpk_better']} of them; "
             f"policy from `{r.get('policy', '?')}`. Plot: `mcpilco_cartpole_rmse.png`.\n"
         )

@@ -118,8 +118,8 @@ class MCPilcoConfig:
             0.1 s, the sampling time of the thesis's cartpole (5.5.1), whose exploration this
             reproduces; 1: i.i.d. per 0.05 s step (the setting of the runs before this field
             existed; :meth:`from_dict` reads a config without it as 1). At 0.05 s the i.i.d.
-            force averages out and the pole swings less (median largest angle 1.25 rad against
-            2.0 rad over 20 seeds).
+            force averages out and the pole swings less (median largest angle over the
+            exploration trials of seeds 0-19: 1.24 rad i.i.d., 2.04 rad held for 2 steps).
         init_std: ``sigma_0`` of the initial particles.
         sim_obs_noise_std: measurement noise simulated on the policy input in rollouts.
         opt: policy optimisation schedule (:class:`PolicyOptConfig`).
