@@ -184,3 +184,24 @@ def test_pooled_report_names_the_seeds_of_a_trial_only_some_ran():
     assert "Pooled from 2 runs of the same config (2 + 1 seeds" in table
     assert "averages runs of [1, 2] policy trials" in table
     assert "| 6 s (policy) |" in table and "| 9 s (policy, 1 seeds) |" in table
+
+
+def test_timing_part_reports_each_particle_count(tmp_path, capsys):
+    """The timing part times every (N, threads, M) asked for and tables M; bad counts are
+    refused before any work."""
+    import json
+
+    argv = ["--parts", "timing", "--timing-n", "20", "--timing-threads", "1"]
+    argv += ["--out", str(tmp_path), "--runs-dir", str(tmp_path / "runs")]
+    with pytest.raises(SystemExit):
+        main([*argv, "--timing-particles", "0", "5"])
+    assert "--timing-particles values must be >= 1" in capsys.readouterr().err
+    assert main([*argv, "--timing-particles", "3", "5"]) == 0
+    timing = json.loads((tmp_path / "mcpilco_cartpole.json").read_text())["timing"]
+    assert [(t["num_particles"], t["n_points"], t["threads"]) for t in timing] == [
+        (3, 20, 1),
+        (5, 20, 1),
+    ]
+    assert all(t["s_per_step_wall"] > 0 for t in timing)
+    md = (tmp_path / "mcpilco_cartpole.md").read_text()
+    assert "| 3 | 20 | 1 |" in md and "| 5 | 20 | 1 |" in md
