@@ -495,7 +495,7 @@ def write_report(results: dict, out_dir: Path) -> None:
         ]
         for t in results["timing"]:
             md.append(
-                f"| {t.get('num_particles', 400)} | {t['n_points']} | {t['threads']} "
+                f"| {t['num_particles']} | {t['n_points']} | {t['threads']} "
                 f"| {t['s_per_step_wall']:.3f} | {t['s_per_step_cpu']:.3f} |"
             )
         md.append("")

@@ -121,7 +121,7 @@ class MCPilcoConfig:
             force averages out and the pole swings less (median largest angle over the
             exploration trials of seeds 0-19: 1.24 rad i.i.d., 2.04 rad held for 2 steps).
             On the dm-control adapter hold 1 is better (seeds 0-7 at 12 s: 6/8 against 2/8):
-            there held pushes drive the 1 kg cart into the rail's end stop (x = 1.8 m).
+            there held pushes drive the cart into the rail's end stop (x = 1.8 m).
         init_std: ``sigma_0`` of the initial particles.
         sim_obs_noise_std: measurement noise simulated on the policy input in rollouts.
         opt: policy optimisation schedule (:class:`PolicyOptConfig`).
