@@ -591,8 +591,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument(
         "--explore-hold",
         type=int,
-        help="steps each random exploration action is held (override; 2 default, 1 = i.i.d. "
-        "per step as in the runs before this option)",
+        help="steps each random exploration action is held (override; default: the env's, 2 "
+        "on mcpilco/CartpoleSwingUp-v0, 1 = i.i.d. per step on mcpilco/DMCCartpoleSwingUp-v0 "
+        "and in the runs before this option)",
     )
     p.add_argument(
         "--candidate-scales",
@@ -637,26 +638,30 @@ def main(argv: list[str] | None = None) -> int:
     for name in ("timing_n", "timing_threads", "timing_particles"):
         if min(getattr(args, name)) < 1:
             parser.error(f"--{name.replace('_', '-')} values must be >= 1")
-    from mcpilco.agents.mc_pilco import registered_ids
+    from mcpilco.agents.mc_pilco import default_explore_hold, registered_ids
 
     ids = registered_ids()
     for env_id in args.env:
         if env_id not in ids:
             parser.error(f"unknown env id {env_id!r}; registered mcpilco ids: {', '.join(ids)}")
     scales = args.candidate_scales
-    try:
-        cfg = PRESETS[args.preset].with_overrides(
-            num_trials=args.trials,
-            num_particles=args.particles,
-            num_candidates=(
-                args.candidates if args.candidates is not None or not scales else len(scales)
-            ),
-            kernel=args.kernel,
-            rollout_dtype=args.rollout_dtype,
-            explore_hold=args.explore_hold,
-            candidate_weight_scales=scales,
-            opt_steps=args.opt_steps,
-        )
+    try:  # one config per env: an env without --explore-hold gets its own default hold
+        env_cfgs = {
+            env_id: PRESETS[args.preset].with_overrides(
+                env_id=env_id,
+                num_trials=args.trials,
+                num_particles=args.particles,
+                num_candidates=(
+                    args.candidates if args.candidates is not None or not scales else len(scales)
+                ),
+                kernel=args.kernel,
+                rollout_dtype=args.rollout_dtype,
+                explore_hold=args.explore_hold,
+                candidate_weight_scales=scales,
+                opt_steps=args.opt_steps,
+            )
+            for env_id in args.env
+        }
     except ValueError as err:
         parser.error(str(err))
 
@@ -668,7 +673,7 @@ def main(argv: list[str] | None = None) -> int:
     if "runs" in args.parts:
         results.setdefault("runs", {})
         for env_id in args.env:
-            env_cfg = dataclasses.replace(cfg, env_id=env_id)
+            env_cfg = env_cfgs[env_id]
             tag = env_id.split("/")[-1] + (f"_{args.label}" if args.label else "")
             key = section_key(env_id, args.label)
             section = bench_runs(env_cfg, seeds, args.jobs, args.runs_dir / tag)
@@ -689,7 +694,7 @@ def main(argv: list[str] | None = None) -> int:
             policy_ckpt = args.rmse_policy or find_swingup_policy(args.runs_dir)
         except FileNotFoundError as err:
             parser.error(str(err))
-        hold = cfg.explore_hold
+        hold = args.explore_hold or default_explore_hold(DEFAULT_ENV_ID)  # rmse runs this env
         per_seed = [
             particle_rmse(s, policy_ckpt, explore_hold=hold) for s in range(args.rmse_seeds)
         ]

@@ -40,7 +40,6 @@ from __future__ import annotations
 
 import argparse
 import ast
-import dataclasses
 import json
 import math
 import sys
@@ -450,7 +449,7 @@ def run_method(
         over: dict[str, Any] = {"env_id": env_id, "seed": seed, "torch_threads": threads}
         if trials is not None:
             over["num_trials"] = trials
-        cfg_m = dataclasses.replace(base, **over)
+        cfg_m = base.with_overrides(**over)
         summary = run_mcpilco(
             cfg_m,
             out,

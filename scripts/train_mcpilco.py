@@ -70,8 +70,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument(
         "--explore-hold",
         type=_positive_int,
-        help="steps each random action of the exploration trial is held (default 2 = 0.1 s; "
-        "use 1 on mcpilco/DMCCartpoleSwingUp-v0, where held pushes hit the rail's end)",
+        help="steps each random action of the exploration trial is held (default: the env's, "
+        "2 = 0.1 s on mcpilco/CartpoleSwingUp-v0, 1 on mcpilco/DMCCartpoleSwingUp-v0, where "
+        "held pushes hit the rail's end)",
     )
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--threads", type=_positive_int, help="torch threads (default: torch's)")

@@ -64,6 +64,7 @@ from mcpilco.agents.mc_pilco.loop import (
     LEGACY_FIELD_VALUES,
     RunSummary,
     check_resume,
+    default_explore_hold,
     env_dt,
     episode_outcome,
     exploration_episode,
@@ -112,7 +113,8 @@ class PilcoConfig:
             ``l_x = 1``, ``l_theta = 3``), giving ``W = diag(2/l_x^2, 0, 2/l_theta^2, 0)``.
         explore_hold: steps each random exploration action is held (as
             :attr:`MCPilcoConfig.explore_hold <mcpilco.agents.mc_pilco.MCPilcoConfig>`, so that
-            both agents start from the same exploration trial).
+            both agents start from the same exploration trial); None (default): the env's
+            value, :func:`~mcpilco.agents.mc_pilco.loop.default_explore_hold`.
         init_std: ``Sigma_0 = init_std^2 I`` of the initial belief (the env's 0.01); must be
             > 1e-3 so that TorchRL's world model takes its moment-matching path.
         seed: seeds torch, numpy and the env resets (same trial seeds as MC-PILCO).
@@ -129,12 +131,14 @@ class PilcoConfig:
     lr: float = 0.02
     l_x: float = 1.0
     l_theta: float = 3.0
-    explore_hold: int = 2
+    explore_hold: int | None = None
     init_std: float = 0.01
     seed: int = 0
     torch_threads: int | None = None
 
     def __post_init__(self) -> None:
+        if self.explore_hold is None:
+            self.explore_hold = default_explore_hold(self.env_id)
         for name in ("num_trials",):
             v = getattr(self, name)
             if int(v) != v or v < 0:

@@ -74,10 +74,24 @@ _RESUME_FIXED = (
 )
 ROLLOUT_DTYPES = ("float32", "float64")
 """Choices of :attr:`MCPilcoConfig.rollout_dtype`."""
+DEFAULT_EXPLORE_HOLD = 2
+"""Exploration hold of an env without an entry in :data:`EXPLORE_HOLD_BY_ENV` (0.1 s at the
+cartpoles' 0.05 s control period: the thesis's sampling time, 5.5.1)."""
+EXPLORE_HOLD_BY_ENV: dict[str, int] = {"mcpilco/DMCCartpoleSwingUp-v0": 1}
+"""Measured exceptions to :data:`DEFAULT_EXPLORE_HOLD`. dm-control's cartpole: on seeds 0-7
+(bench preset) i.i.d. exploration swung up at 12 s on 6 / 8 seeds, held exploration on 2 / 8;
+held pushes drove the cart into the rail's end stop (``|x|`` 1.86-1.89 m, the rail ends at
+1.8 m) on 4 seeds (``results/mcpilco_cartpole.md``)."""
 LEGACY_FIELD_VALUES: dict[str, Any] = {"explore_hold": 1}
 """Value of each config field added after results were saved, for configs that lack it."""
 CANDIDATE_SEED_STRIDE = 7919
 """Candidate ``k`` of run ``seed`` is initialised with seed ``seed + 7919 k``."""
+
+
+def default_explore_hold(env_id: str) -> int:
+    """Control steps each random exploration action is held on ``env_id`` when the config
+    does not say: :data:`EXPLORE_HOLD_BY_ENV` or else :data:`DEFAULT_EXPLORE_HOLD`."""
+    return EXPLORE_HOLD_BY_ENV.get(env_id, DEFAULT_EXPLORE_HOLD)
 
 
 @dataclass
@@ -114,14 +128,17 @@ class MCPilcoConfig:
             near ``u = 0`` tend to follow the same gradient path into the same optimum;
             a larger ``s_k`` starts candidate ``k`` from a different random policy.
         explore_hold: control steps each random action of the exploration trial is held
-            (``u ~ U(-1, 1)`` drawn once per ``explore_hold`` steps). 2 (default): one draw per
-            0.1 s, the sampling time of the thesis's cartpole (5.5.1), whose exploration this
-            reproduces; 1: i.i.d. per 0.05 s step (the setting of the runs before this field
-            existed; :meth:`from_dict` reads a config without it as 1). At 0.05 s the i.i.d.
-            force averages out and the pole swings less (median largest angle over the
-            exploration trials of seeds 0-19: 1.24 rad i.i.d., 2.04 rad held for 2 steps).
-            On the dm-control adapter hold 1 is better (seeds 0-7 at 12 s: 6/8 against 2/8):
-            there held pushes drive the cart into the rail's end stop (x = 1.8 m).
+            (``u ~ U(-1, 1)`` drawn once per ``explore_hold`` steps). None (default): the
+            env's value, :func:`default_explore_hold`, filled in at construction (and again
+            when :meth:`with_overrides` changes ``env_id`` and this field still holds the old
+            env's value). 2 on ``mcpilco/CartpoleSwingUp-v0``: one draw per 0.1 s, the sampling
+            time of the thesis's cartpole (5.5.1), whose exploration this reproduces; 1: i.i.d.
+            per 0.05 s step (the setting of the runs before this field existed;
+            :meth:`from_dict` reads a config without it as 1). At 0.05 s the i.i.d. force
+            averages out and the pole swings less (median largest angle over the exploration
+            trials of seeds 0-19: 1.24 rad i.i.d., 2.04 rad held for 2 steps). 1 on the
+            dm-control adapter, where it is better (seeds 0-7 at 12 s: 6/8 against 2/8): there
+            held pushes drive the cart into the rail's end stop (x = 1.8 m).
         init_std: ``sigma_0`` of the initial particles.
         sim_obs_noise_std: measurement noise simulated on the policy input in rollouts.
         opt: policy optimisation schedule (:class:`PolicyOptConfig`).
@@ -154,7 +171,7 @@ class MCPilcoConfig:
     cost_wrap_angle: bool = False
     num_candidates: int = 1
     candidate_weight_scales: list[float] | None = None
-    explore_hold: int = 2
+    explore_hold: int | None = None
     init_std: float = 0.01
     sim_obs_noise_std: float = 0.01
     opt: PolicyOptConfig = field(default_factory=PolicyOptConfig)
@@ -189,6 +206,8 @@ class MCPilcoConfig:
                     f"positive values, got {self.candidate_weight_scales!r}"
                 )
             self.candidate_weight_scales = scales
+        if self.explore_hold is None:
+            self.explore_hold = default_explore_hold(self.env_id)
         if int(self.explore_hold) != self.explore_hold or self.explore_hold < 1:
             raise ValueError(f"explore_hold must be an integer >= 1, got {self.explore_hold!r}")
         if self.rollout_dtype not in ROLLOUT_DTYPES:
@@ -207,9 +226,16 @@ class MCPilcoConfig:
         """A validated copy with ``fields`` replaced; ``None`` values leave a field as is.
 
         ``opt_steps`` sets ``opt.max_steps`` and caps ``opt_steps_first`` at it (the
-        command-line ``--opt-steps`` of the scripts).
+        command-line ``--opt-steps`` of the scripts). A new ``env_id`` without an
+        ``explore_hold`` takes the new env's default hold if this config has the old env's.
         """
         over = {k: v for k, v in fields.items() if v is not None}
+        if (
+            "env_id" in over
+            and "explore_hold" not in over
+            and self.explore_hold == default_explore_hold(self.env_id)
+        ):
+            over["explore_hold"] = default_explore_hold(over["env_id"])
         if opt_steps is not None:
             over["opt"] = dataclasses.replace(self.opt, max_steps=opt_steps)
             if self.opt_steps_first is not None:

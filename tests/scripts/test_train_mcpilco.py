@@ -49,6 +49,14 @@ def test_overrides_reach_the_config():
     assert cfg.opt_steps_first <= 9 and cfg.num_candidates == 3
 
 
+def test_dm_control_env_gets_iid_exploration_unless_told():
+    dmc = ["--env", "mcpilco/DMCCartpoleSwingUp-v0"]
+    assert config_from_args(build_parser().parse_args(dmc)).explore_hold == 1
+    told = build_parser().parse_args(dmc + ["--explore-hold", "2"])
+    assert config_from_args(told).explore_hold == 2
+    assert config_from_args(build_parser().parse_args([])).explore_hold == 2
+
+
 def test_zero_candidates_is_an_error(capsys, tmp_path):
     err = _error_of(["--candidates", "0", "--out", str(tmp_path)], capsys)
     assert "--candidates" in err

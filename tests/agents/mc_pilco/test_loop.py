@@ -201,3 +201,25 @@ def test_configs_saved_before_explore_hold_read_as_iid_exploration():
     check_resume(old, MCPilcoConfig(explore_hold=1), ("explore_hold",))
     with pytest.raises(ValueError, match="cannot resume: explore_hold=2 differs .* 1"):
         check_resume(old, MCPilcoConfig(), ("explore_hold",))
+
+
+DMC_ID = "mcpilco/DMCCartpoleSwingUp-v0"
+
+
+def test_explore_hold_defaults_to_the_envs_measured_value():
+    """Held exploration on our cartpole, i.i.d. on the dm-control adapter (whose held pushes
+    hit the rail's end stop); an explicit value always wins, also when the env changes."""
+    from mcpilco.agents.baselines.pilco import PilcoConfig
+    from mcpilco.agents.mc_pilco import PRESETS
+
+    assert MCPilcoConfig().explore_hold == 2
+    assert MCPilcoConfig(env_id=DMC_ID).explore_hold == 1
+    assert PilcoConfig().explore_hold == 2 and PilcoConfig(env_id=DMC_ID).explore_hold == 1
+    for preset in PRESETS.values():  # presets are built on the default env
+        assert preset.with_overrides(env_id=DMC_ID).explore_hold == 1
+        assert preset.with_overrides(env_id=DMC_ID, explore_hold=2).explore_hold == 2
+    # a non-default hold is the user's choice: a later env change keeps it
+    assert MCPilcoConfig(explore_hold=3).with_overrides(env_id=DMC_ID).explore_hold == 3
+    # saved configs carry the resolved value, so a resume compares like with like
+    saved = MCPilcoConfig(env_id=DMC_ID).to_dict()
+    assert saved["explore_hold"] == 1 and MCPilcoConfig.from_dict(saved).explore_hold == 1
