@@ -17,6 +17,10 @@ Three parts, each optional:
    ``--rmse-policy``) runs on the env and ``M`` particles are rolled out through each GP;
    reported: the RMSE of theta between particles and the real trajectory per time step
    and averaged over the 60 steps, over ``--rmse-seeds`` exploration seeds.
+4. ``rmse_runs``: the same comparison on the data of finished runs (``--rmse-runs``, default
+   every run under ``--runs-dir`` whose last trial swung up): both GPs fitted on the run's
+   data before its last trial, particles under the last trial's policy from that trial's real
+   initial state, against its real trajectory. Grouped by the kernel each run learned with.
 
 Writes ``results/mcpilco_cartpole.json`` (merged with an existing file, one section per
 env), ``results/mcpilco_cartpole.md`` and ``results/mcpilco_cartpole.png``. ``--pool`` merges
@@ -50,7 +54,7 @@ from mcpilco.agents.mc_pilco import DEFAULT_ENV_ID, PRESETS, MCPilcoConfig
 from mcpilco.agents.mc_pilco.dynamics import KERNEL_CHOICES
 from mcpilco.agents.mc_pilco.loop import LEGACY_FIELD_VALUES, ROLLOUT_DTYPES
 
-PARTS = ("runs", "timing", "rmse")
+PARTS = ("runs", "timing", "rmse", "rmse_runs")
 
 
 # ------------------------------------------------------------------------------- runs
@@ -312,16 +316,52 @@ def find_swingup_policy(runs_dir: Path) -> Path:
     """The checkpoint of the first run under ``runs_dir`` (sorted) whose last trial swung the
     pole up; its policy is the fixed "learned policy that correctly executes the swing-up" of
     thesis Fig. 5.5."""
-    from mcpilco.agents.mc_pilco.checkpoint import load_checkpoint
-
-    for ckpt_path in sorted(Path(runs_dir).glob("**/checkpoint.pt")):
-        ckpt = load_checkpoint(ckpt_path)
-        if ckpt["records"] and ckpt["records"][-1]["success"]:
-            return ckpt_path
+    found = swingup_runs(runs_dir)
+    if found:
+        return found[0]
     raise FileNotFoundError(
         f"no run under {runs_dir} ends with a successful swing-up; run the 'runs' part first "
         "or pass --rmse-policy CHECKPOINT"
     )
+
+
+def _theta_rmse_both_kernels(
+    data: tuple, policy, real: np.ndarray, num_particles: int, seed: int, **fit_kwargs: Any
+) -> dict[str, Any]:
+    """Fit an RBF+MPK and an RBF-only GP on ``data = (s, a, s')``, roll ``M`` particles out
+    through each under ``policy`` from ``real[0]``; per kernel the RMSE of theta against
+    ``real[1:, 2]`` over particles and steps (``kernel``), per step (``kernel_per_step``)
+    and the first 100 particles' theta (``kernel_particles``)."""
+    import torch
+
+    from mcpilco.agents.mc_pilco import (
+        GPDynamicsModel,
+        MCPilcoLoss,
+        SwingUpCost,
+        make_policy_module,
+    )
+
+    out: dict[str, Any] = {}
+    horizon = len(real) - 1
+    for kernel in ("rbf+mpk", "rbf"):
+        model = GPDynamicsModel(kernel=kernel, **fit_kwargs).fit(*data)
+        torch.manual_seed(seed)
+        loss = MCPilcoLoss(
+            make_policy_module(policy),
+            model.particle_dynamics(),
+            SwingUpCost(),
+            horizon,
+            num_particles,
+        )
+        policy.eval()
+        with torch.no_grad():
+            x0 = torch.as_tensor(real[0], dtype=torch.float32).expand(num_particles, 4)
+            parts = loss.rollout(initial_state=x0.clone()).states.numpy()
+        err = parts[:, 1:, 2] - real[None, 1:, 2]
+        out[kernel] = float(np.sqrt(np.mean(err**2)))
+        out[f"{kernel}_per_step"] = np.sqrt(np.mean(err**2, axis=0)).tolist()
+        out[f"{kernel}_particles"] = parts[:100, :, 2].tolist()
+    return out
 
 
 def particle_rmse(
@@ -338,13 +378,7 @@ def particle_rmse(
     over particles), and its mean over the 60 steps."""
     import torch
 
-    from mcpilco.agents.mc_pilco import (
-        GPDynamicsModel,
-        MCPilcoLoss,
-        SquashedRBFPolicy,
-        SwingUpCost,
-        make_policy_module,
-    )
+    from mcpilco.agents.mc_pilco import SquashedRBFPolicy
     from mcpilco.agents.mc_pilco.checkpoint import load_checkpoint
     from mcpilco.agents.mc_pilco.loop import _policy_act, make_env, run_episode
 
@@ -357,23 +391,82 @@ def particle_rmse(
     real = run_episode(env, _policy_act(policy), 5000 + seed, 60)["states"]
     env.close()
     out: dict[str, Any] = {"seed": seed, "real_success_theta_end": float(real[-1, 2])}
-    for kernel in ("rbf+mpk", "rbf"):
-        model = GPDynamicsModel(kernel=kernel).fit(s, a, s1)
-        torch.manual_seed(seed)
-        loss = MCPilcoLoss(
-            make_policy_module(policy), model.particle_dynamics(), SwingUpCost(), 60, num_particles
-        )
-        policy.eval()
-        with torch.no_grad():
-            x0 = torch.as_tensor(real[0], dtype=torch.float32).expand(num_particles, 4)
-            parts = loss.rollout(initial_state=x0.clone()).states.numpy()
-        err = parts[:, 1:, 2] - real[None, 1:, 2]
-        out[kernel] = float(np.sqrt(np.mean(err**2)))
-        out[f"{kernel}_per_step"] = np.sqrt(np.mean(err**2, axis=0)).tolist()
-        if seed == 0:
-            out[f"{kernel}_particles"] = parts[:100, :, 2].tolist()
-            out["real_theta"] = real[:, 2].tolist()
+    out.update(_theta_rmse_both_kernels((s, a, s1), policy, real, num_particles, seed))
+    if seed == 0:
+        out["real_theta"] = real[:, 2].tolist()
+    else:
+        for k in ("rbf+mpk", "rbf"):
+            del out[f"{k}_particles"]
     return out
+
+
+def particle_rmse_on_run(ckpt_path: Path, num_particles: int = 400) -> dict[str, Any]:
+    """Thesis Fig. 5.5 on a finished run's own data: RBF+MPK and RBF-only GPs fitted (with
+    the run's GP settings) on every transition before its last trial; ``M`` particles under
+    the policy of that trial from its real initial state, against its real trajectory (the
+    noise-free states the env recorded). The run's last trial must have swung up."""
+    import torch
+
+    from mcpilco.agents.mc_pilco import SquashedRBFPolicy
+    from mcpilco.agents.mc_pilco.checkpoint import load_checkpoint
+    from mcpilco.agents.mc_pilco.loop import transitions
+
+    torch.set_num_threads(1)
+    ckpt = load_checkpoint(ckpt_path)
+    cfg = MCPilcoConfig.from_dict(ckpt["config"])
+    episodes, arrays = ckpt["episodes"], ckpt["arrays"]
+    if len(episodes) < 2 or not ckpt["records"][-1]["success"]:
+        raise ValueError(f"{ckpt_path}: needs a run whose last policy trial swung up")
+    policy = SquashedRBFPolicy(num_basis=cfg.num_basis)
+    policy.load_state_dict(ckpt["policy"])
+    real = np.asarray(arrays[-1]["real"])
+    out: dict[str, Any] = {
+        "run": str(ckpt_path),
+        "run_kernel": cfg.kernel,
+        "n_data": int(sum(len(e["actions"]) for e in episodes[:-1])),
+    }
+    out.update(
+        _theta_rmse_both_kernels(
+            transitions(episodes[:-1]),
+            policy,
+            real,
+            num_particles,
+            cfg.seed,
+            max_points=cfg.max_points,
+            adam_iters=cfg.gp_adam_iters,
+            lbfgs_iters=cfg.gp_lbfgs_iters,
+        )
+    )
+    for k in ("rbf+mpk", "rbf"):
+        del out[f"{k}_particles"]
+    return out
+
+
+def swingup_runs(runs_dir: Path) -> list[Path]:
+    """Checkpoints under ``runs_dir`` (sorted) whose last trial swung the pole up."""
+    from mcpilco.agents.mc_pilco.checkpoint import load_checkpoint
+
+    found = []
+    for ckpt_path in sorted(Path(runs_dir).glob("**/checkpoint.pt")):
+        ckpt = load_checkpoint(ckpt_path)
+        if len(ckpt["records"]) > 1 and ckpt["records"][-1]["success"]:
+            found.append(ckpt_path)
+    return found
+
+
+def summarise_rmse_runs(per_run: list[dict]) -> dict[str, dict]:
+    """Per kernel a run learned with: runs, mean / median RMSE of both GPs, and the number of
+    runs where the RBF+MPK particles are closer (lower RMSE)."""
+    groups: dict[str, dict] = {}
+    for kern in sorted({r["run_kernel"] for r in per_run}):
+        rows = [r for r in per_run if r["run_kernel"] == kern]
+        g: dict[str, Any] = {"runs": len(rows)}
+        for k in ("rbf+mpk", "rbf"):
+            vals = [r[k] for r in rows]
+            g[k] = {"mean": float(np.mean(vals)), "median": float(np.median(vals))}
+        g["mpk_better"] = int(sum(r["rbf+mpk"] < r["rbf"] for r in rows))
+        groups[kern] = g
+    return groups
 
 
 def plot_rmse(rm: dict, path: Path) -> None:
@@ -517,6 +610,25 @@ def write_report(results: dict, out_dir: Path) -> None:
             f"RBF+MPK lower in {r['mpk_better']} of them; "
             f"policy from `{r.get('policy', '?')}`. Plot: `mcpilco_cartpole_rmse.png`.\n"
         )
+    if results.get("rmse_runs"):
+        md += [
+            "### Particle RMSE of theta on the runs' own data (Fig. 5.5 protocol, part "
+            "`rmse_runs`)",
+            "",
+            "GPs fitted on each run's data before its last trial; particles under that "
+            "trial's policy from its real initial state, against its real trajectory.",
+            "",
+            "| policy learned with | runs | RBF+MPK mean / median [rad] | RBF mean / median "
+            "[rad] | RBF+MPK lower in |",
+            "|---|---|---|---|---|",
+        ]
+        for kern, g in results["rmse_runs"]["by_run_kernel"].items():
+            a, b = g["rbf+mpk"], g["rbf"]
+            md.append(
+                f"| {kern} | {g['runs']} | {a['mean']:.4f} / {a['median']:.4f} "
+                f"| {b['mean']:.4f} / {b['median']:.4f} | {g['mpk_better']} of {g['runs']} |"
+            )
+        md.append("")
     (out_dir / "mcpilco_cartpole.md").write_text("\n".join(md))
     with open(out_dir / "mcpilco_cartpole.json", "w") as fh:
         json.dump(results, fh, indent=1)
@@ -623,6 +735,14 @@ def build_parser() -> argparse.ArgumentParser:
         help="checkpoint.pt of a run whose last trial swung up (default: the first such run "
         "under --runs-dir)",
     )
+    p.add_argument(
+        "--rmse-runs",
+        type=Path,
+        nargs="+",
+        metavar="DIR",
+        help="rmse_runs part: run folders (or folders of them) to use; only runs whose last "
+        "trial swung up count (default: all such runs under --runs-dir)",
+    )
     p.add_argument("--out", type=Path, default=Path("results"))
     p.add_argument("--runs-dir", type=Path, default=Path("runs/bench_mcpilco"))
     return p
@@ -720,6 +840,18 @@ def main(argv: list[str] | None = None) -> int:
                     del p_[k]
         results["rmse"] = rm
         print(f"theta RMSE: rbf+mpk {rm['rbf+mpk']}, rbf {rm['rbf']}")
+        write_report(results, args.out)
+    if "rmse_runs" in args.parts:
+        ckpts = [c for d in (args.rmse_runs or [args.runs_dir]) for c in swingup_runs(d)]
+        if not ckpts:
+            parser.error("rmse_runs: no run whose last trial swung up; run the 'runs' part first")
+        from tqdm.auto import tqdm
+
+        per_run = [particle_rmse_on_run(c) for c in tqdm(ckpts, desc="rmse on runs")]
+        groups = summarise_rmse_runs(per_run)
+        results["rmse_runs"] = {"per_run": per_run, "by_run_kernel": groups}
+        for kern, g in groups.items():
+            print(f"runs learned with {kern}: {g}")
         write_report(results, args.out)
     if args.pool:
         sections = results.get("runs", {})

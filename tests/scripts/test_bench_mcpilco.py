@@ -205,3 +205,46 @@ def test_timing_part_reports_each_particle_count(tmp_path, capsys):
     assert all(t["s_per_step_wall"] > 0 for t in timing)
     md = (tmp_path / "mcpilco_cartpole.md").read_text()
     assert "| 3 | 20 | 1 |" in md and "| 5 | 20 | 1 |" in md
+
+
+def test_rmse_runs_part_uses_only_runs_that_swung_up_and_groups_by_their_kernel(tmp_path, capsys):
+    """Part ``rmse_runs``: a run whose last trial failed is not used (and alone is an error);
+    each used run gives both kernels' RMSE on its data before the last trial, grouped by the
+    kernel the run learned with."""
+    import json
+    import math
+    import shutil
+
+    import torch
+
+    from tests.agents.mc_pilco.test_loop import SMOKE
+
+    _run_seed((SMOKE.to_dict(), str(tmp_path / "failed" / "seed3")))
+    src = tmp_path / "failed" / "seed3" / "checkpoint.pt"
+    ckpt = torch.load(src, weights_only=False)
+    ckpt["records"][-1]["success"] = False
+    torch.save(ckpt, src)
+    argv = ["--parts", "rmse_runs", "--out", str(tmp_path / "out")]
+    with pytest.raises(SystemExit):
+        main([*argv, "--rmse-runs", str(tmp_path / "failed")])
+    assert "no run whose last trial swung up" in capsys.readouterr().err
+    for kernel in ("rbf+mpk", "rbf"):  # the same data, labelled as learned with each kernel
+        dst = tmp_path / "ok" / kernel / "checkpoint.pt"
+        dst.parent.mkdir(parents=True)
+        shutil.copy(src, dst)
+        ck = torch.load(dst, weights_only=False)
+        ck["records"][-1]["success"] = True
+        ck["config"]["kernel"] = kernel
+        torch.save(ck, dst)
+    assert main([*argv, "--rmse-runs", str(tmp_path / "failed"), str(tmp_path / "ok")]) == 0
+    res = json.loads((tmp_path / "out" / "mcpilco_cartpole.json").read_text())["rmse_runs"]
+    assert sorted(r["run_kernel"] for r in res["per_run"]) == ["rbf", "rbf+mpk"]
+    assert all(r["n_data"] == SMOKE.horizon for r in res["per_run"])  # exploration only
+    for r in res["per_run"]:
+        assert all(math.isfinite(r[k]) and r[k] > 0 for k in ("rbf+mpk", "rbf"))
+        assert len(r["rbf_per_step"]) == len(r["rbf+mpk_per_step"]) == SMOKE.horizon
+    assert {k: g["runs"] for k, g in res["by_run_kernel"].items()} == {"rbf": 1, "rbf+mpk": 1}
+    a, b = res["per_run"]  # same data, policy and seed: the label changes nothing
+    assert (a["rbf+mpk"], a["rbf"]) == (b["rbf+mpk"], b["rbf"])
+    md = (tmp_path / "out" / "mcpilco_cartpole.md").read_text()
+    assert "| rbf+mpk | 1 |" in md and "| rbf | 1 |" in md
