@@ -501,6 +501,31 @@ def plot_rmse(rm: dict, path: Path) -> None:
     plt.close(fig)
 
 
+def plot_rmse_runs(per_run: list[dict], path: Path) -> None:
+    """Part ``rmse_runs``: per time step, the median over runs of the theta RMSE of both GPs,
+    one panel per kernel the runs learned with."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    groups = sorted({r["run_kernel"] for r in per_run})
+    fig, axes = plt.subplots(1, len(groups), figsize=(6 * len(groups), 3.6), squeeze=False)
+    for ax, g in zip(axes[0], groups, strict=True):
+        rows = [r for r in per_run if r["run_kernel"] == g]
+        for k, col in (("rbf+mpk", "tab:blue"), ("rbf", "tab:red")):
+            per = np.median([r[f"{k}_per_step"] for r in rows], axis=0)
+            ax.plot(np.arange(1, len(per) + 1) * 0.05, per, color=col, label=f"GP {k}")
+        ax.set_title(f"{len(rows)} runs learned with {g}; GPs on their data", fontsize=10)
+        ax.set_xlabel("time [s]")
+        ax.set_ylabel("median RMSE theta [rad]")
+        ax.grid(alpha=0.3)
+        ax.legend(fontsize=8)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
 # ------------------------------------------------------------------------------ report
 def _md_table(env_id: str, section: dict) -> str:
     lines = [f"### {env_id}", ""]
@@ -616,7 +641,8 @@ def write_report(results: dict, out_dir: Path) -> None:
             "`rmse_runs`)",
             "",
             "GPs fitted on each run's data before its last trial; particles under that "
-            "trial's policy from its real initial state, against its real trajectory.",
+            "trial's policy from its real initial state, against its real trajectory. "
+            "Plot: `mcpilco_cartpole_rmse_runs.png`.",
             "",
             "| policy learned with | runs | RBF+MPK mean / median [rad] | RBF mean / median "
             "[rad] | RBF+MPK lower in |",
@@ -849,6 +875,11 @@ def main(argv: list[str] | None = None) -> int:
 
         per_run = [particle_rmse_on_run(c) for c in tqdm(ckpts, desc="rmse on runs")]
         groups = summarise_rmse_runs(per_run)
+        args.out.mkdir(parents=True, exist_ok=True)
+        plot_rmse_runs(per_run, args.out / "mcpilco_cartpole_rmse_runs.png")
+        for r in per_run:  # keep the JSON small: per-step curves only in the plot
+            for k in ("rbf+mpk", "rbf"):
+                del r[f"{k}_per_step"]
         results["rmse_runs"] = {"per_run": per_run, "by_run_kernel": groups}
         for kern, g in groups.items():
             print(f"runs learned with {kern}: {g}")
