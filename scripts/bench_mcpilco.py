@@ -30,7 +30,7 @@ sections of the same config run on other seeds (e.g. 12 seeds, then 8 more with
 Usage::
 
     mcpilco-bench-mcpilco --seeds 20 --jobs 2                  # all parts, default env
-    mcpilco-bench-mcpilco --parts runs --seeds 5 --preset demo
+    mcpilco-bench-mcpilco --parts runs --seeds 5 --preset small
     mcpilco-bench-mcpilco --parts runs --env mcpilco/DMCCartpoleSwingUp-v0 --seeds 5
     mcpilco-bench-mcpilco --parts timing rmse
     mcpilco-bench-mcpilco --pool bench bench5                  # one section, seeds of both

@@ -9,9 +9,9 @@ Usage::
 
     mcpilco-train --trials 4 --out runs/seed0
     mcpilco-train --trials 5 --out runs/seed0 --resume     # continue a killed / shorter run
-    mcpilco-train --preset demo --out runs/demo            # the reduced demo budget
+    mcpilco-train --preset demo --out runs/demo            # make demo's budget (12 s)
     mcpilco-train --env mcpilco/DMCCartpoleSwingUp-v0 --kernel rbf --seed 3
-    mcpilco-train --preset demo --candidates 2 --out runs/k2   # 2 policies side by side
+    mcpilco-train --preset small --out runs/k2             # 100 particles, 2 policies
 """
 
 from __future__ import annotations

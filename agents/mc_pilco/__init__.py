@@ -7,7 +7,8 @@ TorchRL-style parts (Amadio et al., IEEE T-RO 2022):
   integration), :class:`SwingUpCost`;
 * objective: :class:`MCPilcoLoss` (particle rollout, ``loss_cost``);
 * loop: :func:`optimize_policy` (Adam + monitoring rule) and :func:`run_mcpilco` (trials,
-  checkpoints, PNG and Rerun outputs), with :data:`DEMO_CONFIG` and :data:`BENCH_CONFIG`.
+  checkpoints, PNG and Rerun outputs), with :data:`DEMO_CONFIG`, :data:`SMALL_CONFIG` and
+  :data:`BENCH_CONFIG`.
 """
 
 from mcpilco.agents.mc_pilco.cost import SwingUpCost
@@ -24,6 +25,7 @@ from mcpilco.agents.mc_pilco.loop import (
     DEFAULT_ENV_ID,
     DEMO_CONFIG,
     PRESETS,
+    SMALL_CONFIG,
     MCPilcoConfig,
     RunSummary,
     default_explore_hold,
@@ -51,6 +53,7 @@ __all__ = [
     "DEFAULT_ENV_ID",
     "DEMO_CONFIG",
     "PRESETS",
+    "SMALL_CONFIG",
     "default_explore_hold",
     "CostMonitor",
     "GPDynamicsModel",
