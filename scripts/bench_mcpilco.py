@@ -422,6 +422,7 @@ def particle_rmse_on_run(ckpt_path: Path, num_particles: int = 400) -> dict[str,
     real = np.asarray(arrays[-1]["real"])
     out: dict[str, Any] = {
         "run": str(ckpt_path),
+        "env_id": cfg.env_id,
         "run_kernel": cfg.kernel,
         "n_data": int(sum(len(e["actions"]) for e in episodes[:-1])),
     }
@@ -454,12 +455,18 @@ def swingup_runs(runs_dir: Path) -> list[Path]:
     return found
 
 
+def rmse_run_group(run: dict) -> str:
+    """Group of a ``particle_rmse_on_run`` result: the kernel the run learned with, and its
+    env (runs on different envs are never pooled)."""
+    return f"{run['run_kernel']} on {run.get('env_id', DEFAULT_ENV_ID)}"
+
+
 def summarise_rmse_runs(per_run: list[dict]) -> dict[str, dict]:
-    """Per kernel a run learned with: runs, mean / median RMSE of both GPs, and the number of
-    runs where the RBF+MPK particles are closer (lower RMSE)."""
+    """Per group (:func:`rmse_run_group`): runs, mean / median RMSE of both GPs, and the
+    number of runs where the RBF+MPK particles are closer (lower RMSE)."""
     groups: dict[str, dict] = {}
-    for kern in sorted({r["run_kernel"] for r in per_run}):
-        rows = [r for r in per_run if r["run_kernel"] == kern]
+    for kern in sorted({rmse_run_group(r) for r in per_run}):
+        rows = [r for r in per_run if rmse_run_group(r) == kern]
         g: dict[str, Any] = {"runs": len(rows)}
         for k in ("rbf+mpk", "rbf"):
             vals = [r[k] for r in rows]
@@ -509,14 +516,14 @@ def plot_rmse_runs(per_run: list[dict], path: Path) -> None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    groups = sorted({r["run_kernel"] for r in per_run})
+    groups = sorted({rmse_run_group(r) for r in per_run})
     fig, axes = plt.subplots(1, len(groups), figsize=(6 * len(groups), 3.6), squeeze=False)
     for ax, g in zip(axes[0], groups, strict=True):
-        rows = [r for r in per_run if r["run_kernel"] == g]
+        rows = [r for r in per_run if rmse_run_group(r) == g]
         for k, col in (("rbf+mpk", "tab:blue"), ("rbf", "tab:red")):
             per = np.median([r[f"{k}_per_step"] for r in rows], axis=0)
             ax.plot(np.arange(1, len(per) + 1) * 0.05, per, color=col, label=f"GP {k}")
-        ax.set_title(f"{len(rows)} runs learned with {g}; GPs on their data", fontsize=10)
+        ax.set_title(f"{len(rows)} runs learned with {g}\n(GPs fitted on their data)", fontsize=10)
         ax.set_xlabel("time [s]")
         ax.set_ylabel("median RMSE theta [rad]")
         ax.grid(alpha=0.3)
@@ -644,11 +651,11 @@ def write_report(results: dict, out_dir: Path) -> None:
             "trial's policy from its real initial state, against its real trajectory. "
             "Plot: `mcpilco_cartpole_rmse_runs.png`.",
             "",
-            "| policy learned with | runs | RBF+MPK mean / median [rad] | RBF mean / median "
+            "| policy learned with, env | runs | RBF+MPK mean / median [rad] | RBF mean / median "
             "[rad] | RBF+MPK lower in |",
             "|---|---|---|---|---|",
         ]
-        for kern, g in results["rmse_runs"]["by_run_kernel"].items():
+        for kern, g in results["rmse_runs"]["groups"].items():
             a, b = g["rbf+mpk"], g["rbf"]
             md.append(
                 f"| {kern} | {g['runs']} | {a['mean']:.4f} / {a['median']:.4f} "
@@ -880,7 +887,7 @@ def main(argv: list[str] | None = None) -> int:
         for r in per_run:  # keep the JSON small: per-step curves only in the plot
             for k in ("rbf+mpk", "rbf"):
                 del r[f"{k}_per_step"]
-        results["rmse_runs"] = {"per_run": per_run, "by_run_kernel": groups}
+        results["rmse_runs"] = {"per_run": per_run, "groups": groups}
         for kern, g in groups.items():
             print(f"runs learned with {kern}: {g}")
         write_report(results, args.out)

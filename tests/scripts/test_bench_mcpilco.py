@@ -242,9 +242,13 @@ def test_rmse_runs_part_uses_only_runs_that_swung_up_and_groups_by_their_kernel(
     assert all(r["n_data"] == SMOKE.horizon for r in res["per_run"])  # exploration only
     for r in res["per_run"]:
         assert all(math.isfinite(r[k]) and r[k] > 0 for k in ("rbf+mpk", "rbf"))
-    assert {k: g["runs"] for k, g in res["by_run_kernel"].items()} == {"rbf": 1, "rbf+mpk": 1}
+    env = SMOKE.env_id
+    assert {k: g["runs"] for k, g in res["groups"].items()} == {
+        f"rbf on {env}": 1,
+        f"rbf+mpk on {env}": 1,
+    }
     a, b = res["per_run"]  # same data, policy and seed: the label changes nothing
     assert (a["rbf+mpk"], a["rbf"]) == (b["rbf+mpk"], b["rbf"])
     assert (tmp_path / "out" / "mcpilco_cartpole_rmse_runs.png").stat().st_size > 0
     md = (tmp_path / "out" / "mcpilco_cartpole.md").read_text()
-    assert "| rbf+mpk | 1 |" in md and "| rbf | 1 |" in md
+    assert f"| rbf+mpk on {env} | 1 |" in md and f"| rbf on {env} | 1 |" in md
