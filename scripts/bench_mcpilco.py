@@ -1,6 +1,6 @@
 """Benchmark MC-PILCO on the cartpole swing-up (console script ``mcpilco-bench-mcpilco``).
 
-Three parts, each optional:
+Four parts, each optional:
 
 1. ``runs``: S seeds of the whole loop (exploration + policy trials) per env; per trial
    (3, 6, 9, 12, 15 s of experience) the success rate, mean time upright, mean ``|x|``,
@@ -20,7 +20,8 @@ Three parts, each optional:
 4. ``rmse_runs``: the same comparison on the data of finished runs (``--rmse-runs``, default
    every run under ``--runs-dir`` whose last trial swung up): both GPs fitted on the run's
    data before its last trial, particles under the last trial's policy from that trial's real
-   initial state, against its real trajectory. Grouped by the kernel each run learned with.
+   initial state, against its real trajectory. Grouped by the kernel each run learned with
+   and its env.
 
 Writes ``results/mcpilco_cartpole.json`` (merged with an existing file, one section per
 env), ``results/mcpilco_cartpole.md`` and ``results/mcpilco_cartpole.png``. ``--pool`` merges
