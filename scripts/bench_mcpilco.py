@@ -327,12 +327,18 @@ def find_swingup_policy(runs_dir: Path) -> Path:
 
 
 def _theta_rmse_both_kernels(
-    data: tuple, policy, real: np.ndarray, num_particles: int, seed: int, **fit_kwargs: Any
+    data: tuple,
+    policy,
+    real: np.ndarray,
+    num_particles: int,
+    seed: int,
+    keep_particles: bool = False,
+    **fit_kwargs: Any,
 ) -> dict[str, Any]:
     """Fit an RBF+MPK and an RBF-only GP on ``data = (s, a, s')``, roll ``M`` particles out
     through each under ``policy`` from ``real[0]``; per kernel the RMSE of theta against
     ``real[1:, 2]`` over particles and steps (``kernel``), per step (``kernel_per_step``)
-    and the first 100 particles' theta (``kernel_particles``)."""
+    and, with ``keep_particles``, the first 100 particles' theta (``kernel_particles``)."""
     import torch
 
     from mcpilco.agents.mc_pilco import (
@@ -361,7 +367,8 @@ def _theta_rmse_both_kernels(
         err = parts[:, 1:, 2] - real[None, 1:, 2]
         out[kernel] = float(np.sqrt(np.mean(err**2)))
         out[f"{kernel}_per_step"] = np.sqrt(np.mean(err**2, axis=0)).tolist()
-        out[f"{kernel}_particles"] = parts[:100, :, 2].tolist()
+        if keep_particles:
+            out[f"{kernel}_particles"] = parts[:100, :, 2].tolist()
     return out
 
 
@@ -392,12 +399,10 @@ def particle_rmse(
     real = run_episode(env, _policy_act(policy), 5000 + seed, 60)["states"]
     env.close()
     out: dict[str, Any] = {"seed": seed, "real_success_theta_end": float(real[-1, 2])}
-    out.update(_theta_rmse_both_kernels((s, a, s1), policy, real, num_particles, seed))
-    if seed == 0:
+    first = seed == 0  # the plot shows the particles of seed 0
+    out.update(_theta_rmse_both_kernels((s, a, s1), policy, real, num_particles, seed, first))
+    if first:
         out["real_theta"] = real[:, 2].tolist()
-    else:
-        for k in ("rbf+mpk", "rbf"):
-            del out[f"{k}_particles"]
     return out
 
 
@@ -439,8 +444,6 @@ def particle_rmse_on_run(ckpt_path: Path, num_particles: int = 400) -> dict[str,
             lbfgs_iters=cfg.gp_lbfgs_iters,
         )
     )
-    for k in ("rbf+mpk", "rbf"):
-        del out[f"{k}_particles"]
     return out
 
 
@@ -456,18 +459,20 @@ def swingup_runs(runs_dir: Path) -> list[Path]:
     return found
 
 
-def rmse_run_group(run: dict) -> str:
-    """Group of a ``particle_rmse_on_run`` result: the kernel the run learned with, and its
-    env (runs on different envs are never pooled)."""
-    return f"{run['run_kernel']} on {run.get('env_id', DEFAULT_ENV_ID)}"
+def group_rmse_runs(per_run: list[dict]) -> dict[str, list[dict]]:
+    """``particle_rmse_on_run`` results by the kernel the run learned with and its env (runs
+    on different envs are never pooled), keys sorted."""
+    groups: dict[str, list[dict]] = {}
+    for r in per_run:
+        groups.setdefault(f"{r['run_kernel']} on {r['env_id']}", []).append(r)
+    return dict(sorted(groups.items()))
 
 
 def summarise_rmse_runs(per_run: list[dict]) -> dict[str, dict]:
-    """Per group (:func:`rmse_run_group`): runs, mean / median RMSE of both GPs, and the
+    """Per group (:func:`group_rmse_runs`): runs, mean / median RMSE of both GPs, and the
     number of runs where the RBF+MPK particles are closer (lower RMSE)."""
     groups: dict[str, dict] = {}
-    for kern in sorted({rmse_run_group(r) for r in per_run}):
-        rows = [r for r in per_run if rmse_run_group(r) == kern]
+    for kern, rows in group_rmse_runs(per_run).items():
         g: dict[str, Any] = {"runs": len(rows)}
         for k in ("rbf+mpk", "rbf"):
             vals = [r[k] for r in rows]
@@ -517,10 +522,9 @@ def plot_rmse_runs(per_run: list[dict], path: Path) -> None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    groups = sorted({rmse_run_group(r) for r in per_run})
+    groups = group_rmse_runs(per_run)
     fig, axes = plt.subplots(1, len(groups), figsize=(6 * len(groups), 3.6), squeeze=False)
-    for ax, g in zip(axes[0], groups, strict=True):
-        rows = [r for r in per_run if rmse_run_group(r) == g]
+    for ax, (g, rows) in zip(axes[0], groups.items(), strict=True):
         for k, col in (("rbf+mpk", "tab:blue"), ("rbf", "tab:red")):
             per = np.median([r[f"{k}_per_step"] for r in rows], axis=0)
             ax.plot(np.arange(1, len(per) + 1) * 0.05, per, color=col, label=f"GP {k}")
