@@ -17,6 +17,7 @@ Usage::
 
     mcpilco-bench-gp                       # N=500, 400 test points, d=6
     mcpilco-bench-gp --n-train 300 --repeats 5
+    mcpilco-bench-gp --device cuda --out results/bench_gp_predictor_cuda.json
 """
 
 from __future__ import annotations
@@ -31,6 +32,7 @@ from pathlib import Path
 import gpytorch
 import torch
 
+from mcpilco.models.device import resolve_device
 from mcpilco.models.gp import GPRegressor, exact_gp_settings
 
 
@@ -75,29 +77,48 @@ def _make_gp(n_train: int, d: int, m: int, seed: int) -> tuple[GPRegressor, torc
 
 
 def run(
-    n_train: int = 500, n_test: int = 400, d: int = 6, m: int = 2, repeats: int = 7, seed: int = 0
+    n_train: int = 500,
+    n_test: int = 400,
+    d: int = 6,
+    m: int = 2,
+    repeats: int = 7,
+    seed: int = 0,
+    device: str = "cpu",
 ) -> dict:
-    """Run the benchmark and return the results dict."""
+    """Run the benchmark and return the results dict.
+
+    ``device``: where the calls run (the GP is fitted on the CPU, then the GPyTorch model and
+    the predictors are moved there). On a CUDA device every timed call ends with a
+    synchronisation, so that its wall time is its latency; CPU time then means nothing.
+    """
+    dev = resolve_device(device)
     gp, _ = _make_gp(n_train, d, m, seed)
     gen = torch.Generator().manual_seed(seed + 1)
     x64 = torch.rand(n_test, d, generator=gen, dtype=torch.float64) * 4 - 2
+    # accuracy reference on the CPU, before the model moves
+    m_ref, v_ref = gp.predict_gpytorch(x64)
+    # the predictors are extracted on the CPU (where the GP lives), then moved
+    pred64 = gp.cached_predictor(torch.float64, validate=False).to(dev)
+    pred32 = gp.cached_predictor(torch.float32, validate=False).to(dev)
+    xs = gp._standardize_x(x64).expand(m, n_test, d).to(dev)
+    x64 = x64.to(dev)
     x32 = x64.float()
-    xs = gp._standardize_x(x64).expand(m, n_test, d)
-    model = gp.model_
+    model = gp.model_.to(dev)
+    model.train()  # drops the prediction caches built on the CPU above
     model.eval()
+    sync = torch.cuda.synchronize if dev.type == "cuda" else (lambda: None)
 
     def gpytorch_call() -> None:
         with torch.no_grad(), exact_gp_settings():
             post = model(xs)
             post.mean, post.variance  # noqa: B018 (evaluate both)
-
-    pred64 = gp.cached_predictor(torch.float64, validate=False)
-    pred32 = gp.cached_predictor(torch.float32, validate=False)
+        sync()
 
     def cached(pred: torch.nn.Module, x: torch.Tensor) -> Callable[[], None]:
         def call() -> None:
             with torch.no_grad():
                 pred(x)
+            sync()
 
         return call
 
@@ -107,12 +128,12 @@ def run(
         def call() -> None:
             mean, var = pred(xg)
             (mean.sum() + var.sum()).backward()
+            sync()
 
         return call
 
-    # accuracy check against gpytorch (float64)
-    m_ref, v_ref = gp.predict_gpytorch(x64)
-    m64, v64 = pred64(x64)
+    # accuracy check against gpytorch (float64, CPU)
+    m64, v64 = (t.cpu() for t in pred64(x64))
     max_err = max(float((m64 - m_ref).abs().max()), float((v64 - v_ref).abs().max()))
 
     calls = {  # name: (call, calls per block, warm-up calls)
@@ -134,6 +155,8 @@ def run(
             "m": m,
             "repeats": repeats,
             "torch_threads": torch.get_num_threads(),
+            "device": str(dev),
+            "device_name": torch.cuda.get_device_name(dev) if dev.type == "cuda" else "cpu",
             "torch": torch.__version__,
             "gpytorch": gpytorch.__version__,
             "linv_panels": pred64.linv.num_panels,
@@ -174,10 +197,17 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--repeats", type=int, default=7, help="interleaved timing rounds (median)")
     parser.add_argument("--threads", type=int, default=1, help="torch threads")
     parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--device", default="cpu", help="cpu or cuda[:index]")
     parser.add_argument("--out", type=Path, default=Path("results/bench_gp_predictor.json"))
     args = parser.parse_args(argv)
+    try:
+        resolve_device(args.device)
+    except ValueError as err:
+        parser.error(str(err))
     torch.set_num_threads(args.threads)
-    result = run(args.n_train, args.n_test, args.dim, args.outputs, args.repeats, args.seed)
+    result = run(
+        args.n_train, args.n_test, args.dim, args.outputs, args.repeats, args.seed, args.device
+    )
     args.out.parent.mkdir(parents=True, exist_ok=True)
     args.out.write_text(json.dumps(result, indent=2))
     print(markdown_table(result))
@@ -186,7 +216,7 @@ def main(argv: list[str] | None = None) -> int:
     print(
         f"\ncached predictor vs gpytorch model(x) in eval mode (N={args.n_train}, "
         f"{args.n_test} test points, d={args.dim}, m={args.outputs}): float64 {r64:.1f}x, "
-        f"float32 {r32:.1f}x faster per call (CPU time); "
+        f"float32 {r32:.1f}x faster per call (CPU time; on {result['config']['device']}); "
         f"max |diff| float64 = {result['max_abs_diff_cached64_vs_gpytorch']:.2e}"
     )
     print(f"wrote {args.out}")

@@ -42,6 +42,7 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import json
+import multiprocessing
 import statistics
 import sys
 import time
@@ -129,7 +130,9 @@ def bench_runs(cfg: MCPilcoConfig, seeds: list[int], jobs: int, runs_dir: Path) 
         tqdm = None
     bar = tqdm(total=len(seeds), desc=f"seeds {cfg.env_id}") if tqdm else None
     if jobs > 1:
-        with ProcessPoolExecutor(max_workers=jobs) as pool:
+        # a CUDA context does not survive fork: processes that use a GPU are spawned
+        ctx = multiprocessing.get_context("spawn") if cfg.device.startswith("cuda") else None
+        with ProcessPoolExecutor(max_workers=jobs, mp_context=ctx) as pool:
             for res in pool.map(_run_seed, jobs_list):
                 runs.append(res)
                 if bar:
@@ -267,8 +270,16 @@ def time_opt_step(
     threads: int = 1,
     repeats: int = 5,
     env_id: str = DEFAULT_ENV_ID,
+    device: str = "cpu",
+    cuda_graph: bool = True,
 ) -> dict[str, float]:
-    """Median wall and CPU seconds of one optimisation step (rollout, backward, Adam)."""
+    """Median wall and CPU seconds of one optimisation step (rollout, backward, Adam).
+
+    On a CUDA ``device`` the GP is fitted on the CPU and its posterior, the policy and the
+    particles move to the device; each timed step ends with a synchronisation, and with
+    ``cuda_graph`` the forward and backward pass is one replayed CUDA graph, as in
+    :func:`~mcpilco.agents.mc_pilco.optimize_policy`.
+    """
     import torch
 
     from mcpilco.agents.mc_pilco import (
@@ -278,28 +289,35 @@ def time_opt_step(
         SwingUpCost,
         make_policy_module,
     )
+    from mcpilco.agents.mc_pilco.optimize import loss_and_grad_fn
+    from mcpilco.models.device import resolve_device
 
+    dev = resolve_device(device)
+    sync = torch.cuda.synchronize if dev.type == "cuda" else (lambda: None)
     torch.set_num_threads(threads)
     s, a, s1, _ = _exploration_data(env_id, n_points, 0)
     model = GPDynamicsModel(kernel=kernel, adam_iters=30, lbfgs_iters=5, max_points=None)
     model.fit(s, a, s1)
-    policy = SquashedRBFPolicy(seed=0)
+    policy = SquashedRBFPolicy(seed=0).to(dev)
     loss = MCPilcoLoss(
         make_policy_module(policy),
-        model.particle_dynamics(),
+        model.particle_dynamics().to(dev),
         SwingUpCost(),
         horizon,
         num_particles,
         obs_noise_std=0.01,
-    )
+    ).to(dev)
     opt = torch.optim.Adam(policy.parameters(), lr=0.01)
     policy.train()
+    # the optimiser's own step: eager on the CPU, one CUDA graph on a GPU (captured here)
+    step_fn = loss_and_grad_fn(loss, list(policy.parameters()), cuda_graph=cuda_graph)
     walls, cpus = [], []
     for i in range(repeats + 1):
+        sync()
         t, c = time.perf_counter(), time.process_time()
-        opt.zero_grad()
-        loss()["loss_cost"].backward()
+        step_fn()
         opt.step()
+        sync()
         if i:  # first call is warm-up
             walls.append(time.perf_counter() - t)
             cpus.append(time.process_time() - c)
@@ -307,6 +325,8 @@ def time_opt_step(
         "n_points": n_points,
         "num_particles": num_particles,
         "threads": threads,
+        "device": str(dev),
+        "cuda_graph": bool(cuda_graph and dev.type == "cuda"),
         "s_per_step_wall": statistics.median(walls),
         "s_per_step_cpu": statistics.median(cpus),
     }
@@ -611,6 +631,8 @@ CONVENTION_NOTE = (
 def write_report(results: dict, out_dir: Path) -> None:
     out_dir.mkdir(parents=True, exist_ok=True)
     md = ["# MC-PILCO on the cartpole swing-up", "", CONVENTION_NOTE, ""]
+    if results.get("machine"):
+        md += [f"Machine: {results['machine']}.", ""]
     for env_id, section in results.get("runs", {}).items():
         md.append(_md_table(env_id, section))
     if results.get("timing"):
@@ -620,13 +642,15 @@ def write_report(results: dict, out_dir: Path) -> None:
             "A step at a few particles is the fixed cost of the 60-step rollout (one op after "
             "another, forward and backward); the rest grows with M.",
             "",
-            "| particles M | GP points N | threads | wall s/step | CPU s/step |",
-            "|---|---|---|---|---|",
+            "| particles M | GP points N | device | CUDA graph | threads | wall s/step "
+            "| CPU s/step |",
+            "|---|---|---|---|---|---|---|",
         ]
         for t in results["timing"]:
+            graph = "yes" if t.get("cuda_graph") else "no"
             md.append(
-                f"| {t['num_particles']} | {t['n_points']} | {t['threads']} "
-                f"| {t['s_per_step_wall']:.3f} | {t['s_per_step_cpu']:.3f} |"
+                f"| {t['num_particles']} | {t['n_points']} | {t.get('device', 'cpu')} | {graph} "
+                f"| {t['threads']} | {t['s_per_step_wall']:.3f} | {t['s_per_step_cpu']:.3f} |"
             )
         md.append("")
     if results.get("rmse"):
@@ -757,6 +781,11 @@ def build_parser() -> argparse.ArgumentParser:
         default="",
         help="suffix of the results section and run folder (e.g. 'K2'), to keep variants apart",
     )
+    p.add_argument(
+        "--device",
+        default="cpu",
+        help="where the runs' policy optimisation and the timing part run: cpu or cuda[:index]",
+    )
     p.add_argument("--timing-n", type=int, nargs="+", default=[100, 200, 300])
     p.add_argument("--timing-threads", type=int, nargs="+", default=[1, 2])
     p.add_argument(
@@ -797,6 +826,7 @@ def main(argv: list[str] | None = None) -> int:
         if min(getattr(args, name)) < 1:
             parser.error(f"--{name.replace('_', '-')} values must be >= 1")
     from mcpilco.agents.mc_pilco import default_explore_hold, registered_ids
+    from mcpilco.models.device import resolve_device
 
     ids = registered_ids()
     for env_id in args.env:
@@ -816,10 +846,12 @@ def main(argv: list[str] | None = None) -> int:
                 rollout_dtype=args.rollout_dtype,
                 explore_hold=args.explore_hold,
                 candidate_weight_scales=scales,
+                device=args.device,
                 opt_steps=args.opt_steps,
             )
             for env_id in args.env
         }
+        resolve_device(args.device)
     except ValueError as err:
         parser.error(str(err))
 
@@ -843,9 +875,15 @@ def main(argv: list[str] | None = None) -> int:
         for n in args.timing_n:
             for th in args.timing_threads:
                 for m in args.timing_particles:
-                    t = time_opt_step(n, num_particles=m, threads=th)
-                    print(f"N={n} M={m} threads={th}: {t['s_per_step_wall']:.3f} s/step wall")
-                    results["timing"].append(t)
+                    for graph in (True, False) if args.device.startswith("cuda") else (False,):
+                        t = time_opt_step(
+                            n, num_particles=m, threads=th, device=args.device, cuda_graph=graph
+                        )
+                        print(
+                            f"N={n} M={m} threads={th} device={t['device']} "
+                            f"graph={t['cuda_graph']}: {t['s_per_step_wall']:.3f} s/step wall"
+                        )
+                        results["timing"].append(t)
         write_report(results, args.out)
     if "rmse" in args.parts:
         try:

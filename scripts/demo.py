@@ -7,7 +7,10 @@ checkpoint, the Rerun recording (``run.rrd``) and the PNG plots are.
 
 Usage::
 
-    python -m mcpilco.scripts.demo [--out runs/demo] [--seed 0] [--resume]
+    python -m mcpilco.scripts.demo [--out runs/demo] [--seed 0] [--resume] [--device cuda]
+
+With ``--device cuda`` the policy optimisation runs on a GPU, each step one replayed CUDA
+graph (on an H100: 70 s for seed 0 instead of about 8 min).
 """
 
 from __future__ import annotations
@@ -19,6 +22,7 @@ from collections.abc import Sequence
 from pathlib import Path
 
 from mcpilco.agents.mc_pilco import DEMO_CONFIG, run_mcpilco
+from mcpilco.models.device import resolve_device
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -31,12 +35,20 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument(
         "--resume", action="store_true", help="continue a killed demo from its checkpoint"
     )
+    parser.add_argument(
+        "--device", default="cpu", help="cpu (default) or cuda[:index] for the optimisation"
+    )
     return parser
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    args = build_parser().parse_args(argv)
-    config = dataclasses.replace(DEMO_CONFIG, seed=args.seed)
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    try:
+        config = dataclasses.replace(DEMO_CONFIG, seed=args.seed, device=args.device)
+        resolve_device(config.device)
+    except ValueError as err:
+        parser.error(str(err))
     start = time.perf_counter()
     summary = run_mcpilco(config, args.out, resume=args.resume)
     minutes = (time.perf_counter() - start) / 60.0
@@ -44,6 +56,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     print()
     print("MC-PILCO cart-pole swing-up demo")
     print(f"  env               : {config.env_id}")
+    print(f"  device            : {config.device}")
     for r in summary.records:
         print(
             f"  trial {r['index']} ({r['kind']:<11}): success {'YES' if r['success'] else 'no '}"

@@ -12,6 +12,7 @@ Usage::
     mcpilco-train --preset demo --out runs/demo            # make demo's budget (12 s)
     mcpilco-train --env mcpilco/DMCCartpoleSwingUp-v0 --kernel rbf --seed 3
     mcpilco-train --preset small --out runs/k2             # 100 particles, 2 policies
+    mcpilco-train --preset bench --device cuda --out runs/gpu   # rollouts on a GPU
 """
 
 from __future__ import annotations
@@ -76,6 +77,11 @@ def build_parser() -> argparse.ArgumentParser:
     )
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--threads", type=_positive_int, help="torch threads (default: torch's)")
+    p.add_argument(
+        "--device",
+        help="where the policy optimisation runs: cpu (default) or cuda[:index]; the GP fit "
+        "and the env stay on the CPU",
+    )
     p.add_argument("--out", type=Path, default=Path("runs/mcpilco"), help="output folder")
     p.add_argument("--resume", action="store_true", help="continue from OUT/checkpoint.pt")
     p.add_argument("--no-progress", action="store_true", help="no tqdm bars")
@@ -97,6 +103,7 @@ def config_from_args(args: argparse.Namespace) -> MCPilcoConfig:
         torch_threads=args.threads,
         rollout_dtype=args.rollout_dtype,
         explore_hold=args.explore_hold,
+        device=args.device,
         opt_steps=args.opt_steps,
     )
 
@@ -109,9 +116,11 @@ def main(argv: list[str] | None = None) -> int:
     except ValueError as err:
         parser.error(str(err))
     from mcpilco.agents.mc_pilco import make_env, run_mcpilco
+    from mcpilco.models.device import resolve_device
 
-    try:  # unknown env id or horizon mismatch: fail before any work
+    try:  # unknown env id, horizon mismatch or no such device: fail before any work
         make_env(config.env_id, config.horizon).close()
+        resolve_device(config.device)
     except ValueError as err:
         parser.error(str(err))
     summary = run_mcpilco(

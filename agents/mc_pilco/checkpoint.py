@@ -30,17 +30,25 @@ def atomic_torch_save(obj: Any, path: str | os.PathLike) -> None:
 
 
 def rng_state(np_rng: np.random.Generator) -> dict[str, Any]:
-    """States of the torch, numpy (run generator) and Python generators."""
-    return {
+    """States of the torch (CPU, and CUDA once used), numpy (run generator) and Python
+    generators."""
+    state = {
         "torch": torch.get_rng_state(),
         "numpy": np_rng.bit_generator.state,
         "python": random.getstate(),
     }
+    if torch.cuda.is_available() and torch.cuda.is_initialized():
+        state["cuda"] = torch.cuda.get_rng_state_all()
+    return state
 
 
 def set_rng_state(state: dict[str, Any], np_rng: np.random.Generator) -> None:
-    """Restore what :func:`rng_state` saved."""
+    """Restore what :func:`rng_state` saved (the CUDA generators where this machine has the
+    same number of GPUs; else they keep their seeding)."""
     torch.set_rng_state(state["torch"])
+    cuda = state.get("cuda")
+    if cuda is not None and torch.cuda.is_available() and len(cuda) == torch.cuda.device_count():
+        torch.cuda.set_rng_state_all(cuda)
     np_rng.bit_generator.state = state["numpy"]
     random.setstate(state["python"])
 

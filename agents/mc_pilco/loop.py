@@ -58,6 +58,7 @@ from mcpilco.agents.mc_pilco.viz import (
     plot_trial_particles,
     write_rerun_recording,
 )
+from mcpilco.models.device import check_device_name, resolve_device
 
 DEFAULT_ENV_ID = "mcpilco/CartpoleSwingUp-v0"
 CHECKPOINT_NAME = "checkpoint.pt"
@@ -154,6 +155,11 @@ class MCPilcoConfig:
             1 thread) or ``"float64"``; the particles, the policy and the GP fit are the
             same in both (float32, float32, float64). The benchmark compares the two
             (``mcpilco-bench-mcpilco --rollout-dtype``).
+        device: where the policy optimisation runs (policy, particles, GP posterior):
+            ``"cpu"`` (default) or ``"cuda"`` / ``"cuda:<index>"``. The GP fit (float64,
+            ``N <= max_points``) and the env stay on the CPU; the policy acts on the env from
+            the device. Checked at :func:`run_mcpilco` (a config saved on a GPU machine loads
+            anywhere).
     """
 
     env_id: str = DEFAULT_ENV_ID
@@ -181,6 +187,7 @@ class MCPilcoConfig:
     torch_threads: int | None = None
     compile_rollout: bool = False
     rollout_dtype: str = "float32"
+    device: str = "cpu"
 
     def __post_init__(self) -> None:
         if isinstance(self.opt, dict):
@@ -216,6 +223,7 @@ class MCPilcoConfig:
             )
         if self.kernel not in KERNEL_CHOICES:
             raise ValueError(f"kernel must be one of {KERNEL_CHOICES}, got {self.kernel!r}")
+        self.device = str(check_device_name(self.device))
         if self.max_points is not None and self.max_points < 10:
             raise ValueError(f"max_points must be >= 10 or None, got {self.max_points}")
 
@@ -384,10 +392,12 @@ def run_episode(
 # ------------------------------------------------------------------------------- helpers
 def _policy_act(policy: SquashedRBFPolicy) -> Callable[[np.ndarray], np.ndarray]:
     policy.eval()
+    device = policy.weights.device
 
     @torch.no_grad()
     def act(obs: np.ndarray) -> np.ndarray:
-        return policy(torch.as_tensor(obs, dtype=torch.float32)[None])[0].numpy()
+        x = torch.as_tensor(obs, dtype=torch.float32, device=device)[None]
+        return policy(x)[0].cpu().numpy()
 
     return act
 
@@ -506,6 +516,7 @@ def run_mcpilco(
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     ckpt_path = out / CHECKPOINT_NAME
+    device = resolve_device(config.device)
     if config.torch_threads is not None:
         torch.set_num_threads(int(config.torch_threads))
     env = make_env(config.env_id, config.horizon)
@@ -522,8 +533,8 @@ def run_mcpilco(
         )
         for k, scale in enumerate(scales)
     ]
-    policy = candidates[0]  # the policy applied to the system (the chosen candidate)
-    population = PolicyPopulation(candidates)
+    policy = candidates[0].to(device)  # the policy applied to the system (the chosen one)
+    population = PolicyPopulation(candidates).to(device)
     policy_module = make_policy_module(population)
     model = GPDynamicsModel(
         kernel=config.kernel,
@@ -582,6 +593,7 @@ def run_mcpilco(
                 rec["gp_points"] = int(model.gp_.train_x_.shape[0])
                 rec["n_data"] = int(sum(len(e["actions"]) for e in episodes))
                 dynamics = model.particle_dynamics(getattr(torch, config.rollout_dtype))
+                dynamics = dynamics.to(device)
 
                 def make_loss(module, dynamics=dynamics) -> MCPilcoLoss:
                     return MCPilcoLoss(
@@ -592,7 +604,7 @@ def run_mcpilco(
                         num_particles=config.num_particles,
                         init_std=config.init_std,
                         obs_noise_std=config.sim_obs_noise_std,
-                    )
+                    ).to(device)
 
                 loss = make_loss(policy_module)
                 if config.compile_rollout:
@@ -643,7 +655,7 @@ def run_mcpilco(
                 with torch.no_grad():
                     n_log = min(config.log_particles, config.num_particles)
                     ro = log_loss.rollout(num_particles=n_log)
-                arr["particles"] = ro.states.numpy()
+                arr["particles"] = ro.states.cpu().numpy()
                 # 3. apply the policy
                 ep = run_episode(
                     env, _policy_act(policy), trial_seed(config.seed, k), config.horizon

@@ -142,7 +142,8 @@ class MCPilcoLoss(LossModule):
     def sample_initial_state(self, num_particles: int | None = None) -> Tensor:
         """``x_0^(m) ~ N(mu_0, Sigma_0)``, (K M, 4) (``M`` per candidate)."""
         m = self.num_particles if num_particles is None else int(num_particles)
-        return self.init_mean + self.init_std * torch.randn(self.num_candidates * m, 4)
+        eps = torch.randn(self.num_candidates * m, 4, device=self.init_mean.device)
+        return self.init_mean + self.init_std * eps
 
     def rollout(
         self,
@@ -170,7 +171,7 @@ class MCPilcoLoss(LossModule):
                 f"{tuple(x.shape)}"
             )
         if noise is None:
-            noise = torch.randn(self.horizon, m, self.delta_dim, dtype=x.dtype)
+            noise = torch.randn(self.horizon, m, self.delta_dim, dtype=x.dtype, device=x.device)
         if noise.shape != (self.horizon, m, self.delta_dim):
             raise ValueError(
                 f"noise must have shape (H, M, {self.delta_dim}) = "
@@ -179,7 +180,9 @@ class MCPilcoLoss(LossModule):
             )
         obs_noise = None
         if self.obs_noise_std > 0:
-            obs_noise = self.obs_noise_std * torch.randn(self.horizon, m, 4, dtype=x.dtype)
+            obs_noise = self.obs_noise_std * torch.randn(
+                self.horizon, m, 4, dtype=x.dtype, device=x.device
+            )
         states = [x]
         actions = []
         costs = []
@@ -206,7 +209,11 @@ class MCPilcoLoss(LossModule):
         per_particle = ro.costs.sum(dim=1).view(self.num_candidates, -1)  # sum_t c, (K, M)
         per_candidate = per_particle.mean(dim=1)  # J^_k
         with torch.no_grad():
-            std = per_particle.std(dim=1).mean() if per_particle.shape[1] > 1 else torch.zeros(())
+            std = (
+                per_particle.std(dim=1).mean()
+                if per_particle.shape[1] > 1
+                else per_particle.new_zeros(())
+            )
         return TensorDict(
             {
                 "loss_cost": per_candidate.sum(),

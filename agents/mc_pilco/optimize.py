@@ -35,16 +35,22 @@ from __future__ import annotations
 
 import math
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
+from typing import Any
 
 import torch
-from torch import nn
+from torch import Tensor, nn
 
 
 @dataclass
 class PolicyOptConfig:
-    """Budget and schedule of one policy optimisation (defaults: MC-PILCO)."""
+    """Budget and schedule of one policy optimisation (defaults: MC-PILCO).
+
+    ``cuda_graph``: when the policy lives on a CUDA device, capture each step's forward and
+    backward pass as one CUDA graph and replay it (:func:`loss_and_grad_fn`); no effect on
+    the CPU.
+    """
 
     max_steps: int = 1500
     lr: float = 0.01
@@ -57,6 +63,7 @@ class PolicyOptConfig:
     monitor_patience: int = 200
     min_steps: int = 200
     max_reinits: int = 3
+    cuda_graph: bool = True
 
     def __post_init__(self) -> None:
         if self.max_steps < 1:
@@ -151,6 +158,64 @@ def _set_dropout(net: nn.Module, p: float) -> None:
         net.dropout = float(p)
 
 
+StepFn = Callable[[], tuple[Tensor, Tensor]]
+"""``() -> (J^, s_J)``: one evaluation of the loss that leaves ``dJ^/dtheta`` in ``.grad``."""
+
+
+def loss_and_grad_fn(
+    loss_module: Callable[[], Any], params: Sequence[Tensor], cuda_graph: bool = False
+) -> StepFn:
+    """A function that evaluates ``loss_module()`` (``loss_cost`` ``J^`` and ``cost_std``)
+    and writes ``dJ^/dtheta`` into the ``.grad`` of ``params`` (previous gradients dropped).
+
+    Eager by default. With ``cuda_graph`` and ``params`` on a CUDA device, the forward and
+    backward pass is captured once as a CUDA graph (PyTorch's whole-network capture: a few
+    warm-up calls on a side stream, then the capture) and every call replays it: the
+    thousands of small kernels of the ``H``-step rollout are launched as one graph instead of
+    one by one from Python. The random numbers (particles, noise, dropout masks) are fresh at
+    every replay. What the Python code reads at capture (the dropout rate, the horizon, the
+    GP) is frozen in the graph: build a new function after changing it. The ``.grad`` tensors
+    are the graph's outputs; do not set them to None while the function is in use.
+    """
+    params = list(params)
+    if not (cuda_graph and params and params[0].is_cuda):
+
+        def eager() -> tuple[Tensor, Tensor]:
+            for p in params:
+                p.grad = None
+            out = loss_module()
+            loss = out["loss_cost"]
+            loss.backward()
+            return loss.detach(), out["cost_std"]
+
+        return eager
+
+    side = torch.cuda.Stream()
+    side.wait_stream(torch.cuda.current_stream())
+    with torch.cuda.stream(side):  # warm-up: lazy initialisations happen outside the capture
+        for _ in range(3):
+            for p in params:
+                p.grad = None
+            loss_module()["loss_cost"].backward()
+    torch.cuda.current_stream().wait_stream(side)
+    for p in params:
+        p.grad = None  # the captured backward allocates them in the graph's memory pool
+    graph = torch.cuda.CUDAGraph()
+    with torch.cuda.graph(graph):
+        out = loss_module()
+        out["loss_cost"].backward()
+    static_loss, static_std = out["loss_cost"].detach(), out["cost_std"]
+    static_grads = [p.grad for p in params]
+
+    def replay() -> tuple[Tensor, Tensor]:
+        graph.replay()
+        for p, g in zip(params, static_grads, strict=True):
+            p.grad = g  # (again, in case other code replaced .grad in between)
+        return static_loss, static_std
+
+    return replay
+
+
 def optimize_policy(
     loss_module: nn.Module,
     policy: nn.Module,
@@ -185,14 +250,15 @@ def optimize_policy(
     monitor = new_monitor()
     _set_dropout(policy, dropout)
     policy.train()
+    step_fn: StepFn | None = None  # rebuilt whenever the dropout rate changes (CUDA graph)
     t0, c0 = time.perf_counter(), time.process_time()
     try:
         for k in range(config.max_steps):
-            opt.zero_grad(set_to_none=True)
-            out = loss_module()
-            loss = out["loss_cost"]
-            cost = float(loss.detach())
-            std = float(out["cost_std"])
+            if step_fn is None:
+                step_fn = loss_and_grad_fn(loss_module, params, config.cuda_graph)
+            loss, std_t = step_fn()
+            cost = float(loss)
+            std = float(std_t)
             if not math.isfinite(cost):
                 res.num_reinits += 1
                 if res.num_reinits > config.max_reinits:
@@ -204,10 +270,10 @@ def optimize_policy(
                 policy.reset_parameters()
                 lr, dropout = config.lr, config.dropout
                 _set_dropout(policy, dropout)
+                step_fn = None
                 opt = torch.optim.Adam(params, lr=lr)
                 monitor = new_monitor()
                 continue
-            loss.backward()
             opt.step()
             res.costs.append(cost)
             res.cost_stds.append(std)
@@ -224,6 +290,7 @@ def optimize_policy(
                 lr = max(lr * 0.5, config.lr_min)
                 dropout = max(dropout - config.dropout_reduction, 0.0)
                 _set_dropout(policy, dropout)
+                step_fn = None
                 opt = torch.optim.Adam(params, lr=lr)
                 monitor.on_stall()
                 res.num_lr_reductions += 1
@@ -231,4 +298,6 @@ def optimize_policy(
         res.seconds = time.perf_counter() - t0
         res.cpu_seconds = time.process_time() - c0
         policy.eval()
+        for p in params:  # release the gradients (a CUDA graph's memory pool with them)
+            p.grad = None
     return res

@@ -34,3 +34,15 @@ def test_demo_prints_per_trial_outcome_and_output_paths(tmp_path, monkeypatch, c
     assert f"checkpoint        : {tmp_path / 'demo'}" in out
     assert "run.rrd" in out and ".png" in out
     assert (tmp_path / "demo" / "checkpoint.pt").is_file()
+
+
+def test_demo_refuses_a_gpu_it_cannot_see(tmp_path, monkeypatch, capsys):
+    monkeypatch.setattr(torch.cuda, "is_available", lambda: False)
+    try:
+        demo.main(["--out", str(tmp_path / "demo"), "--device", "cuda"])
+    except SystemExit as exc:
+        assert exc.code == 2
+    else:
+        raise AssertionError("the demo started without a CUDA device")
+    assert "sees no CUDA device" in capsys.readouterr().err
+    assert not (tmp_path / "demo").exists()
