@@ -10,7 +10,8 @@ Four parts, each optional:
    ``M x H`` particle rollout + Adam step) at ``M = 400`` particles (``--timing-particles``:
    e.g. ``25 400``, where the few-particle step is the fixed, op-by-op cost of the horizon),
    ``H = 60``, for several GP sizes ``N`` (GP fitted on random-exploration data), 1 torch
-   thread and 2 threads.
+   thread and 2 threads. With ``--device cuda`` each step is timed both as one replayed CUDA
+   graph (what the optimiser does on a GPU) and launched op by op.
 3. ``rmse``: RBF+MPK vs RBF-only (thesis Fig. 5.5): both GPs fitted on the same 3 s of
    random exploration (actions held the preset's ``explore_hold`` steps, ``--explore-hold``);
    a fixed learned swing-up policy (the final policy of a successful run of part 1, or
@@ -35,6 +36,7 @@ Usage::
     mcpilco-bench-mcpilco --parts runs --env mcpilco/DMCCartpoleSwingUp-v0 --seeds 5
     mcpilco-bench-mcpilco --parts timing rmse
     mcpilco-bench-mcpilco --pool bench bench5                  # one section, seeds of both
+    mcpilco-bench-mcpilco --parts timing --device cuda --timing-particles 400 4000
 """
 
 from __future__ import annotations
