@@ -4,6 +4,9 @@ Fits a 2-output GP (ScaleKernel(RBF-ARD)) on N synthetic points in d dimensions,
 posterior call (mean and variance) at ``n_test`` points for:
 
 * ``gpytorch``: ``model(x)`` in eval mode with exact settings (prediction caches warm);
+* ``fused64`` / ``fused32``: the same posterior as
+  :class:`~mcpilco.models.gp.fused.FusedRBFMPKPredictor` (RBF in matmul form, one ``exp``;
+  the predictor of the MC-PILCO rollouts), forward only;
 * ``cached64`` / ``cached32``: :class:`mcpilco.models.gp.CachedPredictor` in float64 / float32,
   forward only and forward + backward w.r.t. the test inputs.
 
@@ -34,6 +37,7 @@ import torch
 
 from mcpilco.models.device import resolve_device
 from mcpilco.models.gp import GPRegressor, exact_gp_settings
+from mcpilco.models.gp.fused import FusedRBFMPKPredictor
 
 
 def _time_interleaved(
@@ -100,6 +104,9 @@ def run(
     # the predictors are extracted on the CPU (where the GP lives), then moved
     pred64 = gp.cached_predictor(torch.float64, validate=False).to(dev)
     pred32 = gp.cached_predictor(torch.float32, validate=False).to(dev)
+    # the same posterior with the RBF written in matmul form (what the MC-PILCO rollouts use)
+    fused64 = FusedRBFMPKPredictor.from_cached(pred64)
+    fused32 = FusedRBFMPKPredictor.from_cached(pred32)
     xs = gp._standardize_x(x64).expand(m, n_test, d).to(dev)
     x64 = x64.to(dev)
     x32 = x64.float()
@@ -135,11 +142,15 @@ def run(
     # accuracy check against gpytorch (float64, CPU)
     m64, v64 = (t.cpu() for t in pred64(x64))
     max_err = max(float((m64 - m_ref).abs().max()), float((v64 - v_ref).abs().max()))
+    mf, vf = (t.cpu() for t in fused64(x64))
+    max_err_fused = max(float((mf - m_ref).abs().max()), float((vf - v_ref).abs().max()))
 
     calls = {  # name: (call, calls per block, warm-up calls)
         "gpytorch_eval": (gpytorch_call, 3, 2),
         "cached64": (cached(pred64, x64), 10, 3),
         "cached32": (cached(pred32, x32), 10, 3),
+        "fused64": (cached(fused64, x64), 10, 3),
+        "fused32": (cached(fused32, x32), 10, 3),
         "cached64_fwd_bwd": (cached_backward(pred64, x64), 5, 2),
         "cached32_fwd_bwd": (cached_backward(pred32, x32), 5, 2),
     }
@@ -169,6 +180,7 @@ def run(
             k: wall["gpytorch_eval"] / v for k, v in wall.items() if k != "gpytorch_eval"
         },
         "max_abs_diff_cached64_vs_gpytorch": max_err,
+        "max_abs_diff_fused64_vs_gpytorch": max_err_fused,
     }
 
 
@@ -211,13 +223,16 @@ def main(argv: list[str] | None = None) -> int:
     args.out.parent.mkdir(parents=True, exist_ok=True)
     args.out.write_text(json.dumps(result, indent=2))
     print(markdown_table(result))
+    f64 = result["speedup_vs_gpytorch"]["fused64"]
     r64 = result["speedup_vs_gpytorch"]["cached64"]
     r32 = result["speedup_vs_gpytorch"]["cached32"]
     print(
         f"\ncached predictor vs gpytorch model(x) in eval mode (N={args.n_train}, "
         f"{args.n_test} test points, d={args.dim}, m={args.outputs}): float64 {r64:.1f}x, "
         f"float32 {r32:.1f}x faster per call (CPU time; on {result['config']['device']}); "
-        f"max |diff| float64 = {result['max_abs_diff_cached64_vs_gpytorch']:.2e}"
+        f"max |diff| float64 = {result['max_abs_diff_cached64_vs_gpytorch']:.2e}; "
+        f"fused RBF posterior, float64: {f64:.1f}x "
+        f"(max |diff| {result['max_abs_diff_fused64_vs_gpytorch']:.2e})"
     )
     print(f"wrote {args.out}")
     return 0

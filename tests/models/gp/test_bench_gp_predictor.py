@@ -15,6 +15,7 @@ def test_bench_script_writes_json(tmp_path, capsys) -> None:
     assert rc == 0
     result = json.loads(out.read_text())
     assert result["config"]["n_train"] == 30
-    assert set(result["speedup_vs_gpytorch"]) >= {"cached64", "cached32"}
+    assert set(result["speedup_vs_gpytorch"]) >= {"cached64", "cached32", "fused64", "fused32"}
     assert result["max_abs_diff_cached64_vs_gpytorch"] < 1e-8
+    assert result["max_abs_diff_fused64_vs_gpytorch"] < 1e-8
     assert "faster per call" in capsys.readouterr().out
