@@ -101,12 +101,13 @@ def run(
     x64 = torch.rand(n_test, d, generator=gen, dtype=torch.float64) * 4 - 2
     # accuracy reference on the CPU, before the model moves
     m_ref, v_ref = gp.predict_gpytorch(x64)
-    # the predictors are extracted on the CPU (where the GP lives), then moved
-    pred64 = gp.cached_predictor(torch.float64, validate=False).to(dev)
-    pred32 = gp.cached_predictor(torch.float32, validate=False).to(dev)
-    # the same posterior with the RBF written in matmul form (what the MC-PILCO rollouts use)
-    fused64 = FusedRBFMPKPredictor.from_cached(pred64)
-    fused32 = FusedRBFMPKPredictor.from_cached(pred32)
+    # the predictors are extracted on the CPU (where the GP lives), then moved; the fused ones
+    # are the same posterior with the RBF in matmul form (what the MC-PILCO rollouts use)
+    pred64 = gp.cached_predictor(torch.float64, validate=False)
+    pred32 = gp.cached_predictor(torch.float32, validate=False)
+    fused64 = FusedRBFMPKPredictor.from_cached(pred64).to(dev)
+    fused32 = FusedRBFMPKPredictor.from_cached(pred32).to(dev)
+    pred64, pred32 = pred64.to(dev), pred32.to(dev)
     xs = gp._standardize_x(x64).expand(m, n_test, d).to(dev)
     x64 = x64.to(dev)
     x32 = x64.float()

@@ -300,15 +300,15 @@ def time_opt_step(
     s, a, s1, _ = _exploration_data(env_id, n_points, 0)
     model = GPDynamicsModel(kernel=kernel, adam_iters=30, lbfgs_iters=5, max_points=None)
     model.fit(s, a, s1)
-    policy = SquashedRBFPolicy(seed=0).to(dev)
+    policy = SquashedRBFPolicy(seed=0)
     loss = MCPilcoLoss(
         make_policy_module(policy),
-        model.particle_dynamics().to(dev),
+        model.particle_dynamics(),
         SwingUpCost(),
         horizon,
         num_particles,
         obs_noise_std=0.01,
-    ).to(dev)
+    ).to(dev)  # moves the policy and the GP posterior with it
     opt = torch.optim.Adam(policy.parameters(), lr=0.01)
     policy.train()
     # the optimiser's own step: eager on the CPU, one CUDA graph on a GPU (captured here)

@@ -593,7 +593,6 @@ def run_mcpilco(
                 rec["gp_points"] = int(model.gp_.train_x_.shape[0])
                 rec["n_data"] = int(sum(len(e["actions"]) for e in episodes))
                 dynamics = model.particle_dynamics(getattr(torch, config.rollout_dtype))
-                dynamics = dynamics.to(device)
 
                 def make_loss(module, dynamics=dynamics) -> MCPilcoLoss:
                     return MCPilcoLoss(
@@ -604,7 +603,7 @@ def run_mcpilco(
                         num_particles=config.num_particles,
                         init_std=config.init_std,
                         obs_noise_std=config.sim_obs_noise_std,
-                    ).to(device)
+                    ).to(device)  # with the policy module and the dynamics in it
 
                 loss = make_loss(policy_module)
                 if config.compile_rollout:

@@ -179,25 +179,23 @@ def loss_and_grad_fn(
     about four eager steps (three warm-up calls on a side stream, then the capture).
     """
     params = list(params)
+
+    def eager() -> tuple[Tensor, Tensor]:
+        for p in params:
+            p.grad = None
+        out = loss_module()
+        loss = out["loss_cost"]
+        loss.backward()
+        return loss.detach(), out["cost_std"]
+
     if not (cuda_graph and params and params[0].is_cuda):
-
-        def eager() -> tuple[Tensor, Tensor]:
-            for p in params:
-                p.grad = None
-            out = loss_module()
-            loss = out["loss_cost"]
-            loss.backward()
-            return loss.detach(), out["cost_std"]
-
         return eager
 
     side = torch.cuda.Stream()
     side.wait_stream(torch.cuda.current_stream())
     with torch.cuda.stream(side):  # warm-up: lazy initialisations happen outside the capture
         for _ in range(3):
-            for p in params:
-                p.grad = None
-            loss_module()["loss_cost"].backward()
+            eager()
     torch.cuda.current_stream().wait_stream(side)
     for p in params:
         p.grad = None  # the captured backward allocates them in the graph's memory pool
