@@ -17,8 +17,21 @@ from numpy.typing import ArrayLike, NDArray
 
 from mcpilco.envs.arm_builder import ArmSpec, build_arm_spec
 from mcpilco.envs.cartpole_task import validate_action
+from mcpilco.envs.marker_detection import (
+    MARKER_FRACTION,
+    ArucoMarkerDetector,
+    camera_matrix,
+    marker_texture,
+)
 
-__all__ = ["MarkerCameraEnv", "NOISE_DEFAULTS", "camera_rotation", "matrix_to_ypr", "ypr_to_matrix"]
+__all__ = [
+    "MEASUREMENTS",
+    "MarkerCameraEnv",
+    "NOISE_DEFAULTS",
+    "camera_rotation",
+    "matrix_to_ypr",
+    "ypr_to_matrix",
+]
 
 FloatArray = NDArray[np.float64]
 
@@ -33,6 +46,9 @@ NOISE_DEFAULTS: dict[str, float] = dict(
     time_offset=0.005,
 )
 """Measurement-noise defaults (see the table in :class:`MarkerCameraEnv`)."""
+
+MEASUREMENTS = ("ideal", "aruco")
+"""How marker poses are measured: the noise model, or rendered images + ArUco detection."""
 
 
 def ypr_to_matrix(o: ArrayLike) -> FloatArray:
@@ -188,14 +204,42 @@ class MarkerCameraEnv(gym.Env):
     ``joint_permutation`` (observed joint ``s`` is chain joint ``joint_permutation[s]``);
     ``ee_slot`` (the observed slot of the end-effector marker); ``q`` (true joint
     positions, chain order); ``marker_poses`` (true poses ``(n + 1, 6)``, chain order);
-    ``target_q`` (chain order); ``t`` [s].
+    ``target_q`` (chain order); ``detected`` (markers found in the frame, chain order;
+    all True with ``measurement="ideal"``); ``t`` [s].
 
     ## Arguments
     ``arm`` (``"ur10"``, ``"scara"``, ``"random"`` or an :class:`ArmSpec`); ``n_joints``,
     ``joint_types``, ``p_prismatic``, ``arm_seed`` (random arms); ``camera_position``,
     ``camera_look_at``; ``marker_offset``; ``max_increment``, ``max_increment_prismatic``;
     ``start_range``; ``dt``; ``orientation_weight``; the noise arguments above;
-    ``shuffle`` (False keeps chain order); ``render_mode`` (``"rgb_array"``, offscreen).
+    ``shuffle`` (False keeps chain order); ``render_mode`` (``"rgb_array"``, offscreen);
+    ``measurement``, ``marker_size``, ``image_size``, ``fovy``, ``pixel_noise``,
+    ``marker_facing_cone`` (below).
+
+    ## Rendered markers (``measurement="aruco"``, optional; needs OpenCV and offscreen GL)
+    Instead of the noise model above, every observation renders the camera image with MuJoCo
+    and estimates the marker poses with OpenCV's ArUco detector and ``solvePnP``
+    (:mod:`mcpilco.envs.marker_detection`); the noise arguments then have no effect except
+    ``encoder_noise`` and ``time_offset`` (the image shows the arm at the camera's time).
+
+    | argument             | default       | meaning                                        |
+    |----------------------|---------------|------------------------------------------------|
+    | ``measurement``      | ``"ideal"``   | ``"ideal"`` (noise model) or ``"aruco"``       |
+    | ``marker_size``      | 0.12 m        | side of the square marker face (the black      |
+    |                      |               | square is 75 % of it, ArUco ``DICT_4X4_50``,   |
+    |                      |               | id = chain index)                              |
+    | ``image_size``       | (1920, 1080)  | image width, height [px] (Kinect-2-like)       |
+    | ``fovy``             | 54 deg        | vertical field of view (Kinect 2 colour: 54)   |
+    | ``pixel_noise``      | 2.0           | std of the Gaussian image noise [grey levels]  |
+    | ``marker_facing_cone``| ``None``     | markers face the camera at the start pose      |
+    |                      |               | within this angle [deg]; ``None``: uniformly   |
+    |                      |               | random ("ideal"), 40 deg ("aruco")             |
+
+    With a facing cone, markers stand in front of their link as seen from the camera at the
+    start pose (:meth:`_facing_placements`), so that their own link does not hide them
+    there. A marker that is not detected in a frame (turned away, occluded by other links,
+    too small) gives a row of NaN in the observation, and ``info["detected"]`` (chain
+    order) says which were found.
 
     ## Version History
     * v0: initial version.
@@ -228,9 +272,41 @@ class MarkerCameraEnv(gym.Env):
         time_offset: float = NOISE_DEFAULTS["time_offset"],
         shuffle: bool = True,
         render_mode: str | None = None,
+        measurement: str = "ideal",
+        marker_size: float = 0.12,
+        image_size: tuple[int, int] = (1920, 1080),
+        fovy: float = 54.0,
+        pixel_noise: float = 2.0,
+        marker_facing_cone: float | None = None,
     ) -> None:
         if render_mode is not None and render_mode not in self.metadata["render_modes"]:
             raise ValueError(f"render_mode must be one of {self.metadata['render_modes']}")
+        if measurement not in MEASUREMENTS:
+            raise ValueError(f"measurement must be one of {MEASUREMENTS}, got {measurement!r}")
+        width, height = (int(v) for v in image_size)
+        if not (marker_size > 0 and width >= 16 and height >= 16 and 0 < fovy < 180):
+            raise ValueError(
+                f"need marker_size > 0, image_size >= (16, 16) and 0 < fovy < 180, got "
+                f"{marker_size=}, {image_size=}, {fovy=}"
+            )
+        if not pixel_noise >= 0:
+            raise ValueError(f"pixel_noise must be >= 0, got {pixel_noise}")
+        if marker_facing_cone is None and measurement == "aruco":
+            marker_facing_cone = 40.0
+        if marker_facing_cone is not None and not 0 <= marker_facing_cone <= 180:
+            raise ValueError(
+                f"marker_facing_cone must be in [0, 180] deg, got {marker_facing_cone}"
+            )
+        self.measurement = measurement
+        self.marker_size, self.image_size, self.fovy = (
+            float(marker_size),
+            (width, height),
+            float(fovy),
+        )
+        self.pixel_noise = float(pixel_noise)
+        self.marker_facing_cone = marker_facing_cone
+        self._detector = None
+        self._camera_renderer = None
         for name, value in dict(
             position_noise=position_noise, angle_noise=angle_noise, encoder_noise=encoder_noise,
             time_offset=time_offset, incidence_gain=incidence_gain, marker_offset=marker_offset,
@@ -267,6 +343,8 @@ class MarkerCameraEnv(gym.Env):
         self.data = mujoco.MjData(self.model)
         self._site = np.array([self.model.site(f"marker{j}").id for j in range(n + 1)])
         self._a = np.array([j.a for j in self.arm.joints])
+        self._body = np.array([self.model.site_bodyid[s] for s in self._site])
+        self.detected = np.ones(n + 1, dtype=bool)
 
         obs_dim = 6 * (n + 1) + n + 6
         self.action_space = spaces.Box(-1.0, 1.0, shape=(n,), dtype=np.float32)
@@ -301,20 +379,27 @@ class MarkerCameraEnv(gym.Env):
 
     def _build_model(self) -> mujoco.MjModel:
         spec = build_arm_spec(self.arm, friction=False, armature=False, floor=True)
-        size = [0.03, 0.03, 0.002]
-        spec.worldbody.add_site(name="marker0", type=mujoco.mjtGeom.mjGEOM_BOX, size=size,
-                                rgba=[0.1, 0.1, 0.1, 1.0])  # fmt: skip
-        for j in range(1, self.arm.n_joints + 1):
-            spec.body(f"link{j}").add_site(
-                name=f"marker{j}", type=mujoco.mjtGeom.mjGEOM_BOX, size=size,
-                rgba=[0.1, 0.1, 0.1, 1.0],
-            )  # fmt: skip
+        spec.visual.global_.offwidth = max(640, self.image_size[0])
+        spec.visual.global_.offheight = max(480, self.image_size[1])
+        size = [self.marker_size / 2, self.marker_size / 2, 0.002]
+        for j in range(self.arm.n_joints + 1):
+            look: dict[str, Any] = dict(rgba=[0.1, 0.1, 0.1, 1.0])
+            if self.measurement == "aruco":  # the marker image on the site's +z face
+                tex = marker_texture(j)
+                h, w, c = tex.shape
+                spec.add_texture(name=f"aruco{j}", type=mujoco.mjtTexture.mjTEXTURE_2D,
+                                 width=w, height=h, nchannel=c).data = tex.tobytes()  # fmt: skip
+                mat = spec.add_material(name=f"aruco{j}")
+                mat.textures[mujoco.mjtTextureRole.mjTEXROLE_RGB] = f"aruco{j}"
+                look = dict(material=f"aruco{j}")
+            body = spec.worldbody if j == 0 else spec.body(f"link{j}")
+            body.add_site(name=f"marker{j}", type=mujoco.mjtGeom.mjGEOM_BOX, size=size, **look)
         # MuJoCo cameras look along their -z with y up: columns [x, -y, -z] of the CV frame
         R_mj = self.camera_R * np.array([1.0, -1.0, -1.0])
         quat = np.zeros(4)
         mujoco.mju_mat2Quat(quat, R_mj.ravel())
         spec.worldbody.add_camera(name="camera", pos=self.camera_position.tolist(),
-                                  quat=quat.tolist(), fovy=60.0)  # fmt: skip
+                                  quat=quat.tolist(), fovy=self.fovy)  # fmt: skip
         return spec.compile()
 
     # ---------------------------------------------------------------- kinematics
@@ -380,6 +465,10 @@ class MarkerCameraEnv(gym.Env):
         rng = self.np_random
         lag = self.time_offset / self.dt
         q_cam = self.q - lag * (self.q - self._q_prev)
+        if self.measurement == "aruco":
+            poses = self._detect_markers(q_cam)
+            q_meas = self.q + rng.standard_normal(self.n_joints) * self.encoder_noise
+            return poses, q_meas
         l_c, R_c = self.marker_transforms(q_cam)
         scale = self._noise_scale(l_c, R_c)
         m = self.n_markers
@@ -398,6 +487,37 @@ class MarkerCameraEnv(gym.Env):
         poses = np.concatenate([l_meas, matrix_to_ypr(R_meas)], axis=1)
         q_meas = self.q + rng.standard_normal(self.n_joints) * self.encoder_noise
         return poses, q_meas
+
+    def camera_image(self, q: ArrayLike | None = None) -> NDArray[np.uint8]:
+        """Noise-free RGB image ``(H, W, 3)`` of the marker camera at ``image_size`` with the
+        arm at ``q`` (chain order; default: the current joint positions)."""
+        if self._camera_renderer is None:
+            width, height = self.image_size
+            self._camera_renderer = mujoco.Renderer(self.model, height, width)
+        self._set_q(self.q if q is None else np.asarray(q, dtype=np.float64))
+        mujoco.mj_camlight(self.model, self.data)
+        self._camera_renderer.update_scene(self.data, camera="camera")
+        image = self._camera_renderer.render()
+        self._set_q(self.q)
+        return image
+
+    def _detect_markers(self, q_cam: FloatArray) -> FloatArray:
+        """Marker poses ``(n + 1, 6)`` (chain order) detected in the rendered image at
+        ``q_cam`` with Gaussian pixel noise; NaN rows for markers not found."""
+        image = self.camera_image(q_cam)
+        if self.pixel_noise > 0:
+            noise = self.np_random.standard_normal(image.shape[:2])[:, :, None] * self.pixel_noise
+            image = np.clip(image + noise, 0, 255).astype(np.uint8)
+        if self._detector is None:
+            K = camera_matrix(*self.image_size, self.fovy)
+            self._detector = ArucoMarkerDetector(K, MARKER_FRACTION * self.marker_size)
+        found = self._detector.detect(image)
+        poses = np.full((self.n_markers, 6), np.nan)
+        for j, (l, R) in found.items():
+            if j < self.n_markers:
+                poses[j] = np.concatenate([l, matrix_to_ypr(R)])
+        self.detected = ~np.isnan(poses[:, 0])
+        return poses
 
     def _get_obs(self) -> FloatArray:
         poses, q_meas = self._measure()
@@ -430,6 +550,7 @@ class MarkerCameraEnv(gym.Env):
             q=self.q.copy(),
             marker_poses=self.marker_poses(self.q),
             target_q=self.target_q.copy(),
+            detected=self.detected.copy(),
             t=self._t,
         )
 
@@ -440,6 +561,8 @@ class MarkerCameraEnv(gym.Env):
         return rng.uniform(lo, hi)
 
     def _place_markers(self) -> None:
+        """Random marker placements in their body frames (class docstring). With a facing
+        cone, call it with the start configuration set (the normals are chosen there)."""
         rng = self.np_random
         n = self.n_joints
         R = _random_rotations(rng, n + 1)
@@ -447,12 +570,62 @@ class MarkerCameraEnv(gym.Env):
         pos = rng.uniform(-self.marker_offset, self.marker_offset, (n + 1, 3))
         pos[:, 0] += along
         pos[0] += np.asarray(self.arm.base_pos)
+        if self.marker_facing_cone is not None:
+            anchor = np.zeros_like(pos)
+            anchor[:, 0] = along
+            anchor[0] = np.asarray(self.arm.base_pos)
+            R, pos = self._facing_placements(rng, pos, anchor)
         for j, s in enumerate(self._site):
             quat = np.zeros(4)
             mujoco.mju_mat2Quat(quat, R[j].ravel())
             self.model.site_pos[s] = pos[j]
             self.model.site_quat[s] = quat
             self.model.site_sameframe[s] = 0  # the compiler may have fused it with the body
+
+    def _facing_placements(
+        self, rng: np.random.Generator, pos: FloatArray, anchor: FloatArray
+    ) -> tuple[FloatArray, FloatArray]:
+        """Rotations (body frames) whose ``z`` normal points to the camera at the current
+        configuration within ``marker_facing_cone`` (uniform on that spherical cap, uniform
+        spin about the normal); positions in front of the link as seen from the camera (the
+        random offset from ``anchor`` (body frames) loses its component along the line of
+        sight ``u``, then moves by
+        ``1.2 r + marker_size sin(cone) / 2 + 0.02`` m along ``u``; ``r`` the link radius);
+        the base marker is lifted to at least ``0.6 marker_size + 0.01`` m above the floor."""
+        m = self.n_markers
+        body_R = self.data.xmat[self._body].reshape(m, 3, 3)
+        world = self.data.xpos[self._body] + np.einsum("mij,mj->mi", body_R, pos)
+        to_cam = self.camera_position - world
+        to_cam /= np.linalg.norm(to_cam, axis=1, keepdims=True)
+        cone = math.radians(self.marker_facing_cone)
+        standoff = (
+            1.2 * self.arm.radius + 0.5 * self.marker_size * math.sin(min(cone, math.pi / 2)) + 0.02
+        )
+        cos_max = math.cos(cone)
+        cos_t = rng.uniform(cos_max, 1.0, m)
+        phi, spin = rng.uniform(0.0, 2 * math.pi, (2, m))
+        R_out, pos_out = np.empty((m, 3, 3)), pos.copy()
+        for j in range(m):
+            # orthonormal frame (e1, e2, to_cam), then the tilted normal and the spin
+            e1 = np.cross(to_cam[j], [0.0, 0.0, 1.0] if abs(to_cam[j, 2]) < 0.9 else [1.0, 0, 0])
+            e1 /= np.linalg.norm(e1)
+            e2 = np.cross(to_cam[j], e1)
+            sin_t = math.sqrt(max(0.0, 1.0 - cos_t[j] ** 2))
+            z = cos_t[j] * to_cam[j] + sin_t * (math.cos(phi[j]) * e1 + math.sin(phi[j]) * e2)
+            x0 = np.cross(e2, z)
+            x0 /= np.linalg.norm(x0)
+            y0 = np.cross(z, x0)
+            x = math.cos(spin[j]) * x0 + math.sin(spin[j]) * y0
+            R_world = np.column_stack([x, np.cross(z, x), z])
+            R_out[j] = body_R[j].T @ R_world
+            # in front of the link as seen from the camera: the random offset without its
+            # component along the line of sight, then a stand-off towards the camera
+            offset = body_R[j] @ (pos[j] - anchor[j])
+            shift = standoff * to_cam[j] - (offset @ to_cam[j]) * to_cam[j]
+            pos_out[j] = pos[j] + body_R[j].T @ shift
+        # the base marker stands clear of the floor (z = 0)
+        pos_out[0, 2] = max(pos_out[0, 2], 0.6 * self.marker_size + 0.01)
+        return R_out, pos_out
 
     def reset(
         self, *, seed: int | None = None, options: dict[str, Any] | None = None
@@ -463,7 +636,9 @@ class MarkerCameraEnv(gym.Env):
         """
         super().reset(seed=seed)
         rng = self.np_random
-        self._place_markers()
+        facing = self.marker_facing_cone is not None  # placed at the start pose (below)
+        if not facing:
+            self._place_markers()
         if self.shuffle:
             self.marker_permutation = rng.permutation(self.n_markers)
             self.joint_permutation = rng.permutation(self.n_joints)
@@ -474,6 +649,9 @@ class MarkerCameraEnv(gym.Env):
             if q0.shape != (self.n_joints,):
                 raise ValueError(f"options['q'] must have shape ({self.n_joints},)")
             self.q = np.clip(q0, self.q_low, self.q_high)
+        if facing:
+            self._set_q(self.q)
+            self._place_markers()
         self._q_prev = self.q.copy()
         self.target_pose = self.marker_poses(self.target_q)[-1]
         self._set_q(self.q)
@@ -499,10 +677,13 @@ class MarkerCameraEnv(gym.Env):
             return None
         if self._renderer is None:
             self._renderer = mujoco.Renderer(self.model, 480, 640)
+        mujoco.mj_camlight(self.model, self.data)  # camera and light poses (not kinematics)
         self._renderer.update_scene(self.data, camera="camera")
         return self._renderer.render()
 
     def close(self) -> None:
-        if self._renderer is not None:
-            self._renderer.close()
-            self._renderer = None
+        for name in ("_renderer", "_camera_renderer"):
+            renderer = getattr(self, name)
+            if renderer is not None:
+                renderer.close()
+                setattr(self, name, None)
