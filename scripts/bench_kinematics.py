@@ -30,7 +30,11 @@ Parts (thesis section 2.6):
     the waypoint box, and of 4x as many of each (is the gap noise, the number of samples or
     the trajectory design?), the numerical rank of the ``3^6`` monomials of ``k_R`` on
     ``D_tr``, and the errors restricted to test poses with ``|beta| < 1`` (yaw and roll of
-    eq. 2.20 are ill-conditioned near ``beta = +-pi/2``).
+    eq. 2.20 are ill-conditioned near ``beta = +-pi/2``). ``--measurement aruco`` (parts a
+    and c only) measures the poses from rendered images with ArUco detection instead of the
+    env's noise model; the GP then trains and tests on the frames whose end marker was
+    found, and the true structure stands in if identification fails (it needs frames that
+    show every marker).
 (d) **Controller** (2.6.4, Table 2.2): the GP trained on ``--ctrl-train`` random samples of
     ``D_tr`` (the thesis uses all of ``D_tr``; a subset keeps the run short); 5 random
     targets (configurations uniform in the joint box of the waypoints) from a fixed start;
@@ -74,6 +78,7 @@ from tqdm.auto import tqdm
 from mcpilco.envs.marker_camera import NOISE_DEFAULTS, MarkerCameraEnv
 from mcpilco.models.gp import GPRegressor
 from mcpilco.models.kinematics import (
+    KinematicStructure,
     classify_all_triplets,
     identify_structure,
     random_chain,
@@ -201,7 +206,11 @@ def waypoint_trajectory(
 
 
 def ur10_datasets(
-    seed: int, samples: int, span: float = 1.0, noise_scale: float = 1.0
+    seed: int,
+    samples: int,
+    span: float = 1.0,
+    noise_scale: float = 1.0,
+    measurement: str = "ideal",
 ) -> dict[str, Any]:
     """``D_tr`` and ``D_test``: 25 random waypoints, visited in two different orders.
 
@@ -209,7 +218,8 @@ def ur10_datasets(
     workspace" of the thesis; ``span = pi`` explores every joint fully, which 100 samples
     cannot cover). One env episode (fixed markers and permutations) holds both trajectories.
     ``noise_scale`` multiplies the env's default ``position_noise`` and ``angle_noise`` (a
-    sensitivity study; 1 = the env's defaults).
+    sensitivity study; 1 = the env's defaults). ``measurement="aruco"`` renders the frames
+    and detects the markers instead (the env's rendered path; markers not found are NaN).
     """
     if not noise_scale >= 0:
         raise ValueError(f"noise_scale must be >= 0, got {noise_scale}")
@@ -217,6 +227,7 @@ def ur10_datasets(
         max_increment=0.2,
         position_noise=noise_scale * NOISE_DEFAULTS["position_noise"],
         angle_noise=noise_scale * NOISE_DEFAULTS["angle_noise"],
+        measurement=measurement,
     )
     rng = np.random.default_rng([seed, 1])
     waypoints = UR10_HOME + rng.uniform(-span, span, (25, 6))
@@ -300,17 +311,24 @@ def _rbf_gp(q: np.ndarray, poses: np.ndarray, q_test: np.ndarray) -> np.ndarray:
 
 
 def identify_ur10(data: dict[str, Any]) -> dict[str, Any]:
+    """Structure identification on ``D_tr``; frames with a missing marker (rendered
+    measurements) are dropped, and a failure is returned as ``structure=None``."""
     env = data["env"]
     poses, q, _ = data["train"]
     t0 = time.perf_counter()
-    s = identify_structure(poses, q)
+    try:
+        s = identify_structure(poses, q, nan_policy="drop")
+    except ValueError as exc:  # e.g. no frame shows every marker
+        return dict(structure=None, correct=False, seconds=time.perf_counter() - t0,
+                    error=str(exc))  # fmt: skip
     elapsed = time.perf_counter() - t0
     ok = (
         s.complete
         and env.marker_permutation[list(s.markers)].tolist() == list(range(7))
         and env.joint_permutation[list(s.joints)].tolist() == list(range(6))
     )
-    return dict(structure=s, correct=bool(ok), seconds=elapsed)
+    return dict(structure=s, correct=bool(ok), seconds=elapsed,
+                dropped_frames=int(s.n_dropped_frames))  # fmt: skip
 
 
 def _feature_rank(q: np.ndarray, rtol: float = 1e-8) -> int:
@@ -358,8 +376,17 @@ def fk_gp_part(data: dict[str, Any], structure, n_train: int, seed: int) -> dict
     env = data["env"]
     ee, joints = structure.markers[-1], list(structure.joints)
     rng = np.random.default_rng([seed, 3])
-    idx = rng.choice(len(q), n_train, replace=False)
+    # frames whose end marker was measured (all of them with the noise model; rendered
+    # measurements miss some)
+    valid_tr = np.isfinite(poses[:, ee]).all(1)
+    valid_te = np.isfinite(poses_te[:, ee]).all(1)
+    if valid_tr.all():
+        idx = rng.choice(len(q), n_train, replace=False)
+    else:
+        n_train = min(n_train, int(valid_tr.sum()))
+        idx = rng.choice(np.flatnonzero(valid_tr), n_train, replace=False)
     X, Y = q[idx][:, joints], poses[idx, ee]
+    poses_te, q_te, q_te_true = poses_te[valid_te], q_te[valid_te], q_te_true[valid_te]
     Xte, Yte = q_te[:, joints], poses_te[:, ee]
     true_te = np.array([env.marker_poses(qq)[-1] for qq in q_te_true])
     fit_kw = dict(adam_iters=50, lbfgs_iters=100)
@@ -401,6 +428,12 @@ def fk_gp_part(data: dict[str, Any], structure, n_train: int, seed: int) -> dict
     return dict(
         n_train=n_train,
         n_test=len(Xte),
+        end_marker_measured=dict(
+            train=int(valid_tr.sum()),
+            test=int(valid_te.sum()),
+            train_frames=len(valid_tr),
+            test_frames=len(valid_te),
+        ),  # fmt: skip
         fit_seconds=t_fit,
         polynomial_rmse_measured=_pose_rmse(pred, Yte),
         polynomial_rmse_true=_pose_rmse(pred, true_te),
@@ -700,9 +733,13 @@ def _markdown(res: dict[str, Any]) -> str:
             "## UR10 structure identified on D_tr",
             "",
             f"{idn['samples']} samples: correct = **{idn['correct']}**, types "
-            f"`{idn['joint_types']}`, {idn['seconds']:.1f} s.",
+            f"`{idn['joint_types']}`, {idn['seconds']:.1f} s."
+            + (f" Frames dropped for a missing marker: {idn['dropped_frames']}."
+               if idn.get("dropped_frames") else "")
+            + (f" Error: {idn['error']}" if idn.get("error") else "")
+            + (f" Note: {idn['note']}." if idn.get("note") else ""),
             "",
-        ]
+        ]  # fmt: skip
     if "fk_gp" in res:
         fk = res["fk_gp"]
         head = " | ".join(ERR_NAMES)
@@ -711,6 +748,20 @@ def _markdown(res: dict[str, Any]) -> str:
             "(Table 2.1)",
             "",
             *_part_command(res, fk),
+            *(
+                [
+                    f"Measurement: **{res['measurement']}** (rendered images + ArUco "
+                    "detection). End marker found in "
+                    f"{fk['end_marker_measured']['train']} of "
+                    f"{fk['end_marker_measured']['train_frames']} D_tr frames and "
+                    f"{fk['end_marker_measured']['test']} of "
+                    f"{fk['end_marker_measured']['test_frames']} D_test frames; training "
+                    "samples and test samples are drawn from those.",
+                    "",
+                ]
+                if res.get("measurement", "ideal") != "ideal"
+                else []
+            ),
             f"| model | {head} |",
             "|---|" + "---|" * 7,
             f"| thesis Table 2.1 (real UR10) | {_fmt(THESIS_TABLE_2_1)} | - |",
@@ -860,6 +911,11 @@ def _parser() -> argparse.ArgumentParser:
         help="(c, d) multiply the env's default marker position and angle noise (sensitivity)",
     )  # fmt: skip
     p.add_argument(
+        "--measurement", choices=("ideal", "aruco"), default="ideal",
+        help="(c) marker poses from the env's noise model, or rendered + ArUco detection "
+        "(needs OpenCV and MUJOCO_GL=egl/osmesa; ~0.3 s per frame)",
+    )  # fmt: skip
+    p.add_argument(
         "--merge", action="store_true",
         help="keep the results of the parts not run from an existing kinematics.json in --out-dir",
     )  # fmt: skip
@@ -872,10 +928,16 @@ def _parser() -> argparse.ArgumentParser:
 
 def main(argv: list[str] | None = None) -> int:
     """Command-line entry point; returns 0."""
-    args = _parser().parse_args(argv)
+    parser = _parser()
+    args = parser.parse_args(argv)
     if args.quick:
         for k, v in QUICK.items():
             setattr(args, k, v)
+    if args.measurement == "aruco" and set(args.parts) & set("bd"):
+        parser.error(
+            "--measurement aruco supports parts a and c only: (b) classifies every triplet "
+            "and (d) measures the reached poses, and both need every marker in every frame"
+        )
     torch.set_num_threads(1)
     out = Path(args.out_dir)
     out.mkdir(parents=True, exist_ok=True)
@@ -884,8 +946,9 @@ def main(argv: list[str] | None = None) -> int:
         sys.argv[1:] if argv is None else argv
     )
     res: dict[str, Any] = dict(
-        command=cmd.strip(), seed=args.seed, span=args.span, noise_scale=args.noise_scale
-    )
+        command=cmd.strip(), seed=args.seed, span=args.span, noise_scale=args.noise_scale,
+        measurement=args.measurement,
+    )  # fmt: skip
     old_json = out / "kinematics.json"
     if args.merge and old_json.exists():
         old = json.loads(old_json.read_text())
@@ -906,7 +969,7 @@ def main(argv: list[str] | None = None) -> int:
             args.seed, args.samples, sizes, args.repeats, progress, args.span
         )
     if "c" in args.parts or "d" in args.parts:
-        data = ur10_datasets(args.seed, args.samples, args.span, args.noise_scale)
+        data = ur10_datasets(args.seed, args.samples, args.span, args.noise_scale, args.measurement)
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", UserWarning)
             idn = identify_ur10(data)
@@ -914,14 +977,16 @@ def main(argv: list[str] | None = None) -> int:
         res["identification"] = dict(
             samples=int(data["train"][0].shape[0]),
             correct=idn["correct"],
-            joint_types=s.joint_types,
-            markers=list(s.markers),
-            joints=list(s.joints),
+            joint_types=None if s is None else s.joint_types,
+            markers=None if s is None else list(s.markers),
+            joints=None if s is None else list(s.joints),
             seconds=idn["seconds"],
+            dropped_frames=idn.get("dropped_frames"),
+            error=idn.get("error"),
         )
         if not idn["correct"]:  # fall back to the true structure so (c)/(d) still run
             env = data["env"]
-            s = type(s)(
+            s = KinematicStructure(
                 markers=tuple(int(np.nonzero(env.marker_permutation == j)[0][0]) for j in range(7)),
                 joint_types="RRRRRR",
                 joints=tuple(int(np.nonzero(env.joint_permutation == j)[0][0]) for j in range(6)),

@@ -74,3 +74,9 @@ def test_bench_kinematics_tiny_run_writes_outputs(tmp_path):
     for name in ("kinematics_confusion.png", "kinematics_noise_vs_samples.png",
                  "kinematics_controller.png", "kinematics.md"):  # fmt: skip
         assert (tmp_path / name).stat().st_size > 0
+
+
+def test_bench_kinematics_rendered_measurement_only_for_parts_a_and_c(tmp_path, capsys):
+    with pytest.raises(SystemExit):
+        main(["--parts", "cd", "--measurement", "aruco", "--out-dir", str(tmp_path)])
+    assert "parts a and c only" in capsys.readouterr().err
