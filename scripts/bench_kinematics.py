@@ -22,19 +22,20 @@ Parts (thesis section 2.6):
     on ``--fk-train`` (100) random samples of ``D_tr`` and tested on ``D_test`` (the same
     waypoints in another order). RMSE against the measured (noisy) test poses, as in the
     thesis, and against the true poses. Baseline: an RBF GP (ARD, on raw ``q``) on the same
-    samples. Option beyond the thesis, reported separately: the GP on all nine rotation
-    elements with the mean projected onto SO(3). Diagnostics: the measurement noise itself
-    (measured vs true test poses: the floor of any RMSE against measured poses; per axis, as
-    a 3-D norm, and the distance / incidence that scale it), the same GP trained on
-    noise-free poses of the same 100 configurations, of 100 configurations drawn i.i.d. in
-    the waypoint box, and of 4x as many of each (is the gap noise, the number of samples or
-    the trajectory design?), the numerical rank of the ``3^6`` monomials of ``k_R`` on
-    ``D_tr``, and the errors restricted to test poses with ``|beta| < 1`` (yaw and roll of
-    eq. 2.20 are ill-conditioned near ``beta = +-pi/2``). ``--measurement aruco`` (parts a
-    and c only) measures the poses from rendered images with ArUco detection instead of the
-    env's noise model; the GP then trains and tests on the frames whose end marker was
-    found, and the true structure stands in if identification fails (it needs frames that
-    show every marker).
+    samples. Options beyond the thesis, reported separately: the GP on all nine rotation
+    elements with the mean projected onto SO(3); the GP with leave-one-out outlier trimming
+    (``outlier_threshold=4``, :meth:`ForwardKinematicsGP.fit`). Diagnostics: the
+    measurement noise itself (measured vs true test poses: the floor of any RMSE against
+    measured poses; per axis, as a 3-D norm, and the distance / incidence that scale it),
+    the same GP trained on noise-free poses of the same 100 configurations, of 100
+    configurations drawn i.i.d. in the waypoint box, and of 4x as many of each (is the gap
+    noise, the number of samples or the trajectory design?), the numerical rank of the
+    ``3^6`` monomials of ``k_R`` on ``D_tr``, and the errors restricted to test poses with
+    ``|beta| < 1`` (yaw and roll of eq. 2.20 are ill-conditioned near ``beta = +-pi/2``).
+    ``--measurement aruco`` (parts a and c only) measures the poses from rendered images
+    with ArUco detection instead of the env's noise model; the GP then trains and tests on
+    the frames whose end marker was found, and the true structure stands in if
+    identification fails (it needs frames that show every marker).
 (d) **Controller** (2.6.4, Table 2.2): the GP trained on ``--ctrl-train`` random samples of
     ``D_tr`` (the thesis uses all of ``D_tr``; a subset keeps the run short); 5 random
     targets (configurations uniform in the joint box of the waypoints) from a fixed start;
@@ -90,6 +91,9 @@ from mcpilco.models.kinematics.forward import (
     nearest_data_starts,
 )
 from mcpilco.models.kinematics.rotations import matrix_to_ypr, wrap_angle, ypr_to_matrix
+
+OUTLIER_THRESHOLD = 4.0
+"""(c) leave-one-out score above which the trimmed FK GP drops a training sample."""
 
 PROPS = ("Prop. 2.3.1", "Prop. 2.3.2", "Prop. 2.3.3", "Prop. 2.3.2 + 2.3.3")
 POSE_NAMES = ("x", "y", "z", "gamma", "beta", "alpha")
@@ -396,6 +400,10 @@ def fk_gp_part(data: dict[str, Any], structure, n_train: int, seed: int) -> dict
     pred = fk.predict(Xte)
     pred9 = ForwardKinematicsGP(structure.joint_types, rotation_outputs="nine").fit(X, Y, **fit_kw)
     pred9 = pred9.predict(Xte)
+    trimmed = ForwardKinematicsGP(structure.joint_types).fit(
+        X, Y, outlier_threshold=OUTLIER_THRESHOLD, **fit_kw
+    )
+    pred_trim = trimmed.predict(Xte)
     pred_rbf = _rbf_gp(X, Y, Xte)
     noise_floor = _pose_rmse(Yte, true_te)
     # diagnostics with noise-free q and poses (chain order = model order when the structure
@@ -437,6 +445,10 @@ def fk_gp_part(data: dict[str, Any], structure, n_train: int, seed: int) -> dict
         fit_seconds=t_fit,
         polynomial_rmse_measured=_pose_rmse(pred, Yte),
         polynomial_rmse_true=_pose_rmse(pred, true_te),
+        trimmed_rmse_measured=_pose_rmse(pred_trim, Yte),
+        trimmed_rmse_true=_pose_rmse(pred_trim, true_te),
+        trimmed_outliers=int(len(trimmed.outliers_)),
+        trimmed_threshold=OUTLIER_THRESHOLD,
         nine_elements_rmse_measured=_pose_rmse(pred9, Yte),
         nine_elements_rmse_true=_pose_rmse(pred9, true_te),
         rbf_rmse_measured=_pose_rmse(pred_rbf, Yte),
@@ -768,6 +780,13 @@ def _markdown(res: dict[str, Any]) -> str:
             f"| polynomial k_R/k_l vs measured | {_fmt(fk['polynomial_rmse_measured'])} |",
             f"| polynomial k_R/k_l vs true | {_fmt(fk['polynomial_rmse_true'])} |",
         ]
+        if "trimmed_rmse_true" in fk:
+            lines += [
+                f"| polynomial, outlier-trimmed (LOO score > {fk['trimmed_threshold']:g}, "
+                f"{fk['trimmed_outliers']} of {fk['n_train']} dropped), vs measured | "
+                f"{_fmt(fk['trimmed_rmse_measured'])} |",
+                f"| polynomial, outlier-trimmed, vs true | {_fmt(fk['trimmed_rmse_true'])} |",
+            ]
         if "nine_elements_rmse_true" in fk:
             lines += [
                 "| polynomial, nine elements + SO(3) projection, vs measured | "

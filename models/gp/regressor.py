@@ -538,6 +538,41 @@ class GPRegressor:
             mean, var = post.mean, post.variance
         return mean.T * self.y_scale_ + self.y_mean_, var.T * self.y_scale_**2
 
+    def _train_cholesky(self) -> tuple[Tensor, Tensor]:
+        """Cholesky factor ``L (m, N, N)`` of :math:`K = K_f + \\sigma_n^2 I` on the
+        standardised training inputs, and the standardised targets ``(m, N)``."""
+        xs, ys, noise = self._standardized_train()
+        m, n = ys.shape
+        xb = xs.expand(m, *xs.shape)
+        K = dense_covar(self.model_.covar_module, xb, xb).expand(m, n, n) + torch.diag_embed(
+            noise.reshape(m, 1).expand(m, n)
+        )
+        L, _ = jittered_cholesky(K)
+        return L, ys
+
+    @torch.no_grad()
+    def loo_residuals(self) -> tuple[Tensor, Tensor]:
+        """Leave-one-out residuals of the training targets at the fitted hyperparameters.
+
+        Rasmussen & Williams (2006) eq. 5.12, with :math:`K = K_f + \\sigma_n^2 I`:
+
+        .. math::
+
+           y_i - \\mu_{-i} = \\frac{[K^{-1} y]_i}{[K^{-1}]_{ii}}, \\qquad
+           \\sigma_{-i}^2 = \\frac{1}{[K^{-1}]_{ii}}
+
+        (the predictive distribution of :math:`y_i` from the other :math:`N - 1` points,
+        noise included). Returns ``(residual, std)``, each ``(N, m)`` float64 in original
+        units; ``residual / std`` is a standard normal score under the model.
+        """
+        self._check_fitted()
+        L, ys = self._train_cholesky()
+        K_inv = torch.cholesky_inverse(L)
+        d = K_inv.diagonal(dim1=-2, dim2=-1)  # (m, N)
+        alpha = (K_inv @ ys.unsqueeze(-1)).squeeze(-1)
+        scale = self.y_scale_.reshape(-1, 1)
+        return (alpha / d * scale).T, (d.rsqrt() * scale).T
+
     @torch.no_grad()
     def log_marginal_likelihood(self) -> Tensor:
         """``(m,)`` exact log marginal likelihood of each output column, original units.
@@ -546,14 +581,8 @@ class GPRegressor:
         the standardised targets); computed densely with a Cholesky factorisation.
         """
         self._check_fitted()
-        xs, ys, noise = self._standardized_train()
-        m, n = ys.shape
-        kernel = self.model_.covar_module
-        xb = xs.expand(m, *xs.shape)
-        K = dense_covar(kernel, xb, xb).expand(m, n, n) + torch.diag_embed(
-            noise.reshape(m, 1).expand(m, n)
-        )
-        L, _ = jittered_cholesky(K)
+        L, ys = self._train_cholesky()
+        n = ys.shape[1]
         alpha = torch.cholesky_solve(ys.unsqueeze(-1), L).squeeze(-1)
         logdet_half = L.diagonal(dim1=-2, dim2=-1).log().sum(-1)
         lml = -0.5 * (ys * alpha).sum(-1) - logdet_half - 0.5 * n * math.log(2 * math.pi)

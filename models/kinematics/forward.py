@@ -45,6 +45,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 import torch
@@ -259,6 +260,7 @@ class ForwardKinematicsGP:
         self.noise_min = noise_min
         self.rotation_gp_: GPRegressor | None = None
         self.position_gp_: GPRegressor | None = None
+        self.outliers_ = np.empty(0, dtype=np.int64)
         self._fitted = False
 
     def _validate(self, q: ArrayLike, poses: ArrayLike | None = None) -> tuple[Tensor, FloatArray]:
@@ -291,16 +293,58 @@ class ForwardKinematicsGP:
         adam_lr: float = 0.05,
         lbfgs_iters: int = 50,
         progress: bool = False,
+        outlier_threshold: float | None = None,
+        outlier_rounds: int = 3,
     ) -> ForwardKinematicsGP:
         """Fit the 8 (12 with ``rotation_outputs="nine"``) GPs by marginal likelihood (a
         second call warm-starts).
+
+        With ``outlier_threshold`` (e.g. 4), samples whose leave-one-out score
+        :math:`z_i = \\max_b |y_{ib} - \\mu_{-i,b}| / \\sigma_{-i,b}` over the outputs ``b``
+        (:meth:`GPRegressor.loo_residuals`) exceeds it are dropped and the GPs refitted,
+        up to ``outlier_rounds`` times (gross marker-pose errors: a flipped orientation, a
+        wrong depth). ``outliers_`` holds the dropped sample indices.
 
         Args:
             q: ``(N, n)`` joint positions in chain order.
             poses: ``(N, 6)`` end-marker poses ``[x, y, z, gamma, beta, alpha]`` (camera).
         """
         x, poses = self._validate(q, poses)
+        if outlier_threshold is not None and not outlier_threshold > 0:
+            raise ValueError(f"outlier_threshold must be > 0 or None, got {outlier_threshold}")
         kw = dict(adam_iters=adam_iters, adam_lr=adam_lr, lbfgs_iters=lbfgs_iters)
+        keep = np.ones(len(poses), dtype=bool)
+        for _ in range(1 + (outlier_rounds if outlier_threshold is not None else 0)):
+            self._fit_gps(x[torch.from_numpy(keep)], poses[keep], progress, kw)
+            if outlier_threshold is None:
+                break
+            bad = self.loo_scores() > outlier_threshold
+            if not bad.any():
+                break
+            keep[np.flatnonzero(keep)[bad]] = False
+            if keep.sum() < 3:
+                raise ValueError(
+                    f"outlier trimming left {int(keep.sum())} samples; raise outlier_threshold"
+                )
+        self.outliers_ = np.flatnonzero(~keep)
+        self._fitted = True
+        return self
+
+    def loo_scores(self) -> FloatArray:
+        """``(N,)`` largest leave-one-out score ``|residual| / std`` over all outputs of
+        each training sample (of the last fit)."""
+        scores = None
+        for gp in (self.rotation_gp_, self.position_gp_):
+            if gp is not None:
+                res, std = gp.loo_residuals()
+                z = (res / std).abs().amax(dim=1).numpy()
+                scores = z if scores is None else np.maximum(scores, z)
+        if scores is None:
+            raise RuntimeError("no output varies in the data; nothing to score")
+        return scores
+
+    def _fit_gps(self, x: Tensor, poses: FloatArray, progress: bool, kw: dict[str, Any]) -> None:
+        """One marginal-likelihood fit of the rotation and position GPs on ``(x, poses)``."""
         nine = self.rotation_outputs == "nine"
         for name, Y, factory, names in (
             (
@@ -329,8 +373,6 @@ class ForwardKinematicsGP:
             setattr(self, f"{name}_gp_", gp)
             setattr(self, f"{name}_varying_", varying)
             setattr(self, f"{name}_constants_", constants)
-        self._fitted = True
-        return self
 
     def _check_fitted(self) -> None:
         if not self._fitted:

@@ -67,6 +67,7 @@ def test_bench_kinematics_tiny_run_writes_outputs(tmp_path):
     assert [r["samples"] for r in res["noise_vs_samples"]["rows"]] == [36, 72]
     assert len(res["fk_gp"]["polynomial_rmse_measured"]) == 7  # 6 pose + geodesic
     assert len(res["fk_gp"]["nine_elements_rmse_true"]) == 7
+    assert len(res["fk_gp"]["trimmed_rmse_true"]) == 7
     assert len(res["fk_gp"]["noise_free_training_rmse_true"]) == 4
     rounds = res["controller"]["rounds"]
     assert len(rounds) == 2 and rounds[1]["chosen_start"] == [-1] * 5  # refined from round 0

@@ -53,6 +53,30 @@ def test_posterior_equals_closed_form_without_standardisation() -> None:
     np.testing.assert_allclose(gp.noise_variance.numpy(), [noise], rtol=1e-10)
 
 
+def test_loo_residuals_equal_posteriors_without_each_point() -> None:
+    """Eq. 5.12 of Rasmussen & Williams against N closed-form posteriors on N - 1 points."""
+    rng = np.random.default_rng(3)
+    X = rng.uniform(-1, 1, size=(20, 2))
+    y = np.cos(2 * X[:, 0]) + X[:, 1] ** 2 + 0.05 * rng.standard_normal(20)
+    y[7] += 1.5  # an outlier: its LOO score stands out
+    ls, os_, noise = np.array([0.5, 0.8]), 1.1, 0.01
+    gp = GPRegressor(
+        rbf_factory(2, lengthscale=torch.tensor(ls), outputscale=os_),
+        standardize_x=False,
+        standardize_y=False,
+        noise_init=noise,
+    ).fit(X, y, adam_iters=0, lbfgs_iters=0)
+    res, std = gp.loo_residuals()
+    assert res.shape == std.shape == (20, 1)
+    for i in range(20):
+        keep = np.arange(20) != i
+        mean, var, _ = numpy_gp_posterior(X[keep], y[keep], X[i : i + 1], ls, os_, noise)
+        np.testing.assert_allclose(res[i, 0].item(), y[i] - mean[0], rtol=1e-8, atol=1e-10)
+        np.testing.assert_allclose(std[i, 0].item() ** 2, var[0] + noise, rtol=1e-8)
+    score = (res / std).abs()[:, 0].numpy()
+    assert score.argmax() == 7
+
+
 def test_posterior_in_original_units_with_standardisation() -> None:
     rng = np.random.default_rng(2)
     X = rng.uniform(-1, 1, size=(30, 2)) * np.array([10.0, 0.1]) + np.array([5.0, -3.0])

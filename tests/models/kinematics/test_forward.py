@@ -90,6 +90,34 @@ def test_planar_two_link_fk_gp_reaches_sub_millimetre_rmse(tilted, planar_tilted
         assert fk.position_varying_.tolist() == [True, True, False]
 
 
+def test_outlier_trimming_drops_exactly_the_corrupted_poses():
+    """Tilted 2-link arm, 60 poses with 2 mm noise and 4 gross errors (a 10 cm depth error,
+    a flipped orientation): leave-one-out trimming drops those 4 and the fit is back at the
+    noise level, while the untrimmed fit is pulled off by them."""
+    chain = _planar_arm(tilted=True)
+    rng = np.random.default_rng(5)
+    q_train = rng.uniform(-np.pi, np.pi, (60, 2))
+    poses = chain.marker_poses(q_train)[:, -1].copy()
+    poses[:, :3] += 0.002 * rng.standard_normal((60, 3))
+    bad = np.array([4, 17, 33, 50])
+    poses[bad[:2], 2] += 0.1
+    R = ypr_to_matrix(poses[bad[2:], 3:]) @ np.diag([-1.0, 1.0, -1.0])  # pi about y
+    poses[bad[2:], 3:] = matrix_to_ypr(R)
+    q_test = rng.uniform(-np.pi, np.pi, (200, 2))
+    p_test = chain.marker_poses(q_test)[:, -1]
+    plain = ForwardKinematicsGP("RR").fit(q_train, poses, **FIT)
+    trimmed = ForwardKinematicsGP("RR").fit(q_train, poses, outlier_threshold=4.0, **FIT)
+    assert trimmed.outliers_.tolist() == bad.tolist()
+    err_plain, err_trim = (
+        _rmse(plain.predict(q_test), p_test),
+        _rmse(trimmed.predict(q_test), p_test),
+    )
+    assert err_trim[:3].max() < 0.002 and err_trim[3:].max() < 0.01, err_trim
+    assert err_plain.max() > 3 * err_trim.max(), (err_plain, err_trim)
+    with pytest.raises(ValueError, match="outlier_threshold"):
+        ForwardKinematicsGP("RR").fit(q_train, poses, outlier_threshold=0.0)
+
+
 def test_revolute_prismatic_arm_fk_gp():
     dh = np.array([[0.3, 1.2, 0.1, 0.4], [0.2, -0.7, 0.2, 0.0]])
     rng = np.random.default_rng(2)
