@@ -33,9 +33,9 @@ Parts (thesis section 2.6):
     ``3^6`` monomials of ``k_R`` on ``D_tr``, and the errors restricted to test poses with
     ``|beta| < 1`` (yaw and roll of eq. 2.20 are ill-conditioned near ``beta = +-pi/2``).
     ``--measurement aruco`` (parts a and c only) measures the poses from rendered images
-    with ArUco detection instead of the env's noise model; the GP then trains and tests on
-    the frames whose end marker was found, and the true structure stands in if
-    identification fails (it needs frames that show every marker).
+    with ArUco detection instead of the env's noise model; identification tests each triplet
+    on the frames that show both of its markers, the GP trains and tests on the frames whose
+    end marker was found, and the true structure stands in if identification fails.
 (d) **Controller** (2.6.4, Table 2.2): the GP trained on ``--ctrl-train`` random samples of
     ``D_tr`` (the thesis uses all of ``D_tr``; a subset keeps the run short); 5 random
     targets (configurations uniform in the joint box of the waypoints) from a fixed start;
@@ -315,13 +315,14 @@ def _rbf_gp(q: np.ndarray, poses: np.ndarray, q_test: np.ndarray) -> np.ndarray:
 
 
 def identify_ur10(data: dict[str, Any]) -> dict[str, Any]:
-    """Structure identification on ``D_tr``; frames with a missing marker (rendered
-    measurements) are dropped, and a failure is returned as ``structure=None``."""
+    """Structure identification on ``D_tr``; with markers missing in some frames (rendered
+    measurements) each triplet is tested on the frames that show both of its markers
+    (``nan_policy="pairwise"``); a failure is returned as ``structure=None``."""
     env = data["env"]
     poses, q, _ = data["train"]
     t0 = time.perf_counter()
     try:
-        s = identify_structure(poses, q, nan_policy="drop")
+        s = identify_structure(poses, q, nan_policy="pairwise")
     except ValueError as exc:  # e.g. no frame shows every marker
         return dict(structure=None, correct=False, seconds=time.perf_counter() - t0,
                     error=str(exc))  # fmt: skip

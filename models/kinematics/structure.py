@@ -67,6 +67,10 @@ XI_T = 0.02
 """Default RMS threshold on translations [m] (thesis section 2.6.2)."""
 XI_O = 0.1
 """Default RMS threshold on angles [rad] (thesis section 2.6.2)."""
+NAN_POLICIES = ("raise", "drop", "pairwise")
+"""What to do with missing marker poses (NaN): see :func:`identify_structure`."""
+MIN_PAIR_FRAMES = 10
+"""``nan_policy="pairwise"``: fewest frames showing both markers for a pair to be tested."""
 
 
 def rms(r: ArrayLike) -> float:
@@ -350,18 +354,22 @@ def _validate(
             f"joint_positions must have shape (T, n_joints) with T = {P.shape[0]} rows like "
             f"marker_poses, got {Q.shape}"
         )
-    if nan_policy not in ("raise", "drop"):
-        raise ValueError(f"nan_policy must be 'raise' or 'drop', got {nan_policy!r}")
+    if nan_policy not in NAN_POLICIES:
+        raise ValueError(f"nan_policy must be one of {NAN_POLICIES}, got {nan_policy!r}")
     if np.isinf(P).any() or np.isinf(Q).any():
         raise ValueError("marker_poses / joint_positions contain inf; remove those frames")
-    bad_rows = np.isnan(P).any(axis=(1, 2)) | np.isnan(Q).any(axis=1)
+    if nan_policy == "pairwise":  # missing markers stay NaN; frames without joints go
+        P = np.where(np.isnan(P).any(axis=2, keepdims=True), np.nan, P)
+        bad_rows = np.isnan(Q).any(axis=1) | np.isnan(P).all(axis=(1, 2))
+    else:
+        bad_rows = np.isnan(P).any(axis=(1, 2)) | np.isnan(Q).any(axis=1)
     n_bad = int(bad_rows.sum())
     if n_bad:
         missing = sorted(set(np.nonzero(np.isnan(P).any(axis=(0, 2)))[0].tolist()))
         if nan_policy == "raise":
             raise ValueError(
                 f"{n_bad} of {P.shape[0]} frames contain NaN (missing markers {missing} or "
-                "joint values); drop those frames or pass nan_policy='drop'"
+                "joint values); drop those frames or pass nan_policy='drop' (or 'pairwise')"
             )
         warnings.warn(
             f"dropped {n_bad} of {P.shape[0]} frames with NaN (missing markers {missing})",
@@ -369,7 +377,8 @@ def _validate(
         )
         P, Q = P[~bad_rows], Q[~bad_rows]
     if P.shape[0] < 3:
-        raise ValueError(f"need at least 3 complete frames, got {P.shape[0]}")
+        what = "frames with joint values" if nan_policy == "pairwise" else "complete frames"
+        raise ValueError(f"need at least 3 {what}, got {P.shape[0]}")
     return P, Q, n_bad
 
 
@@ -379,9 +388,14 @@ def find_base_marker(marker_poses: FloatArray, xi_t: float = XI_T, xi_o: float =
     The spread of a marker is ``max(std(l^c) / xi_t, std(R^c elements) / xi_o)``; a warning
     is issued when even the smallest spread exceeds 1 (no marker is static within the noise).
     """
-    pos_std = marker_poses[..., :3].std(0).max(-1)
-    R = ypr_to_matrix(marker_poses[..., 3:])
-    rot_std = np.sqrt(R.reshape(*R.shape[:2], 9).var(0).max(-1))
+    seen = np.isfinite(marker_poses[..., 0]).sum(0)
+    with warnings.catch_warnings():  # a marker never seen: all-NaN columns
+        warnings.simplefilter("ignore", RuntimeWarning)
+        pos_std = np.nanstd(marker_poses[..., :3], axis=0).max(-1)
+        R = ypr_to_matrix(marker_poses[..., 3:])
+        rot_std = np.sqrt(np.nanvar(R.reshape(*R.shape[:2], 9), axis=0).max(-1))
+    pos_std = np.where(seen >= 3, pos_std, np.inf)  # too few sightings to call it static
+    rot_std = np.where(seen >= 3, rot_std, np.inf)
     spread = np.maximum(pos_std / xi_t, rot_std / xi_o)
     base = int(np.argmin(spread))
     if spread[base] > 1.0:
@@ -406,7 +420,8 @@ class KinematicStructure:
         joints: joint-signal indices along the chain (``S_q``).
         complete: every joint signal was placed on the chain.
         triplets: the accepted triplets, one per joint.
-        n_dropped_frames: frames removed for NaN (``nan_policy='drop'``).
+        n_dropped_frames: frames removed for NaN (``nan_policy='drop'``; with
+            ``'pairwise'`` only frames without joint values or without any marker).
     """
 
     markers: tuple[int, ...]
@@ -427,16 +442,27 @@ class KinematicStructure:
 
 
 class _PairCache:
-    """Relative poses and the (joint-independent) revolute linear test per marker pair."""
+    """Relative poses and the (joint-independent) revolute linear test per marker pair, on
+    the frames where both markers are seen (all frames unless ``nan_policy="pairwise"``)."""
 
     def __init__(self, P: FloatArray) -> None:
         self.P = P
+        self.seen = np.isfinite(P[..., 0])  # (T, n_markers)
         self._rel: dict[tuple[int, int], tuple[FloatArray, FloatArray]] = {}
         self._lin: dict[tuple[int, int], float] = {}
 
+    def rows(self, a: int, b: int) -> NDArray[np.bool_]:
+        """Frames in which markers ``a`` and ``b`` are both seen."""
+        return self.seen[:, a] & self.seen[:, b]
+
+    def testable(self, a: int, b: int) -> bool:
+        """Enough common frames for the tests (:data:`MIN_PAIR_FRAMES`)."""
+        return int(self.rows(a, b).sum()) >= MIN_PAIR_FRAMES
+
     def relative(self, a: int, b: int) -> tuple[FloatArray, FloatArray]:
         if (a, b) not in self._rel:
-            self._rel[(a, b)] = relative_poses(self.P[:, a], self.P[:, b])
+            r = self.rows(a, b)
+            self._rel[(a, b)] = relative_poses(self.P[r, a], self.P[r, b])
         return self._rel[(a, b)]
 
     def linear_rms(self, a: int, b: int) -> float:
@@ -458,6 +484,9 @@ def classify_all_triplets(
 ) -> list[TripletResult]:
     """All triplets ``(a < b, k)`` (the tests are symmetric in ``a, b``), as in section 2.6.1.
 
+    ``nan_policy`` as in :func:`identify_structure`; with ``"pairwise"`` pairs seen together
+    in fewer than :data:`MIN_PAIR_FRAMES` frames are left out of the result.
+
     With ``evaluate_all`` (default) the non-linear test runs on every triplet so that the
     confusion matrices of Prop. 2.3.2 and 2.3.3 alone can be drawn (Fig. 2.4).
     """
@@ -467,12 +496,15 @@ def classify_all_triplets(
         pairs = itertools.combinations(range(P.shape[1]), 2)
     out = []
     for a, b in pairs:
+        if not cache.testable(a, b):
+            continue  # too few frames show both markers (nan_policy="pairwise")
+        rows = cache.rows(a, b)
         for k in range(Q.shape[1]):
             out.append(
                 classify_triplet(
                     None,
                     None,
-                    Q[:, k],
+                    Q[rows, k],
                     xi_t=xi_t,
                     xi_o=xi_o,
                     evaluate_all=evaluate_all,
@@ -509,8 +541,11 @@ def identify_structure(
             thesis); ``"best"`` tests every candidate of the current marker and keeps the
             positive one with the smallest normalised residual (more robust with noise; this
             costs more non-linear tests).
-        nan_policy: ``"raise"`` (default) or ``"drop"`` frames with a NaN (a missing marker),
-            with a warning giving the count.
+        nan_policy: ``"raise"`` (default); ``"drop"`` frames with a NaN (a missing marker),
+            with a warning giving the count; or ``"pairwise"``: each triplet test uses the
+            frames in which both of its markers are seen (at least
+            :data:`MIN_PAIR_FRAMES`; pairs with fewer are not tested), for markers that are
+            missing in different frames (a real detector).
         seed: seed of the random order for ``selection="first"``.
 
     Returns:
@@ -539,10 +574,12 @@ def identify_structure(
             candidates = [candidates[i] for i in rng.permutation(len(candidates))]
         chosen = None
         for m, k in candidates:
+            if not cache.testable(cur, m):
+                continue  # too few frames show both markers (nan_policy="pairwise")
             res = classify_triplet(
                 None,
                 None,
-                Q[:, k],
+                Q[cache.rows(cur, m), k],
                 xi_t=xi_t,
                 xi_o=xi_o,
                 indices=(cur, m, k),

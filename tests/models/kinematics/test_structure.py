@@ -123,6 +123,33 @@ def test_missing_marker_frames_raise_or_are_dropped_with_a_count():
     assert s.complete and s.n_dropped_frames == 3 and s.markers == (0, 1, 2)
 
 
+def test_pairwise_nan_policy_recovers_a_chain_whose_markers_come_and_go():
+    """Each moving marker of a shuffled 5-joint chain is missing in 65 % of the frames
+    (independently): fewer than 3 frames show all six, so dropping frames fails, while testing
+    each pair on the frames that show both markers recovers the structure exactly."""
+    rng = np.random.default_rng(12)
+    chain = random_chain(5, rng)
+    P, q = _data(chain, T=200, seed=12)
+    P[:, 1:][rng.random((200, 5)) < 0.65] = np.nan  # the base marker stays visible
+    assert np.isfinite(P).all(axis=(1, 2)).sum() < 3
+    mperm, qperm = rng.permutation(6), rng.permutation(5)
+    P, q = P[:, mperm], q[:, qperm]
+    with pytest.raises(ValueError, match="at least 3 complete frames"):
+        with pytest.warns(UserWarning, match="dropped"):
+            identify_structure(P, q, **EXACT, nan_policy="drop")
+    s = identify_structure(P, q, **EXACT, nan_policy="pairwise")
+    assert s.complete and s.n_dropped_frames == 0
+    assert [int(mperm[m]) for m in s.markers] == list(range(6))
+    assert [int(qperm[k]) for k in s.joints] == list(range(5))
+    assert s.joint_types == chain.joint_types
+    res = classify_all_triplets(P, q, **EXACT, nan_policy="pairwise")
+    assert len(res) == 15 * 5  # every pair is seen together in >= 10 frames here
+    for r in res:
+        a, b, k = int(mperm[r.marker_a]), int(mperm[r.marker_b]), int(qperm[r.joint])
+        connected = abs(a - b) == 1 and k == min(a, b)
+        assert r.joint_type == (chain.joint_types[k] if connected else None)
+
+
 @pytest.mark.parametrize(
     ("poses_shape", "q_shape", "match"),
     [((10, 3, 5), (10, 2), "marker_poses must have shape"), ((10, 3, 6), (9, 2), "T = 10")],
