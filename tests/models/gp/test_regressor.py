@@ -30,18 +30,23 @@ def numpy_gp_posterior(X, y, Xs, lengthscale, outputscale, noise):
     return mean, var, lml
 
 
+def _fixed_gp(X, y, lengthscale, outputscale, noise) -> GPRegressor:
+    """An RBF GP with the given hyperparameters, no standardisation and no training."""
+    return GPRegressor(
+        rbf_factory(X.shape[1], lengthscale=torch.tensor(lengthscale), outputscale=outputscale),
+        standardize_x=False,
+        standardize_y=False,
+        noise_init=noise,
+    ).fit(X, y, adam_iters=0, lbfgs_iters=0)
+
+
 def test_posterior_equals_closed_form_without_standardisation() -> None:
     rng = np.random.default_rng(1)
     X = rng.uniform(-1, 1, size=(25, 2))
     y = np.sin(3 * X[:, 0]) * X[:, 1]
     Xs = rng.uniform(-1.5, 1.5, size=(30, 2))
     ls, os_, noise = np.array([0.4, 0.7]), 1.3, 0.02
-    gp = GPRegressor(
-        rbf_factory(2, lengthscale=torch.tensor(ls), outputscale=os_),
-        standardize_x=False,
-        standardize_y=False,
-        noise_init=noise,
-    ).fit(X, y, adam_iters=0, lbfgs_iters=0)
+    gp = _fixed_gp(X, y, ls, os_, noise)
     mean, var = gp.predict(Xs)
     ref_mean, ref_var, ref_lml = numpy_gp_posterior(X, y, Xs, ls, os_, noise)
     assert mean.shape == var.shape == (30, 1)
@@ -60,12 +65,7 @@ def test_loo_residuals_equal_posteriors_without_each_point() -> None:
     y = np.cos(2 * X[:, 0]) + X[:, 1] ** 2 + 0.05 * rng.standard_normal(20)
     y[7] += 1.5  # an outlier: its LOO score stands out
     ls, os_, noise = np.array([0.5, 0.8]), 1.1, 0.01
-    gp = GPRegressor(
-        rbf_factory(2, lengthscale=torch.tensor(ls), outputscale=os_),
-        standardize_x=False,
-        standardize_y=False,
-        noise_init=noise,
-    ).fit(X, y, adam_iters=0, lbfgs_iters=0)
+    gp = _fixed_gp(X, y, ls, os_, noise)
     res, std = gp.loo_residuals()
     assert res.shape == std.shape == (20, 1)
     for i in range(20):
