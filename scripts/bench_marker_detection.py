@@ -13,8 +13,9 @@ geodesic orientation error (median and RMS) [rad], and the share of gross errors
 them, the env's noise model (``measurement="ideal"``) at the same frames: its per-axis
 position std ``position_noise f`` and geodesic RMS ``sqrt(3) angle_noise f``.
 
-Writes ``marker_detection.json``, ``marker_detection.md`` and ``marker_detection.png``
-(errors against the camera distance) under ``--out-dir``. Needs OpenCV
+Writes ``marker_detection.json``, ``marker_detection.md``, ``marker_detection.png``
+(errors against the camera distance) and ``marker_detection_frame.png`` (the frame with the
+most detections: estimated marker axes and true centres) under ``--out-dir``. Needs OpenCV
 (``pip install 'mcpilco[vision]'``) and offscreen OpenGL (``MUJOCO_GL=egl`` or ``osmesa``).
 
 Usage::
@@ -40,6 +41,7 @@ from tqdm import tqdm  # noqa: E402
 
 from mcpilco.envs.arm_env import UR10_HOME  # noqa: E402
 from mcpilco.envs.marker_camera import MarkerCameraEnv, ypr_to_matrix  # noqa: E402
+from mcpilco.envs.marker_detection import camera_matrix  # noqa: E402
 
 GROSS_POSITION = 0.1
 """3-D position error [m] above which a detection counts as gross."""
@@ -139,8 +141,10 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
         ideal_position_std_mm=float(1e3 * np.sqrt((pos_std[det] ** 2).mean())),
         ideal_geodesic_rms=float(np.sqrt(3 * (ang_std[det] ** 2).mean())),
     )
+    frame = annotated_frame(env, data)
     env.close()
     return dict(
+        _frame=frame,
         config=dict(
             frames=int(det.shape[0]),
             seed=args.seed,
@@ -157,6 +161,34 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
         per_marker=per_marker,
         _arrays=data,
     )
+
+
+def annotated_frame(env: MarkerCameraEnv, data: dict[str, np.ndarray]) -> np.ndarray:
+    """The frame with the most detections, cropped around the markers: the estimated marker
+    frames drawn as axes (x red, y green, z blue; 5 cm) and the true marker centres as
+    white circles, with the chain index. RGB ``(h, w, 3)``."""
+    import cv2
+
+    t = int(data["detected"].sum(1).argmax())
+    img = np.ascontiguousarray(env.camera_image(data["q"][t])[:, :, ::-1])  # BGR for cv2
+    K = camera_matrix(*env.image_size, env.fovy)
+    uv = []
+    for j in range(env.n_markers):
+        l_true = data["true"][t, j, :3]
+        p = K @ l_true
+        c = (int(round(p[0] / p[2])), int(round(p[1] / p[2])))
+        uv.append(c)
+        cv2.circle(img, c, 6, (255, 255, 255), 2)
+        cv2.putText(img, str(j), (c[0] + 8, c[1] - 8), cv2.FONT_HERSHEY_SIMPLEX, 0.8,
+                    (0, 255, 255), 2)  # fmt: skip
+        if data["detected"][t, j]:
+            m = data["measured"][t, j]
+            rvec, _ = cv2.Rodrigues(ypr_to_matrix(m[3:]))
+            cv2.drawFrameAxes(img, K, None, rvec, m[:3].reshape(3, 1), 0.05, 2)
+    uv = np.array(uv)
+    lo = np.maximum(uv.min(0) - 120, 0)
+    hi = np.minimum(uv.max(0) + 120, [img.shape[1], img.shape[0]])
+    return img[lo[1] : hi[1], lo[0] : hi[0], ::-1]
 
 
 def plot(res: dict[str, Any], path: Path) -> None:
@@ -227,7 +259,8 @@ def markdown(res: dict[str, Any], command: str) -> str:
     lines += [
         "",
         f"Gross = 3-D error > {GROSS_POSITION} m or geodesic > {GROSS_ANGLE} rad. The camera "
-        "z axis is the depth. Plot: `marker_detection.png`.",
+        "z axis is the depth. Plots: `marker_detection.png` (errors against the distance), "
+        "`marker_detection_frame.png` (a frame with the estimated marker axes).",
     ]
     return "\n".join(lines) + "\n"
 
@@ -259,6 +292,9 @@ def main(argv: list[str] | None = None) -> int:
     )
     res = run(args)
     plot(res, out / "marker_detection.png")
+    import cv2
+
+    cv2.imwrite(str(out / "marker_detection_frame.png"), res.pop("_frame")[:, :, ::-1])
     text = markdown(res, command.strip())
     res.pop("_arrays")
     res["command"] = command.strip()

@@ -9,7 +9,7 @@ from gymnasium.utils.env_checker import check_env as gym_check_env
 from stable_baselines3.common.env_checker import check_env as sb3_check_env
 
 import mcpilco.envs  # noqa: F401  (registers the ids)
-from tests.envs.conftest import run_python
+from tests.conftest import run_python
 
 ENV_IDS = sorted(i for i in gym.registry if i.startswith("mcpilco/"))
 
