@@ -6,11 +6,13 @@ and the poses are estimated from the image, as a real setup would (thesis sectio
 thesis used AprilTags and a Kinect 2):
 
 1. corners ``c_i`` (pixels) of every visible marker by OpenCV's ArUco detector (dictionary
-   ``DICT_4X4_50``, sub-pixel corner refinement);
-2. the pose ``(R, l)`` of the marker frame in the camera frame by ``cv2.solvePnPGeneric``
-   with ``SOLVEPNP_IPPE_SQUARE`` (the planar square of side ``L``; of its two solutions the
-   one with the lower reprojection error; SQPnP where IPPE fails; dropped above 2 px RMS,
-   or when the two IPPE solutions are ambiguous, see :class:`ArucoMarkerDetector`):
+   ``DICT_4X4_50``, sub-pixel corner refinement), then moved to the intersections of lines
+   fitted to the sub-pixel edges of the four sides (:func:`refine_corners_by_edges`);
+2. the pose ``(R, l)`` of the marker frame in the camera frame: the candidates of
+   ``cv2.solvePnPGeneric`` with ``SOLVEPNP_IPPE_SQUARE`` (two planar solutions) and
+   ``SOLVEPNP_SQPNP``, each scored by its own RMS reprojection error; the best wins. It is
+   dropped above 2 px RMS, or when a rival of a clearly different rotation fits almost as
+   well (the planar ambiguity; see :class:`ArucoMarkerDetector`). The objective:
 
    .. math::
 
@@ -140,7 +142,7 @@ def _edge_line(
 
 
 def refine_corners_by_edges(
-    gray: NDArray[np.uint8], corners: NDArray[np.float64], max_shift: float = 1.5
+    gray: NDArray, corners: NDArray[np.float64], max_shift: float = 1.5
 ) -> NDArray[np.float64]:
     """Corners ``(4, 2)`` (clockwise: ArUco's order) as intersections of lines fitted to the
     sub-pixel edges of the marker's sides (:func:`_edge_line`).
@@ -149,7 +151,8 @@ def refine_corners_by_edges(
     square (the marker looks smaller, so farther away); a straight edge's mid-level
     crossing is unbiased under symmetric blur, so its line intersections are not. The
     input corners are returned unchanged if a side has too few edge points or a corner
-    would move by more than ``max_shift`` px.
+    would move by more than ``max_shift`` px. ``gray``: ``(H, W)`` grey image (converted to
+    float32 unless it already is).
     """
     g = np.asarray(gray, dtype=np.float32)
     lines = [_edge_line(g, corners[i], corners[(i + 1) % 4]) for i in range(4)]
@@ -178,14 +181,15 @@ class ArucoMarkerDetector:
             side (OpenCV's ``minMarkerPerimeterRate``; smaller finds smaller markers).
         max_reprojection_error: RMS corner reprojection error [px] above which a detection
             is dropped (a failed pose solution).
-        min_ambiguity_ratio, ambiguity_angle: drop a detection whose second IPPE solution
-            reprojects less than ``min_ambiguity_ratio`` times worse than the chosen one
-            while the two rotations differ by more than ``ambiguity_angle`` [rad] (the planar
-            pose ambiguity of small, distant markers; near face-on the two solutions are
+        min_ambiguity_ratio, ambiguity_angle: drop a detection when the best candidate pose
+            whose rotation differs from the chosen one by more than ``ambiguity_angle``
+            [rad] reprojects less than ``min_ambiguity_ratio`` times worse (the planar pose
+            ambiguity of small, distant markers; near face-on the two IPPE solutions are
             close and both harmless). ``min_ambiguity_ratio = 0`` keeps all. The default 3
             was chosen on the UR10 trajectory of ``mcpilco-bench-markers`` (seed 0: 77 % of
             the detections kept, gross errors 14.1 % -> 3.8 %) and checked on seed 5
-            (71 % kept, 16.8 % -> 2.7 %); gross = 3-D error > 0.1 m or angle > 0.3 rad.
+            (71 % kept, 16.8 % -> 2.7 %), both on unrefined corners; gross = 3-D error
+            > 0.1 m or angle > 0.3 rad.
         edge_refinement: move the corners to the intersections of lines fitted to the
             sides' sub-pixel edges (:func:`refine_corners_by_edges`).
     """
@@ -238,6 +242,7 @@ class ArucoMarkerDetector:
         corners, ids, _ = self._detector.detectMarkers(gray)
         if ids is None:
             return {}
+        gray_f = gray.astype(np.float32) if self.edge_refinement else None  # once per image
         ids = ids.ravel().tolist()
         out: dict[int, tuple[NDArray[np.float64], NDArray[np.float64]]] = {}
         for marker_id, c in zip(ids, corners, strict=True):
@@ -245,7 +250,7 @@ class ArucoMarkerDetector:
                 continue
             quad = c.reshape(4, 2).astype(np.float64)
             if self.edge_refinement:
-                quad = refine_corners_by_edges(gray, quad)
+                quad = refine_corners_by_edges(gray_f, quad)
             pose = self._solve(quad)
             if pose is not None:
                 out[int(marker_id)] = pose

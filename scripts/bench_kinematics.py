@@ -184,8 +184,17 @@ def monte_carlo(robots: int, seed: int, progress: bool) -> dict[str, Any]:
 # ----------------------------------------------------------------------------- UR10 data
 
 
+def ur10_waypoints(rng: np.random.Generator, span: float, count: int = 25) -> np.ndarray:
+    """``count`` random waypoints ``UR10_HOME + U(-span, span)`` per joint, ``(count, 6)``."""
+    return UR10_HOME + rng.uniform(-span, span, (count, 6))
+
+
 def waypoint_trajectory(
-    env: MarkerCameraEnv, first_obs: np.ndarray, waypoints: np.ndarray, samples: int
+    env: MarkerCameraEnv,
+    first_obs: np.ndarray,
+    waypoints: np.ndarray,
+    samples: int,
+    progress: bool = False,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Drive ``env`` (at ``waypoints[0]``, observation ``first_obs``) through ``waypoints``
     (chain order) by equal joint increments, about ``samples`` frames in all.
@@ -197,6 +206,7 @@ def waypoint_trajectory(
     per_segment = max(1, samples // (len(waypoints) - 1))
     perm = env.joint_permutation
     rows, q_true = [first_obs], [env.q.copy()]
+    bar = tqdm(total=per_segment * (len(waypoints) - 1), disable=not progress, desc="frames")
     for k in range(len(waypoints) - 1):
         delta = (waypoints[k + 1] - waypoints[k]) / per_segment
         for _ in range(per_segment):
@@ -204,6 +214,8 @@ def waypoint_trajectory(
             obs, _, _, _, info = env.step(action)
             rows.append(obs)
             q_true.append(info["q"])
+            bar.update()
+    bar.close()
     rows = np.array(rows)
     poses = rows[:, : 6 * (n + 1)].reshape(-1, n + 1, 6)
     return poses, rows[:, 6 * (n + 1) : 6 * (n + 1) + n], np.array(q_true)
@@ -234,7 +246,7 @@ def ur10_datasets(
         measurement=measurement,
     )
     rng = np.random.default_rng([seed, 1])
-    waypoints = UR10_HOME + rng.uniform(-span, span, (25, 6))
+    waypoints = ur10_waypoints(rng, span)
     obs, _ = env.reset(seed=seed, options={"q": waypoints[0]})
     tr = waypoint_trajectory(env, obs, waypoints, samples)
     order = np.concatenate([[0], 1 + rng.permutation(24)])
@@ -385,11 +397,8 @@ def fk_gp_part(data: dict[str, Any], structure, n_train: int, seed: int) -> dict
     # measurements miss some)
     valid_tr = np.isfinite(poses[:, ee]).all(1)
     valid_te = np.isfinite(poses_te[:, ee]).all(1)
-    if valid_tr.all():
-        idx = rng.choice(len(q), n_train, replace=False)
-    else:
-        n_train = min(n_train, int(valid_tr.sum()))
-        idx = rng.choice(np.flatnonzero(valid_tr), n_train, replace=False)
+    n_train = min(n_train, int(valid_tr.sum()))
+    idx = rng.choice(np.flatnonzero(valid_tr), n_train, replace=False)
     X, Y = q[idx][:, joints], poses[idx, ee]
     poses_te, q_te, q_te_true = poses_te[valid_te], q_te[valid_te], q_te_true[valid_te]
     Xte, Yte = q_te[:, joints], poses_te[:, ee]
@@ -955,8 +964,9 @@ def main(argv: list[str] | None = None) -> int:
             setattr(args, k, v)
     if args.measurement == "aruco" and set(args.parts) & set("bd"):
         parser.error(
-            "--measurement aruco supports parts a and c only: (b) classifies every triplet "
-            "and (d) measures the reached poses, and both need every marker in every frame"
+            "--measurement aruco supports parts a and c only: (b) counts misclassified "
+            "triplets over all 126 and (d) measures every reached pose, and both need the "
+            "markers seen in every frame"
         )
     torch.set_num_threads(1)
     out = Path(args.out_dir)

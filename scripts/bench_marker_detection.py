@@ -28,6 +28,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import sys
 import time
 from pathlib import Path
 from typing import Any
@@ -37,11 +38,10 @@ import matplotlib
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
-from tqdm import tqdm  # noqa: E402
 
-from mcpilco.envs.arm_env import UR10_HOME  # noqa: E402
 from mcpilco.envs.marker_camera import MarkerCameraEnv, ypr_to_matrix  # noqa: E402
 from mcpilco.envs.marker_detection import camera_matrix  # noqa: E402
+from mcpilco.scripts.bench_kinematics import ur10_waypoints, waypoint_trajectory  # noqa: E402
 
 GROSS_POSITION = 0.1
 """3-D position error [m] above which a detection counts as gross."""
@@ -58,35 +58,16 @@ def geodesic(pred: np.ndarray, true: np.ndarray) -> np.ndarray:
 def collect(
     env: MarkerCameraEnv, seed: int, frames: int, span: float, progress: bool
 ) -> dict[str, np.ndarray]:
-    """Drive ``env`` through 25 random waypoints in about ``frames`` frames; returns the
-    measured and true poses ``(T, n + 1, 6)`` (chain order), the detection mask and the
-    configurations ``(T, n)``."""
-    rng = np.random.default_rng([seed, 1])
-    waypoints = np.asarray(UR10_HOME) + rng.uniform(-span, span, (25, env.n_joints))
-    obs, info = env.reset(seed=seed, options={"q": waypoints[0]})
-    per_segment = max(1, frames // (len(waypoints) - 1))
-    chain = np.argsort(env.marker_permutation)
-    m = env.n_markers
-    meas, true, q = [], [], []
-
-    def record(o: np.ndarray, inf: dict[str, Any]) -> None:
-        meas.append(o[: 6 * m].reshape(m, 6)[chain])
-        true.append(inf["marker_poses"])
-        q.append(inf["q"])
-
-    record(obs, info)
-    bar = tqdm(total=per_segment * (len(waypoints) - 1), disable=not progress, desc="frames")
-    for k in range(len(waypoints) - 1):
-        delta = (waypoints[k + 1] - waypoints[k]) / per_segment
-        for _ in range(per_segment):
-            action = (delta / env.max_increment)[env.joint_permutation].astype(np.float32)
-            obs, _, _, _, info = env.step(action)
-            record(obs, info)
-            bar.update()
-    bar.close()
-    meas_a = np.array(meas)
-    return dict(measured=meas_a, true=np.array(true), q=np.array(q),
-                detected=~np.isnan(meas_a[..., 0]))  # fmt: skip
+    """Drive ``env`` through the 25 random waypoints of
+    :func:`~mcpilco.scripts.bench_kinematics.ur10_waypoints` in about ``frames`` frames;
+    returns the measured and true poses ``(T, n + 1, 6)`` (chain order), the detection mask
+    and the configurations ``(T, n)``."""
+    waypoints = ur10_waypoints(np.random.default_rng([seed, 1]), span)
+    obs, _ = env.reset(seed=seed, options={"q": waypoints[0]})
+    poses, _, q = waypoint_trajectory(env, obs, waypoints, frames, progress)
+    measured = poses[:, np.argsort(env.marker_permutation)]  # chain order
+    true = np.array([env.marker_poses(qq) for qq in q])  # time_offset = 0: what was imaged
+    return dict(measured=measured, true=true, q=q, detected=~np.isnan(measured[..., 0]))
 
 
 def error_stats(measured: np.ndarray, true: np.ndarray) -> dict[str, Any]:
@@ -287,9 +268,7 @@ def main(argv: list[str] | None = None) -> int:
         raise SystemExit("--frames must be >= 24 (one per waypoint segment)")
     out = Path(args.out_dir)
     out.mkdir(parents=True, exist_ok=True)
-    command = "mcpilco-bench-markers " + " ".join(
-        argv if argv is not None else __import__("sys").argv[1:]
-    )
+    command = "mcpilco-bench-markers " + " ".join(argv if argv is not None else sys.argv[1:])
     res = run(args)
     plot(res, out / "marker_detection.png")
     import cv2

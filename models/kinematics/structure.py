@@ -445,8 +445,9 @@ class _PairCache:
     """Relative poses and the (joint-independent) revolute linear test per marker pair, on
     the frames where both markers are seen (all frames unless ``nan_policy="pairwise"``)."""
 
-    def __init__(self, P: FloatArray) -> None:
+    def __init__(self, P: FloatArray, min_frames: int) -> None:
         self.P = P
+        self.min_frames = min_frames
         self.seen = np.isfinite(P[..., 0])  # (T, n_markers)
         self._rel: dict[tuple[int, int], tuple[FloatArray, FloatArray]] = {}
         self._lin: dict[tuple[int, int], float] = {}
@@ -456,8 +457,14 @@ class _PairCache:
         return self.seen[:, a] & self.seen[:, b]
 
     def testable(self, a: int, b: int) -> bool:
-        """Enough common frames for the tests (:data:`MIN_PAIR_FRAMES`)."""
-        return int(self.rows(a, b).sum()) >= MIN_PAIR_FRAMES
+        """At least ``min_frames`` common frames for the tests."""
+        return int(self.rows(a, b).sum()) >= self.min_frames
+
+    @classmethod
+    def for_policy(cls, P: FloatArray, nan_policy: str) -> _PairCache:
+        """``"pairwise"`` tests a pair on :data:`MIN_PAIR_FRAMES` common frames or more;
+        the other policies leave only complete frames (at least 3, :func:`_validate`)."""
+        return cls(P, MIN_PAIR_FRAMES if nan_policy == "pairwise" else 3)
 
     def relative(self, a: int, b: int) -> tuple[FloatArray, FloatArray]:
         if (a, b) not in self._rel:
@@ -491,7 +498,7 @@ def classify_all_triplets(
     confusion matrices of Prop. 2.3.2 and 2.3.3 alone can be drawn (Fig. 2.4).
     """
     P, Q, _ = _validate(marker_poses, joint_positions, nan_policy)
-    cache = _PairCache(P)
+    cache = _PairCache.for_policy(P, nan_policy)
     if pairs is None:
         pairs = itertools.combinations(range(P.shape[1]), 2)
     out = []
@@ -563,7 +570,7 @@ def identify_structure(
     elif not 0 <= base_marker < n_markers:
         raise ValueError(f"base_marker must be in [0, {n_markers}), got {base_marker}")
     rng = np.random.default_rng(seed)
-    cache = _PairCache(P)
+    cache = _PairCache.for_policy(P, nan_policy)
     markers, types, joints, accepted = [base_marker], [], [], []
     free_m = [m for m in range(n_markers) if m != base_marker]
     free_q = list(range(n_joints))
