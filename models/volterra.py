@@ -45,6 +45,8 @@ __all__ = [
     "VolterraGP",
     "fit_percent",
     "lag_matrix",
+    "SPINELLI_TERMS",
+    "spinelli_monomials",
     "spinelli_system",
     "volterra_kernel_factory",
     "wiener_system",
@@ -165,6 +167,38 @@ def spinelli_system(u: np.ndarray | torch.Tensor | list[float]) -> np.ndarray:
         - u1 * u2
         + 0.5 * (u0**2 + u0 * u2 + u1 * u3)
     )
+
+
+#: The 14 monomials of system (6.36) with their coefficients: ``(lags, c)`` stands for
+#: :math:`c \prod_{\tau \in \text{lags}} u_{k-\tau}` (e.g. ``((2, 2, 2), 0.75)`` is
+#: :math:`0.75 u_{k-2}^3`). A second writing of :func:`spinelli_system` (tests compare them).
+SPINELLI_TERMS: tuple[tuple[tuple[int, ...], float], ...] = (
+    ((0,), 1.0),
+    ((1,), 0.6),
+    ((2,), 0.35),
+    ((3,), 0.9),
+    ((4,), 0.35),
+    ((5,), 0.2),
+    ((6,), 0.2),
+    ((3, 3), -0.25),
+    ((0, 1), 0.25),
+    ((2, 2, 2), 0.75),
+    ((1, 2), -1.0),
+    ((0, 0), 0.5),
+    ((0, 2), 0.5),
+    ((1, 3), 0.5),
+)
+
+
+def spinelli_monomials(u: np.ndarray | torch.Tensor | list[float]) -> np.ndarray:
+    """The regressors :math:`\prod_{\tau} u_{k-\tau}` of :data:`SPINELLI_TERMS`, from rest.
+
+    Returns ``(N, 14)``; ``spinelli_monomials(u) @ c`` with the terms' coefficients ``c`` is
+    :func:`spinelli_system` ``(u)``. Least squares on these columns is the oracle of the
+    Volterra benchmark: the estimator that knows which monomials (6.36) holds.
+    """
+    x = lag_matrix(u, 6)
+    return np.stack([np.prod(x[:, list(lags)], axis=1) for lags, _ in SPINELLI_TERMS], axis=1)
 
 
 def wiener_system(u: np.ndarray | torch.Tensor | list[float], order: int) -> np.ndarray:

@@ -8,7 +8,12 @@ posterior call (mean and variance) at ``n_test`` points for:
   :class:`~mcpilco.models.gp.fused.FusedRBFMPKPredictor` (RBF in matmul form, one ``exp``;
   the predictor of the MC-PILCO rollouts), forward only;
 * ``cached64`` / ``cached32``: :class:`mcpilco.models.gp.CachedPredictor` in float64 / float32,
-  forward only and forward + backward w.r.t. the test inputs.
+  forward only and forward + backward w.r.t. the test inputs;
+* ``variance_term64``: a ceiling, the float64 variance term
+  :math:`\lVert L^{-1} k(X, x) \rVert^2` alone on a precomputed cross-covariance (the
+  :math:`N^2 n / 2` multiply-adds per output that an exact variance through the Cholesky
+  factor needs). GPyTorch's time over this one bounds the speed-up of any exact float64
+  predictor built on that product; its GFLOP/s are reported next to a dense float64 matmul's.
 
 All timings come from one process with warm-up. The paths are timed in interleaved rounds
 (round r times a block of calls of every path in turn), so that a change of load on a shared
@@ -37,6 +42,7 @@ import torch
 
 from mcpilco.models.device import resolve_device
 from mcpilco.models.gp import GPRegressor, exact_gp_settings
+from mcpilco.models.gp.dense import dense_covar
 from mcpilco.models.gp.fused import FusedRBFMPKPredictor
 
 
@@ -146,6 +152,17 @@ def run(
     mf, vf = (t.cpu() for t in fused64(x64))
     max_err_fused = max(float((mf - m_ref).abs().max()), float((vf - v_ref).abs().max()))
 
+    # the variance's quadratic term alone, ||L^{-1} k(X, x)||^2 on a precomputed
+    # cross-covariance: the least work of an exact float64 variance through the Cholesky
+    # factor (N^2 n / 2 multiply-adds per output), as a ceiling on any predictor's speed-up
+    with torch.no_grad():
+        k_cross = dense_covar(pred64.kernel, pred64.train_x.expand(m, n_train, d), xs)
+
+    def variance_term() -> None:
+        with torch.no_grad():
+            pred64.linv.sq_col_norms(k_cross)
+        sync()
+
     calls = {  # name: (call, calls per block, warm-up calls)
         "gpytorch_eval": (gpytorch_call, 3, 2),
         "cached64": (cached(pred64, x64), 10, 3),
@@ -154,11 +171,16 @@ def run(
         "fused32": (cached(fused32, x32), 10, 3),
         "cached64_fwd_bwd": (cached_backward(pred64, x64), 5, 2),
         "cached32_fwd_bwd": (cached_backward(pred32, x32), 5, 2),
+        "variance_term64": (variance_term, 10, 3),
     }
     # CPU time of this (single-threaded) process is robust to other jobs on a shared machine;
     # wall-clock time is reported too.
     timings, wall = _time_interleaved(calls, repeats)
     ref = timings["gpytorch_eval"]
+    tri_flops = (
+        2.0 * m * n_test * sum((n_train - s) * (e - s) for s, e in _panel_bounds(pred64.linv))
+    )  # multiply-adds of the panel product x 2
+    gemm_gflops = _gemm_gflops(dev, sync)
     return {
         "config": {
             "n_train": n_train,
@@ -180,9 +202,40 @@ def run(
         "speedup_vs_gpytorch_wall": {
             k: wall["gpytorch_eval"] / v for k, v in wall.items() if k != "gpytorch_eval"
         },
+        "variance_term64": {
+            "flops": tri_flops,
+            "gflops_per_s": tri_flops / timings["variance_term64"] / 1e9,
+            "gemm64_reference_gflops_per_s": gemm_gflops,
+            "ceiling_speedup_vs_gpytorch": ref / timings["variance_term64"],
+        },
         "max_abs_diff_cached64_vs_gpytorch": max_err,
         "max_abs_diff_fused64_vs_gpytorch": max_err_fused,
     }
+
+
+def _panel_bounds(linv) -> list[tuple[int, int]]:
+    """``(s_i, e_i)`` column bounds of the panels of a ``LowerTriangularBlocks``."""
+    bounds, s = [], 0
+    for P in linv.panels:
+        bounds.append((s, s + P.shape[-1]))
+        s += P.shape[-1]
+    return bounds
+
+
+def _gemm_gflops(dev: torch.device, sync: Callable[[], None], size: int = 1000) -> float:
+    """GFLOP/s of one dense float64 ``size``-cube matmul here (median of 5): the machine's
+    reference rate for the float64 products above."""
+    a = torch.randn(size, size, dtype=torch.float64, device=dev)
+    b = torch.randn(size, size, dtype=torch.float64, device=dev)
+    a @ b
+    sync()
+    times = []
+    for _ in range(5):
+        t = time.perf_counter()
+        a @ b
+        sync()
+        times.append(time.perf_counter() - t)
+    return 2.0 * size**3 / statistics.median(times) / 1e9
 
 
 def markdown_table(result: dict) -> str:
@@ -234,6 +287,15 @@ def main(argv: list[str] | None = None) -> int:
         f"max |diff| float64 = {result['max_abs_diff_cached64_vs_gpytorch']:.2e}; "
         f"fused RBF posterior, float64: {f64:.1f}x "
         f"(max |diff| {result['max_abs_diff_fused64_vs_gpytorch']:.2e})"
+    )
+    vt = result["variance_term64"]
+    print(
+        f"ceiling: the float64 variance term ||L^-1 k||^2 alone takes "
+        f"{result['seconds_per_call']['variance_term64'] * 1e3:.2f} ms "
+        f"({vt['gflops_per_s']:.0f} GFLOP/s; a dense float64 matmul runs at "
+        f"{vt['gemm64_reference_gflops_per_s']:.0f} GFLOP/s here), "
+        f"{vt['ceiling_speedup_vs_gpytorch']:.1f}x below gpytorch: the speed-up an exact "
+        "float64 predictor that forms L^-1 k with this product cannot exceed here"
     )
     print(f"wrote {args.out}")
     return 0

@@ -12,6 +12,8 @@ from mcpilco.models.volterra import (
     VolterraGP,
     fit_percent,
     lag_matrix,
+    SPINELLI_TERMS,
+    spinelli_monomials,
     spinelli_system,
     wiener_system,
 )
@@ -85,6 +87,16 @@ def test_spinelli_system_impulse_response_by_hand():
     u[0] = 1.0
     expected = [1 + 0.5, 0.6, 0.35 + 0.75, -0.25 + 0.9, 0.35, 0.2, 0.2, 0.0, 0.0]
     np.testing.assert_allclose(spinelli_system(u), expected, atol=1e-14)
+
+
+def test_spinelli_monomials_with_their_coefficients_give_the_system():
+    """Two writings of (6.36): the term table times its monomials equals the formula."""
+    u = np.random.default_rng(0).normal(0.0, 2.0, 300)
+    coefs = np.array([c for _, c in SPINELLI_TERMS])
+    phi = spinelli_monomials(u)
+    assert phi.shape == (300, 14)
+    np.testing.assert_allclose(phi @ coefs, spinelli_system(u), rtol=1e-12, atol=1e-12)
+    assert len({lags for lags, _ in SPINELLI_TERMS}) == 14  # no monomial listed twice
 
 
 def test_spinelli_system_cross_terms_by_hand():

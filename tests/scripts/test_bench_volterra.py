@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 import torch
 
-from mcpilco.models.volterra import lag_matrix, spinelli_system, wiener_system
+from mcpilco.models.volterra import fit_percent, lag_matrix, spinelli_system, wiener_system
 from mcpilco.scripts import bench_volterra as bench
 
 
@@ -43,7 +43,7 @@ def test_tiny_benchmark_writes_json_pngs_and_table(tmp_path):
     assert data["meta"]["runs_exp1"] == 1 and data["meta"]["runs_exp2"] == 1
     fits1 = data["fits"]["exp1"]
     assert set(fits1) == {"setup1", "setup2"}
-    assert set(fits1["setup1"]) == set(bench.EXP1["kinds"])
+    assert set(fits1["setup1"]) == {*bench.EXP1["kinds"], bench.ORACLE}
     fits2 = data["fits"]["exp2"]
     assert set(fits2) == {"r2_snr20"}
     assert set(fits2["r2_snr20"]) == set(bench.EXP2["kinds"])
@@ -53,6 +53,7 @@ def test_tiny_benchmark_writes_json_pngs_and_table(tmp_path):
     table = (out / "volterra.md").read_text()
     assert "| setup2 | MPK | 1 |" in table
     assert "| 2 | 20 | MPK | 1 |" in table
+    assert "| setup2 | LS_ORACLE | 1 |" in table and "14 monomials" in table
 
     # --resume reuses the logged runs (nothing recomputed: same Fits, no new log lines)
     n_lines = len((out / "volterra_runs.jsonl").read_text().splitlines())
@@ -115,3 +116,19 @@ def test_run_task_runs_each_kind_only_for_its_orders():
     assert set(fits[2]) == {"mpk", "sed_mpk_tied"}
     assert set(fits[4]) == {"sed_mpk_tied"}
     assert all(np.isfinite(v) for f in fits.values() for v in f.values())
+
+
+def test_oracle_recovers_the_system_from_noiseless_data_and_is_least_squares_with_noise():
+    """Noiseless targets: the 14 true monomials fit exactly, so the test Fit is 100 %. With
+    noise: the residual of the oracle's coefficients is orthogonal to the monomials (normal
+    equations), and its Fit drops below 100."""
+    from mcpilco.models.volterra import spinelli_monomials
+
+    d = bench.exp1_data(1, 1.0, 4.0, 200, 100, 4.0, config_index=1)
+    exact = {**d, "y_train": spinelli_system(d["u_train"])}
+    assert fit_percent(d["z_test"], bench.oracle_prediction(exact)) == pytest.approx(100.0)
+    phi = spinelli_monomials(d["u_train"])
+    coef, *_ = np.linalg.lstsq(phi, d["y_train"], rcond=None)
+    np.testing.assert_allclose(phi.T @ (d["y_train"] - phi @ coef), 0.0, atol=1e-8)
+    np.testing.assert_allclose(bench.oracle_prediction(d), spinelli_monomials(d["u_test"]) @ coef)
+    assert fit_percent(d["z_test"], bench.oracle_prediction(d)) < 99.9
