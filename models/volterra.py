@@ -191,7 +191,7 @@ SPINELLI_TERMS: tuple[tuple[tuple[int, ...], float], ...] = (
 
 
 def spinelli_monomials(u: np.ndarray | torch.Tensor | list[float]) -> np.ndarray:
-    """The regressors :math:`\prod_{\tau} u_{k-\tau}` of :data:`SPINELLI_TERMS`, from rest.
+    r"""The regressors :math:`\prod_{\tau} u_{k-\tau}` of :data:`SPINELLI_TERMS`, from rest.
 
     Returns ``(N, 14)``; ``spinelli_monomials(u) @ c`` with the terms' coefficients ``c`` is
     :func:`spinelli_system` ``(u)``. Least squares on these columns is the oracle of the

@@ -1,4 +1,4 @@
-"""Benchmark: cached GP predictor vs GPyTorch's own posterior ``model(x)`` in eval mode.
+r"""Benchmark: cached GP predictor vs GPyTorch's own posterior ``model(x)`` in eval mode.
 
 Fits a 2-output GP (ScaleKernel(RBF-ARD)) on N synthetic points in d dimensions, then times one
 posterior call (mean and variance) at ``n_test`` points for:

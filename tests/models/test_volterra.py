@@ -9,10 +9,10 @@ import pytest
 import torch
 
 from mcpilco.models.volterra import (
+    SPINELLI_TERMS,
     VolterraGP,
     fit_percent,
     lag_matrix,
-    SPINELLI_TERMS,
     spinelli_monomials,
     spinelli_system,
     wiener_system,
