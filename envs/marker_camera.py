@@ -166,6 +166,9 @@ class MarkerCameraEnv(gym.Env):
     | ``time_offset``              | 0.005 s  | the camera sees the arm this much earlier    |
     |                              |          | than the encoders (linear interpolation     |
     |                              |          | within the last step, ``dt = 0.1`` s)       |
+    | ``visibility_cone``          | ``None`` | markers turned more than this from their     |
+    |                              |          | line of sight to the camera [deg] are not    |
+    |                              |          | seen (NaN rows); ``None``: all are seen      |
 
     ``f = (d / d0)^2 (1 + kappa (1 - |cos theta|))``, with ``theta`` the angle between the
     marker normal (its ``z`` axis) and the optical axis and ``d`` the camera-marker distance
@@ -180,9 +183,13 @@ class MarkerCameraEnv(gym.Env):
     mean ``f`` is 2.5 and the end-marker noise measures 5.2 mm per axis (8.9 mm 3-D) and
     0.032 rad geodesic (0.02-0.035 rad on the yaw-pitch-roll angles): x1.65 from the
     distance, x1.55 from the incidence; the time offset and encoder noise add < 0.1 mm.
-    ``|cos theta|`` also treats a marker seen from behind as face-on (a real detector would not
-    see it; the env always returns every marker). Noise is drawn from the env's
-    ``np_random`` (deterministic under ``reset(seed=...)``).
+    ``|cos theta|`` also treats a marker seen from behind as face-on. A real detector would not
+    see it: with ``visibility_cone`` set, a marker whose normal is more than that angle from its
+    line of sight to the camera (:meth:`facing_cosines`) reads as a row of NaN and
+    ``info["detected"]`` is False for it; without it (the default) the env returns every
+    marker. ``marker_facing_cone`` (below) attaches the markers facing the camera, as one does
+    on a real robot. Noise is drawn from the env's ``np_random`` (deterministic under
+    ``reset(seed=...)``; the same draws with and without ``visibility_cone``).
 
     ## Rewards
     ``reward = -cost``, ``cost = ||l_ee - l*|| + orientation_weight * angle(R_ee^T R*)``
@@ -214,7 +221,7 @@ class MarkerCameraEnv(gym.Env):
     ``start_range``; ``dt``; ``orientation_weight``; the noise arguments above;
     ``shuffle`` (False keeps chain order); ``render_mode`` (``"rgb_array"``, offscreen);
     ``measurement``, ``marker_size``, ``image_size``, ``fovy``, ``pixel_noise``,
-    ``marker_facing_cone`` (below).
+    ``marker_facing_cone``, ``visibility_cone`` (below, above).
 
     ## Rendered markers (``measurement="aruco"``, optional; needs OpenCV and offscreen GL)
     Instead of the noise model above, every observation renders the camera image with MuJoCo
@@ -278,6 +285,7 @@ class MarkerCameraEnv(gym.Env):
         fovy: float = 54.0,
         pixel_noise: float = 2.0,
         marker_facing_cone: float | None = None,
+        visibility_cone: float | None = None,
     ) -> None:
         if render_mode is not None and render_mode not in self.metadata["render_modes"]:
             raise ValueError(f"render_mode must be one of {self.metadata['render_modes']}")
@@ -297,6 +305,15 @@ class MarkerCameraEnv(gym.Env):
             raise ValueError(
                 f"marker_facing_cone must be in [0, 180] deg, got {marker_facing_cone}"
             )
+        if visibility_cone is not None:
+            if measurement != "ideal":
+                raise ValueError(
+                    "visibility_cone applies to measurement='ideal' only (the rendered path's "
+                    "detector decides what it sees)"
+                )
+            if not 0 < visibility_cone <= 180:
+                raise ValueError(f"visibility_cone must be in (0, 180] deg, got {visibility_cone}")
+        self.visibility_cone = visibility_cone
         self.measurement = measurement
         self.marker_size, self.image_size, self.fovy = (
             float(marker_size),
@@ -445,6 +462,18 @@ class MarkerCameraEnv(gym.Env):
             1.0 + self.incidence_gain * (1.0 - cos_theta)
         )
 
+    @staticmethod
+    def _facing_cosines(l_c: FloatArray, R_c: FloatArray) -> FloatArray:
+        # marker normal (z axis) . unit line of sight from the marker to the camera
+        return -np.einsum("mi,mi->m", R_c[:, :, 2], l_c) / np.linalg.norm(l_c, axis=1)
+
+    def facing_cosines(self, q: ArrayLike) -> FloatArray:
+        """``cos phi`` of every marker at ``q`` (chain order), ``(n + 1,)``: ``phi`` the angle
+        between the marker normal (its ``z`` axis) and its line of sight to the camera; 1 faces
+        the camera, < 0 turns its back to it. ``visibility_cone`` hides markers with
+        ``phi > visibility_cone``."""
+        return self._facing_cosines(*self.marker_transforms(q))
+
     def noise_scale(self, q: ArrayLike) -> FloatArray:
         """``f = (d / d0)^2 (1 + kappa (1 - |cos theta|))`` of every marker at ``q``
         (chain order), ``(n + 1,)``: the factor on both noise stds (class docstring)."""
@@ -486,6 +515,12 @@ class MarkerCameraEnv(gym.Env):
             )
         poses = np.concatenate([l_meas, matrix_to_ypr(R_meas)], axis=1)
         q_meas = self.q + rng.standard_normal(self.n_joints) * self.encoder_noise
+        if self.visibility_cone is None:
+            self.detected = np.ones(m, dtype=bool)
+        else:  # the same draws as without the cone; hidden markers read NaN
+            cos_min = math.cos(math.radians(self.visibility_cone))
+            self.detected = self._facing_cosines(l_c, R_c) >= cos_min
+            poses[~self.detected] = np.nan
         return poses, q_meas
 
     def camera_image(self, q: ArrayLike | None = None) -> NDArray[np.uint8]:

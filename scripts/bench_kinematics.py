@@ -66,9 +66,11 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import sys
 import time
 import warnings
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -101,6 +103,15 @@ ERR_NAMES = (*POSE_NAMES, "geodesic")
 UR10_HOME = np.array([0.0, -np.pi / 2, np.pi / 2, 0.0, np.pi / 2, 0.0])
 """UR10 configuration at the centre of the sampled region (elbow up, wrist down)."""
 THESIS_TABLE_2_1 = (0.0052, 0.0051, 0.0069, 0.0169, 0.0265, 0.0358)
+FACING_CONE = 40.0
+"""(b-d) markers are attached facing the camera at ``UR10_HOME`` within this angle [deg]
+(``MarkerCameraEnv(marker_facing_cone=...)``), as one attaches them on a real robot."""
+VISIBILITY_CONE = 70.0
+"""(b-d) a marker turned more than this [deg] from its line of sight to the camera is not seen
+(``MarkerCameraEnv(visibility_cone=...)``); the waypoints and the controller's targets are
+configurations where every marker is seen. The rendered ArUco detector of
+``mcpilco-bench-markers`` finds 37 % of the markers 60-70 deg off, 9 % at 70-80 deg and none
+beyond (``results/marker_detection.md``; misses include occlusions)."""
 REFINE_CHOICES = ("previous", "restart", "both")
 """(d) starts of the online rounds: see :func:`controller_part`."""
 PART_KEYS = ("monte_carlo", "noise_vs_samples", "fk_gp", "controller")
@@ -184,9 +195,39 @@ def monte_carlo(robots: int, seed: int, progress: bool) -> dict[str, Any]:
 # ----------------------------------------------------------------------------- UR10 data
 
 
-def ur10_waypoints(rng: np.random.Generator, span: float, count: int = 25) -> np.ndarray:
-    """``count`` random waypoints ``UR10_HOME + U(-span, span)`` per joint, ``(count, 6)``."""
-    return UR10_HOME + rng.uniform(-span, span, (count, 6))
+def ur10_waypoints(
+    rng: np.random.Generator,
+    span: float,
+    count: int = 25,
+    accept: Callable[[np.ndarray], bool] | None = None,
+    max_draws: int = 100_000,
+) -> np.ndarray:
+    """``count`` random waypoints ``UR10_HOME + U(-span, span)`` per joint, ``(count, 6)``.
+
+    With ``accept``, configurations are drawn one at a time and kept when ``accept(q)``
+    (rejection sampling, at most ``max_draws`` draws, then ``ValueError``).
+    """
+    if accept is None:
+        return UR10_HOME + rng.uniform(-span, span, (count, 6))
+    kept: list[np.ndarray] = []
+    for _ in range(max_draws):
+        q = UR10_HOME + rng.uniform(-span, span, 6)
+        if accept(q):
+            kept.append(q)
+            if len(kept) == count:
+                return np.array(kept)
+    raise ValueError(
+        f"only {len(kept)} of {count} waypoints accepted in {max_draws} draws (span {span}); "
+        "widen the visibility cone or change the span"
+    )
+
+
+def visible_configuration(env: MarkerCameraEnv) -> Callable[[np.ndarray], bool] | None:
+    """``q -> every marker within env.visibility_cone``, or None without a cone."""
+    if env.visibility_cone is None:
+        return None
+    cos_min = math.cos(math.radians(env.visibility_cone))
+    return lambda q: bool(env.facing_cosines(q).min() >= cos_min)
 
 
 def waypoint_trajectory(
@@ -227,27 +268,47 @@ def ur10_datasets(
     span: float = 1.0,
     noise_scale: float = 1.0,
     measurement: str = "ideal",
+    facing_cone: float | None = FACING_CONE,
+    visibility_cone: float | None = VISIBILITY_CONE,
 ) -> dict[str, Any]:
     """``D_tr`` and ``D_test``: 25 random waypoints, visited in two different orders.
 
-    Waypoints: ``UR10_HOME + U(-span, span)`` per joint (the "available region of the
-    workspace" of the thesis; ``span = pi`` explores every joint fully, which 100 samples
+    Waypoints: ``UR10_HOME + U(-span, span)`` per joint, kept only where every marker is
+    seen (the "available region of the workspace" of the thesis, whose camera saw every
+    marker in every frame; ``span = pi`` explores every joint fully, which 100 samples
     cannot cover). One env episode (fixed markers and permutations) holds both trajectories.
     ``noise_scale`` multiplies the env's default ``position_noise`` and ``angle_noise`` (a
-    sensitivity study; 1 = the env's defaults). ``measurement="aruco"`` renders the frames
-    and detects the markers instead (the env's rendered path; markers not found are NaN).
+    sensitivity study; 1 = the env's defaults).
+
+    Marker protocol (``measurement="ideal"``): ``facing_cone`` attaches the markers facing the
+    camera at ``UR10_HOME``; ``visibility_cone`` hides the markers turned further away (NaN
+    rows) and restricts the waypoints to configurations where none is hidden (frames between
+    waypoints can still hide one). Both None: the earlier protocol, markers at uniformly
+    random orientations, every marker seen from any side. ``measurement="aruco"`` renders the
+    frames and detects the markers instead (the env's rendered path, its own facing cone at
+    the first waypoint; markers not found are NaN); the two cones are then not used.
     """
     if not noise_scale >= 0:
         raise ValueError(f"noise_scale must be >= 0, got {noise_scale}")
+    ideal = measurement == "ideal"
+    facing_cone = facing_cone if ideal else None
+    visibility_cone = visibility_cone if ideal else None
     env = MarkerCameraEnv(
         max_increment=0.2,
         position_noise=noise_scale * NOISE_DEFAULTS["position_noise"],
         angle_noise=noise_scale * NOISE_DEFAULTS["angle_noise"],
         measurement=measurement,
+        marker_facing_cone=facing_cone,
+        visibility_cone=visibility_cone,
     )
     rng = np.random.default_rng([seed, 1])
-    waypoints = ur10_waypoints(rng, span)
-    obs, _ = env.reset(seed=seed, options={"q": waypoints[0]})
+    if facing_cone is None and visibility_cone is None:
+        waypoints = ur10_waypoints(rng, span)
+        obs, _ = env.reset(seed=seed, options={"q": waypoints[0]})
+    else:  # markers attached at home, then only configurations where all are seen
+        env.reset(seed=seed, options={"q": UR10_HOME})
+        waypoints = ur10_waypoints(rng, span, accept=visible_configuration(env))
+        obs = _drive_to(env, waypoints[0])[-1]
     tr = waypoint_trajectory(env, obs, waypoints, samples)
     order = np.concatenate([[0], 1 + rng.permutation(24)])
     obs = _drive_to(env, waypoints[0])[-1]  # back to the start (not recorded)
@@ -259,17 +320,27 @@ def ur10_datasets(
 
 
 def noise_vs_samples(
-    seed: int, samples: int, sizes: tuple[int, ...], repeats: int, progress: bool, span: float
+    seed: int,
+    samples: int,
+    sizes: tuple[int, ...],
+    repeats: int,
+    progress: bool,
+    span: float,
+    facing_cone: float | None = FACING_CONE,
+    visibility_cone: float | None = VISIBILITY_CONE,
 ) -> dict[str, Any]:
+    """Fig. 2.6; frames where a marker is hidden count for the triplets that do not use it."""
     out = []
     for rep in range(repeats):
-        data = ur10_datasets(seed + rep, samples, span)
+        data = ur10_datasets(
+            seed + rep, samples, span, facing_cone=facing_cone, visibility_cone=visibility_cone
+        )
         env = data["env"]
         poses, q, _ = data["train"]
         mperm, qperm = env.marker_permutation, env.joint_permutation
         for size in tqdm(sizes, desc=f"(b) sample sizes, repeat {rep}", disable=not progress):
             size = min(size, poses.shape[0])
-            res = classify_all_triplets(poses[:size], q[:size], max_nfev=60)
+            res = classify_all_triplets(poses[:size], q[:size], max_nfev=60, nan_policy="pairwise")
             wrong, f_lin, f_ang = 0, {True: [], False: []}, {True: [], False: []}
             for r in res:
                 a, b, k = int(mperm[r.marker_a]), int(mperm[r.marker_b]), int(qperm[r.joint])
@@ -546,7 +617,14 @@ def controller_part(
     X, Y = q[idx][:, joints], poses[idx, ee]
     q_start = data["waypoints"][0]
     wp = data["waypoints"]
-    q_targets = rng.uniform(wp.min(0), wp.max(0), (5, wp.shape[1]))
+    accept = visible_configuration(env)
+    q_targets = np.array(
+        [q for q in rng.uniform(wp.min(0), wp.max(0), (5000, wp.shape[1])) if accept(q)][:5]
+        if accept is not None
+        else rng.uniform(wp.min(0), wp.max(0), (5, wp.shape[1]))
+    )
+    if len(q_targets) < 5:
+        raise ValueError("fewer than 5 of 5000 target draws show every marker")
     targets = np.array([env.marker_poses(qt)[-1] for qt in q_targets])
     # model joint k is observed slot S_q[k], i.e. chain joint joint_permutation[S_q[k]]
     chain_of_model = env.joint_permutation[joints]
@@ -584,8 +662,10 @@ def controller_part(
             for _ in range(hold):  # the robot rests at q_des while the camera keeps measuring
                 obs_rows.append(env.step(np.zeros(n, dtype=np.float32))[0])
             for o in obs_rows:
-                new_X.append(o[6 * (n + 1) : 6 * (n + 1) + n][joints])
-                new_Y.append(o[: 6 * (n + 1)].reshape(n + 1, 6)[ee])
+                y = o[: 6 * (n + 1)].reshape(n + 1, 6)[ee]
+                if np.isfinite(y).all():  # frames that show the end marker join the data
+                    new_X.append(o[6 * (n + 1) : 6 * (n + 1) + n][joints])
+                    new_Y.append(y)
             reached.append(arrival)
             reached_true.append(env.marker_poses(env.q)[-1])
             if rnd == 0:
@@ -593,15 +673,18 @@ def controller_part(
             else:
                 previous[k] = res.q_final.copy()
         reached, reached_true = np.array(reached), np.array(reached_true)
+        seen = np.isfinite(reached).all(1)  # arrivals whose end marker the camera saw
         rows.append(
             dict(
                 round=rnd,
                 n_data=len(X),
-                rmse=_pose_rmse(reached, targets),
+                arrivals_seen=int(seen.sum()),
+                rmse=_pose_rmse(reached[seen], targets[seen]) if seen.any() else None,
                 rmse_true=_pose_rmse(reached_true, targets),
-                position_error_norm=np.linalg.norm(
-                    reached[:, :3] - targets[:, :3], axis=1
-                ).tolist(),
+                position_error_norm=[  # None: the camera did not see the end marker
+                    float(v) if np.isfinite(v) else None
+                    for v in np.linalg.norm(reached[:, :3] - targets[:, :3], axis=1)
+                ],
                 position_error_norm_true=np.linalg.norm(
                     reached_true[:, :3] - targets[:, :3], axis=1
                 ).tolist(),
@@ -738,6 +821,7 @@ def _markdown(res: dict[str, Any]) -> str:
             "## (b) UR10 with noise: misclassified triplets vs samples (Fig. 2.6)",
             "",
             *_part_command(res, res["noise_vs_samples"]),
+            *_protocol_line(res["noise_vs_samples"]),
             "| repeat | samples | misclassified / triplets | f_r1 lin (mean) | f_r2 lin (min) "
             "| f_r1 ang (mean) | f_r2 ang (min) |",
             "|---|---|---|---|---|---|---|",
@@ -770,6 +854,7 @@ def _markdown(res: dict[str, Any]) -> str:
             "(Table 2.1)",
             "",
             *_part_command(res, fk),
+            *(_protocol_line(fk) if res.get("measurement", "ideal") == "ideal" else []),
             *(
                 [
                     f"Measurement: **{res['measurement']}** (rendered images + ArUco "
@@ -859,6 +944,7 @@ def _markdown(res: dict[str, Any]) -> str:
             f"## (d) Controller, 5 targets, GP on {c['n_train']} samples of D_tr (Table 2.2)",
             "",
             *_part_command(res, c),
+            *_protocol_line(c),
             f"Extra starts: {c.get('starts', 0)} nearest data configurations; q_des clipped to "
             f"the data's joint box: {c.get('limit_to_data', False)}; orientation error in e_p: "
             f"{c.get('orientation', 'ypr')}; rotation outputs: "
@@ -873,8 +959,11 @@ def _markdown(res: dict[str, Any]) -> str:
             "| thesis D̄_tr | 0.0017 | 0.0016 | 0.0020 | 0.0988 | 0.0269 | 0.0419 | - |",
         ]
         for r in c["rounds"]:
+            seen = r.get("arrivals_seen", 5)
+            label = "measured" if seen == 5 else f"measured ({seen} of 5 arrivals seen)"
             lines.append(
-                f"| round {r['round']} ({r['n_data']} samples), measured | {_fmt(r['rmse'])} |"
+                f"| round {r['round']} ({r['n_data']} samples), {label} | "
+                + ("- | " * 7 if r["rmse"] is None else f"{_fmt(r['rmse'])} |")
             )
             if "rmse_true" in r:
                 lines.append(f"| round {r['round']}, true | {_fmt(r['rmse_true'])} |")
@@ -894,6 +983,36 @@ def _markdown(res: dict[str, Any]) -> str:
 
 
 # ----------------------------------------------------------------------------- main
+
+
+def _optional_degrees(text: str) -> float | None:
+    """``"none"`` -> None, else a float angle in (0, 180] deg (argparse type)."""
+    if text.lower() == "none":
+        return None
+    value = float(text)
+    if not 0 < value <= 180:
+        raise argparse.ArgumentTypeError(f"an angle in (0, 180] deg or 'none', got {text}")
+    return value
+
+
+def _protocol_line(part: dict[str, Any]) -> list[str]:
+    """The marker protocol a part (b-d) ran with, as a Markdown line."""
+    mp = part.get("marker_protocol")
+    if mp is None:  # parts computed before the protocol was recorded
+        return ["Markers: uniformly random orientations, every marker seen from any side.", ""]
+    face, vis = mp["facing_cone"], mp["visibility_cone"]
+    text = (
+        "uniformly random orientations"
+        if face is None
+        else f"attached facing the camera at home (within {face:g} deg)"
+    )
+    text += (
+        ", every marker seen from any side"
+        if vis is None
+        else f"; a marker turned more than {vis:g} deg from the camera is not seen, and the "
+        "waypoints (and targets) show every marker"
+    )
+    return [f"Markers: {text}.", ""]
 
 
 def _parser() -> argparse.ArgumentParser:
@@ -935,6 +1054,17 @@ def _parser() -> argparse.ArgumentParser:
         help="(d) GP rotation outputs: five elements + eq. 2.20 (thesis) or nine + SO(3)",
     )  # fmt: skip
     p.add_argument("--span", type=float, default=1.0, help="(b-d) waypoints: home +- span rad")
+    p.add_argument(
+        "--facing-cone", type=_optional_degrees, default=FACING_CONE,
+        help=f"(b-d) markers attached facing the camera at home within this angle [deg] "
+        f"(default {FACING_CONE:g}; 'none': uniformly random orientations)",
+    )  # fmt: skip
+    p.add_argument(
+        "--visibility-cone", type=_optional_degrees, default=VISIBILITY_CONE,
+        help=f"(b-d) markers turned further from the camera are not seen, and waypoints and "
+        f"targets show every marker (default {VISIBILITY_CONE:g}; 'none': every marker seen "
+        "from any side, the protocol before 2026-11-26)",
+    )  # fmt: skip
     p.add_argument(
         "--noise-scale", type=float, default=1.0,
         help="(c, d) multiply the env's default marker position and angle noise (sensitivity)",
@@ -991,15 +1121,25 @@ def main(argv: list[str] | None = None) -> int:
         if part in args.parts:
             res.pop(key, None)  # recomputed below
     t0 = time.perf_counter()
+    ideal = args.measurement == "ideal"  # the rendered path has its own markers (docstring)
+    protocol = dict(
+        facing_cone=args.facing_cone if ideal else None,
+        visibility_cone=args.visibility_cone if ideal else None,
+    )
     if "a" in args.parts:
         res["monte_carlo"] = monte_carlo(args.robots, args.seed, progress)
     if "b" in args.parts:
         sizes = tuple(s for s in args.sizes if s <= args.samples) or (args.samples,)
         res["noise_vs_samples"] = noise_vs_samples(
-            args.seed, args.samples, sizes, args.repeats, progress, args.span
-        )
+            args.seed, args.samples, sizes, args.repeats, progress, args.span,
+            args.facing_cone, args.visibility_cone,
+        )  # fmt: skip
+        res["noise_vs_samples"]["marker_protocol"] = protocol
     if "c" in args.parts or "d" in args.parts:
-        data = ur10_datasets(args.seed, args.samples, args.span, args.noise_scale, args.measurement)
+        data = ur10_datasets(
+            args.seed, args.samples, args.span, args.noise_scale, args.measurement,
+            args.facing_cone, args.visibility_cone,
+        )  # fmt: skip
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", UserWarning)
             idn = identify_ur10(data)
@@ -1025,6 +1165,7 @@ def main(argv: list[str] | None = None) -> int:
             res["identification"]["note"] = "identification failed; (c)/(d) use the true structure"
         if "c" in args.parts:
             res["fk_gp"] = fk_gp_part(data, s, args.fk_train, args.seed)
+            res["fk_gp"]["marker_protocol"] = protocol
         if "d" in args.parts:
             res["controller"] = controller_part(
                 data,
@@ -1042,6 +1183,7 @@ def main(argv: list[str] | None = None) -> int:
                 rotation_outputs=args.rotation_outputs,
                 hold=args.ctrl_hold,
             )
+            res["controller"]["marker_protocol"] = protocol
     for key in PART_KEYS:  # which command produced each part (they may come from --merge)
         if key in res:
             res[key].setdefault("command", res["command"])

@@ -94,6 +94,23 @@ def error_stats(measured: np.ndarray, true: np.ndarray) -> dict[str, Any]:
     )
 
 
+FACING_BINS = (0.0, 20.0, 40.0, 50.0, 60.0, 70.0, 80.0, 90.0, 180.0)
+"""Edges [deg] of the facing-angle bins of :func:`detection_by_facing_angle`."""
+
+
+def detection_by_facing_angle(facing_deg: np.ndarray, detected: np.ndarray) -> list[dict]:
+    """Detection rate of the marker views per bin of the facing angle ``phi`` (between the
+    marker normal and its line of sight to the camera, ``MarkerCameraEnv.facing_cosines``;
+    > 90 deg: turned away). Misses include views hidden by other links."""
+    rows = []
+    for lo, hi in zip(FACING_BINS[:-1], FACING_BINS[1:], strict=True):
+        inside = (facing_deg >= lo) & (facing_deg < hi)
+        views = int(inside.sum())
+        rate = float(detected[inside].mean()) if views else None
+        rows.append(dict(lo_deg=lo, hi_deg=hi, views=views, detection_rate=rate))
+    return rows
+
+
 def run(args: argparse.Namespace) -> dict[str, Any]:
     env = MarkerCameraEnv(
         measurement="aruco", max_increment=0.2, time_offset=0.0,
@@ -122,6 +139,7 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
         ideal_position_std_mm=float(1e3 * np.sqrt((pos_std[det] ** 2).mean())),
         ideal_geodesic_rms=float(np.sqrt(3 * (ang_std[det] ** 2).mean())),
     )
+    facing = np.degrees(np.arccos(np.clip([env.facing_cosines(q) for q in data["q"]], -1, 1)))
     frame = annotated_frame(env, data)
     env.close()
     return dict(
@@ -140,6 +158,7 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
         seconds_per_frame=seconds / det.shape[0],
         overall=overall,
         per_marker=per_marker,
+        by_facing_angle=detection_by_facing_angle(facing, det),
         _arrays=data,
     )
 
@@ -237,6 +256,17 @@ def markdown(res: dict[str, Any], command: str) -> str:
             f"Without the gross errors: RMSE {rm[0]:.1f} / {rm[1]:.1f} / {rm[2]:.1f} mm "
             f"(x / y / z), geodesic RMS {o['geodesic_rms_without_gross']:.3f} rad.",
         ]
+    lines += [
+        "",
+        "Detection rate against the facing angle (marker normal to its line of sight to the "
+        "camera; misses include markers hidden by other links):",
+        "",
+        "| facing angle [deg] | views | detected |",
+        "|---|---:|---:|",
+    ]
+    for b in res["by_facing_angle"]:
+        rate = "-" if b["detection_rate"] is None else f"{100 * b['detection_rate']:.0f} %"
+        lines.append(f"| {b['lo_deg']:.0f}-{b['hi_deg']:.0f} | {b['views']} | {rate} |")
     lines += [
         "",
         f"Gross = 3-D error > {GROSS_POSITION} m or geodesic > {GROSS_ANGLE} rad. The camera "

@@ -144,3 +144,33 @@ def test_noise_std_follows_distance_and_incidence_and_matches_the_draws():
         errs.append(meas[:, :3] - true[:, :3])
     std = np.sqrt((np.array(errs) ** 2).mean(axis=(0, 2)))
     np.testing.assert_allclose(std, pos_std, rtol=0.12)  # 1200 draws each: ~2 % sampling error
+
+
+def test_visibility_cone_hides_exactly_the_markers_turned_away_and_keeps_the_draws():
+    """Independent geometry (numpy DH chain): a marker is seen iff its normal is within the
+    cone of its line of sight to the camera; the seen rows equal those of the same env without
+    a cone (same noise draws), the hidden ones are NaN in their observed slots."""
+    kw = dict(position_noise=0.002, angle_noise=0.007)
+    env, ref = MarkerCameraEnv(visibility_cone=70.0, **kw), MarkerCameraEnv(**kw)
+    seen_any, hidden_any = False, False
+    for seed in range(4):
+        obs, info = env.reset(seed=seed)
+        obs_ref, _ = ref.reset(seed=seed)
+        T = _numpy_chain(env).marker_transforms(info["q"][None])[0]  # chain order, camera frame
+        los = -T[:, :3, 3] / np.linalg.norm(T[:, :3, 3], axis=1, keepdims=True)
+        cos_phi = np.einsum("mi,mi->m", T[:, :3, 2], los)
+        np.testing.assert_allclose(env.facing_cosines(info["q"]), cos_phi, atol=1e-9)
+        expected = cos_phi >= np.cos(np.radians(70.0))
+        np.testing.assert_array_equal(info["detected"], expected)
+        rows = obs[:42].reshape(7, 6)[np.argsort(info["marker_permutation"])]  # chain order
+        rows_ref = obs_ref[:42].reshape(7, 6)[np.argsort(info["marker_permutation"])]
+        assert np.isnan(rows[~expected]).all()
+        np.testing.assert_array_equal(rows[expected], rows_ref[expected])
+        np.testing.assert_array_equal(obs[42:], obs_ref[42:])  # joints and target unchanged
+        seen_any |= bool(expected.any())
+        hidden_any |= bool((~expected).any())
+    assert seen_any and hidden_any  # random placements: some markers face away
+    with pytest.raises(ValueError, match="visibility_cone"):
+        MarkerCameraEnv(visibility_cone=0.0)
+    with pytest.raises(ValueError, match="ideal"):
+        MarkerCameraEnv(measurement="aruco", visibility_cone=60.0)

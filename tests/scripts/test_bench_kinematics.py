@@ -6,7 +6,14 @@ import json
 import numpy as np
 import pytest
 
-from mcpilco.scripts.bench_kinematics import _feature_rank, main
+from mcpilco.envs.marker_camera import ypr_to_matrix
+from mcpilco.scripts.bench_kinematics import (
+    UR10_HOME,
+    _feature_rank,
+    main,
+    ur10_datasets,
+    ur10_waypoints,
+)
 
 
 def test_feature_rank_of_a_straight_segment_is_that_of_its_trig_polynomials():
@@ -72,6 +79,9 @@ def test_bench_kinematics_tiny_run_writes_outputs(tmp_path):
     rounds = res["controller"]["rounds"]
     assert len(rounds) == 2 and rounds[1]["chosen_start"] == [-1] * 5  # refined from round 0
     assert rounds[1]["n_data"] - rounds[0]["n_data"] >= 5 * 2  # + the frames held at rest
+    for key in ("noise_vs_samples", "fk_gp", "controller"):  # the default marker protocol
+        assert res[key]["marker_protocol"] == {"facing_cone": 40.0, "visibility_cone": 70.0}
+    assert "turned more than 70 deg" in (tmp_path / "kinematics.md").read_text()
     for name in ("kinematics_confusion.png", "kinematics_noise_vs_samples.png",
                  "kinematics_controller.png", "kinematics.md"):  # fmt: skip
         assert (tmp_path / name).stat().st_size > 0
@@ -81,3 +91,41 @@ def test_bench_kinematics_rendered_measurement_only_for_parts_a_and_c(tmp_path, 
     with pytest.raises(SystemExit):
         main(["--parts", "cd", "--measurement", "aruco", "--out-dir", str(tmp_path)])
     assert "parts a and c only" in capsys.readouterr().err
+
+
+def _facing_cos(poses):
+    """cos of the angle between each marker normal and its line of sight to the camera,
+    from the true poses (camera frame, yaw-pitch-roll) alone."""
+    normal = ypr_to_matrix(poses[..., 3:])[..., :, 2]
+    los = -poses[..., :3] / np.linalg.norm(poses[..., :3], axis=-1, keepdims=True)
+    return np.einsum("...i,...i->...", normal, los)
+
+
+def test_visible_protocol_waypoints_show_every_marker_and_hidden_frames_read_nan():
+    data = ur10_datasets(0, 96, facing_cone=40.0, visibility_cone=70.0)
+    env = data["env"]
+    cos_min = np.cos(np.radians(70.0))
+    wp_cos = _facing_cos(np.array([env.marker_poses(q) for q in data["waypoints"]]))
+    assert wp_cos.min() >= cos_min  # every marker seen at every waypoint
+    home_cos = _facing_cos(env.marker_poses(UR10_HOME))
+    assert home_cos.min() >= np.cos(np.radians(40.0)) - 1e-9  # attached facing the camera
+    poses, _, q_true = data["train"]
+    # the camera sees the arm time_offset earlier: q_cam = q_t - (offset / dt)(q_t - q_{t-1})
+    lag = env.time_offset / env.dt
+    q_cam = q_true[1:] - lag * (q_true[1:] - q_true[:-1])
+    seen = _facing_cos(np.array([env.marker_poses(q) for q in q_cam])) >= cos_min
+    observed_seen = np.isfinite(poses[1:, :, 0])[:, np.argsort(env.marker_permutation)]
+    np.testing.assert_array_equal(observed_seen, seen)
+    # the earlier protocol (both cones off): random orientations, every marker in every frame
+    old = ur10_datasets(0, 48, facing_cone=None, visibility_cone=None)
+    assert np.isfinite(old["train"][0]).all()
+    assert _facing_cos(np.array([old["env"].marker_poses(q) for q in old["waypoints"]])).min() < 0
+
+
+def test_waypoint_rejection_sampling_keeps_accepted_draws_and_gives_up_clearly():
+    rng = np.random.default_rng(0)
+    wp = ur10_waypoints(rng, 1.0, count=5, accept=lambda q: q[0] > 0.0)
+    assert wp.shape == (5, 6) and (wp[:, 0] > 0).all()
+    assert np.abs(wp - UR10_HOME).max() <= 1.0
+    with pytest.raises(ValueError, match="waypoints accepted"):
+        ur10_waypoints(rng, 1.0, count=2, accept=lambda q: False, max_draws=50)
