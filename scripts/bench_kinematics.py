@@ -11,6 +11,14 @@ Parts (thesis section 2.6):
     ``xi_t = xi_o = 1e-6``. Confusion matrices for Prop. 2.3.1, 2.3.2, 2.3.3 and 2.3.2+2.3.3
     (class 1 = connected through a prismatic, resp. revolute, joint). The iterative
     algorithm is also run on every robot with shuffled markers and joints.
+Marker protocol of parts (b)-(d) (``--facing-cone``, ``--visibility-cone``; defaults
+:data:`FACING_CONE` = 40 and :data:`VISIBILITY_CONE` = 70 deg): the markers are attached facing
+the camera at ``UR10_HOME``, a marker turned more than 70 deg from its line of sight to the
+camera is not seen (NaN), and the waypoints and the controller's targets are drawn only where
+every marker is seen, as in the thesis' data, where every marker was detected in every frame.
+``--facing-cone none --visibility-cone none`` is the earlier protocol (random marker
+orientations, every marker seen from any side).
+
 (b) **Noise vs samples** (2.6.2, Fig. 2.6): the UR10 of ``mcpilco/MarkerCamera-v0`` with its
     default AprilTag-like noise follows a trajectory through 25 random waypoints (about
     ``--samples`` frames); for growing prefixes of it, all 126 triplets are classified with
