@@ -212,7 +212,7 @@ class MarkerCameraEnv(gym.Env):
     ``ee_slot`` (the observed slot of the end-effector marker); ``q`` (true joint
     positions, chain order); ``marker_poses`` (true poses ``(n + 1, 6)``, chain order);
     ``target_q`` (chain order); ``detected`` (markers found in the frame, chain order;
-    all True with ``measurement="ideal"``); ``t`` [s].
+    all True with ``measurement="ideal"`` and no ``visibility_cone``); ``t`` [s].
 
     ## Arguments
     ``arm`` (``"ur10"``, ``"scara"``, ``"random"`` or an :class:`ArmSpec`); ``n_joints``,
