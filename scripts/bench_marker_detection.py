@@ -14,8 +14,9 @@ them, the env's noise model (``measurement="ideal"``) at the same frames: its pe
 position std ``position_noise f`` and geodesic RMS ``sqrt(3) angle_noise f``.
 
 Writes ``marker_detection.json``, ``marker_detection.md``, ``marker_detection.png``
-(errors against the camera distance) and ``marker_detection_frame.png`` (the frame with the
-most detections: estimated marker axes and true centres) under ``--out-dir``. Needs OpenCV
+(errors against the camera distance, detection rate against the facing angle) and
+``marker_detection_frame.png`` (the frame with the most detections: estimated marker axes
+and true centres) under ``--out-dir``. Needs OpenCV
 (``pip install 'mcpilco[vision]'``) and offscreen OpenGL (``MUJOCO_GL=egl`` or ``osmesa``).
 
 Usage::
@@ -198,7 +199,7 @@ def plot(res: dict[str, Any], path: Path) -> None:
     err = np.linalg.norm(meas[..., :3] - true[..., :3], axis=-1)
     ang = np.full(det.shape, np.nan)
     ang[det] = geodesic(meas[det][:, 3:], true[det][:, 3:])
-    fig, axes = plt.subplots(1, 2, figsize=(11, 4.2))
+    fig, axes = plt.subplots(1, 3, figsize=(16, 4.2))
     for j in range(det.shape[1]):
         d = det[:, j]
         if d.any():
@@ -214,6 +215,16 @@ def plot(res: dict[str, Any], path: Path) -> None:
                 title="orientation")  # fmt: skip
     axes[0].legend(fontsize=7, markerscale=2)
     axes[1].legend(fontsize=7)
+    bins = res["by_facing_angle"]
+    labels = [f"{b['lo_deg']:.0f}-{b['hi_deg']:.0f}" for b in bins]
+    rates = [100 * (b["detection_rate"] or 0.0) for b in bins]
+    axes[2].bar(labels, rates, color="tab:blue")
+    for i, b in enumerate(bins):
+        axes[2].text(i, rates[i] + 1, f"n={b['views']}", ha="center", fontsize=7)
+    axes[2].set(xlabel="facing angle: marker normal to line of sight [deg]",
+                ylabel="marker views detected [%]", ylim=(0, 100),
+                title="detection rate (misses include occlusion)")  # fmt: skip
+    axes[2].tick_params(axis="x", labelsize=7)
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)
