@@ -281,8 +281,9 @@ def markdown(res: dict[str, Any], command: str) -> str:
     lines += [
         "",
         f"Gross = 3-D error > {GROSS_POSITION} m or geodesic > {GROSS_ANGLE} rad. The camera "
-        "z axis is the depth. Plots: `marker_detection.png` (errors against the distance), "
-        "`marker_detection_frame.png` (a frame with the estimated marker axes).",
+        "z axis is the depth. Plots: `marker_detection.png` (errors against the distance, "
+        "detection rate against the facing angle), `marker_detection_frame.png` (a frame with "
+        "the estimated marker axes).",
     ]
     return "\n".join(lines) + "\n"
 
