@@ -44,6 +44,9 @@ orientations, every marker seen from any side).
     with ArUco detection instead of the env's noise model; identification tests each triplet
     on the frames that show both of its markers, the GP trains and tests on the frames whose
     end marker was found, and the true structure stands in if identification fails.
+    ``--fk-seeds 0 1 2 3 4`` runs part (c) alone on each seed (its own markers, waypoints
+    and noise) and writes ``kinematics_c_seeds.{json,md}``: per-seed RMSEs, their mean and
+    range, and on how many seeds each pose element meets the goal (6 mm, 0.04 rad).
 (d) **Controller** (2.6.4, Table 2.2): the GP trained on ``--ctrl-train`` random samples of
     ``D_tr`` (the thesis uses all of ``D_tr``; a subset keeps the run short); 5 random
     targets (configurations uniform in the joint box of the waypoints) from a fixed start;
@@ -405,6 +408,17 @@ def _rbf_gp(q: np.ndarray, poses: np.ndarray, q_test: np.ndarray) -> np.ndarray:
     return np.column_stack([m[:, :3], matrix_to_ypr(Rhat)])
 
 
+def true_structure(env: MarkerCameraEnv) -> KinematicStructure:
+    """The UR10's structure in the env's observed (shuffled) slots: what identification
+    should return."""
+    return KinematicStructure(
+        markers=tuple(int(np.nonzero(env.marker_permutation == j)[0][0]) for j in range(7)),
+        joint_types="RRRRRR",
+        joints=tuple(int(np.nonzero(env.joint_permutation == j)[0][0]) for j in range(6)),
+        complete=True,
+    )
+
+
 def identify_ur10(data: dict[str, Any]) -> dict[str, Any]:
     """Structure identification on ``D_tr``; with markers missing in some frames (rendered
     measurements) each triplet is tested on the frames that show both of its markers
@@ -558,6 +572,132 @@ def fk_gp_part(data: dict[str, Any], structure, n_train: int, seed: int) -> dict
         nine_elements_rmse_true_small_beta=_pose_rmse(pred9[small_beta], true_te[small_beta]),
         measurement_noise_rmse_small_beta=_pose_rmse(Yte[small_beta], true_te[small_beta]),
     )
+
+
+FK_GOAL = (0.006, 0.04)
+"""Issue goal of part (c): RMSE <= 6 mm on x, y, z and <= 0.04 rad on each angle."""
+
+
+def fk_seed_study(
+    seeds: list[int],
+    samples: int,
+    span: float,
+    noise_scale: float,
+    n_train: int,
+    facing_cone: float | None,
+    visibility_cone: float | None,
+    progress: bool,
+) -> dict[str, Any]:
+    """Part (c) on several seeds (each its own markers, permutations, waypoints and noise):
+    per-seed RMSEs against the measured poses, their mean and range, and on how many seeds
+    each axis meets :data:`FK_GOAL`."""
+    rows = []
+    for seed in tqdm(seeds, desc="(c) seeds", disable=not progress):
+        data = ur10_datasets(
+            seed, samples, span, noise_scale, facing_cone=facing_cone,
+            visibility_cone=visibility_cone,
+        )  # fmt: skip
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", UserWarning)
+            idn = identify_ur10(data)
+        structure = idn["structure"] if idn["correct"] else true_structure(data["env"])
+        fk = fk_gp_part(data, structure, n_train, seed)
+        rows.append(
+            dict(
+                seed=seed,
+                identified=bool(idn["correct"]),
+                polynomial=fk["polynomial_rmse_measured"],
+                polynomial_true=fk["polynomial_rmse_true"],
+                nine_elements=fk["nine_elements_rmse_measured"],
+                rbf=fk["rbf_rmse_measured"],
+                noise=fk["measurement_noise_rmse"],
+            )
+        )
+    summary = {}
+    for key in ("polynomial", "polynomial_true", "nine_elements", "rbf", "noise"):
+        table = np.array([r[key] for r in rows])
+        summary[key] = dict(
+            mean=table.mean(0).tolist(), min=table.min(0).tolist(), max=table.max(0).tolist()
+        )
+    limits = np.array([FK_GOAL[0]] * 3 + [FK_GOAL[1]] * 3)
+    met = {
+        key: (np.array([r[key][:6] for r in rows]) <= limits).sum(0).tolist()
+        for key in ("polynomial", "nine_elements")
+    }
+    all_met = {
+        key: int((np.array([r[key][:6] for r in rows]) <= limits).all(1).sum())
+        for key in ("polynomial", "nine_elements")
+    }
+    return dict(
+        seeds=list(seeds),
+        n_train=n_train,
+        marker_protocol=dict(facing_cone=facing_cone, visibility_cone=visibility_cone),
+        rows=rows,
+        summary=summary,
+        goal=dict(position=FK_GOAL[0], angle=FK_GOAL[1], met_per_axis=met, met_all=all_met),
+    )
+
+
+def fk_seed_markdown(study: dict[str, Any], command: str) -> str:
+    """Markdown table of :func:`fk_seed_study`."""
+
+    def mm(v: list[float]) -> str:  # x, y, z cells in mm
+        return " | ".join(f"{1e3 * x:.1f}" for x in v[:3])
+
+    def rad(v: list[float]) -> str:  # gamma, beta, alpha cells in rad
+        return " | ".join(f"{x:.3f}" for x in v[3:6])
+
+    lines = [
+        f"# FK GP over {len(study['seeds'])} seeds (part (c), thesis Table 2.1)",
+        "",
+        f"Command: `{command}`",
+        "",
+        *_protocol_line(study),
+        f"{study['n_train']} training samples of D_tr per seed, tested on D_test. RMSE "
+        "against the measured poses: x, y, z in mm, gamma, beta, alpha in rad. Nine: the GP "
+        "on all nine rotation elements projected onto SO(3) (same positions).",
+        "",
+        "| seed | identified | x | y | z | gamma | beta | alpha | nine: gamma | beta | alpha "
+        "| RBF x | y | z | noise x | y | z |",
+        "|---|---|" + "---:|" * 15,
+    ]
+    rows = [(str(r["seed"]), "yes" if r["identified"] else "no", r) for r in study["rows"]]
+    summ = study["summary"]
+    for label, pick in (("mean", "mean"), ("min", "min"), ("max", "max")):
+        rows.append(
+            (label, "", {k: summ[k][pick] for k in ("polynomial", "nine_elements", "rbf", "noise")})
+        )
+    for seed, ident, r in rows:
+        lines.append(
+            f"| {seed} | {ident} | {mm(r['polynomial'])} | {rad(r['polynomial'])} | "
+            f"{rad(r['nine_elements'])} | {mm(r['rbf'])} | {mm(r['noise'])} |"
+        )
+    g = study["goal"]
+    n = len(study["seeds"])
+
+    def per(key: str) -> str:  # seeds meeting the goal, per pose element
+        met = g["met_per_axis"][key]
+        return ", ".join(f"{name} {c}/{n}" for name, c in zip(POSE_NAMES, met, strict=True))
+
+    lines += [
+        "",
+        f"Goal (<= {1e3 * g['position']:.0f} mm on x, y, z and <= {g['angle']} rad on each "
+        f"angle), seeds meeting it: five elements {per('polynomial')}; all six on "
+        f"{g['met_all']['polynomial']}/{n}. Nine elements {per('nine_elements')}; all six on "
+        f"{g['met_all']['nine_elements']}/{n}.",
+        "",
+        "Against the truth (five elements): mean "
+        + " / ".join(f"{1e3 * x:.1f}" for x in summ["polynomial_true"]["mean"][:3])
+        + " mm, range "
+        + " / ".join(
+            f"{1e3 * a:.1f}-{1e3 * b:.1f}"
+            for a, b in zip(
+                summ["polynomial_true"]["min"][:3], summ["polynomial_true"]["max"][:3], strict=True
+            )
+        )
+        + " mm.",
+    ]
+    return "\n".join(lines) + "\n"
 
 
 # ----------------------------------------------------------------------------- (d) controller
@@ -1083,6 +1223,11 @@ def _parser() -> argparse.ArgumentParser:
         "(needs OpenCV and MUJOCO_GL=egl/osmesa; ~0.3 s per frame)",
     )  # fmt: skip
     p.add_argument(
+        "--fk-seeds", type=int, nargs="+", default=None,
+        help="part (c) alone over these seeds: writes kinematics_c_seeds.{json,md} (per-seed "
+        "RMSEs, mean and range, seeds meeting the goal) instead of the other outputs",
+    )  # fmt: skip
+    p.add_argument(
         "--merge", action="store_true",
         help="keep the results of the parts not run from an existing kinematics.json in --out-dir",
     )  # fmt: skip
@@ -1106,6 +1251,8 @@ def main(argv: list[str] | None = None) -> int:
             "triplets over all 126 and (d) measures every reached pose, and both need the "
             "markers seen in every frame"
         )
+    if args.fk_seeds is not None and (args.measurement != "ideal" or args.merge):
+        parser.error("--fk-seeds runs part (c) with the noise model alone (no --merge)")
     torch.set_num_threads(1)
     out = Path(args.out_dir)
     out.mkdir(parents=True, exist_ok=True)
@@ -1113,6 +1260,17 @@ def main(argv: list[str] | None = None) -> int:
     cmd = "python -m mcpilco.scripts.bench_kinematics " + " ".join(
         sys.argv[1:] if argv is None else argv
     )
+    if args.fk_seeds is not None:
+        study = fk_seed_study(
+            args.fk_seeds, args.samples, args.span, args.noise_scale, args.fk_train,
+            args.facing_cone, args.visibility_cone, progress,
+        )  # fmt: skip
+        study["command"] = cmd.strip()
+        (out / "kinematics_c_seeds.json").write_text(json.dumps(study, indent=1))
+        text = fk_seed_markdown(study, cmd.strip())
+        (out / "kinematics_c_seeds.md").write_text(text)
+        print(text)
+        return 0
     res: dict[str, Any] = dict(
         command=cmd.strip(), seed=args.seed, span=args.span, noise_scale=args.noise_scale,
         measurement=args.measurement,
@@ -1163,13 +1321,7 @@ def main(argv: list[str] | None = None) -> int:
             error=idn.get("error"),
         )
         if not idn["correct"]:  # fall back to the true structure so (c)/(d) still run
-            env = data["env"]
-            s = KinematicStructure(
-                markers=tuple(int(np.nonzero(env.marker_permutation == j)[0][0]) for j in range(7)),
-                joint_types="RRRRRR",
-                joints=tuple(int(np.nonzero(env.joint_permutation == j)[0][0]) for j in range(6)),
-                complete=True,
-            )
+            s = true_structure(data["env"])
             res["identification"]["note"] = "identification failed; (c)/(d) use the true structure"
         if "c" in args.parts:
             res["fk_gp"] = fk_gp_part(data, s, args.fk_train, args.seed)

@@ -129,3 +129,20 @@ def test_waypoint_rejection_sampling_keeps_accepted_draws_and_gives_up_clearly()
     assert np.abs(wp - UR10_HOME).max() <= 1.0
     with pytest.raises(ValueError, match="waypoints accepted"):
         ur10_waypoints(rng, 1.0, count=2, accept=lambda q: False, max_draws=50)
+
+
+def test_fk_seed_study_writes_its_table_and_counts_the_goal_from_its_rows(tmp_path, capsys):
+    out = ["--out-dir", str(tmp_path), "--no-progress"]
+    assert main(["--fk-seeds", "0", "1", "--samples", "72", "--fk-train", "20", *out]) == 0
+    study = json.loads((tmp_path / "kinematics_c_seeds.json").read_text())
+    assert [r["seed"] for r in study["rows"]] == [0, 1]
+    assert not (tmp_path / "kinematics.json").exists()  # the study writes only its own files
+    limits = np.array([0.006] * 3 + [0.04] * 3)
+    for key in ("polynomial", "nine_elements"):
+        table = np.array([r[key][:6] for r in study["rows"]])
+        assert study["goal"]["met_per_axis"][key] == (table <= limits).sum(0).tolist()
+        np.testing.assert_allclose(study["summary"][key]["mean"][:6], table.mean(0))
+    assert "| mean |" in (tmp_path / "kinematics_c_seeds.md").read_text()
+    with pytest.raises(SystemExit):
+        main(["--fk-seeds", "0", "--merge", *out])
+    assert "--fk-seeds" in capsys.readouterr().err
