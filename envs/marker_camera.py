@@ -515,9 +515,7 @@ class MarkerCameraEnv(gym.Env):
             )
         poses = np.concatenate([l_meas, matrix_to_ypr(R_meas)], axis=1)
         q_meas = self.q + rng.standard_normal(self.n_joints) * self.encoder_noise
-        if self.visibility_cone is None:
-            self.detected = np.ones(m, dtype=bool)
-        else:  # the same draws as without the cone; hidden markers read NaN
+        if self.visibility_cone is not None:  # same draws as without; hidden markers: NaN
             cos_min = math.cos(math.radians(self.visibility_cone))
             self.detected = self._facing_cosines(l_c, R_c) >= cos_min
             poses[~self.detected] = np.nan

@@ -206,6 +206,28 @@ def monte_carlo(robots: int, seed: int, progress: bool) -> dict[str, Any]:
 # ----------------------------------------------------------------------------- UR10 data
 
 
+def draw_accepted(
+    draw: Callable[[], np.ndarray],
+    count: int,
+    accept: Callable[[np.ndarray], bool],
+    max_draws: int,
+    what: str,
+) -> np.ndarray:
+    """``count`` results of ``draw()`` that pass ``accept``, in draw order (rejection
+    sampling); ``ValueError`` after ``max_draws`` draws."""
+    kept: list[np.ndarray] = []
+    for _ in range(max_draws):
+        q = draw()
+        if accept(q):
+            kept.append(q)
+            if len(kept) == count:
+                return np.array(kept)
+    raise ValueError(
+        f"only {len(kept)} of {count} {what} accepted in {max_draws} draws; widen the "
+        "visibility cone or change the span"
+    )
+
+
 def ur10_waypoints(
     rng: np.random.Generator,
     span: float,
@@ -213,23 +235,12 @@ def ur10_waypoints(
     accept: Callable[[np.ndarray], bool] | None = None,
     max_draws: int = 100_000,
 ) -> np.ndarray:
-    """``count`` random waypoints ``UR10_HOME + U(-span, span)`` per joint, ``(count, 6)``.
-
-    With ``accept``, configurations are drawn one at a time and kept when ``accept(q)``
-    (rejection sampling, at most ``max_draws`` draws, then ``ValueError``).
-    """
+    """``count`` random waypoints ``UR10_HOME + U(-span, span)`` per joint, ``(count, 6)``;
+    with ``accept``, only configurations that pass it (:func:`draw_accepted`)."""
     if accept is None:
         return UR10_HOME + rng.uniform(-span, span, (count, 6))
-    kept: list[np.ndarray] = []
-    for _ in range(max_draws):
-        q = UR10_HOME + rng.uniform(-span, span, 6)
-        if accept(q):
-            kept.append(q)
-            if len(kept) == count:
-                return np.array(kept)
-    raise ValueError(
-        f"only {len(kept)} of {count} waypoints accepted in {max_draws} draws (span {span}); "
-        "widen the visibility cone or change the span"
+    return draw_accepted(
+        lambda: UR10_HOME + rng.uniform(-span, span, 6), count, accept, max_draws, "waypoints"
     )
 
 
@@ -479,8 +490,12 @@ def measurement_noise_stats(env: MarkerCameraEnv, measured: np.ndarray, q_true: 
     )
 
 
-def fk_gp_part(data: dict[str, Any], structure, n_train: int, seed: int) -> dict[str, Any]:
-    """Table 2.1 and the diagnostics of the module docstring (part (c))."""
+def fk_gp_part(
+    data: dict[str, Any], structure, n_train: int, seed: int, diagnostics: bool = True
+) -> dict[str, Any]:
+    """Table 2.1 and, with ``diagnostics``, the diagnostics of the module docstring (part (c)):
+    the outlier-trimmed fit, the noise-free fits, the feature rank and the ``|beta| < 1`` rows
+    (without them: the polynomial, nine-element and RBF GPs and the noise floor only)."""
     poses, q, _ = data["train"]
     poses_te, q_te, q_te_true = data["test"]
     env = data["env"]
@@ -503,12 +518,32 @@ def fk_gp_part(data: dict[str, Any], structure, n_train: int, seed: int) -> dict
     pred = fk.predict(Xte)
     pred9 = ForwardKinematicsGP(structure.joint_types, rotation_outputs="nine").fit(X, Y, **fit_kw)
     pred9 = pred9.predict(Xte)
+    pred_rbf = _rbf_gp(X, Y, Xte)
+    result = dict(
+        n_train=n_train,
+        n_test=len(Xte),
+        end_marker_measured=dict(
+            train=int(valid_tr.sum()),
+            test=int(valid_te.sum()),
+            train_frames=len(valid_tr),
+            test_frames=len(valid_te),
+        ),  # fmt: skip
+        fit_seconds=t_fit,
+        polynomial_rmse_measured=_pose_rmse(pred, Yte),
+        polynomial_rmse_true=_pose_rmse(pred, true_te),
+        nine_elements_rmse_measured=_pose_rmse(pred9, Yte),
+        nine_elements_rmse_true=_pose_rmse(pred9, true_te),
+        rbf_rmse_measured=_pose_rmse(pred_rbf, Yte),
+        rbf_rmse_true=_pose_rmse(pred_rbf, true_te),
+        measurement_noise_rmse=_pose_rmse(Yte, true_te),
+        measurement_noise=measurement_noise_stats(env, Yte, q_te_true),
+    )
+    if not diagnostics:
+        return result
     trimmed = ForwardKinematicsGP(structure.joint_types).fit(
         X, Y, outlier_threshold=OUTLIER_THRESHOLD, **fit_kw
     )
     pred_trim = trimmed.predict(Xte)
-    pred_rbf = _rbf_gp(X, Y, Xte)
-    noise_floor = _pose_rmse(Yte, true_te)
     # diagnostics with noise-free q and poses (chain order = model order when the structure
     # is right): is the gap noise, the number of samples, or the trajectory design?
     _, _, q_tr_true = data["train"]
@@ -536,28 +571,11 @@ def fk_gp_part(data: dict[str, Any], structure, n_train: int, seed: int) -> dict
     }
     small_beta = np.abs(true_te[:, 4]) < 1.0  # away from the yaw-pitch-roll singularity
     all_revolute = set(structure.joint_types) == {"R"}
-    return dict(
-        n_train=n_train,
-        n_test=len(Xte),
-        end_marker_measured=dict(
-            train=int(valid_tr.sum()),
-            test=int(valid_te.sum()),
-            train_frames=len(valid_tr),
-            test_frames=len(valid_te),
-        ),  # fmt: skip
-        fit_seconds=t_fit,
-        polynomial_rmse_measured=_pose_rmse(pred, Yte),
-        polynomial_rmse_true=_pose_rmse(pred, true_te),
+    result.update(
         trimmed_rmse_measured=_pose_rmse(pred_trim, Yte),
         trimmed_rmse_true=_pose_rmse(pred_trim, true_te),
         trimmed_outliers=int(len(trimmed.outliers_)),
         trimmed_threshold=OUTLIER_THRESHOLD,
-        nine_elements_rmse_measured=_pose_rmse(pred9, Yte),
-        nine_elements_rmse_true=_pose_rmse(pred9, true_te),
-        rbf_rmse_measured=_pose_rmse(pred_rbf, Yte),
-        rbf_rmse_true=_pose_rmse(pred_rbf, true_te),
-        measurement_noise_rmse=noise_floor,
-        measurement_noise=measurement_noise_stats(env, Yte, q_te_true),
         polynomial_noiseless_training_rmse_true=noise_free_rows[f"{n_train} samples of D_tr"],
         noise_free_training_rmse_true=noise_free_rows,
         feature_rank=dict(
@@ -572,6 +590,7 @@ def fk_gp_part(data: dict[str, Any], structure, n_train: int, seed: int) -> dict
         nine_elements_rmse_true_small_beta=_pose_rmse(pred9[small_beta], true_te[small_beta]),
         measurement_noise_rmse_small_beta=_pose_rmse(Yte[small_beta], true_te[small_beta]),
     )
+    return result
 
 
 FK_GOAL = (0.006, 0.04)
@@ -601,7 +620,7 @@ def fk_seed_study(
             warnings.simplefilter("ignore", UserWarning)
             idn = identify_ur10(data)
         structure = idn["structure"] if idn["correct"] else true_structure(data["env"])
-        fk = fk_gp_part(data, structure, n_train, seed)
+        fk = fk_gp_part(data, structure, n_train, seed, diagnostics=False)
         rows.append(
             dict(
                 seed=seed,
@@ -765,14 +784,13 @@ def controller_part(
     X, Y = q[idx][:, joints], poses[idx, ee]
     q_start = data["waypoints"][0]
     wp = data["waypoints"]
+    lo, hi = wp.min(0), wp.max(0)
     accept = visible_configuration(env)
-    q_targets = np.array(
-        [q for q in rng.uniform(wp.min(0), wp.max(0), (5000, wp.shape[1])) if accept(q)][:5]
-        if accept is not None
-        else rng.uniform(wp.min(0), wp.max(0), (5, wp.shape[1]))
+    q_targets = (
+        rng.uniform(lo, hi, (5, wp.shape[1]))
+        if accept is None
+        else draw_accepted(lambda: rng.uniform(lo, hi), 5, accept, 5000, "targets")
     )
-    if len(q_targets) < 5:
-        raise ValueError("fewer than 5 of 5000 target draws show every marker")
     targets = np.array([env.marker_poses(qt)[-1] for qt in q_targets])
     # model joint k is observed slot S_q[k], i.e. chain joint joint_permutation[S_q[k]]
     chain_of_model = env.joint_permutation[joints]

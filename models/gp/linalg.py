@@ -184,6 +184,11 @@ class LowerTriangularBlocks(nn.Module):
         """The column panels :math:`P_i`, each ``(..., N - s_i, e_i - s_i)``."""
         return tuple(getattr(self, f"panel{i}") for i in range(self.num_panels))
 
+    def multiply_adds(self, n: int) -> int:
+        r"""Multiply-adds of :meth:`matmul` with ``B (N, n)`` per batch element:
+        :math:`\sum_i (N - s_i)(e_i - s_i)\, n` (the panels' entries times ``n``)."""
+        return sum(P.shape[-2] * P.shape[-1] for P in self.panels) * int(n)
+
     def _check(self, B: Tensor) -> None:
         if B.dim() < 2 or B.shape[-2] != self.size:
             raise ValueError(f"B must have shape (..., {self.size}, n), got {tuple(B.shape)}")

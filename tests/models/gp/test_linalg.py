@@ -82,3 +82,13 @@ def test_block_product_rejects_bad_input() -> None:
     tri = LowerTriangularBlocks(torch.eye(4))
     with pytest.raises(ValueError, match=r"\(\.\.\., 4, n\)"):
         tri.sq_col_norms(torch.zeros(5, 2))
+
+
+def test_multiply_adds_counts_the_stored_triangle():
+    """Width-1 panels hold exactly the lower triangle, N(N+1)/2 entries; one panel holds the
+    full square; in between the count lies between the two."""
+    L = torch.tril(torch.randn(2, 30, 30, dtype=torch.float64))
+    n = 7
+    assert LowerTriangularBlocks(L, panel_width=1).multiply_adds(n) == 30 * 31 // 2 * n
+    assert LowerTriangularBlocks(L, panel_width=64).multiply_adds(n) == 30 * 30 * n
+    assert 30 * 31 // 2 * n < LowerTriangularBlocks(L, panel_width=8).multiply_adds(n) < 900 * n
