@@ -27,8 +27,11 @@ orientations, every marker seen from any side).
     non-linear (2.19) revolute tests are recorded; ``--repeats`` trajectories.
 (c) **FK GP** (2.6.3, Table 2.1): the structure is identified on the whole training
     trajectory ``D_tr``; the GP with the kernels ``k_R``/``k_l`` (eqs. 2.22-2.23) is trained
-    on ``--fk-train`` (100) random samples of ``D_tr`` and tested on ``D_test`` (the same
-    waypoints in another order). RMSE against the measured (noisy) test poses, as in the
+    on ``--fk-train`` (100) samples of ``D_tr`` and tested on ``D_test`` (the same
+    waypoints in another order). The samples are picked by ``--train-selection``: ``design``
+    (default, beyond the thesis) greedily by the prior variance of ``k_l`` from the joint
+    signals alone (:func:`~mcpilco.models.kinematics.forward.design_subset`), ``random`` at
+    random as in the thesis. RMSE against the measured (noisy) test poses, as in the
     thesis, and against the true poses. Baseline: an RBF GP (ARD, on raw ``q``) on the same
     samples. Options beyond the thesis, reported separately: the GP on all nine rotation
     elements with the mean projected onto SO(3); the GP with leave-one-out outlier trimming
@@ -47,10 +50,11 @@ orientations, every marker seen from any side).
     ``--fk-seeds 0 1 2 3 4`` runs part (c) alone on each seed (its own markers, waypoints
     and noise) and writes ``kinematics_c_seeds.{json,md}``: per-seed RMSEs, their mean and
     range, and on how many seeds each pose element meets the goal (6 mm, 0.04 rad).
-(d) **Controller** (2.6.4, Table 2.2): the GP trained on ``--ctrl-train`` random samples of
-    ``D_tr`` (the thesis uses all of ``D_tr``; a subset keeps the run short); 5 random
-    targets (configurations uniform in the joint box of the waypoints) from a fixed start;
-    reference by eq. 2.24 (with backtracking), from the start and from the
+(d) **Controller** (2.6.4, Table 2.2): the GP trained on ``--ctrl-train`` samples of
+    ``D_tr`` (``--train-selection``, as in (c); the thesis uses all of ``D_tr``; a subset
+    keeps the run short); 5 random targets (configurations uniform in the joint box of
+    the waypoints) from a fixed start; reference by eq. 2.24 (with backtracking), from the
+    start and from the
     ``--ctrl-starts`` data configurations nearest to the target (the lowest predicted
     ``e_p`` wins; against local minima), clipped to the joint box of the training data
     (against extrapolation); the env tracks it and the camera measures the reached pose.
@@ -100,6 +104,7 @@ from mcpilco.models.kinematics import (
 )
 from mcpilco.models.kinematics.forward import (
     ForwardKinematicsGP,
+    design_subset,
     multi_start_controller,
     nearest_data_starts,
 )
@@ -490,12 +495,46 @@ def measurement_noise_stats(env: MarkerCameraEnv, measured: np.ndarray, q_true: 
     )
 
 
+TRAIN_SELECTIONS = ("design", "random")
+"""How parts (c) and (d) take their training samples from ``D_tr``: ``"design"`` (default) by
+:func:`~mcpilco.models.kinematics.forward.design_subset` (greedy prior variance of ``k_l``, from
+the joint signals alone), ``"random"`` uniformly at random (the thesis)."""
+
+
+def training_indices(
+    q_model: np.ndarray,
+    valid: np.ndarray,
+    n_train: int,
+    selection: str,
+    rng: np.random.Generator,
+    joint_types: str,
+) -> np.ndarray:
+    """``n_train`` rows of ``D_tr`` among the ``valid`` ones (end marker measured) to train on.
+
+    ``q_model``: ``(N, n)`` joint signals in model order. A random draw is always taken from
+    ``rng`` (the random selection, and the same random stream after it for both choices).
+    """
+    if selection not in TRAIN_SELECTIONS:
+        raise ValueError(f"selection must be one of {TRAIN_SELECTIONS}, got {selection!r}")
+    cand = np.flatnonzero(valid)
+    drawn = rng.choice(cand, min(n_train, len(cand)), replace=False)
+    if selection == "random":
+        return drawn
+    return cand[design_subset(q_model[cand], joint_types, len(drawn))]
+
+
 def fk_gp_part(
-    data: dict[str, Any], structure, n_train: int, seed: int, diagnostics: bool = True
+    data: dict[str, Any],
+    structure,
+    n_train: int,
+    seed: int,
+    diagnostics: bool = True,
+    selection: str = "design",
 ) -> dict[str, Any]:
     """Table 2.1 and, with ``diagnostics``, the diagnostics of the module docstring (part (c)):
     the outlier-trimmed fit, the noise-free fits, the feature rank and the ``|beta| < 1`` rows
-    (without them: the polynomial, nine-element and RBF GPs and the noise floor only)."""
+    (without them: the polynomial, nine-element and RBF GPs and the noise floor only).
+    ``selection``: one of :data:`TRAIN_SELECTIONS`."""
     poses, q, _ = data["train"]
     poses_te, q_te, q_te_true = data["test"]
     env = data["env"]
@@ -505,8 +544,8 @@ def fk_gp_part(
     # measurements miss some)
     valid_tr = np.isfinite(poses[:, ee]).all(1)
     valid_te = np.isfinite(poses_te[:, ee]).all(1)
-    n_train = min(n_train, int(valid_tr.sum()))
-    idx = rng.choice(np.flatnonzero(valid_tr), n_train, replace=False)
+    idx = training_indices(q[:, joints], valid_tr, n_train, selection, rng, structure.joint_types)
+    n_train = len(idx)
     X, Y = q[idx][:, joints], poses[idx, ee]
     poses_te, q_te, q_te_true = poses_te[valid_te], q_te[valid_te], q_te_true[valid_te]
     Xte, Yte = q_te[:, joints], poses_te[:, ee]
@@ -521,6 +560,7 @@ def fk_gp_part(
     pred_rbf = _rbf_gp(X, Y, Xte)
     result = dict(
         n_train=n_train,
+        train_selection=selection,
         n_test=len(Xte),
         end_marker_measured=dict(
             train=int(valid_tr.sum()),
@@ -606,6 +646,7 @@ def fk_seed_study(
     facing_cone: float | None,
     visibility_cone: float | None,
     progress: bool,
+    selection: str = "design",
 ) -> dict[str, Any]:
     """Part (c) on several seeds (each its own markers, permutations, waypoints and noise):
     per-seed RMSEs against the measured poses, their mean and range, and on how many seeds
@@ -620,7 +661,7 @@ def fk_seed_study(
             warnings.simplefilter("ignore", UserWarning)
             idn = identify_ur10(data)
         structure = idn["structure"] if idn["correct"] else true_structure(data["env"])
-        fk = fk_gp_part(data, structure, n_train, seed, diagnostics=False)
+        fk = fk_gp_part(data, structure, n_train, seed, diagnostics=False, selection=selection)
         rows.append(
             dict(
                 seed=seed,
@@ -650,6 +691,7 @@ def fk_seed_study(
     return dict(
         seeds=list(seeds),
         n_train=n_train,
+        train_selection=selection,
         marker_protocol=dict(facing_cone=facing_cone, visibility_cone=visibility_cone),
         rows=rows,
         summary=summary,
@@ -672,7 +714,8 @@ def fk_seed_markdown(study: dict[str, Any], command: str) -> str:
         f"Command: `{command}`",
         "",
         *_protocol_line(study),
-        f"{study['n_train']} training samples of D_tr per seed, tested on D_test. RMSE "
+        f"{study['n_train']} training samples of D_tr per seed "
+        f"({_selection_text(study)}), tested on D_test. RMSE "
         "against the measured poses: x, y, z in mm, gamma, beta, alpha in rad. Nine: the GP "
         "on all nine rotation elements projected onto SO(3) (same positions).",
         "",
@@ -749,6 +792,7 @@ def controller_part(
     refine: str = "both",
     rotation_outputs: str = "five",
     hold: int = 5,
+    selection: str = "design",
 ) -> dict[str, Any]:
     """Table 2.2: reach 5 random targets with eq. 2.24, then refit with the executed frames.
 
@@ -770,7 +814,8 @@ def controller_part(
     predicted ``e_p`` wins, ties go to the previous reference).
     ``rotation_outputs`` is that of :class:`ForwardKinematicsGP`. ``hold`` more frames are
     measured while the robot rests at each reached reference (they join the data; the
-    reported reached pose is the single frame at arrival).
+    reported reached pose is the single frame at arrival). ``selection`` picks the
+    ``n_train`` initial samples (:data:`TRAIN_SELECTIONS`).
     """
     if hold < 0:
         raise ValueError(f"hold must be >= 0, got {hold}")
@@ -780,7 +825,8 @@ def controller_part(
     poses, q, _ = data["train"]
     ee, joints = structure.markers[-1], list(structure.joints)
     rng = np.random.default_rng([seed, 4])
-    idx = rng.choice(len(q), min(n_train, len(q)), replace=False)
+    valid = np.isfinite(poses[:, ee]).all(1)
+    idx = training_indices(q[:, joints], valid, n_train, selection, rng, structure.joint_types)
     X, Y = q[idx][:, joints], poses[idx, ee]
     q_start = data["waypoints"][0]
     wp = data["waypoints"]
@@ -861,7 +907,8 @@ def controller_part(
         X = np.concatenate([X, np.array(new_X)])
         Y = np.concatenate([Y, np.array(new_Y)])
     return dict(
-        n_train=n_train,
+        n_train=len(idx),
+        train_selection=selection,
         starts=starts,
         limit_to_data=limit_to_data,
         orientation=orientation,
@@ -1019,6 +1066,8 @@ def _markdown(res: dict[str, Any]) -> str:
             f"## (c) FK GP, {fk['n_train']} training samples, {fk['n_test']} test samples "
             "(Table 2.1)",
             "",
+            f"Training samples {_selection_text(fk)}.",
+            "",
             *_part_command(res, fk),
             *(_protocol_line(fk) if res.get("measurement", "ideal") == "ideal" else []),
             *(
@@ -1109,6 +1158,8 @@ def _markdown(res: dict[str, Any]) -> str:
         lines += [
             f"## (d) Controller, 5 targets, GP on {c['n_train']} samples of D_tr (Table 2.2)",
             "",
+            f"Training samples {_selection_text(c)}.",
+            "",
             *_part_command(res, c),
             *_protocol_line(c),
             f"Extra starts: {c.get('starts', 0)} nearest data configurations; q_des clipped to "
@@ -1161,6 +1212,14 @@ def _optional_degrees(text: str) -> float | None:
     return value
 
 
+def _selection_text(part: dict[str, Any]) -> str:
+    """How a part's training samples were taken from ``D_tr`` (results before the option
+    existed were random)."""
+    if part.get("train_selection", "random") == "random":
+        return "drawn at random, as in the thesis"
+    return "picked by the greedy design on the prior variance of k_l"
+
+
 def _protocol_line(part: dict[str, Any]) -> list[str]:
     """The marker protocol a part (b-d) ran with, as a Markdown line."""
     mp = part.get("marker_protocol")
@@ -1193,6 +1252,11 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--repeats", type=int, default=1, help="(b) trajectories")
     p.add_argument("--fk-train", type=int, default=100, help="(c) training samples")
     p.add_argument("--ctrl-train", type=int, default=300, help="(d) training samples")
+    p.add_argument(
+        "--train-selection", choices=TRAIN_SELECTIONS, default="design",
+        help="(c, d) training samples of D_tr: greedy design by the prior variance of k_l "
+        "(default) or uniformly at random (thesis)",
+    )  # fmt: skip
     p.add_argument("--online-rounds", type=int, default=3, help="(d) refits with new data")
     p.add_argument("--ctrl-steps", type=int, default=300, help="(d) controller updates")
     p.add_argument(
@@ -1281,7 +1345,7 @@ def main(argv: list[str] | None = None) -> int:
     if args.fk_seeds is not None:
         study = fk_seed_study(
             args.fk_seeds, args.samples, args.span, args.noise_scale, args.fk_train,
-            args.facing_cone, args.visibility_cone, progress,
+            args.facing_cone, args.visibility_cone, progress, args.train_selection,
         )  # fmt: skip
         study["command"] = cmd.strip()
         (out / "kinematics_c_seeds.json").write_text(json.dumps(study, indent=1))
@@ -1342,7 +1406,9 @@ def main(argv: list[str] | None = None) -> int:
             s = true_structure(data["env"])
             res["identification"]["note"] = "identification failed; (c)/(d) use the true structure"
         if "c" in args.parts:
-            res["fk_gp"] = fk_gp_part(data, s, args.fk_train, args.seed)
+            res["fk_gp"] = fk_gp_part(
+                data, s, args.fk_train, args.seed, selection=args.train_selection
+            )
             res["fk_gp"]["marker_protocol"] = protocol
         if "d" in args.parts:
             res["controller"] = controller_part(
@@ -1360,6 +1426,7 @@ def main(argv: list[str] | None = None) -> int:
                 refine=args.ctrl_refine,
                 rotation_outputs=args.rotation_outputs,
                 hold=args.ctrl_hold,
+                selection=args.train_selection,
             )
             res["controller"]["marker_protocol"] = protocol
     for key in PART_KEYS:  # which command produced each part (they may come from --merge)

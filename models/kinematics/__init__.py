@@ -15,6 +15,7 @@ package imports nothing from ``mcpilco.envs``.
 from mcpilco.models.kinematics.forward import (
     FKPredictor,
     ForwardKinematicsGP,
+    design_subset,
     fk_features,
     gradient_kinematic_controller,
     multi_start_controller,
@@ -42,6 +43,7 @@ from mcpilco.models.kinematics.synthetic import SyntheticChain, random_chain, su
 __all__ = [
     "FKPredictor",
     "ForwardKinematicsGP",
+    "design_subset",
     "fk_features",
     "gradient_kinematic_controller",
     "multi_start_controller",

@@ -37,6 +37,13 @@ multi-start (beyond the thesis, which names local minima of ``e_p`` and model er
     and keeps the reference with the smallest predicted ``e_p``; ``q_limits`` set to the
     joint box of the data keeps ``q_des`` where the GP has seen data.
 
+training design (beyond the thesis, which draws its 100 training samples at random)
+    :func:`design_subset` picks the ``k`` training configurations of a trajectory greedily by
+    the prior of ``k_l`` (all ``sigma^2 = 1``, ``Sigma = I``, no noise): each pick is the
+    configuration the samples chosen so far predict worst, relative to its prior variance
+    (greedy D-optimal design of the ``3^{N_r}`` monomials, each configuration's monomial
+    vector scaled to unit length). It uses ``q`` alone, never the measured poses.
+
 Each output is one independent GP (``mcpilco.models.gp.GPRegressor``, hyperparameters by
 marginal likelihood); only the joint types are known, no kinematic parameter.
 """
@@ -52,7 +59,7 @@ import torch
 from numpy.typing import ArrayLike, NDArray
 from torch import Tensor, nn
 
-from mcpilco.models.gp import GPRegressor, KernelFactory
+from mcpilco.models.gp import GPRegressor, KernelFactory, greedy_subset
 from mcpilco.models.kernels import LinearKernel
 from mcpilco.models.kinematics.rotations import (
     elements_to_ypr_torch,
@@ -64,6 +71,7 @@ from mcpilco.models.kinematics.rotations import (
 __all__ = [
     "ControllerResult",
     "FKPredictor",
+    "design_subset",
     "ForwardKinematicsGP",
     "fk_features",
     "gradient_kinematic_controller",
@@ -137,6 +145,48 @@ def position_kernel_factory(joint_types: str) -> KernelFactory:
         return kernel * LinearKernel(n_p, batch_shape=batch_shape, active_dims=cols)
 
     return factory
+
+
+def design_subset(q: ArrayLike, joint_types: str, k: int) -> NDArray[np.int64]:
+    r"""Indices of ``k`` rows of ``q`` to train the FK GP on, picked greedily by prior variance.
+
+    With :math:`S` the rows chosen so far and :math:`x = \phi(q)` the features of
+    :func:`fk_features`, the next row is
+
+    .. math::
+        i^\star = \arg\max_{i \notin S}\; \frac{k_l(x_i, x_i)
+            - k_l(x_i, X_S) K_{l,SS}^{-1} k_l(X_S, x_i)}{k_l(x_i, x_i)},
+
+    the prior of eq. 2.23 with unit hyperparameters (``sigma^2 = 1``, ``Sigma_b = I``) and
+    no noise: :func:`~mcpilco.models.gp.greedy_subset`. Each pick multiplies
+    ``det(Phi_S Phi_S^T)`` the most, ``Phi`` the monomials of Prop. 2.5.1 (rows scaled to unit
+    length; for revolute joints alone the prior variance ``2^{N_r}`` is the same everywhere).
+    The picks spread over those monomials instead of repeating the configurations a slow
+    stretch of the trajectory visits many times. Only ``q`` is used.
+
+    Args:
+        q: ``(N, n)`` joint positions in chain order (finite).
+        joint_types: e.g. ``"RRRRRR"``.
+        k: number of rows, ``1 <= k <= N``.
+
+    Returns:
+        ``(k,)`` int64 row indices in selection order, no duplicates.
+    """
+    _check_types(joint_types)
+    q = np.asarray(q, dtype=np.float64)
+    if q.ndim != 2 or q.shape[1] != len(joint_types) or len(q) == 0:
+        raise ValueError(
+            f"q must have shape (N >= 1, {len(joint_types)}) for joint_types {joint_types!r}, "
+            f"got {q.shape}"
+        )
+    if not np.isfinite(q).all():
+        bad = sorted({int(c) for c in np.nonzero(~np.isfinite(q))[1]})
+        raise ValueError(f"q contains NaN or inf in columns {bad}; drop those rows first")
+    if not 1 <= k <= len(q):
+        raise ValueError(f"k must be in [1, {len(q)}], got {k}")
+    kernel = position_kernel_factory(joint_types)(torch.Size([]))
+    idx = greedy_subset(fk_features(q, joint_types), kernel, k, noise_variance=0.0)
+    return idx.numpy().astype(np.int64)
 
 
 def rotation_elements(poses: ArrayLike, which: str = "five") -> FloatArray:

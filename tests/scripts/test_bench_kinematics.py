@@ -11,6 +11,7 @@ from mcpilco.scripts.bench_kinematics import (
     UR10_HOME,
     _feature_rank,
     main,
+    training_indices,
     ur10_datasets,
     ur10_waypoints,
 )
@@ -81,10 +82,25 @@ def test_bench_kinematics_tiny_run_writes_outputs(tmp_path):
     assert rounds[1]["n_data"] - rounds[0]["n_data"] >= 5 * 2  # + the frames held at rest
     for key in ("noise_vs_samples", "fk_gp", "controller"):  # the default marker protocol
         assert res[key]["marker_protocol"] == {"facing_cone": 40.0, "visibility_cone": 70.0}
+    assert res["fk_gp"]["train_selection"] == res["controller"]["train_selection"] == "design"
     assert "turned more than 70 deg" in (tmp_path / "kinematics.md").read_text()
     for name in ("kinematics_confusion.png", "kinematics_noise_vs_samples.png",
                  "kinematics_controller.png", "kinematics.md"):  # fmt: skip
         assert (tmp_path / name).stat().st_size > 0
+
+
+def test_training_indices_take_measured_frames_only():
+    q = np.random.default_rng(0).uniform(-1, 1, (40, 2))
+    valid = np.ones(40, dtype=bool)
+    valid[::3] = False  # frames whose end marker was not measured
+    drawn = training_indices(q, valid, 10, "random", np.random.default_rng(5), "RR")
+    expected = np.random.default_rng(5).choice(np.flatnonzero(valid), 10, replace=False)
+    np.testing.assert_array_equal(drawn, expected)
+    design = training_indices(q, valid, 10, "design", np.random.default_rng(5), "RR")
+    assert valid[design].all() and len(set(design.tolist())) == 10
+    assert len(training_indices(q, valid, 99, "design", np.random.default_rng(5), "RR")) == 26
+    with pytest.raises(ValueError, match="selection must be one of"):
+        training_indices(q, valid, 10, "best", np.random.default_rng(5), "RR")
 
 
 def test_bench_kinematics_rendered_measurement_only_for_parts_a_and_c(tmp_path, capsys):

@@ -11,6 +11,7 @@ from scipy.spatial.transform import Rotation
 
 from mcpilco.models.kinematics.forward import (
     ForwardKinematicsGP,
+    design_subset,
     fk_features,
     gradient_kinematic_controller,
     multi_start_controller,
@@ -262,3 +263,50 @@ def test_nine_element_fk_gp_is_accurate_and_keeps_constant_elements(tilted):
         assert fk.rotation_varying_.tolist() == [True, True, False, True, True] + [False] * 4
     with pytest.raises(ValueError, match="rotation_outputs"):
         ForwardKinematicsGP("RR", rotation_outputs="six")
+
+
+def _monomials(q: np.ndarray, joint_types: str) -> np.ndarray:
+    """Explicit feature map of k_l with unit hyperparameters: the Kronecker product of
+    ``[1, cos q_b, sin q_b]`` (revolute) and ``[1, q_b]`` (prismatic) over the joints."""
+    rows = []
+    for qi in q:
+        phi = np.ones(1)
+        for b, t in enumerate(joint_types):
+            f = [1.0, np.cos(qi[b]), np.sin(qi[b])] if t == "R" else [1.0, qi[b]]
+            phi = np.kron(phi, f)
+        rows.append(phi)
+    return np.array(rows)
+
+
+@pytest.mark.parametrize("joint_types", ["RR", "RP", "RRR"])
+def test_design_subset_is_greedy_determinant_maximisation(joint_types):
+    """Each pick after the first maximises det(Phi_S Phi_S^T) over the remaining rows (greedy
+    D-optimal design), with Phi the explicit monomial features written above, each row scaled
+    to unit length (the prior correlation of k_l)."""
+    q = np.random.default_rng(1).uniform(-2, 2, (60, len(joint_types)))
+    phi = _monomials(q, joint_types)
+    k = min(8, phi.shape[1])  # beyond the rank every determinant is 0
+    idx = design_subset(q, joint_types, k)
+    assert idx.shape == (k,) and len(set(idx.tolist())) == k
+    phi /= np.linalg.norm(phi, axis=1, keepdims=True)
+    for j in range(1, k):
+        chosen = list(idx[:j])
+        dets = np.full(len(q), -np.inf)
+        for i in set(range(len(q))) - set(chosen):
+            s = phi[chosen + [i]]
+            dets[i] = np.linalg.slogdet(s @ s.T)[1]
+        assert dets[idx[j]] >= dets.max() - 1e-8, f"pick {j}"
+
+
+def test_design_subset_skips_repeated_configurations():
+    """A trajectory dwelling at one configuration: one revolute joint spans [1, cos, sin], so
+    3 distinct angles are picked, never two copies of the same one."""
+    q = np.concatenate([np.zeros((50, 1)), [[0.0], [1.0], [2.0], [-1.5], [3.0]]])
+    idx = design_subset(q, "R", 3)
+    assert len({float(q[i, 0]) for i in idx}) == 3
+    with pytest.raises(ValueError, match=r"columns \[0\]"):
+        design_subset(np.array([[np.nan], [1.0]]), "R", 1)
+    with pytest.raises(ValueError, match=r"k must be in \[1, 55\]"):
+        design_subset(q, "R", 56)
+    with pytest.raises(ValueError, match=r"shape \(N >= 1, 2\)"):
+        design_subset(q, "RR", 2)
