@@ -274,8 +274,15 @@ def time_opt_step(
     env_id: str = DEFAULT_ENV_ID,
     device: str = "cpu",
     cuda_graph: bool = True,
+    compile_rollout: bool = False,
 ) -> dict[str, float]:
     """Median wall and CPU seconds of one optimisation step (rollout, backward, Adam).
+
+    ``compile_rollout``: also time the same step with the time step ``torch.compile``-d
+    (:meth:`MCPilcoLoss.compile_step`), on a second loss module sharing the policy and the GP
+    posterior; the eager and the compiled step alternate within each round, so their ratio
+    holds on a busy machine. ``compile_s``: the compiled module's first (untimed) step less
+    its median step, i.e. the compilation.
 
     On a CUDA ``device`` the GP is fitted on the CPU and its posterior, the policy and the
     particles move to the device; each timed step ends with a synchronisation, and with
@@ -301,37 +308,54 @@ def time_opt_step(
     model = GPDynamicsModel(kernel=kernel, adam_iters=30, lbfgs_iters=5, max_points=None)
     model.fit(s, a, s1)
     policy = SquashedRBFPolicy(seed=0)
-    loss = MCPilcoLoss(
-        make_policy_module(policy),
-        model.particle_dynamics(),
-        SwingUpCost(),
-        horizon,
-        num_particles,
-        obs_noise_std=0.01,
-    ).to(dev)  # moves the policy and the GP posterior with it
+    module, dynamics = make_policy_module(policy), model.particle_dynamics()
+
+    def make_loss() -> MCPilcoLoss:  # moves the policy and the GP posterior with it
+        args = (module, dynamics, SwingUpCost(), horizon, num_particles)
+        return MCPilcoLoss(*args, obs_noise_std=0.01).to(dev)
+
     opt = torch.optim.Adam(policy.parameters(), lr=0.01)
     policy.train()
     # the optimiser's own step: eager on the CPU, one CUDA graph on a GPU (captured here)
-    step_fn = loss_and_grad_fn(loss, list(policy.parameters()), cuda_graph=cuda_graph)
-    walls, cpus = [], []
+    params = list(policy.parameters())
+    step_fns = {"eager": loss_and_grad_fn(make_loss(), params, cuda_graph=cuda_graph)}
+    if compile_rollout:
+        compiled = make_loss()
+        compiled.compile_step(dynamic=False)
+        step_fns["compiled"] = loss_and_grad_fn(compiled, params, cuda_graph=cuda_graph)
+    walls: dict[str, list[float]] = {k: [] for k in step_fns}
+    cpus: dict[str, list[float]] = {k: [] for k in step_fns}
+    first: dict[str, float] = {}
     for i in range(repeats + 1):
-        sync()
-        t, c = time.perf_counter(), time.process_time()
-        step_fn()
-        opt.step()
-        sync()
-        if i:  # first call is warm-up
-            walls.append(time.perf_counter() - t)
-            cpus.append(time.process_time() - c)
-    return {
+        for name, step_fn in step_fns.items():
+            sync()
+            t, c = time.perf_counter(), time.process_time()
+            step_fn()
+            opt.step()
+            sync()
+            if i:  # first call is warm-up (and compilation)
+                walls[name].append(time.perf_counter() - t)
+                cpus[name].append(time.process_time() - c)
+            else:
+                first[name] = time.perf_counter() - t
+    out = {
         "n_points": n_points,
         "num_particles": num_particles,
         "threads": threads,
         "device": str(dev),
         "cuda_graph": bool(cuda_graph and dev.type == "cuda"),
-        "s_per_step_wall": statistics.median(walls),
-        "s_per_step_cpu": statistics.median(cpus),
+        "s_per_step_wall": statistics.median(walls["eager"]),
+        "s_per_step_cpu": statistics.median(cpus["eager"]),
     }
+    if compile_rollout:
+        wall_c = statistics.median(walls["compiled"])
+        out.update(
+            compiled_s_per_step_wall=wall_c,
+            compiled_s_per_step_cpu=statistics.median(cpus["compiled"]),
+            compile_s=first["compiled"] - wall_c,
+        )
+        compiled.compile_step(False)
+    return out
 
 
 # ------------------------------------------------------------------------------- rmse
@@ -581,7 +605,9 @@ def _md_table(env_id: str, section: dict) -> str:
         f"max {cfg['opt']['max_steps']} opt steps per trial (first: {cfg['opt_steps_first']}), "
         f"GP subset N<={cfg['max_points']}, kernel {cfg['kernel']}, "
         f"K={cfg.get('num_candidates', 1)} candidate policies, "
-        f"rollout GP {cfg.get('rollout_dtype', 'float32')}, exploration actions held "
+        f"rollout GP {cfg.get('rollout_dtype', 'float32')}"
+        f"{', time step torch.compile-d' if cfg.get('compile_rollout') else ''}, "
+        "exploration actions held "
         f"{cfg.get('explore_hold', LEGACY_FIELD_VALUES['explore_hold'])} step(s); "
         f"{section['jobs']} parallel "
         f"jobs x 1 thread; mean wall-clock per run {section['wall_s_per_run']:.0f} s."
@@ -644,15 +670,26 @@ def write_report(results: dict, out_dir: Path) -> None:
             "A step at a few particles is the fixed cost of the 60-step rollout (one op after "
             "another, forward and backward); the rest grows with M.",
             "",
+            "Compiled: the same step with the time step `torch.compile`-d "
+            "(`--compile-rollout`), alternating with the eager step in each round.",
+            "",
             "| particles M | GP points N | device | CUDA graph | threads | wall s/step "
-            "| CPU s/step |",
-            "|---|---|---|---|---|---|---|",
+            "| CPU s/step | compiled: wall s/step | CPU s/step | speed-up (CPU) | compile s |",
+            "|---|---|---|---|---|---|---|---|---|---|---|",
         ]
         for t in results["timing"]:
             graph = "yes" if t.get("cuda_graph") else "no"
+            comp = "| - | - | - | -"
+            if "compiled_s_per_step_wall" in t:
+                comp = (
+                    f"| {t['compiled_s_per_step_wall']:.3f} | {t['compiled_s_per_step_cpu']:.3f} "
+                    f"| {t['s_per_step_cpu'] / t['compiled_s_per_step_cpu']:.2f}x "
+                    f"| {t['compile_s']:.0f}"
+                )
             md.append(
                 f"| {t['num_particles']} | {t['n_points']} | {t.get('device', 'cpu')} | {graph} "
-                f"| {t['threads']} | {t['s_per_step_wall']:.3f} | {t['s_per_step_cpu']:.3f} |"
+                f"| {t['threads']} | {t['s_per_step_wall']:.3f} | {t['s_per_step_cpu']:.3f} "
+                f"{comp} |"
             )
         md.append("")
     if results.get("rmse"):
@@ -765,6 +802,13 @@ def build_parser() -> argparse.ArgumentParser:
         help="dtype of the GP posterior in the particle rollouts (override; float32 default)",
     )
     p.add_argument(
+        "--compile-rollout",
+        action="store_true",
+        default=None,
+        help="torch.compile the rollout's time step in the runs; the timing part then also "
+        "times every setting compiled",
+    )
+    p.add_argument(
         "--explore-hold",
         type=int,
         help="steps each random exploration action is held (override; default: the env's, 2 "
@@ -846,6 +890,7 @@ def main(argv: list[str] | None = None) -> int:
                 ),
                 kernel=args.kernel,
                 rollout_dtype=args.rollout_dtype,
+                compile_rollout=args.compile_rollout,
                 explore_hold=args.explore_hold,
                 candidate_weight_scales=scales,
                 device=args.device,
@@ -879,11 +924,14 @@ def main(argv: list[str] | None = None) -> int:
                 for m in args.timing_particles:
                     for graph in (True, False) if args.device.startswith("cuda") else (False,):
                         t = time_opt_step(
-                            n, num_particles=m, threads=th, device=args.device, cuda_graph=graph
-                        )
+                            n, num_particles=m, threads=th, device=args.device,
+                            cuda_graph=graph, compile_rollout=bool(args.compile_rollout),
+                        )  # fmt: skip
+                        comp = t.get("compiled_s_per_step_wall")
                         print(
                             f"N={n} M={m} threads={th} device={t['device']} "
                             f"graph={t['cuda_graph']}: {t['s_per_step_wall']:.3f} s/step wall"
+                            + (f", compiled {comp:.3f}" if comp is not None else "")
                         )
                         results["timing"].append(t)
         write_report(results, args.out)

@@ -75,6 +75,14 @@ def build_parser() -> argparse.ArgumentParser:
         "2 = 0.1 s on mcpilco/CartpoleSwingUp-v0, 1 on mcpilco/DMCCartpoleSwingUp-v0, where "
         "held pushes hit the rail's end)",
     )
+    p.add_argument(
+        "--compile-rollout",
+        action="store_true",
+        default=None,
+        help="torch.compile the rollout's time step (CPU, 400 particles: 1.3-1.5x faster "
+        "steps at N = 100 GP points, 1.0-1.2x at 300; 2-20 s of compilation per trial; needs "
+        "a C++ compiler)",
+    )
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--threads", type=_positive_int, help="torch threads (default: torch's)")
     p.add_argument(
@@ -104,6 +112,7 @@ def config_from_args(args: argparse.Namespace) -> MCPilcoConfig:
         rollout_dtype=args.rollout_dtype,
         explore_hold=args.explore_hold,
         device=args.device,
+        compile_rollout=args.compile_rollout,
         opt_steps=args.opt_steps,
     )
 

@@ -148,8 +148,13 @@ class MCPilcoConfig:
         log_particles: particles kept per trial for the PNG / Rerun plots.
         seed: seeds torch, numpy and the env resets.
         torch_threads: ``torch.set_num_threads`` (None: leave as is).
-        compile_rollout: ``torch.compile`` the per-time-step function of the rollout (each
-            trial recompiles, 20-150 s on 2 shared cores; measured gain about 25%, so off).
+        compile_rollout: ``torch.compile`` the per-time-step function of the rollout, one
+            graph with its backward (:meth:`MCPilcoLoss.compile_step`; each trial recompiles
+            for its new GP, 2-6 s with inductor's on-disk cache warm, about 20 s cold). On
+            2 CPU cores at 400 particles a step is 1.3-1.5x faster at N = 100 GP points,
+            1.1-1.4x at 200 and 1.0-1.2x at 300 (the exact variance's matmuls dominate
+            there), and the fixed cost of the 60 time steps halves (``mcpilco-bench-mcpilco
+            --parts timing --compile-rollout``); off by default (needs a C++ compiler).
         rollout_dtype: dtype of the GP posterior evaluated in the particle rollout,
             ``"float32"`` (default; a step at M = 400 is 1.4x / 1.8x faster at N = 100 / 250,
             1 thread) or ``"float64"``; the particles, the policy and the GP fit are the

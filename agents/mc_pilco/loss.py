@@ -128,7 +128,17 @@ class MCPilcoLoss(LossModule):
 
     def compile_step(self, enable: bool = True, **compile_kwargs) -> None:
         """``torch.compile`` the per-time-step function (fuses the small ops of policy, GP
-        posterior, integration and cost; the first call compiles, forward and backward)."""
+        posterior, integration and cost; the first call compiles, forward and backward).
+
+        The step traces as one graph (the custom autograd functions included; a test checks
+        that no graph break creeps in). Enabling calls ``torch.compiler.reset()`` first: the
+        graphs compiled for an earlier GP (an earlier trial) are dropped instead of piling up
+        to dynamo's recompile limit, beyond which it would silently run eagerly. Dropout masks
+        drawn inside the compiled step come from inductor's generator, not torch's: the same
+        seed gives other masks than the eager step.
+        """
+        if enable:
+            torch.compiler.reset()
         self._compiled_step = torch.compile(self._step, **compile_kwargs) if enable else None
 
     @property

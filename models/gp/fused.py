@@ -91,10 +91,15 @@ class _FusedPosterior(torch.autograd.Function):
         k = xs.shape[0]
         opts = {"dtype": xs.dtype, "device": xs.device}
         sq = xs * xs
-        xaug = torch.empty(m, d + 2, k, **opts)
-        xaug[:, :d] = xs.T
-        xaug[:, d] = 1.0
-        torch.mm(pred.inv_l2, sq.T, out=xaug[:, d + 1]).mul_(-0.5)  # -||x^/l_b||^2 / 2
+        # [x^ ; 1 ; -||x^/l_b||^2 / 2] per output b (built by cat, which torch.compile traces)
+        xaug = torch.cat(
+            [
+                xs.T.expand(m, d, k),
+                torch.ones(m, 1, k, **opts),
+                torch.mm(pred.inv_l2, sq.T).mul_(-0.5).unsqueeze(1),
+            ],
+            dim=1,
+        )
         r = exp_floor_(torch.bmm(pred.W_aug, xaug))  # (m, N, k)
         mean = torch.bmm(pred.alpha, r).view(m, k)  # (m, k)
         prior = pred.outputscale.expand(m, k)
@@ -304,6 +309,7 @@ class FusedRBFMPKPredictor(nn.Module):
     def forward(self, x: Tensor) -> tuple[Tensor, Tensor]:
         if x.shape[-1] != self.input_dim:
             raise ValueError(f"x must have shape (..., {self.input_dim}), got {tuple(x.shape)}")
+        self.tri_panels  # noqa: B018 (build the panel cache here, not inside the Function)
         return _FusedPosterior.apply(x, self)
 
     def extra_repr(self) -> str:

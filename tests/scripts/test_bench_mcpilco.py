@@ -205,6 +205,12 @@ def test_timing_part_reports_each_particle_count(tmp_path, capsys):
     assert all(t["s_per_step_wall"] > 0 for t in timing)
     md = (tmp_path / "mcpilco_cartpole.md").read_text()
     assert "| 3 | 20 | cpu | no | 1 |" in md and "| 5 | 20 | cpu | no | 1 |" in md
+    # --compile-rollout: the same row gains the compiled step, timed in the same rounds
+    assert main([*argv, "--timing-particles", "3", "--compile-rollout"]) == 0
+    (t,) = json.loads((tmp_path / "mcpilco_cartpole.json").read_text())["timing"]
+    assert t["compiled_s_per_step_wall"] > 0 and t["compile_s"] > 0
+    md = (tmp_path / "mcpilco_cartpole.md").read_text()
+    assert "| 3 | 20 | cpu | no | 1 |" in md and "x |" in md
 
 
 def test_rmse_runs_part_uses_only_runs_that_swung_up_and_groups_by_their_kernel(tmp_path, capsys):
