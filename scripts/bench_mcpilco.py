@@ -872,6 +872,7 @@ def main(argv: list[str] | None = None) -> int:
         if min(getattr(args, name)) < 1:
             parser.error(f"--{name.replace('_', '-')} values must be >= 1")
     from mcpilco.agents.mc_pilco import default_explore_hold, registered_ids
+    from mcpilco.agents.mc_pilco.loop import check_compile_toolchain
     from mcpilco.models.device import resolve_device
 
     ids = registered_ids()
@@ -898,6 +899,8 @@ def main(argv: list[str] | None = None) -> int:
             )
             for env_id in args.env
         }
+        if args.compile_rollout:
+            check_compile_toolchain(resolve_device(args.device))
         resolve_device(args.device)
     except ValueError as err:
         parser.error(str(err))

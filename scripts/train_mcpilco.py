@@ -125,11 +125,14 @@ def main(argv: list[str] | None = None) -> int:
     except ValueError as err:
         parser.error(str(err))
     from mcpilco.agents.mc_pilco import make_env, run_mcpilco
+    from mcpilco.agents.mc_pilco.loop import check_compile_toolchain
     from mcpilco.models.device import resolve_device
 
-    try:  # unknown env id, horizon mismatch or no such device: fail before any work
+    try:  # unknown env id, horizon mismatch, no such device or no compiler: before any work
         make_env(config.env_id, config.horizon).close()
-        resolve_device(config.device)
+        device = resolve_device(config.device)
+        if config.compile_rollout:
+            check_compile_toolchain(device)
     except ValueError as err:
         parser.error(str(err))
     summary = run_mcpilco(

@@ -28,6 +28,8 @@ from __future__ import annotations
 import dataclasses
 import json
 import math
+import os
+import shutil
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -498,6 +500,21 @@ def write_records(out: Path, config: Any, records: list[dict[str, Any]]) -> None
 
 
 # ---------------------------------------------------------------------------------- main
+def check_compile_toolchain(device: torch.device) -> None:
+    """Raise ValueError when ``compile_rollout`` cannot work here: inductor's CPU backend
+    builds C++ (``$CXX``, else ``g++`` or ``clang++`` on ``PATH``). Checked before any trial
+    runs, so that a missing compiler does not stop the run inside its first policy trial."""
+    if device.type != "cpu":
+        return
+    names = [os.environ["CXX"]] if os.environ.get("CXX") else ["g++", "clang++"]
+    if not any(shutil.which(n) for n in names):
+        raise ValueError(
+            f"compile_rollout on the CPU needs a C++ compiler ({' or '.join(names)} not found "
+            "on PATH): install one (e.g. apt install g++), set CXX, or run without "
+            "--compile-rollout"
+        )
+
+
 def run_mcpilco(
     config: MCPilcoConfig,
     out_dir: str | Path,
@@ -522,6 +539,8 @@ def run_mcpilco(
     out.mkdir(parents=True, exist_ok=True)
     ckpt_path = out / CHECKPOINT_NAME
     device = resolve_device(config.device)
+    if config.compile_rollout:
+        check_compile_toolchain(device)
     if config.torch_threads is not None:
         torch.set_num_threads(int(config.torch_threads))
     env = make_env(config.env_id, config.horizon)

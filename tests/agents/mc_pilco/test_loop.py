@@ -97,6 +97,18 @@ def test_resume_without_checkpoint_is_a_clear_error(tmp_path):
         run_mcpilco(SMOKE, tmp_path, resume=True, progress=False, log=None)
 
 
+def test_compile_rollout_without_a_cpp_compiler_fails_before_any_trial(tmp_path, monkeypatch):
+    monkeypatch.setenv("PATH", str(tmp_path / "empty"))
+    monkeypatch.delenv("CXX", raising=False)
+    config = dataclasses.replace(SMOKE, compile_rollout=True)
+    with pytest.raises(ValueError, match=r"needs a C\+\+ compiler \(g\+\+ or clang\+\+"):
+        run_mcpilco(config, tmp_path / "run", progress=False, log=None)
+    assert not (tmp_path / "run" / "checkpoint.pt").exists()
+    monkeypatch.setenv("CXX", "no-such-c++")
+    with pytest.raises(ValueError, match="no-such-c\\+\\+ not found"):
+        run_mcpilco(config, tmp_path / "run", progress=False, log=None)
+
+
 def test_bad_arguments_give_clear_errors():
     with pytest.raises(ValueError, match="registered mcpilco ids: .*mcpilco/CartpoleSwingUp-v0"):
         make_env("mcpilco/NoSuchEnv-v0", 60)
