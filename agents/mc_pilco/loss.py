@@ -120,9 +120,13 @@ class MCPilcoLoss(LossModule):
         self.num_candidates = int(getattr(self._policy_fn, "num_candidates", 1))
         self._compiled_step = None
 
-    def _step(self, x: Tensor, eps: Tensor, nu: Tensor | None) -> tuple[Tensor, Tensor, Tensor]:
-        """One time step for all particles: ``u = pi(x + nu)``, ``x+ = f(x, u, eps)``, ``c(x+)``."""
-        u = self._policy_fn(x if nu is None else x + nu)
+    def _step(
+        self, x: Tensor, eps: Tensor, nu: Tensor | None, mask: Tensor | None = None
+    ) -> tuple[Tensor, Tensor, Tensor]:
+        """One time step for all particles: ``u = pi(x + nu)``, ``x+ = f(x, u, eps)``, ``c(x+)``
+        (``mask``: the policy's dropout mask for this step, drawn by the caller)."""
+        obs = x if nu is None else x + nu
+        u = self._policy_fn(obs) if mask is None else self._policy_fn(obs, mask=mask)
         x_next = self.dynamics(x, u, eps)
         return x_next, u, self.cost(x_next)
 
@@ -131,11 +135,11 @@ class MCPilcoLoss(LossModule):
         posterior, integration and cost; the first call compiles, forward and backward).
 
         The step traces as one graph (the custom autograd functions included; a test checks
-        that no graph break creeps in). Enabling calls ``torch.compiler.reset()`` first: the
-        graphs compiled for an earlier GP (an earlier trial) are dropped instead of piling up
-        to dynamo's recompile limit, beyond which it would silently run eagerly. Dropout masks
-        drawn inside the compiled step come from inductor's generator, not torch's: the same
-        seed gives other masks than the eager step.
+        that no graph break creeps in). The policy's dropout masks are drawn outside it, so
+        the same seed gives the eager step's masks and noise. Enabling calls
+        ``torch.compiler.reset()`` first: the graphs compiled for an earlier GP (an earlier
+        trial) are dropped instead of piling up to dynamo's recompile limit, beyond which it
+        would silently run eagerly.
         """
         if enable:
             torch.compiler.reset()
@@ -197,8 +201,12 @@ class MCPilcoLoss(LossModule):
         actions = []
         costs = []
         step = self._compiled_step if self._compiled_step is not None else self._step
+        # the policy's dropout masks are drawn here, step by step, outside the (possibly
+        # compiled) step: the same random stream as a policy drawing its own
+        draw_mask = getattr(self._policy_fn, "draw_dropout_mask", None)
         for t in range(self.horizon):
-            x, u, c = step(x, noise[t], None if obs_noise is None else obs_noise[t])
+            mask = None if draw_mask is None else draw_mask(x)
+            x, u, c = step(x, noise[t], None if obs_noise is None else obs_noise[t], mask)
             costs.append(c)
             if keep_states or t == self.horizon - 1:
                 states.append(x)

@@ -148,7 +148,19 @@ class SquashedRBFPolicy(nn.Module):
         )
         return exp_floor_(log_phi).reshape(*lead, self.num_basis)
 
-    def forward(self, obs: Tensor) -> Tensor:
+    def draw_dropout_mask(self, obs: Tensor) -> Tensor | None:
+        """The dropout mask ``(1, k, n_b)`` for the ``k`` observations in ``obs (..., 4)``
+        (:func:`dropout_mask`), or None outside training or at ``p = 0``. ``forward`` draws
+        it itself when not given one; drawing it first keeps the random draws out of a
+        compiled rollout step (the same masks with and without ``torch.compile``)."""
+        if not (self.training and self.dropout > 0.0):
+            return None
+        shape = (1, obs[..., 0].numel(), self.num_basis)
+        return dropout_mask(shape, self.dropout, obs.dtype, obs.device)
+
+    def forward(self, obs: Tensor, mask: Tensor | None = None) -> Tensor:
+        """``u = pi(x~)`` for ``obs (..., 4)``; ``mask``: a dropout mask from
+        :meth:`draw_dropout_mask` (None: drawn here in training mode)."""
         if obs.shape[-1] != 4:
             raise ValueError(
                 f"observation must have shape (..., 4) = [x, x_dot, theta, theta_dot], got "
@@ -156,10 +168,8 @@ class SquashedRBFPolicy(nn.Module):
             )
         lead = obs.shape[:-1]
         flat = obs.reshape(1, -1, 4)
-        mask = None
-        if self.training and self.dropout > 0.0:
-            shape = (1, flat.shape[1], self.num_basis)
-            mask = dropout_mask(shape, self.dropout, obs.dtype, obs.device)
+        if mask is None:
+            mask = self.draw_dropout_mask(obs)
         u = _SquashedRBF.apply(
             flat,
             self.centers.unsqueeze(0),
@@ -223,7 +233,18 @@ class PolicyPopulation(nn.Module):
         )
         self.weights = nn.Parameter(torch.stack([p.weights.detach() for p in candidates]))
 
-    def forward(self, obs: Tensor) -> Tensor:
+    def draw_dropout_mask(self, obs: Tensor) -> Tensor | None:
+        """The dropout mask ``(K, M, n_b)`` for ``obs (K M, 4)``, or None outside training or
+        at ``p = 0`` (as :meth:`SquashedRBFPolicy.draw_dropout_mask`)."""
+        if not (self.training and self.dropout > 0.0):
+            return None
+        k = obs[..., 0].numel()
+        shape = (self.num_candidates, k // self.num_candidates, self.num_basis)
+        return dropout_mask(shape, self.dropout, obs.dtype, obs.device)
+
+    def forward(self, obs: Tensor, mask: Tensor | None = None) -> Tensor:
+        """``u`` of candidate ``k`` for its ``M`` rows of ``obs (K M, 4)``; ``mask`` as in
+        :meth:`SquashedRBFPolicy.forward`."""
         if obs.shape[-1] != 4 or obs[..., 0].numel() % self.num_candidates:
             raise ValueError(
                 f"observation must have shape (K M, 4) with K = {self.num_candidates} "
@@ -231,10 +252,8 @@ class PolicyPopulation(nn.Module):
             )
         lead = obs.shape[:-1]
         flat = obs.reshape(self.num_candidates, -1, 4)
-        mask = None
-        if self.training and self.dropout > 0.0:
-            shape = (*flat.shape[:2], self.num_basis)
-            mask = dropout_mask(shape, self.dropout, obs.dtype, obs.device)
+        if mask is None:
+            mask = self.draw_dropout_mask(obs)
         u = _SquashedRBF.apply(
             flat, self.centers, self.log_lengthscales, self.weights, self.u_max, mask
         )

@@ -192,19 +192,21 @@ def test_float32_rollout_matches_the_float64_gp_posterior():
 
 
 def test_compiled_step_is_one_graph_and_matches_the_eager_rollout():
-    """``compile_step``: dynamo traces a time step (policy, GP inputs, fused posterior,
-    sampling + integration, cost) as one graph, without a break, and the compiled rollout
-    gives the eager expected cost and policy gradient (no dropout: the compiled step draws
-    its masks from inductor's generator)."""
+    """``compile_step``: dynamo traces a time step (policy with its dropout mask, GP inputs,
+    fused posterior, sampling + integration, cost) as one graph, without a break, and the
+    compiled rollout gives the eager expected cost and policy gradient from the same seed
+    (the masks are drawn outside the step, from torch's generator)."""
     model = _gp_model("rbf+mpk", n=40, seed=2)
-    pol = SquashedRBFPolicy(num_basis=20, weight_scale=1.0, seed=0)
-    pol.eval()
+    pol = SquashedRBFPolicy(num_basis=20, weight_scale=1.0, seed=0, dropout=0.25)
+    pol.train()
     loss = MCPilcoLoss(
         make_policy_module(pol), model.particle_dynamics(), SwingUpCost(), 8, 16,
         obs_noise_std=0.01,
     )  # fmt: skip
     x0 = loss.sample_initial_state()
-    explained = torch._dynamo.explain(loss._step)(x0, torch.zeros(16, 2), torch.zeros(16, 4))
+    mask = pol.draw_dropout_mask(x0)
+    assert mask is not None and (mask == 0).any()
+    explained = torch._dynamo.explain(loss._step)(x0, torch.zeros(16, 2), torch.zeros(16, 4), mask)
     assert (explained.graph_count, explained.graph_break_count) == (1, 0), [
         b.reason for b in explained.break_reasons
     ]
@@ -213,9 +215,10 @@ def test_compiled_step_is_one_graph_and_matches_the_eager_rollout():
         loss.compile_step(compiled, dynamic=False)
         torch.manual_seed(5)
         J = loss()["loss_cost"]
-        out.append((J, torch.autograd.grad(J, list(pol.parameters()))))
+        out.append((J, torch.autograd.grad(J, list(pol.parameters())), torch.rand(2)))
     loss.compile_step(False)
-    (J_eager, g_eager), (J_comp, g_comp) = out
+    (J_eager, g_eager, after_eager), (J_comp, g_comp, after_comp) = out
+    torch.testing.assert_close(after_comp, after_eager, rtol=0, atol=0)  # same draws
     torch.testing.assert_close(J_comp, J_eager, rtol=1e-5, atol=0)
     for a, b in zip(g_comp, g_eager, strict=True):
         torch.testing.assert_close(a, b, rtol=0, atol=1e-4 * b.abs().max().item())
