@@ -71,8 +71,8 @@ from mcpilco.models.kinematics.rotations import (
 __all__ = [
     "ControllerResult",
     "FKPredictor",
-    "design_subset",
     "ForwardKinematicsGP",
+    "design_subset",
     "fk_features",
     "gradient_kinematic_controller",
     "multi_start_controller",
@@ -161,8 +161,8 @@ def design_subset(q: ArrayLike, joint_types: str, k: int) -> NDArray[np.int64]:
     no noise: :func:`~mcpilco.models.gp.greedy_subset`. Each pick multiplies
     ``det(Phi_S Phi_S^T)`` the most, ``Phi`` the monomials of Prop. 2.5.1 (rows scaled to unit
     length; for revolute joints alone the prior variance ``2^{N_r}`` is the same everywhere).
-    The picks spread over those monomials instead of repeating the configurations a slow
-    stretch of the trajectory visits many times. Only ``q`` is used.
+    The picks spread over those monomials, where random draws can fall close together by
+    chance. Only ``q`` is used.
 
     Args:
         q: ``(N, n)`` joint positions in chain order (finite).
