@@ -81,7 +81,8 @@ def build_parser() -> argparse.ArgumentParser:
         default=None,
         help="torch.compile the rollout's time step (CPU, 400 particles: 1.3-1.5x faster "
         "steps at N = 100 GP points, 1.0-1.2x at 300; 2-20 s of compilation per trial; needs "
-        "a C++ compiler)",
+        "a C++ compiler); each trial checks it against the eager step and falls back to "
+        "the eager step, with a warning, if they disagree",
     )
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--threads", type=_positive_int, help="torch threads (default: torch's)")

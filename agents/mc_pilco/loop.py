@@ -157,6 +157,9 @@ class MCPilcoConfig:
             1.1-1.4x at 200 and 1.0-1.2x at 300 (the exact variance's matmuls dominate
             there), and the fixed cost of the 60 time steps halves (``mcpilco-bench-mcpilco
             --parts timing --compile-rollout``); off by default (needs a C++ compiler).
+            Each trial checks the compiled step against the eager one (``J^`` and its
+            gradient) and runs eagerly if they disagree (the trial record's
+            ``compiled_step`` and ``compile_check``).
         rollout_dtype: dtype of the GP posterior evaluated in the particle rollout,
             ``"float32"`` (default; a step at M = 400 is 1.4x / 1.8x faster at N = 100 / 250,
             1 thread) or ``"float64"``; the particles, the policy and the GP fit are the
@@ -477,6 +480,8 @@ def record_line(r: dict[str, Any]) -> str:
             f"x {r['s_per_opt_step']:.3f} s (CPU {r['cpu_s_per_opt_step']:.3f} s), "
             f"J^ {r['opt_final_cost']:.2f})"
         )
+        if r.get("compiled_step") is False:
+            line += "; the compiled step failed its check against the eager step: ran eagerly"
     return line
 
 
@@ -630,8 +635,9 @@ def run_mcpilco(
                     ).to(device)  # with the policy module and the dynamics in it
 
                 loss = make_loss(policy_module)
-                if config.compile_rollout:
-                    loss.compile_step(dynamic=False)
+                if config.compile_rollout:  # compiled, then checked against the eager step
+                    rec["compiled_step"] = loss.compile_step(dynamic=False)
+                    rec["compile_check"] = loss.compile_check
                 # 2. policy update
                 opt_cfg = config.opt
                 if k == 1 and config.opt_steps_first is not None:

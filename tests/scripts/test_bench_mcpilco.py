@@ -209,6 +209,7 @@ def test_timing_part_reports_each_particle_count(tmp_path, capsys):
     assert main([*argv, "--timing-particles", "3", "--compile-rollout"]) == 0
     (t,) = json.loads((tmp_path / "mcpilco_cartpole.json").read_text())["timing"]
     assert t["compiled_s_per_step_wall"] > 0 and t["compile_s"] > 0
+    assert not t["compiled_rejected"] and t["compile_check"]["grad_rel"] < 1e-2
     md = (tmp_path / "mcpilco_cartpole.md").read_text()
     assert "| 3 | 20 | cpu | no | 1 |" in md and "x |" in md
 

@@ -195,12 +195,14 @@ def test_compiled_step_is_one_graph_and_matches_the_eager_rollout():
     """``compile_step``: dynamo traces a time step (policy with its dropout mask, GP inputs,
     fused posterior, sampling + integration, cost) as one graph, without a break, and the
     compiled rollout gives the eager expected cost and policy gradient from the same seed
-    (the masks are drawn outside the step, from torch's generator)."""
+    (the masks are drawn outside the step, from torch's generator). A wide cost (l_theta = 3)
+    gives a gradient far from zero, so that a compiler returning zero gradients (torch 2.11
+    did, for this step) fails here."""
     model = _gp_model("rbf+mpk", n=40, seed=2)
     pol = SquashedRBFPolicy(num_basis=20, weight_scale=1.0, seed=0, dropout=0.25)
     pol.train()
     loss = MCPilcoLoss(
-        make_policy_module(pol), model.particle_dynamics(), SwingUpCost(), 8, 16,
+        make_policy_module(pol), model.particle_dynamics(), SwingUpCost(l_theta=3.0), 8, 16,
         obs_noise_std=0.01,
     )  # fmt: skip
     x0 = loss.sample_initial_state()
@@ -212,7 +214,7 @@ def test_compiled_step_is_one_graph_and_matches_the_eager_rollout():
     ]
     out = []
     for compiled in (False, True):
-        loss.compile_step(compiled, dynamic=False)
+        assert loss.compile_step(compiled, dynamic=False) is compiled  # passes its own check
         torch.manual_seed(5)
         J = loss()["loss_cost"]
         out.append((J, torch.autograd.grad(J, list(pol.parameters())), torch.rand(2)))
@@ -222,3 +224,44 @@ def test_compiled_step_is_one_graph_and_matches_the_eager_rollout():
     torch.testing.assert_close(J_comp, J_eager, rtol=1e-5, atol=0)
     for a, b in zip(g_comp, g_eager, strict=True):
         torch.testing.assert_close(a, b, rtol=0, atol=1e-4 * b.abs().max().item())
+    assert max(g.abs().max().item() for g in g_eager) > 1e-4  # not a vanishing gradient
+
+
+def _broken_compile(kind: str):
+    """A stand-in for ``torch.compile`` whose step keeps ``J^`` but breaks the gradient:
+    ``"zero"`` cuts it everywhere (what torch 2.11's inductor did to this step), ``"short"``
+    only through time (each step differentiates its own action alone)."""
+
+    def compile_(fn, **_):
+        def step(x, eps, nu, mask):
+            x1, u, c = fn(x.detach() if kind == "short" else x, eps, nu, mask)
+            return (x1, u, c) if kind == "short" else (x1.detach(), u.detach(), c.detach())
+
+        return step
+
+    return compile_
+
+
+@pytest.mark.parametrize("kind", ["zero", "short"])
+def test_a_compiled_step_with_a_wrong_gradient_is_dropped_for_the_eager_one(monkeypatch, kind):
+    """``compile_step`` checks the compiled step against the eager one; a wrong gradient
+    (same ``J^``) makes it warn, keep the eager step, and leave torch's random stream where
+    it was; the loss then equals the eager loss."""
+    model = _gp_model("rbf+mpk", n=40, seed=2)
+    pol = SquashedRBFPolicy(num_basis=20, weight_scale=1.0, seed=0)
+    loss = MCPilcoLoss(
+        make_policy_module(pol), model.particle_dynamics(), SwingUpCost(l_theta=3.0), 8, 16
+    )
+    params = list(pol.parameters())
+    torch.manual_seed(3)
+    J_eager = loss()["loss_cost"]
+    g_eager = torch.autograd.grad(J_eager, params)
+    monkeypatch.setattr(torch, "compile", _broken_compile(kind))
+    torch.manual_seed(3)
+    with pytest.warns(RuntimeWarning, match="disagrees with the eager step"):
+        assert loss.compile_step(dynamic=False) is False
+    assert loss.compile_check["J_rel"] < 1e-6 and loss.compile_check["grad_rel"] > 0.05
+    J = loss()["loss_cost"]  # the stream continues from the seed: the check drew nothing
+    torch.testing.assert_close(J, J_eager, rtol=0, atol=0)
+    for a, b in zip(torch.autograd.grad(J, params), g_eager, strict=True):
+        torch.testing.assert_close(a, b, rtol=0, atol=0)
