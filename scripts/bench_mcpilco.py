@@ -328,6 +328,7 @@ def time_opt_step(
         compile_info = {
             "compile_s": time.perf_counter() - t_compile,
             "compile_check": compiled.compile_check,
+            "compile_error": compiled.compile_error,
             "compiled_rejected": not accepted,
         }
         if accepted:
@@ -686,7 +687,9 @@ def write_report(results: dict, out_dir: Path) -> None:
         for t in results["timing"]:
             graph = "yes" if t.get("cuda_graph") else "no"
             comp = "| - | - | - | -"
-            if t.get("compiled_rejected"):
+            if t.get("compile_error"):
+                comp = "| compilation failed | - | - | -"
+            elif t.get("compiled_rejected"):
                 comp = "| failed its check against the eager step | - | - | -"
             elif "compiled_s_per_step_wall" in t:
                 comp = (

@@ -480,7 +480,9 @@ def record_line(r: dict[str, Any]) -> str:
             f"x {r['s_per_opt_step']:.3f} s (CPU {r['cpu_s_per_opt_step']:.3f} s), "
             f"J^ {r['opt_final_cost']:.2f})"
         )
-        if r.get("compiled_step") is False:
+        if r.get("compile_error"):
+            line += f"; compiling the step failed ({r['compile_error']}): ran eagerly"
+        elif r.get("compiled_step") is False:
             line += "; the compiled step failed its check against the eager step: ran eagerly"
     return line
 
@@ -638,6 +640,7 @@ def run_mcpilco(
                 if config.compile_rollout:  # compiled, then checked against the eager step
                     rec["compiled_step"] = loss.compile_step(dynamic=False)
                     rec["compile_check"] = loss.compile_check
+                    rec["compile_error"] = loss.compile_error
                 # 2. policy update
                 opt_cfg = config.opt
                 if k == 1 and config.opt_steps_first is not None:

@@ -130,6 +130,7 @@ class MCPilcoLoss(LossModule):
         self.num_candidates = int(getattr(self._policy_fn, "num_candidates", 1))
         self._compiled_step = None
         self.compile_check: dict[str, float] | None = None  # figures of compile_step's check
+        self.compile_error: str | None = None  # compile_step's compilation error, if any
 
     def _step(
         self, x: Tensor, eps: Tensor, nu: Tensor | None, mask: Tensor | None = None
@@ -157,14 +158,30 @@ class MCPilcoLoss(LossModule):
         (:meth:`compare_compiled_step`, within :data:`COMPILE_CHECK_RTOL`). If they disagree
         the compiled step is dropped with a warning and the eager step is used: a compiler
         that returns wrong gradients would otherwise train nothing, silently. The check
-        leaves torch's random stream where it was. ``compile_check`` holds its figures.
+        leaves torch's random stream where it was. ``compile_check`` holds its figures. A
+        compilation that raises (no working C++ toolchain, an inductor error) is also caught
+        there: a warning, the eager step, and the error's text in ``compile_error``.
         """
         self.compile_check = None
+        self.compile_error = None
         if enable:
             torch.compiler.reset()
         self._compiled_step = torch.compile(self._step, **compile_kwargs) if enable else None
         if enable and verify:
-            self.compile_check = check = self.compare_compiled_step()
+            try:
+                check = self.compare_compiled_step()
+            except Exception as err:  # noqa: BLE001 (any compiler failure: run eagerly)
+                first_line = (str(err).strip().splitlines() or [""])[0]
+                self.compile_error = f"{type(err).__name__}: {first_line}"
+                warnings.warn(
+                    f"compiling the rollout step failed ({self.compile_error}); using the "
+                    "eager step",
+                    RuntimeWarning,
+                    stacklevel=2,
+                )
+                self._compiled_step = None
+                return False
+            self.compile_check = check
             if not (check["J_rel"] <= COMPILE_CHECK_RTOL >= check["grad_rel"]):  # NaN fails
                 warnings.warn(
                     "the compiled rollout step disagrees with the eager step (relative "

@@ -265,3 +265,36 @@ def test_a_compiled_step_with_a_wrong_gradient_is_dropped_for_the_eager_one(monk
     torch.testing.assert_close(J, J_eager, rtol=0, atol=0)
     for a, b in zip(torch.autograd.grad(J, params), g_eager, strict=True):
         torch.testing.assert_close(a, b, rtol=0, atol=0)
+
+
+def test_a_compilation_that_raises_leaves_the_eager_step(monkeypatch):
+    """A compiler failure (here a stand-in step that raises as inductor does without a
+    working C++ toolchain) is caught by ``compile_step``: a warning naming the error, the
+    eager step, and the error's first line in ``compile_error``; the trial line says so."""
+    from mcpilco.agents.mc_pilco.loop import record_line
+
+    model = _gp_model("rbf", n=30, seed=1)
+    pol = SquashedRBFPolicy(num_basis=10, seed=0)
+    loss = MCPilcoLoss(make_policy_module(pol), model.particle_dynamics(), SwingUpCost(), 4, 8)
+
+    def failing_compile(fn, **_):
+        def step(*args):
+            raise RuntimeError("C++ compile error\ncc1plus: fatal error: Python.h")
+
+        return step
+
+    monkeypatch.setattr(torch, "compile", failing_compile)
+    with pytest.warns(RuntimeWarning, match="compiling the rollout step failed"):
+        assert loss.compile_step(dynamic=False) is False
+    assert loss.compile_error == "RuntimeError: C++ compile error"
+    assert loss.compile_check is None
+    assert torch.isfinite(loss()["loss_cost"])  # the eager step runs
+    rec = {
+        "index": 1, "kind": "policy", "experience_s": 6.0, "cost": 50.0, "success": False,
+        "time_upright": 0.0, "mean_abs_x": 0.1, "wall_s": 10.0, "gp_fit_s": 1.0,
+        "gp_points": 60, "opt_steps": 10, "s_per_opt_step": 0.1, "cpu_s_per_opt_step": 0.1,
+        "opt_final_cost": 40.0, "compiled_step": False, "compile_error": loss.compile_error,
+    }  # fmt: skip
+    assert "compiling the step failed (RuntimeError: C++ compile error): ran eagerly" in (
+        record_line(rec)
+    )
