@@ -41,14 +41,22 @@ from tensordict.nn import TensorDictModule
 from torch import Tensor, nn
 from torchrl.objectives import LossModule
 
-COMPILE_CHECK_RTOL = 1e-2
+COMPILE_CHECK_RTOL = 0.1
 """Largest relative difference the compiled step may show against the eager step in the
 check of :meth:`MCPilcoLoss.compile_step`: ``|J_c - J_e| / |J_e|`` and
-``max |g_c - g_e| / max |g_e|`` over all policy parameters. Float32 reassociation gave
-``1e-7`` to ``7e-4`` on the gradient here (torch 2.13, CPU, up to 60 steps and 400
-particles, dropout on, the policies of a demo-budget run); a miscompiled gradient gives 1
-(torch 2.11's inductor returned exactly zero gradients for this step, on the CPU and on
-CUDA). A false alarm only costs speed: the eager step is used."""
+``||g_c - g_e|| / ||g_e||`` (2-norm over all policy parameters together). A miscompiled
+gradient gives about 1: torch 2.11's inductor returned exactly zero gradients for this step
+(on the CPU and on CUDA), and a gradient cut through time gives 0.97 in the tests. A false
+alarm only costs speed (the eager step is used)."""
+
+COMPILE_CHECK_HORIZON = 10
+"""Time steps of that check (at most the loss's horizon). Over the whole 60-step horizon
+the float32 policy gradient can be chaotic: particles near the upright balance point amplify
+rounding, and in such states of the compiled bench the eager float32 gradient differed from
+the float64 one by 5-23 % and the compiled one from either by up to 160 %, depending on the
+random numbers, while both agreed to 2e-6 on ``J^``. Ten steps (0.5 s) keep rounding small
+and still run every part of the step, forward and backward, through both graphs (the first
+step, whose state needs no gradient, and the others)."""
 
 
 @dataclass
@@ -154,7 +162,8 @@ class MCPilcoLoss(LossModule):
         would silently run eagerly.
 
         ``verify`` (default): compile now, on this module's shapes, and check the compiled
-        step against the eager one, ``J^`` and ``dJ^/dtheta`` from the same random numbers
+        step against the eager one, ``J^`` and ``dJ^/dtheta`` over the first
+        :data:`COMPILE_CHECK_HORIZON` steps from the same random numbers
         (:meth:`compare_compiled_step`, within :data:`COMPILE_CHECK_RTOL`). If they disagree
         the compiled step is dropped with a warning and the eager step is used: a compiler
         that returns wrong gradients would otherwise train nothing, silently. The check
@@ -194,11 +203,16 @@ class MCPilcoLoss(LossModule):
                 self._compiled_step = None
         return self._compiled_step is not None
 
-    def compare_compiled_step(self, seed: int = 0) -> dict[str, float]:
-        """``J^`` and ``dJ^/dtheta`` of the compiled and the eager step from the same random
-        numbers (torch seeded with ``seed`` inside a forked random state, so the caller's
-        stream is untouched): ``{"J_rel": |J_c - J_e| / |J_e|, "grad_rel": max |g_c - g_e| /
-        max |g_e|}`` (0 where both are 0). The first call of a fresh compiled step compiles it.
+    def compare_compiled_step(
+        self, seed: int = 0, horizon: int | None = COMPILE_CHECK_HORIZON
+    ) -> dict[str, float]:
+        """``J^`` and ``dJ^/dtheta`` of the compiled and the eager step over the first
+        ``horizon`` steps (None: the loss's horizon) from the same random numbers (torch
+        seeded with ``seed`` inside a forked random state, so the caller's stream is
+        untouched): ``{"J_rel": |J_c - J_e| / |J_e|, "grad_rel": ||g_c - g_e|| / ||g_e||}``
+        (``g`` all policy parameters' gradients, one vector; 0 where both are 0). The policy
+        runs in training mode, with its dropout masks, as in the optimisation (its mode is
+        restored after). The first call of a fresh compiled step compiles it.
         """
         compiled = self._compiled_step
         if compiled is None:
@@ -206,6 +220,10 @@ class MCPilcoLoss(LossModule):
         params = [p for p in self.parameters() if p.requires_grad]
         dev = self.init_mean.device
         results = []
+        full_horizon = self.horizon
+        self.horizon = full_horizon if horizon is None else min(int(horizon), full_horizon)
+        was_training = self._policy_fn.training
+        self._policy_fn.train()
         try:
             with torch.random.fork_rng(devices=[dev] if dev.type == "cuda" else []):
                 for step in (None, compiled):
@@ -221,20 +239,20 @@ class MCPilcoLoss(LossModule):
                         torch.zeros_like(p) if g is None else g.detach()
                         for g, p in zip(grads, params, strict=True)
                     ]
-                    results.append((J.detach(), flat))
+                    vec = torch.cat([g.flatten() for g in flat] or [J.new_zeros(0)])
+                    results.append((J.detach(), vec))
         finally:
             self._compiled_step = compiled
+            self.horizon = full_horizon
+            self._policy_fn.train(was_training)
         (J_e, g_e), (J_c, g_c) = results
 
         def rel(diff: float, scale: float) -> float:
             return 0.0 if diff == 0 else diff / scale if scale > 0 else float("inf")
 
-        g_scale = max((g.abs().max().item() for g in g_e), default=0.0)
-        pairs = zip(g_c, g_e, strict=True)
-        g_diff = max(((a - b).abs().max().item() for a, b in pairs), default=0.0)
         return {
             "J_rel": rel((J_c - J_e).abs().item(), J_e.abs().item()),
-            "grad_rel": rel(g_diff, g_scale),
+            "grad_rel": rel((g_c - g_e).norm().item(), g_e.norm().item()),
         }
 
     @property

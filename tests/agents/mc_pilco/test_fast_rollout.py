@@ -253,6 +253,7 @@ def test_a_compiled_step_with_a_wrong_gradient_is_dropped_for_the_eager_one(monk
         make_policy_module(pol), model.particle_dynamics(), SwingUpCost(l_theta=3.0), 8, 16
     )
     params = list(pol.parameters())
+    pol.eval()  # the check runs it in training mode, then restores this
     torch.manual_seed(3)
     J_eager = loss()["loss_cost"]
     g_eager = torch.autograd.grad(J_eager, params)
@@ -260,7 +261,8 @@ def test_a_compiled_step_with_a_wrong_gradient_is_dropped_for_the_eager_one(monk
     torch.manual_seed(3)
     with pytest.warns(RuntimeWarning, match="disagrees with the eager step"):
         assert loss.compile_step(dynamic=False) is False
-    assert loss.compile_check["J_rel"] < 1e-6 and loss.compile_check["grad_rel"] > 0.05
+    assert loss.compile_check["J_rel"] < 1e-6 and loss.compile_check["grad_rel"] > 0.5
+    assert loss.horizon == 8 and not pol.training  # the check's horizon and mode are undone
     J = loss()["loss_cost"]  # the stream continues from the seed: the check drew nothing
     torch.testing.assert_close(J, J_eager, rtol=0, atol=0)
     for a, b in zip(torch.autograd.grad(J, params), g_eager, strict=True):
