@@ -2,7 +2,7 @@
 rollout and GP posterior against the CPU ones.
 
 The CUDA tests need a GPU and are skipped without one (CI has none); they ran on an H100
-(see the README's MC-PILCO section). The CPU computation is the independent reference: same
+(`results/mcpilco_notes.md`, "On a GPU"). The CPU computation is the independent reference: same
 inputs, same random numbers (passed in), other kernels.
 """
 
