@@ -1,4 +1,5 @@
-"""Where tensors live: parse a user's ``device`` option and check that it can be used.
+"""Where tensors live: parse a user's ``device`` option and check that it can be used, and
+keep the CPU's freed tensor memory in the process (:func:`retain_host_memory`).
 
 Everything in mcpilco runs on the CPU; a CUDA device is optional (the MC-PILCO particle
 rollout and the cached GP predictor can use one). Nothing requires it.
@@ -6,9 +7,18 @@ rollout and the cached GP predictor can use one). Nothing requires it.
 
 from __future__ import annotations
 
+import ctypes
+import sys
+
 import torch
 
-__all__ = ["DEVICE_TYPES", "check_device_name", "resolve_device"]
+__all__ = [
+    "DEVICE_TYPES",
+    "MMAP_THRESHOLD_MAX",
+    "check_device_name",
+    "resolve_device",
+    "retain_host_memory",
+]
 
 DEVICE_TYPES = ("cpu", "cuda")
 """Device types the ``device`` options accept (``"cuda:1"`` names a GPU by index)."""
@@ -46,3 +56,57 @@ def resolve_device(name: str | torch.device) -> torch.device:
         if dev.index is not None and dev.index >= count:
             raise ValueError(f"device {name!r} asked for, but only {count} CUDA device(s) exist")
     return dev
+
+
+MMAP_THRESHOLD_MAX = 32 * 2**20
+"""glibc's largest ``M_MMAP_THRESHOLD`` on 64-bit Linux (bytes); :func:`retain_host_memory`'s
+default."""
+
+_M_TRIM_THRESHOLD = -1  # glibc <malloc.h> parameter numbers
+_M_MMAP_THRESHOLD = -3
+
+
+def retain_host_memory(
+    mmap_threshold: int = MMAP_THRESHOLD_MAX, trim_threshold: int = 2**30
+) -> bool:
+    """Keep freed CPU memory in this process's heap instead of handing it back to the OS.
+
+    PyTorch's CPU tensors come from ``malloc``. glibc serves a block of at least
+    ``M_MMAP_THRESHOLD`` bytes (128 KiB at start, raised adaptively) by a fresh ``mmap``
+    and unmaps it on ``free``, and trims the heap's free top above ``M_TRIM_THRESHOLD``. A
+    particle rollout allocates and frees hundreds of such blocks per optimisation step
+    (``(m, N, M)`` kernel panels: 320 KiB at N = 100, M = 400, float32), so each one is
+    zero-filled again page by page: up to 20,000-58,000 minor page faults per step at
+    N = 100-300 when the adaptive threshold has not caught up (which differs from process to
+    process). Fixing both thresholds high (``mallopt``) reuses the freed blocks instead.
+    The price: the process keeps its peak heap (blocks above ``mmap_threshold`` are still
+    unmapped on free).
+
+    Process-wide; call it once, from the program that owns the process (the scripts do).
+
+    Args:
+        mmap_threshold: bytes, ``1 <= mmap_threshold <= MMAP_THRESHOLD_MAX``.
+        trim_threshold: bytes, ``1 <= trim_threshold < 2**31``.
+
+    Returns:
+        True when glibc took both settings; False where there is no glibc ``mallopt``
+        (macOS, Windows, musl), which leaves the allocator as it was.
+    """
+    for name, value, top in (
+        ("mmap_threshold", mmap_threshold, MMAP_THRESHOLD_MAX),
+        ("trim_threshold", trim_threshold, 2**31 - 1),
+    ):
+        if isinstance(value, bool) or not isinstance(value, int) or not 1 <= value <= top:
+            raise ValueError(f"{name} must be an int in [1, {top}] (bytes), got {value!r}")
+    if not sys.platform.startswith("linux"):
+        return False
+    try:
+        mallopt = ctypes.CDLL(None).mallopt  # the C library this process runs on
+    except (OSError, AttributeError):
+        return False
+    mallopt.argtypes = [ctypes.c_int, ctypes.c_int]
+    mallopt.restype = ctypes.c_int
+    # musl's mallopt is a stub that returns 0; glibc returns 1 on success
+    return mallopt(_M_MMAP_THRESHOLD, mmap_threshold) == 1 and (
+        mallopt(_M_TRIM_THRESHOLD, trim_threshold) == 1
+    )

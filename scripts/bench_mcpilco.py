@@ -45,6 +45,7 @@ import argparse
 import dataclasses
 import json
 import multiprocessing
+import resource
 import statistics
 import sys
 import time
@@ -74,8 +75,11 @@ def _run_seed(job: tuple[dict[str, Any], str]) -> dict[str, Any]:
     optimisation, episode), the same whether the trials ran now or in an earlier call."""
     import torch
 
-    torch.set_num_threads(1)
     from mcpilco.agents.mc_pilco import run_mcpilco
+    from mcpilco.models.device import retain_host_memory
+
+    torch.set_num_threads(1)
+    retain_host_memory()
 
     cfg_dict, out = job
     cfg = MCPilcoConfig.from_dict(cfg_dict)
@@ -275,6 +279,7 @@ def time_opt_step(
     device: str = "cpu",
     cuda_graph: bool = True,
     compile_rollout: bool = False,
+    heap_contrast: bool = False,
 ) -> dict[str, float]:
     """Median wall and CPU seconds of one optimisation step (rollout, backward, Adam).
 
@@ -284,6 +289,12 @@ def time_opt_step(
     holds on a busy machine. ``compile_s``: the time of ``compile_step`` (the compilation and
     its check against the eager step, one step of each); ``compile_check`` its figures. A
     compiled step that fails the check is not timed (``compiled_rejected``).
+
+    The process keeps its freed memory (:func:`~mcpilco.models.device.retain_host_memory`,
+    as the scripts do); ``page_faults_per_step`` counts the minor page faults of each timed
+    step. ``heap_contrast``: also time the eager step with glibc's initial heap thresholds
+    (128 KiB, where its adaptive rule can stay), in the same rounds (``heap128k_*``); each
+    timed step then follows an untimed one in the same setting.
 
     On a CUDA ``device`` the GP is fitted on the CPU and its posterior, the policy and the
     particles move to the device; each timed step ends with a synchronisation, and with
@@ -300,11 +311,12 @@ def time_opt_step(
         make_policy_module,
     )
     from mcpilco.agents.mc_pilco.optimize import loss_and_grad_fn
-    from mcpilco.models.device import resolve_device
+    from mcpilco.models.device import resolve_device, retain_host_memory
 
     dev = resolve_device(device)
     sync = torch.cuda.synchronize if dev.type == "cuda" else (lambda: None)
     torch.set_num_threads(threads)
+    retain_host_memory()
     s, a, s1, _ = _exploration_data(env_id, n_points, 0)
     model = GPDynamicsModel(kernel=kernel, adam_iters=30, lbfgs_iters=5, max_points=None)
     model.fit(s, a, s1)
@@ -333,18 +345,30 @@ def time_opt_step(
         }
         if accepted:
             step_fns["compiled"] = loss_and_grad_fn(compiled, params, cuda_graph=cuda_graph)
+    if heap_contrast:
+        step_fns["heap128k"] = step_fns["eager"]
     walls: dict[str, list[float]] = {k: [] for k in step_fns}
     cpus: dict[str, list[float]] = {k: [] for k in step_fns}
+    faults: dict[str, list[int]] = {k: [] for k in step_fns}
     for i in range(repeats + 1):
         for name, step_fn in step_fns.items():
+            if name == "heap128k":
+                retain_host_memory(128 * 1024, 128 * 1024)
+            if heap_contrast:  # one untimed step after each switch: the heap settles first
+                step_fn()
+                opt.step()
             sync()
             t, c = time.perf_counter(), time.process_time()
+            f0 = resource.getrusage(resource.RUSAGE_SELF).ru_minflt
             step_fn()
             opt.step()
             sync()
             if i:  # the first round is a warm-up
                 walls[name].append(time.perf_counter() - t)
                 cpus[name].append(time.process_time() - c)
+                faults[name].append(resource.getrusage(resource.RUSAGE_SELF).ru_minflt - f0)
+            if name == "heap128k":
+                retain_host_memory()
     out = {
         "n_points": n_points,
         "num_particles": num_particles,
@@ -353,13 +377,19 @@ def time_opt_step(
         "cuda_graph": bool(cuda_graph and dev.type == "cuda"),
         "s_per_step_wall": statistics.median(walls["eager"]),
         "s_per_step_cpu": statistics.median(cpus["eager"]),
+        "page_faults_per_step": statistics.median(faults["eager"]),
     }
     out.update(compile_info)
+    for name in ("compiled", "heap128k"):
+        if name in step_fns:
+            out.update(
+                {
+                    f"{name}_s_per_step_wall": statistics.median(walls[name]),
+                    f"{name}_s_per_step_cpu": statistics.median(cpus[name]),
+                    f"{name}_page_faults_per_step": statistics.median(faults[name]),
+                }
+            )
     if "compiled" in step_fns:
-        out.update(
-            compiled_s_per_step_wall=statistics.median(walls["compiled"]),
-            compiled_s_per_step_cpu=statistics.median(cpus["compiled"]),
-        )
         compiled.compile_step(False)
     return out
 
@@ -680,9 +710,14 @@ def write_report(results: dict, out_dir: Path) -> None:
             "(`--compile-rollout`), alternating with the eager step in each round; compile s: "
             "the compilation and its check against the eager step.",
             "",
+            "Faults: minor page faults per step, with the freed memory kept in the process "
+            "(`retain_host_memory`). 128 KiB heap: the eager step with glibc's initial "
+            "allocator thresholds instead (`--timing-heap-contrast`), in the same rounds.",
+            "",
             "| particles M | GP points N | device | CUDA graph | threads | wall s/step "
-            "| CPU s/step | compiled: wall s/step | CPU s/step | speed-up (CPU) | compile s |",
-            "|---|---|---|---|---|---|---|---|---|---|---|",
+            "| CPU s/step | faults | compiled: wall s/step | CPU s/step | speed-up (CPU) "
+            "| compile s | 128 KiB heap: wall s/step | faults |",
+            "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|",
         ]
         for t in results["timing"]:
             graph = "yes" if t.get("cuda_graph") else "no"
@@ -697,10 +732,17 @@ def write_report(results: dict, out_dir: Path) -> None:
                     f"| {t['s_per_step_cpu'] / t['compiled_s_per_step_cpu']:.2f}x "
                     f"| {t['compile_s']:.0f}"
                 )
+            faults = t.get("page_faults_per_step")
+            heap = "| - | -"
+            if "heap128k_s_per_step_wall" in t:
+                heap = (
+                    f"| {t['heap128k_s_per_step_wall']:.3f} "
+                    f"| {t['heap128k_page_faults_per_step']:.0f}"
+                )
             md.append(
                 f"| {t['num_particles']} | {t['n_points']} | {t.get('device', 'cpu')} | {graph} "
                 f"| {t['threads']} | {t['s_per_step_wall']:.3f} | {t['s_per_step_cpu']:.3f} "
-                f"{comp} |"
+                f"| {'-' if faults is None else f'{faults:.0f}'} {comp} {heap} |"
             )
         md.append("")
     if results.get("rmse"):
@@ -852,6 +894,12 @@ def build_parser() -> argparse.ArgumentParser:
         default=[400],
         help="particle counts M of the timing part (e.g. 25 400: the fixed cost and the goal's M)",
     )
+    p.add_argument(
+        "--timing-heap-contrast",
+        action="store_true",
+        help="timing part: also time the eager step with glibc's initial heap thresholds "
+        "(128 KiB) instead of the retained heap, alternating in the same rounds",
+    )
     p.add_argument("--rmse-seeds", type=int, default=10)
     p.add_argument(
         "--rmse-policy",
@@ -940,6 +988,7 @@ def main(argv: list[str] | None = None) -> int:
                         t = time_opt_step(
                             n, num_particles=m, threads=th, device=args.device,
                             cuda_graph=graph, compile_rollout=bool(args.compile_rollout),
+                            heap_contrast=bool(args.timing_heap_contrast),
                         )  # fmt: skip
                         comp = t.get("compiled_s_per_step_wall")
                         print(
@@ -947,6 +996,11 @@ def main(argv: list[str] | None = None) -> int:
                             f"graph={t['cuda_graph']}: {t['s_per_step_wall']:.3f} s/step wall"
                             + (f", compiled {comp:.3f}" if comp is not None else "")
                             + (", compiled step rejected" if t.get("compiled_rejected") else "")
+                            + (
+                                f", 128 KiB heap {t['heap128k_s_per_step_wall']:.3f}"
+                                if "heap128k_s_per_step_wall" in t
+                                else ""
+                            )
                         )
                         results["timing"].append(t)
         write_report(results, args.out)

@@ -59,6 +59,7 @@ from mcpilco.agents.baselines.common import (
 )
 from mcpilco.agents.baselines.pilco import OPTIMIZERS
 from mcpilco.agents.mc_pilco.loop import BENCH_CONFIG, DEFAULT_ENV_ID, PRESETS
+from mcpilco.models.device import retain_host_memory
 
 SB3_METHODS = ("sac", "td3", "ppo")
 METHODS = ("mcpilco", "pilco", *SB3_METHODS)
@@ -418,6 +419,7 @@ def run_method(
     threads = opts.get("threads", 1)
     if threads:
         torch.set_num_threads(int(threads))
+    retain_host_memory()
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     progress = bool(opts.get("progress", False))

@@ -127,7 +127,7 @@ def main(argv: list[str] | None = None) -> int:
         parser.error(str(err))
     from mcpilco.agents.mc_pilco import make_env, run_mcpilco
     from mcpilco.agents.mc_pilco.loop import check_compile_toolchain
-    from mcpilco.models.device import resolve_device
+    from mcpilco.models.device import resolve_device, retain_host_memory
 
     try:  # unknown env id, horizon mismatch, no such device or no compiler: before any work
         make_env(config.env_id, config.horizon).close()
@@ -136,6 +136,7 @@ def main(argv: list[str] | None = None) -> int:
             check_compile_toolchain(device)
     except ValueError as err:
         parser.error(str(err))
+    retain_host_memory()  # no page faults on the rollout's freed blocks
     summary = run_mcpilco(
         config,
         args.out,
