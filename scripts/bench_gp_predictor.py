@@ -40,7 +40,7 @@ from pathlib import Path
 import gpytorch
 import torch
 
-from mcpilco.models.device import resolve_device
+from mcpilco.models.device import resolve_device, retain_host_memory
 from mcpilco.models.gp import GPRegressor, exact_gp_settings
 from mcpilco.models.gp.dense import dense_covar
 from mcpilco.models.gp.fused import FusedRBFMPKPredictor
@@ -254,15 +254,23 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--device", default="cpu", help="cpu or cuda[:index]")
     parser.add_argument("--out", type=Path, default=Path("results/bench_gp_predictor.json"))
+    parser.add_argument(
+        "--retain-host-memory",
+        action="store_true",
+        help="keep freed CPU memory in the process (retain_host_memory, as the MC-PILCO "
+        "scripts do); default: glibc's adaptive allocator, as a user's process has it",
+    )
     args = parser.parse_args(argv)
     try:
         resolve_device(args.device)
     except ValueError as err:
         parser.error(str(err))
     torch.set_num_threads(args.threads)
+    retained = retain_host_memory() if args.retain_host_memory else False
     result = run(
         args.n_train, args.n_test, args.dim, args.outputs, args.repeats, args.seed, args.device
     )
+    result["config"]["retain_host_memory"] = retained
     args.out.parent.mkdir(parents=True, exist_ok=True)
     args.out.write_text(json.dumps(result, indent=2))
     print(markdown_table(result))
