@@ -1,17 +1,17 @@
 """``retain_host_memory``: freed tensor memory is reused instead of being faulted in again.
 
-Independent truth: the kernel's count of minor page faults of this process
-(``getrusage``). A fresh ``mmap`` of ``B`` bytes costs about ``B / 4096`` faults when it is
-first written; a block reused from the heap costs none.
+Independent truth: the kernel's count of minor page faults of a process (``getrusage``). A
+fresh ``mmap`` of ``B`` bytes costs about ``B / 4096`` faults when it is first written; a
+block reused from the heap costs none. Each case runs in a fresh interpreter, whose small
+heap holds no free block that could serve the request by chance.
 """
 
 from __future__ import annotations
 
-import resource
+import subprocess
 import sys
 
 import pytest
-import torch
 
 from mcpilco.models.device import MMAP_THRESHOLD_MAX, retain_host_memory
 
@@ -23,37 +23,47 @@ linux_glibc = pytest.mark.skipif(
 BLOCK = 2 * 2**20  # bytes: above glibc's initial 128 KiB mmap threshold, below 32 MiB
 PAGES = BLOCK // 4096
 
+_PROBE = """
+import resource, sys
+import torch
+from mcpilco.models.device import retain_host_memory
 
-def _cycles(repeats: int) -> None:
+args = [int(a) for a in sys.argv[1:]]
+assert retain_host_memory(*args)
+def cycles(repeats):
     for _ in range(repeats):
-        t = torch.empty(BLOCK // 4, dtype=torch.float32)
+        t = torch.empty({block} // 4, dtype=torch.float32)
         t.fill_(1.0)
         del t
+cycles(20)  # the heap settles to the settings first
+before = resource.getrusage(resource.RUSAGE_SELF).ru_minflt
+cycles(20)
+print((resource.getrusage(resource.RUSAGE_SELF).ru_minflt - before) / 20)
+"""
 
 
-def _faults_per_block(repeats: int = 20) -> float:
-    """Minor page faults per allocate-fill-free cycle of a ``BLOCK``-byte tensor, after as
-    many unmeasured cycles (the heap settles to the new settings first)."""
-    _cycles(repeats)
-    before = resource.getrusage(resource.RUSAGE_SELF).ru_minflt
-    _cycles(repeats)
-    return (resource.getrusage(resource.RUSAGE_SELF).ru_minflt - before) / repeats
+def _faults_per_block(*thresholds: int) -> float:
+    """Minor page faults per allocate-fill-free cycle of a ``BLOCK``-byte tensor in a fresh
+    interpreter after ``retain_host_memory(*thresholds)``."""
+    out = subprocess.run(
+        [sys.executable, "-c", _PROBE.format(block=BLOCK), *map(str, thresholds)],
+        capture_output=True,
+        text=True,
+        check=True,
+        timeout=120,
+    )
+    return float(out.stdout.strip().splitlines()[-1])
 
 
 @linux_glibc
 def test_low_thresholds_fault_every_block_in_again() -> None:
     """The contrast that makes the next test meaningful: with glibc's initial thresholds
     fixed (128 KiB), each cycle maps a fresh block and faults in (nearly) all its pages."""
-    try:
-        assert retain_host_memory(128 * 1024, 128 * 1024)
-        assert _faults_per_block() > 0.5 * PAGES
-    finally:
-        retain_host_memory()
+    assert _faults_per_block(128 * 1024, 128 * 1024) > 0.5 * PAGES
 
 
 @linux_glibc
 def test_retained_memory_is_reused_without_faults() -> None:
-    assert retain_host_memory()
     assert _faults_per_block() < 0.02 * PAGES
 
 
