@@ -53,7 +53,7 @@ timings), ``volterra_exp1.png`` and ``volterra_exp2.png`` (boxplots), ``volterra
 
 Examples::
 
-    mcpilco-bench-volterra                      # full protocol (100 / 40 runs; hours on 2 cores)
+    mcpilco-bench-volterra                      # full protocol (100 / 40 runs; 2 h of compute)
     mcpilco-bench-volterra --runs 20 --runs-exp2 6 --jobs 2
     mcpilco-bench-volterra --quick              # experiment 1 only, 2 runs, ~1-2 min
     python -c "from mcpilco.scripts.bench_volterra import quick_benchmark; quick_benchmark()"
