@@ -76,9 +76,11 @@ def retain_host_memory(
     and unmaps it on ``free``, and trims the heap's free top above ``M_TRIM_THRESHOLD``. A
     particle rollout allocates and frees hundreds of such blocks per optimisation step
     (``(m, N, M)`` kernel panels: 320 KiB at N = 100, M = 400, float32), so each one is
-    zero-filled again page by page: up to 20,000-58,000 minor page faults per step at
-    N = 100-300 when the adaptive threshold has not caught up (which differs from process to
-    process). Fixing both thresholds high (``mallopt``) reuses the freed blocks instead.
+    zero-filled again page by page: 4,900-19,600 minor page faults per step in 10 of 13
+    fresh default processes at N = 100-200 (fewer than 130 in the others: the adaptive
+    threshold depends on the allocation history), 8,900-57,000 at N = 100-300 with the
+    initial 128 KiB thresholds, and a step up to 1.4x slower. Fixing both thresholds high
+    (``mallopt``) reuses the freed blocks instead (0-545 faults per step).
     The price: the process keeps its peak heap (blocks above ``mmap_threshold`` are still
     unmapped on free).
 
