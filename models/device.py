@@ -14,6 +14,7 @@ import torch
 
 __all__ = [
     "DEVICE_TYPES",
+    "GLIBC_INITIAL_THRESHOLD",
     "MMAP_THRESHOLD_MAX",
     "check_device_name",
     "resolve_device",
@@ -61,6 +62,11 @@ def resolve_device(name: str | torch.device) -> torch.device:
 MMAP_THRESHOLD_MAX = 32 * 2**20
 """glibc's largest ``M_MMAP_THRESHOLD`` on 64-bit Linux (bytes); :func:`retain_host_memory`'s
 default."""
+
+GLIBC_INITIAL_THRESHOLD = 128 * 1024
+"""glibc's initial ``M_MMAP_THRESHOLD`` and ``M_TRIM_THRESHOLD`` (bytes):
+``retain_host_memory(GLIBC_INITIAL_THRESHOLD, GLIBC_INITIAL_THRESHOLD)`` pins a process to the
+faulting state the adaptive rule can leave it in (the bench's ``--timing-heap-contrast``)."""
 
 _M_TRIM_THRESHOLD = -1  # glibc <malloc.h> parameter numbers
 _M_MMAP_THRESHOLD = -3

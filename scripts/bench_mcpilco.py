@@ -311,7 +311,11 @@ def time_opt_step(
         make_policy_module,
     )
     from mcpilco.agents.mc_pilco.optimize import loss_and_grad_fn
-    from mcpilco.models.device import resolve_device, retain_host_memory
+    from mcpilco.models.device import (
+        GLIBC_INITIAL_THRESHOLD,
+        resolve_device,
+        retain_host_memory,
+    )
 
     dev = resolve_device(device)
     sync = torch.cuda.synchronize if dev.type == "cuda" else (lambda: None)
@@ -353,7 +357,7 @@ def time_opt_step(
     for i in range(repeats + 1):
         for name, step_fn in step_fns.items():
             if name == "heap128k":
-                retain_host_memory(128 * 1024, 128 * 1024)
+                retain_host_memory(GLIBC_INITIAL_THRESHOLD, GLIBC_INITIAL_THRESHOLD)
             if heap_contrast:  # one untimed step after each switch: the heap settles first
                 step_fn()
                 opt.step()

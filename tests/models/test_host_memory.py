@@ -13,7 +13,7 @@ import sys
 
 import pytest
 
-from mcpilco.models.device import MMAP_THRESHOLD_MAX, retain_host_memory
+from mcpilco.models.device import GLIBC_INITIAL_THRESHOLD, MMAP_THRESHOLD_MAX, retain_host_memory
 
 linux_glibc = pytest.mark.skipif(
     not sys.platform.startswith("linux") or not retain_host_memory(),
@@ -59,7 +59,7 @@ def _faults_per_block(*thresholds: int) -> float:
 def test_low_thresholds_fault_every_block_in_again() -> None:
     """The contrast that makes the next test meaningful: with glibc's initial thresholds
     fixed (128 KiB), each cycle maps a fresh block and faults in (nearly) all its pages."""
-    assert _faults_per_block(128 * 1024, 128 * 1024) > 0.5 * PAGES
+    assert _faults_per_block(GLIBC_INITIAL_THRESHOLD, GLIBC_INITIAL_THRESHOLD) > 0.5 * PAGES
 
 
 @linux_glibc
