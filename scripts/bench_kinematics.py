@@ -35,7 +35,10 @@ orientations, every marker seen from any side).
     thesis, and against the true poses. Baseline: an RBF GP (ARD, on raw ``q``) on the same
     samples. Options beyond the thesis, reported separately: the GP on all nine rotation
     elements with the mean projected onto SO(3); the GP with leave-one-out outlier trimming
-    (``outlier_threshold=4``, :meth:`ForwardKinematicsGP.fit`). Diagnostics: the
+    (``outlier_threshold=4``, :meth:`ForwardKinematicsGP.fit`); the chain model
+    (:class:`~mcpilco.models.kinematics.ChainForwardKinematicsGP`: one-joint GPs on the
+    relative poses of consecutive markers of the identified chain, composed), trained on the
+    same frames with every marker they show. Diagnostics: the
     measurement noise itself (measured vs true test poses: the floor of any RMSE against
     measured poses; per axis, as a 3-D norm, and the distance / incidence that scale it),
     the same GP trained on noise-free poses of the same 100 configurations, of 100
@@ -97,6 +100,7 @@ from tqdm.auto import tqdm
 from mcpilco.envs.marker_camera import NOISE_DEFAULTS, MarkerCameraEnv
 from mcpilco.models.gp import GPRegressor
 from mcpilco.models.kinematics import (
+    ChainForwardKinematicsGP,
     KinematicStructure,
     classify_all_triplets,
     identify_structure,
@@ -559,6 +563,10 @@ def fk_gp_part(
     pred9 = ForwardKinematicsGP(structure.joint_types, rotation_outputs="nine").fit(X, Y, **fit_kw)
     pred9 = pred9.predict(Xte)
     pred_rbf = _rbf_gp(X, Y, Xte)
+    chain = ChainForwardKinematicsGP(structure.joint_types).fit(
+        X, poses[idx][:, list(structure.markers)], **fit_kw
+    )
+    pred_chain = chain.predict(Xte)
     result = dict(
         n_train=n_train,
         train_selection=selection,
@@ -576,6 +584,9 @@ def fk_gp_part(
         nine_elements_rmse_true=_pose_rmse(pred9, true_te),
         rbf_rmse_measured=_pose_rmse(pred_rbf, Yte),
         rbf_rmse_true=_pose_rmse(pred_rbf, true_te),
+        chain_rmse_measured=_pose_rmse(pred_chain, Yte),
+        chain_rmse_true=_pose_rmse(pred_chain, true_te),
+        chain_frames_used=chain.frames_used_,
         measurement_noise_rmse=_pose_rmse(Yte, true_te),
         measurement_noise=measurement_noise_stats(env, Yte, q_te_true),
     )
@@ -637,6 +648,13 @@ def fk_gp_part(
 FK_GOAL = (0.006, 0.04)
 """Issue goal of part (c): RMSE <= 6 mm on x, y, z and <= 0.04 rad on each angle."""
 
+GOAL_MODELS = ("polynomial", "nine_elements", "chain")
+"""Models of the seed study checked against :data:`FK_GOAL`."""
+
+SEED_STUDY_KEYS = ("polynomial", "polynomial_true", "nine_elements", "chain", "chain_true", "rbf",
+                   "noise")  # fmt: skip
+"""Per-seed RMSE rows of the seed study that get a mean / min / max summary."""
+
 
 def fk_seed_study(
     seeds: list[int],
@@ -671,23 +689,24 @@ def fk_seed_study(
                 polynomial_true=fk["polynomial_rmse_true"],
                 nine_elements=fk["nine_elements_rmse_measured"],
                 rbf=fk["rbf_rmse_measured"],
+                chain=fk["chain_rmse_measured"],
+                chain_true=fk["chain_rmse_true"],
                 noise=fk["measurement_noise_rmse"],
             )
         )
     summary = {}
-    for key in ("polynomial", "polynomial_true", "nine_elements", "rbf", "noise"):
+    for key in SEED_STUDY_KEYS:
         table = np.array([r[key] for r in rows])
         summary[key] = dict(
             mean=table.mean(0).tolist(), min=table.min(0).tolist(), max=table.max(0).tolist()
         )
     limits = np.array([FK_GOAL[0]] * 3 + [FK_GOAL[1]] * 3)
     met = {
-        key: (np.array([r[key][:6] for r in rows]) <= limits).sum(0).tolist()
-        for key in ("polynomial", "nine_elements")
+        key: (np.array([r[key][:6] for r in rows]) <= limits).sum(0).tolist() for key in GOAL_MODELS
     }
     all_met = {
         key: int((np.array([r[key][:6] for r in rows]) <= limits).all(1).sum())
-        for key in ("polynomial", "nine_elements")
+        for key in GOAL_MODELS
     }
     return dict(
         seeds=list(seeds),
@@ -718,22 +737,33 @@ def fk_seed_markdown(study: dict[str, Any], command: str) -> str:
         f"{study['n_train']} training samples of D_tr per seed "
         f"({_selection_text(study)}), tested on D_test. RMSE "
         "against the measured poses: x, y, z in mm, gamma, beta, alpha in rad. Nine: the GP "
-        "on all nine rotation elements projected onto SO(3) (same positions).",
+        "on all nine rotation elements projected onto SO(3) (same positions). Chain (beyond "
+        "the thesis): one-joint GPs on the relative poses of consecutive markers of the "
+        "identified chain, composed (`ChainForwardKinematicsGP`; the same frames, every "
+        "marker in them).",
         "",
         "| seed | identified | x | y | z | gamma | beta | alpha | nine: gamma | beta | alpha "
-        "| RBF x | y | z | noise x | y | z |",
-        "|---|---|" + "---:|" * 15,
+        "| chain: x | y | z | gamma | beta | alpha | RBF x | y | z | noise x | y | z |",
+        "|---|---|" + "---:|" * 21,
     ]
     rows = [(str(r["seed"]), "yes" if r["identified"] else "no", r) for r in study["rows"]]
     summ = study["summary"]
     for label, pick in (("mean", "mean"), ("min", "min"), ("max", "max")):
         rows.append(
-            (label, "", {k: summ[k][pick] for k in ("polynomial", "nine_elements", "rbf", "noise")})
+            (
+                label,
+                "",
+                {
+                    k: summ[k][pick]
+                    for k in ("polynomial", "nine_elements", "chain", "rbf", "noise")
+                },
+            )  # fmt: skip
         )
     for seed, ident, r in rows:
         lines.append(
             f"| {seed} | {ident} | {mm(r['polynomial'])} | {rad(r['polynomial'])} | "
-            f"{rad(r['nine_elements'])} | {mm(r['rbf'])} | {mm(r['noise'])} |"
+            f"{rad(r['nine_elements'])} | {mm(r['chain'])} | {rad(r['chain'])} | "
+            f"{mm(r['rbf'])} | {mm(r['noise'])} |"
         )
     g = study["goal"]
     n = len(study["seeds"])
@@ -747,18 +777,27 @@ def fk_seed_markdown(study: dict[str, Any], command: str) -> str:
         f"Goal (<= {1e3 * g['position']:.0f} mm on x, y, z and <= {g['angle']} rad on each "
         f"angle), seeds meeting it: five elements {per('polynomial')}; all six on "
         f"{g['met_all']['polynomial']}/{n}. Nine elements {per('nine_elements')}; all six on "
-        f"{g['met_all']['nine_elements']}/{n}.",
+        f"{g['met_all']['nine_elements']}/{n}. Chain {per('chain')}; all six on "
+        f"{g['met_all']['chain']}/{n}.",
         "",
-        "Against the truth (five elements): mean "
-        + " / ".join(f"{1e3 * x:.1f}" for x in summ["polynomial_true"]["mean"][:3])
-        + " mm, range "
-        + " / ".join(
-            f"{1e3 * a:.1f}-{1e3 * b:.1f}"
-            for a, b in zip(
-                summ["polynomial_true"]["min"][:3], summ["polynomial_true"]["max"][:3], strict=True
+    ]
+
+    def against_truth(key: str) -> str:  # mean and range over the seeds, x / y / z in mm
+        t = summ[key]
+        return (
+            "mean "
+            + " / ".join(f"{1e3 * x:.1f}" for x in t["mean"][:3])
+            + " mm, range "
+            + " / ".join(
+                f"{1e3 * a:.1f}-{1e3 * b:.1f}"
+                for a, b in zip(t["min"][:3], t["max"][:3], strict=True)
             )
+            + " mm"
         )
-        + " mm.",
+
+    lines += [
+        f"Against the truth: five elements {against_truth('polynomial_true')}; chain "
+        f"{against_truth('chain_true')}.",
     ]
     return "\n".join(lines) + "\n"
 
@@ -1104,6 +1143,12 @@ def _markdown(res: dict[str, Any]) -> str:
                 f"{_fmt(fk['nine_elements_rmse_measured'])} |",
                 "| polynomial, nine elements + SO(3) projection, vs true | "
                 f"{_fmt(fk['nine_elements_rmse_true'])} |",
+            ]
+        if "chain_rmse_true" in fk:
+            lines += [
+                "| chain of one-joint GPs (every marker of the same frames), vs measured | "
+                f"{_fmt(fk['chain_rmse_measured'])} |",
+                f"| chain of one-joint GPs, vs true | {_fmt(fk['chain_rmse_true'])} |",
             ]
         lines += [
             f"| RBF on raw q vs measured | {_fmt(fk['rbf_rmse_measured'])} |",

@@ -5,6 +5,8 @@
   iterative algorithm of Fig. 2.3 -> :class:`KinematicStructure`.
 * :mod:`~mcpilco.models.kinematics.forward` -- forward kinematics GP with the polynomial
   kernels ``k_R`` / ``k_l`` (eqs. 2.22-2.23) and the gradient kinematic controller (2.24).
+* :mod:`~mcpilco.models.kinematics.chain` -- beyond the thesis: the end-marker FK composed
+  from one-joint GPs along the identified marker chain (every marker of each frame used).
 * :mod:`~mcpilco.models.kinematics.rotations` -- yaw-pitch-roll conventions (eq. 2.20).
 * :mod:`~mcpilco.models.kinematics.synthetic` -- numpy DH chains with markers (section 2.6).
 
@@ -12,6 +14,7 @@ Inputs are arrays of marker poses ``[x, y, z, gamma, beta, alpha]`` and joint si
 package imports nothing from ``mcpilco.envs``.
 """
 
+from mcpilco.models.kinematics.chain import ChainFKPredictor, ChainForwardKinematicsGP
 from mcpilco.models.kinematics.forward import (
     FKPredictor,
     ForwardKinematicsGP,
@@ -41,6 +44,8 @@ from mcpilco.models.kinematics.structure import (
 from mcpilco.models.kinematics.synthetic import SyntheticChain, random_chain, sum_of_sinusoids
 
 __all__ = [
+    "ChainFKPredictor",
+    "ChainForwardKinematicsGP",
     "FKPredictor",
     "ForwardKinematicsGP",
     "design_subset",

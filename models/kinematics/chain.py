@@ -1,0 +1,209 @@
+"""Forward kinematics composed along the identified marker chain (beyond the thesis).
+
+The thesis's model (:class:`~mcpilco.models.kinematics.forward.ForwardKinematicsGP`, eqs.
+2.22-2.23) maps all ``n`` joints to the end marker directly: on a UR10 its kernels span
+``3^6 = 729`` monomials, learned from the end marker's pose alone. The structure
+identification (section 2.4) also returns the marker sequence, and every frame measures
+every marker. Composing the chain uses both.
+
+Glossary (markers ``M_0 .. M_n`` base to tip, ``S_M``; joint ``q_k`` between ``M_{k-1}`` and
+``M_k``, ``S_q``; all poses in the camera frame ``c``)
+-----------------------------------------------------------------------------------------
+``T^c_{M_n}(q) = T^c_{M_0} G_1(q_1) G_2(q_2) ... G_n(q_n)``
+    the end-marker pose as a product of the relative poses of consecutive markers.
+``G_k(q_k) = (T^c_{M_{k-1}})^{-1} T^c_{M_k} = [R^{k-1}_k, l^{k-1}_k]``
+    marker ``k`` in marker ``k - 1``'s frame. Links are rigid, so it depends on ``q_k``
+    alone (eqs. 2.2-2.3; the fact the triplet tests of section 2.3 check). Each ``G_k`` is a
+    one-joint :class:`ForwardKinematicsGP` on the relative poses
+    (:func:`~mcpilco.models.kinematics.rotations.relative_poses`). Its kernel is eq. 2.22
+    with one factor, ``k_R = [1, cos q_k, sin q_k] Sigma_k [1, cos q_k', sin q_k']^T``, whose
+    RKHS holds ``R^{k-1}_k`` and ``l^{k-1}_k`` exactly (they are ``A + B cos q_k + C sin
+    q_k``). A prismatic joint gets ``[1, q_k]``, eq. 2.23. All nine rotation elements are
+    modelled, and their mean is projected onto SO(3) (``rotation_outputs="nine"``).
+``T^c_{M_0}``
+    the base marker's pose, constant. Its position is the mean of the measured positions.
+    Its rotation is the nearest rotation to the mean measured matrix (the chordal mean).
+frames used
+    link ``k`` learns from the frames that show both ``M_{k-1}`` and ``M_k``; the base from
+    those showing ``M_0`` (a marker out of view is a row of NaN). ``frames_used_`` counts
+    them.
+
+Why it is more accurate on the same frames: it fits ``n`` maps of 3 monomials each, from
+12 outputs per frame, instead of one map of ``3^n`` monomials from 6 outputs. So the
+measurement noise averages out over far fewer unknowns. Its errors compound along the
+chain; each link's error is small.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+import torch
+from numpy.typing import ArrayLike, NDArray
+from torch import Tensor, nn
+
+from mcpilco.models.kinematics.forward import (
+    FKPredictor,
+    ForwardKinematicsGP,
+    _check_types,
+    five_elements,
+)
+from mcpilco.models.kinematics.rotations import (
+    elements_to_ypr_torch,
+    matrix_to_ypr,
+    nearest_rotation,
+    relative_poses,
+    ypr_to_matrix,
+)
+
+__all__ = ["ChainFKPredictor", "ChainForwardKinematicsGP"]
+
+FloatArray = NDArray[np.float64]
+
+MIN_FRAMES_PER_LINK = 5
+"""Fewest frames showing both markers of a link that :meth:`ChainForwardKinematicsGP.fit`
+accepts (each link GP has at most 3 monomials per output)."""
+
+
+class ChainFKPredictor(nn.Module):
+    """Differentiable ``q -> (l_hat, o_hat)`` of the composed chain (module glossary).
+
+    Call: ``position, ypr = pred(q)`` with ``q`` ``(..., n)`` -> ``(..., 3)`` each; like
+    :class:`~mcpilco.models.kinematics.forward.FKPredictor`, so the controllers accept it.
+    """
+
+    def __init__(self, base_R: Tensor, base_l: Tensor, links: list[FKPredictor]) -> None:
+        super().__init__()
+        self.register_buffer("base_R", base_R)
+        self.register_buffer("base_l", base_l)
+        self.links = nn.ModuleList(links)
+
+    def position_and_rotation(self, q: Tensor) -> tuple[Tensor, Tensor]:
+        """``(l^c_{M_n} (..., 3), R^c_{M_n} (..., 3, 3))`` of ``T^c_{M_0} prod_k G_k(q_k)``."""
+        if q.shape[-1] != len(self.links):
+            raise ValueError(f"q must have {len(self.links)} columns, got {tuple(q.shape)}")
+        lead = q.shape[:-1]
+        R = self.base_R.to(q.dtype).expand(*lead, 3, 3)
+        l = self.base_l.to(q.dtype).expand(*lead, 3)  # noqa: E741 (l: the thesis's symbol)
+        for k, link in enumerate(self.links):
+            l_k, R_k = link.position_and_rotation(q[..., k : k + 1])
+            l = l + (R @ l_k.unsqueeze(-1)).squeeze(-1)  # noqa: E741
+            R = R @ R_k
+        return l, R
+
+    def forward(self, q: Tensor) -> tuple[Tensor, Tensor]:
+        l, R = self.position_and_rotation(q)  # noqa: E741
+        return l, elements_to_ypr_torch(five_elements(R))
+
+
+class ChainForwardKinematicsGP:
+    """FK of the end marker composed from one-joint GPs along the marker chain.
+
+    Args:
+        joint_types: joint types along the chain, e.g. ``"RRRRRR"`` (``S_Q``).
+        noise_init, noise_min: those of each link's :class:`ForwardKinematicsGP`.
+
+    Fitted attributes: ``links_`` (one :class:`ForwardKinematicsGP` per joint),
+    ``base_R_`` ``(3, 3)`` and ``base_l_`` ``(3,)`` (``T^c_{M_0}``), ``frames_used_``
+    (``{"base": N_0, "links": [N_1, ..., N_n]}``, frames each part was fitted on).
+    """
+
+    def __init__(self, joint_types: str, *, noise_init: float = 1e-3, noise_min: float = 1e-8):
+        _check_types(joint_types)
+        self.joint_types = joint_types
+        self.noise_init = noise_init
+        self.noise_min = noise_min
+        self.links_: list[ForwardKinematicsGP] = []
+        self.base_R_: FloatArray | None = None
+        self.base_l_: FloatArray | None = None
+        self.frames_used_: dict[str, Any] = {}
+
+    @property
+    def n_joints(self) -> int:
+        return len(self.joint_types)
+
+    def _validate_q(self, q: ArrayLike) -> FloatArray:
+        q = np.asarray(q, dtype=np.float64)
+        if q.ndim != 2 or q.shape[1] != self.n_joints:
+            raise ValueError(
+                f"q must have shape (N, {self.n_joints}) for joint_types {self.joint_types!r}, "
+                f"got {q.shape}"
+            )
+        if not np.isfinite(q).all():
+            raise ValueError("q contains NaN or inf; drop those samples before fitting/predicting")
+        return q
+
+    def fit(self, q: ArrayLike, marker_poses: ArrayLike, **fit_kwargs: Any):
+        """Fit the base pose and the ``n`` link GPs (marginal likelihood each).
+
+        Args:
+            q: ``(N, n)`` joint positions in chain order (``S_q``).
+            marker_poses: ``(N, n + 1, 6)`` poses ``[x, y, z, gamma, beta, alpha]`` of the
+                markers in chain order (``S_M``, base first); a marker out of view is a row
+                of NaN, and only the links it belongs to lose that frame.
+            **fit_kwargs: passed to each :meth:`ForwardKinematicsGP.fit`.
+        """
+        q = self._validate_q(q)
+        P = np.asarray(marker_poses, dtype=np.float64)
+        if P.shape != (q.shape[0], self.n_joints + 1, 6):
+            raise ValueError(
+                f"marker_poses must have shape ({q.shape[0]}, {self.n_joints + 1}, 6) (frames, "
+                f"markers base to tip, [x, y, z, gamma, beta, alpha]), got {P.shape}"
+            )
+        seen = np.isfinite(P).all(-1)  # (N, n + 1)
+        partial = np.isnan(P).any(-1) & ~np.isnan(P).all(-1)
+        if partial.any() or np.isinf(P).any():
+            raise ValueError(
+                "a marker pose must be all finite or all NaN (out of view); found "
+                f"{int(partial.sum())} partly-NaN and {int(np.isinf(P).any(-1).sum())} "
+                "infinite poses"
+            )
+        counts = [int(seen[:, 0].sum())] + [
+            int((seen[:, k] & seen[:, k + 1]).sum()) for k in range(self.n_joints)
+        ]
+        short = [i for i, c in enumerate(counts) if c < MIN_FRAMES_PER_LINK]
+        if short:
+            names = ["base marker" if i == 0 else f"link {i} (markers {i - 1}, {i})" for i in short]
+            raise ValueError(
+                f"too few frames for {', '.join(names)}: {[counts[i] for i in short]} "
+                f"(need >= {MIN_FRAMES_PER_LINK} frames showing the markers)"
+            )
+        base = P[seen[:, 0], 0]
+        self.base_l_ = base[:, :3].mean(0)
+        self.base_R_ = nearest_rotation(ypr_to_matrix(base[:, 3:]).mean(0))
+        links = []
+        for k in range(self.n_joints):
+            both = seen[:, k] & seen[:, k + 1]
+            l_rel, R_rel = relative_poses(P[both, k], P[both, k + 1])
+            rel = np.concatenate([l_rel, matrix_to_ypr(R_rel)], axis=-1)
+            link = ForwardKinematicsGP(
+                self.joint_types[k],
+                noise_init=self.noise_init,
+                noise_min=self.noise_min,
+                rotation_outputs="nine",
+            )
+            links.append(link.fit(q[both, k : k + 1], rel, **fit_kwargs))
+        self.links_ = links
+        self.frames_used_ = {"base": counts[0], "links": counts[1:]}
+        return self
+
+    def _check_fitted(self) -> None:
+        if not self.links_:
+            raise RuntimeError("ChainForwardKinematicsGP is not fitted; call fit first")
+
+    def predictor(self, dtype: torch.dtype = torch.float64) -> ChainFKPredictor:
+        """Differentiable :class:`ChainFKPredictor` over the link GPs' cached predictors."""
+        self._check_fitted()
+        return ChainFKPredictor(
+            torch.as_tensor(self.base_R_, dtype=dtype),
+            torch.as_tensor(self.base_l_, dtype=dtype),
+            [link.predictor(dtype) for link in self.links_],
+        )
+
+    def predict(self, q: ArrayLike) -> FloatArray:
+        """Posterior-mean end-marker poses ``(N, 6)`` ``[x, y, z, gamma, beta, alpha]``."""
+        q = self._validate_q(q)
+        with torch.no_grad():
+            position, ypr = self.predictor(torch.float64)(torch.from_numpy(q))
+        return torch.cat([position, ypr], dim=-1).numpy()
