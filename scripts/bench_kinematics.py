@@ -648,6 +648,9 @@ def fk_gp_part(
 FK_GOAL = (0.006, 0.04)
 """Issue goal of part (c): RMSE <= 6 mm on x, y, z and <= 0.04 rad on each angle."""
 
+FK_MODELS = ("end", "chain")
+"""FK models of part (d): the thesis' GP on the end marker, or the chain of one-joint GPs."""
+
 GOAL_MODELS = ("polynomial", "nine_elements", "chain")
 """Models of the seed study checked against :data:`FK_GOAL`."""
 
@@ -833,6 +836,7 @@ def controller_part(
     rotation_outputs: str = "five",
     hold: int = 5,
     selection: str = "random",
+    fk_model: str = "end",
 ) -> dict[str, Any]:
     """Table 2.2: reach 5 random targets with eq. 2.24, then refit with the executed frames.
 
@@ -855,8 +859,13 @@ def controller_part(
     ``rotation_outputs`` is that of :class:`ForwardKinematicsGP`. ``hold`` more frames are
     measured while the robot rests at each reached reference (they join the data; the
     reported reached pose is the single frame at arrival). ``selection`` picks the
-    ``n_train`` initial samples (:data:`TRAIN_SELECTIONS`).
+    ``n_train`` initial samples (:data:`TRAIN_SELECTIONS`). ``fk_model``: ``"end"`` (the
+    thesis' GP on the end marker) or ``"chain"`` (:class:`ChainForwardKinematicsGP` on every
+    marker of the same frames); either way a frame joins the data when it shows the end
+    marker.
     """
+    if fk_model not in FK_MODELS:
+        raise ValueError(f"fk_model must be one of {FK_MODELS}, got {fk_model!r}")
     if hold < 0:
         raise ValueError(f"hold must be >= 0, got {hold}")
     if refine not in REFINE_CHOICES:
@@ -867,7 +876,8 @@ def controller_part(
     rng = np.random.default_rng([seed, 4])
     valid = np.isfinite(poses[:, ee]).all(1)
     idx = training_indices(q[:, joints], valid, n_train, selection, rng, structure.joint_types)
-    X, Y = q[idx][:, joints], poses[idx, ee]
+    markers = list(structure.markers)
+    X, Y = q[idx][:, joints], poses[idx][:, markers]  # every marker, chain order
     q_start = data["waypoints"][0]
     wp = data["waypoints"]
     lo, hi = wp.min(0), wp.max(0)
@@ -881,11 +891,14 @@ def controller_part(
     # model joint k is observed slot S_q[k], i.e. chain joint joint_permutation[S_q[k]]
     chain_of_model = env.joint_permutation[joints]
     n = env.n_joints
-    fk = ForwardKinematicsGP(structure.joint_types, rotation_outputs=rotation_outputs)
+    if fk_model == "chain":
+        fk = ChainForwardKinematicsGP(structure.joint_types)
+    else:
+        fk = ForwardKinematicsGP(structure.joint_types, rotation_outputs=rotation_outputs)
     rows = []
     previous: list[np.ndarray] = []
     for rnd in range(rounds + 1):
-        fk.fit(X, Y, adam_iters=50, lbfgs_iters=100)
+        fk.fit(X, Y if fk_model == "chain" else Y[:, -1], adam_iters=50, lbfgs_iters=100)
         pred = fk.predictor()
         limits = np.column_stack([X.min(0), X.max(0)]) if limit_to_data else None
         reached, reached_true, predicted, chosen, new_X, new_Y = [], [], [], [], [], []
@@ -894,7 +907,9 @@ def controller_part(
             q0 = env.q[chain_of_model]
             q_starts = [q0]
             if starts > 0:
-                q_starts += list(nearest_data_starts(X, Y, targets[k], starts, 0.1, orientation))
+                q_starts += list(
+                    nearest_data_starts(X, Y[:, -1], targets[k], starts, 0.1, orientation)
+                )
             if rnd > 0 and refine == "previous":
                 q_starts = [previous[k]]
             elif rnd > 0 and refine == "both":
@@ -914,8 +929,8 @@ def controller_part(
             for _ in range(hold):  # the robot rests at q_des while the camera keeps measuring
                 obs_rows.append(env.step(np.zeros(n, dtype=np.float32))[0])
             for o in obs_rows:
-                y = o[: 6 * (n + 1)].reshape(n + 1, 6)[ee]
-                if np.isfinite(y).all():  # frames that show the end marker join the data
+                y = o[: 6 * (n + 1)].reshape(n + 1, 6)[markers]
+                if np.isfinite(y[-1]).all():  # frames that show the end marker join the data
                     new_X.append(o[6 * (n + 1) : 6 * (n + 1) + n][joints])
                     new_Y.append(y)
             reached.append(arrival)
@@ -955,6 +970,7 @@ def controller_part(
         refine=refine,
         rotation_outputs=rotation_outputs,
         hold=hold,
+        fk_model=fk_model,
         targets=targets.tolist(),
         rounds=rows,
     )
@@ -1211,7 +1227,8 @@ def _markdown(res: dict[str, Any]) -> str:
             f"Extra starts: {c.get('starts', 0)} nearest data configurations; q_des clipped to "
             f"the data's joint box: {c.get('limit_to_data', False)}; orientation error in e_p: "
             f"{c.get('orientation', 'ypr')}; rotation outputs: "
-            f"{c.get('rotation_outputs', 'five')}; online rounds start from: "
+            f"{c.get('rotation_outputs', 'five')}; FK model: {c.get('fk_model', 'end')}; "
+            "online rounds start from: "
             f"{c.get('refine', 'restart')}; frames measured at rest after each reference: "
             f"{c.get('hold', 0)}. RMSE of the reached pose (one frame at arrival) "
             "as measured by the camera (as in the thesis) and against the true pose.",
@@ -1306,6 +1323,11 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument(
         "--ctrl-selection", choices=TRAIN_SELECTIONS, default="random",
         help="(d) initial training samples of D_tr, as --train-selection (default random)",
+    )  # fmt: skip
+    p.add_argument(
+        "--ctrl-model", choices=FK_MODELS, default="end",
+        help="(d) FK model: the thesis' GP on the end marker (default) or the chain of "
+        "one-joint GPs on every marker (ChainForwardKinematicsGP)",
     )  # fmt: skip
     p.add_argument("--online-rounds", type=int, default=3, help="(d) refits with new data")
     p.add_argument("--ctrl-steps", type=int, default=300, help="(d) controller updates")
@@ -1477,6 +1499,7 @@ def main(argv: list[str] | None = None) -> int:
                 rotation_outputs=args.rotation_outputs,
                 hold=args.ctrl_hold,
                 selection=args.ctrl_selection,
+                fk_model=args.ctrl_model,
             )
             res["controller"]["marker_protocol"] = protocol
     for key in PART_KEYS:  # which command produced each part (they may come from --merge)

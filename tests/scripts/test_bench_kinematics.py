@@ -10,8 +10,10 @@ from mcpilco.envs.marker_camera import ypr_to_matrix
 from mcpilco.scripts.bench_kinematics import (
     UR10_HOME,
     _feature_rank,
+    controller_part,
     main,
     training_indices,
+    true_structure,
     ur10_datasets,
     ur10_waypoints,
 )
@@ -155,7 +157,7 @@ def test_fk_seed_study_writes_its_table_and_counts_the_goal_from_its_rows(tmp_pa
     assert [r["seed"] for r in study["rows"]] == [0, 1]
     assert not (tmp_path / "kinematics.json").exists()  # the study writes only its own files
     limits = np.array([0.006] * 3 + [0.04] * 3)
-    for key in ("polynomial", "nine_elements"):
+    for key in ("polynomial", "nine_elements", "chain"):
         table = np.array([r[key][:6] for r in study["rows"]])
         assert study["goal"]["met_per_axis"][key] == (table <= limits).sum(0).tolist()
         np.testing.assert_allclose(study["summary"][key]["mean"][:6], table.mean(0))
@@ -163,3 +165,17 @@ def test_fk_seed_study_writes_its_table_and_counts_the_goal_from_its_rows(tmp_pa
     with pytest.raises(SystemExit):
         main(["--fk-seeds", "0", "--merge", *out])
     assert "--fk-seeds" in capsys.readouterr().err
+
+
+def test_controller_with_the_chain_model_learns_from_every_marker():
+    data = ur10_datasets(0, 96)
+    structure = true_structure(data["env"])
+    res = controller_part(
+        data, structure, 30, 1, 0, False, steps=5, starts=1, hold=1, fk_model="chain"
+    )
+    assert res["fk_model"] == "chain"
+    r0, r1 = res["rounds"]
+    assert r1["n_data"] > r0["n_data"] == 30
+    assert all(np.isfinite(r0["rmse_true"])) and len(r0["predicted_error"]) == 5
+    with pytest.raises(ValueError, match="fk_model must be one of"):
+        controller_part(data, structure, 30, 0, 0, False, fk_model="tip")
