@@ -11,6 +11,7 @@ from mcpilco.scripts.bench_kinematics import (
     UR10_HOME,
     _feature_rank,
     controller_part,
+    fk_gp_part,
     main,
     training_indices,
     true_structure,
@@ -179,3 +180,13 @@ def test_controller_with_the_chain_model_learns_from_every_marker():
     assert all(np.isfinite(r0["rmse_true"])) and len(r0["predicted_error"]) == 5
     with pytest.raises(ValueError, match="fk_model must be one of"):
         controller_part(data, structure, 30, 0, 0, False, fk_model="tip")
+
+
+def test_fk_part_reports_a_chain_that_cannot_be_fitted_and_goes_on():
+    data = ur10_datasets(0, 96)
+    structure = true_structure(data["env"])
+    poses = data["train"][0]
+    poses[:, structure.markers[2]] = np.nan  # marker 2 never seen: links 2 and 3 have no frame
+    res = fk_gp_part(data, structure, 20, 0, diagnostics=False)
+    assert "chain_rmse_true" not in res and "too few frames for link 2" in res["chain_error"]
+    assert len(res["polynomial_rmse_measured"]) == 7  # the other models still ran
