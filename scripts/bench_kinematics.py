@@ -565,7 +565,7 @@ def fk_gp_part(
     pred_rbf = _rbf_gp(X, Y, Xte)
     try:  # rendered measurements can leave a link with too few frames showing both markers
         chain = ChainForwardKinematicsGP(structure.joint_types).fit(
-            X, poses[idx][:, list(structure.markers)], **fit_kw
+            X, poses[idx][:, list(structure.markers)]
         )
     except ValueError as err:
         chain, chain_result = None, dict(chain_error=str(err))
@@ -907,7 +907,10 @@ def controller_part(
     rows = []
     previous: list[np.ndarray] = []
     for rnd in range(rounds + 1):
-        fk.fit(X, Y if fk_model == "chain" else Y[:, -1], adam_iters=50, lbfgs_iters=100)
+        if fk_model == "chain":
+            fk.fit(X, Y)
+        else:
+            fk.fit(X, Y[:, -1], adam_iters=50, lbfgs_iters=100)
         pred = fk.predictor()
         limits = np.column_stack([X.min(0), X.max(0)]) if limit_to_data else None
         reached, reached_true, predicted, chosen, new_X, new_Y = [], [], [], [], [], []

@@ -6,8 +6,8 @@ The loop (see ``scripts/diagnose.py``, console script ``mcpilco-diagnose``):
 2. where it fails: :func:`residual_report` (binned residuals, velocity reversals,
    autocorrelation, worst windows and regions in words);
 3. which effect is missing: :func:`diagnose` scores every candidate of :mod:`.effects` on
-   every joint by the log-evidence it adds (:mod:`.linear_gp`), confirms the best on
-   held-out trajectories, groups look-alikes;
+   every joint by the log-evidence it adds (:mod:`mcpilco.models.gp.linear_gp`), confirms
+   the best on held-out trajectories, groups look-alikes;
 4. add it: ``model = model.add(CoulombFriction(joint=2))`` (a new version);
 5. watch the error fall: :func:`~.plots.plot_waterfall`, :func:`~.plots.write_rerun`.
 """
@@ -36,7 +36,6 @@ from mcpilco.models.diagnosis.effects import (
     default_library,
     parse_effect,
 )
-from mcpilco.models.diagnosis.linear_gp import JointGP
 from mcpilco.models.diagnosis.model import DiagnosisModel
 from mcpilco.models.diagnosis.search import (
     Candidate,
@@ -54,6 +53,7 @@ from mcpilco.models.diagnosis.start_models import (
     NominalStart,
     RBFStart,
 )
+from mcpilco.models.gp.linear_gp import JointGP
 
 __all__ = [
     "EFFECTS",

@@ -7,7 +7,7 @@ Each effect adds a torque that is *linear in its parameters* ``w`` on the joints
     \\tau_i \\mathrel{+}= \\phi_{e,i}(q, \\dot q, \\ddot q)^\\top w_{e,i},
 
 so a GP can score it by adding a linear kernel ``lambda phi phi'^T`` on its block (see
-:mod:`mcpilco.models.diagnosis.linear_gp`). Shape parameters that enter non-linearly (the
+:mod:`mcpilco.models.gp.linear_gp`). Shape parameters that enter non-linearly (the
 cogging order, the Stribeck velocity, the dead-zone width, the delay) are found by a *scan*:
 one variant per value, marginalised with a uniform prior over the scan (``logsumexp - log G``).
 

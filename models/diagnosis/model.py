@@ -2,7 +2,7 @@
 
 Version ``v0`` is the start model (nominal physics or a learned GIP GP); ``model.add(effect)``
 returns version ``v(k+1)`` with the effect's block added (a linear kernel on it, see
-:mod:`mcpilco.models.diagnosis.linear_gp`) and refits it on the same training data:
+:mod:`mcpilco.models.gp.linear_gp`) and refits it on the same training data:
 
 .. code-block:: python
 
@@ -42,13 +42,13 @@ from numpy.typing import NDArray
 
 from mcpilco.models.diagnosis.data import Trajectories, as_trajectories
 from mcpilco.models.diagnosis.effects import Delay, Effect, FeatureContext, effect_from_spec
-from mcpilco.models.diagnosis.linear_gp import JointGP, single_thread
 from mcpilco.models.diagnosis.start_models import (
     LEARNED_STARTS,
     LearnedStart,
     NominalStart,
     StartModel,
 )
+from mcpilco.models.gp.linear_gp import JointGP, single_thread
 from mcpilco.models.robot_data import RobotDataset
 
 FloatArray = NDArray[np.float64]

@@ -44,8 +44,8 @@ from scipy.special import logsumexp
 
 from mcpilco.models.diagnosis.data import Trajectories, as_trajectories
 from mcpilco.models.diagnosis.effects import Effect, ParamEstimate, default_library
-from mcpilco.models.diagnosis.linear_gp import single_thread
 from mcpilco.models.diagnosis.model import DiagnosisModel
+from mcpilco.models.gp.linear_gp import single_thread
 
 FloatArray = NDArray[np.float64]
 

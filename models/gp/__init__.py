@@ -5,6 +5,8 @@
 * :class:`CachedPredictor` -- dense, differentiable posterior mean / variance for rollouts.
 * :class:`FusedRBFMPKPredictor` -- the same posterior for RBF (+ MPK) kernels with the
   hyperparameters baked into a few large ops (the MC-PILCO rollout hot path).
+* :class:`~mcpilco.models.gp.linear_gp.JointGP` -- GP with linear kernels on feature blocks
+  (plus an optional fixed kernel), evidence and posterior in weight space, ``O(N P^2)``.
 * :func:`greedy_subset` -- subset of data by largest posterior variance (pivoted Cholesky).
 * :func:`dense_covar` / :func:`dense_diag` -- evaluate a GPyTorch kernel tree with dense ops.
 """

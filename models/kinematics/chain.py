@@ -13,13 +13,19 @@ Glossary (markers ``M_0 .. M_n`` base to tip, ``S_M``; joint ``q_k`` between ``M
     the end-marker pose as a product of the relative poses of consecutive markers.
 ``G_k(q_k) = (T^c_{M_{k-1}})^{-1} T^c_{M_k} = [R^{k-1}_k, l^{k-1}_k]``
     marker ``k`` in marker ``k - 1``'s frame. Links are rigid, so it depends on ``q_k``
-    alone (eqs. 2.2-2.3; the fact the triplet tests of section 2.3 check). Each ``G_k`` is a
-    one-joint :class:`ForwardKinematicsGP` on the relative poses
-    (:func:`~mcpilco.models.kinematics.rotations.relative_poses`). Its kernel is eq. 2.22
-    with one factor, ``k_R = [1, cos q_k, sin q_k] Sigma_k [1, cos q_k', sin q_k']^T``, whose
-    RKHS holds ``R^{k-1}_k`` and ``l^{k-1}_k`` exactly (they are ``A + B cos q_k + C sin
-    q_k``). A prismatic joint gets ``[1, q_k]``, eq. 2.23. All nine rotation elements are
-    modelled, and their mean is projected onto SO(3) (``rotation_outputs="nine"``).
+    alone (eqs. 2.2-2.3; the fact the triplet tests of section 2.3 check). Its 12 elements
+    ``y = [l^{k-1}_k, R^{k-1}_k (row-major)]`` are measured by
+    :func:`~mcpilco.models.kinematics.rotations.relative_poses`.
+``y_o(q_k) ~ GP(0, phi(q_k)^T Sigma_o phi(q_k'))``, ``phi = [1, cos q_k, sin q_k]``
+    one GP per element ``o`` with the kernel of eq. 2.22 with one factor (``Sigma_o``
+    diagonal: the offset ``sigma^2`` and the ``cos``/``sin`` variances), whose RKHS holds
+    ``R^{k-1}_k`` and ``l^{k-1}_k`` exactly (they are ``A + B cos q_k + C sin q_k``). A
+    prismatic joint has ``phi = [1, q_k]`` (eq. 2.23). A finite-rank kernel is Bayesian
+    linear regression, ``y_o = phi^T w_o + eps``, ``w_o ~ N(0, Sigma_o)``: the evidence
+    and the posterior mean ``w_o`` are computed in weight space, ``O(N p^2)`` with ``p <= 3``
+    (:class:`~mcpilco.models.gp.linear_gp.JointGP`), hyperparameters ``Sigma_o``,
+    ``sigma_n^2`` by type-II maximum likelihood. The mean rotation ``phi^T W_R`` is
+    projected onto SO(3) (nearest rotation).
 ``T^c_{M_0}``
     the base marker's pose, constant. Its position is the mean of the measured positions.
     Its rotation is the nearest rotation to the mean measured matrix (the chordal mean).
@@ -43,27 +49,71 @@ import torch
 from numpy.typing import ArrayLike, NDArray
 from torch import Tensor, nn
 
-from mcpilco.models.kinematics.forward import (
-    FKPredictor,
-    ForwardKinematicsGP,
-    _check_types,
-    five_elements,
-)
+from mcpilco.models.gp.linear_gp import JointGP
+from mcpilco.models.kinematics.forward import _check_types, five_elements
 from mcpilco.models.kinematics.rotations import (
     elements_to_ypr_torch,
-    matrix_to_ypr,
     nearest_rotation,
+    nearest_rotation_torch,
     relative_poses,
     ypr_to_matrix,
 )
 
-__all__ = ["ChainFKPredictor", "ChainForwardKinematicsGP"]
+__all__ = ["ChainFKPredictor", "ChainForwardKinematicsGP", "LinkMean", "fit_link", "link_features"]
 
 FloatArray = NDArray[np.float64]
 
 MIN_FRAMES_PER_LINK = 5
 """Fewest frames showing both markers of a link that :meth:`ChainForwardKinematicsGP.fit`
 accepts (each link GP has at most 3 monomials per output)."""
+
+
+CONSTANT_OUTPUT = 1e-12
+"""An element whose spread over the frames is below this (relative to ``1 + max |y|``) is a
+constant of the link (e.g. ``R33`` of a joint turning about the marker's own ``z``): its
+weights are ``[mean, 0, ...]`` instead of a GP fit."""
+
+
+def link_features(q_k: Tensor, joint_type: str) -> Tensor:
+    """``phi(q_k)``: ``[1, cos q_k, sin q_k]`` (``"R"``) or ``[1, q_k]`` (``"P"``), ``(..., 1)``
+    -> ``(..., p)``; differentiable."""
+    one = torch.ones_like(q_k)
+    if joint_type == "R":
+        return torch.cat([one, torch.cos(q_k), torch.sin(q_k)], dim=-1)
+    return torch.cat([one, q_k], dim=-1)
+
+
+def fit_link(q_k: FloatArray, y: FloatArray, joint_type: str, maxiter: int = 200) -> FloatArray:
+    """Posterior-mean weights ``W`` ``(p, m)`` of one GP per column of ``y`` ``(N, m)``
+    on ``phi(q_k)`` (module glossary), hyperparameters by type-II maximum likelihood."""
+    phi = link_features(torch.from_numpy(np.asarray(q_k, dtype=np.float64)[:, None]), joint_type)
+    phi = phi.numpy()
+    blocks = [phi[:, [j]] for j in range(phi.shape[1])]  # one prior variance per feature
+    W = np.zeros((phi.shape[1], y.shape[1]))
+    for o in range(y.shape[1]):
+        col = y[:, o]
+        if np.ptp(col) <= CONSTANT_OUTPUT * (1.0 + np.abs(col).max()):
+            W[0, o] = col.mean()
+            continue
+        gp = JointGP(col, blocks)
+        theta, _ = gp.optimise(gp.default_theta(), maxiter=maxiter)
+        W[:, o] = gp.weights(theta)[0]
+    return W
+
+
+class LinkMean(nn.Module):
+    """``G_k(q_k)``: ``l = phi^T W_l``, ``R = proj_SO(3)(phi^T W_R)`` (module glossary)."""
+
+    def __init__(self, joint_type: str, W: Tensor) -> None:
+        super().__init__()
+        self.joint_type = joint_type
+        self.register_buffer("W", W)
+
+    def position_and_rotation(self, q_k: Tensor) -> tuple[Tensor, Tensor]:
+        """``(l (..., 3), R (..., 3, 3))`` for ``q_k`` ``(..., 1)``."""
+        y = link_features(q_k, self.joint_type) @ self.W.to(q_k.dtype)
+        R = nearest_rotation_torch(y[..., 3:].reshape(*y.shape[:-1], 3, 3))
+        return y[..., :3], R
 
 
 class ChainFKPredictor(nn.Module):
@@ -73,7 +123,7 @@ class ChainFKPredictor(nn.Module):
     :class:`~mcpilco.models.kinematics.forward.FKPredictor`, so the controllers accept it.
     """
 
-    def __init__(self, base_R: Tensor, base_l: Tensor, links: list[FKPredictor]) -> None:
+    def __init__(self, base_R: Tensor, base_l: Tensor, links: list[LinkMean]) -> None:
         super().__init__()
         self.register_buffer("base_R", base_R)
         self.register_buffer("base_l", base_l)
@@ -102,19 +152,19 @@ class ChainForwardKinematicsGP:
 
     Args:
         joint_types: joint types along the chain, e.g. ``"RRRRRR"`` (``S_Q``).
-        noise_init, noise_min: those of each link's :class:`ForwardKinematicsGP`.
+        maxiter: L-BFGS-B iterations of each element's evidence maximisation.
 
-    Fitted attributes: ``links_`` (one :class:`ForwardKinematicsGP` per joint),
-    ``base_R_`` ``(3, 3)`` and ``base_l_`` ``(3,)`` (``T^c_{M_0}``), ``frames_used_``
-    (``{"base": N_0, "links": [N_1, ..., N_n]}``, frames each part was fitted on).
+    Fitted attributes: ``link_weights_`` (one ``(p, 12)`` posterior-mean weight matrix
+    ``W = [W_l, W_R]`` per joint), ``base_R_`` ``(3, 3)`` and ``base_l_`` ``(3,)``
+    (``T^c_{M_0}``), ``frames_used_`` (``{"base": N_0, "links": [N_1, ..., N_n]}``, frames
+    each part was fitted on).
     """
 
-    def __init__(self, joint_types: str, *, noise_init: float = 1e-3, noise_min: float = 1e-8):
+    def __init__(self, joint_types: str, *, maxiter: int = 200) -> None:
         _check_types(joint_types)
         self.joint_types = joint_types
-        self.noise_init = noise_init
-        self.noise_min = noise_min
-        self.links_: list[ForwardKinematicsGP] = []
+        self.maxiter = int(maxiter)
+        self.link_weights_: list[FloatArray] = []
         self.base_R_: FloatArray | None = None
         self.base_l_: FloatArray | None = None
         self.frames_used_: dict[str, Any] = {}
@@ -134,7 +184,7 @@ class ChainForwardKinematicsGP:
             raise ValueError("q contains NaN or inf; drop those samples before fitting/predicting")
         return q
 
-    def fit(self, q: ArrayLike, marker_poses: ArrayLike, **fit_kwargs: Any):
+    def fit(self, q: ArrayLike, marker_poses: ArrayLike):
         """Fit the base pose and the ``n`` link GPs (marginal likelihood each).
 
         Args:
@@ -142,7 +192,6 @@ class ChainForwardKinematicsGP:
             marker_poses: ``(N, n + 1, 6)`` poses ``[x, y, z, gamma, beta, alpha]`` of the
                 markers in chain order (``S_M``, base first); a marker out of view is a row
                 of NaN, and only the links it belongs to lose that frame.
-            **fit_kwargs: passed to each :meth:`ForwardKinematicsGP.fit`.
         """
         q = self._validate_q(q)
         P = np.asarray(marker_poses, dtype=np.float64)
@@ -172,24 +221,18 @@ class ChainForwardKinematicsGP:
         base = P[seen[:, 0], 0]
         self.base_l_ = base[:, :3].mean(0)
         self.base_R_ = nearest_rotation(ypr_to_matrix(base[:, 3:]).mean(0))
-        links = []
+        weights = []
         for k in range(self.n_joints):
             both = seen[:, k] & seen[:, k + 1]
             l_rel, R_rel = relative_poses(P[both, k], P[both, k + 1])
-            rel = np.concatenate([l_rel, matrix_to_ypr(R_rel)], axis=-1)
-            link = ForwardKinematicsGP(
-                self.joint_types[k],
-                noise_init=self.noise_init,
-                noise_min=self.noise_min,
-                rotation_outputs="nine",
-            )
-            links.append(link.fit(q[both, k : k + 1], rel, **fit_kwargs))
-        self.links_ = links
+            y = np.concatenate([l_rel, R_rel.reshape(-1, 9)], axis=-1)  # (N_k, 12)
+            weights.append(fit_link(q[both, k], y, self.joint_types[k], self.maxiter))
+        self.link_weights_ = weights
         self.frames_used_ = {"base": counts[0], "links": counts[1:]}
         return self
 
     def _check_fitted(self) -> None:
-        if not self.links_:
+        if not self.link_weights_:
             raise RuntimeError("ChainForwardKinematicsGP is not fitted; call fit first")
 
     def predictor(self, dtype: torch.dtype = torch.float64) -> ChainFKPredictor:
@@ -198,7 +241,10 @@ class ChainForwardKinematicsGP:
         return ChainFKPredictor(
             torch.as_tensor(self.base_R_, dtype=dtype),
             torch.as_tensor(self.base_l_, dtype=dtype),
-            [link.predictor(dtype) for link in self.links_],
+            [
+                LinkMean(t, torch.as_tensor(W, dtype=dtype))
+                for t, W in zip(self.joint_types, self.link_weights_, strict=True)
+            ],
         )
 
     def predict(self, q: ArrayLike) -> FloatArray:

@@ -267,18 +267,6 @@ class FKPredictor(nn.Module):
             )
         return self.position(x), elements_to_ypr_torch(elements)
 
-    def position_and_rotation(self, q: Tensor) -> tuple[Tensor, Tensor]:
-        """``(l_hat (..., 3), R_hat (..., 3, 3))``: the pose with its rotation as a matrix
-        (the projection onto SO(3) with ``"nine"``, ``R(o_hat)`` of eq. 2.20 with
-        ``"five"``); differentiable, used to compose poses along a chain."""
-        x = fk_features(q, self.joint_types)
-        elements = self.rotation(x)
-        if self.rotation_outputs == "nine":
-            R = nearest_rotation_torch(elements.reshape(*elements.shape[:-1], 3, 3))
-        else:
-            R = ypr_to_matrix_torch(elements_to_ypr_torch(elements))
-        return self.position(x), R
-
 
 def five_elements(R: Tensor) -> Tensor:
     """``[R11, R21, R31, R32, R33]`` ``(..., 5)`` of rotations ``(..., 3, 3)`` (the elements

@@ -37,7 +37,7 @@ def test_noiseless_chain_is_exact(types):
     """Each relative marker pose is A + B cos q_k + C sin q_k (or linear in a prismatic q_k),
     inside the one-joint kernel's RKHS: 30 noiseless frames give the chain to ~1e-6."""
     chain, q, poses, rng, span = _data(types, 30, 0)
-    fk = ChainForwardKinematicsGP(types).fit(q, poses, **FIT)
+    fk = ChainForwardKinematicsGP(types).fit(q, poses)
     q_test = rng.uniform(-span, span, (200, len(types)))
     pos_err, ang_err = _pose_err(fk.predict(q_test), chain.marker_poses(q_test)[:, -1])
     assert pos_err < 1e-5 and ang_err < 1e-4
@@ -49,7 +49,7 @@ def test_hidden_markers_drop_only_their_links_frames():
     poses = poses.copy()
     poses[:8, 1] = np.nan  # marker 1 out of view: links 1 and 2 lose 8 frames
     poses[8:11, 0] = np.nan  # the base marker: the base and link 1 lose 3 more
-    fk = ChainForwardKinematicsGP("RRR").fit(q, poses, **FIT)
+    fk = ChainForwardKinematicsGP("RRR").fit(q, poses)
     assert fk.frames_used_ == {"base": 37, "links": [29, 32, 40]}
     q_test = rng.uniform(-span, span, (100, 3))
     pos_err, ang_err = _pose_err(fk.predict(q_test), chain.marker_poses(q_test)[:, -1])
@@ -72,7 +72,7 @@ def test_noise_averages_out_along_the_chain():
         err = model.predict(q_test) - true
         return np.sqrt((err[:, :3] ** 2).mean(0)), np.sqrt((wrap_angle(err[:, 3:]) ** 2).mean(0))
 
-    pos, ang = rmse(ChainForwardKinematicsGP("RRRRRR").fit(q, noisy, **FIT))
+    pos, ang = rmse(ChainForwardKinematicsGP("RRRRRR").fit(q, noisy))
     assert (pos < 0.005).all() and (ang < 0.02).all(), (pos, ang)
     pos_e2e, _ = rmse(ForwardKinematicsGP("RRRRRR").fit(q, noisy[:, -1], **FIT))
     assert (pos_e2e > 5 * pos).all(), (pos_e2e, pos)
@@ -80,7 +80,7 @@ def test_noise_averages_out_along_the_chain():
 
 def test_predictor_gradient_matches_the_chain_and_drives_the_controller():
     chain, q, poses, rng, span = _data("RPR", 30, 3)
-    fk = ChainForwardKinematicsGP("RPR").fit(q, poses, **FIT)
+    fk = ChainForwardKinematicsGP("RPR").fit(q, poses)
     pred = fk.predictor()
     q0 = np.array([0.3, 0.05, -0.4])
     qt = torch.tensor(q0, requires_grad=True)
@@ -122,3 +122,27 @@ def test_bad_inputs_raise():
         fk.fit(q_nan, poses)
     with pytest.raises(ValueError, match="joint_types"):
         ChainForwardKinematicsGP("RX")
+
+
+def test_weight_space_link_fit_matches_the_function_space_gp():
+    """The link GP in weight space (``fit_link``, evidence in O(N p^2)) against the same
+    kernel, eq. 2.22 with one factor, fitted in function space by the GP core (GPyTorch):
+    the posterior means agree to a small fraction of the noise."""
+    from mcpilco.models.gp import GPRegressor
+    from mcpilco.models.kinematics.chain import fit_link, link_features
+    from mcpilco.models.kinematics.forward import fk_features, rotation_kernel_factory
+
+    rng = np.random.default_rng(7)
+    q = rng.uniform(-1.5, 1.5, 80)
+    coef = rng.normal(0.0, 0.3, (3, 3))
+    phi = np.stack([np.ones_like(q), np.cos(q), np.sin(q)], 1)
+    y = phi @ coef + 0.003 * rng.standard_normal((80, 3))
+    W = fit_link(q, y, "R")
+    gp = GPRegressor(rotation_kernel_factory("R"), standardize_x=False, noise_init=1e-3)
+    gp.fit(fk_features(q[:, None], "R"), y, adam_iters=50, lbfgs_iters=100)
+    q_test = np.linspace(-1.5, 1.5, 50)
+    phi_test = link_features(torch.from_numpy(q_test[:, None]), "R")
+    mean_w = (phi_test @ torch.from_numpy(W)).numpy()
+    mean_f = gp.predict(fk_features(q_test[:, None], "R"))[0].numpy()
+    assert np.abs(mean_w - mean_f).max() < 0.1 * 0.003  # the two implementations agree
+    assert np.abs(mean_w - phi_test.numpy() @ coef).max() < 0.003  # and both find the link

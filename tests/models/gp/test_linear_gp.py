@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 from scipy.stats import multivariate_normal
 
-from mcpilco.models.diagnosis.linear_gp import JointGP
+from mcpilco.models.gp.linear_gp import JointGP
 
 
 def _problem(with_kernel: bool):

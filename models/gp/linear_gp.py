@@ -1,5 +1,10 @@
 """One joint's GP: a start kernel plus linear kernels on effect blocks, evidence in closed form.
 
+Used by the model diagnosis (:mod:`mcpilco.models.diagnosis`: one joint's residual torque, a
+start kernel plus candidate effect blocks) and, without a start kernel, by the kinematic
+chain of :mod:`mcpilco.models.kinematics.chain` (one element of a link's relative pose on
+``[1, cos q, sin q]``: Bayesian linear regression).
+
 For output joint ``j`` with residual target ``r = y_j - m_j`` (``m_j``: the nominal torque,
 or the learned model's constant prior mean), rows ``1..N``:
 
