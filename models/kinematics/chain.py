@@ -50,7 +50,12 @@ from numpy.typing import ArrayLike, NDArray
 from torch import Tensor, nn
 
 from mcpilco.models.gp.linear_gp import JointGP
-from mcpilco.models.kinematics.forward import _check_types, five_elements
+from mcpilco.models.kinematics.forward import (
+    _check_types,
+    check_joint_positions,
+    five_elements,
+    fk_features,
+)
 from mcpilco.models.kinematics.rotations import (
     elements_to_ypr_torch,
     nearest_rotation,
@@ -77,10 +82,7 @@ weights are ``[mean, 0, ...]`` instead of a GP fit."""
 def link_features(q_k: Tensor, joint_type: str) -> Tensor:
     """``phi(q_k)``: ``[1, cos q_k, sin q_k]`` (``"R"``) or ``[1, q_k]`` (``"P"``), ``(..., 1)``
     -> ``(..., p)``; differentiable."""
-    one = torch.ones_like(q_k)
-    if joint_type == "R":
-        return torch.cat([one, torch.cos(q_k), torch.sin(q_k)], dim=-1)
-    return torch.cat([one, q_k], dim=-1)
+    return torch.cat([torch.ones_like(q_k), fk_features(q_k, joint_type)], dim=-1)
 
 
 def fit_link(q_k: FloatArray, y: FloatArray, joint_type: str, maxiter: int = 200) -> FloatArray:
@@ -173,17 +175,6 @@ class ChainForwardKinematicsGP:
     def n_joints(self) -> int:
         return len(self.joint_types)
 
-    def _validate_q(self, q: ArrayLike) -> FloatArray:
-        q = np.asarray(q, dtype=np.float64)
-        if q.ndim != 2 or q.shape[1] != self.n_joints:
-            raise ValueError(
-                f"q must have shape (N, {self.n_joints}) for joint_types {self.joint_types!r}, "
-                f"got {q.shape}"
-            )
-        if not np.isfinite(q).all():
-            raise ValueError("q contains NaN or inf; drop those samples before fitting/predicting")
-        return q
-
     def fit(self, q: ArrayLike, marker_poses: ArrayLike):
         """Fit the base pose and the ``n`` link GPs (marginal likelihood each).
 
@@ -193,7 +184,7 @@ class ChainForwardKinematicsGP:
                 markers in chain order (``S_M``, base first); a marker out of view is a row
                 of NaN, and only the links it belongs to lose that frame.
         """
-        q = self._validate_q(q)
+        q = check_joint_positions(q, self.joint_types)
         P = np.asarray(marker_poses, dtype=np.float64)
         if P.shape != (q.shape[0], self.n_joints + 1, 6):
             raise ValueError(
@@ -236,7 +227,7 @@ class ChainForwardKinematicsGP:
             raise RuntimeError("ChainForwardKinematicsGP is not fitted; call fit first")
 
     def predictor(self, dtype: torch.dtype = torch.float64) -> ChainFKPredictor:
-        """Differentiable :class:`ChainFKPredictor` over the link GPs' cached predictors."""
+        """Differentiable :class:`ChainFKPredictor` over the links' posterior-mean weights."""
         self._check_fitted()
         return ChainFKPredictor(
             torch.as_tensor(self.base_R_, dtype=dtype),
@@ -249,7 +240,7 @@ class ChainForwardKinematicsGP:
 
     def predict(self, q: ArrayLike) -> FloatArray:
         """Posterior-mean end-marker poses ``(N, 6)`` ``[x, y, z, gamma, beta, alpha]``."""
-        q = self._validate_q(q)
+        q = check_joint_positions(q, self.joint_types)
         with torch.no_grad():
             position, ypr = self.predictor(torch.float64)(torch.from_numpy(q))
         return torch.cat([position, ypr], dim=-1).numpy()

@@ -98,6 +98,20 @@ def _check_types(joint_types: str) -> tuple[list[int], list[int]]:
     return rev, pri
 
 
+def check_joint_positions(q: ArrayLike, joint_types: str) -> FloatArray:
+    """``q`` as a float64 ``(N, n)`` array, ``n = len(joint_types)``, all finite (else a
+    ``ValueError`` that says what is wrong)."""
+    q = np.asarray(q, dtype=np.float64)
+    if q.ndim != 2 or q.shape[1] != len(joint_types):
+        raise ValueError(
+            f"q must have shape (N, {len(joint_types)}) for joint_types {joint_types!r}, "
+            f"got {q.shape}"
+        )
+    if not np.isfinite(q).all():
+        raise ValueError("q contains NaN or inf; drop those samples before fitting/predicting")
+    return q
+
+
 def fk_features(q: ArrayLike | Tensor, joint_types: str) -> Tensor:
     """``x = [cos q_r, sin q_r, q_p]`` of eq. 2.21; ``q`` ``(..., n)`` -> ``(..., 2 N_r + N_p)``.
 
@@ -319,14 +333,7 @@ class ForwardKinematicsGP:
         self._fitted = False
 
     def _validate(self, q: ArrayLike, poses: ArrayLike | None = None) -> tuple[Tensor, FloatArray]:
-        q = np.asarray(q, dtype=np.float64)
-        if q.ndim != 2 or q.shape[1] != len(self.joint_types):
-            raise ValueError(
-                f"q must have shape (N, {len(self.joint_types)}) for joint_types "
-                f"{self.joint_types!r}, got {q.shape}"
-            )
-        if not np.isfinite(q).all():
-            raise ValueError("q contains NaN or inf; drop those samples before fitting/predicting")
+        q = check_joint_positions(q, self.joint_types)
         if poses is None:
             return fk_features(q, self.joint_types), np.empty(0)
         poses = np.asarray(poses, dtype=np.float64)
