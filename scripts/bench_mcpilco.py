@@ -283,12 +283,14 @@ def time_opt_step(
 ) -> dict[str, float]:
     """Median wall and CPU seconds of one optimisation step (rollout, backward, Adam).
 
-    ``compile_rollout``: also time the same step with the time step ``torch.compile``-d
-    (:meth:`MCPilcoLoss.compile_step`), on a second loss module sharing the policy and the GP
-    posterior; the eager and the compiled step alternate within each round, so their ratio
-    holds on a busy machine. ``compile_s``: the time of ``compile_step`` (the compilation and
-    its check against the eager step, one step of each); ``compile_check`` its figures. A
-    compiled step that fails the check is not timed (``compiled_rejected``).
+    ``compile_rollout``: also time the same step compiled (:meth:`MCPilcoLoss.compile_step`)
+    by its default backend (``compiled_*``: ``direct`` where it applies) and by ``torch.compile``
+    of the time step (``dynamo_*``, when the default is not already that), each on its own
+    loss module sharing the policy and the GP posterior; the eager and the compiled steps
+    alternate within each round, so their ratios hold on a busy machine. ``compile_s``: the
+    time of ``compile_step`` (the compilation and its check against the eager step, one step
+    of each); ``compile_check`` its figures. A compiled step that fails the check is not
+    timed (``compiled_rejected``).
 
     The process keeps its freed memory (:func:`~mcpilco.models.device.retain_host_memory`,
     as the scripts do); ``page_faults_per_step`` counts the minor page faults of each timed
@@ -337,18 +339,28 @@ def time_opt_step(
     params = list(policy.parameters())
     step_fns = {"eager": loss_and_grad_fn(make_loss(), params, cuda_graph=cuda_graph)}
     compile_info: dict[str, object] = {}
+    compiled_losses = []
     if compile_rollout:
-        compiled = make_loss()
-        t_compile = time.perf_counter()
-        accepted = compiled.compile_step(dynamic=False)
-        compile_info = {
-            "compile_s": time.perf_counter() - t_compile,
-            "compile_check": compiled.compile_check,
-            "compile_error": compiled.compile_error,
-            "compiled_rejected": not accepted,
-        }
-        if accepted:
-            step_fns["compiled"] = loss_and_grad_fn(compiled, params, cuda_graph=cuda_graph)
+        # "compiled": the default backend (direct where it applies); "dynamo": torch.compile
+        for name, backend in (("compiled", "auto"), ("dynamo", "dynamo")):
+            compiled = make_loss()
+            t_compile = time.perf_counter()
+            accepted = compiled.compile_step(backend=backend, dynamic=False)
+            prefix = "" if name == "compiled" else "dynamo_"
+            compile_info.update(
+                {
+                    f"{prefix}compile_backend": compiled.compile_backend,
+                    f"{prefix}compile_s": time.perf_counter() - t_compile,
+                    f"{prefix}compile_check": compiled.compile_check,
+                    f"{prefix}compile_error": compiled.compile_error,
+                    f"{prefix}compiled_rejected": not accepted,
+                }
+            )
+            compiled_losses.append(compiled)
+            if accepted:
+                step_fns[name] = loss_and_grad_fn(compiled, params, cuda_graph=cuda_graph)
+            if compiled.compile_backend == "dynamo" and name == "compiled":
+                break  # the default already is dynamo here
     if heap_contrast:
         step_fns["heap128k"] = step_fns["eager"]
     walls: dict[str, list[float]] = {k: [] for k in step_fns}
@@ -384,7 +396,7 @@ def time_opt_step(
         "page_faults_per_step": statistics.median(faults["eager"]),
     }
     out.update(compile_info)
-    for name in ("compiled", "heap128k"):
+    for name in ("compiled", "dynamo", "heap128k"):
         if name in step_fns:
             out.update(
                 {
@@ -393,7 +405,7 @@ def time_opt_step(
                     f"{name}_page_faults_per_step": statistics.median(faults[name]),
                 }
             )
-    if "compiled" in step_fns:
+    for compiled in compiled_losses:
         compiled.compile_step(False)
     return out
 
@@ -710,9 +722,11 @@ def write_report(results: dict, out_dir: Path) -> None:
             "A step at a few particles is the fixed cost of the 60-step rollout (one op after "
             "another, forward and backward); the rest grows with M.",
             "",
-            "Compiled: the same step with the time step `torch.compile`-d "
-            "(`--compile-rollout`), alternating with the eager step in each round; compile s: "
-            "the compilation and its check against the eager step.",
+            "Compiled: the same step compiled (`--compile-rollout`) by the default backend "
+            "(`direct`: forward and backward of a time step chained by hand and compiled by "
+            "inductor, no dynamo and no autograd per time step), alternating with the eager "
+            "step in each round; compile s: the compilation and its check against the eager "
+            "step. Dynamo: the time step `torch.compile`-d instead, in the same rounds.",
             "",
             "Faults: minor page faults per step, with the freed memory kept in the process "
             "(`retain_host_memory`). 128 KiB heap: the eager step with glibc's initial "
@@ -720,8 +734,9 @@ def write_report(results: dict, out_dir: Path) -> None:
             "",
             "| particles M | GP points N | device | CUDA graph | threads | wall s/step "
             "| CPU s/step | faults | compiled: wall s/step | CPU s/step | speed-up (CPU) "
-            "| compile s | 128 KiB heap: wall s/step | faults |",
-            "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|",
+            "| compile s | dynamo: wall s/step | CPU s/step | 128 KiB heap: wall s/step "
+            "| faults |",
+            "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|",
         ]
         for t in results["timing"]:
             graph = "yes" if t.get("cuda_graph") else "no"
@@ -736,6 +751,10 @@ def write_report(results: dict, out_dir: Path) -> None:
                     f"| {t['s_per_step_cpu'] / t['compiled_s_per_step_cpu']:.2f}x "
                     f"| {t['compile_s']:.0f}"
                 )
+            if "dynamo_s_per_step_wall" in t:
+                comp += f" | {t['dynamo_s_per_step_wall']:.3f} | {t['dynamo_s_per_step_cpu']:.3f}"
+            else:
+                comp += " | - | -"
             faults = t.get("page_faults_per_step")
             heap = "| - | -"
             if "heap128k_s_per_step_wall" in t:

@@ -150,16 +150,16 @@ class MCPilcoConfig:
         log_particles: particles kept per trial for the PNG / Rerun plots.
         seed: seeds torch, numpy and the env resets.
         torch_threads: ``torch.set_num_threads`` (None: leave as is).
-        compile_rollout: ``torch.compile`` the per-time-step function of the rollout, one
-            graph with its backward (:meth:`MCPilcoLoss.compile_step`; each trial recompiles
-            for its new GP, 2-6 s with inductor's on-disk cache warm, about 20 s cold). On
-            2 CPU cores at 400 particles a step is 1.3-1.5x faster at N = 100 GP points,
-            1.1-1.4x at 200 and 1.0-1.2x at 300 (the exact variance's matmuls dominate
-            there), and the fixed cost of the 60 time steps halves (``mcpilco-bench-mcpilco
-            --parts timing --compile-rollout``); off by default (needs a C++ compiler).
-            Each trial checks the compiled step against the eager one (``J^`` and its
-            gradient) and runs eagerly if they disagree (the trial record's
-            ``compiled_step`` and ``compile_check``).
+        compile_rollout: compile the rollout's time step with its backward
+            (:meth:`MCPilcoLoss.compile_step`, default backend: ``direct`` on the CPU, the
+            parts' backward passes chained by hand and compiled by inductor; ``torch.compile``
+            elsewhere). Each trial recompiles for its new GP (about 10 s for ``direct``; 2-6 s
+            for ``torch.compile`` with inductor's on-disk cache warm, about 20 s cold). The
+            speed-ups are measured by ``mcpilco-bench-mcpilco --parts timing
+            --compile-rollout`` (``results/mcpilco_cartpole.md``); off by default (needs a C++
+            compiler). Each trial checks the compiled step against the eager one (``J^`` and
+            its gradient) and runs eagerly if they disagree (the trial record's
+            ``compiled_step``, ``compile_backend`` and ``compile_check``).
         rollout_dtype: dtype of the GP posterior evaluated in the particle rollout,
             ``"float32"`` (default; a step at M = 400 is 1.4x / 1.8x faster at N = 100 / 250,
             1 thread) or ``"float64"``; the particles, the policy and the GP fit are the
@@ -641,6 +641,7 @@ def run_mcpilco(
                     rec["compiled_step"] = loss.compile_step(dynamic=False)
                     rec["compile_check"] = loss.compile_check
                     rec["compile_error"] = loss.compile_error
+                    rec["compile_backend"] = loss.compile_backend
                 # 2. policy update
                 opt_cfg = config.opt
                 if k == 1 and config.opt_steps_first is not None:

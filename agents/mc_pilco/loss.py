@@ -41,6 +41,13 @@ from tensordict.nn import TensorDictModule
 from torch import Tensor, nn
 from torchrl.objectives import LossModule
 
+from mcpilco.agents.mc_pilco.direct_compile import (
+    PARAM_NAMES,
+    DirectRollout,
+    RolloutFunction,
+    unsupported_reason,
+)
+
 COMPILE_CHECK_RTOL = 0.1
 """Largest relative difference the compiled step may show against the eager step in the
 check of :meth:`MCPilcoLoss.compile_step`: ``|J_c - J_e| / |J_e|`` and
@@ -137,7 +144,9 @@ class MCPilcoLoss(LossModule):
         else:
             self._policy_fn = policy
         self.num_candidates = int(getattr(self._policy_fn, "num_candidates", 1))
-        self._compiled_step = None
+        self._compiled_step = None  # the time step torch.compile-d (backend "dynamo")
+        self._direct: DirectRollout | None = None  # the rollout compiled by hand ("direct")
+        self.compile_backend: str | None = None  # the backend of the compiled path in use
         self.compile_check: dict[str, float] | None = None  # figures of compile_step's check
         self.compile_error: str | None = None  # compile_step's compilation error, if any
 
@@ -151,52 +160,90 @@ class MCPilcoLoss(LossModule):
         x_next = self.dynamics(x, u, eps)
         return x_next, u, self.cost(x_next)
 
-    def compile_step(self, enable: bool = True, verify: bool = True, **compile_kwargs) -> bool:
-        """``torch.compile`` the per-time-step function (fuses the small ops of policy, GP
-        posterior, integration and cost); returns whether the compiled step is in use.
+    def compile_step(
+        self, enable: bool = True, verify: bool = True, backend: str = "auto", **compile_kwargs
+    ) -> bool:
+        """Compile the rollout's time step; returns whether a compiled path is in use.
 
-        The step traces as one graph (the custom autograd functions included; a test checks
-        that no graph break creeps in). The policy's dropout masks are drawn outside it, so
-        the same seed gives the eager step's masks and noise. Enabling calls
-        ``torch.compiler.reset()`` first: the graphs compiled for an earlier GP (an earlier
-        trial) are dropped instead of piling up to dynamo's recompile limit, beyond which it
-        would silently run eagerly.
+        Backends:
+
+        ``"direct"``
+            forward and backward of a time step chained by hand from the parts' analytic
+            backward passes, traced once and compiled by inductor; the rollout is one
+            autograd node (:mod:`~mcpilco.agents.mc_pilco.direct_compile`). No dynamo guards
+            and no autograd engine per time step. Needs the package's own policy, dynamics
+            over a fused GP posterior, and cost, on the CPU; used by :meth:`forward` (the
+            optimisation loss) for rollouts of ``num_particles`` per candidate.
+        ``"dynamo"``
+            ``torch.compile`` of the per-time-step function (``compile_kwargs`` go to it): one
+            graph with the custom autograd functions (a test checks that no graph break
+            creeps in); used by every rollout.
+        ``"auto"`` (default)
+            ``"direct"`` where it applies, else ``"dynamo"``.
+
+        The policy's dropout masks are drawn outside the compiled code, so the same seed
+        gives the eager step's masks and noise. Enabling calls ``torch.compiler.reset()``
+        first: the graphs compiled for an earlier GP (an earlier trial) are dropped instead of
+        piling up to dynamo's recompile limit, beyond which it would silently run eagerly.
 
         ``verify`` (default): compile now, on this module's shapes, and check the compiled
-        step against the eager one, ``J^`` and ``dJ^/dtheta`` over the first
+        path against the eager one, ``J^`` and ``dJ^/dtheta`` over the first
         :data:`COMPILE_CHECK_HORIZON` steps from the same random numbers
         (:meth:`compare_compiled_step`, within :data:`COMPILE_CHECK_RTOL`). If they disagree
-        the compiled step is dropped with a warning and the eager step is used: a compiler
+        the compiled path is dropped with a warning and the eager step is used: a compiler
         that returns wrong gradients would otherwise train nothing, silently. The check
         leaves torch's random stream where it was. ``compile_check`` holds its figures. A
         compilation that raises (no working C++ toolchain, an inductor error) is also caught
         there: a warning, the eager step, and the error's text in ``compile_error``.
+        ``compile_backend`` names the backend in use (None: eager).
         """
+        if backend not in ("auto", "direct", "dynamo"):
+            raise ValueError(f"backend must be 'auto', 'direct' or 'dynamo', got {backend!r}")
         self.compile_check = None
         self.compile_error = None
-        if enable:
-            torch.compiler.reset()
-        self._compiled_step = torch.compile(self._step, **compile_kwargs) if enable else None
-        if enable and verify:
-            problem = None
-            try:
-                check = self.compare_compiled_step()
-            except Exception as err:  # noqa: BLE001 (any compiler failure: run eagerly)
-                first_line = (str(err).strip().splitlines() or [""])[0]
-                self.compile_error = f"{type(err).__name__}: {first_line}"
-                problem = f"compiling the rollout step failed ({self.compile_error})"
+        self._compiled_step = self._direct = self.compile_backend = None
+        if not enable:
+            return False
+        torch.compiler.reset()
+        reason = unsupported_reason(
+            self._policy_fn, self.dynamics, self.cost, self.init_mean.device
+        )
+        if backend == "direct" and reason is not None:
+            raise ValueError(f"the direct backend cannot compile this rollout: {reason}")
+        backend = "dynamo" if backend == "auto" and reason is not None else backend
+        backend = "direct" if backend == "auto" else backend
+        self.compile_backend = backend
+        problem = None
+        try:
+            if backend == "direct":
+                self._direct = DirectRollout(
+                    self._policy_fn,
+                    self.dynamics,
+                    self.cost,
+                    self.num_candidates * self.num_particles,
+                    self.delta_dim,
+                )
             else:
-                self.compile_check = check
-                if not (check["J_rel"] <= COMPILE_CHECK_RTOL >= check["grad_rel"]):  # NaN fails
-                    problem = (
-                        "the compiled rollout step disagrees with the eager step (relative "
-                        f"difference of J^ {check['J_rel']:.2e}, of dJ^/dtheta "
-                        f"{check['grad_rel']:.2e}; torch {torch.__version__})"
-                    )
-            if problem is not None:
-                warnings.warn(f"{problem}: using the eager step", RuntimeWarning, stacklevel=2)
-                self._compiled_step = None
-        return self._compiled_step is not None
+                self._compiled_step = torch.compile(self._step, **compile_kwargs)
+            check = self.compare_compiled_step() if verify else None
+        except Exception as err:  # noqa: BLE001 (any compiler failure: run eagerly)
+            first_line = (str(err).strip().splitlines() or [""])[0]
+            self.compile_error = f"{type(err).__name__}: {first_line}"
+            problem = f"compiling the rollout step failed ({self.compile_error})"
+        else:
+            self.compile_check = check
+            if check is not None and not (
+                check["J_rel"] <= COMPILE_CHECK_RTOL >= check["grad_rel"]  # NaN fails
+            ):
+                problem = (
+                    f"the compiled rollout step ({backend}) disagrees with the eager step "
+                    f"(relative difference of J^ {check['J_rel']:.2e}, of dJ^/dtheta "
+                    f"{check['grad_rel']:.2e}; torch {torch.__version__})"
+                )
+        if problem is not None:
+            warnings.warn(f"{problem}: using the eager step", RuntimeWarning, stacklevel=2)
+            self._compiled_step = self._direct = self.compile_backend = None
+        return self.compile_backend is not None
 
     def compare_compiled_step(
         self, seed: int = 0, horizon: int | None = COMPILE_CHECK_HORIZON
@@ -209,8 +256,8 @@ class MCPilcoLoss(LossModule):
         runs in training mode, with its dropout masks, as in the optimisation (its mode is
         restored after). The first call of a fresh compiled step compiles it.
         """
-        compiled = self._compiled_step
-        if compiled is None:
+        compiled = (self._compiled_step, self._direct)
+        if compiled == (None, None):
             raise ValueError("compare_compiled_step needs a compiled step: call compile_step")
         params = [p for p in self.parameters() if p.requires_grad]
         dev = self.init_mean.device
@@ -221,8 +268,7 @@ class MCPilcoLoss(LossModule):
         self._policy_fn.train()
         try:
             with torch.random.fork_rng(devices=[dev] if dev.type == "cuda" else []):
-                for step in (None, compiled):
-                    self._compiled_step = step
+                for self._compiled_step, self._direct in ((None, None), compiled):
                     torch.manual_seed(seed)
                     J = self()["loss_cost"]
                     grads = (
@@ -236,7 +282,7 @@ class MCPilcoLoss(LossModule):
                     ]
                     results.append((J.detach(), torch.cat(vec or [J.new_zeros(0)])))
         finally:
-            self._compiled_step = compiled
+            self._compiled_step, self._direct = compiled
             self.horizon = full_horizon
             self._policy_fn.train(was_training)
         (J_e, g_e), (J_c, g_c) = results
@@ -263,24 +309,11 @@ class MCPilcoLoss(LossModule):
         eps = torch.randn(self.num_candidates * m, 4, device=self.init_mean.device)
         return self.init_mean + self.init_std * eps
 
-    def rollout(
-        self,
-        initial_state: Tensor | None = None,
-        noise: Tensor | None = None,
-        num_particles: int | None = None,
-        keep_states: bool = True,
-    ) -> ParticleRollout:
-        """Propagate ``M`` particles for ``H`` steps; differentiable w.r.t. the policy.
-
-        Args:
-            initial_state: (K M, 4) ``x_0``; sampled when None.
-            noise: (H, K M, delta_dim) ``eps``; sampled when None. Pass zeros for the mean
-                prediction of a deterministic model.
-            num_particles: ``M`` per candidate when ``initial_state`` is None (default: the
-                module's).
-            keep_states: also return the whole trajectory (else ``states`` holds only
-                ``x_0`` and ``x_H``).
-        """
+    def _draw_inputs(
+        self, initial_state: Tensor | None, noise: Tensor | None, num_particles: int | None
+    ) -> tuple[Tensor, Tensor, Tensor | None]:
+        """``x_0`` (K M, 4), ``eps`` (H, K M, delta_dim) and ``sigma_obs nu`` (H, K M, 4) or
+        None, each sampled (in this order) where not given, and checked."""
         x = self.sample_initial_state(num_particles) if initial_state is None else initial_state
         m = x.shape[0]
         if x.ndim != 2 or x.shape[1] != 4 or m % self.num_candidates:
@@ -301,6 +334,27 @@ class MCPilcoLoss(LossModule):
             obs_noise = self.obs_noise_std * torch.randn(
                 self.horizon, m, 4, dtype=x.dtype, device=x.device
             )
+        return x, noise, obs_noise
+
+    def rollout(
+        self,
+        initial_state: Tensor | None = None,
+        noise: Tensor | None = None,
+        num_particles: int | None = None,
+        keep_states: bool = True,
+    ) -> ParticleRollout:
+        """Propagate ``M`` particles for ``H`` steps; differentiable w.r.t. the policy.
+
+        Args:
+            initial_state: (K M, 4) ``x_0``; sampled when None.
+            noise: (H, K M, delta_dim) ``eps``; sampled when None. Pass zeros for the mean
+                prediction of a deterministic model.
+            num_particles: ``M`` per candidate when ``initial_state`` is None (default: the
+                module's).
+            keep_states: also return the whole trajectory (else ``states`` holds only
+                ``x_0`` and ``x_H``).
+        """
+        x, noise, obs_noise = self._draw_inputs(initial_state, noise, num_particles)
         states = [x]
         actions = []
         costs = []
@@ -323,12 +377,24 @@ class MCPilcoLoss(LossModule):
 
     def forward(self, tensordict: TensorDictBase | None = None) -> TensorDict:
         td = TensorDict({}, batch_size=[]) if tensordict is None else tensordict
-        ro = self.rollout(
-            initial_state=td.get("initial_state", None),
-            noise=td.get("noise", None),
-            keep_states=False,
-        )
-        per_particle = ro.costs.sum(dim=1).view(self.num_candidates, -1)  # sum_t c, (K, M)
+        init, noise = td.get("initial_state", None), td.get("noise", None)
+        direct = self._direct
+        if direct is not None:
+            x, noise, obs_noise = self._draw_inputs(init, noise, None)
+            if x.shape[0] != direct.rows:  # built for the module's particle count only
+                direct = None
+        if direct is not None:
+            costs = RolloutFunction.apply(
+                direct,
+                getattr(self._policy_fn, "draw_dropout_mask", lambda _x: None),
+                x,
+                noise,
+                noise.new_zeros(*noise.shape[:2], 4) if obs_noise is None else obs_noise,
+                *(getattr(self._policy_fn, name) for name in PARAM_NAMES),
+            ).T  # (K M, H)
+        else:
+            costs = self.rollout(initial_state=init, noise=noise, keep_states=False).costs
+        per_particle = costs.sum(dim=1).view(self.num_candidates, -1)  # sum_t c, (K, M)
         per_candidate = per_particle.mean(dim=1)  # J^_k
         with torch.no_grad():
             std = (

@@ -210,8 +210,12 @@ def test_timing_part_reports_each_particle_count(tmp_path, capsys):
     (t,) = json.loads((tmp_path / "mcpilco_cartpole.json").read_text())["timing"]
     assert t["compiled_s_per_step_wall"] > 0 and t["compile_s"] > 0
     assert not t["compiled_rejected"] and t["compile_check"]["grad_rel"] < 1e-2
+    # the default backend (direct) and torch.compile of the time step, both timed
+    assert t["compile_backend"] == "direct" and t["dynamo_compile_backend"] == "dynamo"
+    assert t["dynamo_s_per_step_wall"] > 0 and t["dynamo_compile_check"]["grad_rel"] < 1e-2
     md = (tmp_path / "mcpilco_cartpole.md").read_text()
     assert "| 3 | 20 | cpu | no | 1 |" in md and "x |" in md
+    assert f"| {t['dynamo_s_per_step_wall']:.3f} | {t['dynamo_s_per_step_cpu']:.3f} |" in md
     # --timing-heap-contrast: the eager step again under glibc's initial heap thresholds
     assert main([*argv, "--timing-particles", "3", "--timing-heap-contrast"]) == 0
     (t,) = json.loads((tmp_path / "mcpilco_cartpole.json").read_text())["timing"]
@@ -219,7 +223,7 @@ def test_timing_part_reports_each_particle_count(tmp_path, capsys):
     assert t["page_faults_per_step"] >= 0 and "compiled_s_per_step_wall" not in t
     md = (tmp_path / "mcpilco_cartpole.md").read_text()
     row = next(line for line in md.splitlines() if line.startswith("| 3 | 20 | cpu | no | 1 |"))
-    assert row.count("|") == 15 and f"| {t['heap128k_s_per_step_wall']:.3f} |" in row
+    assert row.count("|") == 17 and f"| {t['heap128k_s_per_step_wall']:.3f} |" in row
 
 
 def test_rmse_runs_part_uses_only_runs_that_swung_up_and_groups_by_their_kernel(tmp_path, capsys):

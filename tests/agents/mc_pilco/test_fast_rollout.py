@@ -15,11 +15,13 @@ import math
 
 import pytest
 import torch
+from tensordict import TensorDict
 from torch import nn
 
 from mcpilco.agents.mc_pilco import (
     GPDynamicsModel,
     MCPilcoLoss,
+    PolicyPopulation,
     SpeedIntegrationDynamics,
     SquashedRBFPolicy,
     SwingUpCost,
@@ -191,13 +193,14 @@ def test_float32_rollout_matches_the_float64_gp_posterior():
         torch.testing.assert_close(a, b, rtol=0, atol=1e-4 * b.abs().max().item())
 
 
-def test_compiled_step_is_one_graph_and_matches_the_eager_rollout():
+@pytest.mark.parametrize("backend", ["dynamo", "direct"])
+def test_compiled_step_is_one_graph_and_matches_the_eager_rollout(backend):
     """``compile_step``: dynamo traces a time step (policy with its dropout mask, GP inputs,
-    fused posterior, sampling + integration, cost) as one graph, without a break, and the
-    compiled rollout gives the eager expected cost and policy gradient from the same seed
-    (the masks are drawn outside the step, from torch's generator). A wide cost (l_theta = 3)
-    gives a gradient far from zero, so that a compiler returning zero gradients (torch 2.11
-    did, for this step) fails here."""
+    fused posterior, sampling + integration, cost) as one graph, without a break; either
+    backend's compiled rollout gives the eager expected cost and policy gradient from the same
+    seed (the masks are drawn outside the compiled code, from torch's generator). A wide cost
+    (l_theta = 3) gives a gradient far from zero, so that a compiler returning zero gradients
+    (torch 2.11 did, for this step) fails here."""
     model = _gp_model("rbf+mpk", n=40, seed=2)
     pol = SquashedRBFPolicy(num_basis=20, weight_scale=1.0, seed=0, dropout=0.25)
     pol.train()
@@ -214,7 +217,9 @@ def test_compiled_step_is_one_graph_and_matches_the_eager_rollout():
     ]
     out = []
     for compiled in (False, True):
-        assert loss.compile_step(compiled, dynamic=False) is compiled  # passes its own check
+        # passes its own check
+        assert loss.compile_step(compiled, backend=backend, dynamic=False) is compiled
+        assert loss.compile_backend == (backend if compiled else None)
         torch.manual_seed(5)
         J = loss()["loss_cost"]
         out.append((J, torch.autograd.grad(J, list(pol.parameters())), torch.rand(2)))
@@ -242,11 +247,36 @@ def _broken_compile(kind: str):
     return compile_
 
 
+def _broken_direct_compiler(kind: str):
+    """The same two faults in the direct backend's compiler (``compile_traced``): its
+    backward step returns zero parameter gradients (``"zero"``) or passes no gradient back
+    to the previous time step (``"short"``)."""
+
+    def compiler(fn, _inputs):
+        if fn.__name__ != "_backward_flat":
+            return fn
+
+        def step_backward(*args):
+            g_prev, *new = fn(*args)
+            if kind == "short":
+                return (torch.zeros_like(g_prev), *new)
+            return (g_prev, *[torch.zeros_like(g) for g in new])
+
+        return step_backward
+
+    return compiler
+
+
+@pytest.mark.parametrize("backend", ["dynamo", "direct"])
 @pytest.mark.parametrize("kind", ["zero", "short"])
-def test_a_compiled_step_with_a_wrong_gradient_is_dropped_for_the_eager_one(monkeypatch, kind):
+def test_a_compiled_step_with_a_wrong_gradient_is_dropped_for_the_eager_one(
+    monkeypatch, kind, backend
+):
     """``compile_step`` checks the compiled step against the eager one; a wrong gradient
     (same ``J^``) makes it warn, keep the eager step, and leave torch's random stream where
     it was; the loss then equals the eager loss."""
+    from mcpilco.agents.mc_pilco import direct_compile
+
     model = _gp_model("rbf+mpk", n=40, seed=2)
     pol = SquashedRBFPolicy(num_basis=20, weight_scale=1.0, seed=0)
     loss = MCPilcoLoss(
@@ -257,10 +287,14 @@ def test_a_compiled_step_with_a_wrong_gradient_is_dropped_for_the_eager_one(monk
     torch.manual_seed(3)
     J_eager = loss()["loss_cost"]
     g_eager = torch.autograd.grad(J_eager, params)
-    monkeypatch.setattr(torch, "compile", _broken_compile(kind))
+    if backend == "dynamo":
+        monkeypatch.setattr(torch, "compile", _broken_compile(kind))
+    else:
+        monkeypatch.setattr(direct_compile, "compile_traced", _broken_direct_compiler(kind))
     torch.manual_seed(3)
     with pytest.warns(RuntimeWarning, match="disagrees with the eager step"):
-        assert loss.compile_step(dynamic=False) is False
+        assert loss.compile_step(backend=backend) is False
+    assert loss.compile_backend is None
     assert loss.compile_check["J_rel"] < 1e-6 and loss.compile_check["grad_rel"] > 0.5
     assert loss.horizon == 8 and not pol.training  # the check's horizon and mode are undone
     J = loss()["loss_cost"]  # the stream continues from the seed: the check drew nothing
@@ -269,25 +303,28 @@ def test_a_compiled_step_with_a_wrong_gradient_is_dropped_for_the_eager_one(monk
         torch.testing.assert_close(a, b, rtol=0, atol=0)
 
 
-def test_a_compilation_that_raises_leaves_the_eager_step(monkeypatch):
+@pytest.mark.parametrize("backend", ["dynamo", "direct"])
+def test_a_compilation_that_raises_leaves_the_eager_step(monkeypatch, backend):
     """A compiler failure (here a stand-in step that raises as inductor does without a
     working C++ toolchain) is caught by ``compile_step``: a warning naming the error, the
     eager step, and the error's first line in ``compile_error``; the trial line says so."""
+    from mcpilco.agents.mc_pilco import direct_compile
     from mcpilco.agents.mc_pilco.loop import record_line
 
     model = _gp_model("rbf", n=30, seed=1)
     pol = SquashedRBFPolicy(num_basis=10, seed=0)
     loss = MCPilcoLoss(make_policy_module(pol), model.particle_dynamics(), SwingUpCost(), 4, 8)
 
-    def failing_compile(fn, **_):
+    def failing_compile(fn, *_, **__):
         def step(*args):
             raise RuntimeError("C++ compile error\ncc1plus: fatal error: Python.h")
 
         return step
 
     monkeypatch.setattr(torch, "compile", failing_compile)
+    monkeypatch.setattr(direct_compile, "compile_traced", failing_compile)
     with pytest.warns(RuntimeWarning, match="compiling the rollout step failed"):
-        assert loss.compile_step(dynamic=False) is False
+        assert loss.compile_step(backend=backend) is False
     assert loss.compile_error == "RuntimeError: C++ compile error"
     assert loss.compile_check is None
     assert torch.isfinite(loss()["loss_cost"])  # the eager step runs
@@ -300,3 +337,74 @@ def test_a_compilation_that_raises_leaves_the_eager_step(monkeypatch):
     assert "compiling the step failed (RuntimeError: C++ compile error): ran eagerly" in (
         record_line(rec)
     )
+
+
+def test_direct_backend_with_a_population_matches_the_eager_rollout_and_knows_its_limits():
+    """The direct backend with ``K = 2`` candidates, each with its own ``J^_k`` and gradient,
+    equals the eager rollout from the same seed. A rollout of another particle count runs
+    eagerly (the compiled code is built for one count); a rollout it cannot chain by hand
+    (here a GP posterior behind a module it does not know) makes ``backend="auto"`` pick dynamo,
+    and ``backend="direct"`` refuse with the reason."""
+    model = _gp_model("rbf+mpk", n=40, seed=2)
+    pop = PolicyPopulation(
+        [SquashedRBFPolicy(num_basis=20, weight_scale=1.0, seed=s) for s in (0, 1)]
+    )
+    pop.train()
+    loss = MCPilcoLoss(
+        make_policy_module(pop), model.particle_dynamics(), SwingUpCost(l_theta=3.0), 8, 16
+    )
+    params = list(pop.parameters())
+    out = []
+    for backend in (None, "direct"):
+        assert loss.compile_step(backend is not None, backend=backend or "auto") is bool(backend)
+        torch.manual_seed(4)
+        td = loss()
+        out.append((td["candidate_costs"], torch.autograd.grad(td["loss_cost"], params)))
+    (J_e, g_e), (J_d, g_d) = out
+    torch.testing.assert_close(J_d, J_e, rtol=1e-5, atol=0)
+    for a, b in zip(g_d, g_e, strict=True):
+        torch.testing.assert_close(a, b, rtol=0, atol=1e-4 * b.abs().max().item())
+    # another particle count runs eagerly: the eager loss exactly (eval mode: no masks)
+    x0 = torch.zeros(2 * 5, 4)
+    noise = torch.randn(8, 10, 2)
+    pop.eval()
+    loss.compile_step(backend="direct")
+    J_other = loss(TensorDict({"initial_state": x0, "noise": noise}, []))["loss_cost"]
+    loss.compile_step(False)
+    assert loss.compile_backend is None
+    J_ref = loss(TensorDict({"initial_state": x0, "noise": noise}, []))["loss_cost"]
+    torch.testing.assert_close(J_other, J_ref, rtol=0, atol=0)
+
+    class Plain(nn.Module):  # a posterior the direct backend does not know
+        def __init__(self, pred):
+            super().__init__()
+            self.pred = pred
+
+        def forward(self, x):
+            return self.pred(x)
+
+    dyn = model.particle_dynamics()
+    dyn.delta_model = Plain(dyn.delta_model)
+    other = MCPilcoLoss(make_policy_module(pop), dyn, SwingUpCost(), 4, 8)
+    assert other.compile_step(verify=False) and other.compile_backend == "dynamo"
+    with pytest.raises(ValueError, match="direct backend cannot compile.*not fused"):
+        other.compile_step(backend="direct")
+    with pytest.raises(ValueError, match="backend must be"):
+        other.compile_step(backend="inductor")
+
+
+def test_compile_traced_keeps_an_input_passed_twice_apart():
+    """The tracer tells inputs apart by tensor object: an example tensor given for two
+    arguments must still give a function of two inputs (else ``a + 2 b`` would compile as
+    ``3 a``)."""
+    from mcpilco.agents.mc_pilco.direct_compile import compile_traced
+
+    def fn(a, b):
+        return a + 2.0 * b, a * b
+
+    t = torch.ones(3)
+    compiled = compile_traced(fn, [t, t])
+    a, b = torch.tensor([1.0, 2.0, 3.0]), torch.tensor([10.0, 20.0, 30.0])
+    s, prod = compiled(a, b)
+    torch.testing.assert_close(s, torch.tensor([21.0, 42.0, 63.0]))
+    torch.testing.assert_close(prod, torch.tensor([10.0, 40.0, 90.0]))

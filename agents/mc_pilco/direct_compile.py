@@ -1,0 +1,254 @@
+r"""The particle rollout compiled without dynamo or autograd: backprop through time by hand.
+
+:meth:`~mcpilco.agents.mc_pilco.loss.MCPilcoLoss.compile_step` with ``backend="direct"``.
+Every part of a time step already has a hand-written backward (the ``autograd.Function``\ s
+of the policy, the GP inputs, the fused GP posterior, the sample-clip-integrate step and the
+cost). Here they are chained by hand, in two functions of plain tensors:
+
+``step_forward(x_t, eps_t, nu_t, D_t, theta) -> (x_{t+1}, c(x_{t+1}), S_t)``
+    ``u_t = pi_theta(x_t + nu_t)`` with the dropout mask ``D_t``, ``x~_t = [x_t, u_t]``,
+    ``(mu, sigma^2) = GP(x~_t)``, ``x_{t+1} = integrate(x_t, clip(mu + sigma eps_t))``, the
+    cost; ``S_t`` are the tensors each part saves for its backward.
+``step_backward(S_t, g_{x_{t+1}}, g_{c_{t+1}}, G) -> (g_{x_t}, G + dJ/dtheta|_t)``
+    the parts' backward passes in reverse: ``g_{x_t} = dJ/dx_t`` (through the integration,
+    the GP inputs and the policy input ``x_t + nu_t``) and the running sum ``G`` of the
+    policy-parameter gradients.
+
+Each function is traced once into an FX graph (``make_fx`` on real tensors: the GP's fitted
+buffers become constants of the graph) and compiled by inductor (fused C++ kernels plus
+BLAS calls). A rollout calls the compiled forward ``H`` times, then the compiled backward
+``H`` times (:class:`RolloutFunction`, one autograd node for the whole rollout). Compared
+with ``torch.compile`` of the time step (``backend="dynamo"``), nothing checks guards at
+each call and the autograd engine does not run per time step: 20-25 % less time per
+optimisation step on the 2-core CPU machine (``results/mcpilco_notes.md``).
+
+Glossary: ``M`` particles per candidate, ``K`` candidates, ``KM`` rows; ``H`` horizon;
+``theta = (c, log l, w)`` the policy parameters (``(K, ...)`` for a population, else without
+the leading ``K``).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from typing import Any
+
+import torch
+from torch import Tensor
+from torch.utils._pytree import tree_flatten, tree_unflatten
+
+from mcpilco.agents.mc_pilco.cost import SwingUpCost, _SwingUpCostFn
+from mcpilco.agents.mc_pilco.dynamics import (
+    SpeedIntegrationDynamics,
+    _CartpoleGPInputs,
+    _SampleClipIntegrate,
+)
+from mcpilco.agents.mc_pilco.policy import PolicyPopulation, SquashedRBFPolicy, _SquashedRBF
+from mcpilco.models.gp.fused import FusedRBFMPKPredictor, _FusedPosterior
+
+PARAM_NAMES = ("centers", "log_lengthscales", "weights")
+"""The policy parameters ``theta``, in this order."""
+
+
+class _Saved:
+    """Stand-in for an ``autograd.Function`` context: ``save_for_backward`` keeps the tensors
+    and the other attributes (e.g. the fused posterior's ``pred``) are set as usual. Every
+    input counts as needing its gradient."""
+
+    needs_input_grad = (True,) * 8
+
+    def save_for_backward(self, *tensors: Tensor | None) -> None:
+        self.saved_tensors = tensors
+
+
+def unsupported_reason(policy: Any, dynamics: Any, cost: Any, device: torch.device) -> str | None:
+    """Why the direct path cannot compile this rollout (None: it can). It chains the
+    hand-written backward passes of the package's own parts, so it needs exactly those: a
+    :class:`SquashedRBFPolicy` or :class:`PolicyPopulation`, :class:`SpeedIntegrationDynamics`
+    over a :class:`FusedRBFMPKPredictor`, :class:`SwingUpCost`, on the CPU."""
+    if device.type != "cpu":
+        return f"it runs on the CPU only (the rollout is on {device})"
+    if type(policy) not in (SquashedRBFPolicy, PolicyPopulation):
+        return f"unsupported policy {type(policy).__name__}"
+    if type(dynamics) is not SpeedIntegrationDynamics:
+        return f"unsupported dynamics {type(dynamics).__name__}"
+    if not isinstance(dynamics.delta_model, FusedRBFMPKPredictor):
+        return f"the GP posterior is not fused ({type(dynamics.delta_model).__name__})"
+    if type(cost) is not SwingUpCost:
+        return f"unsupported cost {type(cost).__name__}"
+    return None
+
+
+def compile_traced(fn: Callable[..., tuple[Tensor, ...]], inputs: list[Tensor]) -> Callable:
+    """``fn``, a function of tensors returning a tuple of tensors, traced by ``make_fx`` on
+    ``inputs`` and compiled by inductor; the result has ``fn``'s signature. The trace is
+    specialised to the inputs' shapes and dtypes; tensors ``fn`` reads from its closure are
+    baked in as constants. The tracer tells inputs apart by tensor object, so an example
+    tensor given for two arguments is copied for its second place (else both places would be
+    traced as one input)."""
+    from torch._inductor import compile as inductor_compile
+    from torch.fx.experimental.proxy_tensor import make_fx
+
+    examples, seen = [], set()
+    for t in inputs:
+        examples.append(t.clone() if id(t) in seen else t)
+        seen.add(id(t))
+    with torch.no_grad():
+        return inductor_compile(make_fx(fn)(*examples), examples)
+
+
+class DirectRollout:
+    """The compiled ``step_forward`` and ``step_backward`` (module docstring) of one loss.
+
+    Args:
+        policy, dynamics, cost: the loss's parts (see :func:`unsupported_reason`).
+        rows: ``KM``, the number of particles of every rollout it runs.
+        delta_dim: dimension of the GP noise ``eps_t`` per row.
+        compiler: ``(fn, example_inputs) -> callable`` for a function of tensors returning a
+            tuple of tensors (default :func:`compile_traced`; ``lambda fn, _: fn`` runs the
+            same functions eagerly).
+
+    Built for fixed shapes and for the GP and cost of this loss; the policy parameters are
+    inputs. Rollouts with another number of rows run eagerly (the loss decides).
+    """
+
+    def __init__(
+        self,
+        policy: SquashedRBFPolicy | PolicyPopulation,
+        dynamics: SpeedIntegrationDynamics,
+        cost: SwingUpCost,
+        rows: int,
+        delta_dim: int = 2,
+        compiler: Callable[[Callable, tuple], Callable] | None = None,
+    ) -> None:
+        self.policy, self.dynamics, self.cost = policy, dynamics, cost
+        self.rows = int(rows)
+        self.batched = isinstance(policy, PolicyPopulation)
+        self.candidates = int(getattr(policy, "num_candidates", 1))
+        pred = dynamics.delta_model
+        pred.tri_panels  # noqa: B018 (its panel cache is built here, outside the trace)
+        self._ctx_attrs: dict[str, dict[str, Any]] = {}
+        compiler = compile_traced if compiler is None else compiler
+        dtype = policy.weights.dtype
+        x = torch.zeros(self.rows, 4, dtype=dtype)
+        eps = torch.zeros(self.rows, int(delta_dim), dtype=dtype)
+        mask = self.ones_mask()
+        theta = self.parameters()
+        with torch.no_grad():
+            x1, c1, saved = self._forward(x, eps, x, mask, *theta)  # also records ctx attrs
+        flat, self._saved_spec = tree_flatten(saved)
+        self._saved_present = [t is not None for t in flat]
+        saved_tensors = [t for t in flat if t is not None]
+        zeros = [torch.zeros_like(t) for t in (x1, c1, *theta)]
+        self.step_forward = compiler(self._forward_flat, [x, eps, x, mask, *theta])
+        self.step_backward = compiler(self._backward_flat, [*saved_tensors, *zeros])
+
+    def _forward_flat(self, *args: Tensor) -> tuple[Tensor, ...]:
+        """``step_forward`` on ``(x, eps, nu, D, c, log l, w)``, flat: ``(x_{t+1}, c_{t+1},
+        *S_t)``, the saved tensors flattened and their Nones left out."""
+        x_next, c_next, saved = self._forward(*args)
+        return (x_next, c_next, *[t for t in tree_flatten(saved)[0] if t is not None])
+
+    def _backward_flat(self, *args: Tensor) -> tuple[Tensor, ...]:
+        """``step_backward`` on ``(*S_t, g_x, g_c, *G)`` (``S_t`` as ``_forward_flat`` gives
+        it), flat: ``(g_{x_t}, *G')``."""
+        n = sum(self._saved_present)
+        it = iter(args[:n])
+        saved = tree_unflatten(
+            [next(it) if p else None for p in self._saved_present], self._saved_spec
+        )
+        g_x_next, g_c_next, *grads = args[n:]
+        g_prev, new = self._backward(saved, g_x_next, g_c_next, tuple(grads))
+        return (g_prev, *new)
+
+    def parameters(self) -> tuple[Tensor, Tensor, Tensor]:
+        """``theta`` (detached), in :data:`PARAM_NAMES` order."""
+        return tuple(getattr(self.policy, name).detach() for name in PARAM_NAMES)
+
+    def ones_mask(self) -> Tensor:
+        """The dropout mask of no dropout, ``(K, M, n_b)`` of ones (``phi o 1 = phi``)."""
+        shape = (self.candidates, self.rows // self.candidates, self.policy.num_basis)
+        return torch.ones(shape, dtype=self.policy.weights.dtype)
+
+    def _batched(self, t: Tensor) -> Tensor:
+        return t if self.batched else t.unsqueeze(0)
+
+    def _forward(
+        self, x: Tensor, eps: Tensor, nu: Tensor, mask: Tensor, c: Tensor, log_l: Tensor, w: Tensor
+    ) -> tuple[Tensor, Tensor, tuple]:
+        """``step_forward`` (module docstring), built from the parts' ``forward``."""
+        dyn, cost = self.dynamics, self.cost
+        ctx = {name: _Saved() for name in ("policy", "inputs", "gp", "step", "cost")}
+        obs = (x + nu).reshape(self.candidates, -1, 4)
+        u = _SquashedRBF.forward(
+            ctx["policy"], obs, self._batched(c), self._batched(log_l), self._batched(w),
+            self.policy.u_max, mask,
+        ).reshape(self.rows, -1)  # fmt: skip
+        gp_in = _CartpoleGPInputs.forward(ctx["inputs"], x, u)
+        mean, var = _FusedPosterior.forward(ctx["gp"], gp_in, dyn.delta_model)
+        if dyn.sample_noise:
+            var = var + dyn.noise_variance.to(var.dtype)
+        x_next = _SampleClipIntegrate.forward(
+            ctx["step"], x, mean, var, eps, dyn.delta_bound, dyn.dt
+        )
+        c_next = _SwingUpCostFn.forward(ctx["cost"], x_next, cost.l_x, cost.l_theta, cost.wrap)
+        self._ctx_attrs = {
+            name: {k: v for k, v in vars(s).items() if k != "saved_tensors"}
+            for name, s in ctx.items()
+        }
+        return x_next, c_next, tuple(ctx[name].saved_tensors for name in ctx)
+
+    def _backward(
+        self, saved: tuple, g_x_next: Tensor, g_c_next: Tensor, grads: tuple
+    ) -> tuple[Tensor, tuple]:
+        """``step_backward`` (module docstring), built from the parts' ``backward``."""
+        ctx = {}
+        for (name, attrs), tensors in zip(self._ctx_attrs.items(), saved, strict=True):
+            ctx[name] = _Saved()
+            vars(ctx[name]).update(attrs)
+            ctx[name].saved_tensors = tensors
+        g_x = _SwingUpCostFn.backward(ctx["cost"], g_c_next)[0] + g_x_next
+        g_state, g_mean, g_var = _SampleClipIntegrate.backward(ctx["step"], g_x)[:3]
+        g_in = _FusedPosterior.backward(ctx["gp"], g_mean, g_var)[0]
+        g_state_in, g_u = _CartpoleGPInputs.backward(ctx["inputs"], g_in)
+        g_obs, *g_theta = _SquashedRBF.backward(
+            ctx["policy"], g_u.reshape(self.candidates, -1, g_u.shape[-1])
+        )[:4]
+        if not self.batched:
+            g_theta = [g.squeeze(0) for g in g_theta]
+        g_prev = g_state + g_state_in + g_obs.reshape(self.rows, 4)
+        return g_prev, tuple(G + g for G, g in zip(grads, g_theta, strict=True))
+
+
+class RolloutFunction(torch.autograd.Function):
+    """``costs (H, KM) = rollout(theta)`` through a :class:`DirectRollout`: the forward loop
+    keeps each step's saved tensors, the backward loop returns ``dJ/dtheta`` for the
+    upstream gradient ``g = dJ/dcosts``. The initial state gets no gradient (it does not
+    depend on ``theta``). Dropout masks are drawn step by step in the forward loop
+    (``draw_mask(x_t)``, None for no dropout), as in the eager rollout."""
+
+    @staticmethod
+    def forward(ctx, runner, draw_mask, x, noise, nu, c, log_l, w):  # noqa: D102
+        costs, steps = [], []
+        ones = None
+        for t in range(noise.shape[0]):
+            mask = draw_mask(x)
+            if mask is None:
+                ones = runner.ones_mask() if ones is None else ones
+                mask = ones
+            x, cost, *saved = runner.step_forward(x, noise[t], nu[t], mask, c, log_l, w)
+            costs.append(cost)
+            steps.append(saved)
+        ctx.runner, ctx.steps = runner, steps
+        ctx.shapes = (x.shape, c.shape, log_l.shape, w.shape)
+        return torch.stack(costs)
+
+    @staticmethod
+    def backward(ctx, g_costs):  # noqa: D102
+        runner, steps = ctx.runner, ctx.steps
+        x_shape, *theta_shapes = ctx.shapes
+        g_x = g_costs.new_zeros(x_shape)
+        grads = [g_costs.new_zeros(shape) for shape in theta_shapes]
+        for t in reversed(range(len(steps))):
+            g_x, *grads = runner.step_backward(*steps[t], g_x, g_costs[t].contiguous(), *grads)
+        ctx.steps = None
+        return (None, None, None, None, None, *grads)
