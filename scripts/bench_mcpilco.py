@@ -881,8 +881,9 @@ def build_parser() -> argparse.ArgumentParser:
         "--compile-rollout",
         action="store_true",
         default=None,
-        help="torch.compile the rollout's time step in the runs; the timing part then also "
-        "times every setting compiled",
+        help="compile the rollout's time step in the runs (MCPilcoLoss.compile_step, default "
+        "backend); the timing part then also times every setting compiled, by the default "
+        "backend and by torch.compile",
     )
     p.add_argument(
         "--explore-hold",

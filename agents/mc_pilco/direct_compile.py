@@ -84,7 +84,9 @@ def compile_traced(fn: Callable[..., tuple[Tensor, ...]], inputs: list[Tensor]) 
     specialised to the inputs' shapes and dtypes; tensors ``fn`` reads from its closure are
     baked in as constants. The tracer tells inputs apart by tensor object, so an example
     tensor given for two arguments is copied for its second place (else both places would be
-    traced as one input)."""
+    traced as one input). ``make_fx`` and ``torch._inductor.compile`` are PyTorch internals
+    (checked with torch 2.13): :meth:`MCPilcoLoss.compile_step` catches their failures and
+    checks their result against the eager rollout."""
     from torch._inductor import compile as inductor_compile
     from torch.fx.experimental.proxy_tensor import make_fx
 
@@ -118,7 +120,7 @@ class DirectRollout:
         cost: SwingUpCost,
         rows: int,
         delta_dim: int = 2,
-        compiler: Callable[[Callable, tuple], Callable] | None = None,
+        compiler: Callable[[Callable, list[Tensor]], Callable] | None = None,
     ) -> None:
         self.policy, self.dynamics, self.cost = policy, dynamics, cost
         self.rows = int(rows)
