@@ -19,8 +19,10 @@ buffers become constants of the graph) and compiled by inductor (fused C++ kerne
 BLAS calls). A rollout calls the compiled forward ``H`` times, then the compiled backward
 ``H`` times (:class:`RolloutFunction`, one autograd node for the whole rollout). Compared
 with ``torch.compile`` of the time step (``backend="dynamo"``), nothing checks guards at
-each call and the autograd engine does not run per time step: 20-25 % less time per
-optimisation step on the 2-core CPU machine (``results/mcpilco_notes.md``).
+each call and the autograd engine does not run per time step: 13-22 % less time per
+optimisation step at 400 particles in 5 of 6 settings (the sixth equal) and 28-32 % less at
+25 particles (again 5 of 6), timed in the same rounds on the 2-core CPU machine
+(``results/mcpilco_notes.md``).
 
 Glossary: ``M`` particles per candidate, ``K`` candidates, ``KM`` rows; ``H`` horizon;
 ``theta = (c, log l, w)`` the policy parameters (``(K, ...)`` for a population, else without

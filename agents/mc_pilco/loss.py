@@ -210,8 +210,8 @@ class MCPilcoLoss(LossModule):
         )
         if backend == "direct" and reason is not None:
             raise ValueError(f"the direct backend cannot compile this rollout: {reason}")
-        backend = "dynamo" if backend == "auto" and reason is not None else backend
-        backend = "direct" if backend == "auto" else backend
+        if backend == "auto":
+            backend = "direct" if reason is None else "dynamo"
         self.compile_backend = backend
         problem = None
         try:
@@ -379,11 +379,10 @@ class MCPilcoLoss(LossModule):
         td = TensorDict({}, batch_size=[]) if tensordict is None else tensordict
         init, noise = td.get("initial_state", None), td.get("noise", None)
         direct = self._direct
+        if direct is not None and init is not None and init.shape[:1] != (direct.rows,):
+            direct = None  # built for the module's particle count only: run eagerly
         if direct is not None:
             x, noise, obs_noise = self._draw_inputs(init, noise, None)
-            if x.shape[0] != direct.rows:  # built for the module's particle count only
-                direct = None
-        if direct is not None:
             costs = RolloutFunction.apply(
                 direct,
                 getattr(self._policy_fn, "draw_dropout_mask", lambda _x: None),

@@ -393,6 +393,27 @@ def test_direct_backend_with_a_population_matches_the_eager_rollout_and_knows_it
         other.compile_step(backend="inductor")
 
 
+def test_direct_backend_falls_back_to_the_eager_rollout_without_extra_draws():
+    """A rollout of another particle count under the direct backend is the eager rollout,
+    random draws included: with simulated observation noise it gives the eager loss and
+    leaves torch's random stream where the eager loss leaves it."""
+    model = _gp_model("rbf", n=30, seed=1)
+    pol = SquashedRBFPolicy(num_basis=10, seed=0)
+    loss = MCPilcoLoss(
+        make_policy_module(pol), model.particle_dynamics(), SwingUpCost(), 4, 8,
+        obs_noise_std=0.01,
+    )  # fmt: skip
+    td = {"initial_state": torch.zeros(5, 4)}
+    out = []
+    for backend in (None, "direct"):
+        assert loss.compile_step(backend is not None, backend=backend or "auto") is bool(backend)
+        torch.manual_seed(2)
+        out.append((loss(TensorDict(td, []))["loss_cost"], torch.rand(3)))
+    (J_e, after_e), (J_d, after_d) = out
+    torch.testing.assert_close(J_d, J_e, rtol=0, atol=0)
+    torch.testing.assert_close(after_d, after_e, rtol=0, atol=0)
+
+
 def test_compile_traced_keeps_an_input_passed_twice_apart():
     """The tracer tells inputs apart by tensor object: an example tensor given for two
     arguments must still give a function of two inputs (else ``a + 2 b`` would compile as
