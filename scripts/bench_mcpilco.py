@@ -350,6 +350,7 @@ def time_opt_step(
             compile_info.update(
                 {
                     f"{prefix}compile_backend": compiled.compile_backend,
+                    f"{prefix}rollout_shards": compiled.rollout_shards,
                     f"{prefix}compile_s": time.perf_counter() - t_compile,
                     f"{prefix}compile_check": compiled.compile_check,
                     f"{prefix}compile_error": compiled.compile_error,
@@ -726,7 +727,10 @@ def write_report(results: dict, out_dir: Path) -> None:
             "(`direct`: forward and backward of a time step chained by hand and compiled by "
             "inductor, no dynamo and no autograd per time step), alternating with the eager "
             "step in each round; compile s: the compilation and its check against the eager "
-            "step. Dynamo: the time step `torch.compile`-d instead, in the same rounds.",
+            "step (about 1 s where inductor's on-disk cache already held the same graphs, "
+            "e.g. from an earlier run on the same GP); shards: the threads a compiled rollout is split over, by particles (two "
+            "threads: 2 at 400 particles, 1 at 25). Dynamo: the time step `torch.compile`-d "
+            "instead, in the same rounds.",
             "",
             "Faults: minor page faults per step, with the freed memory kept in the process "
             "(`retain_host_memory`). 128 KiB heap: the eager step with glibc's initial "
@@ -734,22 +738,22 @@ def write_report(results: dict, out_dir: Path) -> None:
             "",
             "| particles M | GP points N | device | CUDA graph | threads | wall s/step "
             "| CPU s/step | faults | compiled: wall s/step | CPU s/step | speed-up (CPU) "
-            "| compile s | dynamo: wall s/step | CPU s/step | 128 KiB heap: wall s/step "
-            "| faults |",
-            "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|",
+            "| compile s | shards | dynamo: wall s/step | CPU s/step "
+            "| 128 KiB heap: wall s/step | faults |",
+            "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|",
         ]
         for t in results["timing"]:
             graph = "yes" if t.get("cuda_graph") else "no"
-            comp = "| - | - | - | -"
+            comp = "| - | - | - | - | -"
             if t.get("compile_error"):
-                comp = "| compilation failed | - | - | -"
+                comp = "| compilation failed | - | - | - | -"
             elif t.get("compiled_rejected"):
-                comp = "| failed its check against the eager step | - | - | -"
+                comp = "| failed its check against the eager step | - | - | - | -"
             elif "compiled_s_per_step_wall" in t:
                 comp = (
                     f"| {t['compiled_s_per_step_wall']:.3f} | {t['compiled_s_per_step_cpu']:.3f} "
                     f"| {t['s_per_step_cpu'] / t['compiled_s_per_step_cpu']:.2f}x "
-                    f"| {t['compile_s']:.0f}"
+                    f"| {t['compile_s']:.0f} | {t.get('rollout_shards', 1)}"
                 )
             if "dynamo_s_per_step_wall" in t:
                 comp += f" | {t['dynamo_s_per_step_wall']:.3f} | {t['dynamo_s_per_step_cpu']:.3f}"

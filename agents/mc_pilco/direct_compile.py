@@ -14,24 +14,29 @@ cost). Here they are chained by hand, in two functions of plain tensors:
     the GP inputs and the policy input ``x_t + nu_t``) and the running sum ``G`` of the
     policy-parameter gradients.
 
-Each function is traced once into an FX graph (``make_fx`` on real tensors: the GP's fitted
+Each function is traced once into an FX graph (``make_fx`` on fake tensors: the GP's fitted
 buffers become constants of the graph) and compiled by inductor (fused C++ kernels plus
-BLAS calls). A rollout calls the compiled forward ``H`` times, then the compiled backward
-``H`` times (:class:`RolloutFunction`, one autograd node for the whole rollout). Compared
-with ``torch.compile`` of the time step (``backend="dynamo"``), nothing checks guards at
-each call and the autograd engine does not run per time step: 13-22 % less time per
-optimisation step at 400 particles in 5 of 6 settings (the sixth equal) and 28-32 % less at
-25 particles (again 5 of 6), timed in the same rounds on the 2-core CPU machine
-(``results/mcpilco_notes.md``).
+BLAS calls) with its C++ wrapper: one compiled call per function, without the GIL. A
+rollout calls the compiled forward ``H`` times, then the compiled backward ``H`` times
+(:class:`RolloutFunction`, one autograd node for the whole rollout). Compared with
+``torch.compile`` of the time step (``backend="dynamo"``), nothing checks guards at each
+call and the autograd engine does not run per time step. The particles are independent, so
+a rollout can be split by particles over ``S`` threads (``shards``), each running both loops
+on its share with one intra-op thread; the shards' policy gradients are summed. Measured
+figures (same rounds as the eager step and ``torch.compile``, on the 2-core CPU machine) are
+in ``results/mcpilco_cartpole.md`` and ``results/mcpilco_notes.md``.
 
-Glossary: ``M`` particles per candidate, ``K`` candidates, ``KM`` rows; ``H`` horizon;
+Glossary: ``M`` particles per candidate, ``K`` candidates, ``KM`` rows; ``S`` shards
+(threads), ``KM / S`` rows each; ``H`` horizon;
 ``theta = (c, log l, w)`` the policy parameters (``(K, ...)`` for a population, else without
 the leading ``K``).
 """
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Iterator, Sequence
+from concurrent.futures import ThreadPoolExecutor
+from contextlib import contextmanager
 from typing import Any
 
 import torch
@@ -80,16 +85,29 @@ def unsupported_reason(policy: Any, dynamics: Any, cost: Any, device: torch.devi
     return None
 
 
-def compile_traced(fn: Callable[..., tuple[Tensor, ...]], inputs: list[Tensor]) -> Callable:
+def compile_traced(
+    fn: Callable[..., tuple[Tensor, ...]], inputs: list[Tensor], cpp_wrapper: bool = True
+) -> Callable:
     """``fn``, a function of tensors returning a tuple of tensors, traced by ``make_fx`` on
-    ``inputs`` and compiled by inductor; the result has ``fn``'s signature. The trace is
-    specialised to the inputs' shapes and dtypes; tensors ``fn`` reads from its closure are
-    baked in as constants. The tracer tells inputs apart by tensor object, so an example
-    tensor given for two arguments is copied for its second place (else both places would be
-    traced as one input). ``make_fx`` and ``torch._inductor.compile`` are PyTorch internals
-    (checked with torch 2.13): :meth:`MCPilcoLoss.compile_step` catches their failures and
-    checks their result against the eager rollout."""
+    ``inputs`` and compiled by inductor; the result has ``fn``'s signature.
+
+    The trace is specialised to the inputs' shapes and dtypes. It runs on fake tensors (shapes
+    only, one fake mode for the whole graph); tensors ``fn`` reads from its closure are baked
+    in as constants. The tracer tells inputs apart by tensor object, so an example tensor
+    given for two arguments is copied for its second place (else both places would be traced
+    as one input).
+
+    ``cpp_wrapper`` (default): inductor writes the code that calls the graph's kernels in C++
+    too, one compiled call per graph instead of a Python function making some 70 calls (its
+    C++ entry also runs without the GIL); it takes a few seconds more to compile. If that
+    compilation fails, the graph is compiled again with the Python wrapper.
+
+    ``make_fx`` and ``torch._inductor.compile`` are PyTorch internals (checked with torch
+    2.13): :meth:`MCPilcoLoss.compile_step` catches their failures and checks their result
+    against the eager rollout.
+    """
     from torch._inductor import compile as inductor_compile
+    from torch._inductor import config as inductor_config
     from torch.fx.experimental.proxy_tensor import make_fx
 
     examples, seen = [], set()
@@ -97,7 +115,14 @@ def compile_traced(fn: Callable[..., tuple[Tensor, ...]], inputs: list[Tensor]) 
         examples.append(t.clone() if id(t) in seen else t)
         seen.add(id(t))
     with torch.no_grad():
-        return inductor_compile(make_fx(fn)(*examples), examples)
+        graph = make_fx(fn, tracing_mode="fake", _allow_non_fake_inputs=True)(*examples)
+        if cpp_wrapper:
+            try:
+                with inductor_config.patch(cpp_wrapper=True):
+                    return inductor_compile(graph, examples)
+            except Exception:  # noqa: BLE001 (any failure of the C++ wrapper: Python one)
+                pass
+        return inductor_compile(graph, examples)
 
 
 class DirectRollout:
@@ -110,6 +135,11 @@ class DirectRollout:
         compiler: ``(fn, example_inputs) -> callable`` for a function of tensors returning a
             tuple of tensors (default :func:`compile_traced`; ``lambda fn, _: fn`` runs the
             same functions eagerly).
+        shards: ``S``, the number of threads a rollout is split over. The particles are
+            independent, so each thread rolls out ``M / S`` particles of every candidate
+            (``KM / S`` rows, the shape the functions are compiled for) with one intra-op
+            thread, and the policy gradients of the ``S`` shards are summed. The compiled
+            code runs without the GIL. ``S = 1``: the calling thread does all.
 
     Built for fixed shapes and for the GP and cost of this loss; the policy parameters are
     inputs. Rollouts with another number of rows run eagerly (the loss decides).
@@ -123,18 +153,25 @@ class DirectRollout:
         rows: int,
         delta_dim: int = 2,
         compiler: Callable[[Callable, list[Tensor]], Callable] | None = None,
+        shards: int = 1,
     ) -> None:
         self.policy, self.dynamics, self.cost = policy, dynamics, cost
-        self.rows = int(rows)
+        self.rows, self.shards = int(rows), int(shards)
         self.batched = isinstance(policy, PolicyPopulation)
         self.candidates = int(getattr(policy, "num_candidates", 1))
+        if self.shards < 1 or self.rows % (self.candidates * self.shards):
+            raise ValueError(
+                f"shards must be >= 1 and divide the {self.rows // self.candidates} particles "
+                f"per candidate, got {shards}"
+            )
+        self.shard_rows = self.rows // self.shards
         pred = dynamics.delta_model
         pred.tri_panels  # noqa: B018 (its panel cache is built here, outside the trace)
         self._ctx_attrs: dict[str, dict[str, Any]] = {}
         compiler = compile_traced if compiler is None else compiler
         dtype = policy.weights.dtype
-        x = torch.zeros(self.rows, 4, dtype=dtype)
-        eps = torch.zeros(self.rows, int(delta_dim), dtype=dtype)
+        x = torch.zeros(self.shard_rows, 4, dtype=dtype)
+        eps = torch.zeros(self.shard_rows, int(delta_dim), dtype=dtype)
         mask = self.ones_mask()
         theta = self.parameters()
         with torch.no_grad():
@@ -143,8 +180,44 @@ class DirectRollout:
         self._saved_present = [t is not None for t in flat]
         saved_tensors = [t for t in flat if t is not None]
         zeros = [torch.zeros_like(t) for t in (x1, c1, *theta)]
-        self.step_forward = compiler(self._forward_flat, [x, eps, x, mask, *theta])
-        self.step_backward = compiler(self._backward_flat, [*saved_tensors, *zeros])
+        self._pool = None
+        with _intra_op_threads(1 if self.shards > 1 else torch.get_num_threads()):
+            # a shard's kernels are compiled for one thread (inductor fixes the count)
+            self.step_forward = compiler(self._forward_flat, [x, eps, x, mask, *theta])
+            self.step_backward = compiler(self._backward_flat, [*saved_tensors, *zeros])
+        if self.shards > 1:
+            self._pool = ThreadPoolExecutor(
+                self.shards, "direct-rollout", initializer=torch.set_num_threads, initargs=(1,)
+            )
+            with _intra_op_threads(torch.get_num_threads()):  # the workers' setting leaks
+                list(self._pool.map(lambda _: None, range(self.shards)))  # start them now
+
+    def __del__(self) -> None:
+        pool = getattr(self, "_pool", None)
+        if pool is not None:
+            pool.shutdown(wait=False)
+
+    def map_shards(self, fn: Callable[..., Any], *args: Sequence[Any]) -> list[Any]:
+        """``[fn(a_0, b_0, ...), ..., fn(a_{S-1}, ...)]`` for ``args = (a, b, ...)`` (one entry
+        per shard), each in its own worker thread (in the calling thread for ``S = 1``)."""
+        if self._pool is None:
+            return [fn(*a) for a in zip(*args, strict=True)]
+        return list(self._pool.map(_no_grad(fn), *args))
+
+    def split(self, t: Tensor, dim: int) -> list[Tensor]:
+        """``t``'s rows (``KM`` along ``dim``, candidate-major) cut into the ``S`` shards: shard
+        ``s`` holds particles ``s M/S .. (s+1) M/S - 1`` of every candidate (contiguous)."""
+        if self.shards == 1:
+            return [t.contiguous()]
+        grouped = t.unflatten(dim, (self.candidates, -1))
+        return [p.flatten(dim, dim + 1).contiguous() for p in grouped.chunk(self.shards, dim + 1)]
+
+    def join(self, parts: Sequence[Tensor], dim: int) -> Tensor:
+        """The inverse of :meth:`split`."""
+        if self.shards == 1:
+            return parts[0]
+        grouped = [p.unflatten(dim, (self.candidates, -1)) for p in parts]
+        return torch.cat(grouped, dim + 1).flatten(dim, dim + 1)
 
     def _forward_flat(self, *args: Tensor) -> tuple[Tensor, ...]:
         """``step_forward`` on ``(x, eps, nu, D, c, log l, w)``, flat: ``(x_{t+1}, c_{t+1},
@@ -169,8 +242,9 @@ class DirectRollout:
         return tuple(getattr(self.policy, name).detach() for name in PARAM_NAMES)
 
     def ones_mask(self) -> Tensor:
-        """The dropout mask of no dropout, ``(K, M, n_b)`` of ones (``phi o 1 = phi``)."""
-        shape = (self.candidates, self.rows // self.candidates, self.policy.num_basis)
+        """The dropout mask of no dropout for one shard, ``(K, M/S, n_b)`` of ones (``phi o 1 =
+        phi``)."""
+        shape = (self.candidates, self.shard_rows // self.candidates, self.policy.num_basis)
         return torch.ones(shape, dtype=self.policy.weights.dtype)
 
     def _batched(self, t: Tensor) -> Tensor:
@@ -186,7 +260,7 @@ class DirectRollout:
         u = _SquashedRBF.forward(
             ctx["policy"], obs, self._batched(c), self._batched(log_l), self._batched(w),
             self.policy.u_max, mask,
-        ).reshape(self.rows, -1)  # fmt: skip
+        ).reshape(self.shard_rows, -1)  # fmt: skip
         gp_in = _CartpoleGPInputs.forward(ctx["inputs"], x, u)
         mean, var = _FusedPosterior.forward(ctx["gp"], gp_in, dyn.delta_model)
         if dyn.sample_noise:
@@ -219,40 +293,88 @@ class DirectRollout:
         )[:4]
         if not self.batched:
             g_theta = [g.squeeze(0) for g in g_theta]
-        g_prev = g_state + g_state_in + g_obs.reshape(self.rows, 4)
+        g_prev = g_state + g_state_in + g_obs.reshape(self.shard_rows, 4)
         return g_prev, tuple(G + g for G, g in zip(grads, g_theta, strict=True))
+
+
+def _no_grad(fn: Callable[..., Any]) -> Callable[..., Any]:
+    """``fn`` run with autograd off (a worker thread starts with it on; the compiled steps
+    take the policy parameters, which require gradients, as plain inputs)."""
+
+    def run(*args: Any) -> Any:
+        with torch.no_grad():
+            return fn(*args)
+
+    return run
+
+
+@contextmanager
+def _intra_op_threads(n: int) -> Iterator[None]:
+    """``torch.set_num_threads(n)`` inside the block, the count before it restored after."""
+    before = torch.get_num_threads()
+    torch.set_num_threads(n)
+    try:
+        yield
+    finally:
+        torch.set_num_threads(before)
+
+
+def _forward_shard(
+    runner: DirectRollout, x: Tensor, noise: Tensor, nu: Tensor, masks: list[Tensor], theta
+) -> tuple[list[Tensor], list[list[Tensor]]]:
+    """One shard's forward loop: its costs ``c_{t+1}`` and saved tensors ``S_t``, t < H."""
+    costs, steps = [], []
+    for t in range(noise.shape[0]):
+        x, cost, *saved = runner.step_forward(x, noise[t], nu[t], masks[t], *theta)
+        costs.append(cost)
+        steps.append(saved)
+    return costs, steps
+
+
+def _backward_shard(
+    runner: DirectRollout, steps: list[list[Tensor]], g_costs: Tensor, grads: list[Tensor]
+) -> list[Tensor]:
+    """One shard's backward loop from ``g = dJ/dcosts`` (H, rows): ``dJ/dtheta``."""
+    g_x = g_costs.new_zeros(g_costs.shape[1], 4)
+    for t in reversed(range(len(steps))):
+        g_x, *grads = runner.step_backward(*steps[t], g_x, g_costs[t], *grads)
+    return grads
 
 
 class RolloutFunction(torch.autograd.Function):
     """``costs (H, KM) = rollout(theta)`` through a :class:`DirectRollout`: the forward loop
     keeps each step's saved tensors, the backward loop returns ``dJ/dtheta`` for the
-    upstream gradient ``g = dJ/dcosts``. The initial state gets no gradient (it does not
-    depend on ``theta``). Dropout masks are drawn step by step in the forward loop
-    (``draw_mask(x_t)``, None for no dropout), as in the eager rollout."""
+    upstream gradient ``g = dJ/dcosts``; each loop runs per shard, the shards in parallel.
+    The initial state gets no gradient (it does not depend on ``theta``). The dropout masks
+    of all ``H`` steps are drawn first, in step order (``draw_mask(x_0)``, None for no
+    dropout): the same random stream as the eager rollout, which draws them step by step and
+    nothing else in between."""
 
     @staticmethod
     def forward(ctx, runner, draw_mask, x, noise, nu, c, log_l, w):  # noqa: D102
-        costs, steps = [], []
-        ones = None
-        for t in range(noise.shape[0]):
-            mask = draw_mask(x)
-            if mask is None:
-                ones = runner.ones_mask() if ones is None else ones
-                mask = ones
-            x, cost, *saved = runner.step_forward(x, noise[t], nu[t], mask, c, log_l, w)
-            costs.append(cost)
-            steps.append(saved)
-        ctx.runner, ctx.steps = runner, steps
-        ctx.shapes = (x.shape, c.shape, log_l.shape, w.shape)
-        return torch.stack(costs)
+        horizon = noise.shape[0]
+        masks = [draw_mask(x) for _ in range(horizon)]  # (K, M, n_b) each, or None
+        if masks and masks[0] is None:
+            masks = [[runner.ones_mask()] * horizon] * runner.shards
+        else:  # shard s gets its (K, M/S, n_b) part of each step's mask
+            cut = [[p.contiguous() for p in m.chunk(runner.shards, 1)] for m in masks]
+            masks = [list(steps) for steps in zip(*cut, strict=True)]
+        theta = (c, log_l, w)
+        shards = runner.map_shards(
+            lambda *a: _forward_shard(runner, *a, theta),
+            runner.split(x, 0), runner.split(noise, 1), runner.split(nu, 1), masks,
+        )  # fmt: skip
+        ctx.runner, ctx.steps = runner, [steps for _, steps in shards]
+        ctx.theta_shapes = (c.shape, log_l.shape, w.shape)
+        return runner.join([torch.stack(costs) for costs, _ in shards], 1)
 
     @staticmethod
     def backward(ctx, g_costs):  # noqa: D102
         runner, steps = ctx.runner, ctx.steps
-        x_shape, *theta_shapes = ctx.shapes
-        g_x = g_costs.new_zeros(x_shape)
-        grads = [g_costs.new_zeros(shape) for shape in theta_shapes]
-        for t in reversed(range(len(steps))):
-            g_x, *grads = runner.step_backward(*steps[t], g_x, g_costs[t].contiguous(), *grads)
+        zeros = [[g_costs.new_zeros(shape) for shape in ctx.theta_shapes] for _ in steps]
+        shards = runner.map_shards(
+            lambda *a: _backward_shard(runner, *a), steps, runner.split(g_costs, 1), zeros
+        )
         ctx.steps = None
+        grads = [sum(parts[1:], parts[0]) for parts in zip(*shards, strict=True)]
         return (None, None, None, None, None, *grads)

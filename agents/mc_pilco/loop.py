@@ -159,7 +159,8 @@ class MCPilcoConfig:
             --compile-rollout`` (``results/mcpilco_cartpole.md``); off by default (needs a C++
             compiler). Each trial checks the compiled step against the eager one (``J^`` and
             its gradient) and runs eagerly if they disagree (the trial record's
-            ``compiled_step``, ``compile_backend`` and ``compile_check``).
+            ``compiled_step``, ``compile_backend``, ``rollout_shards`` and
+            ``compile_check``).
         rollout_dtype: dtype of the GP posterior evaluated in the particle rollout,
             ``"float32"`` (default; a step at M = 400 is 1.4x / 1.8x faster at N = 100 / 250,
             1 thread) or ``"float64"``; the particles, the policy and the GP fit are the
@@ -642,6 +643,7 @@ def run_mcpilco(
                     rec["compile_check"] = loss.compile_check
                     rec["compile_error"] = loss.compile_error
                     rec["compile_backend"] = loss.compile_backend
+                    rec["rollout_shards"] = loss.rollout_shards
                 # 2. policy update
                 opt_cfg = config.opt
                 if k == 1 and config.opt_steps_first is not None:

@@ -66,6 +66,10 @@ agreed to 5e-5 on the gradient. Ten steps (0.5 s) keep rounding small
 and still run every part of the step, forward and backward, through both graphs (the first
 step, whose state needs no gradient, and the others)."""
 
+MIN_SHARD_PARTICLES = 50
+"""Fewest particles per candidate and thread for which :meth:`MCPilcoLoss.compile_step`
+splits the direct rollout over threads by default (below, a thread's work is too small)."""
+
 
 @dataclass
 class ParticleRollout:
@@ -161,7 +165,12 @@ class MCPilcoLoss(LossModule):
         return x_next, u, self.cost(x_next)
 
     def compile_step(
-        self, enable: bool = True, verify: bool = True, backend: str = "auto", **compile_kwargs
+        self,
+        enable: bool = True,
+        verify: bool = True,
+        backend: str = "auto",
+        shards: int | None = None,
+        **compile_kwargs,
     ) -> bool:
         """Compile the rollout's time step; returns whether a compiled path is in use.
 
@@ -180,6 +189,11 @@ class MCPilcoLoss(LossModule):
             creeps in); used by every rollout.
         ``"auto"`` (default)
             ``"direct"`` where it applies, else ``"dynamo"``.
+
+        ``shards`` (direct backend): the number of threads each rollout is split over, by
+        particles, each with one intra-op thread (:class:`DirectRollout`). None (default):
+        ``torch.get_num_threads()`` where that divides the ``M`` particles into shards of at
+        least :data:`MIN_SHARD_PARTICLES`, else 1.
 
         The policy's dropout masks are drawn outside the compiled code, so the same seed
         gives the eager step's masks and noise. Enabling calls ``torch.compiler.reset()``
@@ -213,6 +227,9 @@ class MCPilcoLoss(LossModule):
         if backend == "auto":
             backend = "direct" if reason is None else "dynamo"
         self.compile_backend = backend
+        if shards is None:
+            threads, m = torch.get_num_threads(), self.num_particles
+            shards = threads if m % threads == 0 and m // threads >= MIN_SHARD_PARTICLES else 1
         problem = None
         try:
             if backend == "direct":
@@ -222,6 +239,7 @@ class MCPilcoLoss(LossModule):
                     self.cost,
                     self.num_candidates * self.num_particles,
                     self.delta_dim,
+                    shards=shards,
                 )
             else:
                 self._compiled_step = torch.compile(self._step, **compile_kwargs)
@@ -294,6 +312,12 @@ class MCPilcoLoss(LossModule):
             "J_rel": rel((J_c - J_e).abs().item(), J_e.abs().item()),
             "grad_rel": rel((g_c - g_e).norm().item(), g_e.norm().item()),
         }
+
+    @property
+    def rollout_shards(self) -> int:
+        """The number of threads the compiled rollout is split over (1 unless the direct
+        backend splits it; see :meth:`compile_step`)."""
+        return 1 if self._direct is None else self._direct.shards
 
     @property
     def functional(self) -> bool:  # the policy is used statefully (no functional params)

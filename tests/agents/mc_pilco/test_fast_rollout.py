@@ -341,7 +341,8 @@ def test_a_compilation_that_raises_leaves_the_eager_step(monkeypatch, backend):
 
 def test_direct_backend_with_a_population_matches_the_eager_rollout_and_knows_its_limits():
     """The direct backend with ``K = 2`` candidates, each with its own ``J^_k`` and gradient,
-    equals the eager rollout from the same seed. A rollout of another particle count runs
+    equals the eager rollout from the same seed (dropout masks on), run in one thread and
+    split over two threads by particles. A rollout of another particle count runs
     eagerly (the compiled code is built for one count); a rollout it cannot chain by hand
     (here a GP posterior behind a module it does not know) makes ``backend="auto"`` pick dynamo,
     and ``backend="direct"`` refuse with the reason."""
@@ -355,15 +356,18 @@ def test_direct_backend_with_a_population_matches_the_eager_rollout_and_knows_it
     )
     params = list(pop.parameters())
     out = []
-    for backend in (None, "direct"):
-        assert loss.compile_step(backend is not None, backend=backend or "auto") is bool(backend)
+    for backend, shards in ((None, 1), ("direct", 1), ("direct", 2)):
+        enable = backend is not None
+        assert loss.compile_step(enable, backend=backend or "auto", shards=shards) is enable
+        assert loss._direct is None or loss._direct.shards == shards
         torch.manual_seed(4)
         td = loss()
         out.append((td["candidate_costs"], torch.autograd.grad(td["loss_cost"], params)))
-    (J_e, g_e), (J_d, g_d) = out
-    torch.testing.assert_close(J_d, J_e, rtol=1e-5, atol=0)
-    for a, b in zip(g_d, g_e, strict=True):
-        torch.testing.assert_close(a, b, rtol=0, atol=1e-4 * b.abs().max().item())
+    (J_e, g_e), *compiled = out
+    for J_d, g_d in compiled:  # one thread, and two threads of 8 particles per candidate
+        torch.testing.assert_close(J_d, J_e, rtol=1e-5, atol=0)
+        for a, b in zip(g_d, g_e, strict=True):
+            torch.testing.assert_close(a, b, rtol=0, atol=1e-4 * b.abs().max().item())
     # another particle count runs eagerly: the eager loss exactly (eval mode: no masks)
     x0 = torch.zeros(2 * 5, 4)
     noise = torch.randn(8, 10, 2)
@@ -429,3 +433,49 @@ def test_compile_traced_keeps_an_input_passed_twice_apart():
     s, prod = compiled(a, b)
     torch.testing.assert_close(s, torch.tensor([21.0, 42.0, 63.0]))
     torch.testing.assert_close(prod, torch.tensor([10.0, 40.0, 90.0]))
+
+
+def test_shards_hold_each_candidates_particles_in_order():
+    """``split`` gives shard ``s`` particles ``s M/S .. (s+1) M/S - 1`` of every candidate
+    (rows candidate-major), along any dimension; ``join`` undoes it; a shard count that does
+    not divide the particles is refused."""
+    from mcpilco.agents.mc_pilco.direct_compile import DirectRollout
+
+    model = _gp_model("rbf", n=30, seed=1)
+    pop = PolicyPopulation([SquashedRBFPolicy(num_basis=4, seed=s) for s in (0, 1)])
+    dyn, cost = model.particle_dynamics(), SwingUpCost()
+    runner = DirectRollout(pop, dyn, cost, rows=2 * 6, compiler=lambda fn, _: fn, shards=3)
+    rows = torch.arange(12.0)  # candidate 0: particles 0..5, candidate 1: 6..11
+    parts = runner.split(rows.repeat(2, 1), 1)
+    expected = [[0.0, 1.0, 6.0, 7.0], [2.0, 3.0, 8.0, 9.0], [4.0, 5.0, 10.0, 11.0]]
+    assert [p[1].tolist() for p in parts] == expected
+    assert all(p.is_contiguous() for p in parts)
+    torch.testing.assert_close(runner.join(parts, 1), rows.repeat(2, 1), rtol=0, atol=0)
+    assert runner.ones_mask().shape == (2, 2, 4)
+    with pytest.raises(ValueError, match="shards must be >= 1 and divide the 6 particles"):
+        DirectRollout(pop, dyn, cost, rows=12, compiler=lambda fn, _: fn, shards=4)
+
+
+def test_compile_traced_falls_back_to_the_python_wrapper(monkeypatch):
+    """When inductor's C++ wrapper fails to build, the graph is compiled with the Python
+    wrapper instead, and computes the same."""
+    import torch._inductor
+    from torch._inductor import config as inductor_config
+
+    from mcpilco.agents.mc_pilco.direct_compile import compile_traced
+
+    real = torch._inductor.compile
+    wrappers = []
+
+    def compile_(graph, inputs):
+        wrappers.append(inductor_config.cpp_wrapper)
+        if inductor_config.cpp_wrapper:
+            raise RuntimeError("cpp wrapper build failed")
+        return real(graph, inputs)
+
+    monkeypatch.setattr(torch._inductor, "compile", compile_)
+    const = torch.tensor([1.0, -2.0, 0.5])
+    compiled = compile_traced(lambda a: (torch.exp(a) * const,), [torch.zeros(3)])
+    assert wrappers == [True, False]
+    a = torch.tensor([0.0, 1.0, 2.0])
+    torch.testing.assert_close(compiled(a)[0], torch.exp(a) * const)
