@@ -80,8 +80,9 @@ def build_parser() -> argparse.ArgumentParser:
         action="store_true",
         default=None,
         help="compile the rollout's time step (on the CPU by hand-chained backward passes "
-        "and inductor, else torch.compile; 400 particles: 1.2-1.7x faster steps than eager; "
-        "5-20 s of compilation per trial; needs a C++ compiler); each trial checks it "
+        "and inductor, split over the threads by particles, else torch.compile; 400 "
+        "particles: 1.3-2.4x faster steps than eager; 17-22 s of compilation per trial; "
+        "needs a C++ compiler); each trial checks it "
         "against the eager step and falls back to the eager step, with a warning, if they "
         "disagree",
     )

@@ -34,6 +34,7 @@ the leading ``K``).
 
 from __future__ import annotations
 
+import threading
 from collections.abc import Callable, Iterator, Sequence
 from concurrent.futures import ThreadPoolExecutor
 from contextlib import contextmanager
@@ -189,8 +190,12 @@ class DirectRollout:
             self._pool = ThreadPoolExecutor(
                 self.shards, "direct-rollout", initializer=torch.set_num_threads, initargs=(1,)
             )
-            with _intra_op_threads(torch.get_num_threads()):  # the workers' setting leaks
-                list(self._pool.map(lambda _: None, range(self.shards)))  # start them now
+            # start all S workers now (each waits for the others, so none is reused before
+            # the S-th exists): a worker's set_num_threads(1) also changes the calling
+            # thread's count, which is put back once, after the last worker started
+            started = threading.Barrier(self.shards)
+            with _intra_op_threads(torch.get_num_threads()):
+                list(self._pool.map(lambda _: started.wait(), range(self.shards)))
 
     def __del__(self) -> None:
         pool = getattr(self, "_pool", None)

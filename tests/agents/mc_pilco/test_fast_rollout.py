@@ -356,13 +356,17 @@ def test_direct_backend_with_a_population_matches_the_eager_rollout_and_knows_it
     )
     params = list(pop.parameters())
     out = []
+    threads_before, threads = torch.get_num_threads(), 2
+    torch.set_num_threads(threads)
     for backend, shards in ((None, 1), ("direct", 1), ("direct", 2)):
         enable = backend is not None
         assert loss.compile_step(enable, backend=backend or "auto", shards=shards) is enable
-        assert loss._direct is None or loss._direct.shards == shards
+        assert loss.rollout_shards == shards
+        assert torch.get_num_threads() == threads  # the workers' one thread does not leak
         torch.manual_seed(4)
         td = loss()
         out.append((td["candidate_costs"], torch.autograd.grad(td["loss_cost"], params)))
+    torch.set_num_threads(threads_before)
     (J_e, g_e), *compiled = out
     for J_d, g_d in compiled:  # one thread, and two threads of 8 particles per candidate
         torch.testing.assert_close(J_d, J_e, rtol=1e-5, atol=0)
