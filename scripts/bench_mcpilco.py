@@ -659,7 +659,7 @@ def _md_table(env_id: str, section: dict) -> str:
         f"GP subset N<={cfg['max_points']}, kernel {cfg['kernel']}, "
         f"K={cfg.get('num_candidates', 1)} candidate policies, "
         f"rollout GP {cfg.get('rollout_dtype', 'float32')}"
-        f"{', time step torch.compile-d' if cfg.get('compile_rollout') else ''}, "
+        f"{', time step compiled (--compile-rollout)' if cfg.get('compile_rollout') else ''}, "
         "exploration actions held "
         f"{cfg.get('explore_hold', LEGACY_FIELD_VALUES['explore_hold'])} step(s); "
         f"{section['jobs']} parallel "
