@@ -727,8 +727,8 @@ def write_report(results: dict, out_dir: Path) -> None:
             "(`direct`: forward and backward of a time step chained by hand and compiled by "
             "inductor, no dynamo and no autograd per time step), alternating with the eager "
             "step in each round; compile s: the compilation and its check against the eager "
-            "step (about 1 s where inductor's on-disk cache already held the same graphs, "
-            "e.g. from an earlier run on the same GP); shards: the threads a compiled rollout "
+            "step (about 1 s where inductor's on-disk cache already held graphs of the same "
+            "size, from any GP); shards: the threads a compiled rollout "
             "is split over, by particles (two threads: 2 at 400 particles, 1 at 25). Dynamo: "
             "the time step `torch.compile`-d instead, in the same rounds.",
             "",
