@@ -227,9 +227,16 @@ class MCPilcoLoss(LossModule):
         if backend == "auto":
             backend = "direct" if reason is None else "dynamo"
         self.compile_backend = backend
+        m = self.num_particles
         if shards is None:
-            threads, m = torch.get_num_threads(), self.num_particles
+            threads = torch.get_num_threads()
             shards = threads if m % threads == 0 and m // threads >= MIN_SHARD_PARTICLES else 1
+        elif int(shards) != shards or shards < 1 or m % shards:
+            raise ValueError(
+                f"shards must be a positive divisor of the {m} particles, got {shards}"
+            )
+        elif shards > 1 and backend != "direct":
+            raise ValueError(f"shards > 1 needs the direct backend, got backend {backend!r}")
         problem = None
         try:
             if backend == "direct":

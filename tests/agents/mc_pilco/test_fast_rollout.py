@@ -399,6 +399,10 @@ def test_direct_backend_with_a_population_matches_the_eager_rollout_and_knows_it
         other.compile_step(backend="direct")
     with pytest.raises(ValueError, match="backend must be"):
         other.compile_step(backend="inductor")
+    with pytest.raises(ValueError, match="shards > 1 needs the direct backend"):
+        other.compile_step(shards=2)  # auto picks dynamo here
+    with pytest.raises(ValueError, match="positive divisor of the 16 particles, got 3"):
+        loss.compile_step(backend="direct", shards=3)
 
 
 def test_direct_backend_falls_back_to_the_eager_rollout_without_extra_draws():
