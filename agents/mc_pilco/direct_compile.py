@@ -139,8 +139,9 @@ class DirectRollout:
         shards: ``S``, the number of threads a rollout is split over. The particles are
             independent, so each thread rolls out ``M / S`` particles of every candidate
             (``KM / S`` rows, the shape the functions are compiled for) with one intra-op
-            thread, and the policy gradients of the ``S`` shards are summed. The compiled
-            code runs without the GIL. ``S = 1``: the calling thread does all.
+            thread, and the policy gradients of the ``S`` shards are summed. Code from
+            inductor's C++ wrapper runs without the GIL (with the Python-wrapper fallback the
+            threads share it). ``S = 1``: the calling thread does all.
 
     Built for fixed shapes and for the GP and cost of this loss; the policy parameters are
     inputs. Rollouts with another number of rows run eagerly (the loss decides).
