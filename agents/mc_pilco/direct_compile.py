@@ -5,8 +5,9 @@ Every part of a time step already has a hand-written backward (the ``autograd.Fu
 of the policy, the GP inputs, the fused GP posterior, the sample-clip-integrate step and the
 cost). Here they are chained by hand, in two functions of plain tensors:
 
-``step_forward(x_t, eps_t, nu_t, D_t, theta) -> (x_{t+1}, c(x_{t+1}), S_t)``
-    ``u_t = pi_theta(x_t + nu_t)`` with the dropout mask ``D_t``, ``x~_t = [x_t, u_t]``,
+``step_forward(x_t, eps_t, nu_t, b_t, (t, 256/t), theta) -> (x_{t+1}, c(x_{t+1}), S_t)``
+    ``u_t = pi_theta(x_t + nu_t)`` with the dropout mask ``D_t = 1[b_t < t] 256 / t`` made
+    from the random bytes ``b_t`` (the mask of the eager rollout), ``x~_t = [x_t, u_t]``,
     ``(mu, sigma^2) = GP(x~_t)``, ``x_{t+1} = integrate(x_t, clip(mu + sigma eps_t))``, the
     cost; ``S_t`` are the tensors each part saves for its backward.
 ``step_backward(S_t, g_{x_{t+1}}, g_{c_{t+1}}, G) -> (g_{x_t}, G + dJ/dtheta|_t)``
@@ -34,7 +35,6 @@ the leading ``K``).
 
 from __future__ import annotations
 
-import threading
 from collections.abc import Callable, Iterator, Sequence
 from concurrent.futures import ThreadPoolExecutor
 from contextlib import contextmanager
@@ -168,16 +168,16 @@ class DirectRollout:
             )
         self.shard_rows = self.rows // self.shards
         pred = dynamics.delta_model
-        pred.tri_panels  # noqa: B018 (its panel cache is built here, outside the trace)
+        pred.row_blocks  # noqa: B018 (its block cache is built here, outside the trace)
         self._ctx_attrs: dict[str, dict[str, Any]] = {}
         compiler = compile_traced if compiler is None else compiler
         dtype = policy.weights.dtype
         x = torch.zeros(self.shard_rows, 4, dtype=dtype)
         eps = torch.zeros(self.shard_rows, int(delta_dim), dtype=dtype)
-        mask = self.ones_mask()
+        bits, keep = self.no_dropout()
         theta = self.parameters()
         with torch.no_grad():
-            x1, c1, saved = self._forward(x, eps, x, mask, *theta)  # also records ctx attrs
+            x1, c1, saved = self._forward(x, eps, x, bits, keep, *theta)  # records ctx attrs
         flat, self._saved_spec = tree_flatten(saved)
         self._saved_present = [t is not None for t in flat]
         saved_tensors = [t for t in flat if t is not None]
@@ -185,18 +185,10 @@ class DirectRollout:
         self._pool = None
         with _intra_op_threads(1 if self.shards > 1 else torch.get_num_threads()):
             # a shard's kernels are compiled for one thread (inductor fixes the count)
-            self.step_forward = compiler(self._forward_flat, [x, eps, x, mask, *theta])
+            self.step_forward = compiler(self._forward_flat, [x, eps, x, bits, keep, *theta])
             self.step_backward = compiler(self._backward_flat, [*saved_tensors, *zeros])
         if self.shards > 1:
-            self._pool = ThreadPoolExecutor(
-                self.shards, "direct-rollout", initializer=torch.set_num_threads, initargs=(1,)
-            )
-            # start all S workers now (each waits for the others, so none is reused before
-            # the S-th exists): a worker's set_num_threads(1) also changes the calling
-            # thread's count, which is put back once, after the last worker started
-            started = threading.Barrier(self.shards)
-            with _intra_op_threads(torch.get_num_threads()):
-                list(self._pool.map(lambda _: started.wait(), range(self.shards)))
+            self._pool = ThreadPoolExecutor(self.shards, "direct-rollout")
 
     def __del__(self) -> None:
         pool = getattr(self, "_pool", None)
@@ -208,7 +200,10 @@ class DirectRollout:
         per shard), each in its own worker thread (in the calling thread for ``S = 1``)."""
         if self._pool is None:
             return [fn(*a) for a in zip(*args, strict=True)]
-        return list(self._pool.map(_no_grad(fn), *args))
+        # a worker's set_num_threads(1) also resets process-wide settings (the default count
+        # of new threads, MKL's): the caller's count is put back once all S have run
+        with _intra_op_threads(torch.get_num_threads()):
+            return list(self._pool.map(_shard_task(fn), *args))
 
     def split(self, t: Tensor, dim: int) -> list[Tensor]:
         """``t``'s rows (``KM`` along ``dim``, candidate-major) cut into the ``S`` shards: shard
@@ -247,20 +242,35 @@ class DirectRollout:
         """``theta`` (detached), in :data:`PARAM_NAMES` order."""
         return tuple(getattr(self.policy, name).detach() for name in PARAM_NAMES)
 
-    def ones_mask(self) -> Tensor:
-        """The dropout mask of no dropout for one shard, ``(K, M/S, n_b)`` of ones (``phi o 1 =
-        phi``)."""
+    def no_dropout(self) -> tuple[Tensor, Tensor]:
+        """The dropout inputs of no dropout for one shard: bytes ``(K, M/S, n_b)`` of zeros and
+        ``t = 256``, a mask of ones (``phi o 1 = phi``)."""
         shape = (self.candidates, self.shard_rows // self.candidates, self.policy.num_basis)
-        return torch.ones(shape, dtype=self.policy.weights.dtype)
+        return torch.zeros(shape, dtype=torch.uint8), self.keep(256)
+
+    def keep(self, t: int) -> Tensor:
+        """``(t, 256 / t)`` in the policy's dtype: the threshold and scale of the dropout mask
+        (:func:`~mcpilco.agents.mc_pilco.policy.mask_from_bytes`)."""
+        return torch.tensor([float(t), 256.0 / t], dtype=self.policy.weights.dtype)
 
     def _batched(self, t: Tensor) -> Tensor:
         return t if self.batched else t.unsqueeze(0)
 
     def _forward(
-        self, x: Tensor, eps: Tensor, nu: Tensor, mask: Tensor, c: Tensor, log_l: Tensor, w: Tensor
+        self,
+        x: Tensor,
+        eps: Tensor,
+        nu: Tensor,
+        bits: Tensor,
+        keep: Tensor,
+        c: Tensor,
+        log_l: Tensor,
+        w: Tensor,
     ) -> tuple[Tensor, Tensor, tuple]:
         """``step_forward`` (module docstring), built from the parts' ``forward``."""
         dyn, cost = self.dynamics, self.cost
+        # mask_from_bytes(bits, t) with t and 256 / t as inputs: the same values
+        mask = (bits.to(x.dtype) < keep[0]).to(x.dtype) * keep[1]
         ctx = {name: _Saved() for name in ("policy", "inputs", "gp", "step", "cost")}
         obs = (x + nu).reshape(self.candidates, -1, 4)
         u = _SquashedRBF.forward(
@@ -303,11 +313,17 @@ class DirectRollout:
         return g_prev, tuple(G + g for G, g in zip(grads, g_theta, strict=True))
 
 
-def _no_grad(fn: Callable[..., Any]) -> Callable[..., Any]:
-    """``fn`` run with autograd off (a worker thread starts with it on; the compiled steps
-    take the policy parameters, which require gradients, as plain inputs)."""
+def _shard_task(fn: Callable[..., Any]) -> Callable[..., Any]:
+    """``fn`` as one shard's task in a worker thread: one intra-op thread, autograd off.
+
+    The count is set at each task, not once when the worker starts: a thread takes the
+    process's default count (the caller's, once restored) at its first parallel op, which
+    undid a setting made at the start (each shard then ran its BLAS calls on 2 threads, on 2
+    cores shared by 2 shards). Autograd: a worker thread starts with it on; the compiled steps
+    take the policy parameters, which require gradients, as plain inputs."""
 
     def run(*args: Any) -> Any:
+        torch.set_num_threads(1)
         with torch.no_grad():
             return fn(*args)
 
@@ -326,12 +342,18 @@ def _intra_op_threads(n: int) -> Iterator[None]:
 
 
 def _forward_shard(
-    runner: DirectRollout, x: Tensor, noise: Tensor, nu: Tensor, masks: list[Tensor], theta
+    runner: DirectRollout,
+    x: Tensor,
+    noise: Tensor,
+    nu: Tensor,
+    bits: list[Tensor],
+    keep: Tensor,
+    theta: tuple[Tensor, ...],
 ) -> tuple[list[Tensor], list[list[Tensor]]]:
     """One shard's forward loop: its costs ``c_{t+1}`` and saved tensors ``S_t``, t < H."""
     costs, steps = [], []
     for t in range(noise.shape[0]):
-        x, cost, *saved = runner.step_forward(x, noise[t], nu[t], masks[t], *theta)
+        x, cost, *saved = runner.step_forward(x, noise[t], nu[t], bits[t], keep, *theta)
         costs.append(cost)
         steps.append(saved)
     return costs, steps
@@ -351,24 +373,27 @@ class RolloutFunction(torch.autograd.Function):
     """``costs (H, KM) = rollout(theta)`` through a :class:`DirectRollout`: the forward loop
     keeps each step's saved tensors, the backward loop returns ``dJ/dtheta`` for the
     upstream gradient ``g = dJ/dcosts``; each loop runs per shard, the shards in parallel.
-    The initial state gets no gradient (it does not depend on ``theta``). The dropout masks
-    of all ``H`` steps are drawn first, in step order (``draw_mask(x_0)``, None for no
-    dropout): the same random stream as the eager rollout, which draws them step by step and
-    nothing else in between."""
+    The initial state gets no gradient (it does not depend on ``theta``). The random bytes
+    of the dropout masks of all ``H`` steps are drawn first, in step order
+    (``draw_bytes(x_0) = (b_t, t)``, None for no dropout): the same random stream as the
+    eager rollout, which draws them step by step and nothing else in between; each shard
+    turns its bytes into its mask inside the compiled step."""
 
     @staticmethod
-    def forward(ctx, runner, draw_mask, x, noise, nu, c, log_l, w):  # noqa: D102
+    def forward(ctx, runner, draw_bytes, x, noise, nu, c, log_l, w):  # noqa: D102
         horizon = noise.shape[0]
-        masks = [draw_mask(x) for _ in range(horizon)]  # (K, M, n_b) each, or None
-        if masks and masks[0] is None:
-            masks = [[runner.ones_mask()] * horizon] * runner.shards
-        else:  # shard s gets its (K, M/S, n_b) part of each step's mask
-            cut = [[p.contiguous() for p in m.chunk(runner.shards, 1)] for m in masks]
-            masks = [list(steps) for steps in zip(*cut, strict=True)]
+        drawn = [draw_bytes(x) for _ in range(horizon)]  # ((K, M, n_b) uint8, t), or None
+        if not drawn or drawn[0] is None:
+            bits, keep = runner.no_dropout()
+            bits = [[bits] * horizon] * runner.shards
+        else:  # shard s gets its (K, M/S, n_b) part of each step's bytes
+            keep = runner.keep(drawn[0][1])
+            cut = [[p.contiguous() for p in b.chunk(runner.shards, 1)] for b, _ in drawn]
+            bits = [list(steps) for steps in zip(*cut, strict=True)]
         theta = (c, log_l, w)
         shards = runner.map_shards(
-            lambda *a: _forward_shard(runner, *a, theta),
-            runner.split(x, 0), runner.split(noise, 1), runner.split(nu, 1), masks,
+            lambda *a: _forward_shard(runner, *a, keep, theta),
+            runner.split(x, 0), runner.split(noise, 1), runner.split(nu, 1), bits,
         )  # fmt: skip
         ctx.runner, ctx.steps = runner, [steps for _, steps in shards]
         ctx.theta_shapes = (c.shape, log_l.shape, w.shape)

@@ -416,7 +416,7 @@ class MCPilcoLoss(LossModule):
             x, noise, obs_noise = self._draw_inputs(init, noise, None)
             costs = RolloutFunction.apply(
                 direct,
-                getattr(self._policy_fn, "draw_dropout_mask", lambda _x: None),
+                getattr(self._policy_fn, "draw_dropout_bytes", lambda _x: None),
                 x,
                 noise,
                 noise.new_zeros(*noise.shape[:2], 4) if obs_noise is None else obs_noise,

@@ -153,10 +153,14 @@ class SquashedRBFPolicy(nn.Module):
         (:func:`dropout_mask`), or None outside training or at ``p = 0``. ``forward`` draws
         it itself when not given one; drawing it first keeps the random draws out of a
         compiled rollout step (the same masks with and without ``torch.compile``)."""
-        if not (self.training and self.dropout > 0.0):
-            return None
-        shape = (1, obs[..., 0].numel(), self.num_basis)
-        return dropout_mask(shape, self.dropout, obs.dtype, obs.device)
+        drawn = self.draw_dropout_bytes(obs)
+        return None if drawn is None else mask_from_bytes(*drawn, obs.dtype)
+
+    def draw_dropout_bytes(self, obs: Tensor) -> tuple[Tensor, int] | None:
+        """The random bytes ``b (1, k, n_b)`` and threshold ``t`` of :meth:`draw_dropout_mask`
+        (its mask is ``mask_from_bytes(b, t)``; the same random draws), or None when there is
+        no dropout."""
+        return _draw_bytes(self, (1, obs[..., 0].numel(), self.num_basis), obs.device)
 
     def forward(self, obs: Tensor, mask: Tensor | None = None) -> Tensor:
         """``u = pi(x~)`` for ``obs (..., 4)``; ``mask``: a dropout mask from
@@ -236,11 +240,15 @@ class PolicyPopulation(nn.Module):
     def draw_dropout_mask(self, obs: Tensor) -> Tensor | None:
         """The dropout mask ``(K, M, n_b)`` for ``obs (K M, 4)``, or None outside training or
         at ``p = 0`` (as :meth:`SquashedRBFPolicy.draw_dropout_mask`)."""
-        if not (self.training and self.dropout > 0.0):
-            return None
+        drawn = self.draw_dropout_bytes(obs)
+        return None if drawn is None else mask_from_bytes(*drawn, obs.dtype)
+
+    def draw_dropout_bytes(self, obs: Tensor) -> tuple[Tensor, int] | None:
+        """The random bytes ``(K, M, n_b)`` and threshold of :meth:`draw_dropout_mask` (as
+        :meth:`SquashedRBFPolicy.draw_dropout_bytes`)."""
         k = obs[..., 0].numel()
         shape = (self.num_candidates, k // self.num_candidates, self.num_basis)
-        return dropout_mask(shape, self.dropout, obs.dtype, obs.device)
+        return _draw_bytes(self, shape, obs.device)
 
     def forward(self, obs: Tensor, mask: Tensor | None = None) -> Tensor:
         """``u`` of candidate ``k`` for its ``M`` rows of ``obs (K M, 4)``; ``mask`` as in
@@ -292,6 +300,27 @@ class PolicyPopulation(nn.Module):
         )
 
 
+def dropout_threshold(p: float) -> int:
+    """``t = round(256 (1 - p))``: a byte ``b`` keeps its entry when ``b < t`` (256: keep
+    all)."""
+    if not 0.0 <= p < 1.0:
+        raise ValueError(f"dropout probability must be in [0, 1), got {p}")
+    return round(256 * (1.0 - p))
+
+
+def dropout_bytes(shape: tuple[int, ...], device: torch.device | None = None) -> Tensor:
+    """I.i.d. uniform random bytes ``(shape)``, uint8, taken from 64-bit random integers
+    (about 7x cheaper than one float per entry)."""
+    n = math.prod(shape)
+    words = torch.randint(-(2**63), 2**63 - 1, ((n + 7) // 8,), dtype=torch.int64, device=device)
+    return words.view(torch.uint8)[:n].view(shape)
+
+
+def mask_from_bytes(b: Tensor, t: int, dtype: torch.dtype) -> Tensor:
+    """The inverted-dropout mask ``d = 1[b < t] / (t / 256)`` of bytes ``b``, in ``dtype``."""
+    return b.to(dtype).lt_(t).mul_(256.0 / t)  # 0..255 are exact: 6x faster than (b < t)
+
+
 def dropout_mask(
     shape: tuple[int, ...], p: float, dtype: torch.dtype, device: torch.device | None = None
 ) -> Tensor:
@@ -300,18 +329,24 @@ def dropout_mask(
     ``p'`` = ``p`` rounded to a multiple of 1/256 (exact for MC-PILCO's 0.25 and 0.125), and
     ``E[d] = 1``.
 
-    One random byte per entry, taken from 64-bit random integers: about 7x cheaper than one
-    float per entry (the rollout needs ``M x n_b`` entries at each of the ``H`` steps).
+    One random byte per entry (:func:`dropout_bytes`): the rollout needs ``M x n_b`` entries
+    at each of the ``H`` steps.
     """
-    if not 0.0 <= p < 1.0:
-        raise ValueError(f"dropout probability must be in [0, 1), got {p}")
-    t = round(256 * (1.0 - p))
+    t = dropout_threshold(p)
     if t >= 256:
         return torch.ones(shape, dtype=dtype, device=device)
-    n = math.prod(shape)
-    words = torch.randint(-(2**63), 2**63 - 1, ((n + 7) // 8,), dtype=torch.int64, device=device)
-    b = words.view(torch.uint8)[:n].view(shape)
-    return b.to(dtype).lt_(t).mul_(256.0 / t)  # 0..255 are exact: 6x faster than (b < t)
+    return mask_from_bytes(dropout_bytes(shape, device), t, dtype)
+
+
+def _draw_bytes(
+    policy: SquashedRBFPolicy | PolicyPopulation, shape: tuple[int, ...], device: torch.device
+) -> tuple[Tensor, int] | None:
+    """``(dropout_bytes(shape), t)`` for the policy's dropout rate, None outside training or
+    when ``t = 256`` (nothing dropped)."""
+    if not (policy.training and policy.dropout > 0.0):
+        return None
+    t = dropout_threshold(policy.dropout)
+    return None if t >= 256 else (dropout_bytes(shape, device), t)
 
 
 def _log_basis(feats: Tensor, centers: Tensor, log_l: Tensor) -> tuple[Tensor, ...]:

@@ -25,24 +25,31 @@ x^^T Sigma_bs x^')``
     (``p = 1``: ``psi = z``; ``p = 2``: ``psi = (z_a z_c)_{a <= c}``, ``Phi_{ac} = a_1a a_2c +
     a_1c a_2a`` for ``a < c`` and ``a_1a a_2a`` for ``a = c``).
 ``V_b = L_b^{-1} k_b(X, x^) = L_b^{-1} r_b + (L_b^{-1} Phi_b) psi``
-    ``L_b^{-1} Phi_b`` (N, F) is computed once per GP fit; ``L_b^{-1} r_b`` uses the column
-    panels of :class:`~mcpilco.models.gp.linalg.LowerTriangularBlocks` (about ``N^2 k``
-    flops per output instead of ``2 N^2 k``), accumulated into the same output.
-``m_b = alpha_b^T r_b + (alpha_b^T Phi_b) psi``
+    ``L_b^{-1} Phi_b`` (N, F) is computed once per GP fit. With ``R_b = [psi; r_b]``
+    (F + N, k), row block ``i`` (rows ``s_i..e_i`` of ``L^{-1}``, about
+    :data:`~mcpilco.models.gp.linalg.TRI_PANEL_WIDTH` each) is one product,
+    ``V_b[s_i:e_i] = [L_b^{-1} Phi_b, L_b^{-1}]_{[s_i:e_i, :F + e_i]} R_b[:F + e_i]``: the
+    zeros right of the diagonal are skipped (about ``N^2 k`` flops per output instead of
+    ``2 N^2 k``) and every block writes its own rows (nothing accumulated or copied).
+``m_b = alpha_b^T r_b + (alpha_b^T Phi_b) psi = [alpha_b^T Phi_b, alpha_b^T] R_b``
     posterior mean (standardised).
 ``v_b = max(k_b(x^, x^) - ||V_b||^2, 0)``,  ``k_b(x^, x^) = lambda_b^2 + prod_s (sigma_bs^2 +
 x^^T Sigma_bs x^)``
     latent variance; outputs in original units (``s_y m + mu_y``, ``s_y^2 v``).
 backward (``g_m``, ``g_v``: gradients of the standardised mean and variance, ``g_v`` zero
 where the clamp is active)
-    ``dV_b = -2 g_v V_b``; ``dr_b = L_b^{-1 T} dV_b + alpha_b g_m^T``; ``dE_b = r_b o dr_b``;
-    ``dx^ += sum_b (X/l_b^2)^T dE_b - (1^T dE_b) (x^ o 1/l_b^2)``;
-    ``dpsi = sum_b (L_b^{-1} Phi_b)^T dV_b + (alpha_b^T Phi_b)^T g_m``, chained through
-    ``psi(z)``; ``dk_b(x^, x^)/dx^ = sum_s prod_{s' != s}(sigma_bs'^2 + x^^T Sigma_bs' x^)
-    2 Sigma_bs x^``.
+    ``dV_b = -2 g_v V_b``; ``dR_b = [L_b^{-1} Phi_b, L_b^{-1}]^T dV_b + [alpha_b^T Phi_b,
+    alpha_b^T]^T g_m^T``, by blocks of rows of ``R_b`` with ``g_m`` as one more row of ``dV``:
+    ``dpsi_b = [(L_b^{-1} Phi_b)^T, (alpha_b^T Phi_b)^T] [dV_b; g_m^T]`` and ``dr_b[s_i:e_i] =
+    [L_b^{-T}_{[s_i:e_i, s_i:]}, alpha_b[s_i:e_i]] [dV_b[s_i:]; g_m^T]``;
+    ``dE_b = r_b o dr_b``; ``dx^ += sum_b (X/l_b^2)^T dE_b - (1^T dE_b) (x^ o 1/l_b^2)``;
+    ``dpsi = sum_b dpsi_b``, chained through ``psi(z)``; ``dk_b(x^, x^)/dx^ = sum_s
+    prod_{s' != s}(sigma_bs'^2 + x^^T Sigma_bs' x^) 2 Sigma_bs x^``.
 """
 
 from __future__ import annotations
+
+from typing import NamedTuple
 
 import gpytorch
 import torch
@@ -79,13 +86,67 @@ def _split_kernel(kernel) -> tuple[object, object | None] | None:
     return None
 
 
+class RowBlocks(NamedTuple):
+    """The constant factors of the posterior's products with :math:`L^{-1}`, cut into blocks
+    of rows so that each product writes its own rows (module glossary; ``F`` MPK features,
+    0 without MPK; row blocks ``s_i..e_i``).
+
+    Attributes:
+        features: ``F``.
+        alpha: ``[alpha^T Phi, alpha^T]`` ``(m, 1, F + N)``: ``m = alpha R``.
+        forward: ``([L^{-1} Phi, L^{-1}]_{[s_i:e_i, :F + e_i]}, F + e_i)`` per block:
+            ``V[s_i:e_i] = B_i R[:F + e_i]``.
+        backward: ``(B_j, t_j)`` per block of rows of ``dR = cat_j B_j [dV; g_m^T][t_j:]``:
+            ``([(L^{-1} Phi)^T, (alpha^T Phi)^T], 0)`` for ``psi`` (if ``F > 0``), then
+            ``([L^{-T}_{[s_i:e_i, s_i:]}, alpha[s_i:e_i]], s_i)``.
+    """
+
+    features: int
+    alpha: Tensor
+    forward: list[tuple[Tensor, int]]
+    backward: list[tuple[Tensor, int]]
+
+    @classmethod
+    def build(
+        cls,
+        panels: tuple[Tensor, ...],
+        alpha: Tensor,
+        linv_phi: Tensor | None,
+        alpha_phi: Tensor | None,
+        m: int,
+    ) -> RowBlocks:
+        """From the column panels of :math:`L^{-1}` (``(.., N - s_i, e_i - s_i)``), ``alpha
+        (m, 1, N)`` and, with MPK, ``L^{-1} Phi (m, N, F)`` and ``alpha^T Phi (m, F)``."""
+        n = panels[0].shape[-2]
+        linv = alpha.new_zeros(m, n, n)
+        bounds, s = [], 0
+        for P in panels:
+            e = s + P.shape[-1]
+            linv[:, s:, s:e] = P
+            bounds.append((s, e))
+            s = e
+        lt, a = linv.transpose(1, 2), alpha.transpose(1, 2)  # (m, N, N), (m, N, 1)
+        if linv_phi is None:
+            f, alpha_aug, left = 0, alpha, linv
+            backward = []
+        else:
+            f = linv_phi.shape[-1]
+            alpha_aug = torch.cat([alpha_phi.unsqueeze(1), alpha], dim=2)
+            left = torch.cat([linv_phi, linv], dim=2)  # (m, N, F + N)
+            psi_rows = torch.cat([linv_phi.transpose(1, 2), alpha_phi.unsqueeze(2)], dim=2)
+            backward = [(psi_rows.contiguous(), 0)]
+        forward = [(left[:, s:e, : f + e].contiguous(), f + e) for s, e in bounds]
+        backward += [(torch.cat([lt[:, s:e, s:], a[:, s:e]], dim=2), s) for s, e in bounds]
+        return cls(f, alpha_aug.contiguous(), forward, backward)
+
+
 class _FusedPosterior(torch.autograd.Function):
     """``(mean, var) = posterior(x)`` of a :class:`FusedRBFMPKPredictor`; analytic backward
     (module glossary). Differentiable once, w.r.t. ``x`` only."""
 
     @staticmethod
     def forward(ctx, x: Tensor, pred: FusedRBFMPKPredictor) -> tuple[Tensor, Tensor]:
-        m, n, d = pred.m, pred.n, pred.input_dim
+        m, d = pred.m, pred.input_dim
         lead = x.shape[:-1]
         xs = ((x.to(pred.W_aug.dtype) - pred.x_mean) / pred.x_scale).reshape(-1, d)  # (k, d)
         k = xs.shape[0]
@@ -100,30 +161,29 @@ class _FusedPosterior(torch.autograd.Function):
             ],
             dim=1,
         )
+        blocks = pred.row_blocks
+        F = blocks.features
         r = exp_floor_(torch.bmm(pred.W_aug, xaug))  # (m, N, k)
-        mean = torch.bmm(pred.alpha, r).view(m, k)  # (m, k)
         prior = pred.outputscale.expand(m, k)
         z = fac = None
-        V = None
-        for P, _, s, e in pred.tri_panels:  # V = L^{-1} r, panel by panel
-            if V is None:  # the first panel covers all rows
-                V = torch.bmm(P, r[:, s:e])
-            else:
-                V[:, s:].baddbmm_(P, r[:, s:e])
         if pred.p:
             z = torch.cat([torch.ones(1, k, **opts), xs.T], dim=0)
             psi = z if pred.p == 1 else z[pred.idx_a] * z[pred.idx_c]  # (F, k), row gathers
-            V.view(m * n, k).addmm_(pred.linv_phi.view(m * n, -1), psi)  # + (L^{-1} Phi) psi
-            mean = mean.addmm(pred.alpha_phi, psi)
+            R = torch.cat([psi.expand(m, F, k), r], dim=1)  # (m, F + N, k)
             fac = torch.matmul(pred.mp_sigma_diag, sq.T) + pred.mp_sigma2  # (p, m, k)
             prior = prior + fac.prod(0)
+        else:
+            R = r
+        mean = torch.bmm(blocks.alpha, R).view(m, k)  # (m, k)
+        # V = L^{-1} k(X, x^), row block by row block (module glossary)
+        V = torch.cat([torch.bmm(B, R[:, :c]) for B, c in blocks.forward], dim=1)
         v = prior - torch.linalg.vecdot(V, V, dim=1)  # (m, k)
         active = v >= 0  # clamp_min passes the gradient where v >= 0
         v = v.clamp_min(0.0)
         ctx.pred = pred
         ctx.x_dtype = x.dtype
         ctx.lead = lead
-        ctx.save_for_backward(xs, z, r, V, active, fac)
+        ctx.save_for_backward(xs, z, R, V, active, fac)
         mean_out = (mean.T * pred.y_scale + pred.y_mean).reshape(*lead, m)
         var_out = (v.T * pred.y_scale.pow(2)).reshape(*lead, m)
         return mean_out.to(x.dtype), var_out.to(x.dtype)
@@ -131,23 +191,22 @@ class _FusedPosterior(torch.autograd.Function):
     @staticmethod
     def backward(ctx, g_mean: Tensor, g_var: Tensor) -> tuple[Tensor, None]:
         pred = ctx.pred
-        xs, z, r, V, active, fac = ctx.saved_tensors
-        m, n, d = pred.m, pred.n, pred.input_dim
+        xs, z, R, V, active, fac = ctx.saved_tensors
+        m, d = pred.m, pred.input_dim
+        blocks = pred.row_blocks
+        F = blocks.features
         k = xs.shape[0]
         dt = xs.dtype
-        # (m, k), standardised; contiguous, so that the broadcasts below stay vectorised
-        gm = (g_mean.to(dt).reshape(k, m) * pred.y_scale).T.contiguous()
+        gm = (g_mean.to(dt).reshape(k, m) * pred.y_scale).T  # (m, k), standardised
         gv = (g_var.to(dt).reshape(k, m) * pred.y_scale.pow(2)).T.contiguous() * active
-        dV = V * (-2.0 * gv).unsqueeze(1)  # (m, N, k)
-        dr = pred.alpha.transpose(1, 2) * gm.unsqueeze(1)  # alpha_b g_m^T
-        for _, Pt, s, e in pred.tri_panels:  # dr += L^{-T} dV, row chunk by row chunk
-            dr[:, s:e].baddbmm_(Pt, dV[:, s:])
-        dE = dr.mul_(r)
+        # [dV; g_m^T] (m, N + 1, k), dV = -2 g_v V
+        dVg = torch.cat([V * (-2.0 * gv).unsqueeze(1), gm.unsqueeze(1)], dim=1)
+        dR = torch.cat([torch.bmm(B, dVg[:, s:]) for B, s in blocks.backward], dim=1)
+        dE = dR[:, F:] * R[:, F:]  # dr o r
         dx = torch.bmm(pred.W_t, dE)  # (m, d + 1, k): [(X/l^2)^T dE ; 1^T dE]
         dxs = dx[:, :d].sum(0).T - xs * (dx[:, d].T @ pred.inv_l2)  # (k, d)
         if pred.p:
-            dpsi = torch.mm(pred.linv_phi.view(m * n, -1).T, dV.view(m * n, k))  # (F, k)
-            dpsi.addmm_(pred.alpha_phi.T, gm)
+            dpsi = dR[:, :F].sum(0)  # (F, k)
             if pred.p == 1:
                 dz = dpsi
             else:  # psi_f = z_a(f) z_c(f): dz = S_a (dpsi o z_c) + S_c (dpsi o z_a)
@@ -201,8 +260,8 @@ class FusedRBFMPKPredictor(nn.Module):
         self.register_buffer("outputscale", outputscale)  # (m, 1)
         self.register_buffer("alpha", alpha)  # (m, 1, N)
         self.linv = linv  # L_b^{-1} as column panels, shared with the cached predictor
-        self._tri_panels: list[tuple[Tensor, Tensor, int, int]] = []
-        self._tri_key: Tensor | None = None
+        self._blocks: RowBlocks | None = None
+        self._blocks_key: tuple | None = None
         self.register_buffer("x_mean", x_mean)
         self.register_buffer("x_scale", x_scale)
         self.register_buffer("y_mean", y_mean)
@@ -284,22 +343,18 @@ class FusedRBFMPKPredictor(nn.Module):
         )
 
     @property
-    def tri_panels(self) -> list[tuple[Tensor, Tensor, int, int]]:
-        """``(P_i, P_i^T, s_i, e_i)`` of the panels of :math:`L^{-1}` (batch ``m``), for the
-        panel loops of the hot path; rebuilt when the panels change (e.g. after ``.to()``)."""
-        panels = self.linv.panels
-        if self._tri_key is not panels[0]:
-            self._tri_key = panels[0]
-            starts = [0]
-            for P in panels:
-                starts.append(starts[-1] + P.shape[-1])
-            self._tri_panels = [
-                (Pm, Pm.transpose(1, 2), s, e)
-                for Pm, s, e in zip(
-                    (P.expand(self.m, -1, -1) for P in panels), starts[:-1], starts[1:], strict=True
-                )
-            ]
-        return self._tri_panels
+    def row_blocks(self) -> RowBlocks:
+        """The blocks of the products with :math:`L^{-1}` (module glossary), batch ``m``, for
+        the hot path; cut at the panels of :math:`L^{-1}` and rebuilt when those change (e.g.
+        after ``.to()``)."""
+        key = (self.linv.panels[0], self.alpha, self.linv_phi)
+        old = self._blocks_key
+        if old is None or any(a is not b for a, b in zip(key, old, strict=True)):
+            self._blocks_key = key
+            self._blocks = RowBlocks.build(
+                self.linv.panels, self.alpha, self.linv_phi, self.alpha_phi, self.m
+            )
+        return self._blocks
 
     @property
     def dtype(self) -> torch.dtype:
@@ -309,7 +364,7 @@ class FusedRBFMPKPredictor(nn.Module):
     def forward(self, x: Tensor) -> tuple[Tensor, Tensor]:
         if x.shape[-1] != self.input_dim:
             raise ValueError(f"x must have shape (..., {self.input_dim}), got {tuple(x.shape)}")
-        self.tri_panels  # noqa: B018 (build the panel cache here, not inside the Function)
+        self.row_blocks  # noqa: B018 (build the block cache here, not inside the Function)
         return _FusedPosterior.apply(x, self)
 
     def extra_repr(self) -> str:

@@ -342,10 +342,10 @@ def test_a_compilation_that_raises_leaves_the_eager_step(monkeypatch, backend):
 def test_direct_backend_with_a_population_matches_the_eager_rollout_and_knows_its_limits():
     """The direct backend with ``K = 2`` candidates, each with its own ``J^_k`` and gradient,
     equals the eager rollout from the same seed (dropout masks on), run in one thread and
-    split over two threads by particles. A rollout of another particle count runs
-    eagerly (the compiled code is built for one count); a rollout it cannot chain by hand
-    (here a GP posterior behind a module it does not know) makes ``backend="auto"`` pick dynamo,
-    and ``backend="direct"`` refuse with the reason."""
+    split over two threads by particles (each with one intra-op thread). A rollout of
+    another particle count runs eagerly (the compiled code is built for one count); a
+    rollout it cannot chain by hand (here a GP posterior behind a module it does not know)
+    makes ``backend="auto"`` pick dynamo, and ``backend="direct"`` refuse with the reason."""
     model = _gp_model("rbf+mpk", n=40, seed=2)
     pop = PolicyPopulation(
         [SquashedRBFPolicy(num_basis=20, weight_scale=1.0, seed=s) for s in (0, 1)]
@@ -366,6 +366,9 @@ def test_direct_backend_with_a_population_matches_the_eager_rollout_and_knows_it
         torch.manual_seed(4)
         td = loss()
         out.append((td["candidate_costs"], torch.autograd.grad(td["loss_cost"], params)))
+        if shards > 1:  # after compiled rollouts, each shard's task still runs one thread
+            seen = loss._direct.map_shards(lambda _i: torch.get_num_threads(), [0, 1])
+            assert seen == [1, 1]
     torch.set_num_threads(threads_before)
     (J_e, g_e), *compiled = out
     for J_d, g_d in compiled:  # one thread, and two threads of 8 particles per candidate
@@ -459,7 +462,8 @@ def test_shards_hold_each_candidates_particles_in_order():
     assert [p[1].tolist() for p in parts] == expected
     assert all(p.is_contiguous() for p in parts)
     torch.testing.assert_close(runner.join(parts, 1), rows.repeat(2, 1), rtol=0, atol=0)
-    assert runner.ones_mask().shape == (2, 2, 4)
+    bits, keep = runner.no_dropout()
+    assert bits.shape == (2, 2, 4) and bits.dtype == torch.uint8 and keep.tolist() == [256, 1]
     with pytest.raises(ValueError, match="shards must be >= 1 and divide the 6 particles"):
         DirectRollout(pop, dyn, cost, rows=12, compiler=lambda fn, _: fn, shards=4)
 
