@@ -81,7 +81,7 @@ def build_parser() -> argparse.ArgumentParser:
         default=None,
         help="compile the rollout's time step (on the CPU by hand-chained backward passes "
         "and inductor, split over the threads by particles, else torch.compile; 400 "
-        "particles: 1.3-2.4x faster steps than eager; 17-22 s of compilation per trial; "
+        "particles: 1.9-2.3x faster steps than eager; 17-24 s of compilation per trial; "
         "needs a C++ compiler); each trial checks it "
         "against the eager step and falls back to the eager step, with a warning, if they "
         "disagree",

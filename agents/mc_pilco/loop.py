@@ -153,7 +153,7 @@ class MCPilcoConfig:
         compile_rollout: compile the rollout's time step with its backward
             (:meth:`MCPilcoLoss.compile_step`, default backend: ``direct`` on the CPU, the
             parts' backward passes chained by hand and compiled by inductor; ``torch.compile``
-            elsewhere). Each trial recompiles for its new GP (17-22 s for ``direct`` at a new
+            elsewhere). Each trial recompiles for its new GP (17-24 s for ``direct`` at a new
             size N, about 1 s from inductor's on-disk cache; 2-6 s
             for ``torch.compile`` with inductor's on-disk cache warm, about 20 s cold). The
             speed-ups are measured by ``mcpilco-bench-mcpilco --parts timing
