@@ -109,22 +109,16 @@ class RowBlocks(NamedTuple):
     @classmethod
     def build(
         cls,
-        panels: tuple[Tensor, ...],
+        linv: LowerTriangularBlocks,
         alpha: Tensor,
         linv_phi: Tensor | None,
         alpha_phi: Tensor | None,
         m: int,
     ) -> RowBlocks:
-        """From the column panels of :math:`L^{-1}` (``(.., N - s_i, e_i - s_i)``), ``alpha
-        (m, 1, N)`` and, with MPK, ``L^{-1} Phi (m, N, F)`` and ``alpha^T Phi (m, F)``."""
-        n = panels[0].shape[-2]
-        linv = alpha.new_zeros(m, n, n)
-        bounds, s = [], 0
-        for P in panels:
-            e = s + P.shape[-1]
-            linv[:, s:, s:e] = P
-            bounds.append((s, e))
-            s = e
+        """From :math:`L^{-1}` (its blocks cut at its panels), ``alpha (m, 1, N)`` and, with
+        MPK, ``L^{-1} Phi (m, N, F)`` and ``alpha^T Phi (m, F)``."""
+        bounds = linv.bounds
+        linv = linv.dense().expand(m, -1, -1)  # (m, N, N)
         lt, a = linv.transpose(1, 2), alpha.transpose(1, 2)  # (m, N, N), (m, N, 1)
         if linv_phi is None:
             f, alpha_aug, left = 0, alpha, linv
@@ -352,7 +346,7 @@ class FusedRBFMPKPredictor(nn.Module):
         if old is None or any(a is not b for a, b in zip(key, old, strict=True)):
             self._blocks_key = key
             self._blocks = RowBlocks.build(
-                self.linv.panels, self.alpha, self.linv_phi, self.alpha_phi, self.m
+                self.linv, self.alpha, self.linv_phi, self.alpha_phi, self.m
             )
         return self._blocks
 

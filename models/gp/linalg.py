@@ -175,6 +175,7 @@ class LowerTriangularBlocks(nn.Module):
         starts = [0, *ends[:-1]]
         self.num_panels = num
         self.size = n
+        self.bounds = list(zip(starts, ends, strict=True))  # (s_i, e_i) of each panel
         M = M.detach()
         for i, (s0, s1) in enumerate(zip(starts, ends, strict=True)):
             self.register_buffer(f"panel{i}", M[..., s0:, s0:s1].contiguous())
@@ -183,6 +184,14 @@ class LowerTriangularBlocks(nn.Module):
     def panels(self) -> tuple[Tensor, ...]:
         """The column panels :math:`P_i`, each ``(..., N - s_i, e_i - s_i)``."""
         return tuple(getattr(self, f"panel{i}") for i in range(self.num_panels))
+
+    def dense(self) -> Tensor:
+        """:math:`M` itself, ``(..., N, N)``, with its zeros."""
+        P0 = self.panels[0]
+        M = P0.new_zeros(*P0.shape[:-2], self.size, self.size)
+        for P, (s0, s1) in zip(self.panels, self.bounds, strict=True):
+            M[..., s0:, s0:s1] = P
+        return M
 
     def multiply_adds(self, n: int) -> int:
         r"""Multiply-adds of :meth:`matmul` with ``B (N, n)`` per batch element:

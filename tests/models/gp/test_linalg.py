@@ -30,6 +30,10 @@ def test_block_product_equals_dense_product(n: int, panel_width: int) -> None:
     assert stored <= n * n
     if tri.num_panels > 1:
         assert stored < n * n
+    # dense() gives M back exactly; the panels' bounds tile 0..N
+    assert torch.equal(tri.dense(), M)
+    assert [s for s, _ in tri.bounds] == [0, *(e for _, e in tri.bounds[:-1])]
+    assert tri.bounds[-1][1] == n
 
 
 def test_block_product_unbatched_float32_and_broadcast_rhs() -> None:
