@@ -205,6 +205,24 @@ class DirectRollout:
         with _intra_op_threads(torch.get_num_threads()):
             return list(self._pool.map(_shard_task(fn), *args))
 
+    @contextmanager
+    def serial_caller(self) -> Iterator[None]:
+        """The calling thread's own tensor ops (drawing and splitting the rollout's inputs,
+        joining its outputs) on one intra-op thread while ``S > 1`` shards use the cores.
+
+        After each parallel op, the caller's OpenMP workers spin-wait on a core for a while
+        (libgomp's default wait policy) before they sleep. The caller's ops over 32768
+        elements (the splits of ``nu`` and ``eps``, the scaling of ``nu``) started such spins
+        just as the shards began: on the 2-core CPU machine, a worker spun for 17 % of a
+        core's time, and steps were 5-10 % slower (``results/mcpilco_notes.md``). With one
+        thread the caller's ops start no worker. ``S = 1``: nothing changes (the shard is the
+        caller, with its own thread count)."""
+        if self.shards == 1:
+            yield
+            return
+        with _intra_op_threads(1):
+            yield
+
     def split(self, t: Tensor, dim: int) -> list[Tensor]:
         """``t``'s rows (``KM`` along ``dim``, candidate-major) cut into the ``S`` shards: shard
         ``s`` holds particles ``s M/S .. (s+1) M/S - 1`` of every candidate (contiguous)."""
@@ -402,10 +420,11 @@ class RolloutFunction(torch.autograd.Function):
     @staticmethod
     def backward(ctx, g_costs):  # noqa: D102
         runner, steps = ctx.runner, ctx.steps
-        zeros = [[g_costs.new_zeros(shape) for shape in ctx.theta_shapes] for _ in steps]
-        shards = runner.map_shards(
-            lambda *a: _backward_shard(runner, *a), steps, runner.split(g_costs, 1), zeros
-        )
-        ctx.steps = None
-        grads = [sum(parts[1:], parts[0]) for parts in zip(*shards, strict=True)]
+        with runner.serial_caller():
+            zeros = [[g_costs.new_zeros(shape) for shape in ctx.theta_shapes] for _ in steps]
+            shards = runner.map_shards(
+                lambda *a: _backward_shard(runner, *a), steps, runner.split(g_costs, 1), zeros
+            )
+            ctx.steps = None
+            grads = [sum(parts[1:], parts[0]) for parts in zip(*shards, strict=True)]
         return (None, None, None, None, None, *grads)

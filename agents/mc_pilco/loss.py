@@ -413,15 +413,16 @@ class MCPilcoLoss(LossModule):
         if direct is not None and init is not None and init.shape[:1] != (direct.rows,):
             direct = None  # built for the module's particle count only: run eagerly
         if direct is not None:
-            x, noise, obs_noise = self._draw_inputs(init, noise, None)
-            costs = RolloutFunction.apply(
-                direct,
-                getattr(self._policy_fn, "draw_dropout_bytes", lambda _x: None),
-                x,
-                noise,
-                noise.new_zeros(*noise.shape[:2], 4) if obs_noise is None else obs_noise,
-                *(getattr(self._policy_fn, name) for name in PARAM_NAMES),
-            ).T  # (K M, H)
+            with direct.serial_caller():
+                x, noise, obs_noise = self._draw_inputs(init, noise, None)
+                costs = RolloutFunction.apply(
+                    direct,
+                    getattr(self._policy_fn, "draw_dropout_bytes", lambda _x: None),
+                    x,
+                    noise,
+                    noise.new_zeros(*noise.shape[:2], 4) if obs_noise is None else obs_noise,
+                    *(getattr(self._policy_fn, name) for name in PARAM_NAMES),
+                ).T  # (K M, H)
         else:
             costs = self.rollout(initial_state=init, noise=noise, keep_states=False).costs
         per_particle = costs.sum(dim=1).view(self.num_candidates, -1)  # sum_t c, (K, M)

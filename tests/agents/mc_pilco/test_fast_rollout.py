@@ -28,6 +28,7 @@ from mcpilco.agents.mc_pilco import (
     cartpole_gp_inputs,
     make_policy_module,
 )
+from mcpilco.agents.mc_pilco.direct_compile import DirectRollout
 from mcpilco.agents.mc_pilco.policy import _SquashedRBF, dropout_mask
 from mcpilco.models.gp.fused import FusedRBFMPKPredictor
 
@@ -339,10 +340,14 @@ def test_a_compilation_that_raises_leaves_the_eager_step(monkeypatch, backend):
     )
 
 
-def test_direct_backend_with_a_population_matches_the_eager_rollout_and_knows_its_limits():
+def test_direct_backend_with_a_population_matches_the_eager_rollout_and_knows_its_limits(
+    monkeypatch,
+):
     """The direct backend with ``K = 2`` candidates, each with its own ``J^_k`` and gradient,
     equals the eager rollout from the same seed (dropout masks on), run in one thread and
-    split over two threads by particles (each with one intra-op thread). A rollout of
+    split over two threads by particles (each with one intra-op thread; meanwhile the
+    caller's own ops, e.g. the splits, run on one thread too, and its count is restored
+    after the forward and after the backward). A rollout of
     another particle count runs eagerly (the compiled code is built for one count); a
     rollout it cannot chain by hand (here a GP posterior behind a module it does not know)
     makes ``backend="auto"`` pick dynamo, and ``backend="direct"`` refuse with the reason."""
@@ -358,14 +363,26 @@ def test_direct_backend_with_a_population_matches_the_eager_rollout_and_knows_it
     out = []
     threads_before, threads = torch.get_num_threads(), 2
     torch.set_num_threads(threads)
+    split, caller_threads = DirectRollout.split, []
+
+    def recording_split(runner, t, dim):  # called by the caller, in forward and backward
+        caller_threads.append(torch.get_num_threads())
+        return split(runner, t, dim)
+
+    monkeypatch.setattr(DirectRollout, "split", recording_split)
     for backend, shards in ((None, 1), ("direct", 1), ("direct", 2)):
         enable = backend is not None
         assert loss.compile_step(enable, backend=backend or "auto", shards=shards) is enable
         assert loss.rollout_shards == shards
         assert torch.get_num_threads() == threads  # the workers' one thread does not leak
         torch.manual_seed(4)
+        caller_threads.clear()
         td = loss()
+        assert torch.get_num_threads() == threads
         out.append((td["candidate_costs"], torch.autograd.grad(td["loss_cost"], params)))
+        assert torch.get_num_threads() == threads
+        # forward: x, eps, nu; backward: the costs' gradient (none for the eager rollout)
+        assert caller_threads == ([] if not enable else [1 if shards > 1 else threads] * 4)
         if shards > 1:  # after compiled rollouts, each shard's task still runs one thread
             seen = loss._direct.map_shards(lambda _i: torch.get_num_threads(), [0, 1])
             assert seen == [1, 1]
@@ -450,7 +467,6 @@ def test_shards_hold_each_candidates_particles_in_order():
     """``split`` gives shard ``s`` particles ``s M/S .. (s+1) M/S - 1`` of every candidate
     (rows candidate-major), along any dimension; ``join`` undoes it; a shard count that does
     not divide the particles is refused."""
-    from mcpilco.agents.mc_pilco.direct_compile import DirectRollout
 
     model = _gp_model("rbf", n=30, seed=1)
     pop = PolicyPopulation([SquashedRBFPolicy(num_basis=4, seed=s) for s in (0, 1)])
