@@ -212,11 +212,12 @@ class DirectRollout:
 
         After each parallel op, the caller's OpenMP workers spin-wait on a core for a while
         (libgomp's default wait policy) before they sleep. The caller's ops over 32768
-        elements (the splits of ``nu`` and ``eps``, the scaling of ``nu``) started such spins
-        just as the shards began: on the 2-core CPU machine, a worker spun for 17 % of a
-        core's time, and steps were 5-10 % slower (``results/mcpilco_notes.md``). With one
-        thread the caller's ops start no worker. ``S = 1``: nothing changes (the shard is the
-        caller, with its own thread count)."""
+        entries (the scaling of the observation noise ``nu``, 400 x 60 x 4 entries, and the
+        copies of the shards' halves of it) started such spins just as the shards began: on
+        the 2-core CPU machine, a worker spun for 17 % of a core's time, and steps were
+        2-5 % slower (``results/mcpilco_notes.md``). With one thread the caller's ops start
+        no worker. ``S = 1``: nothing changes (the shard is the caller, with its own thread
+        count)."""
         if self.shards == 1:
             yield
             return
