@@ -50,7 +50,12 @@ from mcpilco.agents.mc_pilco.dynamics import (
     _CartpoleGPInputs,
     _SampleClipIntegrate,
 )
-from mcpilco.agents.mc_pilco.policy import PolicyPopulation, SquashedRBFPolicy, _SquashedRBF
+from mcpilco.agents.mc_pilco.policy import (
+    PolicyPopulation,
+    SquashedRBFPolicy,
+    _SquashedRBF,
+    mask_from_bytes,
+)
 from mcpilco.models.gp.fused import FusedRBFMPKPredictor, _FusedPosterior
 
 PARAM_NAMES = ("centers", "log_lengthscales", "weights")
@@ -214,7 +219,7 @@ class DirectRollout:
         (libgomp's default wait policy) before they sleep. The caller's ops over 32768
         entries (the scaling of the observation noise ``nu``, 400 x 60 x 4 entries, and the
         copies of the shards' halves of it) started such spins just as the shards began: on
-        the 2-core CPU machine, a worker spun for 17 % of a core's time, and steps were
+        the 2-core CPU machine, a worker spun for 16 % of a core's time, and steps were
         2-5 % slower (``results/mcpilco_notes.md``). With one thread the caller's ops start
         no worker. ``S = 1``: nothing changes (the shard is the caller, with its own thread
         count)."""
@@ -288,8 +293,7 @@ class DirectRollout:
     ) -> tuple[Tensor, Tensor, tuple]:
         """``step_forward`` (module docstring), built from the parts' ``forward``."""
         dyn, cost = self.dynamics, self.cost
-        # mask_from_bytes(bits, t) with t and 256 / t as inputs: the same values
-        mask = (bits.to(x.dtype) < keep[0]).to(x.dtype) * keep[1]
+        mask = mask_from_bytes(bits, keep[0], x.dtype, keep[1])
         ctx = {name: _Saved() for name in ("policy", "inputs", "gp", "step", "cost")}
         obs = (x + nu).reshape(self.candidates, -1, 4)
         u = _SquashedRBF.forward(

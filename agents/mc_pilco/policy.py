@@ -316,9 +316,16 @@ def dropout_bytes(shape: tuple[int, ...], device: torch.device | None = None) ->
     return words.view(torch.uint8)[:n].view(shape)
 
 
-def mask_from_bytes(b: Tensor, t: int, dtype: torch.dtype) -> Tensor:
-    """The inverted-dropout mask ``d = 1[b < t] / (t / 256)`` of bytes ``b``, in ``dtype``."""
-    return b.to(dtype).lt_(t).mul_(256.0 / t)  # 0..255 are exact: 6x faster than (b < t)
+def mask_from_bytes(
+    b: Tensor, t: int | Tensor, dtype: torch.dtype, scale: float | Tensor | None = None
+) -> Tensor:
+    """The inverted-dropout mask ``d = 1[b < t] / (t / 256)`` of bytes ``b``, in ``dtype``.
+
+    ``scale``: ``256 / t`` as given (default: computed). A compiled rollout step passes ``t``
+    and ``256 / t`` as 0-dim tensors in ``dtype``, so that they are inputs of its graph, not
+    constants; their values are those of the Python numbers (the same mask)."""
+    scale = 256.0 / t if scale is None else scale
+    return b.to(dtype).lt_(t).mul_(scale)  # 0..255 are exact: 6x faster than (b < t)
 
 
 def dropout_mask(
