@@ -296,9 +296,12 @@ the default held exploration, seeds 0-19 all swing up at 12 s and at 15 s of exp
 (section "hold2" of ``results/mcpilco_cartpole.md``; i.i.d. exploration: 60 % / 95 %)."""
 
 DEMO_CONFIG = dataclasses.replace(BENCH_CONFIG, num_trials=3)
-"""``make demo``: the bench budget, stopped after 3 policy trials (12 s of experience), where
-the bench swung up on 20 of 20 seeds (held exploration). Seed 0 on a quiet 2-core machine
-(2 threads, 2026-11-26): success at 9 and 12 s of experience, 7.6 min; seed 1: the same, 5.9 min."""
+"""``make demo``'s budget: the bench budget, stopped after 3 policy trials (12 s of
+experience), where the bench swung up on 20 of 20 seeds (held exploration; 19 of 20 with the
+time step compiled). ``make demo`` (:mod:`mcpilco.scripts.demo`) also compiles the time step
+on the CPU when a C++ compiler is found. Seed 0, 2 threads, on the slower 2-core machine of
+2026-11-27: success at 9 and 12 s of experience, 5.9 min compiled, 14.0 min eager (eager on
+the faster machine of 2026-11-26: 7.6 min; seed 1 5.9 min)."""
 
 PRESETS: dict[str, MCPilcoConfig] = {
     "default": MCPilcoConfig(),

@@ -1,4 +1,5 @@
-"""``make demo``'s script at a tiny budget: it runs MC-PILCO and prints the outcome and paths."""
+"""``make demo``'s script at a tiny budget: it runs MC-PILCO (the rollout compiled on the CPU)
+and prints the outcome, how the rollout ran and the paths."""
 
 from __future__ import annotations
 
@@ -30,6 +31,8 @@ def test_demo_prints_per_trial_outcome_and_output_paths(tmp_path, monkeypatch, c
         torch.set_num_threads(threads)
     out = capsys.readouterr().out
     assert "trial 0 (exploration): success" in out and "trial 1 (policy     ): success" in out
+    # the default on the CPU: the time step compiled (here 1 thread, so 1 shard) and checked
+    assert "rollout           : compiled (direct backend, 1 shard) in 1 of 1 policy trials" in out
     assert "success (last trial):" in out and "wall time" in out
     assert f"checkpoint        : {tmp_path / 'demo'}" in out
     assert "run.rrd" in out and ".png" in out
@@ -46,3 +49,25 @@ def test_demo_refuses_a_gpu_it_cannot_see(tmp_path, monkeypatch, capsys):
         raise AssertionError("the demo started without a CUDA device")
     assert "sees no CUDA device" in capsys.readouterr().err
     assert not (tmp_path / "demo").exists()
+
+
+def test_demo_compiles_the_rollout_on_the_cpu_only_when_it_can(tmp_path, monkeypatch):
+    cpu = torch.device("cpu")
+    assert demo.choose_compile(cpu, eager=True) == (False, None)
+    assert demo.choose_compile(torch.device("cuda"), eager=False) == (False, None)
+    monkeypatch.setenv("CXX", "no-such-c++")
+    compiled, note = demo.choose_compile(cpu, eager=False)
+    assert not compiled and "no-such-c++ not found" in note and "runs the rollout eagerly" in note
+    monkeypatch.setenv("CXX", "sh")  # any program on PATH counts as found
+    assert demo.choose_compile(cpu, eager=False) == (True, None)
+
+
+def test_rollout_mode_reads_the_policy_trials_records():
+    explore = {"kind": "exploration"}
+    eager = {"kind": "policy", "compiled_step": False}
+    direct = {"kind": "policy", "compiled_step": True, "compile_backend": "direct"}
+    assert demo.rollout_mode([explore, eager]) == "eager"
+    two = [explore, {**direct, "rollout_shards": 2}, {**direct, "rollout_shards": 2}, eager]
+    assert demo.rollout_mode(two) == "compiled (direct backend, 2 shards) in 2 of 3 policy trials"
+    one = [explore, {**direct, "rollout_shards": 1}]
+    assert demo.rollout_mode(one) == "compiled (direct backend, 1 shard) in 1 of 1 policy trials"
