@@ -38,7 +38,7 @@ from mcpilco.models.device import resolve_device, retain_host_memory
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="mcpilco-demo",
-        description="MC-PILCO cart-pole swing-up, 12 s of experience (about 5 min on 2 cores).",
+        description="MC-PILCO cart-pole swing-up, 12 s of experience (about 6 min on 2 cores).",
     )
     parser.add_argument("--out", type=Path, default=Path("runs/demo"), help="output folder")
     parser.add_argument("--seed", type=int, default=DEMO_CONFIG.seed, help="random seed")
