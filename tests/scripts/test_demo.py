@@ -51,7 +51,7 @@ def test_demo_refuses_a_gpu_it_cannot_see(tmp_path, monkeypatch, capsys):
     assert not (tmp_path / "demo").exists()
 
 
-def test_demo_compiles_the_rollout_on_the_cpu_only_when_it_can(tmp_path, monkeypatch):
+def test_demo_compiles_the_rollout_on_the_cpu_only_when_it_can(monkeypatch):
     cpu = torch.device("cpu")
     assert demo.choose_compile(cpu, eager=True) == (False, None)
     assert demo.choose_compile(torch.device("cuda"), eager=False) == (False, None)
