@@ -463,6 +463,80 @@ def test_compile_traced_keeps_an_input_passed_twice_apart():
     torch.testing.assert_close(prod, torch.tensor([10.0, 40.0, 90.0]))
 
 
+def test_compile_traced_calls_the_compiled_graph_without_its_wrappers():
+    """The compiled function is called bare (constants prepended, no AOTAutograd runtime
+    wrappers) and gives, on inputs other than the examples it was checked on, the outputs
+    of the wrapped call to the bit and those of the eager function to float32 rounding."""
+    from mcpilco.agents.mc_pilco.direct_compile import compile_traced
+
+    gen = torch.Generator().manual_seed(0)
+    const = torch.randn(5, 3, generator=gen)
+
+    def fn(a, b):
+        h = torch.tanh(a @ const) * b
+        return h.sum(1), h, a.t()  # the last aliases an input
+
+    compiled = compile_traced(fn, [torch.zeros(4, 5), torch.zeros(4, 3)])
+    assert callable(getattr(compiled, "wrapped_call", None))
+    a, b = torch.randn(4, 5, generator=gen), torch.randn(4, 3, generator=gen)
+    got, want, eager = compiled(a, b), compiled.wrapped_call(a, b), fn(a, b)
+    for g, w, e in zip(got, want, eager, strict=True):
+        assert g.shape == w.shape and g.stride() == w.stride()
+        torch.testing.assert_close(g, w, rtol=0, atol=0)
+        torch.testing.assert_close(g, e)
+
+
+class _FakeGraph:
+    """Stands in for inductor's ``CompiledFxGraph`` in the bypass's fallback tests."""
+
+    def __init__(self, call, mutated=()):
+        self.current_callable, self.mutated_inputs = call, set(mutated)
+
+
+def _wrapped(graph, constants):
+    """A callable shaped like AOTAutograd's wrapper: it closes over ``params_buffers_flat``
+    and ``compiled_fn`` and calls ``compiled_fn([*constants, *args])``."""
+    params_buffers_flat, compiled_fn = list(constants), graph
+
+    def forward(*args):
+        return compiled_fn.current_callable([*params_buffers_flat, *args])
+
+    return forward
+
+
+def test_bypass_keeps_the_wrapped_call_unless_the_bare_one_is_safe():
+    """The bare call is taken only when it is found, the graph mutates no input and it gives
+    the wrapped call's outputs on the examples; otherwise the wrapped call is returned as
+    it is."""
+    from mcpilco.agents.mc_pilco import direct_compile
+
+    c = torch.tensor([2.0, 3.0])
+    x = [torch.tensor([1.0, -1.0])]
+    good = _FakeGraph(lambda args: (args[0] * args[1],))
+    monkey = pytest.MonkeyPatch()
+    monkey.setattr(direct_compile, "_find_compiled_graph", lambda fn: fn)
+    try:
+        bare = direct_compile.bypass_runtime_wrappers(_wrapped(good, [c]), x)
+        assert bare.wrapped_call is not None
+        torch.testing.assert_close(bare(torch.tensor([4.0, 5.0]))[0], torch.tensor([8.0, 15.0]))
+        # the bare call disagrees with the wrapped one (the wrapper did more than prepend)
+        mismatched = _wrapped(_FakeGraph(lambda args: (args[0] + args[1],)), [c])
+
+        def outer(*args):  # a wrapper whose own output differs from its inner graph's
+            return (mismatched(*args)[0] * 0.0,)
+
+        outer.__wrapped__ = mismatched
+        assert direct_compile.bypass_runtime_wrappers(outer, x) is outer
+        # a graph that mutates an input needs the wrapper to write the mutation back
+        mutating = _wrapped(_FakeGraph(good.current_callable, mutated={"arg0_1"}), [c])
+        assert direct_compile.bypass_runtime_wrappers(mutating, x) is mutating
+    finally:
+        monkey.undo()
+    # no wrapper closure at all: a plain function is kept as it is
+    plain = lambda a: (a + 1.0,)  # noqa: E731
+    assert direct_compile.bypass_runtime_wrappers(plain, x) is plain
+
+
 def test_shards_hold_each_candidates_particles_in_order():
     """``split`` gives shard ``s`` particles ``s M/S .. (s+1) M/S - 1`` of every candidate
     (rows candidate-major), along any dimension; ``join`` undoes it; a shard count that does
