@@ -108,7 +108,9 @@ def compile_traced(
     ``cpp_wrapper`` (default): inductor writes the code that calls the graph's kernels in C++
     too, one compiled call per graph instead of a Python function making some 70 calls (its
     C++ entry also runs without the GIL); it takes a few seconds more to compile. If that
-    compilation fails, the graph is compiled again with the Python wrapper.
+    compilation fails, the graph is compiled again with the Python wrapper. Either way the
+    result calls the compiled graph without AOTAutograd's Python runtime wrappers when that
+    is safe (:func:`bypass_runtime_wrappers`).
 
     ``make_fx`` and ``torch._inductor.compile`` are PyTorch internals (checked with torch
     2.13): :meth:`MCPilcoLoss.compile_step` catches their failures and checks their result
