@@ -156,7 +156,7 @@ def bypass_runtime_wrappers(compiled: Callable, examples: list[Tensor]) -> Calla
     those of ``compiled``. The bare call keeps the wrapped one as its ``wrapped_call``.
     """
     try:
-        inner = inspect.unwrap(compiled, stop=lambda f: "params_buffers_flat" in _free_vars(f))
+        inner = inspect.unwrap(compiled, stop=lambda f: "params_buffers_flat" in _closure_cells(f))
         cells = _closure_cells(inner)
         constants = list(cells["params_buffers_flat"])
         graph = _find_compiled_graph(cells["compiled_fn"])
@@ -185,16 +185,13 @@ def bypass_runtime_wrappers(compiled: Callable, examples: list[Tensor]) -> Calla
     return bare
 
 
-def _free_vars(fn: Any) -> tuple[str, ...]:
-    """The names of the variables a Python function closes over (none for other callables)."""
-    code = getattr(fn, "__code__", None)
-    return code.co_freevars if code is not None else ()
-
-
-def _closure_cells(fn: Callable) -> dict[str, Any]:
-    """The variables ``fn`` closes over, by name (empty cells left out)."""
-    cells = {}
-    for name, cell in zip(fn.__code__.co_freevars, fn.__closure__ or (), strict=True):
+def _closure_cells(fn: Any) -> dict[str, Any]:
+    """The variables ``fn`` closes over, by name (empty cells left out; none for a callable
+    that is not a Python function)."""
+    code, cells = getattr(fn, "__code__", None), {}
+    if code is None:
+        return cells
+    for name, cell in zip(code.co_freevars, fn.__closure__ or (), strict=True):
         try:
             cells[name] = cell.cell_contents
         except ValueError:
@@ -210,8 +207,7 @@ def _find_compiled_graph(fn: Any, depth: int = 0) -> Any:
     if isinstance(fn, CompiledFxGraph):
         return fn
     if depth < 6:
-        nested = list(_closure_cells(fn).values()) if hasattr(fn, "__code__") else []
-        nested += [getattr(fn, "compiled_fn", None)]
+        nested = [*_closure_cells(fn).values(), getattr(fn, "compiled_fn", None)]
         for item in nested:
             if item is None or isinstance(item, type) or not callable(item):
                 continue

@@ -504,7 +504,7 @@ def _wrapped(graph, constants):
     return forward
 
 
-def test_bypass_keeps_the_wrapped_call_unless_the_bare_one_is_safe():
+def test_bypass_keeps_the_wrapped_call_unless_the_bare_one_is_safe(monkeypatch):
     """The bare call is taken only when it is found, the graph mutates no input and it gives
     the wrapped call's outputs on the examples; otherwise the wrapped call is returned as
     it is."""
@@ -513,28 +513,24 @@ def test_bypass_keeps_the_wrapped_call_unless_the_bare_one_is_safe():
     c = torch.tensor([2.0, 3.0])
     x = [torch.tensor([1.0, -1.0])]
     good = _FakeGraph(lambda args: (args[0] * args[1],))
-    monkey = pytest.MonkeyPatch()
-    monkey.setattr(direct_compile, "_find_compiled_graph", lambda fn: fn)
-    try:
-        bare = direct_compile.bypass_runtime_wrappers(_wrapped(good, [c]), x)
-        assert bare.wrapped_call is not None
-        torch.testing.assert_close(bare(torch.tensor([4.0, 5.0]))[0], torch.tensor([8.0, 15.0]))
-        # the bare call disagrees with the wrapped one (the wrapper did more than prepend)
-        mismatched = _wrapped(_FakeGraph(lambda args: (args[0] + args[1],)), [c])
-
-        def outer(*args):  # a wrapper whose own output differs from its inner graph's
-            return (mismatched(*args)[0] * 0.0,)
-
-        outer.__wrapped__ = mismatched
-        assert direct_compile.bypass_runtime_wrappers(outer, x) is outer
-        # a graph that mutates an input needs the wrapper to write the mutation back
-        mutating = _wrapped(_FakeGraph(good.current_callable, mutated={"arg0_1"}), [c])
-        assert direct_compile.bypass_runtime_wrappers(mutating, x) is mutating
-    finally:
-        monkey.undo()
     # no wrapper closure at all: a plain function is kept as it is
     plain = lambda a: (a + 1.0,)  # noqa: E731
     assert direct_compile.bypass_runtime_wrappers(plain, x) is plain
+    monkeypatch.setattr(direct_compile, "_find_compiled_graph", lambda fn: fn)
+    bare = direct_compile.bypass_runtime_wrappers(_wrapped(good, [c]), x)
+    assert bare.wrapped_call is not None
+    torch.testing.assert_close(bare(torch.tensor([4.0, 5.0]))[0], torch.tensor([8.0, 15.0]))
+    # the bare call disagrees with the wrapped one (the wrapper did more than prepend)
+    mismatched = _wrapped(_FakeGraph(lambda args: (args[0] + args[1],)), [c])
+
+    def outer(*args):  # a wrapper whose own output differs from its inner graph's
+        return (mismatched(*args)[0] * 0.0,)
+
+    outer.__wrapped__ = mismatched
+    assert direct_compile.bypass_runtime_wrappers(outer, x) is outer
+    # a graph that mutates an input needs the wrapper to write the mutation back
+    mutating = _wrapped(_FakeGraph(good.current_callable, mutated={"arg0_1"}), [c])
+    assert direct_compile.bypass_runtime_wrappers(mutating, x) is mutating
 
 
 def test_shards_hold_each_candidates_particles_in_order():
