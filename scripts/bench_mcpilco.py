@@ -284,9 +284,11 @@ def time_opt_step(
     """Median wall and CPU seconds of one optimisation step (rollout, backward, Adam).
 
     ``compile_rollout``: also time the same step compiled (:meth:`MCPilcoLoss.compile_step`)
-    by its default backend (``compiled_*``: ``direct`` where it applies) and by ``torch.compile``
-    of the time step (``dynamo_*``, when the default is not already that), each on its own
-    loss module sharing the policy and the GP posterior; the eager and the compiled steps
+    by its default backend (``compiled_*``: ``native`` where it applies, else ``direct``), by
+    the ``direct`` backend (``direct_*``, when the default is ``native``) and by
+    ``torch.compile`` of the time step (``dynamo_*``, when the default is not already that),
+    each on its own loss module sharing the policy and the GP posterior; the eager and the
+    compiled steps
     alternate within each round, so their ratios hold on a busy machine. ``compile_s``: the
     time of ``compile_step`` (the compilation and its check against the eager step, one step
     of each); ``compile_check`` its figures. A compiled step that fails the check is not
@@ -341,12 +343,15 @@ def time_opt_step(
     compile_info: dict[str, object] = {}
     compiled_losses = []
     if compile_rollout:
-        # "compiled": the default backend (direct where it applies); "dynamo": torch.compile
-        for name, backend in (("compiled", "auto"), ("dynamo", "dynamo")):
+        # "compiled": the default backend (native, else direct, where they apply);
+        # "direct": inductor-compiled time steps; "dynamo": torch.compile of the time step
+        for name, backend in (("compiled", "auto"), ("direct", "direct"), ("dynamo", "dynamo")):
+            if name == "direct" and compile_info.get("compile_backend") != "native":
+                continue  # the default already is direct (or direct does not apply)
             compiled = make_loss()
             t_compile = time.perf_counter()
             accepted = compiled.compile_step(backend=backend, dynamic=False)
-            prefix = "" if name == "compiled" else "dynamo_"
+            prefix = "" if name == "compiled" else f"{name}_"
             compile_info.update(
                 {
                     f"{prefix}compile_backend": compiled.compile_backend,
@@ -397,7 +402,7 @@ def time_opt_step(
         "page_faults_per_step": statistics.median(faults["eager"]),
     }
     out.update(compile_info)
-    for name in ("compiled", "dynamo", "heap128k"):
+    for name in ("compiled", "direct", "dynamo", "heap128k"):
         if name in step_fns:
             out.update(
                 {
@@ -724,37 +729,45 @@ def write_report(results: dict, out_dir: Path) -> None:
             "another, forward and backward); the rest grows with M.",
             "",
             "Compiled: the same step compiled (`--compile-rollout`) by the default backend "
-            "(`direct`: forward and backward of a time step chained by hand and compiled by "
-            "inductor, no dynamo and no autograd per time step), alternating with the eager "
-            "step in each round; compile s: the compilation and its check against the eager "
-            "step (about 1 s where inductor's on-disk cache already held graphs of the same "
-            "size, from any GP); shards: the threads a compiled rollout "
-            "is split over, by particles (two threads: 2 at 400 particles, 1 at 25). Dynamo: "
-            "the time step `torch.compile`-d instead, in the same rounds.",
+            "(column backend; `native`: the whole rollout, forward and backward, in the "
+            "package's C++ loop; `direct`: forward and backward of a time step chained by hand "
+            "and compiled by inductor, no dynamo and no autograd per time step), alternating "
+            "with the eager step in each round; compile s: the compilation and its check "
+            "against the eager step (for `direct`, about 1 s where inductor's on-disk cache "
+            "already held graphs of the same size, from any GP); shards: the threads a "
+            "compiled rollout is split over, by particles (two threads: 2 at 400 particles, 1 "
+            "at 25). Direct: the `direct` backend in the same rounds, where the default is "
+            "`native`. Dynamo: the time step `torch.compile`-d instead, in the same rounds.",
             "",
             "Faults: minor page faults per step, with the freed memory kept in the process "
             "(`retain_host_memory`). 128 KiB heap: the eager step with glibc's initial "
             "allocator thresholds instead (`--timing-heap-contrast`), in the same rounds.",
             "",
             "| particles M | GP points N | device | CUDA graph | threads | wall s/step "
-            "| CPU s/step | faults | compiled: wall s/step | CPU s/step | speed-up (CPU) "
-            "| compile s | shards | dynamo: wall s/step | CPU s/step "
-            "| 128 KiB heap: wall s/step | faults |",
-            "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|",
+            "| CPU s/step | faults | compiled: backend | wall s/step | CPU s/step "
+            "| speed-up (CPU) | compile s | shards | direct: wall s/step | CPU s/step "
+            "| dynamo: wall s/step | CPU s/step | 128 KiB heap: wall s/step | faults |",
+            "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|",
         ]
         for t in results["timing"]:
             graph = "yes" if t.get("cuda_graph") else "no"
-            comp = "| - | - | - | - | -"
+            comp = "| - | - | - | - | - | -"
+            backend = t.get("compile_backend") or "-"
             if t.get("compile_error"):
-                comp = "| compilation failed | - | - | - | -"
+                comp = f"| {backend} | compilation failed | - | - | - | -"
             elif t.get("compiled_rejected"):
-                comp = "| failed its check against the eager step | - | - | - | -"
+                comp = f"| {backend} | failed its check against the eager step | - | - | - | -"
             elif "compiled_s_per_step_wall" in t:
                 comp = (
-                    f"| {t['compiled_s_per_step_wall']:.3f} | {t['compiled_s_per_step_cpu']:.3f} "
+                    f"| {backend} | {t['compiled_s_per_step_wall']:.3f} "
+                    f"| {t['compiled_s_per_step_cpu']:.3f} "
                     f"| {t['s_per_step_cpu'] / t['compiled_s_per_step_cpu']:.2f}x "
                     f"| {t['compile_s']:.0f} | {t.get('rollout_shards', 1)}"
                 )
+            if "direct_s_per_step_wall" in t:
+                comp += f" | {t['direct_s_per_step_wall']:.3f} | {t['direct_s_per_step_cpu']:.3f}"
+            else:
+                comp += " | - | -"
             if "dynamo_s_per_step_wall" in t:
                 comp += f" | {t['dynamo_s_per_step_wall']:.3f} | {t['dynamo_s_per_step_cpu']:.3f}"
             else:

@@ -5,11 +5,12 @@ Runs :data:`mcpilco.agents.mc_pilco.DEMO_CONFIG` (one 3 s random-exploration tri
 pole was swung up, the time taken, and where the checkpoint, the Rerun recording
 (``run.rrd``) and the PNG plots are.
 
-On the CPU the rollout's time step is compiled when a C++ compiler is found
-(``compile_rollout``, the ``direct`` backend: the parts' backward passes chained by hand and
-compiled by inductor, the particles split over the threads). Each trial checks the compiled
-step against the eager one and runs eagerly if they disagree; ``--eager`` skips the
-compilation. Without a compiler the demo says so and runs eagerly.
+On the CPU the rollout is compiled when a C++ compiler is found (``compile_rollout``, the
+``native`` backend: the whole rollout, forward and backward through time, in the package's
+C++ loop, the particles split over the threads; ``direct``, inductor-compiled time steps,
+where ``native`` does not apply). Each trial checks the compiled rollout against the eager
+one and runs eagerly if they disagree; ``--eager`` skips the compilation. Without a
+compiler the demo says so and runs eagerly.
 
 Usage::
 
@@ -73,7 +74,7 @@ def choose_compile(device: torch.device, eager: bool) -> tuple[bool, str | None]
 
 
 def rollout_mode(records: Sequence[dict]) -> str:
-    """How the policy trials' rollouts ran, from their records: e.g. ``"compiled (direct
+    """How the policy trials' rollouts ran, from their records: e.g. ``"compiled (native
     backend, 2 shards) in 3 of 3 policy trials"``, or ``"eager"`` when none was compiled."""
     policy = [r for r in records if r.get("kind") == "policy"]
     compiled = [r for r in policy if r.get("compiled_step")]

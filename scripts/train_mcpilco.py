@@ -79,10 +79,9 @@ def build_parser() -> argparse.ArgumentParser:
         "--compile-rollout",
         action="store_true",
         default=None,
-        help="compile the rollout's time step (on the CPU by hand-chained backward passes "
-        "and inductor, split over the threads by particles, else torch.compile; 400 "
-        "particles: 1.9-2.3x faster steps than eager; 17-24 s of compilation per trial; "
-        "needs a C++ compiler); each trial checks it "
+        help="compile the rollout (on the CPU the package's C++ rollout, split over the "
+        "threads by particles, where it applies, else hand-chained backward passes compiled "
+        "by inductor, else torch.compile; needs a C++ compiler); each trial checks it "
         "against the eager step and falls back to the eager step, with a warning, if they "
         "disagree",
     )

@@ -249,16 +249,7 @@ class DirectRollout:
         compiler: Callable[[Callable, list[Tensor]], Callable] | None = None,
         shards: int = 1,
     ) -> None:
-        self.policy, self.dynamics, self.cost = policy, dynamics, cost
-        self.rows, self.shards = int(rows), int(shards)
-        self.batched = isinstance(policy, PolicyPopulation)
-        self.candidates = int(getattr(policy, "num_candidates", 1))
-        if self.shards < 1 or self.rows % (self.candidates * self.shards):
-            raise ValueError(
-                f"shards must be >= 1 and divide the {self.rows // self.candidates} particles "
-                f"per candidate, got {shards}"
-            )
-        self.shard_rows = self.rows // self.shards
+        self._init_shards(policy, dynamics, cost, rows, shards)
         pred = dynamics.delta_model
         pred.row_blocks  # noqa: B018 (its block cache is built here, outside the trace)
         self._ctx_attrs: dict[str, dict[str, Any]] = {}
@@ -274,13 +265,36 @@ class DirectRollout:
         self._saved_present = [t is not None for t in flat]
         saved_tensors = [t for t in flat if t is not None]
         zeros = [torch.zeros_like(t) for t in (x1, c1, *theta)]
-        self._pool = None
         with _intra_op_threads(1 if self.shards > 1 else torch.get_num_threads()):
             # a shard's kernels are compiled for one thread (inductor fixes the count)
             self.step_forward = compiler(self._forward_flat, [x, eps, x, bits, keep, *theta])
             self.step_backward = compiler(self._backward_flat, [*saved_tensors, *zeros])
+
+    def _init_shards(self, policy, dynamics, cost, rows: int, shards: int) -> None:
+        """The parts, ``KM`` rows, ``S`` shards and ``KM / S`` rows per shard (checked)."""
+        self.policy, self.dynamics, self.cost = policy, dynamics, cost
+        self.rows, self.shards = int(rows), int(shards)
+        self.batched = isinstance(policy, PolicyPopulation)
+        self.candidates = int(getattr(policy, "num_candidates", 1))
+        if self.shards < 1 or self.rows % (self.candidates * self.shards):
+            raise ValueError(
+                f"shards must be >= 1 and divide the {self.rows // self.candidates} particles "
+                f"per candidate, got {shards}"
+            )
+        self.shard_rows = self.rows // self.shards
+        self._pool = None
         if self.shards > 1:
             self._pool = ThreadPoolExecutor(self.shards, "direct-rollout")
+
+    def forward_shard(self, x, noise, nu, bits, keep, theta):
+        """One shard's forward loop (:func:`_forward_shard`): its costs ``c_{t+1}`` (a list
+        of ``H`` tensors ``(KM/S,)``) and the state its backward needs."""
+        return _forward_shard(self, x, noise, nu, bits, keep, theta)
+
+    def backward_shard(self, state, g_costs, grads):
+        """One shard's backward loop (:func:`_backward_shard`) from ``g = dJ/dcosts``
+        ``(H, KM/S)``: ``grads`` plus the shard's ``dJ/dtheta``."""
+        return _backward_shard(self, state, g_costs, grads)
 
     def __del__(self) -> None:
         pool = getattr(self, "_pool", None)
@@ -502,7 +516,7 @@ class RolloutFunction(torch.autograd.Function):
             bits = [list(steps) for steps in zip(*cut, strict=True)]
         theta = (c, log_l, w)
         shards = runner.map_shards(
-            lambda *a: _forward_shard(runner, *a, keep, theta),
+            lambda *a: runner.forward_shard(*a, keep, theta),
             runner.split(x, 0), runner.split(noise, 1), runner.split(nu, 1), bits,
         )  # fmt: skip
         ctx.runner, ctx.steps = runner, [steps for _, steps in shards]
@@ -515,7 +529,7 @@ class RolloutFunction(torch.autograd.Function):
         with runner.serial_caller():
             zeros = [[g_costs.new_zeros(shape) for shape in ctx.theta_shapes] for _ in steps]
             shards = runner.map_shards(
-                lambda *a: _backward_shard(runner, *a), steps, runner.split(g_costs, 1), zeros
+                lambda *a: runner.backward_shard(*a), steps, runner.split(g_costs, 1), zeros
             )
             ctx.steps = None
             grads = [sum(parts[1:], parts[0]) for parts in zip(*shards, strict=True)]

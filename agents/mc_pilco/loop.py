@@ -28,8 +28,6 @@ from __future__ import annotations
 import dataclasses
 import json
 import math
-import os
-import shutil
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -49,6 +47,7 @@ from mcpilco.agents.mc_pilco.checkpoint import (
 from mcpilco.agents.mc_pilco.cost import SwingUpCost
 from mcpilco.agents.mc_pilco.dynamics import KERNEL_CHOICES, GPDynamicsModel
 from mcpilco.agents.mc_pilco.loss import MCPilcoLoss
+from mcpilco.agents.mc_pilco.native_rollout import cpp_compiler, cpp_compiler_names
 from mcpilco.agents.mc_pilco.optimize import OptimizationResult, PolicyOptConfig, optimize_policy
 from mcpilco.agents.mc_pilco.policy import (
     PolicyPopulation,
@@ -151,9 +150,11 @@ class MCPilcoConfig:
         seed: seeds torch, numpy and the env resets.
         torch_threads: ``torch.set_num_threads`` (None: leave as is).
         compile_rollout: compile the rollout's time step with its backward
-            (:meth:`MCPilcoLoss.compile_step`, default backend: ``direct`` on the CPU, the
+            (:meth:`MCPilcoLoss.compile_step`, default backend: ``native`` on the CPU, the
+            whole rollout in the package's C++ loop (built once, about 3 s; then about 1 s
+            per trial to pack the GP and check); ``direct`` where that does not apply, the
             parts' backward passes chained by hand and compiled by inductor; ``torch.compile``
-            elsewhere). Each trial recompiles for its new GP (17-24 s for ``direct`` at a new
+            elsewhere). Each trial recompiles for its new GP (``direct``: 17-24 s at a new
             size N, about 1 s from inductor's on-disk cache; 2-6 s
             for ``torch.compile`` with inductor's on-disk cache warm, about 20 s cold). The
             speed-ups are measured by ``mcpilco-bench-mcpilco --parts timing
@@ -513,13 +514,14 @@ def write_records(out: Path, config: Any, records: list[dict[str, Any]]) -> None
 
 # ---------------------------------------------------------------------------------- main
 def check_compile_toolchain(device: torch.device) -> None:
-    """Raise ValueError when ``compile_rollout`` cannot work here: inductor's CPU backend
-    builds C++ (``$CXX``, else ``g++`` or ``clang++`` on ``PATH``). Checked before any trial
-    runs, so that a missing compiler does not stop the run inside its first policy trial."""
+    """Raise ValueError when ``compile_rollout`` cannot work here: the native rollout and
+    inductor's CPU backend build C++ (``$CXX``, else ``g++`` or ``clang++`` on ``PATH``).
+    Checked before any trial runs, so that a missing compiler does not stop the run inside
+    its first policy trial."""
     if device.type != "cpu":
         return
-    names = [os.environ["CXX"]] if os.environ.get("CXX") else ["g++", "clang++"]
-    if not any(shutil.which(n) for n in names):
+    if cpp_compiler() is None:
+        names = cpp_compiler_names()
         raise ValueError(
             f"compile_rollout on the CPU needs a C++ compiler ({' or '.join(names)} not found "
             "on PATH): install one (e.g. apt install g++), set CXX, or run without "

@@ -47,6 +47,7 @@ from mcpilco.agents.mc_pilco.direct_compile import (
     RolloutFunction,
     unsupported_reason,
 )
+from mcpilco.agents.mc_pilco.native_rollout import NativeRollout, native_unsupported_reason
 
 COMPILE_CHECK_RTOL = 0.1
 """Largest relative difference the compiled step may show against the eager step in the
@@ -211,8 +212,10 @@ class MCPilcoLoss(LossModule):
         there: a warning, the eager step, and the error's text in ``compile_error``.
         ``compile_backend`` names the backend in use (None: eager).
         """
-        if backend not in ("auto", "direct", "dynamo"):
-            raise ValueError(f"backend must be 'auto', 'direct' or 'dynamo', got {backend!r}")
+        if backend not in ("auto", "native", "direct", "dynamo"):
+            raise ValueError(
+                f"backend must be 'auto', 'native', 'direct' or 'dynamo', got {backend!r}"
+            )
         self.compile_check = None
         self.compile_error = None
         self._compiled_step = self._direct = self.compile_backend = None
@@ -224,8 +227,17 @@ class MCPilcoLoss(LossModule):
         )
         if backend == "direct" and reason is not None:
             raise ValueError(f"the direct backend cannot compile this rollout: {reason}")
+        native_reason = None
+        if backend in ("auto", "native"):
+            native_reason = native_unsupported_reason(
+                self._policy_fn, self.dynamics, self.cost, self.init_mean.device
+            )
+        if backend == "native" and native_reason is not None:
+            raise ValueError(f"the native backend cannot run this rollout: {native_reason}")
         if backend == "auto":
-            backend = "direct" if reason is None else "dynamo"
+            backend = (
+                "native" if native_reason is None else "direct" if reason is None else "dynamo"
+            )
         self.compile_backend = backend
         m = self.num_particles
         if shards is None:
@@ -235,11 +247,20 @@ class MCPilcoLoss(LossModule):
             raise ValueError(
                 f"shards must be a positive divisor of the {m} particles, got {shards}"
             )
-        elif shards > 1 and backend != "direct":
-            raise ValueError(f"shards > 1 needs the direct backend, got backend {backend!r}")
+        elif shards > 1 and backend == "dynamo":
+            raise ValueError("shards > 1 needs the native or direct backend, got 'dynamo'")
         problem = None
         try:
-            if backend == "direct":
+            if backend == "native":
+                self._direct = NativeRollout(
+                    self._policy_fn,
+                    self.dynamics,
+                    self.cost,
+                    self.num_candidates * self.num_particles,
+                    self.delta_dim,
+                    shards=shards,
+                )
+            elif backend == "direct":
                 self._direct = DirectRollout(
                     self._policy_fn,
                     self.dynamics,

@@ -32,7 +32,7 @@ def test_demo_prints_per_trial_outcome_and_output_paths(tmp_path, monkeypatch, c
     out = capsys.readouterr().out
     assert "trial 0 (exploration): success" in out and "trial 1 (policy     ): success" in out
     # the default on the CPU: the time step compiled (here 1 thread, so 1 shard) and checked
-    assert "rollout           : compiled (direct backend, 1 shard) in 1 of 1 policy trials" in out
+    assert "rollout           : compiled (native backend, 1 shard) in 1 of 1 policy trials" in out
     assert "success (last trial):" in out and "wall time" in out
     assert f"checkpoint        : {tmp_path / 'demo'}" in out
     assert "run.rrd" in out and ".png" in out

@@ -194,7 +194,7 @@ def test_float32_rollout_matches_the_float64_gp_posterior():
         torch.testing.assert_close(a, b, rtol=0, atol=1e-4 * b.abs().max().item())
 
 
-@pytest.mark.parametrize("backend", ["dynamo", "direct"])
+@pytest.mark.parametrize("backend", ["dynamo", "direct", "native"])
 def test_compiled_step_is_one_graph_and_matches_the_eager_rollout(backend):
     """``compile_step``: dynamo traces a time step (policy with its dropout mask, GP inputs,
     fused posterior, sampling + integration, cost) as one graph, without a break; either
@@ -370,7 +370,8 @@ def test_direct_backend_with_a_population_matches_the_eager_rollout_and_knows_it
         return split(runner, t, dim)
 
     monkeypatch.setattr(DirectRollout, "split", recording_split)
-    for backend, shards in ((None, 1), ("direct", 1), ("direct", 2)):
+    runs = ((None, 1), ("direct", 1), ("direct", 2), ("native", 1), ("native", 2))
+    for backend, shards in runs:
         enable = backend is not None
         assert loss.compile_step(enable, backend=backend or "auto", shards=shards) is enable
         assert loss.rollout_shards == shards
@@ -419,7 +420,7 @@ def test_direct_backend_with_a_population_matches_the_eager_rollout_and_knows_it
         other.compile_step(backend="direct")
     with pytest.raises(ValueError, match="backend must be"):
         other.compile_step(backend="inductor")
-    with pytest.raises(ValueError, match="shards > 1 needs the direct backend"):
+    with pytest.raises(ValueError, match="shards > 1 needs the native or direct backend"):
         other.compile_step(shards=2)  # auto picks dynamo here
     with pytest.raises(ValueError, match="positive divisor of the 16 particles, got 3"):
         loss.compile_step(backend="direct", shards=3)
@@ -577,3 +578,95 @@ def test_compile_traced_falls_back_to_the_python_wrapper(monkeypatch):
     assert wrappers == [True, False]
     a = torch.tensor([0.0, 1.0, 2.0])
     torch.testing.assert_close(compiled(a)[0], torch.exp(a) * const)
+
+
+# ------------------------------------------------------------------ native (C++) rollout
+@pytest.mark.parametrize(
+    ("kernel", "n", "sample_noise", "clip", "wrap"),
+    [("rbf+mpk", 37, False, 3.0, True), ("rbf", 53, True, None, False)],
+)
+def test_native_rollout_matches_the_eager_rollout(kernel, n, sample_noise, clip, wrap):
+    """The C++ rollout (``backend="native"``) against the eager one, the second
+    implementation, from the same seed over the whole horizon: dropout masks, simulated
+    observation noise, both kernels (MPK features or none), ``N`` not a multiple of the
+    kernel's row blocks, 20 particles per shard (one full tile of 16 and one of 4 padded
+    ones), sampling noise on or off, clipping on or off, a wrapped or unwrapped angle in
+    the cost. It is not a vanishing gradient (a wide cost)."""
+    model = GPDynamicsModel(
+        kernel=kernel, adam_iters=10, lbfgs_iters=0, sample_noise=sample_noise,
+        delta_clip_factor=clip,
+    )  # fmt: skip
+    gen = torch.Generator().manual_seed(3)
+    s = torch.randn(n, 4, generator=gen, dtype=f64) * torch.tensor([0.5, 1.0, 2.0, 2.0], dtype=f64)
+    a = torch.rand(n, 1, generator=gen, dtype=f64) * 2 - 1
+    model.fit(s, a, s + 0.05 * torch.randn(n, 4, generator=gen, dtype=f64))
+    pol = SquashedRBFPolicy(num_basis=27, weight_scale=1.0, seed=0, dropout=0.25)
+    pol.train()
+    loss = MCPilcoLoss(
+        make_policy_module(pol), model.particle_dynamics(),
+        SwingUpCost(l_theta=3.0, wrap=wrap), 25, 40, obs_noise_std=0.01,
+    )  # fmt: skip
+    assert isinstance(loss.dynamics.delta_model, FusedRBFMPKPredictor)
+    assert loss.dynamics.delta_model.p == (2 if kernel == "rbf+mpk" else 0)
+    out = []
+    threads_before = torch.get_num_threads()
+    torch.set_num_threads(2)
+    try:
+        for backend, shards in ((None, 1), ("native", 1), ("native", 2)):
+            enable = backend is not None
+            assert loss.compile_step(enable, backend=backend or "auto", shards=shards) is enable
+            assert loss.compile_backend == backend
+            torch.manual_seed(7)
+            J = loss()["loss_cost"]
+            out.append((J, torch.autograd.grad(J, list(pol.parameters())), torch.rand(2)))
+    finally:
+        torch.set_num_threads(threads_before)
+    (J_e, g_e, after_e), *native = out
+    assert max(g.abs().max().item() for g in g_e) > 1e-3
+    for J_n, g_n, after_n in native:
+        torch.testing.assert_close(after_n, after_e, rtol=0, atol=0)  # the same draws
+        torch.testing.assert_close(J_n, J_e, rtol=1e-4, atol=0)
+        for a_, b_ in zip(g_n, g_e, strict=True):
+            torch.testing.assert_close(a_, b_, rtol=0, atol=1e-3 * b_.abs().max().item())
+
+
+def test_native_backend_knows_its_limits_and_drops_a_wrong_gradient(monkeypatch):
+    """``backend="native"`` refuses what it cannot run, with the reason (float64 parts; no
+    library: ``"auto"`` then picks the direct backend), and a native rollout whose gradient
+    disagrees with the eager one is dropped for the eager step, with a warning."""
+    from mcpilco.agents.mc_pilco import native_rollout
+
+    model = _gp_model("rbf+mpk", n=30, seed=1)
+    pol = SquashedRBFPolicy(num_basis=16, weight_scale=1.0, seed=0)
+    loss = MCPilcoLoss(
+        make_policy_module(pol), model.particle_dynamics(), SwingUpCost(l_theta=3.0), 6, 16
+    )
+    assert loss.compile_step(verify=False) and loss.compile_backend == "native"
+    wide = MCPilcoLoss(
+        make_policy_module(SquashedRBFPolicy(num_basis=16, seed=0).double()),
+        model.particle_dynamics(dtype=f64), SwingUpCost(), 6, 16,
+    )  # fmt: skip
+    with pytest.raises(ValueError, match="native backend cannot run.*float32 only"):
+        wide.compile_step(backend="native")
+    assert wide.compile_step(verify=False) and wide.compile_backend == "direct"
+
+    backward = native_rollout.NativeRollout.backward_shard
+
+    def doubled(self, state, g_costs, grads):
+        before = [g.clone() for g in grads]
+        new = backward(self, state, g_costs, grads)
+        return [2 * g - b for g, b in zip(new, before, strict=True)]
+
+    monkeypatch.setattr(native_rollout.NativeRollout, "backward_shard", doubled)
+    with pytest.warns(RuntimeWarning, match=r"compiled rollout step \(native\) disagrees"):
+        assert loss.compile_step(backend="native") is False
+    assert loss.compile_backend is None
+    monkeypatch.undo()
+
+    def no_compiler():
+        raise RuntimeError("no C++ compiler found (set CXX)")
+
+    monkeypatch.setattr(native_rollout, "load_library", no_compiler)
+    with pytest.raises(ValueError, match="native library is not available.*no C\\+\\+ compiler"):
+        loss.compile_step(backend="native")
+    assert loss.compile_step(verify=False) and loss.compile_backend == "direct"
