@@ -177,6 +177,13 @@ class MCPilcoLoss(LossModule):
 
         Backends:
 
+        ``"native"``
+            the whole rollout, forward and backward through time, evaluated by the package's
+            C++ loop (:mod:`~mcpilco.agents.mc_pilco.native_rollout`: particles in tiles of
+            16, the GP's constant matrices packed once per fit, no per-op dispatch), the
+            same maths as ``"direct"``; built on first use with the system's C++ compiler
+            (about 3 s, then cached). Needs what ``"direct"`` needs, in float32, with the
+            package's two kernels; used like ``"direct"``.
         ``"direct"``
             forward and backward of a time step chained by hand from the parts' analytic
             backward passes, traced once and compiled by inductor; the rollout is one
@@ -189,10 +196,12 @@ class MCPilcoLoss(LossModule):
             graph with the custom autograd functions (a test checks that no graph break
             creeps in); used by every rollout.
         ``"auto"`` (default)
-            ``"direct"`` where it applies, else ``"dynamo"``.
+            ``"native"`` where it applies, else ``"direct"`` where it applies, else
+            ``"dynamo"``.
 
-        ``shards`` (direct backend): the number of threads each rollout is split over, by
-        particles, each with one intra-op thread (:class:`DirectRollout`). None (default):
+        ``shards`` (native and direct backends): the number of threads each rollout is split
+        over, by particles, each with one intra-op thread (:class:`DirectRollout`). None
+        (default):
         ``torch.get_num_threads()`` where that divides the ``M`` particles into shards of at
         least :data:`MIN_SHARD_PARTICLES`, else 1.
 
