@@ -762,7 +762,7 @@ def write_report(results: dict, out_dir: Path) -> None:
                     f"| {backend} | {t['compiled_s_per_step_wall']:.3f} "
                     f"| {t['compiled_s_per_step_cpu']:.3f} "
                     f"| {t['s_per_step_cpu'] / t['compiled_s_per_step_cpu']:.2f}x "
-                    f"| {t['compile_s']:.0f} | {t.get('rollout_shards', 1)}"
+                    f"| {t['compile_s']:.1f} | {t.get('rollout_shards', 1)}"
                 )
             if "direct_s_per_step_wall" in t:
                 comp += f" | {t['direct_s_per_step_wall']:.3f} | {t['direct_s_per_step_cpu']:.3f}"
