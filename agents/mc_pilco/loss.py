@@ -47,7 +47,11 @@ from mcpilco.agents.mc_pilco.direct_compile import (
     RolloutFunction,
     unsupported_reason,
 )
-from mcpilco.agents.mc_pilco.native_rollout import NativeRollout, native_unsupported_reason
+from mcpilco.agents.mc_pilco.native_rollout import (
+    NativeRollout,
+    build_error,
+    native_unsupported_reason,
+)
 
 COMPILE_CHECK_RTOL = 0.1
 """Largest relative difference the compiled step may show against the eager step in the
@@ -243,6 +247,10 @@ class MCPilcoLoss(LossModule):
             )
         if backend == "native" and native_reason is not None:
             raise ValueError(f"the native backend cannot run this rollout: {native_reason}")
+        if backend == "auto" and native_reason is not None and build_error() is not None:
+            warnings.warn(
+                f"the native rollout was not used ({native_reason})", RuntimeWarning, stacklevel=2
+            )
         if backend == "auto":
             backend = (
                 "native" if native_reason is None else "direct" if reason is None else "dynamo"
@@ -260,17 +268,9 @@ class MCPilcoLoss(LossModule):
             raise ValueError("shards > 1 needs the native or direct backend, got 'dynamo'")
         problem = None
         try:
-            if backend == "native":
-                self._direct = NativeRollout(
-                    self._policy_fn,
-                    self.dynamics,
-                    self.cost,
-                    self.num_candidates * self.num_particles,
-                    self.delta_dim,
-                    shards=shards,
-                )
-            elif backend == "direct":
-                self._direct = DirectRollout(
+            if backend in ("native", "direct"):
+                runner = NativeRollout if backend == "native" else DirectRollout
+                self._direct = runner(
                     self._policy_fn,
                     self.dynamics,
                     self.cost,

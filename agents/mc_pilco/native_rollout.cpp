@@ -169,6 +169,8 @@ extern "C" int64_t mcp_record_floats(int nb, int m, int n, int f, int p) {
 
 extern "C" int mcp_row_block() { return RB; }
 
+extern "C" int mcp_tile() { return TILE; }
+
 // policy for one particle: u = u_max tanh(sum_i w_i D_i phi_i / u_max)
 static float policy_forward(const Pol &P, const float *bT, const float *bsq, const float *w,
                             const float *inv_l, const float *obs, const uint8_t *bytes,

@@ -6,14 +6,16 @@ backward passes, chained by hand through time), evaluated by one C++ function pe
 the whole forward loop and one for the whole backward loop (``native_rollout.cpp``), instead
 of ``2 H`` calls of inductor-compiled graphs per shard. What that buys:
 
-* particles in tiles of 16: a tile's whole time step (policy, GP posterior, sampling,
-  integration, cost) runs on data that stays in the core's caches;
+* particles in tiles of 16 (the library's ``mcp_tile()``): a tile's whole time step
+  (policy, GP posterior, sampling, integration, cost) runs on data that stays in the
+  core's caches;
 * the products with the GP's constant matrices, ``[V; m] = [L^{-1} Phi, L^{-1}; alpha^T Phi,
   alpha^T] R`` forward and ``dR = [...]^T [dV; g_m]`` backward (glossary of
   :mod:`~mcpilco.models.gp.fused`), use one register-blocked kernel over the constant matrix
-  packed once per GP fit, by blocks of 4 rows with each block's own range of columns: the
-  zeros of the triangular factor are skipped row block by row block (about ``N^2 / 2 + F N``
-  multiply-adds per particle and output, each way);
+  packed once per GP fit, by blocks of 6 rows (``mcp_row_block()``; 6 x 16 accumulators)
+  with each block's own range of columns: the zeros of the triangular factor are skipped
+  row block by row block (about ``N^2 / 2 + F N`` multiply-adds per particle and output,
+  each way);
 * no per-op allocation, dispatch or Python between the time steps.
 
 The C++ file has no torch headers: it is compiled on first use with the system's C++
@@ -33,6 +35,7 @@ from __future__ import annotations
 import ctypes
 import hashlib
 import os
+import platform
 import shutil
 import subprocess
 import tempfile
@@ -50,9 +53,6 @@ SOURCE = Path(__file__).with_name("native_rollout.cpp")
 
 CXX_FLAGS = ("-O3", "-march=native", "-fno-math-errno", "-shared", "-fPIC")
 """Compiler flags (no ``-ffast-math``: NaN must propagate, the loss restarts on a NaN cost)."""
-
-TILE = 16
-"""Particles per tile (``TILE`` in the C++ source)."""
 
 _LIB: ctypes.CDLL | None = None
 _LIB_ERROR: str | None = None
@@ -123,6 +123,23 @@ def cache_dir() -> Path:
     return Path(base) / "mcpilco" / "native"
 
 
+def _cpu_key() -> str:
+    """What ``-march=native`` compiles for: the CPU's model and feature flags (Linux), else
+    the platform's processor name; part of the cache key, so that a cache shared between
+    machines never hands one a library built for another CPU."""
+    try:
+        with open("/proc/cpuinfo") as f:
+            lines = [ln for ln in f if ln.startswith(("model name", "flags"))]
+        return "".join(sorted(set(lines)))
+    except OSError:
+        return platform.machine() + platform.processor()
+
+
+def build_error() -> str | None:
+    """Why building the library failed in this process (None: it did not fail)."""
+    return _LIB_ERROR
+
+
 def cpp_compiler_names() -> list[str]:
     """The C++ compilers looked for, in order: ``$CXX`` alone if it is set, else ``g++`` and
     ``clang++`` (the compilers inductor's CPU backend uses too)."""
@@ -134,11 +151,32 @@ def cpp_compiler() -> str | None:
     return next((name for name in cpp_compiler_names() if shutil.which(name)), None)
 
 
+def _build(cxx: str) -> Path:
+    """The library's path in :func:`cache_dir`, compiled there by ``cxx`` unless it is
+    already (raises ``RuntimeError`` with the compiler's message if the build fails)."""
+    source = SOURCE.read_bytes()
+    key = repr((cxx, CXX_FLAGS, _cpu_key())).encode()
+    target = cache_dir() / f"native_rollout_{hashlib.sha256(source + key).hexdigest()[:16]}.so"
+    if target.exists():
+        return target
+    target.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(suffix=".so", dir=target.parent)
+    os.close(fd)
+    cmd = [cxx, *CXX_FLAGS, "-o", tmp, str(SOURCE)]
+    done = subprocess.run(cmd, capture_output=True, text=True, check=False)
+    if done.returncode != 0:
+        os.unlink(tmp)
+        raise RuntimeError(f"{' '.join(cmd)} failed: {done.stderr.strip()[:2000]}")
+    os.replace(tmp, target)  # atomic: a concurrent build writes the same bytes
+    return target
+
+
 def load_library() -> ctypes.CDLL:
     """The compiled rollout library, built on first use (see the module docstring).
 
-    Raises ``RuntimeError`` (with the compiler's message) if no C++ compiler is found or the
-    build fails; the failure is remembered for the process."""
+    Raises ``RuntimeError`` (with the compiler's message) if no C++ compiler is found, the
+    build fails or the library does not load (e.g. an unwritable cache folder); a failure
+    other than a missing compiler is remembered for the process."""
     global _LIB, _LIB_ERROR
     with _LIB_LOCK:
         if _LIB is not None:
@@ -149,24 +187,18 @@ def load_library() -> ctypes.CDLL:
         if cxx is None:
             # not remembered: a compiler installed (or CXX set) later in the process is used
             raise RuntimeError(f"no C++ compiler found ({' or '.join(cpp_compiler_names())})")
-        source = SOURCE.read_bytes()
-        key = hashlib.sha256(source + repr((cxx, CXX_FLAGS)).encode()).hexdigest()[:16]
-        target = cache_dir() / f"native_rollout_{key}.so"
-        if not target.exists():
-            target.parent.mkdir(parents=True, exist_ok=True)
-            fd, tmp = tempfile.mkstemp(suffix=".so", dir=target.parent)
-            os.close(fd)
-            cmd = [cxx, *CXX_FLAGS, "-o", tmp, str(SOURCE)]
-            done = subprocess.run(cmd, capture_output=True, text=True, check=False)
-            if done.returncode != 0:
-                os.unlink(tmp)
-                _LIB_ERROR = f"{' '.join(cmd)} failed: {done.stderr.strip()[:2000]}"
-                raise RuntimeError(_LIB_ERROR)
-            os.replace(tmp, target)  # atomic: a concurrent build writes the same bytes
-        lib = ctypes.CDLL(str(target))
+        try:
+            lib = ctypes.CDLL(str(_build(cxx)))
+        except (OSError, subprocess.SubprocessError) as err:  # unwritable cache, bad .so
+            _LIB_ERROR = f"{type(err).__name__}: {err}"
+            raise RuntimeError(_LIB_ERROR) from err
+        except RuntimeError as err:
+            _LIB_ERROR = str(err)
+            raise
         lib.mcp_record_floats.restype = ctypes.c_int64
         lib.mcp_record_floats.argtypes = [ctypes.c_int] * 5
         lib.mcp_row_block.restype = ctypes.c_int
+        lib.mcp_tile.restype = ctypes.c_int
         lib.mcp_forward.restype = ctypes.c_int
         lib.mcp_backward.restype = ctypes.c_int
         _LIB = lib
@@ -333,7 +365,7 @@ class NativeRollout(DirectRollout):
             float(cost.l_x), float(cost.l_theta), float(dynamics.dt), int(bool(cost.wrap))
         )
         per = self.shard_rows // self.candidates
-        self.tiles_per = -(-per // TILE)
+        self.tiles_per = -(-per // int(self.lib.mcp_tile()))
         pred = dynamics.delta_model
         self.record = int(self.lib.mcp_record_floats(nb, pred.m, pred.n, self.gp.features, pred.p))
         self._per = per
@@ -394,6 +426,7 @@ class NativeRollout(DirectRollout):
 
 __all__ = [
     "NativeRollout",
+    "build_error",
     "cpp_compiler",
     "cpp_compiler_names",
     "load_library",

@@ -670,3 +670,48 @@ def test_native_backend_knows_its_limits_and_drops_a_wrong_gradient(monkeypatch)
     with pytest.raises(ValueError, match="native library is not available.*no C\\+\\+ compiler"):
         loss.compile_step(backend="native")
     assert loss.compile_step(verify=False) and loss.compile_backend == "direct"
+    monkeypatch.undo()
+    # a compiler that fails to build the library: "auto" says so, then runs direct
+    monkeypatch.setattr(native_rollout, "_LIB", None)
+    monkeypatch.setattr(native_rollout, "_LIB_ERROR", "g++ ... failed: error: oops")
+    with pytest.warns(RuntimeWarning, match="native rollout was not used.*failed: error: oops"):
+        assert loss.compile_step(verify=False) and loss.compile_backend == "direct"
+
+
+def test_native_library_builds_once_and_its_failures_are_clear_errors(tmp_path, monkeypatch):
+    """The library builds into the cache folder on first use and loads from there after; a
+    compiler that fails gives its message, an unwritable cache folder an error, both
+    remembered for the process (no rebuild at every trial)."""
+    from mcpilco.agents.mc_pilco import native_rollout as nr
+
+    def fresh(cache):
+        monkeypatch.setattr(nr, "_LIB", None)
+        monkeypatch.setattr(nr, "_LIB_ERROR", None)
+        monkeypatch.setenv("MCPILCO_NATIVE_CACHE", str(cache))
+
+    fresh(tmp_path / "cache")
+    lib = nr.load_library()
+    (built,) = (tmp_path / "cache").glob("native_rollout_*.so")
+    assert nr.load_library() is lib and lib.mcp_tile() == 16
+    fresh(tmp_path / "cache")  # a new process: loads the cached file, builds nothing
+    mtime = built.stat().st_mtime_ns
+    nr.load_library()
+    assert built.stat().st_mtime_ns == mtime and len(list(built.parent.iterdir())) == 1
+
+    fake = tmp_path / "fake-c++"
+    fake.write_text("#!/bin/sh\necho 'error: no such header' >&2\nexit 1\n")
+    fake.chmod(0o755)
+    fresh(tmp_path / "cache2")
+    monkeypatch.setenv("CXX", str(fake))
+    for _ in range(2):  # remembered
+        with pytest.raises(RuntimeError, match="fake-c\\+\\+ .* failed: error: no such header"):
+            nr.load_library()
+    assert not list((tmp_path / "cache2").iterdir())  # no half-written library left
+    monkeypatch.delenv("CXX")
+
+    blocker = tmp_path / "a-file"
+    blocker.write_text("")
+    fresh(blocker / "cache")  # a folder below a file cannot be made
+    with pytest.raises(RuntimeError, match="NotADirectoryError"):
+        nr.load_library()
+    assert nr.build_error() is not None
