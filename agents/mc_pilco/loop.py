@@ -151,7 +151,7 @@ class MCPilcoConfig:
         torch_threads: ``torch.set_num_threads`` (None: leave as is).
         compile_rollout: compile the rollout's time step with its backward
             (:meth:`MCPilcoLoss.compile_step`, default backend: ``native`` on the CPU, the
-            whole rollout in the package's C++ loop (built once, about 3 s; then about 1 s
+            whole rollout in the package's C++ loop (built once, 2-3 s; then 0.04-0.21 s
             per trial to pack the GP and check); ``direct`` where that does not apply, the
             parts' backward passes chained by hand and compiled by inductor; ``torch.compile``
             elsewhere). Each trial recompiles for its new GP (``direct``: 17-24 s at a new

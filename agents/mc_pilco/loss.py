@@ -186,7 +186,7 @@ class MCPilcoLoss(LossModule):
             C++ loop (:mod:`~mcpilco.agents.mc_pilco.native_rollout`: particles in tiles of
             16, the GP's constant matrices packed once per fit, no per-op dispatch), the
             same maths as ``"direct"``; built on first use with the system's C++ compiler
-            (about 3 s, then cached). Needs what ``"direct"`` needs, in float32, with the
+            (2-3 s, then cached). Needs what ``"direct"`` needs, in float32, with the
             package's two kernels; used like ``"direct"``.
         ``"direct"``
             forward and backward of a time step chained by hand from the parts' analytic
@@ -205,9 +205,8 @@ class MCPilcoLoss(LossModule):
 
         ``shards`` (native and direct backends): the number of threads each rollout is split
         over, by particles, each with one intra-op thread (:class:`DirectRollout`). None
-        (default):
-        ``torch.get_num_threads()`` where that divides the ``M`` particles into shards of at
-        least :data:`MIN_SHARD_PARTICLES`, else 1.
+        (default): ``torch.get_num_threads()`` where that divides the ``M`` particles into
+        shards of at least :data:`MIN_SHARD_PARTICLES`, else 1.
 
         The policy's dropout masks are drawn outside the compiled code, so the same seed
         gives the eager step's masks and noise. Enabling calls ``torch.compiler.reset()``
@@ -247,7 +246,8 @@ class MCPilcoLoss(LossModule):
             )
         if backend == "native" and native_reason is not None:
             raise ValueError(f"the native backend cannot run this rollout: {native_reason}")
-        if backend == "auto" and native_reason is not None and build_error() is not None:
+        failed = build_error()
+        if backend == "auto" and native_reason is not None and failed and failed in native_reason:
             warnings.warn(
                 f"the native rollout was not used ({native_reason})", RuntimeWarning, stacklevel=2
             )

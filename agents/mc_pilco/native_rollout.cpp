@@ -123,11 +123,9 @@ static inline int pad_rows(int rows) { return (rows + RB - 1) / RB * RB; }
 
 // per-tile record of the saved tensors of one step (floats, each block a multiple of 16)
 struct Layout {
-    int nb, m, n, f, p;
     int64_t phi, a, t, cso, sno, cs, sn, xs, R, V, active, fac, eps, sd, varon, inside, cx, cd,
         csg, cE, size;
-    void init(int nb_, int m_, int n_, int f_, int p_) {
-        nb = nb_; m = m_; n = n_; f = f_; p = p_;
+    void init(int nb, int m, int n, int f, int p) {
         int64_t o = 0;
         phi = o; o += (int64_t)TILE * nb;
         a = o; o += 5 * TILE;

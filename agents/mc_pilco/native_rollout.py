@@ -19,7 +19,7 @@ of ``2 H`` calls of inductor-compiled graphs per shard. What that buys:
 * no per-op allocation, dispatch or Python between the time steps.
 
 The C++ file has no torch headers: it is compiled on first use with the system's C++
-compiler (``-O3 -march=native``, about 3 s), cached by the hash of its source and flags under
+compiler (``-O3 -march=native``, 2-3 s), cached by the hash of its source and flags under
 :func:`cache_dir`, and called through ``ctypes`` (which releases the GIL, so the shards run
 in parallel threads). Float32 only, the package's cart-pole parts only
 (:func:`native_unsupported_reason`); ``compile_step`` checks the result against the eager
