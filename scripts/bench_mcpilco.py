@@ -55,14 +55,19 @@ from typing import Any
 
 import numpy as np
 
-from mcpilco.agents.mc_pilco import DEFAULT_ENV_ID, PRESETS, MCPilcoConfig
+from mcpilco.agents.mc_pilco import DEFAULT_ENV_ID, MCPilcoConfig, TaskSpec, load_config
 from mcpilco.agents.mc_pilco.dynamics import KERNEL_CHOICES
-from mcpilco.agents.mc_pilco.loop import LEGACY_FIELD_VALUES, ROLLOUT_DTYPES
+from mcpilco.agents.mc_pilco.loop import ROLLOUT_DTYPES
 
 PARTS = ("runs", "timing", "rmse", "rmse_runs")
 
 
 # ------------------------------------------------------------------------------- runs
+def _fmt(v: float | None) -> str:
+    """A table cell: ``v`` to 2 decimals, ``-`` where the section did not record it."""
+    return "-" if v is None else f"{v:.2f}"
+
+
 def section_key(env_id: str, label: str = "") -> str:
     """Key of a ``--label``-ed section under ``runs`` in ``mcpilco_cartpole.json``."""
     return env_id + (f" ({label})" if label else "")
@@ -96,7 +101,7 @@ def _run_seed(job: tuple[dict[str, Any], str]) -> dict[str, Any]:
 
 
 def aggregate_runs(runs: list[dict[str, Any]]) -> list[dict[str, Any]]:
-    """Per trial index: success rate, mean time upright, mean |x|, timings over seeds."""
+    """Per trial index: success rate, mean time in the goal region, timings over seeds."""
     rows = []
     n_trials = min(len(r["records"]) for r in runs)
     for k in range(n_trials):
@@ -107,8 +112,7 @@ def aggregate_runs(runs: list[dict[str, Any]]) -> list[dict[str, Any]]:
             "kind": recs[0]["kind"],
             "seeds": len(recs),
             "success_rate": float(np.mean([r["success"] for r in recs])),
-            "time_upright_s": float(np.mean([r["time_upright"] for r in recs])),
-            "mean_abs_x_m": float(np.mean([r["mean_abs_x"] for r in recs])),
+            "time_in_goal_s": float(np.mean([r["time_in_goal"] for r in recs])),
             "cost": float(np.mean([r["cost"] for r in recs])),
             "wall_s_per_trial": float(np.mean([r["wall_s"] for r in recs])),
         }
@@ -177,8 +181,7 @@ def make_section(
 
 POOLED_MEANS = (
     "success_rate",
-    "time_upright_s",
-    "mean_abs_x_m",
+    "time_in_goal_s",
     "cost",
     "wall_s_per_trial",
     "opt_steps",
@@ -257,12 +260,14 @@ def _exploration_data(env_id: str, n_points: int, seed: int, hold: int = 1):
     :func:`~mcpilco.agents.mc_pilco.loop.exploration_actions`)."""
     from mcpilco.agents.mc_pilco.loop import exploration_actions, make_env, run_episode, transitions
 
-    env = make_env(env_id, 60)
+    task = TaskSpec.for_env(env_id)
+    H = task.horizon
+    env = make_env(env_id, H, task)
     rng = np.random.default_rng(seed)
     eps = []
-    for i in range(max(1, -(-n_points // 60))):
-        it = iter(exploration_actions(rng, 60, hold))
-        eps.append(run_episode(env, lambda _o, it=it: next(it), seed * 1000 + i, 60))
+    while sum(len(e["actions"]) for e in eps) < n_points:
+        it = iter(exploration_actions(rng, H, hold, task.action_low, task.action_high))
+        eps.append(run_episode(env, lambda _o, it=it: next(it), seed * 1000 + len(eps), H, task))
     env.close()
     s, a, s1 = transitions(eps)
     return s[:n_points], a[:n_points], s1[:n_points], eps
@@ -310,8 +315,9 @@ def time_opt_step(
     from mcpilco.agents.mc_pilco import (
         GPDynamicsModel,
         MCPilcoLoss,
+        SaturatingCost,
         SquashedRBFPolicy,
-        SwingUpCost,
+        StateLayout,
         make_policy_module,
     )
     from mcpilco.agents.mc_pilco.optimize import loss_and_grad_fn
@@ -326,13 +332,17 @@ def time_opt_step(
     torch.set_num_threads(threads)
     retain_host_memory()
     s, a, s1, _ = _exploration_data(env_id, n_points, 0)
-    model = GPDynamicsModel(kernel=kernel, adam_iters=30, lbfgs_iters=5, max_points=None)
+    task = TaskSpec.for_env(env_id)
+    model = GPDynamicsModel(task, kernel=kernel, adam_iters=30, lbfgs_iters=5, max_points=None)
     model.fit(s, a, s1)
-    policy = SquashedRBFPolicy(seed=0)
+    policy = SquashedRBFPolicy(
+        StateLayout.from_task(task), task.action_low, task.action_high, seed=0
+    )
     module, dynamics = make_policy_module(policy), model.particle_dynamics()
+    cost = SaturatingCost.from_task(task)
 
     def make_loss() -> MCPilcoLoss:  # moves the policy and the GP posterior with it
-        args = (module, dynamics, SwingUpCost(), horizon, num_particles)
+        args = (module, dynamics, cost, horizon, num_particles, task.init_mean)
         return MCPilcoLoss(*args, obs_noise_std=0.01).to(dev)
 
     opt = torch.optim.Adam(policy.parameters(), lr=0.01)
@@ -448,21 +458,23 @@ def _theta_rmse_both_kernels(
     from mcpilco.agents.mc_pilco import (
         GPDynamicsModel,
         MCPilcoLoss,
-        SwingUpCost,
+        SaturatingCost,
         make_policy_module,
     )
 
     out: dict[str, Any] = {}
     horizon = len(real) - 1
+    task = TaskSpec.for_env(DEFAULT_ENV_ID)
     for kernel in ("rbf+mpk", "rbf"):
-        model = GPDynamicsModel(kernel=kernel, **fit_kwargs).fit(*data)
+        model = GPDynamicsModel(task, kernel=kernel, **fit_kwargs).fit(*data)
         torch.manual_seed(seed)
         loss = MCPilcoLoss(
             make_policy_module(policy),
             model.particle_dynamics(),
-            SwingUpCost(),
+            SaturatingCost.from_task(task),
             horizon,
             num_particles,
+            task.init_mean,
         )
         policy.eval()
         with torch.no_grad():
@@ -497,10 +509,11 @@ def particle_rmse(
     torch.set_num_threads(1)
     s, a, s1, _ = _exploration_data(env_id, 60, 100 + seed, explore_hold)  # 3 s
     ckpt = load_checkpoint(policy_ckpt)
-    policy = SquashedRBFPolicy(num_basis=ckpt["config"]["num_basis"])
+    task = TaskSpec.for_env(env_id)
+    policy = SquashedRBFPolicy(**ckpt["policy_settings"])
     policy.load_state_dict(ckpt["policy"])
-    env = make_env(env_id, 60)
-    real = run_episode(env, _policy_act(policy), 5000 + seed, 60)["states"]
+    env = make_env(env_id, task.horizon, task)
+    real = run_episode(env, _policy_act(policy), 5000 + seed, task.horizon, task)["states"]
     env.close()
     out: dict[str, Any] = {"seed": seed, "real_success_theta_end": float(real[-1, 2])}
     first = seed == 0  # the plot shows the particles of seed 0
@@ -527,7 +540,7 @@ def particle_rmse_on_run(ckpt_path: Path, num_particles: int = 400) -> dict[str,
     episodes, arrays = ckpt["episodes"], ckpt["arrays"]
     if len(episodes) < 2 or not ckpt["records"][-1]["success"]:
         raise ValueError(f"{ckpt_path}: needs a run whose last policy trial swung up")
-    policy = SquashedRBFPolicy(num_basis=cfg.num_basis)
+    policy = SquashedRBFPolicy(**ckpt["policy_settings"])
     policy.load_state_dict(ckpt["policy"])
     real = np.asarray(arrays[-1]["real"])
     out: dict[str, Any] = {
@@ -666,15 +679,15 @@ def _md_table(env_id: str, section: dict) -> str:
         f"rollout GP {cfg.get('rollout_dtype', 'float32')}"
         f"{', time step compiled (--compile-rollout)' if cfg.get('compile_rollout') else ''}, "
         "exploration actions held "
-        f"{cfg.get('explore_hold', LEGACY_FIELD_VALUES['explore_hold'])} step(s); "
+        f"{cfg.get('explore_hold', 1)} step(s); "
         f"{section['jobs']} parallel "
         f"jobs x 1 thread; mean wall-clock per run {section['wall_s_per_run']:.0f} s."
     )
     lines += [
         "",
-        "| experience | policy trained on | success rate | time upright [s] | mean abs x [m] "
+        "| experience | policy trained on | success rate | time in goal [s] "
         "| wall per trial [s] | opt steps | s / opt step (wall) | s / opt step (CPU) |",
-        "|---|---|---|---|---|---|---|---|---|",
+        "|---|---|---|---|---|---|---|---|",
     ]
     prev = None
     for r in section["per_trial"]:
@@ -688,7 +701,7 @@ def _md_table(env_id: str, section: dict) -> str:
         lines.append(
             f"| {r['experience_s']:.0f} s ({kind}) | {trained} "
             f"| {100 * r['success_rate']:.0f}% "
-            f"| {r['time_upright_s']:.2f} | {r['mean_abs_x_m']:.2f} | {r['wall_s_per_trial']:.1f} "
+            f"| {_fmt(r.get('time_in_goal_s'))} | {r['wall_s_per_trial']:.1f} "
             f"| {r.get('opt_steps', 0):.0f} | {r.get('s_per_opt_step', float('nan')):.3f} "
             f"| {r.get('cpu_s_per_opt_step', float('nan')):.3f} |"
         )
@@ -799,7 +812,7 @@ def write_report(results: dict, out_dir: Path) -> None:
             md.append(f"| {k} | {r[k]['mean']:.3f} +- {r[k]['std']:.3f} | {med:.3f} |")
         md.append(
             f"\n{r['seeds']} exploration seeds (actions held "
-            f"{r.get('explore_hold', LEGACY_FIELD_VALUES['explore_hold'])} steps); "
+            f"{r.get('explore_hold', 1)} steps); "
             f"RBF+MPK lower in {r['mpk_better']} of them; "
             f"policy from `{r.get('policy', '?')}`. Plot: `mcpilco_cartpole_rmse.png`.\n"
         )
@@ -833,16 +846,14 @@ def write_report(results: dict, out_dir: Path) -> None:
         import matplotlib.pyplot as plt
 
         n_sections = len(results["runs"])
-        fig, axes = plt.subplots(1, 3, figsize=(12, 3.5 + 0.25 * -(-n_sections // 3)))
+        fig, axes = plt.subplots(1, 2, figsize=(9, 3.5 + 0.25 * -(-n_sections // 3)))
         for env_id, section in results["runs"].items():
             rows = section["per_trial"]
             t = [r["experience_s"] for r in rows]
             axes[0].plot(t, [100 * r["success_rate"] for r in rows], "o-", label=env_id)
-            axes[1].plot(t, [r["time_upright_s"] for r in rows], "o-", label=env_id)
-            axes[2].plot(t, [r["mean_abs_x_m"] for r in rows], "o-", label=env_id)
-        for ax, lab in zip(
-            axes, ["success rate [%]", "time upright [s]", "mean |x| [m]"], strict=True
-        ):
+            goal = [r.get("time_in_goal_s", float("nan")) for r in rows]
+            axes[1].plot(t, goal, "o-", label=env_id)
+        for ax, lab in zip(axes, ["success rate [%]", "time in goal [s]"], strict=True):
             ax.set_xlabel("experience [s]")
             ax.set_ylabel(lab)
             ax.grid(alpha=0.3)
@@ -879,7 +890,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--seeds", type=int, default=20, help="number of seeds S (0..S-1)")
     p.add_argument("--first-seed", type=int, default=0)
     p.add_argument("--jobs", type=int, default=1, help="parallel processes (1 thread each)")
-    p.add_argument("--preset", choices=sorted(PRESETS), default="bench")
+    p.add_argument("--preset", default="bench", help="preset of each env's config file")
     p.add_argument("--trials", type=int, help="policy trials (override)")
     p.add_argument("--particles", type=int, help="particles (override)")
     p.add_argument("--opt-steps", type=int, help="max opt steps per trial (override)")
@@ -971,19 +982,18 @@ def main(argv: list[str] | None = None) -> int:
     for name in ("timing_n", "timing_threads", "timing_particles"):
         if min(getattr(args, name)) < 1:
             parser.error(f"--{name.replace('_', '-')} values must be >= 1")
-    from mcpilco.agents.mc_pilco import default_explore_hold, registered_ids
     from mcpilco.agents.mc_pilco.loop import check_compile_toolchain
+    from mcpilco.envs.tasks import task_ids
     from mcpilco.models.device import resolve_device
 
-    ids = registered_ids()
+    ids = task_ids()
     for env_id in args.env:
         if env_id not in ids:
-            parser.error(f"unknown env id {env_id!r}; registered mcpilco ids: {', '.join(ids)}")
+            parser.error(f"no task ships for env id {env_id!r}; tasks: {', '.join(ids)}")
     scales = args.candidate_scales
     try:  # one config per env: an env without --explore-hold gets its own default hold
         env_cfgs = {
-            env_id: PRESETS[args.preset].with_overrides(
-                env_id=env_id,
+            env_id: load_config(env_id, preset=args.preset).with_overrides(
                 num_trials=args.trials,
                 num_particles=args.particles,
                 num_candidates=(
@@ -1050,7 +1060,7 @@ def main(argv: list[str] | None = None) -> int:
             policy_ckpt = args.rmse_policy or find_swingup_policy(args.runs_dir)
         except FileNotFoundError as err:
             parser.error(str(err))
-        hold = args.explore_hold or default_explore_hold(DEFAULT_ENV_ID)  # rmse runs this env
+        hold = args.explore_hold or load_config(DEFAULT_ENV_ID).explore_hold  # rmse runs this env
         per_seed = [
             particle_rmse(s, policy_ckpt, explore_hold=hold) for s in range(args.rmse_seeds)
         ]

@@ -58,7 +58,7 @@ from mcpilco.agents.baselines.common import (
     trial_records_to_points,
 )
 from mcpilco.agents.baselines.pilco import OPTIMIZERS
-from mcpilco.agents.mc_pilco.loop import BENCH_CONFIG, DEFAULT_ENV_ID, PRESETS
+from mcpilco.agents.mc_pilco.loop import DEFAULT_ENV_ID, load_config
 from mcpilco.models.device import retain_host_memory
 
 SB3_METHODS = ("sac", "td3", "ppo")
@@ -447,8 +447,8 @@ def run_method(
     if method == "mcpilco":
         from mcpilco.agents.mc_pilco import run_mcpilco
 
-        base = PRESETS[opts.get("mcpilco_preset", "bench")]
-        over: dict[str, Any] = {"env_id": env_id, "seed": seed, "torch_threads": threads}
+        base = load_config(env_id, preset=opts.get("mcpilco_preset", "bench"))
+        over: dict[str, Any] = {"seed": seed, "torch_threads": threads}
         if trials is not None:
             over["num_trials"] = trials
         cfg_m = base.with_overrides(**over)
@@ -460,19 +460,26 @@ def run_method(
             log=log,
             write_rrd=False,
         )
-        horizon = cfg_m.horizon
+        horizon = cfg_m.task_spec().horizon
     else:
         from mcpilco.agents.baselines.pilco import PilcoConfig, run_pilco
 
-        over = {"env_id": env_id, "seed": seed, "torch_threads": threads, **opts.get("pilco", {})}
-        over["num_trials"] = trials if trials is not None else BENCH_CONFIG.num_trials
+        mc = load_config(env_id, preset=opts.get("mcpilco_preset", "bench"))
+        over = {
+            "env_id": env_id,
+            "seed": seed,
+            "torch_threads": threads,
+            "explore_hold": mc.explore_hold,  # the same exploration trial as MC-PILCO's
+            **opts.get("pilco", {}),
+        }
+        over["num_trials"] = trials if trials is not None else mc.num_trials
         cfg_p = PilcoConfig(**over)
         summary = run_pilco(
             cfg_p, out, resume=(out / "checkpoint.pt").is_file(), progress=progress, log=log
         )
         horizon = cfg_p.horizon
     points = trial_records_to_points(summary.records, horizon)
-    dt = points[0]["experience_s"] / horizon
+    dt = summary.records[0]["experience_s"] / max(1, summary.records[0].get("steps", horizon))
     curve = make_curve(
         method,
         env_id,
@@ -516,7 +523,7 @@ def _covers(curve: dict[str, Any], method: str, opts: dict[str, Any]) -> bool:
         return curve.get("budget_steps", 0) >= (want or DEFAULT_STEPS[method])
     trials = opts.get("trials")
     if trials is None:
-        trials = PRESETS[opts.get("mcpilco_preset", "bench")].num_trials
+        trials = load_config(curve["env_id"], preset=opts.get("mcpilco_preset", "bench")).num_trials
     return len(curve["points"]) >= trials + 1
 
 
@@ -634,7 +641,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument(
         "--trials", type=int, help="MC-PILCO / PILCO policy trials (default: bench preset, 4)"
     )
-    p.add_argument("--mcpilco-preset", choices=sorted(PRESETS), default="bench")
+    p.add_argument(
+        "--mcpilco-preset", default="bench", help="preset of the env's MC-PILCO config file"
+    )
     p.add_argument(
         "--mcpilco-json", type=Path, help="collect MC-PILCO from mcpilco-bench-mcpilco's JSON"
     )

@@ -1,9 +1,10 @@
-"""Train MC-PILCO on a cartpole swing-up env (console script ``mcpilco-train``).
+"""Train MC-PILCO on a Gymnasium env with a task specification (console script ``mcpilco-train``).
 
 One random-exploration trial, then ``--trials`` policy trials; after each trial a line with
-the env cost, the success flag and the wall-clock time. Outputs in ``--out``:
-``checkpoint.pt`` (resumable with ``--resume``), ``records.json``, ``run.rrd`` (Rerun),
-``trial_XX_particles.png`` and ``optimisation.png``.
+the task's cost, the success flag and the wall-clock time. The hyperparameters come from the
+env's file in ``agents/mc_pilco/conf/`` (with ``--preset``), then ``--set key=value`` and
+the options below. Outputs in ``--out``: ``checkpoint.pt`` (resumable with ``--resume``),
+``records.json``, ``run.rrd`` (Rerun), ``trial_XX_particles.png`` and ``optimisation.png``.
 
 Usage::
 
@@ -11,8 +12,8 @@ Usage::
     mcpilco-train --trials 5 --out runs/seed0 --resume     # continue a killed / shorter run
     mcpilco-train --preset demo --out runs/demo            # make demo's budget (12 s)
     mcpilco-train --env mcpilco/DMCCartpoleSwingUp-v0 --kernel rbf --seed 3
-    mcpilco-train --preset small --out runs/k2             # 100 particles, 2 policies
-    mcpilco-train --preset bench --device cuda --out runs/gpu   # rollouts on a GPU
+    mcpilco-train --env InvertedPendulum-v5 --set num_particles=100 --set opt.max_steps=300
+    mcpilco-train --env MyEnv-v0 --task my_task.yaml       # your own env and task file
 """
 
 from __future__ import annotations
@@ -21,7 +22,7 @@ import argparse
 import sys
 from pathlib import Path
 
-from mcpilco.agents.mc_pilco import DEFAULT_ENV_ID, PRESETS, MCPilcoConfig
+from mcpilco.agents.mc_pilco import DEFAULT_ENV_ID, MCPilcoConfig, load_config, parse_set
 from mcpilco.agents.mc_pilco.dynamics import KERNEL_CHOICES
 from mcpilco.agents.mc_pilco.loop import ROLLOUT_DTYPES
 
@@ -50,8 +51,19 @@ def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(
         prog="mcpilco-train", description=__doc__, formatter_class=argparse.RawTextHelpFormatter
     )
-    p.add_argument("--env", default=DEFAULT_ENV_ID, help="registered env id (mcpilco/...)")
-    p.add_argument("--preset", choices=sorted(PRESETS), default="default", help="base config")
+    p.add_argument("--env", default=DEFAULT_ENV_ID, help="registered Gymnasium env id")
+    p.add_argument(
+        "--preset", default="default", help="a preset of the env's config file (e.g. bench, demo)"
+    )
+    p.add_argument(
+        "--set",
+        action="append",
+        metavar="KEY=VALUE",
+        help="override any config field (YAML value; nested with dots: opt.max_steps=500)",
+    )
+    p.add_argument(
+        "--task", type=Path, help="a YAML task file for an env that ships none (see TaskSpec)"
+    )
     p.add_argument("--trials", type=_non_negative_int, help="policy trials after exploration")
     p.add_argument("--particles", type=_positive_int, help="particles M of the rollout")
     p.add_argument("--opt-steps", type=_positive_int, help="max policy optimisation steps")
@@ -71,9 +83,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument(
         "--explore-hold",
         type=_positive_int,
-        help="steps each random action of the exploration trial is held (default: the env's, "
-        "2 = 0.1 s on mcpilco/CartpoleSwingUp-v0, 1 on mcpilco/DMCCartpoleSwingUp-v0, where "
-        "held pushes hit the rail's end)",
+        help="steps each random action of the exploration trial is held (default: the env's "
+        "config file)",
     )
     p.add_argument(
         "--compile-rollout",
@@ -85,7 +96,7 @@ def build_parser() -> argparse.ArgumentParser:
         "against the eager step and falls back to the eager step, with a warning, if they "
         "disagree",
     )
-    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--seed", type=int)
     p.add_argument("--threads", type=_positive_int, help="torch threads (default: torch's)")
     p.add_argument(
         "--device",
@@ -100,9 +111,18 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def config_from_args(args: argparse.Namespace) -> MCPilcoConfig:
-    """The preset with the command-line overrides applied (validated by MCPilcoConfig)."""
-    return PRESETS[args.preset].with_overrides(
-        env_id=args.env,
+    """The env's config file and preset with ``--set`` and the options applied (validated by
+    MCPilcoConfig)."""
+    overrides = parse_set(args.set)
+    if args.task is not None:
+        import yaml
+
+        try:
+            overrides["task"] = yaml.safe_load(args.task.read_text())
+        except (OSError, yaml.YAMLError) as err:
+            raise ValueError(f"--task {args.task}: {err}") from None
+    config = load_config(args.env, preset=args.preset, overrides=overrides)
+    return config.with_overrides(
         seed=args.seed,
         num_trials=args.trials,
         num_particles=args.particles,
@@ -130,8 +150,9 @@ def main(argv: list[str] | None = None) -> int:
     from mcpilco.agents.mc_pilco.loop import check_compile_toolchain
     from mcpilco.models.device import resolve_device, retain_host_memory
 
-    try:  # unknown env id, horizon mismatch, no such device or no compiler: before any work
-        make_env(config.env_id, config.horizon).close()
+    try:  # unknown env id or task, spaces or horizon mismatch, no such device or no compiler
+        task = config.task_spec()
+        make_env(config.env_id, task.horizon, task).close()
         device = resolve_device(config.device)
         if config.compile_rollout:
             check_compile_toolchain(device)

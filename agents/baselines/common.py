@@ -98,28 +98,32 @@ def episode_steps(env_id: str) -> int:
 
 # -------------------------------------------------------------------------- evaluation
 def evaluate_success(
-    env, act: Callable[[np.ndarray], np.ndarray], seeds: Sequence[int], horizon: int
+    env,
+    act: Callable[[np.ndarray], np.ndarray],
+    seeds: Sequence[int],
+    horizon: int,
+    task: Any,
 ) -> dict[str, Any]:
     """Run one episode per reset seed with ``act`` and score it as MC-PILCO's trials are.
 
-    Uses :func:`mcpilco.agents.mc_pilco.loop.run_episode`, so the success flag, cost, time
-    upright and mean ``|x|`` are the same quantities as in MC-PILCO's records.
+    Uses :func:`mcpilco.agents.mc_pilco.loop.run_episode` with the env's ``task``
+    (:class:`~mcpilco.agents.mc_pilco.task.TaskSpec`), so the success flag, cost and time
+    in the goal region are the same quantities as in MC-PILCO's records.
 
     Returns:
-        ``success_rate`` = (number of episodes with ``info["success"]``) / ``len(seeds)``,
-        the mean episode cost, mean time upright, mean ``|x|``, and the per-episode flags.
+        ``success_rate`` = (number of successful episodes) / ``len(seeds)``, the mean episode
+        cost, mean time in the goal region, and the per-episode flags.
     """
     if len(seeds) == 0:
         raise ValueError("evaluate_success needs at least one seed (one evaluation episode)")
-    eps = [run_episode(env, act, int(s), horizon) for s in seeds]
+    eps = [run_episode(env, act, int(s), horizon, task) for s in seeds]
     flags = [bool(e["success"]) for e in eps]
     return {
         "success_rate": float(np.mean(flags)),
         "episodes": len(eps),
         "successes": flags,
         "mean_cost": float(np.mean([e["cost"] for e in eps])),
-        "time_upright_s": float(np.mean([e["time_upright"] for e in eps])),
-        "mean_abs_x_m": float(np.mean([e["mean_abs_x"] for e in eps])),
+        "time_in_goal_s": float(np.mean([e["time_in_goal"] for e in eps])),
     }
 
 
@@ -147,7 +151,7 @@ def trial_records_to_points(records: Sequence[dict[str, Any]], horizon: int) -> 
                 "episodes": 1,
                 "kind": r.get("kind"),
                 "mean_cost": float(r.get("cost", float("nan"))),
-                "time_upright_s": float(r.get("time_upright", float("nan"))),
+                "time_in_goal_s": float(r.get("time_in_goal", float("nan"))),
             }
         )
     return pts

@@ -64,7 +64,6 @@ from mcpilco.agents.mc_pilco.loop import (
     LEGACY_FIELD_VALUES,
     RunSummary,
     check_resume,
-    default_explore_hold,
     env_dt,
     episode_outcome,
     exploration_episode,
@@ -75,6 +74,7 @@ from mcpilco.agents.mc_pilco.loop import (
     trial_seed,
     write_records,
 )
+from mcpilco.agents.mc_pilco.task import TaskSpec
 from mcpilco.agents.mc_pilco.viz import plot_optimisation
 
 CHECKPOINT_NAME = "checkpoint.pt"
@@ -111,10 +111,9 @@ class PilcoConfig:
         lr: Adam learning rate (L-BFGS takes the usual initial step 1).
         l_x, l_theta: cost length scales (MC-PILCO's optimisation cost, Amadio et al. 2022:
             ``l_x = 1``, ``l_theta = 3``), giving ``W = diag(2/l_x^2, 0, 2/l_theta^2, 0)``.
-        explore_hold: steps each random exploration action is held (as
-            :attr:`MCPilcoConfig.explore_hold <mcpilco.agents.mc_pilco.MCPilcoConfig>`, so that
-            both agents start from the same exploration trial); None (default): the env's
-            value, :func:`~mcpilco.agents.mc_pilco.loop.default_explore_hold`.
+        explore_hold: steps each random exploration action is held (pass
+            :attr:`MCPilcoConfig.explore_hold <mcpilco.agents.mc_pilco.MCPilcoConfig>` of the
+            same env, so that both agents start from the same exploration trial).
         init_std: ``Sigma_0 = init_std^2 I`` of the initial belief (the env's 0.01); must be
             > 1e-3 so that TorchRL's world model takes its moment-matching path.
         seed: seeds torch, numpy and the env resets (same trial seeds as MC-PILCO).
@@ -131,14 +130,12 @@ class PilcoConfig:
     lr: float = 0.02
     l_x: float = 1.0
     l_theta: float = 3.0
-    explore_hold: int | None = None
+    explore_hold: int = 1
     init_std: float = 0.01
     seed: int = 0
     torch_threads: int | None = None
 
     def __post_init__(self) -> None:
-        if self.explore_hold is None:
-            self.explore_hold = default_explore_hold(self.env_id)
         for name in ("num_trials",):
             v = getattr(self, name)
             if int(v) != v or v < 0:
@@ -423,7 +420,8 @@ def run_pilco(
     ckpt_path = out / CHECKPOINT_NAME
     if config.torch_threads is not None:
         torch.set_num_threads(int(config.torch_threads))
-    env = make_env(config.env_id, config.horizon)
+    task = TaskSpec.for_env(config.env_id).replace(horizon=config.horizon)
+    env = make_env(config.env_id, config.horizon, task)
     obs_dim = int(np.prod(env.observation_space.shape))
     act_dim = int(np.prod(env.action_space.shape))
     if (obs_dim, act_dim) != (4, 1):
@@ -432,7 +430,7 @@ def run_pilco(
             f"{config.env_id}: PILCO's swing-up target needs 4 states [x, x_dot, theta, "
             f"theta_dot] and 1 action, got {obs_dim} and {act_dim}; use a cartpole env"
         )
-    dt = env_dt(env)
+    dt = env_dt(env, task)
     base_env = _torchrl_env(config.env_id)
 
     torch.manual_seed(config.seed)
@@ -464,11 +462,11 @@ def run_pilco(
     try:
         for k in range(start_trial, total):
             t0 = time.perf_counter()
-            rec: dict[str, Any] = {"index": k, "experience_s": (k + 1) * config.horizon * dt}
+            rec: dict[str, Any] = {"index": k}
             if k == 0:
                 rec["kind"] = "exploration"
                 ep = exploration_episode(
-                    env, np_rng, config.seed, config.horizon, config.explore_hold
+                    env, np_rng, config.seed, config.horizon, task, config.explore_hold
                 )
             else:
                 rec["kind"] = "policy"
@@ -512,10 +510,15 @@ def run_pilco(
                     opt_final_cost=res["best"],
                 )
                 ep = run_episode(
-                    env, controller_act(controller), trial_seed(config.seed, k), config.horizon
+                    env,
+                    controller_act(controller),
+                    trial_seed(config.seed, k),
+                    config.horizon,
+                    task,
                 )
             episodes.append({"obs": ep["obs"], "actions": ep["actions"]})
             rec.update(episode_outcome(ep, t0))
+            rec["experience_s"] = sum(len(e["actions"]) for e in episodes) * dt
             records.append(rec)
             _write_outputs(out, config, records, opt_curves)
             atomic_torch_save(

@@ -55,6 +55,7 @@ from mcpilco.agents.baselines.common import (
     save_curve,
 )
 from mcpilco.agents.mc_pilco.loop import DEFAULT_ENV_ID, check_resume, env_dt, make_env
+from mcpilco.agents.mc_pilco.task import TaskSpec
 
 ALGOS: tuple[str, ...] = ("sac", "td3", "ppo")
 """stable-baselines3 algorithms of the comparison."""
@@ -272,6 +273,7 @@ def _success_callback_class():
             seeds: list[int],
             horizon: int,
             dt: float,
+            task: Any,
             points: list[dict[str, Any]],
             on_eval: Callable[[dict[str, Any]], None] | None = None,
             on_checkpoint: Callable[[int], None] | None = None,
@@ -286,6 +288,7 @@ def _success_callback_class():
             self.seeds = list(seeds)
             self.horizon = int(horizon)
             self.dt = float(dt)
+            self.task = task
             self.points = points
             self.on_eval = on_eval
             self.on_checkpoint = on_checkpoint
@@ -313,7 +316,11 @@ def _success_callback_class():
             """One evaluation at the current step count; appends and returns the point."""
             t0 = time.perf_counter()
             res = evaluate_success(
-                self.eval_env, policy_act(self.model, self.vec_normalize), self.seeds, self.horizon
+                self.eval_env,
+                policy_act(self.model, self.vec_normalize),
+                self.seeds,
+                self.horizon,
+                self.task,
             )
             self.eval_seconds += time.perf_counter() - t0
             res.pop("successes")
@@ -383,8 +390,9 @@ def run_sb3(
     curve_path = out / CURVE_NAME
 
     horizon = episode_steps(config.env_id)
-    eval_env = make_env(config.env_id, horizon)
-    dt = env_dt(eval_env)
+    task = TaskSpec.for_env(config.env_id).replace(horizon=horizon)
+    eval_env = make_env(config.env_id, horizon, task)
+    dt = env_dt(eval_env, task)
     action_dim = int(np.prod(eval_env.action_space.shape))
     hp, runner = _split_hyperparams(config, action_dim)
     algo_cls = _algo_class(config.algo)
@@ -434,6 +442,7 @@ def run_sb3(
             config=config.to_dict(),
             hyperparams=config.hyperparams(),
             horizon=horizon,
+            task=task,
             budget_steps=int(config.steps),
             steps_done=int(model.num_timesteps),
             wall_s=wall0 + time.perf_counter() - t_wall,

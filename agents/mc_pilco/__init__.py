@@ -1,35 +1,35 @@
 """MC-PILCO: Monte Carlo probabilistic inference for learning control (thesis ch. 5).
 
-TorchRL-style parts (Amadio et al., IEEE T-RO 2022):
+TorchRL-style parts (Amadio et al., IEEE T-RO 2022) over any task that declares a
+:class:`TaskSpec`:
 
+* task: :class:`TaskSpec` (state layout, angles, speed-integration pairs, action bounds,
+  cost, success test), shipped for the registered envs (:mod:`mcpilco.envs.tasks`);
 * modules: :class:`SquashedRBFPolicy` (a ``TensorDictModule`` via :func:`make_policy_module`),
-  :class:`GPDynamicsModel` / :class:`SpeedIntegrationDynamics` (GP velocity changes, speed
-  integration), :class:`SwingUpCost`;
+  :class:`GPDynamicsModel` / :class:`SpeedIntegrationDynamics` (GP changes, speed
+  integration), :class:`SaturatingCost`;
 * objective: :class:`MCPilcoLoss` (particle rollout, ``loss_cost``);
 * loop: :func:`optimize_policy` (Adam + monitoring rule) and :func:`run_mcpilco` (trials,
-  checkpoints, PNG and Rerun outputs), with :data:`DEMO_CONFIG`, :data:`SMALL_CONFIG` and
-  :data:`BENCH_CONFIG`.
+  checkpoints, PNG and Rerun outputs), configured by :class:`MCPilcoConfig` and per-env
+  YAML files (:func:`load_config`).
 """
 
-from mcpilco.agents.mc_pilco.cost import SwingUpCost
+from mcpilco.agents.mc_pilco.cost import SaturatingCost
 from mcpilco.agents.mc_pilco.dynamics import (
     GPDynamicsModel,
     SpeedIntegrationDynamics,
-    cartpole_gp_inputs,
     make_kernel_factory,
     speed_integration,
     transitions_to_dataset,
 )
+from mcpilco.agents.mc_pilco.features import StateLayout, gp_inputs
 from mcpilco.agents.mc_pilco.loop import (
-    BENCH_CONFIG,
     DEFAULT_ENV_ID,
-    DEMO_CONFIG,
-    PRESETS,
-    SMALL_CONFIG,
     MCPilcoConfig,
     RunSummary,
-    default_explore_hold,
+    load_config,
     make_env,
+    parse_set,
     registered_ids,
     run_episode,
     run_mcpilco,
@@ -44,17 +44,12 @@ from mcpilco.agents.mc_pilco.optimize import (
 from mcpilco.agents.mc_pilco.policy import (
     PolicyPopulation,
     SquashedRBFPolicy,
-    cartpole_policy_features,
     make_policy_module,
 )
+from mcpilco.agents.mc_pilco.task import TaskSpec, TaskSpecError
 
 __all__ = [
-    "BENCH_CONFIG",
     "DEFAULT_ENV_ID",
-    "DEMO_CONFIG",
-    "PRESETS",
-    "SMALL_CONFIG",
-    "default_explore_hold",
     "CostMonitor",
     "GPDynamicsModel",
     "MCPilcoConfig",
@@ -64,15 +59,19 @@ __all__ = [
     "PolicyOptConfig",
     "PolicyPopulation",
     "RunSummary",
+    "SaturatingCost",
     "SpeedIntegrationDynamics",
     "SquashedRBFPolicy",
-    "SwingUpCost",
-    "cartpole_gp_inputs",
-    "cartpole_policy_features",
+    "StateLayout",
+    "TaskSpec",
+    "TaskSpecError",
+    "gp_inputs",
+    "load_config",
     "make_env",
     "make_kernel_factory",
     "make_policy_module",
     "optimize_policy",
+    "parse_set",
     "registered_ids",
     "run_episode",
     "run_mcpilco",

@@ -1,98 +1,170 @@
-"""Saturating swing-up cost in torch (thesis section 5.5.1; Amadio et al. 2022, sec. VI).
+"""Saturating cost of a task in torch (thesis section 5.5.1; Amadio et al. 2022, sec. V-VI).
 
 Glossary
 --------
-``x = [q1, q1_dot, q2, q2_dot]``
-    cartpole state: cart position [m], cart velocity, pole angle (0 down, +-pi up, not
-    wrapped), pole angular velocity.
-``wrap(q2) = atan2(sin q2, cos q2)``
-    the angle mapped to ``(-pi, pi]``; differentiable with derivative 1 almost everywhere.
-``c(x) = 1 - exp(-(|wrap(q2)| - pi)^2 / l_theta^2 - q1^2 / l_x^2)``
-    the cost of thesis section 5.5.1 (``l1 = l_x = 1.5``, ``l2 = l_theta = 1``), the same
-    definition as :func:`mcpilco.envs.cartpole_task.cartpole_cost` (numpy), which the env
-    reports; the tests check that the two agree.
-``c_u(x) = 1 - exp(-(|q2| - pi)^2 / l_theta^2 - q1^2 / l_x^2)``
-    the unwrapped variant optimised by MC-PILCO (Amadio et al. 2022, sec. V-A, with
-    ``l_theta = 3``, ``l_x = 1``): ``|q2|`` grows with every full rotation, so spinning the
-    pole through the top is not rewarded. With a wide ``l_theta`` and the wrapped angle, a
-    spinning policy gets a low average cost (we saw the optimiser find one); ``wrap=False``
-    (the agent's default in :class:`~mcpilco.agents.mc_pilco.loop.MCPilcoConfig`) avoids it.
+``c(x) = 1 - exp(-sum_j d_j(x)^2 / l_j^2)``
+    the cost on the task's cost terms ``j`` (state coordinate ``x_j``, target ``x*_j``, length
+    scale ``l_j``), in ``[0, 1)``;
+``d_j = x_j - x*_j``
+    for a plain coordinate;
+``d_j = wrap(x_j - x*_j)``
+    for an angle in mode ``"wrap"`` (the angle mapped to ``[-pi, pi)``; derivative 1 almost
+    everywhere);
+``d_j = |x_j| - |x*_j|``
+    for an angle in mode ``"abs"``: MC-PILCO's unwrapped cart-pole cost (Amadio et al. 2022,
+    sec. V-A), where every full rotation increases ``|x_j|``, so spinning the pole through
+    the target is not rewarded (with a wide ``l_j`` and the wrapped angle a spinning policy
+    gets a low average cost);
 ``J = sum_t E[c(x_t)]``
     expected cumulative cost, eq. (5.1); its Monte Carlo estimate is eq. (5.8)
-    (see :mod:`mcpilco.agents.mc_pilco.loss`).
+    (:mod:`mcpilco.agents.mc_pilco.loss`).
+
+The numpy evaluation cost of the same spec is :meth:`.task.TaskSpec.cost`; the tests check
+that the two agree.
 """
 
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping, Sequence
+from typing import Any
 
 import torch
 from torch import Tensor, nn
 
-from mcpilco.envs.cartpole_task import CARTPOLE_TASK
+from mcpilco.agents.mc_pilco.task import ANGLE_MODES
+
+MODE_PLAIN, MODE_WRAP, MODE_ABS = 0, 1, 2
+"""Distance kinds of a term: plain difference, wrapped angle, ``|x| - |x*|``."""
 
 
-class SwingUpCost(nn.Module):
-    """Saturating swing-up cost ``c(x)`` on ``[q1, q2]`` of a cartpole state.
+class SaturatingCost(nn.Module):
+    """``c(x) = 1 - exp(-sum_j d_j(x)^2 / l_j^2)`` (module glossary).
 
     Args:
-        l_x: length scale of the cart-position term [m], > 0.
-        l_theta: length scale of the angle term [rad], > 0.
-        wrap: use ``|wrap(q2)|`` (the env's evaluation cost) instead of ``|q2|``.
+        state_dim: ``n``, the state size.
+        idx: state index of each term.
+        targets: ``x*_j``.
+        length_scales: ``l_j`` (> 0).
+        modes: per term, 0 plain, 1 wrapped angle, 2 ``|x| - |x*|`` (see the constants).
 
     Shapes:
-        ``forward(state)``: ``state (..., 4)`` -> cost ``(...)`` in ``[0, 1)``.
+        ``forward(state (..., n)) -> cost (...)``.
     """
 
     def __init__(
         self,
-        l_x: float = float(CARTPOLE_TASK["l_x"]),
-        l_theta: float = float(CARTPOLE_TASK["l_theta"]),
-        wrap: bool = True,
+        state_dim: int,
+        idx: Sequence[int],
+        targets: Sequence[float],
+        length_scales: Sequence[float],
+        modes: Sequence[int],
     ) -> None:
         super().__init__()
-        if not (l_x > 0 and l_theta > 0):
-            raise ValueError(f"cost length scales must be > 0, got l_x={l_x}, l_theta={l_theta}")
-        self.l_x = float(l_x)
-        self.l_theta = float(l_theta)
-        self.wrap = bool(wrap)
+        if not (len(idx) == len(targets) == len(length_scales) == len(modes)) or not idx:
+            raise ValueError("idx, targets, length_scales and modes need one entry per term")
+        if not all(ls > 0 and math.isfinite(ls) for ls in length_scales):
+            raise ValueError(f"cost length scales must be > 0, got {list(length_scales)}")
+        if not all(0 <= i < state_dim for i in idx):
+            raise ValueError(f"cost term indices {list(idx)} out of range for {state_dim} states")
+        self.state_dim = int(state_dim)
+        self.idx = tuple(int(i) for i in idx)
+        self.targets = tuple(float(t) for t in targets)
+        self.length_scales = tuple(float(v) for v in length_scales)
+        self.modes = tuple(int(m) for m in modes)
+
+    @classmethod
+    def from_task(
+        cls,
+        task: Any,
+        length_scales: Mapping[str, float] | None = None,
+        angle_mode: str | None = None,
+    ) -> SaturatingCost:
+        """The cost of ``task``'s terms; ``length_scales`` (by state name) and ``angle_mode``
+        (for every angle term) replace the task's values, e.g. for the optimised cost."""
+        length_scales = dict(length_scales or {})
+        unknown = set(length_scales) - {t.state for t in task.cost_terms}
+        if unknown:
+            raise ValueError(
+                f"cost length scales for {sorted(unknown)}, which have no cost term in the "
+                f"task (terms: {[t.state for t in task.cost_terms]})"
+            )
+        if angle_mode is not None and angle_mode not in ANGLE_MODES:
+            raise ValueError(f"angle_mode must be one of {ANGLE_MODES}, got {angle_mode!r}")
+        modes = []
+        for t in task.cost_terms:
+            if t.state not in task.angles:
+                modes.append(MODE_PLAIN)
+            else:
+                mode = angle_mode or t.angle_mode
+                modes.append(MODE_WRAP if mode == "wrap" else MODE_ABS)
+        return cls(
+            task.state_dim,
+            [task.index(t.state) for t in task.cost_terms],
+            [t.target for t in task.cost_terms],
+            [float(length_scales.get(t.state, t.length_scale)) for t in task.cost_terms],
+            modes,
+        )
 
     def forward(self, state: Tensor) -> Tensor:
-        if state.shape[-1] != 4:
+        if state.shape[-1] != self.state_dim:
             raise ValueError(
-                f"state must have shape (..., 4) = [x, x_dot, theta, theta_dot], got "
-                f"{tuple(state.shape)}"
+                f"state must have shape (..., {self.state_dim}), got {tuple(state.shape)}"
             )
-        return _SwingUpCostFn.apply(state, self.l_x, self.l_theta, self.wrap)
+        return _SaturatingCostFn.apply(state, self)
 
     def extra_repr(self) -> str:
-        return f"l_x={self.l_x}, l_theta={self.l_theta}, wrap={self.wrap}"
+        return (
+            f"idx={self.idx}, targets={self.targets}, length_scales={self.length_scales}, "
+            f"modes={self.modes}"
+        )
 
 
-class _SwingUpCostFn(torch.autograd.Function):
-    """``c = 1 - E``, ``E = exp(-(d/l_theta)^2 - (q1/l_x)^2)``, ``d = |q2'| - pi`` with ``q2'`` the
-    (optionally wrapped) angle; one autograd node. Backward: ``dc/dq1 = 2 E q1 / l_x^2``,
-    ``dc/dq2 = 2 E d sign(q2') / l_theta^2`` (``d wrap(q2) / d q2 = 1``; ``sign(0) = 0``, the
-    subgradient of ``abs`` in torch)."""
+def _distance(v: Tensor, target: float, mode: int) -> tuple[Tensor, Tensor | None]:
+    """``d`` and ``dd/dv`` (None: 1) of one term."""
+    if mode == MODE_PLAIN:
+        return v - target, None
+    if mode == MODE_WRAP:
+        return torch.remainder(v - target + math.pi, 2.0 * math.pi) - math.pi, None
+    return v.abs() - abs(target), torch.sign(v)
+
+
+class _SaturatingCostFn(torch.autograd.Function):
+    """``c = 1 - E``, ``E = exp(-sum_j (d_j / l_j)^2)``; one autograd node. Backward:
+    ``dc/dx_j = 2 E d_j d'_j / l_j^2`` with ``d'_j = 1`` (plain, wrap) or ``sign(x_j)``
+    (``abs``; ``sign(0) = 0``, the subgradient of ``abs`` in torch)."""
 
     @staticmethod
-    def forward(ctx, state, l_x, l_theta, wrap):  # noqa: D102
-        x = state[..., 0]
-        theta = state[..., 2]
-        if wrap:
-            theta = torch.atan2(torch.sin(theta), torch.cos(theta))
-        d_theta = theta.abs() - math.pi
-        E = torch.exp(-((d_theta / l_theta) ** 2) - (x / l_x) ** 2)
-        ctx.save_for_backward(x, d_theta, torch.sign(theta), E)
-        ctx.scales = (l_x, l_theta)
+    def forward(ctx, state: Tensor, cost: SaturatingCost) -> Tensor:  # noqa: D102
+        s = None
+        ds, slopes = [], []
+        for i, target, ls, mode in zip(
+            cost.idx, cost.targets, cost.length_scales, cost.modes, strict=True
+        ):
+            d, slope = _distance(state[..., i], target, mode)
+            term = (d / ls) ** 2
+            s = term if s is None else s + term
+            ds.append(d)
+            slopes.append(slope)
+        E = torch.exp(-s)
+        ctx.save_for_backward(E, *ds, *(sl for sl in slopes if sl is not None))
+        ctx.cost = cost
+        ctx.has_slope = tuple(sl is not None for sl in slopes)
+        ctx.shape = state.shape
         return 1.0 - E
 
     @staticmethod
-    def backward(ctx, g):  # noqa: D102
-        x, d_theta, sgn, E = ctx.saved_tensors
-        l_x, l_theta = ctx.scales
+    def backward(ctx, g: Tensor) -> tuple[Tensor, None]:  # noqa: D102
+        cost = ctx.cost
+        E, *rest = ctx.saved_tensors
+        k = len(cost.idx)
+        ds, slopes = rest[:k], iter(rest[k:])
         gE2 = 2.0 * g * E
-        zero = torch.zeros_like(x)
-        g_x = gE2 * x / (l_x * l_x)
-        g_theta = gE2 * d_theta * sgn / (l_theta * l_theta)
-        return torch.stack([g_x, zero, g_theta, zero], dim=-1), None, None, None
+        cols = [None] * cost.state_dim
+        for j, (i, ls) in enumerate(zip(cost.idx, cost.length_scales, strict=True)):
+            gj = gE2 * ds[j] / (ls * ls)
+            if ctx.has_slope[j]:
+                gj = gj * next(slopes)
+            cols[i] = gj
+        zero = torch.zeros_like(E)
+        return torch.stack([zero if c is None else c for c in cols], dim=-1), None

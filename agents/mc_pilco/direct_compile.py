@@ -46,12 +46,9 @@ import torch
 from torch import Tensor
 from torch.utils._pytree import tree_flatten, tree_unflatten
 
-from mcpilco.agents.mc_pilco.cost import SwingUpCost, _SwingUpCostFn
-from mcpilco.agents.mc_pilco.dynamics import (
-    SpeedIntegrationDynamics,
-    _CartpoleGPInputs,
-    _SampleClipIntegrate,
-)
+from mcpilco.agents.mc_pilco.cost import SaturatingCost, _SaturatingCostFn
+from mcpilco.agents.mc_pilco.dynamics import SpeedIntegrationDynamics, _SampleClipIntegrate
+from mcpilco.agents.mc_pilco.features import _GPInputs
 from mcpilco.agents.mc_pilco.policy import (
     PolicyPopulation,
     SquashedRBFPolicy,
@@ -79,7 +76,7 @@ def unsupported_reason(policy: Any, dynamics: Any, cost: Any, device: torch.devi
     """Why the direct path cannot compile this rollout (None: it can). It chains the
     hand-written backward passes of the package's own parts, so it needs exactly those: a
     :class:`SquashedRBFPolicy` or :class:`PolicyPopulation`, :class:`SpeedIntegrationDynamics`
-    over a :class:`FusedRBFMPKPredictor`, :class:`SwingUpCost`, on the CPU."""
+    over a :class:`FusedRBFMPKPredictor`, :class:`SaturatingCost`, on the CPU."""
     if device.type != "cpu":
         return f"it runs on the CPU only (the rollout is on {device})"
     if type(policy) not in (SquashedRBFPolicy, PolicyPopulation):
@@ -88,7 +85,7 @@ def unsupported_reason(policy: Any, dynamics: Any, cost: Any, device: torch.devi
         return f"unsupported dynamics {type(dynamics).__name__}"
     if not isinstance(dynamics.delta_model, FusedRBFMPKPredictor):
         return f"the GP posterior is not fused ({type(dynamics.delta_model).__name__})"
-    if type(cost) is not SwingUpCost:
+    if type(cost) is not SaturatingCost:
         return f"unsupported cost {type(cost).__name__}"
     return None
 
@@ -243,7 +240,7 @@ class DirectRollout:
         self,
         policy: SquashedRBFPolicy | PolicyPopulation,
         dynamics: SpeedIntegrationDynamics,
-        cost: SwingUpCost,
+        cost: SaturatingCost,
         rows: int,
         delta_dim: int = 2,
         compiler: Callable[[Callable, list[Tensor]], Callable] | None = None,
@@ -255,7 +252,7 @@ class DirectRollout:
         self._ctx_attrs: dict[str, dict[str, Any]] = {}
         compiler = compile_traced if compiler is None else compiler
         dtype = policy.weights.dtype
-        x = torch.zeros(self.shard_rows, 4, dtype=dtype)
+        x = torch.zeros(self.shard_rows, dynamics.layout.n, dtype=dtype)
         eps = torch.zeros(self.shard_rows, int(delta_dim), dtype=dtype)
         bits, keep = self.no_dropout()
         theta = self.parameters()
@@ -396,19 +393,20 @@ class DirectRollout:
         dyn, cost = self.dynamics, self.cost
         mask = mask_from_bytes(bits, keep[0], x.dtype, keep[1])
         ctx = {name: _Saved() for name in ("policy", "inputs", "gp", "step", "cost")}
-        obs = (x + nu).reshape(self.candidates, -1, 4)
+        layout = dyn.layout
+        obs = (x + nu).reshape(self.candidates, -1, layout.n)
         u = _SquashedRBF.forward(
             ctx["policy"], obs, self._batched(c), self._batched(log_l), self._batched(w),
-            self.policy.u_max, mask,
+            (self.policy.u_mid, self.policy.u_half), mask, self.policy.layout,
         ).reshape(self.shard_rows, -1)  # fmt: skip
-        gp_in = _CartpoleGPInputs.forward(ctx["inputs"], x, u)
+        gp_in = _GPInputs.forward(ctx["inputs"], x, u, layout)
         mean, var = _FusedPosterior.forward(ctx["gp"], gp_in, dyn.delta_model)
         if dyn.sample_noise:
             var = var + dyn.noise_variance.to(var.dtype)
         x_next = _SampleClipIntegrate.forward(
-            ctx["step"], x, mean, var, eps, dyn.delta_bound, dyn.dt
+            ctx["step"], x, mean, var, eps, dyn.delta_bound, dyn.dt, layout
         )
-        c_next = _SwingUpCostFn.forward(ctx["cost"], x_next, cost.l_x, cost.l_theta, cost.wrap)
+        c_next = _SaturatingCostFn.forward(ctx["cost"], x_next, cost)
         self._ctx_attrs = {
             name: {k: v for k, v in vars(s).items() if k != "saved_tensors"}
             for name, s in ctx.items()
@@ -424,16 +422,16 @@ class DirectRollout:
             ctx[name] = _Saved()
             vars(ctx[name]).update(attrs)
             ctx[name].saved_tensors = tensors
-        g_x = _SwingUpCostFn.backward(ctx["cost"], g_c_next)[0] + g_x_next
+        g_x = _SaturatingCostFn.backward(ctx["cost"], g_c_next)[0] + g_x_next
         g_state, g_mean, g_var = _SampleClipIntegrate.backward(ctx["step"], g_x)[:3]
         g_in = _FusedPosterior.backward(ctx["gp"], g_mean, g_var)[0]
-        g_state_in, g_u = _CartpoleGPInputs.backward(ctx["inputs"], g_in)
+        g_state_in, g_u = _GPInputs.backward(ctx["inputs"], g_in)[:2]
         g_obs, *g_theta = _SquashedRBF.backward(
             ctx["policy"], g_u.reshape(self.candidates, -1, g_u.shape[-1])
         )[:4]
         if not self.batched:
             g_theta = [g.squeeze(0) for g in g_theta]
-        g_prev = g_state + g_state_in + g_obs.reshape(self.shard_rows, 4)
+        g_prev = g_state + g_state_in + g_obs.reshape(self.shard_rows, -1)
         return g_prev, tuple(G + g for G, g in zip(grads, g_theta, strict=True))
 
 
@@ -487,7 +485,7 @@ def _backward_shard(
     runner: DirectRollout, steps: list[list[Tensor]], g_costs: Tensor, grads: list[Tensor]
 ) -> list[Tensor]:
     """One shard's backward loop from ``g = dJ/dcosts`` (H, rows): ``dJ/dtheta``."""
-    g_x = g_costs.new_zeros(g_costs.shape[1], 4)
+    g_x = g_costs.new_zeros(g_costs.shape[1], runner.dynamics.layout.n)
     for t in reversed(range(len(steps))):
         g_x, *grads = runner.step_backward(*steps[t], g_x, g_costs[t], *grads)
     return grads

@@ -1,17 +1,20 @@
 """GP dynamics model of MC-PILCO with speed integration (thesis sections 5.3.1 and 5.4.3).
 
+The shapes come from the task's :class:`~mcpilco.agents.mc_pilco.features.StateLayout`.
+
 Glossary
 --------
-``x_t = [q_t, q_dot_t]``
-    state; for the cartpole ``q = (q1, q2) = (x, theta)`` and the state is stored in the env
-    order ``[x, x_dot, theta, theta_dot]`` (positions at indices 0, 2; velocities 1, 3).
+``x_t``
+    state of ``n`` coordinates; the task pairs positions ``q_i`` with velocities ``q_dot_i``
+    and leaves the other coordinates ``o_j`` unpaired.
 ``u_t``
-    action (env units, ``[-1, 1]`` for the cartpole).
-``x~_t = [x, x_dot, theta_dot, sin theta, cos theta, u]``
-    GP input (the angle through sin/cos; thesis 5.5.1 uses the same extension).
-``Delta_t = q_dot_{t+1} - q_dot_t``
-    change of velocity, one GP ``h_i`` per velocity coordinate ``i`` (thesis 5.4.3: only
-    ``d_x / 2`` GPs), batched as one ``GPRegressor`` with ``m = 2`` outputs.
+    action (env units).
+``x~_t = [f(x_t), u_t]``
+    GP input: the state features (angles through sin/cos, :mod:`.features`) and the action.
+``Delta_t``
+    change of each predicted coordinate: ``q_dot_{t+1} - q_dot_t`` per pair (thesis 5.4.3:
+    only the velocities are modelled) and ``o_{t+1} - o_t`` per unpaired coordinate; one GP
+    ``h_i`` per output, batched as one ``GPRegressor`` with ``m`` outputs.
 ``E[Delta^_t], var[Delta^_t]``
     GP posterior mean (5.3) and latent variance (5.4): no measurement noise ``sigma_i^2``.
 ``Delta_t = E[Delta^_t] + sqrt(var[Delta^_t]) eps``, ``eps ~ N(0, I)``
@@ -25,7 +28,8 @@ Glossary
     get a huge ``Delta`` that feeds back into a larger input and overflows within a few steps
     (NaN cost); the clip keeps particles finite without touching those near the data.
 ``q_dot_{t+1} = q_dot_t + Delta_t``, ``q_{t+1} = q_t + T_s q_dot_t + T_s / 2 Delta_t``
-    speed integration, eq. (5.9) (constant acceleration over one period ``T_s``).
+    speed integration, eq. (5.9) (constant acceleration over one period ``T_s``);
+    ``o_{t+1} = o_t + Delta_t`` for an unpaired coordinate.
 ``k = k_RBF + k_MP^(2)``
     kernel of each GP, eq. (5.10) (``kernel="rbf"``: RBF only, the ablation of Fig. 5.5).
 """
@@ -33,76 +37,53 @@ Glossary
 from __future__ import annotations
 
 from collections.abc import Callable
-from typing import Literal
+from typing import Any, Literal
 
 import numpy as np
 import torch
 from torch import Tensor, nn
 
-POSITION_IDX: tuple[int, ...] = (0, 2)
-"""Indices of ``q`` in the cartpole state ``[x, x_dot, theta, theta_dot]``."""
-VELOCITY_IDX: tuple[int, ...] = (1, 3)
-"""Indices of ``q_dot`` in the cartpole state."""
-GP_INPUT_NAMES: tuple[str, ...] = ("x", "x_dot", "theta_dot", "sin_theta", "cos_theta", "u")
-GP_OUTPUT_NAMES: tuple[str, ...] = ("delta_x_dot", "delta_theta_dot")
+from mcpilco.agents.mc_pilco.features import StateLayout, gp_inputs
 
 KernelName = Literal["rbf+mpk", "rbf"]
 KERNEL_CHOICES: tuple[str, ...] = ("rbf+mpk", "rbf")
 
 
-def cartpole_gp_inputs(state: Tensor, action: Tensor) -> Tensor:
-    """``x~ = [x, x_dot, theta_dot, sin theta, cos theta, u]``: (..., 4), (..., 1) -> (..., 6).
-
-    Differentiable (one autograd node, analytic backward)."""
-    return _CartpoleGPInputs.apply(state, action)
-
-
-class _CartpoleGPInputs(torch.autograd.Function):
-    """:func:`cartpole_gp_inputs`; backward ``dtheta = g_sin cos theta - g_cos sin theta``."""
-
-    @staticmethod
-    def forward(ctx, state: Tensor, action: Tensor) -> Tensor:  # noqa: D102
-        theta = state[..., 2:3]
-        sin_t, cos_t = torch.sin(theta), torch.cos(theta)
-        ctx.save_for_backward(sin_t, cos_t)
-        return torch.cat([state[..., 0:2], state[..., 3:4], sin_t, cos_t, action], dim=-1)
-
-    @staticmethod
-    def backward(ctx, g: Tensor) -> tuple[Tensor, Tensor]:  # noqa: D102
-        sin_t, cos_t = ctx.saved_tensors
-        g_theta = g[..., 3:4] * cos_t - g[..., 4:5] * sin_t
-        g_state = torch.cat([g[..., 0:2], g_theta, g[..., 2:3]], dim=-1)
-        return g_state, g[..., 5:6]
-
-
-def speed_integration(state: Tensor, delta: Tensor, dt: float) -> Tensor:
-    """Next state by eq. (5.9): ``q+ = q + T_s q_dot + T_s/2 Delta``, ``q_dot+ = q_dot + Delta``.
+def speed_integration(state: Tensor, delta: Tensor, dt: float, layout: StateLayout) -> Tensor:
+    """Next state by eq. (5.9): ``q+ = q + T_s q_dot + T_s/2 Delta``, ``q_dot+ = q_dot + Delta``
+    per pair, ``o+ = o + Delta`` per unpaired coordinate.
 
     Written as ``x+ = x A^T + Delta S^T`` with constant matrices (two small matmuls instead
-    of a dozen slicing ops in the rollout's hot loop).
+    of slicing ops in the rollout's hot loop).
 
     Args:
-        state: (..., 4) ``[x, x_dot, theta, theta_dot]``.
-        delta: (..., 2) velocity changes ``[Delta x_dot, Delta theta_dot]``.
+        state: (..., n).
+        delta: (..., m) changes of ``layout.output_idx``.
         dt: control period ``T_s`` [s].
+        layout: the task's state layout.
     """
-    A, S = _integration_matrices(dt, state.dtype, state.device)
+    A, S = _integration_matrices(dt, layout, state.dtype, state.device)
     return state @ A + delta @ S
 
 
 _INTEGRATION_CACHE: dict = {}
 
 
-def _integration_matrices(dt: float, dtype: torch.dtype, device) -> tuple[Tensor, Tensor]:
-    """``A^T`` (4, 4) and ``S^T`` (2, 4) of :func:`speed_integration` (cached)."""
-    key = (float(dt), dtype, str(device))
+def _integration_matrices(
+    dt: float, layout: StateLayout, dtype: torch.dtype, device
+) -> tuple[Tensor, Tensor]:
+    """``A^T`` (n, n) and ``S^T`` (m, n) of :func:`speed_integration` (cached)."""
+    key = (float(dt), layout, dtype, str(device))
     if key not in _INTEGRATION_CACHE:
-        A = torch.eye(4, dtype=torch.float64)
-        S = torch.zeros(4, 2, dtype=torch.float64)
-        for j, (q, qd) in enumerate(zip(POSITION_IDX, VELOCITY_IDX, strict=True)):
+        n = layout.n
+        A = torch.eye(n, dtype=torch.float64)
+        S = torch.zeros(n, layout.output_dim, dtype=torch.float64)
+        for j, (q, qd) in enumerate(zip(layout.position_idx, layout.velocity_idx, strict=True)):
             A[q, qd] = dt
             S[q, j] = 0.5 * dt
             S[qd, j] = 1.0
+        for j, o in enumerate(layout.delta_idx, start=len(layout.velocity_idx)):
+            S[o, j] = 1.0
         _INTEGRATION_CACHE[key] = (
             A.T.contiguous().to(dtype=dtype, device=device),
             S.T.contiguous().to(dtype=dtype, device=device),
@@ -111,41 +92,46 @@ def _integration_matrices(dt: float, dtype: torch.dtype, device) -> tuple[Tensor
 
 
 def transitions_to_dataset(
-    states: np.ndarray | Tensor, actions: np.ndarray | Tensor, next_states: np.ndarray | Tensor
+    states: np.ndarray | Tensor,
+    actions: np.ndarray | Tensor,
+    next_states: np.ndarray | Tensor,
+    layout: StateLayout,
 ) -> tuple[Tensor, Tensor]:
     """GP training set from transitions ``(x_t, u_t, x_{t+1})``.
 
-    Returns ``X = x~_t`` (N, 6) and ``Y = q_dot_{t+1} - q_dot_t`` (N, 2), float64.
+    Returns ``X = x~_t`` (N, F + A) and ``Y = x_{t+1} - x_t`` on ``layout.output_idx``
+    (N, m), float64.
     """
     s = torch.as_tensor(np.asarray(states), dtype=torch.float64)
     a = torch.as_tensor(np.asarray(actions), dtype=torch.float64)
     s1 = torch.as_tensor(np.asarray(next_states), dtype=torch.float64)
     if a.ndim == 1:
         a = a[:, None]
-    if s.ndim != 2 or s.shape[1] != 4 or s1.shape != s.shape or a.shape[0] != s.shape[0]:
+    n = layout.n
+    if s.ndim != 2 or s.shape[1] != n or s1.shape != s.shape or a.shape[0] != s.shape[0]:
         raise ValueError(
-            f"expected states (N, 4), actions (N, 1), next_states (N, 4); got {tuple(s.shape)}, "
-            f"{tuple(a.shape)}, {tuple(s1.shape)}"
+            f"expected states (N, {n}), actions (N, A), next_states (N, {n}); got "
+            f"{tuple(s.shape)}, {tuple(a.shape)}, {tuple(s1.shape)}"
         )
-    X = cartpole_gp_inputs(s, a)
-    Y = s1[:, list(VELOCITY_IDX)] - s[:, list(VELOCITY_IDX)]
-    return X, Y
+    out = list(layout.output_idx)
+    return gp_inputs(s, a, layout), s1[:, out] - s[:, out]
 
 
 class SpeedIntegrationDynamics(nn.Module):
     """One-step particle dynamics: sample ``Delta`` from a velocity-change model, integrate.
 
     Args:
-        delta_model: callable ``x~ (..., 6) -> (mean (..., 2), var (..., 2))`` of ``Delta``
+        delta_model: callable ``x~ (..., F + A) -> (mean (..., m), var (..., m))`` of ``Delta``
             (a GP ``CachedPredictor`` or any stub with the same interface, e.g. in tests).
         dt: control period ``T_s`` [s].
-        noise_variance: (2,) variance added to ``var`` when ``sample_noise`` is True.
+        layout: the task's state layout (pairs, angles).
+        noise_variance: (m,) variance added to ``var`` when ``sample_noise`` is True.
         sample_noise: add ``noise_variance`` to the sampling variance (default False, see
             the glossary).
-        delta_bound: (2,) bound ``b`` on ``|Delta|`` (None: no clipping).
+        delta_bound: (m,) bound ``b`` on ``|Delta|`` (None: no clipping).
 
     Shapes:
-        ``forward(state (..., 4), action (..., 1), eps (..., 2)) -> next_state (..., 4)``;
+        ``forward(state (..., n), action (..., A), eps (..., m)) -> next_state (..., n)``;
         ``eps = None`` gives the mean prediction.
     """
 
@@ -153,6 +139,7 @@ class SpeedIntegrationDynamics(nn.Module):
         self,
         delta_model: Callable[[Tensor], tuple[Tensor, Tensor]],
         dt: float,
+        layout: StateLayout,
         noise_variance: Tensor | None = None,
         sample_noise: bool = False,
         delta_bound: Tensor | None = None,
@@ -162,6 +149,7 @@ class SpeedIntegrationDynamics(nn.Module):
             raise ValueError(f"dt must be > 0, got {dt}")
         self.delta_model = delta_model
         self.dt = float(dt)
+        self.layout = layout
         self.sample_noise = bool(sample_noise)
         if sample_noise and noise_variance is None:
             raise ValueError("sample_noise=True needs noise_variance")
@@ -173,15 +161,17 @@ class SpeedIntegrationDynamics(nn.Module):
         )
 
     def delta_distribution(self, state: Tensor, action: Tensor) -> tuple[Tensor, Tensor]:
-        """``E[Delta]`` and ``var[Delta]`` (..., 2) at ``(state, action)``."""
-        mean, var = self.delta_model(cartpole_gp_inputs(state, action))
+        """``E[Delta]`` and ``var[Delta]`` (..., m) at ``(state, action)``."""
+        mean, var = self.delta_model(gp_inputs(state, action, self.layout))
         if self.sample_noise:
             var = var + self.noise_variance.to(var.dtype)
         return mean, var
 
     def forward(self, state: Tensor, action: Tensor, eps: Tensor | None = None) -> Tensor:
         mean, var = self.delta_distribution(state, action)
-        return _SampleClipIntegrate.apply(state, mean, var, eps, self.delta_bound, self.dt)
+        return _SampleClipIntegrate.apply(
+            state, mean, var, eps, self.delta_bound, self.dt, self.layout
+        )
 
 
 VAR_FLOOR = 1e-12
@@ -195,8 +185,8 @@ class _SampleClipIntegrate(torch.autograd.Function):
     subgradients torch's ``clamp`` and ``sqrt`` use). ``eps = None``: ``Delta = mean``."""
 
     @staticmethod
-    def forward(ctx, state, mean, var, eps, bound, dt):  # noqa: D102
-        A, S = _integration_matrices(dt, state.dtype, state.device)
+    def forward(ctx, state, mean, var, eps, bound, dt, layout):  # noqa: D102
+        A, S = _integration_matrices(dt, layout, state.dtype, state.device)
         if eps is None:
             delta, sd, var_on = mean, None, None
         else:
@@ -208,15 +198,15 @@ class _SampleClipIntegrate(torch.autograd.Function):
             b = bound.to(delta.dtype)
             inside = (delta >= -b) & (delta <= b)
             delta = torch.clamp(delta, -b, b)
-        lead = state.shape[:-1]
-        nxt = torch.addmm(state.reshape(-1, 4) @ A, delta.reshape(-1, S.shape[0]), S)
+        lead, n = state.shape[:-1], state.shape[-1]
+        nxt = torch.addmm(state.reshape(-1, n) @ A, delta.reshape(-1, S.shape[0]), S)
         ctx.save_for_backward(eps, sd, var_on, inside, A, S)
-        return nxt.reshape(*lead, 4)
+        return nxt.reshape(*lead, n)
 
     @staticmethod
     def backward(ctx, g):  # noqa: D102
         eps, sd, var_on, inside, A, S = ctx.saved_tensors
-        g2 = g.reshape(-1, 4)
+        g2 = g.reshape(-1, g.shape[-1])
         g_state = (g2 @ A.T).reshape(g.shape)
         g_delta = (g2 @ S.T).reshape(*g.shape[:-1], S.shape[0])
         if inside is not None:
@@ -224,10 +214,10 @@ class _SampleClipIntegrate(torch.autograd.Function):
         g_var = None
         if eps is not None and ctx.needs_input_grad[2]:
             g_var = g_delta * eps / (2.0 * sd) * var_on
-        return g_state, g_delta, g_var, None, None, None
+        return g_state, g_delta, g_var, None, None, None, None
 
 
-def make_kernel_factory(kernel: str, input_dim: int = 6) -> Callable[[torch.Size], nn.Module]:
+def make_kernel_factory(kernel: str, input_dim: int) -> Callable[[torch.Size], nn.Module]:
     """Kernel factory for ``GPRegressor``: ``k = k_RBF (+ k_MP^(2))``, eq. (5.10).
 
     ``kernel`` is ``"rbf+mpk"`` (RBF with ARD and output scale, plus a degree-2 MPK) or
@@ -253,11 +243,12 @@ def make_kernel_factory(kernel: str, input_dim: int = 6) -> Callable[[torch.Size
 
 
 class GPDynamicsModel:
-    """Fits the velocity-change GPs by marginal likelihood and builds particle dynamics.
+    """Fits the ``Delta`` GPs of a task by marginal likelihood and builds particle dynamics.
 
     Args:
+        task: the :class:`~mcpilco.agents.mc_pilco.task.TaskSpec` (state layout, action size,
+            control period ``T_s``).
         kernel: ``"rbf+mpk"`` or ``"rbf"``.
-        dt: control period ``T_s`` [s].
         max_points: subset-of-data size (greedy, by posterior variance) when more
             transitions are available.
         adam_iters, adam_lr, lbfgs_iters: marginal-likelihood optimisation budget per fit.
@@ -274,8 +265,8 @@ class GPDynamicsModel:
 
     def __init__(
         self,
+        task: Any,
         kernel: str = "rbf+mpk",
-        dt: float = 0.05,
         max_points: int | None = 300,
         adam_iters: int = 200,
         adam_lr: float = 0.05,
@@ -284,10 +275,12 @@ class GPDynamicsModel:
         delta_clip_factor: float | None = 3.0,
         warm_start: bool = False,
     ) -> None:
+        self.task = task
+        self.layout = StateLayout.from_task(task)
         self.kernel = kernel
         self.delta_clip_factor = delta_clip_factor
-        self.kernel_factory = make_kernel_factory(kernel)
-        self.dt = float(dt)
+        self.kernel_factory = make_kernel_factory(kernel, task.feature_dim + task.action_dim)
+        self.dt = float(task.dt)
         self.max_points = max_points
         self.adam_iters = int(adam_iters)
         self.adam_lr = float(adam_lr)
@@ -302,14 +295,14 @@ class GPDynamicsModel:
 
         return GPRegressor(
             self.kernel_factory,
-            input_names=list(GP_INPUT_NAMES),
-            output_names=list(GP_OUTPUT_NAMES),
+            input_names=self.task.gp_input_names(),
+            output_names=self.task.gp_output_names(),
         )
 
     def fit(self, states, actions, next_states) -> GPDynamicsModel:
         """Fit the GPs on all transitions (hyperparameters from their initial values, or
         from the previous fit with ``warm_start``)."""
-        X, Y = transitions_to_dataset(states, actions, next_states)
+        X, Y = transitions_to_dataset(states, actions, next_states, self.layout)
         self.delta_max_ = Y.abs().amax(dim=0)
         if self.gp_ is None or not self.warm_start:
             self.gp_ = self._new_gp()
@@ -351,6 +344,7 @@ class GPDynamicsModel:
         return SpeedIntegrationDynamics(
             pred,
             self.dt,
+            self.layout,
             noise_variance=pred.noise_variance,
             sample_noise=self.sample_noise,
             delta_bound=bound,
@@ -358,9 +352,9 @@ class GPDynamicsModel:
 
     @torch.no_grad()
     def one_step_rmse(self, states, actions, next_states) -> np.ndarray:
-        """RMSE of the posterior mean of ``Delta`` on the given transitions, per output (2,)."""
+        """RMSE of the posterior mean of ``Delta`` on the given transitions, per output (m,)."""
         self._check_fitted()
-        X, Y = transitions_to_dataset(states, actions, next_states)
+        X, Y = transitions_to_dataset(states, actions, next_states, self.layout)
         mean, _ = self.gp_.predict(X)
         return torch.sqrt(((mean - Y) ** 2).mean(0)).cpu().numpy()
 

@@ -2,19 +2,23 @@
 
 Glossary
 --------
+The task (state layout, cost, success test, action bounds) comes from a
+:class:`~mcpilco.agents.mc_pilco.task.TaskSpec`, the hyperparameters from an
+:class:`MCPilcoConfig` (per-env YAML files, :func:`load_config`).
+
 trial ``k = 0``
-    random exploration for ``H`` steps (3 s): actions ``u ~ U(-1, 1)`` i.i.d., each held for
-    ``explore_hold`` control steps (default 2: one draw per 0.1 s, the thesis's sampling time).
+    random exploration for ``H`` steps: actions ``u ~ U(low, high)``, each drawn once per
+    ``explore_hold`` control steps.
 trial ``k >= 1``
     fit the velocity-change GPs on all transitions ``D`` by marginal likelihood (fresh
     hyperparameters each trial; subset of data beyond ``max_points``), optimise the policy on the
     particle estimate ``J^`` (5.8) with the monitoring rule, apply the policy (no dropout)
     to the env for ``H`` steps, append the transitions to ``D``.
 experience
-    ``3 (k + 1)`` seconds after trial ``k`` (3, 6, 9, 12, 15 s ...).
+    ``H T_s (k + 1)`` seconds after trial ``k`` (3, 6, 9, 12, 15 s ... on the cart-pole).
 record of a trial
-    env cost ``sum_t c(x_t)`` on the true state, ``success`` (env ``info``: upright over the
-    last 1 s with ``|x| < 0.5``), time upright, mean ``|x|``, wall-clock of the GP fit, of
+    the task's evaluation cost ``sum_t c(x_t)`` on the true state, ``success`` (the task's
+    test), the time spent within the task's goal bounds, wall-clock of the GP fit, of
     the optimisation and of the trial, optimisation steps and seconds per step, the one-step
     GP error on the trial's data (model fitted before the trial), and the particle
     predictions of the final policy.
@@ -44,8 +48,9 @@ from mcpilco.agents.mc_pilco.checkpoint import (
     rng_state,
     set_rng_state,
 )
-from mcpilco.agents.mc_pilco.cost import SwingUpCost
+from mcpilco.agents.mc_pilco.cost import SaturatingCost
 from mcpilco.agents.mc_pilco.dynamics import KERNEL_CHOICES, GPDynamicsModel
+from mcpilco.agents.mc_pilco.features import StateLayout
 from mcpilco.agents.mc_pilco.loss import MCPilcoLoss
 from mcpilco.agents.mc_pilco.native_rollout import cpp_compiler, cpp_compiler_names
 from mcpilco.agents.mc_pilco.optimize import OptimizationResult, PolicyOptConfig, optimize_policy
@@ -54,6 +59,7 @@ from mcpilco.agents.mc_pilco.policy import (
     SquashedRBFPolicy,
     make_policy_module,
 )
+from mcpilco.agents.mc_pilco.task import ANGLE_MODES, TaskSpec
 from mcpilco.agents.mc_pilco.viz import (
     plot_optimisation,
     plot_trial_particles,
@@ -76,72 +82,48 @@ _RESUME_FIXED = (
 )
 ROLLOUT_DTYPES = ("float32", "float64")
 """Choices of :attr:`MCPilcoConfig.rollout_dtype`."""
-DEFAULT_EXPLORE_HOLD = 2
-"""Exploration hold of an env without an entry in :data:`EXPLORE_HOLD_BY_ENV` (0.1 s at the
-cartpoles' 0.05 s control period: the thesis's sampling time, 5.5.1)."""
-EXPLORE_HOLD_BY_ENV: dict[str, int] = {"mcpilco/DMCCartpoleSwingUp-v0": 1}
-"""Measured exceptions to :data:`DEFAULT_EXPLORE_HOLD`. dm-control's cartpole: on seeds 0-11
-(bench preset) i.i.d. exploration swung up at 12 s on 7 / 12 seeds, held exploration on
-3 / 12 (15 s: 8 / 12 against 5 / 12); held pushes drove the cart into the rail's end stop
-(``|x|`` 1.85-1.90 m, the rail ends at 1.8 m) on 8 seeds (``results/mcpilco_cartpole.md``)."""
-LEGACY_FIELD_VALUES: dict[str, Any] = {"explore_hold": 1}
+CONF_DIR = Path(__file__).resolve().parent / "conf"
+"""The shipped per-env config files (one YAML file per env id)."""
+LEGACY_FIELD_VALUES: dict[str, Any] = {}
 """Value of each config field added after results were saved, for configs that lack it."""
 CANDIDATE_SEED_STRIDE = 7919
 """Candidate ``k`` of run ``seed`` is initialised with seed ``seed + 7919 k``."""
 
 
-def default_explore_hold(env_id: str) -> int:
-    """Control steps each random exploration action is held on ``env_id`` when the config
-    does not say: :data:`EXPLORE_HOLD_BY_ENV` or else :data:`DEFAULT_EXPLORE_HOLD`."""
-    return EXPLORE_HOLD_BY_ENV.get(env_id, DEFAULT_EXPLORE_HOLD)
-
-
 @dataclass
 class MCPilcoConfig:
-    """One MC-PILCO experiment (defaults: the MC-PILCO cartpole setup, thesis 5.5.1).
+    """One MC-PILCO experiment: the agent's hyperparameters (the task is a
+    :class:`~mcpilco.agents.mc_pilco.task.TaskSpec`). Per-env values live in YAML files
+    (:func:`load_config`); the defaults here are MC-PILCO's (thesis 5.5.1).
 
     Attributes:
         env_id: registered Gymnasium id (``import mcpilco.envs`` registers ``mcpilco/...``).
+        task: the task as plain data (a task file's content) for an env without a shipped
+            task; None: the task that ships for ``env_id``.
         num_trials: policy trials after the exploration trial.
-        horizon: ``H``, steps per trial and of the particle rollout (must equal the env's
-            episode length).
+        horizon: ``H``, steps per trial and of the particle rollout (None: the task's).
         num_particles: ``M``.
         kernel: ``"rbf+mpk"`` or ``"rbf"``.
         max_points: GP subset-of-data size.
         gp_adam_iters, gp_lbfgs_iters: marginal-likelihood budget per fit.
         num_basis: policy basis functions.
-        policy_weight_scale: initial policy weights ``w ~ U(-s, s)``. Small, so that the
-            initial policy is close to ``u = 0``: with ``s = 0.5`` the sum over 200 basis
-            functions gives a biased action that drives the cart metres away in 3 s, where
-            the cost is flat (1) and its gradient vanishes (seed 1 never left ``J^ = 56``).
-        l_x, l_theta: length scales of the cost optimised on the particles. Default: the
-            values of Amadio et al. 2022 (sec. V-A, cart-pole: ``l_theta = 3``,
-            ``l_x = 1``), wider than the env's evaluation cost (thesis 5.5.1: ``l_theta = 1``,
-            ``l_x = 1.5``): with ``l_theta = 1`` the cost is flat (``1 - 5e-5``) while the pole
-            hangs, its gradient vanishes and, in our first runs, the policy collapsed to
-            "do nothing" on trial 2. Success and the reported cost always come from the env.
-        cost_wrap_angle: wrap theta in the optimised cost (False: MC-PILCO's ``|theta|``,
-            which does not reward spinning the pole; see :mod:`.cost`).
+        policy_weight_scale: initial policy weights ``w ~ U(-s, s) u_half``. Small, so that the
+            initial policy is close to the middle of the action range.
+        policy_centers_box: half width of the box the centres of the plain state coordinates
+            are drawn in.
+        cost_length_scales: length scales of the optimised cost by state name (None: the
+            task's evaluation cost's). Success and the reported cost always come from the
+            task's evaluation cost.
+        cost_angle_mode: ``"wrap"`` or ``"abs"`` for the angle terms of the optimised cost
+            (None: the task's); see :mod:`.cost`.
         num_candidates: ``K`` candidate policies optimised side by side (``M`` particles
             each; :class:`~mcpilco.agents.mc_pilco.policy.PolicyPopulation`); the one with
             the lowest ``J^`` (fresh particles, no dropout) is applied. 1: plain MC-PILCO.
         candidate_weight_scales: initial weight scale ``s_k`` of each candidate ``k``
-            (length ``K``); None: ``policy_weight_scale`` for all. Candidates that all start
-            near ``u = 0`` tend to follow the same gradient path into the same optimum;
-            a larger ``s_k`` starts candidate ``k`` from a different random policy.
+            (length ``K``); None: ``policy_weight_scale`` for all.
         explore_hold: control steps each random action of the exploration trial is held
-            (``u ~ U(-1, 1)`` drawn once per ``explore_hold`` steps). None (default): the
-            env's value, :func:`default_explore_hold`, filled in at construction (and again
-            when :meth:`with_overrides` changes ``env_id`` and this field still holds the old
-            env's value). 2 on ``mcpilco/CartpoleSwingUp-v0``: one draw per 0.1 s, the sampling
-            time of the thesis's cartpole (5.5.1), whose exploration this reproduces; 1: i.i.d.
-            per 0.05 s step (the setting of the runs before this field existed;
-            :meth:`from_dict` reads a config without it as 1). At 0.05 s the i.i.d. force
-            averages out and the pole swings less (median largest angle over the exploration
-            trials of seeds 0-19: 1.24 rad i.i.d., 2.04 rad held for 2 steps). 1 on the
-            dm-control adapter, where it is better (seeds 0-11 at 12 s: 7/12 against 3/12): there
-            held pushes drive the cart into the rail's end stop (x = 1.8 m).
-        init_std: ``sigma_0`` of the initial particles.
+            (``u ~ U(low, high)`` drawn once per ``explore_hold`` steps; 1: i.i.d.).
+        init_std: ``sigma_0`` of the initial particles (None: the task's).
         sim_obs_noise_std: measurement noise simulated on the policy input in rollouts.
         opt: policy optimisation schedule (:class:`PolicyOptConfig`).
         opt_steps_first: optimisation steps of the first policy trial, when smaller than
@@ -149,35 +131,23 @@ class MCPilcoConfig:
         log_particles: particles kept per trial for the PNG / Rerun plots.
         seed: seeds torch, numpy and the env resets.
         torch_threads: ``torch.set_num_threads`` (None: leave as is).
-        compile_rollout: compile the rollout's time step with its backward
-            (:meth:`MCPilcoLoss.compile_step`, default backend: ``native`` on the CPU, the
-            whole rollout in the package's C++ loop (built once, 2-3 s; then 0.04-0.21 s
-            per trial to pack the GP and check); ``direct`` where that does not apply, the
-            parts' backward passes chained by hand and compiled by inductor; ``torch.compile``
-            elsewhere). Each trial recompiles for its new GP (``direct``: 17-24 s at a new
-            size N, about 1 s from inductor's on-disk cache; 2-6 s
-            for ``torch.compile`` with inductor's on-disk cache warm, about 20 s cold). The
-            speed-ups are measured by ``mcpilco-bench-mcpilco --parts timing
-            --compile-rollout`` (``results/mcpilco_cartpole.md``); off by default (needs a C++
-            compiler). Each trial checks the compiled step against the eager one (``J^`` and
-            its gradient) and runs eagerly if they disagree (the trial record's
-            ``compiled_step``, ``compile_backend``, ``rollout_shards`` and
-            ``compile_check``).
+        compile_rollout: compile the rollout with its backward (:meth:`MCPilcoLoss.compile_step`,
+            default backend ``auto``); each trial checks the compiled rollout against the
+            eager one (``J^`` and its gradient) and runs eagerly if they disagree (the trial
+            record's ``compiled_step``, ``compile_backend``, ``rollout_shards`` and
+            ``compile_check``). Needs a C++ compiler on the CPU.
         rollout_dtype: dtype of the GP posterior evaluated in the particle rollout,
-            ``"float32"`` (default; a step at M = 400 is 1.4x / 1.8x faster at N = 100 / 250,
-            1 thread) or ``"float64"``; the particles, the policy and the GP fit are the
-            same in both (float32, float32, float64). The benchmark compares the two
-            (``mcpilco-bench-mcpilco --rollout-dtype``).
+            ``"float32"`` (default) or ``"float64"``; the particles, the policy and the GP
+            fit are the same in both (float32, float32, float64).
         device: where the policy optimisation runs (policy, particles, GP posterior):
             ``"cpu"`` (default) or ``"cuda"`` / ``"cuda:<index>"``. The GP fit (float64,
-            ``N <= max_points``) and the env stay on the CPU; the policy acts on the env from
-            the device. Checked at :func:`run_mcpilco` (a config saved on a GPU machine loads
-            anywhere).
+            ``N <= max_points``) and the env stay on the CPU.
     """
 
     env_id: str = DEFAULT_ENV_ID
+    task: dict[str, Any] | None = None
     num_trials: int = 5
-    horizon: int = 60
+    horizon: int | None = None
     num_particles: int = 400
     kernel: str = "rbf+mpk"
     max_points: int | None = 300
@@ -185,13 +155,13 @@ class MCPilcoConfig:
     gp_lbfgs_iters: int = 100
     num_basis: int = 200
     policy_weight_scale: float = 0.01
-    l_x: float = 1.0
-    l_theta: float = 3.0
-    cost_wrap_angle: bool = False
+    policy_centers_box: float = math.pi
+    cost_length_scales: dict[str, float] | None = None
+    cost_angle_mode: str | None = None
     num_candidates: int = 1
     candidate_weight_scales: list[float] | None = None
-    explore_hold: int | None = None
-    init_std: float = 0.01
+    explore_hold: int = 1
+    init_std: float | None = None
     sim_obs_noise_std: float = 0.01
     opt: PolicyOptConfig = field(default_factory=PolicyOptConfig)
     opt_steps_first: int | None = None
@@ -205,19 +175,14 @@ class MCPilcoConfig:
     def __post_init__(self) -> None:
         if isinstance(self.opt, dict):
             self.opt = PolicyOptConfig(**self.opt)
-        if int(self.num_particles) != self.num_particles or self.num_particles < 1:
-            raise ValueError(
-                f"num_particles must be a positive integer, got {self.num_particles!r} "
-                "(MC-PILCO uses 400)"
-            )
+        for name in ("num_particles", "num_candidates", "explore_hold", "num_basis"):
+            v = getattr(self, name)
+            if isinstance(v, bool) or int(v) != v or v < 1:
+                raise ValueError(f"{name} must be a positive integer, got {v!r}")
         if int(self.num_trials) != self.num_trials or self.num_trials < 0:
             raise ValueError(f"num_trials must be an integer >= 0, got {self.num_trials!r}")
-        if int(self.horizon) != self.horizon or self.horizon < 1:
+        if self.horizon is not None and (int(self.horizon) != self.horizon or self.horizon < 1):
             raise ValueError(f"horizon must be a positive integer, got {self.horizon!r}")
-        if int(self.num_candidates) != self.num_candidates or self.num_candidates < 1:
-            raise ValueError(
-                f"num_candidates must be a positive integer, got {self.num_candidates!r}"
-            )
         if self.candidate_weight_scales is not None:
             scales = [float(v) for v in self.candidate_weight_scales]
             if len(scales) != self.num_candidates or not all(v > 0 for v in scales):
@@ -226,16 +191,26 @@ class MCPilcoConfig:
                     f"positive values, got {self.candidate_weight_scales!r}"
                 )
             self.candidate_weight_scales = scales
-        if self.explore_hold is None:
-            self.explore_hold = default_explore_hold(self.env_id)
-        if int(self.explore_hold) != self.explore_hold or self.explore_hold < 1:
-            raise ValueError(f"explore_hold must be an integer >= 1, got {self.explore_hold!r}")
         if self.rollout_dtype not in ROLLOUT_DTYPES:
             raise ValueError(
                 f"rollout_dtype must be one of {ROLLOUT_DTYPES}, got {self.rollout_dtype!r}"
             )
         if self.kernel not in KERNEL_CHOICES:
             raise ValueError(f"kernel must be one of {KERNEL_CHOICES}, got {self.kernel!r}")
+        if self.cost_angle_mode is not None and self.cost_angle_mode not in ANGLE_MODES:
+            raise ValueError(
+                f"cost_angle_mode must be one of {ANGLE_MODES} or None, got "
+                f"{self.cost_angle_mode!r}"
+            )
+        if self.cost_length_scales is not None:
+            if not isinstance(self.cost_length_scales, dict) or not all(
+                float(v) > 0 for v in self.cost_length_scales.values()
+            ):
+                raise ValueError(
+                    "cost_length_scales must map state names to positive length scales, got "
+                    f"{self.cost_length_scales!r}"
+                )
+            self.cost_length_scales = {str(k): float(v) for k, v in self.cost_length_scales.items()}
         self.device = str(check_device_name(self.device))
         if self.max_points is not None and self.max_points < 10:
             raise ValueError(f"max_points must be >= 10 or None, got {self.max_points}")
@@ -247,16 +222,9 @@ class MCPilcoConfig:
         """A validated copy with ``fields`` replaced; ``None`` values leave a field as is.
 
         ``opt_steps`` sets ``opt.max_steps`` and caps ``opt_steps_first`` at it (the
-        command-line ``--opt-steps`` of the scripts). A new ``env_id`` without an
-        ``explore_hold`` takes the new env's default hold if this config has the old env's.
+        command-line ``--opt-steps`` of the scripts).
         """
         over = {k: v for k, v in fields.items() if v is not None}
-        if (
-            "env_id" in over
-            and "explore_hold" not in over
-            and self.explore_hold == default_explore_hold(self.env_id)
-        ):
-            over["explore_hold"] = default_explore_hold(over["env_id"])
         if opt_steps is not None:
             over["opt"] = dataclasses.replace(self.opt, max_steps=opt_steps)
             if self.opt_steps_first is not None:
@@ -265,52 +233,105 @@ class MCPilcoConfig:
 
     @classmethod
     def from_dict(cls, d: dict[str, Any]) -> MCPilcoConfig:
-        """Inverse of :meth:`to_dict`; fields added later take the value that reproduces the
-        runs saved before them (:data:`LEGACY_FIELD_VALUES`), not their new default."""
+        """Inverse of :meth:`to_dict`; unknown fields are an error that names them."""
+        known = {f.name for f in dataclasses.fields(cls)}
+        unknown = sorted(set(d) - known)
+        if unknown:
+            raise ValueError(f"unknown MC-PILCO config fields {unknown} (fields: {sorted(known)})")
         return cls(**{**LEGACY_FIELD_VALUES, **d})
 
+    def task_spec(self) -> TaskSpec:
+        """The task: ``task`` when given, else the one that ships for ``env_id``; the
+        config's ``horizon`` replaces the task's."""
+        spec = TaskSpec.from_dict(self.task) if self.task else TaskSpec.for_env(self.env_id)
+        if spec.env_id != self.env_id:
+            raise ValueError(f"the task is for {spec.env_id!r}, the config for {self.env_id!r}")
+        if self.horizon is not None and self.horizon != spec.horizon:
+            spec = spec.replace(horizon=int(self.horizon))
+        return spec
 
-SMALL_CONFIG = MCPilcoConfig(
-    num_trials=4,
-    num_particles=100,
-    num_candidates=2,
-    max_points=200,
-    opt=PolicyOptConfig(max_steps=500, monitor_patience=100),
-    opt_steps_first=300,
-    log_particles=100,
-)
-"""Small budget: 100 particles, 2 candidate policies, at most 500 optimisation steps per
-trial (``make demo``'s budget, preset ``demo``, until 2026-11-26; now preset ``small``). With
-held exploration, 12 seeds: 58 % / 92 % success at 12 / 15 s of experience; with i.i.d.
-exploration (``explore_hold=1``) 58 % / 83 %; one policy, 6 seeds: 50 % / 67 %
-(``results/mcpilco_cartpole.md``, sections demo_hold2, K2 and the one-candidate run)."""
 
-BENCH_CONFIG = MCPilcoConfig(
-    num_trials=4,
-    num_particles=400,
-    max_points=250,
-    opt=PolicyOptConfig(max_steps=1000, monitor_patience=100),
-    opt_steps_first=500,
-)
-"""Budget of ``mcpilco-bench-mcpilco`` per seed (exploration + 4 policy trials = 15 s). With
-the default held exploration, seeds 0-19 all swing up at 12 s and at 15 s of experience
-(section "hold2" of ``results/mcpilco_cartpole.md``; i.i.d. exploration: 60 % / 95 %)."""
+def parse_set(items: list[str] | None) -> dict[str, Any]:
+    """``["a=1", "opt.max_steps=500", "cost_length_scales={x: 1}"]`` -> a nested dict of
+    overrides; values are parsed as YAML (numbers, lists, mappings, null)."""
+    import yaml
 
-DEMO_CONFIG = dataclasses.replace(BENCH_CONFIG, num_trials=3)
-"""``make demo``'s budget: the bench budget, stopped after 3 policy trials (12 s of
-experience), where the bench swung up on 20 of 20 seeds (held exploration; 19 of 20 with the
-time step compiled). ``make demo`` (:mod:`mcpilco.scripts.demo`) also compiles the time step
-on the CPU when a C++ compiler is found. Seed 0, 2 threads, on the slower 2-core machine of
-2026-11-27: success at 9 and 12 s of experience, 5.9 min compiled, 14.0 min eager (eager on
-the faster machine of 2026-11-26: 7.6 min; seed 1 5.9 min)."""
+    out: dict[str, Any] = {}
+    for item in items or []:
+        key, sep, text = item.partition("=")
+        if not sep or not key.strip():
+            raise ValueError(f"--set takes key=value, got {item!r}")
+        try:
+            value = yaml.safe_load(text)
+        except yaml.YAMLError as err:
+            raise ValueError(f"--set {key}: cannot parse {text!r} ({err})") from None
+        node = out
+        *parents, leaf = key.strip().split(".")
+        for p in parents:
+            node = node.setdefault(p, {})
+        node[leaf] = value
+    return out
 
-PRESETS: dict[str, MCPilcoConfig] = {
-    "default": MCPilcoConfig(),
-    "small": SMALL_CONFIG,
-    "demo": DEMO_CONFIG,
-    "bench": BENCH_CONFIG,
-}
-"""The named configs of the scripts' ``--preset`` option."""
+
+def _merge(base: dict[str, Any], over: dict[str, Any]) -> dict[str, Any]:
+    out = dict(base)
+    for k, v in over.items():
+        out[k] = _merge(out[k], v) if isinstance(v, dict) and isinstance(out.get(k), dict) else v
+    return out
+
+
+def config_files(conf_dir: str | Path = CONF_DIR) -> dict[str, Path]:
+    """Env id -> per-env config file (``*.yaml`` in ``conf_dir`` with an ``env_id`` key)."""
+    import yaml
+
+    out = {}
+    for path in sorted(Path(conf_dir).glob("*.yaml")):
+        data = yaml.safe_load(path.read_text()) or {}
+        if "env_id" in data:
+            out[str(data["env_id"])] = path
+    return out
+
+
+def load_config(
+    env_id: str,
+    conf_dir: str | Path | None = CONF_DIR,
+    preset: str | None = None,
+    overrides: dict[str, Any] | None = None,
+) -> MCPilcoConfig:
+    """The config of ``env_id``: :class:`MCPilcoConfig`'s defaults, then the env's file in
+    ``conf_dir`` (default: the shipped :data:`CONF_DIR`; None: no file): its ``config``
+    mapping, then the named ``preset`` of its ``presets``; then ``overrides`` (nested dicts,
+    e.g. from :func:`parse_set`).
+
+    A config file (one per env, like the SB3 zoo's ``hyperparams/*.yml``)::
+
+        env_id: mcpilco/CartpoleSwingUp-v0
+        config:                 # each value with a comment saying where it comes from
+          num_particles: 400
+        presets:
+          demo: {num_trials: 3}
+    """
+    import yaml
+
+    data: dict[str, Any] = {}
+    path = config_files(conf_dir).get(env_id) if conf_dir is not None else None
+    if path is not None:
+        data = yaml.safe_load(path.read_text()) or {}
+    merged: dict[str, Any] = {"env_id": env_id}
+    merged = _merge(merged, data.get("config") or {})
+    presets = data.get("presets") or {}
+    if preset is not None and preset != "default":
+        if preset not in presets:
+            where = f"{path.name}" if path else f"no config file for {env_id}"
+            raise ValueError(
+                f"unknown preset {preset!r} for {env_id} ({where}; presets: "
+                f"{sorted(presets) or 'none'})"
+            )
+        merged = _merge(merged, presets[preset])
+    merged = _merge(merged, overrides or {})
+    if merged.get("env_id") != env_id:
+        raise ValueError(f"the config names env {merged.get('env_id')!r}, not {env_id!r}")
+    return MCPilcoConfig.from_dict(merged)
 
 
 @dataclass
@@ -348,60 +369,81 @@ def registered_ids(prefix: str = "mcpilco/") -> list[str]:
     return sorted(k for k in gym.registry if k.startswith(prefix))
 
 
-def make_env(env_id: str, horizon: int):
-    """``gym.make(env_id)`` with clear errors for an unknown id or a horizon mismatch."""
+def make_env(env_id: str, horizon: int, task: TaskSpec | None = None):
+    """``gym.make(env_id)`` with episodes of ``horizon`` steps, clear errors for an unknown id,
+    for spaces that do not fit ``task`` (:meth:`TaskSpec.check_env`), and for a horizon that
+    differs from the env's own episode length when the task's success is the env's
+    ``info`` flag (defined at the env's own last step)."""
     import gymnasium as gym
 
-    ids = registered_ids()
+    import mcpilco.envs  # noqa: F401  (registers the ids)
+
     if env_id not in gym.registry:
-        raise ValueError(f"unknown env id {env_id!r}; registered mcpilco ids: {', '.join(ids)}")
-    env = gym.make(env_id)
-    steps = env.spec.max_episode_steps if env.spec is not None else None
-    if steps is not None and steps != horizon:
-        env.close()
+        raise ValueError(
+            f"unknown env id {env_id!r}; registered mcpilco ids: {', '.join(registered_ids())}"
+        )
+    steps = gym.spec(env_id).max_episode_steps
+    if steps is not None and steps != horizon and task is not None and task.success.info_key:
         raise ValueError(
             f"horizon mismatch: the config's horizon is {horizon} steps but {env_id} episodes "
-            f"last {steps} steps; set horizon={steps}"
+            f"last {steps} steps (its success flag is set at its last step); set horizon={steps}"
         )
+    env = gym.make(env_id, max_episode_steps=int(horizon))
+    if task is not None:
+        try:
+            task.check_env(env)
+        except ValueError:
+            env.close()
+            raise
     return env
 
 
-def env_dt(env) -> float:
-    return float(getattr(env.unwrapped, "dt", 0.05))
+def env_dt(env, task: TaskSpec | None = None) -> float:
+    """The control period: the task's, else the env's ``dt``."""
+    if task is not None:
+        return float(task.dt)
+    return float(env.unwrapped.dt)
 
 
 def run_episode(
-    env, act: Callable[[np.ndarray], np.ndarray], seed: int, horizon: int
+    env,
+    act: Callable[[np.ndarray], np.ndarray],
+    seed: int,
+    horizon: int,
+    task: TaskSpec,
 ) -> dict[str, Any]:
-    """One episode of ``horizon`` steps; returns observations, true states, actions, metrics."""
+    """One episode of at most ``horizon`` steps under ``act(state)``.
+
+    Returns the observed states ``obs`` (T+1, n) (read from the observations by the task),
+    the true states ``states`` (T+1, n), ``actions`` (T, A), per-step evaluation ``costs``,
+    their sum ``cost``, ``success`` (the task's test) and ``time_in_goal`` [s] (steps within
+    the task's success bounds times ``T_s``).
+    """
     obs, info = env.reset(seed=seed)
-    observations = [np.asarray(obs, dtype=np.float64)]
-    states = [np.asarray(info.get("state", obs), dtype=np.float64)]
-    actions, costs, upright = [], [], []
-    success = False
+    observed = [task.state_from_obs(obs)]
+    states = [task.true_state(obs, info)]
+    actions = []
+    low, high = np.asarray(task.action_low), np.asarray(task.action_high)
     for _ in range(horizon):
-        a = np.asarray(act(observations[-1]), dtype=np.float64).reshape(-1)
+        a = np.clip(np.asarray(act(observed[-1]), dtype=np.float64).reshape(-1), low, high)
         obs, _, terminated, truncated, info = env.step(a.astype(np.float32))
-        observations.append(np.asarray(obs, dtype=np.float64))
-        states.append(np.asarray(info.get("state", obs), dtype=np.float64))
+        observed.append(task.state_from_obs(obs))
+        states.append(task.true_state(obs, info))
         actions.append(a)
-        costs.append(float(info["cost"]))
-        upright.append(bool(info["upright"]))
-        if "success" in info:
-            success = bool(info["success"])
         if terminated or truncated:
             break
     states_arr = np.stack(states)
-    dt = env_dt(env)
+    costs = task.cost(states_arr[1:])
+    steps = len(actions)
     return {
-        "obs": np.stack(observations),
+        "obs": np.stack(observed),
         "states": states_arr,
-        "actions": np.stack(actions),
+        "actions": np.stack(actions) if actions else np.zeros((0, task.action_dim)),
         "costs": np.asarray(costs),
-        "success": success,
+        "success": task.is_success(states_arr[1:], info, steps),
         "cost": float(np.sum(costs)),
-        "time_upright": float(np.sum(upright) * dt),
-        "mean_abs_x": float(np.mean(np.abs(states_arr[1:, 0]))),
+        "time_in_goal": float(np.sum(task.in_goal(states_arr[1:])) * task.dt),
+        "steps": steps,
     }
 
 
@@ -411,8 +453,8 @@ def _policy_act(policy: SquashedRBFPolicy) -> Callable[[np.ndarray], np.ndarray]
     device = policy.weights.device
 
     @torch.no_grad()
-    def act(obs: np.ndarray) -> np.ndarray:
-        x = torch.as_tensor(obs, dtype=torch.float32, device=device)[None]
+    def act(state: np.ndarray) -> np.ndarray:
+        x = torch.as_tensor(state, dtype=torch.float32, device=device)[None]
         return policy(x)[0].cpu().numpy()
 
     return act
@@ -431,7 +473,7 @@ def choose_candidate(
 
 
 def transitions(episodes: list[dict[str, Any]]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """``(s_t, a_t, s_{t+1})`` of all episodes, stacked."""
+    """``(s_t, a_t, s_{t+1})`` of all episodes (observed states), stacked."""
     s = np.concatenate([e["obs"][:-1] for e in episodes])
     a = np.concatenate([e["actions"] for e in episodes])
     s1 = np.concatenate([e["obs"][1:] for e in episodes])
@@ -443,21 +485,24 @@ def trial_seed(seed: int, k: int) -> int:
     return int(seed) * 10_007 + int(k)
 
 
-def exploration_actions(rng: np.random.Generator, horizon: int, hold: int = 1) -> np.ndarray:
-    """``(horizon, 1)`` random actions: ``ceil(horizon / hold)`` draws ``u ~ U(-1, 1)`` from
-    ``rng``, each repeated for ``hold`` steps (``hold = 1``: i.i.d. per step)."""
+def exploration_actions(
+    rng: np.random.Generator, horizon: int, hold: int = 1, low=(-1.0,), high=(1.0,)
+) -> np.ndarray:
+    """``(horizon, A)`` random actions: ``ceil(horizon / hold)`` draws ``u ~ U(low, high)``
+    from ``rng``, each repeated for ``hold`` steps (``hold = 1``: i.i.d. per step)."""
     if int(hold) != hold or hold < 1:
         raise ValueError(f"hold must be an integer >= 1, got {hold!r}")
-    draws = rng.uniform(-1.0, 1.0, size=(-(-horizon // hold), 1))
+    low, high = np.asarray(low, dtype=np.float64), np.asarray(high, dtype=np.float64)
+    draws = rng.uniform(low, high, size=(-(-horizon // hold), low.size))
     return np.repeat(draws, hold, axis=0)[:horizon]
 
 
 def exploration_episode(
-    env, rng: np.random.Generator, seed: int, horizon: int, hold: int = 1
+    env, rng: np.random.Generator, seed: int, horizon: int, task: TaskSpec, hold: int = 1
 ) -> dict[str, Any]:
     """Trial 0: the actions of :func:`exploration_actions` for ``horizon`` steps."""
-    it = iter(exploration_actions(rng, horizon, hold))
-    return run_episode(env, lambda _o: next(it), trial_seed(seed, 0), horizon)
+    it = iter(exploration_actions(rng, horizon, hold, task.action_low, task.action_high))
+    return run_episode(env, lambda _o: next(it), trial_seed(seed, 0), horizon, task)
 
 
 def check_resume(saved: dict[str, Any], config: Any, keys: tuple[str, ...]) -> None:
@@ -473,12 +518,12 @@ def check_resume(saved: dict[str, Any], config: Any, keys: tuple[str, ...]) -> N
 
 
 def record_line(r: dict[str, Any]) -> str:
-    """One line per trial: cost, success, time upright, mean |x|, wall time (and the
+    """One line per trial: cost, success, time in the goal region, wall time (and the
     optimisation figures of a policy trial)."""
     line = (
         f"trial {r['index']} ({r['kind']}, {r['experience_s']:.0f} s of experience): "
-        f"cost {r['cost']:.2f}, success {r['success']}, upright {r['time_upright']:.2f} s, "
-        f"mean |x| {r['mean_abs_x']:.2f} m, time {r['wall_s']:.1f} s"
+        f"cost {r['cost']:.2f}, success {r['success']}, in goal {r['time_in_goal']:.2f} s, "
+        f"time {r['wall_s']:.1f} s"
     )
     if r["kind"] == "policy":
         line += (
@@ -494,13 +539,13 @@ def record_line(r: dict[str, Any]) -> str:
 
 
 def episode_outcome(ep: dict[str, Any], t0: float) -> dict[str, Any]:
-    """The real-system part of a trial record: env cost, ``success``, time upright, mean
-    ``|x|`` of episode ``ep``, and the wall-clock since ``t0`` (``time.perf_counter``)."""
+    """The real-system part of a trial record: evaluation cost, ``success``, time in the goal
+    region of episode ``ep``, and the wall-clock since ``t0`` (``time.perf_counter``)."""
     return {
         "cost": ep["cost"],
         "success": ep["success"],
-        "time_upright": ep["time_upright"],
-        "mean_abs_x": ep["mean_abs_x"],
+        "time_in_goal": ep["time_in_goal"],
+        "steps": ep["steps"],
         "wall_s": time.perf_counter() - t0,
     }
 
@@ -536,11 +581,14 @@ def run_mcpilco(
     progress: bool = True,
     log: Callable[[str], None] | None = print,
     write_rrd: bool = True,
+    task: TaskSpec | None = None,
 ) -> RunSummary:
     """Run (or resume) MC-PILCO; writes checkpoint, PNGs, ``run.rrd`` and ``records.json``.
 
     Args:
         config: the experiment.
+        task: the task (None: :meth:`MCPilcoConfig.task_spec`); pass one to use a Python
+            cost function (``TaskSpec.cost_fn``).
         out_dir: output folder (created).
         resume: continue from ``out_dir/checkpoint.pt``; finished trials are kept and not
             re-run; ``config.num_trials`` may be larger than in the first call.
@@ -557,15 +605,25 @@ def run_mcpilco(
         check_compile_toolchain(device)
     if config.torch_threads is not None:
         torch.set_num_threads(int(config.torch_threads))
-    env = make_env(config.env_id, config.horizon)
-    dt = env_dt(env)
+    if task is None:
+        task = config.task_spec()
+    elif config.horizon is not None and config.horizon != task.horizon:
+        task = task.replace(horizon=int(config.horizon))
+    horizon = task.horizon
+    env = make_env(config.env_id, horizon, task)
+    dt = task.dt
+    layout = StateLayout.from_task(task)
 
     torch.manual_seed(config.seed)
     np_rng = np.random.default_rng(config.seed)
     scales = config.candidate_weight_scales or [config.policy_weight_scale] * config.num_candidates
     candidates = [
         SquashedRBFPolicy(
+            layout,
+            task.action_low,
+            task.action_high,
             num_basis=config.num_basis,
+            centers_box=config.policy_centers_box,
             weight_scale=scale,
             seed=config.seed + CANDIDATE_SEED_STRIDE * k,
         )
@@ -575,8 +633,8 @@ def run_mcpilco(
     population = PolicyPopulation(candidates).to(device)
     policy_module = make_policy_module(population)
     model = GPDynamicsModel(
+        task,
         kernel=config.kernel,
-        dt=dt,
         max_points=config.max_points,
         adam_iters=config.gp_adam_iters,
         lbfgs_iters=config.gp_lbfgs_iters,
@@ -604,7 +662,11 @@ def run_mcpilco(
         if log:
             log(f"resumed {ckpt_path}: trials 0..{start_trial - 1} done")
 
-    cost_fn = SwingUpCost(l_x=config.l_x, l_theta=config.l_theta, wrap=config.cost_wrap_angle)
+    if task.cost_fn is not None:
+        cost_fn = task.cost_fn if isinstance(task.cost_fn, torch.nn.Module) else _CostFn(task)
+    else:
+        cost_fn = SaturatingCost.from_task(task, config.cost_length_scales, config.cost_angle_mode)
+    init_std = task.init_std if config.init_std is None else config.init_std
     total = config.num_trials + 1
     bar = None
     if progress:
@@ -615,12 +677,12 @@ def run_mcpilco(
     try:
         for k in range(start_trial, total):
             t0 = time.perf_counter()
-            rec: dict[str, Any] = {"index": k, "experience_s": (k + 1) * config.horizon * dt}
+            rec: dict[str, Any] = {"index": k}
             arr: dict[str, Any] = {"index": k, "particles": None, "opt_costs": None}
             if k == 0:
                 rec["kind"] = "exploration"
                 ep = exploration_episode(
-                    env, np_rng, config.seed, config.horizon, config.explore_hold
+                    env, np_rng, config.seed, horizon, task, config.explore_hold
                 )
             else:
                 rec["kind"] = "policy"
@@ -637,9 +699,10 @@ def run_mcpilco(
                         module,
                         dynamics,
                         cost_fn,
-                        horizon=config.horizon,
+                        horizon=horizon,
                         num_particles=config.num_particles,
-                        init_std=config.init_std,
+                        init_mean=task.init_mean,
+                        init_std=init_std,
                         obs_noise_std=config.sim_obs_noise_std,
                     ).to(device)  # with the policy module and the dynamics in it
 
@@ -699,15 +762,17 @@ def run_mcpilco(
                 arr["particles"] = ro.states.cpu().numpy()
                 # 3. apply the policy
                 ep = run_episode(
-                    env, _policy_act(policy), trial_seed(config.seed, k), config.horizon
+                    env, _policy_act(policy), trial_seed(config.seed, k), horizon, task
                 )
                 rec["gp_rmse"] = model.one_step_rmse(*transitions([ep])).tolist()
                 arr["gp_rmse"] = rec["gp_rmse"]
                 opt_state = None  # Adam restarts at each trial (MC-PILCO)
             episodes.append({"obs": ep["obs"], "actions": ep["actions"]})
             rec.update(episode_outcome(ep, t0))
+            # seconds of interaction so far (episodes that terminate early count what they ran)
+            rec["experience_s"] = sum(len(e["actions"]) for e in episodes) * dt
             arr.update(real=ep["states"], **{key: rec[key] for key in ("cost", "success")})
-            arr.update(time_upright=rec["time_upright"], mean_abs_x=rec["mean_abs_x"])
+            arr.update(time_in_goal=rec["time_in_goal"])
             records.append(rec)
             arrays.append(arr)
             # outputs and checkpoint (checkpoint last: it is the commit point of the trial)
@@ -718,10 +783,11 @@ def run_mcpilco(
                         arr["particles"],
                         ep["states"],
                         dt,
+                        task.state_names,
                         title=f"trial {k}: particles (model) vs real, success={ep['success']}",
                     )
                 )
-            _write_outputs(out, config, records, arrays, dt, write_rrd)
+            _write_outputs(out, config, records, arrays, task, write_rrd)
             gp_file = None
             if model.gp_ is not None:
                 gp_file = f"gp_trial{k:02d}.pt"
@@ -735,6 +801,7 @@ def run_mcpilco(
                     "records": records,
                     "arrays": arrays,
                     "policy": policy.state_dict(),
+                    "policy_settings": policy.settings(),
                     "population": population.state_dict(),
                     "optimizer": opt_state,
                     "gp_file": gp_file,
@@ -768,17 +835,30 @@ def run_mcpilco(
     )
 
 
+class _CostFn(torch.nn.Module):
+    """A task's plain cost function as a module."""
+
+    def __init__(self, task: TaskSpec) -> None:
+        super().__init__()
+        self.fn = task.cost_fn
+
+    def forward(self, state: torch.Tensor) -> torch.Tensor:
+        return self.fn(state)
+
+
 def _write_outputs(
     out: Path,
     config: MCPilcoConfig,
     records: list[dict[str, Any]],
     arrays: list[dict[str, Any]],
-    dt: float,
+    task: TaskSpec,
     write_rrd: bool,
 ) -> None:
     curves = [(a["opt_costs"], f"trial {a['index']}") for a in arrays if a["opt_costs"] is not None]
     if curves:
         plot_optimisation(out / "optimisation.png", [c for c, _ in curves], [n for _, n in curves])
     if write_rrd:
-        write_rerun_recording(out / "run.rrd", arrays, dt)
+        write_rerun_recording(
+            out / "run.rrd", arrays, task.dt, task.state_names, task.gp_output_names()
+        )
     write_records(out, config, records)

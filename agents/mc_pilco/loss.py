@@ -78,7 +78,7 @@ splits the direct rollout over threads by default (below, a thread's work is too
 
 @dataclass
 class ParticleRollout:
-    """Result of :meth:`MCPilcoLoss.rollout`: ``states (M, H+1, 4)``, ``actions (M, H, 1)``,
+    """Result of :meth:`MCPilcoLoss.rollout`: ``states (M, H+1, n)``, ``actions (M, H, A)``,
     ``costs (M, H)`` (cost of ``x_1..x_H``)."""
 
     states: Tensor
@@ -91,19 +91,20 @@ class MCPilcoLoss(LossModule):
 
     Args:
         policy: ``TensorDictModule`` (``"observation"`` -> ``"action"``) or a plain module
-            ``obs (..., 4) -> action (..., 1)``.
+            ``obs (..., n) -> action (..., A)``.
         dynamics: module ``(state, action, eps) -> next_state`` (e.g.
             :class:`~mcpilco.agents.mc_pilco.dynamics.SpeedIntegrationDynamics`); replace it
             with :meth:`set_dynamics` after each GP re-fit.
-        cost: module ``state (..., 4) -> cost (...)``.
+        cost: module ``state (..., n) -> cost (...)``.
         horizon: ``H``, number of simulated steps (> 0).
         num_particles: ``M`` (> 0).
-        init_mean: ``mu_0`` (4,).
-        init_std: ``sigma_0`` (scalar or (4,)).
+        init_mean: ``mu_0`` (n,); its length sets the state size ``n``.
+        init_std: ``sigma_0`` (scalar or (n,)).
         obs_noise_std: ``sigma_obs`` of the simulated measurement noise on the policy input.
-        delta_dim: dimension of ``eps`` per step (number of GPs, 2 for the cartpole).
+        delta_dim: dimension of ``eps`` per step (number of GPs); None: the dynamics'
+            ``layout.output_dim``.
 
-    ``forward(td)`` reads optional entries ``"initial_state"`` (K M, 4) and ``"noise"``
+    ``forward(td)`` reads optional entries ``"initial_state"`` (K M, n) and ``"noise"``
     (H, K M, delta_dim) (common random numbers, tests); otherwise it samples them. It returns
     a TensorDict with ``loss_cost`` (the differentiable ``sum_k J^_k``), ``cost_std``
     (``s_J``, mean over candidates, detached) and ``candidate_costs`` (``J^_k``, (K,),
@@ -117,10 +118,10 @@ class MCPilcoLoss(LossModule):
         cost: nn.Module,
         horizon: int,
         num_particles: int,
-        init_mean: Sequence[float] | Tensor = (0.0, 0.0, 0.0, 0.0),
+        init_mean: Sequence[float] | Tensor,
         init_std: float | Sequence[float] | Tensor = 0.01,
         obs_noise_std: float = 0.0,
-        delta_dim: int = 2,
+        delta_dim: int | None = None,
     ) -> None:
         super().__init__()
         if int(horizon) != horizon or horizon < 1:
@@ -137,10 +138,19 @@ class MCPilcoLoss(LossModule):
         self.horizon = int(horizon)
         self.num_particles = int(num_particles)
         self.obs_noise_std = float(obs_noise_std)
+        if delta_dim is None:
+            layout = getattr(dynamics, "layout", None)
+            if layout is None:
+                raise ValueError("delta_dim is needed for dynamics without a layout")
+            delta_dim = layout.output_dim
         self.delta_dim = int(delta_dim)
-        self.register_buffer("init_mean", torch.as_tensor(init_mean, dtype=torch.float32))
         self.register_buffer(
-            "init_std", torch.as_tensor(init_std, dtype=torch.float32).expand(4).clone()
+            "init_mean", torch.as_tensor(init_mean, dtype=torch.float32).reshape(-1).clone()
+        )
+        self.state_dim = int(self.init_mean.numel())
+        self.register_buffer(
+            "init_std",
+            torch.as_tensor(init_std, dtype=torch.float32).expand(self.state_dim).clone(),
         )
         if isinstance(policy, TensorDictModule):
             if list(policy.in_keys) != ["observation"] or list(policy.out_keys) != ["action"]:
@@ -365,21 +375,21 @@ class MCPilcoLoss(LossModule):
         self.dynamics = dynamics
 
     def sample_initial_state(self, num_particles: int | None = None) -> Tensor:
-        """``x_0^(m) ~ N(mu_0, Sigma_0)``, (K M, 4) (``M`` per candidate)."""
+        """``x_0^(m) ~ N(mu_0, Sigma_0)``, (K M, n) (``M`` per candidate)."""
         m = self.num_particles if num_particles is None else int(num_particles)
-        eps = torch.randn(self.num_candidates * m, 4, device=self.init_mean.device)
+        eps = torch.randn(self.num_candidates * m, self.state_dim, device=self.init_mean.device)
         return self.init_mean + self.init_std * eps
 
     def _draw_inputs(
         self, initial_state: Tensor | None, noise: Tensor | None, num_particles: int | None
     ) -> tuple[Tensor, Tensor, Tensor | None]:
-        """``x_0`` (K M, 4), ``eps`` (H, K M, delta_dim) and ``sigma_obs nu`` (H, K M, 4) or
+        """``x_0`` (K M, n), ``eps`` (H, K M, delta_dim) and ``sigma_obs nu`` (H, K M, n) or
         None, each sampled (in this order) where not given, and checked."""
         x = self.sample_initial_state(num_particles) if initial_state is None else initial_state
-        m = x.shape[0]
-        if x.ndim != 2 or x.shape[1] != 4 or m % self.num_candidates:
+        m, n = x.shape[0], self.state_dim
+        if x.ndim != 2 or x.shape[1] != n or m % self.num_candidates:
             raise ValueError(
-                f"initial_state must have shape (K M, 4) with K = {self.num_candidates}, got "
+                f"initial_state must have shape (K M, {n}) with K = {self.num_candidates}, got "
                 f"{tuple(x.shape)}"
             )
         if noise is None:
@@ -393,7 +403,7 @@ class MCPilcoLoss(LossModule):
         obs_noise = None
         if self.obs_noise_std > 0:
             obs_noise = self.obs_noise_std * torch.randn(
-                self.horizon, m, 4, dtype=x.dtype, device=x.device
+                self.horizon, m, n, dtype=x.dtype, device=x.device
             )
         return x, noise, obs_noise
 
@@ -407,7 +417,7 @@ class MCPilcoLoss(LossModule):
         """Propagate ``M`` particles for ``H`` steps; differentiable w.r.t. the policy.
 
         Args:
-            initial_state: (K M, 4) ``x_0``; sampled when None.
+            initial_state: (K M, n) ``x_0``; sampled when None.
             noise: (H, K M, delta_dim) ``eps``; sampled when None. Pass zeros for the mean
                 prediction of a deterministic model.
             num_particles: ``M`` per candidate when ``initial_state`` is None (default: the
@@ -450,7 +460,9 @@ class MCPilcoLoss(LossModule):
                     getattr(self._policy_fn, "draw_dropout_bytes", lambda _x: None),
                     x,
                     noise,
-                    noise.new_zeros(*noise.shape[:2], 4) if obs_noise is None else obs_noise,
+                    noise.new_zeros(*noise.shape[:2], self.state_dim)
+                    if obs_noise is None
+                    else obs_noise,
                     *(getattr(self._policy_fn, name) for name in PARAM_NAMES),
                 ).T  # (K M, H)
         else:

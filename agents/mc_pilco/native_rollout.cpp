@@ -176,7 +176,7 @@ static float policy_forward(const Pol &P, const float *bT, const float *bsq, con
                             float *cso, float *sno) {
     const int nb = P.nb;
     float co = std::cos(obs[2]), so = std::sin(obs[2]);
-    float feat[5] = {obs[0], obs[1], obs[3], co, so};
+    float feat[5] = {obs[0], obs[1], obs[3], so, co};
     float a[5], asq = 0.0f;
     for (int d = 0; d < 5; ++d) {
         a[d] = feat[d] * inv_l[d];
@@ -490,7 +490,7 @@ static void step_backward_tile(const Gp &G, const Pol &P, const Cost &C, const f
         float co = rec[L.cso + q], so = rec[L.sno + q];
         g[q] = gx0 + gf[0];
         g[TILE + q] = gx1 + gf[1];
-        g[2 * TILE + q] = gx2 + gf[4] * co - gf[3] * so;
+        g[2 * TILE + q] = gx2 + gf[3] * co - gf[4] * so;
         g[3 * TILE + q] = gx3 + gf[2];
     }
     // the tile's sums over its particles: colsum(G), phi^T gs and G^T a, one pass per column

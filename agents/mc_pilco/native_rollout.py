@@ -21,7 +21,7 @@ of ``2 H`` calls of inductor-compiled graphs per shard. What that buys:
 The C++ file has no torch headers: it is compiled on first use with the system's C++
 compiler (``-O3 -march=native``, 2-3 s), cached by the hash of its source and flags under
 :func:`cache_dir`, and called through ``ctypes`` (which releases the GIL, so the shards run
-in parallel threads). Float32 only, the package's cart-pole parts only
+in parallel threads). Float32 only, one state layout (:data:`NATIVE_LAYOUT`) only
 (:func:`native_unsupported_reason`); ``compile_step`` checks the result against the eager
 rollout like every compiled path.
 
@@ -34,6 +34,7 @@ from __future__ import annotations
 
 import ctypes
 import hashlib
+import math
 import os
 import platform
 import shutil
@@ -46,13 +47,21 @@ from typing import Any
 import torch
 from torch import Tensor
 
+from mcpilco.agents.mc_pilco.cost import MODE_PLAIN, MODE_WRAP
 from mcpilco.agents.mc_pilco.direct_compile import DirectRollout, unsupported_reason
+from mcpilco.agents.mc_pilco.features import StateLayout
 
 SOURCE = Path(__file__).with_name("native_rollout.cpp")
 """The C++ source of the rollout."""
 
 CXX_FLAGS = ("-O3", "-march=native", "-fno-math-errno", "-shared", "-fPIC")
 """Compiler flags (no ``-ffast-math``: NaN must propagate, the loss restarts on a NaN cost)."""
+
+NATIVE_LAYOUT = StateLayout(
+    n=4, plain_idx=(0, 1, 3), angle_idx=(2,), position_idx=(0, 2), velocity_idx=(1, 3)
+)
+"""The one state layout the C++ loop is written for: ``[p, p_dot, a, a_dot]`` with the angle
+``a`` (a cart-pole or any such 1-D base with a pendulum)."""
 
 _LIB: ctypes.CDLL | None = None
 _LIB_ERROR: str | None = None
@@ -221,6 +230,17 @@ def native_unsupported_reason(
         return "it runs in float32 only"
     if policy.weights.shape[-1] != 1:
         return f"it needs one action, the policy has {policy.weights.shape[-1]}"
+    if float(policy.u_mid.abs().max()) != 0.0:
+        return "it needs symmetric action bounds"
+    if dynamics.layout != NATIVE_LAYOUT:
+        return f"it needs the state layout {NATIVE_LAYOUT}, got {dynamics.layout}"
+    if (
+        cost.idx != (0, 2)
+        or cost.targets != (0.0, math.pi)
+        or cost.modes[0] != MODE_PLAIN
+        or cost.modes[1] == MODE_PLAIN
+    ):
+        return f"it needs a cost on x_0 (target 0) and the angle x_2 (target pi), got {cost}"
     if pred.m != 2 or pred.input_dim != 6:
         return f"it needs a GP of 2 outputs over 6 inputs, got {pred.m} over {pred.input_dim}"
     if pred.p not in (0, 2):
@@ -360,9 +380,12 @@ class NativeRollout(DirectRollout):
         self.lib = load_library()
         self.gp = NativeGP(dynamics, int(self.lib.mcp_row_block()))
         nb = policy.num_basis
-        self.pol = _Pol(nb, float(policy.u_max))
+        self.pol = _Pol(nb, float(policy.u_half[0]))
         self.cost_params = _Cost(
-            float(cost.l_x), float(cost.l_theta), float(dynamics.dt), int(bool(cost.wrap))
+            float(cost.length_scales[0]),
+            float(cost.length_scales[1]),
+            float(dynamics.dt),
+            int(cost.modes[1] == MODE_WRAP),
         )
         per = self.shard_rows // self.candidates
         self.tiles_per = -(-per // int(self.lib.mcp_tile()))

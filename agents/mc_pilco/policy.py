@@ -2,15 +2,18 @@
 
 Glossary
 --------
-``x = [q1, q1_dot, q2, q2_dot]``
-    cartpole state (observation), pole angle ``q2`` not wrapped.
-``x~ = [q1, q1_dot, q2_dot, cos q2, sin q2]``
-    policy input ("x_ext" in thesis 5.5.1): the angle enters through cos and sin.
+``x``
+    the state (observation) of the task, ``n`` coordinates.
+``x~ = f(x)``
+    policy input: the task's state features (:mod:`.features`): plain coordinates, then
+    ``(sin, cos)`` of each angle ("x_ext" in thesis 5.5.1).
 ``phi_i(x~) = exp(-1/2 ||(x~ - c_i) / l||^2``
     Gaussian basis function ``i = 1..n_b`` with centre ``c_i`` and lengthscales ``l``
     (diagonal, shared by all basis functions, learnable).
-``pi_theta(x) = u_max tanh(sum_i w_i phi_i(x~) / u_max)``
-    the squashed policy; ``theta = {w, c, l}``; output in ``(-u_max, u_max)``.
+``pi_theta(x) = u_mid + u_half tanh(sum_i w_i phi_i(x~) / u_half)``
+    the squashed policy, per action coordinate; ``theta = {w, c, l}``; output in the
+    action bounds ``(u_mid - u_half, u_mid + u_half)`` (``u_max = u_half`` for symmetric
+    bounds, the thesis's form).
 dropout
     during policy optimisation, at every call (every simulated time step) each basis
     activation ``phi_i(x~^(m))`` of each particle ``m`` is zeroed with probability ``p`` and the
@@ -20,9 +23,6 @@ dropout
     slightly different policy, so the optimum must be robust to perturbed controls. ``p`` is
     lowered by the monitoring rule (:mod:`mcpilco.agents.mc_pilco.optimize`). Off in
     ``eval()`` mode.
-
-``u_max`` is in the units of the env action (the cartpole action in ``[-1, 1]`` maps to
-``+-10`` N), so the default ``u_max = 1``.
 """
 
 from __future__ import annotations
@@ -35,6 +35,7 @@ import torch
 from tensordict.nn import TensorDictModule
 from torch import Tensor, nn
 
+from mcpilco.agents.mc_pilco.features import StateLayout
 from mcpilco.models.numerics import exp_floor_
 
 SQRT_HALF = math.sqrt(0.5)
@@ -42,96 +43,105 @@ SQRT_HALF = math.sqrt(0.5)
 reference code's ``exp(-||x~ - c||^2)`` (unit lengthscales there)."""
 
 
-def cartpole_policy_features(obs: Tensor) -> Tensor:
-    """``x~ = [x, x_dot, theta_dot, cos theta, sin theta]`` from ``obs = [x, x_dot, theta,
-    theta_dot]`` (..., 4) -> (..., 5)."""
-    if obs.shape[-1] != 4:
-        raise ValueError(
-            f"observation must have shape (..., 4) = [x, x_dot, theta, theta_dot], got "
-            f"{tuple(obs.shape)}"
-        )
-    theta = obs[..., 2:3]
-    return torch.cat([obs[..., 0:2], obs[..., 3:4], torch.cos(theta), torch.sin(theta)], dim=-1)
-
-
 class SquashedRBFPolicy(nn.Module):
-    """``u = u_max tanh(sum_i w_i phi_i(x~) / u_max)`` with ``n_b`` Gaussian basis functions.
+    """``u = u_mid + u_half tanh(sum_i w_i phi_i(x~) / u_half)`` with ``n_b`` Gaussian basis
+    functions over the task's state features.
 
     Args:
+        layout: the task's state layout (:class:`~.features.StateLayout`, or its dict form).
+        action_low, action_high: the action bounds (one entry per action).
         num_basis: number of basis functions ``n_b`` (MC-PILCO: 200).
-        action_dim: dimension of ``u``.
-        u_max: output bound, in env action units.
-        centers_box: half widths ``b`` of the box ``[-b, b]`` in which the centres of
-            ``[x, x_dot, theta_dot]`` are initialised uniformly; the centres of
-            ``[cos theta, sin theta]`` are ``[cos psi, sin psi]``, ``psi ~ U(-pi, pi)`` (on the
-            circle where those features live).
-        lengthscale_init: initial lengthscales ``l``, one per input of ``x~``.
-        weight_scale: initial weights ``w ~ U(-weight_scale, weight_scale) u_max``.
+        centers_box: half width ``b`` (one value, or one per plain coordinate) of the box
+            ``[-b, b]`` in which the centres of the plain coordinates are initialised
+            uniformly; the centres of each angle's ``(sin, cos)`` are ``(sin psi, cos psi)``,
+            ``psi ~ U(-pi, pi)`` (on the circle where those features live).
+        lengthscale_init: initial lengthscale ``l`` (one value, or one per feature).
+        weight_scale: initial weights ``w ~ U(-weight_scale, weight_scale) u_half``.
         dropout: initial dropout probability ``p`` on the activations (training mode only).
         seed: seed of the initialisation (None: torch's global generator).
 
     Shapes:
-        ``forward(obs (..., 4)) -> action (..., action_dim)``.
+        ``forward(obs (..., n)) -> action (..., A)``.
     """
 
     def __init__(
         self,
+        layout: StateLayout | dict[str, Any],
+        action_low: Sequence[float] = (-1.0,),
+        action_high: Sequence[float] = (1.0,),
         num_basis: int = 200,
-        action_dim: int = 1,
-        u_max: float = 1.0,
-        centers_box: Sequence[float] = (math.pi, math.pi, math.pi),
-        lengthscale_init: Sequence[float] = (SQRT_HALF,) * 5,
+        centers_box: float | Sequence[float] = math.pi,
+        lengthscale_init: float | Sequence[float] = SQRT_HALF,
         weight_scale: float = 0.5,
         dropout: float = 0.25,
         seed: int | None = None,
     ) -> None:
         super().__init__()
+        if isinstance(layout, dict):
+            layout = StateLayout.from_dict(layout)
         if num_basis < 1:
             raise ValueError(f"num_basis must be >= 1, got {num_basis}")
-        if not u_max > 0:
-            raise ValueError(f"u_max must be > 0, got {u_max}")
-        if len(centers_box) != 3 or len(lengthscale_init) != 5:
+        low = torch.as_tensor(action_low, dtype=torch.float32).reshape(-1)
+        high = torch.as_tensor(action_high, dtype=torch.float32).reshape(-1)
+        if low.shape != high.shape or not bool((high > low).all()):
+            raise ValueError(f"need action_low < action_high, got {low.tolist()}, {high.tolist()}")
+        n_plain, F = len(layout.plain_idx), layout.feature_dim
+        box = torch.as_tensor(centers_box, dtype=torch.float32).reshape(-1)
+        ls = torch.as_tensor(lengthscale_init, dtype=torch.float32).reshape(-1)
+        if box.numel() == 1:
+            box = box.expand(n_plain).clone()
+        if ls.numel() == 1:
+            ls = ls.expand(F).clone()
+        if box.numel() != n_plain or ls.numel() != F:
             raise ValueError(
-                "centers_box needs 3 entries ([x, x_dot, theta_dot]) and lengthscale_init 5 "
-                f"(one per policy input), got {len(centers_box)} and {len(lengthscale_init)}"
+                f"centers_box needs 1 or {n_plain} entries (one per plain coordinate) and "
+                f"lengthscale_init 1 or {F} (one per feature), got {box.numel()} and {ls.numel()}"
             )
+        self.layout = layout
         self.num_basis = int(num_basis)
-        self.action_dim = int(action_dim)
-        self.input_dim = len(lengthscale_init)
-        self.u_max = float(u_max)
+        self.action_dim = int(low.numel())
+        self.input_dim = F
         self.weight_scale = float(weight_scale)
         self.dropout = float(dropout)
-        self.register_buffer("centers_box", torch.as_tensor(centers_box, dtype=torch.float32))
-        self.register_buffer(
-            "lengthscale_init", torch.as_tensor(lengthscale_init, dtype=torch.float32)
-        )
+        self.register_buffer("action_low", low)
+        self.register_buffer("action_high", high)
+        self.register_buffer("u_mid", (high + low) / 2)
+        self.register_buffer("u_half", (high - low) / 2)
+        self.register_buffer("centers_box", box)
+        self.register_buffer("lengthscale_init", ls)
         self.centers = nn.Parameter(torch.empty(self.num_basis, self.input_dim))
         self.log_lengthscales = nn.Parameter(torch.empty(self.input_dim))
         self.weights = nn.Parameter(torch.empty(self.num_basis, self.action_dim))
         self.reset_parameters(seed)
 
+    @property
+    def u_max(self) -> float:
+        """The largest ``u_half`` (the output bound of symmetric bounds)."""
+        return float(self.u_half.max())
+
     @torch.no_grad()
     def reset_parameters(self, seed: int | None = None) -> None:
-        """(Re-)initialise ``c`` (uniformly in the box; on the circle for ``cos, sin``), ``l``
-        to its initial value and ``w`` uniformly in ``+-weight_scale u_max``."""
+        """(Re-)initialise ``c`` (uniformly in the box; on the circle for ``sin, cos``), ``l``
+        to its initial value and ``w`` uniformly in ``+-weight_scale u_half``."""
         gen = None
         if seed is not None:
             gen = torch.Generator().manual_seed(int(seed))
-        c = torch.rand(self.num_basis, 3, generator=gen) * 2.0 - 1.0
-        psi = (torch.rand(self.num_basis, generator=gen) * 2.0 - 1.0) * math.pi
-        self.centers.copy_(
-            torch.cat([c * self.centers_box, psi.cos()[:, None], psi.sin()[:, None]], 1)
-        )
+        n_plain, n_ang = len(self.layout.plain_idx), len(self.layout.angle_idx)
+        c = torch.rand(self.num_basis, n_plain, generator=gen) * 2.0 - 1.0
+        psi = (torch.rand(self.num_basis, n_ang, generator=gen) * 2.0 - 1.0) * math.pi
+        sc = torch.stack([psi.sin(), psi.cos()], dim=-1).reshape(self.num_basis, 2 * n_ang)
+        self.centers.copy_(torch.cat([c * self.centers_box, sc], 1))
         self.log_lengthscales.copy_(self.lengthscale_init.log())
         w = torch.rand(self.num_basis, self.action_dim, generator=gen) * 2.0 - 1.0
-        self.weights.copy_(w * self.weight_scale * self.u_max)
+        self.weights.copy_(w * self.weight_scale * self.u_half)
 
     def settings(self) -> dict[str, Any]:
         """Constructor arguments that define the architecture and initialisation."""
         return {
+            "layout": self.layout.to_dict(),
+            "action_low": self.action_low.tolist(),
+            "action_high": self.action_high.tolist(),
             "num_basis": self.num_basis,
-            "action_dim": self.action_dim,
-            "u_max": self.u_max,
             "centers_box": self.centers_box.tolist(),
             "lengthscale_init": self.lengthscale_init.tolist(),
             "weight_scale": self.weight_scale,
@@ -149,7 +159,7 @@ class SquashedRBFPolicy(nn.Module):
         return exp_floor_(log_phi).reshape(*lead, self.num_basis)
 
     def draw_dropout_mask(self, obs: Tensor) -> Tensor | None:
-        """The dropout mask ``(1, k, n_b)`` for the ``k`` observations in ``obs (..., 4)``
+        """The dropout mask ``(1, k, n_b)`` for the ``k`` observations in ``obs (..., n)``
         (:func:`dropout_mask`), or None outside training or at ``p = 0``. ``forward`` draws
         it itself when not given one; drawing it first keeps the random draws out of a
         compiled rollout step (the same masks with and without ``torch.compile``)."""
@@ -163,15 +173,13 @@ class SquashedRBFPolicy(nn.Module):
         return _draw_bytes(self, (1, obs[..., 0].numel(), self.num_basis), obs.device)
 
     def forward(self, obs: Tensor, mask: Tensor | None = None) -> Tensor:
-        """``u = pi(x~)`` for ``obs (..., 4)``; ``mask``: a dropout mask from
+        """``u = pi(x~)`` for ``obs (..., n)``; ``mask``: a dropout mask from
         :meth:`draw_dropout_mask` (None: drawn here in training mode)."""
-        if obs.shape[-1] != 4:
-            raise ValueError(
-                f"observation must have shape (..., 4) = [x, x_dot, theta, theta_dot], got "
-                f"{tuple(obs.shape)}"
-            )
+        n = self.layout.n
+        if obs.shape[-1] != n:
+            raise ValueError(f"observation must have shape (..., {n}), got {tuple(obs.shape)}")
         lead = obs.shape[:-1]
-        flat = obs.reshape(1, -1, 4)
+        flat = obs.reshape(1, -1, n)
         if mask is None:
             mask = self.draw_dropout_mask(obs)
         u = _SquashedRBF.apply(
@@ -179,14 +187,16 @@ class SquashedRBFPolicy(nn.Module):
             self.centers.unsqueeze(0),
             self.log_lengthscales.unsqueeze(0),
             self.weights.unsqueeze(0),
-            self.u_max,
+            (self.u_mid, self.u_half),
             mask,
+            self.layout,
         )
         return u.reshape(*lead, self.action_dim)
 
     def extra_repr(self) -> str:
         return (
-            f"num_basis={self.num_basis}, action_dim={self.action_dim}, u_max={self.u_max}, "
+            f"num_basis={self.num_basis}, action_dim={self.action_dim}, "
+            f"bounds=({self.action_low.tolist()}, {self.action_high.tolist()}), "
             f"dropout={self.dropout}"
         )
 
@@ -208,8 +218,8 @@ class PolicyPopulation(nn.Module):
             differ); their parameters are copied.
 
     Shapes:
-        ``forward(obs (K M, 4)) -> (K M, A)``: rows ``k M .. (k + 1) M - 1`` use candidate
-        ``k``. Parameters: ``centers (K, n_b, 5)``, ``log_lengthscales (K, 5)``,
+        ``forward(obs (K M, n)) -> (K M, A)``: rows ``k M .. (k + 1) M - 1`` use candidate
+        ``k``. Parameters: ``centers (K, n_b, F)``, ``log_lengthscales (K, F)``,
         ``weights (K, n_b, A)``.
     """
 
@@ -229,7 +239,9 @@ class PolicyPopulation(nn.Module):
         self.num_candidates = len(candidates)
         self.num_basis = first.num_basis
         self.action_dim = first.action_dim
-        self.u_max = first.u_max
+        self.layout = first.layout
+        self.register_buffer("u_mid", first.u_mid.clone())
+        self.register_buffer("u_half", first.u_half.clone())
         self.dropout = first.dropout
         self.centers = nn.Parameter(torch.stack([p.centers.detach() for p in candidates]))
         self.log_lengthscales = nn.Parameter(
@@ -238,7 +250,7 @@ class PolicyPopulation(nn.Module):
         self.weights = nn.Parameter(torch.stack([p.weights.detach() for p in candidates]))
 
     def draw_dropout_mask(self, obs: Tensor) -> Tensor | None:
-        """The dropout mask ``(K, M, n_b)`` for ``obs (K M, 4)``, or None outside training or
+        """The dropout mask ``(K, M, n_b)`` for ``obs (K M, n)``, or None outside training or
         at ``p = 0`` (as :meth:`SquashedRBFPolicy.draw_dropout_mask`)."""
         drawn = self.draw_dropout_bytes(obs)
         return None if drawn is None else mask_from_bytes(*drawn, obs.dtype)
@@ -251,19 +263,26 @@ class PolicyPopulation(nn.Module):
         return _draw_bytes(self, shape, obs.device)
 
     def forward(self, obs: Tensor, mask: Tensor | None = None) -> Tensor:
-        """``u`` of candidate ``k`` for its ``M`` rows of ``obs (K M, 4)``; ``mask`` as in
+        """``u`` of candidate ``k`` for its ``M`` rows of ``obs (K M, n)``; ``mask`` as in
         :meth:`SquashedRBFPolicy.forward`."""
-        if obs.shape[-1] != 4 or obs[..., 0].numel() % self.num_candidates:
+        n = self.layout.n
+        if obs.shape[-1] != n or obs[..., 0].numel() % self.num_candidates:
             raise ValueError(
-                f"observation must have shape (K M, 4) with K = {self.num_candidates} "
+                f"observation must have shape (K M, {n}) with K = {self.num_candidates} "
                 f"candidates, got {tuple(obs.shape)}"
             )
         lead = obs.shape[:-1]
-        flat = obs.reshape(self.num_candidates, -1, 4)
+        flat = obs.reshape(self.num_candidates, -1, n)
         if mask is None:
             mask = self.draw_dropout_mask(obs)
         u = _SquashedRBF.apply(
-            flat, self.centers, self.log_lengthscales, self.weights, self.u_max, mask
+            flat,
+            self.centers,
+            self.log_lengthscales,
+            self.weights,
+            (self.u_mid, self.u_half),
+            mask,
+            self.layout,
         )
         return u.reshape(*lead, self.action_dim)
 
@@ -296,7 +315,7 @@ class PolicyPopulation(nn.Module):
     def extra_repr(self) -> str:
         return (
             f"num_candidates={self.num_candidates}, num_basis={self.num_basis}, "
-            f"action_dim={self.action_dim}, u_max={self.u_max}, dropout={self.dropout}"
+            f"action_dim={self.action_dim}, dropout={self.dropout}"
         )
 
 
@@ -357,8 +376,8 @@ def _draw_bytes(
 
 
 def _log_basis(feats: Tensor, centers: Tensor, log_l: Tensor) -> tuple[Tensor, ...]:
-    """Batched over ``K`` policies: ``a = x~ / l`` (K, k, 5), ``b = c / l`` (K, n_b, 5),
-    ``1 / l`` (K, 1, 5) and ``log phi (K, k, n_b) = a b^T - |a|^2/2 - |b|^2/2 =
+    """Batched over ``K`` policies: ``a = x~ / l`` (K, k, F), ``b = c / l`` (K, n_b, F),
+    ``1 / l`` (K, 1, F) and ``log phi (K, k, n_b) = a b^T - |a|^2/2 - |b|^2/2 =
     -1/2 ||a - b||^2`` (<= 0 up to rounding)."""
     inv_l = torch.exp(-log_l).unsqueeze(1)
     a = feats * inv_l
@@ -369,35 +388,37 @@ def _log_basis(feats: Tensor, centers: Tensor, log_l: Tensor) -> tuple[Tensor, .
 
 
 class _SquashedRBF(torch.autograd.Function):
-    """``u = u_max tanh((D o phi(x~(obs))) w / u_max)`` for ``K`` policies at once, with an
-    analytic backward (one autograd node per call instead of about fifteen; the rollout calls
-    the policy at every time step). Shapes: ``obs (K, k, 4)``, ``c (K, n_b, 5)``,
-    ``log l (K, 5)``, ``w (K, n_b, A)``, ``D (K, k, n_b)`` the dropout mask (None: all ones).
-    Below ``phi`` stands for ``D o phi``, which is also ``d(D o phi) / d log phi``, and the
-    products are per policy (batched).
+    """``u = u_mid + u_half tanh((D o phi(f(obs))) w / u_half)`` for ``K`` policies at once,
+    with an analytic backward (one autograd node per call instead of about fifteen; the
+    rollout calls the policy at every time step). Shapes: ``obs (K, k, n)``,
+    ``c (K, n_b, F)``, ``log l (K, F)``, ``w (K, n_b, A)``, ``D (K, k, n_b)`` the dropout mask
+    (None: all ones). Below ``phi`` stands for ``D o phi``, which is also
+    ``d(D o phi) / d log phi``, and the products are per policy (batched).
 
     With ``a = x~ / l``, ``b = c / l``, ``log phi = a b^T - |a|^2/2 - |b|^2/2`` and
     ``G = dJ/d log phi = ((g_u (1 - tanh^2)) w^T) o phi``:
     ``dJ/da = G b - a o rowsum(G)``, ``dJ/db = G^T a - b o colsum(G)``,
     ``dJ/dw = phi^T (g_u (1 - tanh^2))``, ``dJ/dx~ = dJ/da / l``, ``dJ/dc = dJ/db / l``,
-    ``dJ/dlog l = -(sum (dJ/da o a) + sum (dJ/db o b))``; ``x~ -> obs`` through
-    ``d cos q2 = -sin q2``, ``d sin q2 = cos q2``.
+    ``dJ/dlog l = -(sum (dJ/da o a) + sum (dJ/db o b))``; ``x~ -> obs`` through the feature
+    map's backward (:meth:`~.features.StateLayout.features_backward`).
     """
 
     @staticmethod
-    def forward(ctx, obs, centers, log_l, w, u_max, mask=None):  # noqa: D102
-        feats = cartpole_policy_features(obs)  # (K, k, 5)
+    def forward(ctx, obs, centers, log_l, w, bounds, mask, layout):  # noqa: D102
+        u_mid, u_half = bounds
+        feats, s, c = layout.features(obs)  # (K, k, F)
         a, b, inv_l, log_phi = _log_basis(feats, centers, log_l)
         phi = exp_floor_(log_phi)  # (K, k, n_b)
         if mask is not None:
             phi.mul_(mask)
-        t = torch.tanh(torch.bmm(phi, w).div_(u_max))  # (K, k, A)
-        ctx.save_for_backward(a, b, phi, t, w, feats, inv_l)
-        return u_max * t
+        t = torch.tanh(torch.bmm(phi, w).div_(u_half))  # (K, k, A)
+        ctx.save_for_backward(a, b, phi, t, w, s, c, inv_l, u_half)
+        ctx.layout = layout
+        return torch.addcmul(u_mid, u_half, t)
 
     @staticmethod
     def backward(ctx, g_u):  # noqa: D102
-        a, b, phi, t, w, feats, inv_l = ctx.saved_tensors
+        a, b, phi, t, w, s, c, inv_l, u_half = ctx.saved_tensors
         need_obs, need_c, need_l, need_w = ctx.needs_input_grad[:4]
         gs = g_u * (1.0 - t * t)  # (K, k, A), dJ/d(phi w)
         g_w = torch.bmm(phi.transpose(1, 2), gs) if need_w else None
@@ -415,11 +436,8 @@ class _SquashedRBF(torch.autograd.Function):
             if need_c:
                 g_c = g_b * inv_l
             if need_obs:
-                gf = g_a * inv_l  # (K, k, 5), dJ/dx~
-                cos_t, sin_t = feats[..., 3], feats[..., 4]
-                g_theta = gf[..., 4] * cos_t - gf[..., 3] * sin_t
-                g_obs = torch.stack([gf[..., 0], gf[..., 1], g_theta, gf[..., 2]], dim=-1)
-        return g_obs, g_c, g_l, g_w, None, None
+                g_obs = ctx.layout.features_backward(g_a * inv_l, s, c)
+        return g_obs, g_c, g_l, g_w, None, None, None
 
 
 def make_policy_module(

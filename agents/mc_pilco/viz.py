@@ -2,20 +2,21 @@
 
 Per trial ``k`` the loop stores (see :mod:`mcpilco.agents.mc_pilco.loop`):
 
-``particles (M, H+1, 4)``
+``particles (M, H+1, n)``
     particle trajectories predicted by the GP model with the final policy of trial ``k``.
-``real (H+1, 4)``
+``real (H+1, n)``
     the true trajectory measured when that policy ran on the env.
 ``opt_costs (K,)``
     expected cost ``J^`` at each optimisation step.
-``gp_rmse (2,)``
-    one-step RMSE of ``E[Delta q_dot]`` of the model fitted before trial ``k`` on the data
-    of trial ``k`` (out of sample).
+``gp_rmse (m,)``
+    one-step RMSE of ``E[Delta]`` of the model fitted before trial ``k`` on the data
+    of trial ``k`` (out of sample), per GP output.
 
 The Rerun file is rebuilt from these arrays after every trial (through a temporary file and
 ``os.replace``), so a resumed run has one consistent recording. Its blueprint (built in
-code) opens with: x and theta particle plots (a ``trial`` timeline selects the trial), the
-expected cost over optimisation steps, and the GP one-step error and trial metrics.
+code) opens with one particle plot per state coordinate (a ``trial`` timeline selects the
+trial), the expected cost over optimisation steps, and the GP one-step error and trial
+metrics.
 """
 
 from __future__ import annotations
@@ -27,34 +28,40 @@ from typing import Any
 
 import numpy as np
 
-STATE_LABELS = {0: ("x", "cart position x [m]"), 2: ("theta", "pole angle theta [rad]")}
-
 
 def plot_trial_particles(
     path: str | os.PathLike,
     particles: np.ndarray,
     real: np.ndarray,
     dt: float,
+    state_names: Sequence[str],
     title: str = "",
 ) -> Path:
-    """PNG like thesis Fig. 5.3: particles (lines) of x and theta vs the real trajectory (dots)."""
+    """PNG like thesis Fig. 5.3: particles (lines) of every state coordinate vs the real
+    trajectory (dots), one panel per coordinate."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
     path = Path(path)
+    n = real.shape[1]
+    cols = 1 if n <= 4 else 2
+    rows = -(-n // cols)
     t = np.arange(real.shape[0]) * dt
-    fig, axes = plt.subplots(2, 1, figsize=(7, 5), sharex=True)
-    for ax, (idx, (_, label)) in zip(axes, STATE_LABELS.items(), strict=True):
-        ax.plot(t, particles[:, :, idx].T, color="tab:blue", alpha=0.15, linewidth=0.7)
+    tp = np.arange(particles.shape[1]) * dt  # the model's horizon (the real episode may end early)
+    fig, axes = plt.subplots(rows, cols, figsize=(7 * cols, 1.9 * rows + 1), sharex=True)
+    axes = np.atleast_1d(axes).reshape(-1)
+    for idx in range(n):
+        ax = axes[idx]
+        ax.plot(tp, particles[:, :, idx].T, color="tab:blue", alpha=0.15, linewidth=0.7)
         ax.plot(t, real[:, idx], "o", color="black", markersize=2.5, label="real")
-        ax.set_ylabel(label)
+        ax.set_ylabel(state_names[idx])
         ax.grid(alpha=0.3)
-    axes[1].axhline(np.pi, color="gray", linestyle="--", linewidth=0.8)
-    axes[1].axhline(-np.pi, color="gray", linestyle="--", linewidth=0.8)
+    for ax in axes[n:]:
+        ax.set_visible(False)
     axes[0].legend(loc="upper left", fontsize=8)
-    axes[1].set_xlabel("time [s]")
+    axes[min(n, len(axes)) - 1].set_xlabel("time [s]")
     axes[0].set_title(title or "particle rollout (lines) vs real trajectory (dots)")
     fig.tight_layout()
     fig.savefig(path, dpi=110)
@@ -86,23 +93,21 @@ def plot_optimisation(
     return path
 
 
-def _blueprint():
+def _blueprint(state_names: Sequence[str], duration: float):
     import rerun.blueprint as rrb
 
-    bounds = rrb.VisualBounds2D(x_range=[0.0, 3.0], y_range=[-4.0, 4.0])
+    bounds = rrb.VisualBounds2D(x_range=[0.0, duration], y_range=[-4.0, 4.0])
     return rrb.Blueprint(
         rrb.Horizontal(
             rrb.Vertical(
-                rrb.Spatial2DView(
-                    origin="/particles/x",
-                    name="x [m] vs t [s]: particles / real",
-                    visual_bounds=bounds,
-                ),
-                rrb.Spatial2DView(
-                    origin="/particles/theta",
-                    name="theta [rad] vs t [s]: particles / real",
-                    visual_bounds=bounds,
-                ),
+                *(
+                    rrb.Spatial2DView(
+                        origin=f"/particles/{name}",
+                        name=f"{name} vs t [s]: particles / real",
+                        visual_bounds=bounds,
+                    )
+                    for name in state_names
+                )
             ),
             rrb.Vertical(
                 rrb.TimeSeriesView(origin="/optimisation", name="expected cost vs opt. step"),
@@ -119,6 +124,8 @@ def write_rerun_recording(
     path: str | os.PathLike,
     trials: Sequence[dict[str, Any]],
     dt: float,
+    state_names: Sequence[str],
+    output_names: Sequence[str],
     application_id: str = "mcpilco",
     recording_id: str | None = None,
 ) -> Path:
@@ -126,17 +133,20 @@ def write_rerun_recording(
 
     Args:
         path: output ``.rrd`` path.
-        trials: per trial a dict with ``index``, ``particles`` (M, H+1, 4) or None,
-            ``real`` (H+1, 4), ``opt_costs`` (K,) or None, ``gp_rmse`` (2,) or None and the
-            scalar metrics ``cost``, ``time_upright``, ``success``.
+        trials: per trial a dict with ``index``, ``particles`` (M, H+1, n) or None,
+            ``real`` (H+1, n), ``opt_costs`` (K,) or None, ``gp_rmse`` (m,) or None and the
+            scalar metrics ``cost``, ``time_in_goal``, ``success``.
         dt: control period [s] (time axis of the particle plots).
+        state_names: the task's state names (one plot each).
+        output_names: the GP outputs' names (one error series each).
     """
     import rerun as rr
 
     path = Path(path)
     tmp = path.with_name(path.name + ".tmp.rrd")
     rec = rr.RecordingStream(application_id, recording_id=recording_id)
-    rec.save(tmp, default_blueprint=_blueprint())
+    longest = max((len(tr["real"]) for tr in trials), default=1)
+    rec.save(tmp, default_blueprint=_blueprint(state_names, longest * dt))
     step0 = 0
     for tr in trials:
         k = int(tr["index"])
@@ -144,9 +154,10 @@ def write_rerun_recording(
         real = np.asarray(tr["real"], dtype=np.float64)
         t = np.arange(real.shape[0]) * dt
         parts = tr.get("particles")
-        for idx, (name, _) in STATE_LABELS.items():
+        for idx, name in enumerate(state_names):
             if parts is not None:
-                strips = np.stack([np.broadcast_to(t, parts.shape[:2]), parts[:, :, idx]], -1)
+                tp = np.arange(parts.shape[1]) * dt
+                strips = np.stack([np.broadcast_to(tp, parts.shape[:2]), parts[:, :, idx]], -1)
                 rec.log(
                     f"particles/{name}/model",
                     rr.LineStrips2D(strips, colors=[70, 130, 230, 60], radii=0.004),
@@ -158,15 +169,15 @@ def write_rerun_recording(
                 f"particles/{name}/real",
                 rr.Points2D(pts, colors=[0, 0, 0, 255], radii=0.02),
             )
-        for key in ("cost", "time_upright", "mean_abs_x"):
+        for key in ("cost", "time_in_goal"):
             if tr.get(key) is not None:
                 rec.log(f"trial/{key}", rr.Scalars([float(tr[key])]))
         if tr.get("success") is not None:
             rec.log("trial/success", rr.Scalars([float(bool(tr["success"]))]))
         if tr.get("gp_rmse") is not None:
             rmse = np.asarray(tr["gp_rmse"], dtype=np.float64)
-            rec.log("gp/one_step_rmse/delta_x_dot", rr.Scalars([rmse[0]]))
-            rec.log("gp/one_step_rmse/delta_theta_dot", rr.Scalars([rmse[1]]))
+            for name, value in zip(output_names, rmse, strict=True):
+                rec.log(f"gp/one_step_rmse/{name}", rr.Scalars([float(value)]))
         costs = tr.get("opt_costs")
         if costs is not None and len(costs):
             steps = step0 + np.arange(len(costs))

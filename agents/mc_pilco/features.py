@@ -1,0 +1,125 @@
+"""State layout and angle features in torch, derived from a :class:`~.task.TaskSpec`.
+
+``f(x) = [x_plain, sin x_a1, cos x_a1, sin x_a2, cos x_a2, ...]`` (``x_plain``: the coordinates
+that are not angles, in state order). The GP input is ``[f(x), u]`` and the policy input is
+``f(x)``. :class:`StateLayout` holds the index sets; :meth:`StateLayout.features` and
+:meth:`StateLayout.features_backward` are the map and its analytic vector-Jacobian product,
+``dJ/dx_a = dJ/dsin_a cos x_a - dJ/dcos_a sin x_a``, used by the autograd functions of the
+policy and the GP inputs (one autograd node each).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+import torch
+from torch import Tensor
+
+
+@dataclass(frozen=True)
+class StateLayout:
+    """Index sets of a state of ``n`` coordinates.
+
+    Attributes:
+        n: state size.
+        plain_idx: coordinates entering ``f(x)`` as they are.
+        angle_idx: coordinates entering through ``(sin, cos)``.
+        position_idx, velocity_idx: the speed-integration pairs, eq. (5.9).
+        delta_idx: coordinates in no pair, predicted as their own change.
+    """
+
+    n: int
+    plain_idx: tuple[int, ...]
+    angle_idx: tuple[int, ...]
+    position_idx: tuple[int, ...] = ()
+    velocity_idx: tuple[int, ...] = ()
+    delta_idx: tuple[int, ...] = ()
+
+    def __post_init__(self) -> None:
+        if sorted(self.plain_idx + self.angle_idx) != list(range(self.n)):
+            raise ValueError(
+                f"plain_idx {self.plain_idx} and angle_idx {self.angle_idx} must split "
+                f"range({self.n})"
+            )
+        if sorted(self.position_idx + self.velocity_idx + self.delta_idx) != list(range(self.n)):
+            raise ValueError(
+                f"pairs {list(zip(self.position_idx, self.velocity_idx, strict=False))} and "
+                f"delta_idx {self.delta_idx} must cover range({self.n}) once"
+            )
+
+    @classmethod
+    def from_task(cls, task: Any) -> StateLayout:
+        """The layout of a :class:`~.task.TaskSpec`."""
+        return cls(
+            n=task.state_dim,
+            plain_idx=task.plain_idx,
+            angle_idx=task.angle_idx,
+            position_idx=task.position_idx,
+            velocity_idx=task.velocity_idx,
+            delta_idx=task.delta_idx,
+        )
+
+    @property
+    def feature_dim(self) -> int:
+        return len(self.plain_idx) + 2 * len(self.angle_idx)
+
+    @property
+    def output_idx(self) -> tuple[int, ...]:
+        """Coordinates whose change the GP predicts: pair velocities, then unpaired ones."""
+        return self.velocity_idx + self.delta_idx
+
+    @property
+    def output_dim(self) -> int:
+        return len(self.output_idx)
+
+    def to_dict(self) -> dict[str, Any]:
+        return {k: list(v) if isinstance(v, tuple) else v for k, v in vars(self).items()}
+
+    @classmethod
+    def from_dict(cls, d: dict[str, Any]) -> StateLayout:
+        return cls(**{k: tuple(v) if isinstance(v, list) else v for k, v in d.items()})
+
+    def features(self, x: Tensor) -> tuple[Tensor, Tensor | None, Tensor | None]:
+        """``f(x)`` (..., F) and the ``sin, cos`` of the angles (kept for the backward)."""
+        plain = x[..., list(self.plain_idx)]
+        if not self.angle_idx:
+            return plain, None, None
+        ang = x[..., list(self.angle_idx)]
+        s, c = torch.sin(ang), torch.cos(ang)
+        sc = torch.stack([s, c], dim=-1).flatten(-2)
+        return torch.cat([plain, sc], dim=-1), s, c
+
+    def features_backward(self, g: Tensor, s: Tensor | None, c: Tensor | None) -> Tensor:
+        """``dJ/dx`` (..., n) from ``dJ/df`` (..., F)."""
+        p = len(self.plain_idx)
+        parts = [None] * self.n
+        for k, i in enumerate(self.plain_idx):
+            parts[i] = g[..., k]
+        for k, i in enumerate(self.angle_idx):
+            g_s, g_c = g[..., p + 2 * k], g[..., p + 2 * k + 1]
+            parts[i] = g_s * c[..., k] - g_c * s[..., k]
+        return torch.stack(parts, dim=-1)
+
+
+class _GPInputs(torch.autograd.Function):
+    """``x~ = [f(x), u]``: (..., n), (..., A) -> (..., F + A), one autograd node."""
+
+    @staticmethod
+    def forward(ctx, state: Tensor, action: Tensor, layout: StateLayout) -> Tensor:  # noqa: D102
+        f, s, c = layout.features(state)
+        ctx.save_for_backward(s, c)
+        ctx.layout = layout
+        ctx.feature_dim = f.shape[-1]
+        return torch.cat([f, action], dim=-1)
+
+    @staticmethod
+    def backward(ctx, g: Tensor) -> tuple[Tensor, Tensor, None]:  # noqa: D102
+        s, c = ctx.saved_tensors
+        F = ctx.feature_dim
+        return ctx.layout.features_backward(g[..., :F], s, c), g[..., F:], None
+
+
+def gp_inputs(state: Tensor, action: Tensor, layout: StateLayout) -> Tensor:
+    """The GP input ``x~ = [f(x), u]`` (differentiable, analytic backward)."""
+    return _GPInputs.apply(state, action, layout)

@@ -1,0 +1,472 @@
+"""Task specification: what MC-PILCO needs to know about an env, as data.
+
+A :class:`TaskSpec` turns any Gymnasium env with a continuous action space into an MC-PILCO
+task. Everything shape-dependent in the agent (GP inputs and outputs, speed integration,
+policy inputs, the cost, the initial particles, the success test) is derived from it.
+
+Glossary (thesis sections 5.3-5.5)
+----------------------------------
+``x = [x_0 .. x_{n-1}]``
+    the state, named by ``state_names``, read from the observation (``obs[obs_indices]``, or
+    the observation itself).
+angles
+    coordinates that wrap around: the GP and the policy see ``(sin x_j, cos x_j)`` instead of
+    ``x_j`` (thesis 5.5.1, "x_ext").
+``(q_i, q_dot_i)`` pairs
+    position/velocity pairs: the GP predicts ``Delta q_dot_i`` and ``q_i`` is integrated,
+    eq. (5.9) ("speed integration", thesis 5.4.3). Every coordinate in no pair is predicted
+    as a change ``Delta x_j`` of its own.
+``f(x~) = [x_plain, sin x_angles, cos x_angles]``
+    the state features; the GP input is ``[f(x), u]`` (:meth:`TaskSpec.feature_layout`).
+``c(x) = 1 - exp(-sum_j d_j(x)^2 / l_j^2)``
+    the saturating cost on named state terms with targets ``x*_j`` and length scales ``l_j``;
+    ``d_j = x_j - x*_j`` for a plain coordinate, ``wrap(x_j - x*_j)`` for an angle (mode
+    ``"wrap"``), or ``|x_j| - |x*_j|`` (mode ``"abs"``, MC-PILCO's unwrapped cart-pole cost,
+    which does not reward spinning through the target).
+success
+    the env's ``info[info_key]`` at the last step, else every state of the last ``window``
+    steps within ``tol`` of its target (angles by wrapped distance), and with
+    ``full_horizon`` the episode must not end early.
+
+Task files of the registered envs ship in :mod:`mcpilco.envs.tasks`; a user's own env gets a
+spec from a dict, a YAML file, or Python (:meth:`TaskSpec.from_dict`, :meth:`from_yaml`).
+Errors name the field (``task.pairs[1]``, ``task.cost.terms[0].state``).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+ANGLE_MODES = ("wrap", "abs")
+"""Distance of an angle cost term to its target: wrapped difference, or ``|x| - |x*|``."""
+
+
+class TaskSpecError(ValueError):
+    """A task specification field is wrong; the message names the field."""
+
+
+def _fail(path: str, msg: str) -> TaskSpecError:
+    return TaskSpecError(f"task.{path}: {msg}")
+
+
+def wrap(a: np.ndarray | float) -> np.ndarray:
+    """Angles mapped to ``[-pi, pi)``."""
+    return np.mod(np.asarray(a, dtype=np.float64) + np.pi, 2.0 * np.pi) - np.pi
+
+
+@dataclass(frozen=True)
+class CostTerm:
+    """One term ``(d_j / l_j)^2`` of the saturating cost."""
+
+    state: str
+    target: float = 0.0
+    length_scale: float = 1.0
+    angle_mode: str = "wrap"  # used only when ``state`` is an angle
+
+
+@dataclass(frozen=True)
+class Bound:
+    """``|d(x_j, target)| <= tol`` (wrapped distance for an angle)."""
+
+    target: float
+    tol: float
+
+
+@dataclass(frozen=True)
+class SuccessSpec:
+    """Success of an episode; see the module glossary."""
+
+    info_key: str | None = None
+    window: int | None = None
+    bounds: Mapping[str, Bound] = field(default_factory=dict)
+    full_horizon: bool = False
+
+
+@dataclass(frozen=True)
+class TaskSpec:
+    """A task for MC-PILCO, validated at construction (errors name the field).
+
+    Attributes:
+        env_id: the Gymnasium id the task belongs to.
+        state_names: names of the state coordinates, in order.
+        obs_indices: ``state = obs[obs_indices]``; None: the observation is the state.
+        true_state_key: ``info`` key of the noise-free state, used for evaluation (cost,
+            success); None: the state read from the observation.
+        angles: names of the coordinates that wrap around.
+        pairs: ``(position, velocity)`` name pairs for speed integration.
+        action_low, action_high: action bounds (the policy's output range).
+        dt: control period [s]. horizon: steps per episode and of the particle rollout.
+        init_mean, init_std: ``x_0 ~ N(mu_0, diag(sigma_0^2))`` of the particles.
+        cost_terms: terms of the saturating cost (the evaluation cost; an agent config may
+            change the length scales and angle modes of the optimised cost).
+        cost_fn: a user's differentiable torch cost ``state (..., n) -> (...)`` used instead
+            of ``cost_terms`` in the optimisation (the evaluation still uses ``cost_terms``
+            when given, else ``cost_fn`` on numpy input through torch).
+        success: the success test (:class:`SuccessSpec`).
+    """
+
+    env_id: str
+    state_names: tuple[str, ...]
+    action_low: tuple[float, ...]
+    action_high: tuple[float, ...]
+    dt: float
+    horizon: int
+    obs_indices: tuple[int, ...] | None = None
+    true_state_key: str | None = None
+    angles: tuple[str, ...] = ()
+    pairs: tuple[tuple[str, str], ...] = ()
+    init_mean: tuple[float, ...] | None = None
+    init_std: tuple[float, ...] | float = 0.01
+    cost_terms: tuple[CostTerm, ...] = ()
+    cost_fn: Callable[..., Any] | None = None
+    success: SuccessSpec = field(default_factory=SuccessSpec)
+
+    def __post_init__(self) -> None:
+        names = tuple(str(n) for n in self.state_names)
+        object.__setattr__(self, "state_names", names)
+        if not names:
+            raise _fail("state_names", "needs at least one state")
+        for i, n in enumerate(names):
+            if names.index(n) != i:
+                raise _fail(f"state_names[{i}]", f"{n!r} listed twice")
+        n = len(names)
+        if self.obs_indices is not None:
+            idx = tuple(int(i) for i in self.obs_indices)
+            if len(idx) != n:
+                raise _fail("obs_indices", f"needs one index per state ({n}), got {len(idx)}")
+            for i, j in enumerate(idx):
+                if j < 0:
+                    raise _fail(f"obs_indices[{i}]", f"index {j} is negative")
+            object.__setattr__(self, "obs_indices", idx)
+        angles = tuple(str(a) for a in self.angles)
+        for i, a in enumerate(angles):
+            if a not in names:
+                raise _fail(f"angles[{i}]", f"unknown state name {a!r} (states: {names})")
+            if angles.index(a) != i:
+                raise _fail(f"angles[{i}]", f"{a!r} listed twice")
+        object.__setattr__(self, "angles", angles)
+        pairs, used = [], {}
+        for i, pair in enumerate(self.pairs):
+            if isinstance(pair, str) or len(pair) != 2 or any(p is None for p in pair):
+                raise _fail(
+                    f"pairs[{i}]",
+                    f"needs [position, velocity], got {pair!r} (a velocity needs its position)",
+                )
+            pos, vel = str(pair[0]), str(pair[1])
+            for role, name in (("position", pos), ("velocity", vel)):
+                if name not in names:
+                    raise _fail(f"pairs[{i}]", f"unknown {role} {name!r} (states: {names})")
+                if name in used:
+                    raise _fail(f"pairs[{i}]", f"{name!r} is already in pairs[{used[name]}]")
+                used[name] = i
+            if vel in angles:
+                raise _fail(f"pairs[{i}]", f"velocity {vel!r} is listed as an angle")
+            pairs.append((pos, vel))
+        object.__setattr__(self, "pairs", tuple(pairs))
+        low = tuple(float(v) for v in np.atleast_1d(self.action_low))
+        high = tuple(float(v) for v in np.atleast_1d(self.action_high))
+        if not low or len(low) != len(high):
+            raise _fail("action_high", f"needs as many entries as action_low ({len(low)})")
+        for i, (lo, hi) in enumerate(zip(low, high, strict=True)):
+            if not (math.isfinite(lo) and math.isfinite(hi) and lo < hi):
+                raise _fail(f"action_low[{i}]", f"needs finite low < high, got [{lo}, {hi}]")
+        object.__setattr__(self, "action_low", low)
+        object.__setattr__(self, "action_high", high)
+        if not (math.isfinite(float(self.dt)) and float(self.dt) > 0):
+            raise _fail("dt", f"needs a control period > 0, got {self.dt!r}")
+        object.__setattr__(self, "dt", float(self.dt))
+        if int(self.horizon) != self.horizon or self.horizon < 1:
+            raise _fail("horizon", f"needs a positive integer, got {self.horizon!r}")
+        object.__setattr__(self, "horizon", int(self.horizon))
+        mean = (0.0,) * n if self.init_mean is None else tuple(float(v) for v in self.init_mean)
+        if len(mean) != n:
+            raise _fail("init_mean", f"needs {n} entries (one per state), got {len(mean)}")
+        object.__setattr__(self, "init_mean", mean)
+        std = (
+            np.broadcast_to(np.asarray(self.init_std, dtype=np.float64), (n,))
+            if np.ndim(self.init_std) == 0
+            else np.asarray(self.init_std, dtype=np.float64)
+        )
+        if std.shape != (n,) or not np.all(std >= 0) or not np.all(np.isfinite(std)):
+            raise _fail(
+                "init_std", f"needs a scalar or {n} finite values >= 0, got {self.init_std}"
+            )
+        object.__setattr__(self, "init_std", tuple(float(v) for v in std))
+        terms = []
+        for i, t in enumerate(self.cost_terms):
+            t = t if isinstance(t, CostTerm) else _parse_term(t, f"cost.terms[{i}]")
+            if t.state not in names:
+                raise _fail(
+                    f"cost.terms[{i}].state", f"unknown state name {t.state!r} (states: {names})"
+                )
+            if not (t.length_scale > 0 and math.isfinite(t.length_scale)):
+                raise _fail(f"cost.terms[{i}].length_scale", f"needs > 0, got {t.length_scale}")
+            if t.angle_mode not in ANGLE_MODES:
+                raise _fail(f"cost.terms[{i}].angle_mode", f"one of {ANGLE_MODES}")
+            if any(t.state == o.state for o in terms):
+                raise _fail(f"cost.terms[{i}].state", f"{t.state!r} has two cost terms")
+            terms.append(t)
+        object.__setattr__(self, "cost_terms", tuple(terms))
+        if not terms and self.cost_fn is None:
+            raise _fail("cost", "needs cost terms or a cost function")
+        if self.cost_fn is not None and not callable(self.cost_fn):
+            raise _fail("cost_fn", "must be callable: torch state (..., n) -> cost (...)")
+        s = self.success
+        for key, b in s.bounds.items():
+            if key not in names:
+                raise _fail(f"success.bounds.{key}", f"unknown state name (states: {names})")
+            if not b.tol > 0:
+                raise _fail(f"success.bounds.{key}.tol", f"needs > 0, got {b.tol}")
+        if s.window is not None and not 1 <= int(s.window) <= self.horizon:
+            raise _fail("success.window", f"needs 1..horizon ({self.horizon}), got {s.window}")
+        if s.info_key is None and not s.bounds and not s.full_horizon:
+            raise _fail("success", "needs an info_key, bounds, or full_horizon")
+
+    # ------------------------------------------------------------------ derived layout
+    @property
+    def state_dim(self) -> int:
+        return len(self.state_names)
+
+    @property
+    def action_dim(self) -> int:
+        return len(self.action_low)
+
+    def index(self, name: str) -> int:
+        """Position of state ``name``."""
+        return self.state_names.index(name)
+
+    @property
+    def angle_idx(self) -> tuple[int, ...]:
+        return tuple(self.index(a) for a in self.angles)
+
+    @property
+    def plain_idx(self) -> tuple[int, ...]:
+        """Coordinates that enter the features as they are (not angles), in state order."""
+        return tuple(i for i, n in enumerate(self.state_names) if n not in self.angles)
+
+    @property
+    def position_idx(self) -> tuple[int, ...]:
+        return tuple(self.index(p) for p, _ in self.pairs)
+
+    @property
+    def velocity_idx(self) -> tuple[int, ...]:
+        return tuple(self.index(v) for _, v in self.pairs)
+
+    @property
+    def delta_idx(self) -> tuple[int, ...]:
+        """Coordinates in no pair: each predicted as its own change ``Delta x_j``."""
+        paired = set(self.position_idx) | set(self.velocity_idx)
+        return tuple(i for i in range(self.state_dim) if i not in paired)
+
+    @property
+    def output_idx(self) -> tuple[int, ...]:
+        """The coordinates whose change the GP predicts: the pairs' velocities, then the
+        unpaired coordinates."""
+        return self.velocity_idx + self.delta_idx
+
+    @property
+    def feature_dim(self) -> int:
+        return len(self.plain_idx) + 2 * len(self.angles)
+
+    def feature_names(self) -> list[str]:
+        """Names of ``f(x)``: plain coordinates, then ``sin_a, cos_a`` per angle ``a``."""
+        plain = [self.state_names[i] for i in self.plain_idx]
+        return plain + [f"{p}_{a}" for a in self.angles for p in ("sin", "cos")]
+
+    def gp_input_names(self) -> list[str]:
+        return self.feature_names() + [f"u{j}" for j in range(self.action_dim)]
+
+    def gp_output_names(self) -> list[str]:
+        return [f"delta_{self.state_names[i]}" for i in self.output_idx]
+
+    def features(self, x: np.ndarray) -> np.ndarray:
+        """``f(x)`` in numpy (the torch version is :mod:`.features`)."""
+        x = np.asarray(x, dtype=np.float64)
+        ang = x[..., list(self.angle_idx)]
+        parts = [x[..., list(self.plain_idx)]]
+        if self.angles:
+            parts.append(np.stack([np.sin(ang), np.cos(ang)], axis=-1).reshape(*x.shape[:-1], -1))
+        return np.concatenate(parts, axis=-1)
+
+    # ------------------------------------------------------------------ the env side
+    def state_from_obs(self, obs: np.ndarray) -> np.ndarray:
+        """The state read from an observation (``obs[obs_indices]`` or ``obs``)."""
+        obs = np.asarray(obs, dtype=np.float64)
+        state = obs if self.obs_indices is None else obs[..., list(self.obs_indices)]
+        if state.shape[-1] != self.state_dim:
+            raise ValueError(
+                f"{self.env_id}: the observation has {obs.shape[-1]} entries but the task has "
+                f"{self.state_dim} states and no obs_indices"
+            )
+        return state
+
+    def true_state(self, obs: np.ndarray, info: Mapping[str, Any]) -> np.ndarray:
+        """The state used for evaluation: ``info[true_state_key]`` or the observed state."""
+        if self.true_state_key is not None and self.true_state_key in info:
+            return np.asarray(info[self.true_state_key], dtype=np.float64)
+        return self.state_from_obs(obs)
+
+    def check_env(self, env: Any) -> None:
+        """Raise :class:`TaskSpecError` when the env's spaces do not fit the task."""
+        obs_shape = getattr(env.observation_space, "shape", None)
+        act_shape = getattr(env.action_space, "shape", None)
+        if obs_shape is None or len(obs_shape) != 1:
+            raise _fail("env_id", f"{self.env_id} needs a flat Box observation, got {obs_shape}")
+        if act_shape is None or len(act_shape) != 1:
+            raise _fail("env_id", f"{self.env_id} needs a flat Box action space, got {act_shape}")
+        n_obs = obs_shape[0]
+        if self.obs_indices is None and n_obs != self.state_dim:
+            raise _fail(
+                "state_names",
+                f"{self.state_dim} states but {self.env_id} observes {n_obs} values; "
+                "set obs_indices",
+            )
+        for i, j in enumerate(self.obs_indices or ()):
+            if j >= n_obs:
+                raise _fail(f"obs_indices[{i}]", f"index {j} out of range for {n_obs} observations")
+        if act_shape[0] != self.action_dim:
+            raise _fail(
+                "action_low",
+                f"{self.action_dim} actions but {self.env_id} takes {act_shape[0]}",
+            )
+        low, high = np.asarray(env.action_space.low), np.asarray(env.action_space.high)
+        if np.any(np.asarray(self.action_low) < low - 1e-9) or np.any(
+            np.asarray(self.action_high) > high + 1e-9
+        ):
+            raise _fail(
+                "action_low",
+                f"bounds {self.action_low}..{self.action_high} exceed the env's "
+                f"{low.tolist()}..{high.tolist()}",
+            )
+
+    # ------------------------------------------------------------------ evaluation
+    def cost(self, x: np.ndarray) -> np.ndarray:
+        """The evaluation cost ``c(x)`` (module glossary) in numpy, ``(..., n) -> (...)``."""
+        x = np.asarray(x, dtype=np.float64)
+        if not self.cost_terms:
+            import torch
+
+            with torch.no_grad():
+                return self.cost_fn(torch.as_tensor(x)).numpy()
+        s = np.zeros(x.shape[:-1])
+        for t in self.cost_terms:
+            s = s + (self.distance(t.state, x[..., self.index(t.state)], t.target, t.angle_mode)
+                     / t.length_scale) ** 2  # fmt: skip
+        return 1.0 - np.exp(-s)
+
+    def distance(self, name: str, v: np.ndarray, target: float, mode: str = "wrap") -> np.ndarray:
+        """``d(x_j, x*_j)``: plain difference, or for an angle the ``mode`` distance."""
+        if name not in self.angles:
+            return v - target
+        return wrap(v - target) if mode == "wrap" else np.abs(v) - abs(target)
+
+    def in_goal(self, states: np.ndarray) -> np.ndarray:
+        """Per state, whether every success bound holds (all True without bounds)."""
+        states = np.asarray(states, dtype=np.float64)
+        ok = np.ones(states.shape[:-1], dtype=bool)
+        for name, b in self.success.bounds.items():
+            d = self.distance(name, states[..., self.index(name)], b.target)
+            ok &= np.abs(d) <= b.tol
+        return ok
+
+    def is_success(self, states: np.ndarray, last_info: Mapping[str, Any], steps: int) -> bool:
+        """Success of one episode from its true states after each step ``(T, n)``, the last
+        ``info`` and the number of steps taken."""
+        s = self.success
+        if s.info_key is not None and s.info_key in last_info:
+            return bool(last_info[s.info_key])
+        if s.full_horizon and steps < self.horizon:
+            return False
+        states = np.asarray(states, dtype=np.float64)
+        window = states if s.window is None else states[-int(s.window) :]
+        if s.window is not None and len(states) < int(s.window):
+            return False
+        return bool(np.all(self.in_goal(window)))
+
+    # ------------------------------------------------------------------ construction
+    def replace(self, **changes: Any) -> TaskSpec:
+        """A validated copy with ``changes``."""
+        return dataclasses.replace(self, **changes)
+
+    @classmethod
+    def from_dict(cls, d: Mapping[str, Any]) -> TaskSpec:
+        """A spec from plain data (the YAML task files' format). Unknown keys are errors."""
+        if not isinstance(d, Mapping):
+            raise TaskSpecError(f"task: expected a mapping, got {type(d).__name__}")
+        d = dict(d)
+        known = {f.name for f in dataclasses.fields(cls)} | {"cost"}
+        for key in d:
+            if key not in known:
+                raise _fail(str(key), f"unknown field (fields: {sorted(known)})")
+        for key in ("env_id", "state_names", "action_low", "action_high", "dt", "horizon"):
+            if key not in d:
+                raise _fail(key, "is required")
+        cost = d.pop("cost", None) or {}
+        if not isinstance(cost, Mapping):
+            raise _fail("cost", "expected a mapping with 'terms'")
+        terms = [_parse_term(t, f"cost.terms[{i}]") for i, t in enumerate(cost.get("terms", []))]
+        success = d.pop("success", None) or {}
+        if isinstance(success, Mapping):
+            bounds = {}
+            for key, b in (success.get("bounds") or {}).items():
+                if not isinstance(b, Mapping) or "tol" not in b:
+                    raise _fail(f"success.bounds.{key}", "needs {target, tol}")
+                bounds[str(key)] = Bound(float(b.get("target", 0.0)), float(b["tol"]))
+            success = SuccessSpec(
+                info_key=success.get("info_key"),
+                window=success.get("window"),
+                bounds=bounds,
+                full_horizon=bool(success.get("full_horizon", False)),
+            )
+        pairs = d.pop("pairs", ()) or ()
+        if not isinstance(pairs, Sequence) or isinstance(pairs, str):
+            raise _fail("pairs", "expected a list of [position, velocity]")
+        return cls(
+            **d,
+            pairs=tuple(
+                tuple(p) if isinstance(p, Sequence) and not isinstance(p, str) else p for p in pairs
+            ),  # fmt: skip
+            cost_terms=tuple(terms),
+            success=success,
+        )
+
+    @classmethod
+    def from_yaml(cls, path: str | Path) -> TaskSpec:
+        """A spec from a YAML task file."""
+        import yaml
+
+        return cls.from_dict(yaml.safe_load(Path(path).read_text()))
+
+    @classmethod
+    def for_env(cls, env_id: str) -> TaskSpec:
+        """The spec that ships for a registered env (:mod:`mcpilco.envs.tasks`)."""
+        from mcpilco.envs.tasks import task_data
+
+        try:
+            return cls.from_dict(task_data(env_id))
+        except KeyError as err:
+            raise ValueError(err.args[0]) from None
+
+
+def _parse_term(t: Any, path: str) -> CostTerm:
+    if not isinstance(t, Mapping) or "state" not in t:
+        raise _fail(path, f"needs {{state, target, length_scale}}, got {t!r}")
+    extra = set(t) - {"state", "target", "length_scale", "angle_mode"}
+    if extra:
+        raise _fail(path, f"unknown keys {sorted(extra)}")
+    try:
+        return CostTerm(
+            state=str(t["state"]),
+            target=float(t.get("target", 0.0)),
+            length_scale=float(t.get("length_scale", 1.0)),
+            angle_mode=str(t.get("angle_mode", "wrap")),
+        )
+    except (TypeError, ValueError) as err:
+        raise _fail(path, str(err)) from None

@@ -1,0 +1,176 @@
+"""Task specifications: the shipped task files, field-naming errors on bad specs, and the
+cost and features against independent formulas."""
+
+from __future__ import annotations
+
+import math
+
+import gymnasium as gym
+import numpy as np
+import pytest
+import torch
+
+import mcpilco.envs  # noqa: F401  (registers the ids)
+from mcpilco.agents.mc_pilco import (
+    MCPilcoConfig,
+    SaturatingCost,
+    StateLayout,
+    TaskSpec,
+    TaskSpecError,
+    load_config,
+    parse_set,
+)
+from mcpilco.agents.mc_pilco.loop import config_files
+from mcpilco.envs.cartpole_task import cartpole_cost
+from mcpilco.envs.tasks import task_ids
+
+GOOD = {
+    "env_id": "any",
+    "state_names": ["x", "x_dot", "theta", "theta_dot"],
+    "angles": ["theta"],
+    "pairs": [["x", "x_dot"], ["theta", "theta_dot"]],
+    "action_low": [-1.0],
+    "action_high": [1.0],
+    "dt": 0.05,
+    "horizon": 10,
+    "cost": {"terms": [{"state": "theta", "target": math.pi}]},
+    "success": {"bounds": {"theta": {"target": math.pi, "tol": 0.2}}},
+}
+
+
+@pytest.mark.parametrize("env_id", task_ids())
+def test_shipped_tasks_fit_their_envs(env_id):
+    task = TaskSpec.for_env(env_id)
+    env = gym.make(env_id)
+    try:
+        task.check_env(env)
+        obs, info = env.reset(seed=0)
+        assert task.state_from_obs(obs).shape == (task.state_dim,)
+    finally:
+        env.close()
+    assert env_id in config_files()  # every shipped task has its hyperparameter file
+    load_config(env_id)
+
+
+@pytest.mark.parametrize(
+    ("change", "field"),
+    [
+        ({"angles": ["theta", "theta"]}, "task.angles[1]"),
+        ({"angles": ["phi"]}, "task.angles[0]"),
+        ({"pairs": [["x_dot"]]}, "task.pairs[0]"),
+        ({"pairs": [[None, "x_dot"]]}, "task.pairs[0]"),
+        ({"pairs": [["x", "x_dot"], ["x", "theta_dot"]]}, "task.pairs[1]"),
+        ({"pairs": [["x", "q"]]}, "task.pairs[0]"),
+        ({"cost": {"terms": [{"state": "z"}]}}, "task.cost.terms[0].state"),
+        ({"cost": {"terms": [{"state": "x", "length_scale": 0}]}}, "task.cost.terms[0]"),
+        ({"cost": {"terms": [{"state": "x", "weight": 2}]}}, "task.cost.terms[0]"),
+        ({"obs_indices": [0, 1, 2]}, "task.obs_indices"),
+        ({"obs_indices": [0, 1, 2, -1]}, "task.obs_indices[3]"),
+        ({"state_names": ["x", "x"]}, "task.state_names[1]"),
+        ({"action_high": [-2.0]}, "task.action_low[0]"),
+        ({"dt": 0}, "task.dt"),
+        ({"horizon": 0}, "task.horizon"),
+        ({"init_mean": [0.0]}, "task.init_mean"),
+        ({"success": {"bounds": {"q": {"tol": 1}}}}, "task.success.bounds.q"),
+        ({"success": {"window": 99, "bounds": {"x": {"tol": 1}}}}, "task.success.window"),
+        ({"colour": "red"}, "task.colour"),
+    ],
+)
+def test_bad_specs_name_the_field(change, field):
+    with pytest.raises(TaskSpecError) as err:
+        TaskSpec.from_dict({**GOOD, **change})
+    assert str(err.value).startswith(field), str(err.value)
+
+
+def test_missing_required_field_is_named():
+    bad = dict(GOOD)
+    del bad["dt"]
+    with pytest.raises(TaskSpecError, match=r"^task\.dt: is required"):
+        TaskSpec.from_dict(bad)
+
+
+def test_spec_that_does_not_fit_the_env_is_refused():
+    env = gym.make("mcpilco/CartpoleSwingUp-v0")
+    try:
+        with pytest.raises(TaskSpecError, match="obs_indices"):
+            TaskSpec.from_dict({**GOOD, "obs_indices": [0, 1, 2, 9]}).check_env(env)
+        with pytest.raises(TaskSpecError, match="2 actions"):
+            TaskSpec.from_dict({**GOOD, "action_low": [-1, -1], "action_high": [1, 1]}).check_env(
+                env
+            )
+    finally:
+        env.close()
+
+
+def test_cartpole_task_cost_is_the_envs_cost():
+    """The cart-pole task file's evaluation cost equals the env's own formula
+    (thesis 5.5.1), in numpy and in torch."""
+    task = TaskSpec.for_env("mcpilco/CartpoleSwingUp-v0")
+    x = np.random.default_rng(0).normal(scale=4.0, size=(500, 4))
+    truth = cartpole_cost(x)
+    np.testing.assert_allclose(task.cost(x), truth, atol=1e-12)
+    c = SaturatingCost.from_task(task)(torch.as_tensor(x))
+    np.testing.assert_allclose(c.numpy(), truth, atol=1e-12)
+
+
+def test_abs_mode_is_mcpilco_unwrapped_cost_and_gradients_match_autograd():
+    """``abs`` mode: 1 - exp(-(|theta| - pi)^2 / l_t^2 - x^2 / l_x^2) written out here;
+    the analytic backward against autograd of that expression."""
+    task = TaskSpec.for_env("mcpilco/CartpoleSwingUp-v0")
+    cost = SaturatingCost.from_task(task, {"x": 1.0, "theta": 3.0}, angle_mode="abs")
+    x = torch.randn(64, 4, dtype=torch.float64) * 5
+    x1 = x.clone().requires_grad_(True)
+    x2 = x.clone().requires_grad_(True)
+    truth = 1 - torch.exp(-((x2[:, 2].abs() - math.pi) ** 2) / 9.0 - x2[:, 0] ** 2)
+    mine = cost(x1)
+    torch.testing.assert_close(mine, truth)
+    w = torch.randn(64, dtype=torch.float64)
+    (g1,) = torch.autograd.grad((mine * w).sum(), x1)
+    (g2,) = torch.autograd.grad((truth * w).sum(), x2)
+    torch.testing.assert_close(g1, g2)
+
+
+def test_features_and_their_backward_against_autograd():
+    """Angles anywhere in the state: f(x) = [plain, sin, cos per angle] and its VJP."""
+    layout = StateLayout(
+        n=5, plain_idx=(1, 2, 4), angle_idx=(3, 0), position_idx=(), delta_idx=(0, 1, 2, 3, 4)
+    )
+    x = torch.randn(7, 5, dtype=torch.float64, requires_grad=True)
+    f, s, c = layout.features(x)
+    truth = torch.stack(
+        [x[:, 1], x[:, 2], x[:, 4], x[:, 3].sin(), x[:, 3].cos(), x[:, 0].sin(), x[:, 0].cos()],
+        dim=1,
+    )
+    torch.testing.assert_close(f, truth)
+    g = torch.randn_like(f)
+    (auto,) = torch.autograd.grad(truth, x, g)
+    torch.testing.assert_close(layout.features_backward(g, s, c), auto)
+
+
+def test_success_rules():
+    task = TaskSpec.for_env("InvertedPendulum-v5")
+    up = np.zeros((task.horizon, 4))
+    assert task.is_success(up, {}, task.horizon)
+    assert not task.is_success(up[:10], {}, 10)  # terminated early
+    tipped = up.copy()
+    tipped[5, 1] = 0.3
+    assert not task.is_success(tipped, {}, task.horizon)
+    cart = TaskSpec.for_env("mcpilco/CartpoleSwingUp-v0")
+    assert cart.is_success(np.zeros((60, 4)), {"success": True}, 60)  # the env's flag wins
+
+
+def test_config_files_and_overrides():
+    cfg = load_config("mcpilco/CartpoleSwingUp-v0", preset="demo")
+    assert (cfg.num_trials, cfg.explore_hold, cfg.cost_angle_mode) == (3, 2, "abs")
+    over = parse_set(["num_particles=64", "opt.max_steps=7", "cost_length_scales={x: 2}"])
+    cfg = load_config("mcpilco/CartpoleSwingUp-v0", preset="bench", overrides=over)
+    assert (cfg.num_particles, cfg.opt.max_steps) == (64, 7)
+    assert cfg.cost_length_scales == {"x": 2.0, "theta": 3.0}  # merged into the file's
+    assert cfg.opt.monitor_patience == 100  # the preset's value kept beside the override
+    with pytest.raises(ValueError, match="unknown preset 'nope'"):
+        load_config("mcpilco/CartpoleSwingUp-v0", preset="nope")
+    with pytest.raises(ValueError, match="unknown MC-PILCO config fields \\['particles'\\]"):
+        load_config("mcpilco/CartpoleSwingUp-v0", overrides={"particles": 3})
+    with pytest.raises(ValueError, match="key=value"):
+        parse_set(["num_particles"])
+    assert MCPilcoConfig(env_id="x", task=GOOD | {"env_id": "x"}).task_spec().state_dim == 4
