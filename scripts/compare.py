@@ -59,6 +59,7 @@ from mcpilco.agents.baselines.common import (
 )
 from mcpilco.agents.baselines.pilco import OPTIMIZERS
 from mcpilco.agents.mc_pilco.loop import DEFAULT_ENV_ID, load_config
+from mcpilco.agents.mc_pilco.task import TaskSpec
 from mcpilco.models.device import retain_host_memory
 
 SB3_METHODS = ("sac", "td3", "ppo")
@@ -223,10 +224,10 @@ def markdown(report: dict[str, Any]) -> str:
     if report.get("note"):
         lines += [report["note"], ""]
     lines += [
-        "Success = `info['success']` at the episode end (upright over the last 1 s, |x| < 0.5 m). "
-        "Experience = env steps x 0.05 s (MC-PILCO / PILCO: 3 s per trial, exploration "
-        "included). Success rate: mean over seeds (MC-PILCO / PILCO: the trial's episode; "
-        "SB3: 10 deterministic evaluation episodes every K steps).",
+        "Success = the task's success test at the episode end (`envs/tasks/`). "
+        "Experience = env steps x the control period (MC-PILCO / PILCO: the steps of each "
+        "trial, exploration included). Success rate: mean over seeds (MC-PILCO / PILCO: the "
+        "trial's episode; SB3: 10 deterministic evaluation episodes every K steps).",
         "",
         "| method | seeds | budget | final success | best success | experience to 90% "
         "| ratio to MC-PILCO | seeds reaching 90% (median) | compute |",
@@ -256,7 +257,7 @@ def markdown(report: dict[str, Any]) -> str:
             f"{f['error'][:200]} |||||||"
         )
     goal = head["goal"]
-    lines += ["", "Goals (issue 4):", ""]
+    lines += ["", "Goals:", ""]
     if "note" in goal:
         lines.append(f"- {goal['note']}: ratios are undefined.")
     if "sb3" in goal:
@@ -433,7 +434,7 @@ def run_method(
             steps=opts.get("steps", {}).get(method),
             eval_every=int(opts.get("eval_every", 2000)),
             eval_episodes=int(opts.get("eval_episodes", 10)),
-            preset=opts.get("sb3_preset", "swingup"),
+            preset=opts.get("sb3_preset"),
             overrides=opts.get("sb3_hp", {}).get(method, {}),
             seed=seed,
             torch_threads=threads,
@@ -470,6 +471,7 @@ def run_method(
             "seed": seed,
             "torch_threads": threads,
             "explore_hold": mc.explore_hold,  # the same exploration trial as MC-PILCO's
+            "cost_length_scales": mc.cost_length_scales,  # MC-PILCO's optimisation cost
             **opts.get("pilco", {}),
         }
         over["num_trials"] = trials if trials is not None else mc.num_trials
@@ -477,7 +479,7 @@ def run_method(
         summary = run_pilco(
             cfg_p, out, resume=(out / "checkpoint.pt").is_file(), progress=progress, log=log
         )
-        horizon = cfg_p.horizon
+        horizon = cfg_p.horizon or mc.task_spec().horizon
     points = trial_records_to_points(summary.records, horizon)
     dt = summary.records[0]["experience_s"] / max(1, summary.records[0].get("steps", horizon))
     curve = make_curve(
@@ -542,7 +544,7 @@ def curves_from_bench_json(path: Path, env_id: str, label: str = "") -> list[dic
             + (f" --label {label}" if label else "")
             + " first"
         )
-    horizon = int(section["config"]["horizon"])
+    horizon = int(section["config"].get("horizon") or TaskSpec.for_env(env_id).horizon)
     times = [r["experience_s"] for r in section["per_trial"]]
     dt = times[0] / horizon
     curves = []
@@ -632,8 +634,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument(
         "--sb3-preset",
         choices=("swingup", "pendulum"),
-        default="swingup",
-        help="rl-baselines3-zoo hyper-parameters (see mcpilco.agents.baselines.sb3)",
+        help="rl-baselines3-zoo hyper-parameter set (default: the env's in "
+        "agents/baselines/conf/sb3.yaml; SB3's defaults for an env without one)",
     )
     p.add_argument(
         "--sb3-hp", nargs="+", help="override ALGO.KEY=VALUE (e.g. sac.learning_starts=1000)"

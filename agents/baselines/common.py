@@ -22,7 +22,6 @@ learning curve
 
 from __future__ import annotations
 
-import functools
 import json
 import os
 from collections.abc import Callable, Sequence
@@ -31,7 +30,7 @@ from typing import Any
 
 import numpy as np
 
-from mcpilco.agents.mc_pilco.loop import env_dt, make_env, registered_ids, run_episode
+from mcpilco.agents.mc_pilco.loop import env_dt, make_env, run_episode
 
 CURVE_FORMAT = "mcpilco-curve/1"
 """Tag of a learning-curve JSON file (one run: method, env, seed, points)."""
@@ -41,59 +40,34 @@ POINT_KEYS = ("steps", "experience_s", "success_rate", "episodes")
 
 
 # ------------------------------------------------------------------------------- tasks
-@functools.cache
 def env_has_task(env_id: str) -> bool:
-    """True when an episode of ``env_id`` (zero actions, until truncation) reports success.
+    """True when a task specification ships for ``env_id`` (:mod:`mcpilco.envs.tasks`)."""
+    from mcpilco.envs.tasks import task_ids
 
-    Raises:
-        ValueError: ``env_id`` is not registered (the message lists the registered ids).
-    """
-    import gymnasium as gym
-
-    ids = registered_ids()
-    if env_id not in ids:
-        raise ValueError(f"unknown env id {env_id!r}; registered mcpilco ids: {', '.join(ids)}")
-    env = gym.make(env_id)
-    try:
-        env.reset(seed=0)
-        action = np.zeros(env.action_space.shape, dtype=env.action_space.dtype)
-        info: dict[str, Any] = {}
-        for _ in range(100_000):
-            _, _, terminated, truncated, info = env.step(action)
-            if terminated or truncated:
-                break
-        return "success" in info
-    finally:
-        env.close()
+    return env_id in task_ids()
 
 
 def task_env_ids() -> list[str]:
-    """Registered ``mcpilco/...`` ids whose episodes report ``info["success"]``."""
-    return [i for i in registered_ids() if env_has_task(i)]
+    """The env ids with a shipped task specification."""
+    from mcpilco.envs.tasks import task_ids
+
+    return task_ids()
 
 
 def check_task_env(env_id: str) -> None:
-    """Raise ``ValueError`` naming the valid ids when ``env_id`` is not a task env."""
-    if env_id not in registered_ids() or not env_has_task(env_id):
+    """Raise ``ValueError`` naming the valid ids when ``env_id`` has no task specification."""
+    if not env_has_task(env_id):
         raise ValueError(
-            f"env {env_id!r} is not a registered env with a task (info['success'] at the end "
-            f"of an episode); valid env ids: {', '.join(task_env_ids())}"
+            f"env {env_id!r} has no task specification (state, cost, success test); "
+            f"valid env ids: {', '.join(task_env_ids())}"
         )
 
 
 def episode_steps(env_id: str) -> int:
-    """Steps per episode of a registered id (its ``max_episode_steps``, where success is scored)."""
-    import gymnasium as gym
+    """Steps per episode of a task env: its task's horizon, where success is scored."""
+    from mcpilco.agents.mc_pilco.task import TaskSpec
 
-    import mcpilco.envs  # noqa: F401  (registers the ids)
-
-    steps = gym.spec(env_id).max_episode_steps
-    if steps is None:
-        raise ValueError(
-            f"{env_id} has no max_episode_steps; register it with a fixed episode length so "
-            "that success is scored at a known step"
-        )
-    return int(steps)
+    return TaskSpec.for_env(env_id).horizon
 
 
 # -------------------------------------------------------------------------- evaluation

@@ -10,14 +10,15 @@ GP model
     maximisation (botorch ``fit_gpytorch_mll``), exact moment matching (PILCO eqs. 10-23).
 policy ``pi(x) = u_max sin(sum_i w_i exp(-(x - c_i)^T Lambda^-1 (x - c_i) / 2))``
     :class:`torchrl.modules.models.RBFController` (``num_basis`` centres ``c_i``), its action
-    moments computed analytically for a Gaussian input; ``u_max = 1`` (the env's action
-    bound, force ``10 u`` N).
+    moments computed analytically for a Gaussian input; ``u_max`` the task's (symmetric)
+    action bound.
 cost ``c(x) = 1 - exp(-(x - x*)^T W (x - x*) / 2)``, ``E[c(x_t)]`` in closed form
-    :class:`torchrl.objectives.ExponentialQuadraticCost` with target
-    ``x* = [0, 0, pi, 0]`` and ``W = diag(2 / l_x^2, 0, 2 / l_theta^2, 0)``, so that on a
-    point belief ``c`` equals the swing-up cost of thesis 5.5.1 (``theta`` in ``[0, pi]``).
-    The state is PILCO's raw ``[x, x_dot, theta, theta_dot]``: TorchRL's parts have no
-    ``sin/cos`` augmentation of the angle, so the target is the single upright ``theta = pi``.
+    :class:`torchrl.objectives.ExponentialQuadraticCost` with the task's cost terms: target
+    ``x*_j`` and ``W_jj = 2 / l_j^2`` on each term's state, 0 elsewhere, so that on a point
+    belief ``c`` equals the task's saturating cost with plain differences. On the cart-pole
+    (``x* = [0, 0, pi, 0]``, ``W = diag(2 / l_x^2, 0, 2 / l_theta^2, 0)``) that is the
+    swing-up cost of thesis 5.5.1 for ``theta`` in ``[0, pi]``: TorchRL's parts have no
+    ``sin/cos`` augmentation of angles, so the state is the raw observation.
 ``J(theta) = sum_{t=1..H} E[c(x_t)]``
     expected cost of an ``H``-step imagined rollout (TorchRL ``ImaginedEnv``). It is
     deterministic, so it is minimised as PILCO minimises it, with a quasi-Newton method and
@@ -88,10 +89,10 @@ class PilcoConfig:
     """One PILCO run (TorchRL parts, MC-PILCO's outer loop).
 
     Attributes:
-        env_id: registered cartpole swing-up id (4 states ``[x, x_dot, theta, theta_dot]``,
-            1 action).
+        env_id: registered env id with a task specification whose state is the observation
+            and whose action bounds are symmetric and equal.
         num_trials: policy trials after the exploration trial.
-        horizon: ``H``, steps per trial and of the imagined rollout (= the env's episode).
+        horizon: ``H``, steps per trial and of the imagined rollout (None: the task's).
         num_basis: RBF centres of the controller (50: the size of PILCO's cart-pole policy).
         max_points: GP training set = the latest ``max_points`` transitions; 180 keeps all
             the data up to 12 s of experience (the bench budget's last trial drops the first
@@ -109,8 +110,9 @@ class PilcoConfig:
             Adam: this many steps). 150: the order of the 150 line searches PILCO's cart-pole
             settings allow per policy update.
         lr: Adam learning rate (L-BFGS takes the usual initial step 1).
-        l_x, l_theta: cost length scales (MC-PILCO's optimisation cost, Amadio et al. 2022:
-            ``l_x = 1``, ``l_theta = 3``), giving ``W = diag(2/l_x^2, 0, 2/l_theta^2, 0)``.
+        cost_length_scales: length scales ``l_j`` of the cost by state name (None: the
+            task's evaluation cost's); pass MC-PILCO's optimisation values of the same env
+            (on the cart-pole ``l_x = 1``, ``l_theta = 3``, Amadio et al. 2022).
         explore_hold: steps each random exploration action is held (pass
             :attr:`MCPilcoConfig.explore_hold <mcpilco.agents.mc_pilco.MCPilcoConfig>` of the
             same env, so that both agents start from the same exploration trial).
@@ -122,14 +124,13 @@ class PilcoConfig:
 
     env_id: str = DEFAULT_ENV_ID
     num_trials: int = 5
-    horizon: int = 60
+    horizon: int | None = None
     num_basis: int = 50
     max_points: int = 180
     optimizer: str = "lbfgs"
     opt_steps: int = 150
     lr: float = 0.02
-    l_x: float = 1.0
-    l_theta: float = 3.0
+    cost_length_scales: dict[str, float] | None = None
     explore_hold: int = 1
     init_std: float = 0.01
     seed: int = 0
@@ -142,16 +143,20 @@ class PilcoConfig:
                 raise ValueError(f"{name} must be an integer >= 0, got {v!r}")
         for name in ("horizon", "num_basis", "opt_steps", "explore_hold"):
             v = getattr(self, name)
+            if v is None and name == "horizon":
+                continue
             if int(v) != v or v < 1:
                 raise ValueError(f"{name} must be a positive integer, got {v!r}")
         if int(self.max_points) != self.max_points or self.max_points < 10:
             raise ValueError(f"max_points must be an integer >= 10, got {self.max_points!r}")
         if self.optimizer not in OPTIMIZERS:
             raise ValueError(f"optimizer must be one of {OPTIMIZERS}, got {self.optimizer!r}")
-        if not (self.lr > 0 and self.l_x > 0 and self.l_theta > 0):
-            raise ValueError(
-                f"lr, l_x and l_theta must be > 0, got {self.lr}, {self.l_x}, {self.l_theta}"
-            )
+        if not self.lr > 0:
+            raise ValueError(f"lr must be > 0, got {self.lr}")
+        if self.cost_length_scales is not None and not all(
+            float(v) > 0 for v in self.cost_length_scales.values()
+        ):
+            raise ValueError(f"cost length scales must be > 0, got {self.cost_length_scales}")
         if not self.init_std >= 1e-3:
             raise ValueError(
                 f"init_std must be >= 1e-3 (TorchRL's GPWorldModel treats a smaller covariance "
@@ -168,14 +173,17 @@ class PilcoConfig:
 
 
 # ------------------------------------------------------------------------ TorchRL parts
-def make_controller(obs_dim: int, action_dim: int, num_basis: int, seed: int):
-    """TorchRL's :class:`RBFController` (float64, ``u_max = 1``) as a ``TensorDictModule``."""
+def make_controller(
+    obs_dim: int, action_dim: int, num_basis: int, seed: int, max_action: float = 1.0
+):
+    """TorchRL's :class:`RBFController` (float64, ``u_max = max_action``) as a
+    ``TensorDictModule``."""
     from tensordict.nn import TensorDictModule
     from torchrl.modules.models import RBFController
 
     torch.manual_seed(seed)
     controller = RBFController(
-        input_dim=obs_dim, output_dim=action_dim, max_action=1.0, n_basis=num_basis
+        input_dim=obs_dim, output_dim=action_dim, max_action=max_action, n_basis=num_basis
     ).to(DTYPE)
     module = TensorDictModule(
         controller,
@@ -185,13 +193,19 @@ def make_controller(obs_dim: int, action_dim: int, num_basis: int, seed: int):
     return controller, module
 
 
-def make_cost(l_x: float, l_theta: float):
-    """TorchRL's :class:`ExponentialQuadraticCost` for the swing-up (see the glossary)."""
+def make_cost(task: TaskSpec, length_scales: dict[str, float] | None = None):
+    """TorchRL's :class:`ExponentialQuadraticCost` of the task's cost terms (see the
+    glossary); ``length_scales`` by state name replace the task's."""
     from torchrl.objectives import ExponentialQuadraticCost
 
-    target = torch.tensor([0.0, 0.0, math.pi, 0.0], dtype=DTYPE)
-    weights = torch.diag(torch.tensor([2.0 / l_x**2, 0.0, 2.0 / l_theta**2, 0.0], dtype=DTYPE))
-    return ExponentialQuadraticCost(target=target, weights=weights, reduction="none")
+    length_scales = dict(length_scales or {})
+    target = torch.zeros(task.state_dim, dtype=DTYPE)
+    w = torch.zeros(task.state_dim, dtype=DTYPE)
+    for term in task.cost_terms:
+        j = task.index(term.state)
+        target[j] = term.target
+        w[j] = 2.0 / float(length_scales.get(term.state, term.length_scale)) ** 2
+    return ExponentialQuadraticCost(target=target, weights=torch.diag(w), reduction="none")
 
 
 def fit_world_model(obs: np.ndarray, actions: np.ndarray, next_obs: np.ndarray):
@@ -269,7 +283,16 @@ def controller_act(controller) -> Callable[[np.ndarray], np.ndarray]:
 class ImaginedCost:
     """``J = sum_{t=1..H} E[c(x_t)]`` of a moment-matching rollout (TorchRL ``ImaginedEnv``)."""
 
-    def __init__(self, world_model, base_env, policy_module, cost, horizon: int, init_std: float):
+    def __init__(
+        self,
+        world_model,
+        base_env,
+        policy_module,
+        cost,
+        horizon: int,
+        init_std: float,
+        init_mean=None,
+    ):
         from tensordict import TensorDict
         from torchrl.envs.model_based import ImaginedEnv
 
@@ -277,7 +300,11 @@ class ImaginedCost:
         d = world_model.obs_dim
         self.reset_td = TensorDict(
             {
-                ("observation", "mean"): torch.zeros(d, dtype=DTYPE),
+                ("observation", "mean"): (
+                    torch.zeros(d, dtype=DTYPE)
+                    if init_mean is None
+                    else torch.as_tensor(init_mean, dtype=DTYPE)
+                ),
                 ("observation", "var"): init_std**2 * torch.eye(d, dtype=DTYPE),
             }
         ).expand(*self.env.batch_size)
@@ -420,23 +447,32 @@ def run_pilco(
     ckpt_path = out / CHECKPOINT_NAME
     if config.torch_threads is not None:
         torch.set_num_threads(int(config.torch_threads))
-    task = TaskSpec.for_env(config.env_id).replace(horizon=config.horizon)
-    env = make_env(config.env_id, config.horizon, task)
-    obs_dim = int(np.prod(env.observation_space.shape))
-    act_dim = int(np.prod(env.action_space.shape))
-    if (obs_dim, act_dim) != (4, 1):
-        env.close()
+    task = TaskSpec.for_env(config.env_id)
+    if config.horizon is not None:
+        task = task.replace(horizon=config.horizon)
+    horizon = task.horizon
+    half = {(hi - lo) / 2 for lo, hi in zip(task.action_low, task.action_high, strict=True)}
+    if (
+        task.obs_indices is not None
+        or len(half) != 1
+        or task.cost_fn is not None
+        or any(lo != -hi for lo, hi in zip(task.action_low, task.action_high, strict=True))
+    ):
         raise ValueError(
-            f"{config.env_id}: PILCO's swing-up target needs 4 states [x, x_dot, theta, "
-            f"theta_dot] and 1 action, got {obs_dim} and {act_dim}; use a cartpole env"
+            f"{config.env_id}: TorchRL's PILCO needs a task whose state is the observation, "
+            "with symmetric, equal action bounds and cost terms (no cost function)"
         )
+    env = make_env(config.env_id, horizon, task)
+    obs_dim, act_dim = task.state_dim, task.action_dim
     dt = env_dt(env, task)
     base_env = _torchrl_env(config.env_id)
 
     torch.manual_seed(config.seed)
     np_rng = np.random.default_rng(config.seed)
-    controller, policy_module = make_controller(obs_dim, act_dim, config.num_basis, config.seed)
-    cost = make_cost(config.l_x, config.l_theta)
+    controller, policy_module = make_controller(
+        obs_dim, act_dim, config.num_basis, config.seed, max_action=half.pop()
+    )
+    cost = make_cost(task, config.cost_length_scales)
     episodes: list[dict[str, Any]] = []
     records: list[dict[str, Any]] = []
     opt_curves: list[list[float]] = []
@@ -466,7 +502,7 @@ def run_pilco(
             if k == 0:
                 rec["kind"] = "exploration"
                 ep = exploration_episode(
-                    env, np_rng, config.seed, config.horizon, task, config.explore_hold
+                    env, np_rng, config.seed, horizon, task, config.explore_hold
                 )
             else:
                 rec["kind"] = "policy"
@@ -481,7 +517,13 @@ def run_pilco(
                 rec["gp_fit_s"] = time.perf_counter() - t_fit
                 rec["gp_points"] = int(s.shape[0])
                 objective = ImaginedCost(
-                    world_model, base_env, policy_module, cost, config.horizon, config.init_std
+                    world_model,
+                    base_env,
+                    policy_module,
+                    cost,
+                    horizon,
+                    config.init_std,
+                    task.init_mean,
                 )
                 obar = None
                 if progress:
@@ -513,7 +555,7 @@ def run_pilco(
                     env,
                     controller_act(controller),
                     trial_seed(config.seed, k),
-                    config.horizon,
+                    horizon,
                     task,
                 )
             episodes.append({"obs": ep["obs"], "actions": ep["actions"]})

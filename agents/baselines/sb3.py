@@ -19,18 +19,19 @@ checkpoint
 Hyper-parameters
 ----------------
 rl-baselines3-zoo (https://github.com/DLR-RM/rl-baselines3-zoo, ``hyperparams/<algo>.yml``),
-values copied into :data:`HYPERPARAMS`:
+values copied into ``conf/sb3.yaml`` (:data:`HYPERPARAMS`), keyed by env id there:
 
-* preset ``"swingup"`` (default): the zoo's entries for ``InvertedPendulumSwingupBulletEnv-v0``,
-  the zoo's cart-pole swing-up: ``sac.yml`` (marked "Tuned"; the ``pybullet-defaults``
-  anchor), ``td3.yml`` (marked "Tuned"; its ``TimeFeatureWrapper`` from sb3-contrib is left
-  out: our episodes have a fixed length of 60 steps and SB3 bootstraps through time-limit
-  truncation), ``ppo.yml`` (``normalize: true`` = ``VecNormalize`` of observations and rewards).
-* preset ``"pendulum"``: the zoo's ``Pendulum-v1`` entries (``sac.yml``, ``ppo.yml`` marked
+* set ``"swingup"`` (the cart-poles'): the zoo's entries for
+  ``InvertedPendulumSwingupBulletEnv-v0``, the zoo's cart-pole swing-up: ``sac.yml``
+  (marked "Tuned"; the ``pybullet-defaults`` anchor), ``td3.yml`` (marked "Tuned"; its
+  ``TimeFeatureWrapper`` from sb3-contrib is left out: our episodes have a fixed length of
+  60 steps and SB3 bootstraps through time-limit truncation), ``ppo.yml``
+  (``normalize: true`` = ``VecNormalize`` of observations and rewards).
+* set ``"pendulum"``: the zoo's ``Pendulum-v1`` entries (``sac.yml``, ``ppo.yml`` marked
   "Tuned"; ``td3.yml`` ``Pendulum-v0``), a classic swing-up with short episodes.
 
-Budgets (:data:`DEFAULT_STEPS`): 200k env steps for SAC / TD3 and 1M for PPO (the issue's
-defaults; the zoo trains the swing-up for 300k / 300k / 2M steps of 1000-step episodes).
+Budgets (:data:`DEFAULT_STEPS`): 200k env steps for SAC / TD3 and 1M for PPO (the zoo trains
+the swing-up for 300k / 300k / 2M steps of 1000-step episodes).
 """
 
 from __future__ import annotations
@@ -63,68 +64,20 @@ ALGOS: tuple[str, ...] = ("sac", "td3", "ppo")
 DEFAULT_STEPS: dict[str, int] = {"sac": 200_000, "td3": 200_000, "ppo": 1_000_000}
 """Default budgets in environment steps (10 000 s / 50 000 s of experience at 0.05 s)."""
 
-_ZOO_TD3: dict[str, Any] = {
-    "gamma": 0.98,
-    "buffer_size": 200_000,
-    "learning_starts": 10_000,
-    "noise_type": "normal",
-    "noise_std": 0.1,
-    "gradient_steps": -1,
-    "train_freq": [1, "episode"],
-    "learning_rate": 1e-3,
-    "policy_kwargs": {"net_arch": [400, 300]},
-}
-"""TD3: the zoo's td3.yml gives the same values for both presets' envs."""
+HYPERPARAMS_FILE = Path(__file__).resolve().parent / "conf" / "sb3.yaml"
+"""The zoo hyperparameter sets and the set of each env id."""
 
-HYPERPARAMS: dict[str, dict[str, dict[str, Any]]] = {
-    # rl-baselines3-zoo hyperparams/*.yml, InvertedPendulumSwingupBulletEnv-v0
-    "swingup": {
-        "sac": {  # sac.yml: <<: *pybullet-defaults ("Tuned"), n_timesteps 3e5
-            "learning_rate": 7.3e-4,
-            "buffer_size": 300_000,
-            "batch_size": 256,
-            "ent_coef": "auto",
-            "gamma": 0.98,
-            "tau": 0.02,
-            "train_freq": 8,
-            "gradient_steps": 8,
-            "learning_starts": 10_000,
-            "use_sde": True,
-            "policy_kwargs": {"log_std_init": -3, "net_arch": [400, 300]},
-        },
-        "td3": _ZOO_TD3,  # td3.yml ("Tuned"), n_timesteps 3e5, without TimeFeatureWrapper
-        "ppo": {  # ppo.yml, n_timesteps 2e6
-            "normalize": True,
-            "n_envs": 8,
-            "n_steps": 2048,
-            "batch_size": 64,
-            "gae_lambda": 0.95,
-            "gamma": 0.99,
-            "n_epochs": 10,
-            "ent_coef": 0.0,
-            "learning_rate": 2.5e-4,
-            "clip_range": 0.2,
-        },
-    },
-    # rl-baselines3-zoo hyperparams/*.yml, Pendulum-v1 (td3.yml: Pendulum-v0)
-    "pendulum": {
-        "sac": {"learning_rate": 1e-3},  # n_timesteps 2e4
-        "td3": _ZOO_TD3,  # n_timesteps 2e4
-        "ppo": {  # "Tuned", n_timesteps 1e5
-            "n_envs": 4,
-            "n_steps": 1024,
-            "gae_lambda": 0.95,
-            "gamma": 0.9,
-            "n_epochs": 10,
-            "ent_coef": 0.0,
-            "learning_rate": 1e-3,
-            "clip_range": 0.2,
-            "use_sde": True,
-            "sde_sample_freq": 4,
-        },
-    },
-}
-"""Zoo hyper-parameters per preset and algorithm (zoo keys; see the module docstring)."""
+
+def _load_hyperparams() -> tuple[dict[str, dict[str, dict[str, Any]]], dict[str, str]]:
+    import yaml
+
+    data = yaml.safe_load(HYPERPARAMS_FILE.read_text())
+    return data["sets"], dict(data.get("envs") or {})
+
+
+HYPERPARAMS, ENV_PRESETS = _load_hyperparams()
+"""Zoo hyper-parameters per set and algorithm (zoo keys; see the module docstring), and the
+set of each env id (:data:`HYPERPARAMS_FILE`)."""
 
 # keys of HYPERPARAMS that are not constructor arguments of the SB3 algorithm
 _RUNNER_KEYS = ("normalize", "n_envs", "noise_type", "noise_std")
@@ -142,8 +95,9 @@ class SB3Config:
         eval_every: ``K``, env steps between evaluations.
         eval_episodes: episodes per evaluation (10).
         checkpoint_every: env steps between checkpoints (None: every 10 evaluations).
-        preset: ``"swingup"`` or ``"pendulum"`` (see :data:`HYPERPARAMS`).
-        overrides: hyper-parameters replacing the preset's (zoo keys, e.g.
+        preset: a set of :data:`HYPERPARAMS` (``"swingup"``, ``"pendulum"``); None: the
+            env's set in :data:`HYPERPARAMS_FILE`, or SB3's defaults for an env without one.
+        overrides: hyper-parameters replacing the set's (zoo keys, e.g.
             ``{"learning_starts": 100}``).
         seed: seeds the algorithm, the training envs and the evaluation reset seeds.
         torch_threads: ``torch.set_num_threads`` (None: leave as is).
@@ -155,7 +109,7 @@ class SB3Config:
     eval_every: int = 2_000
     eval_episodes: int = 10
     checkpoint_every: int | None = None
-    preset: str = "swingup"
+    preset: str | None = None
     overrides: dict[str, Any] = field(default_factory=dict)
     seed: int = 0
     torch_threads: int | None = None
@@ -163,7 +117,9 @@ class SB3Config:
     def __post_init__(self) -> None:
         if self.algo not in ALGOS:
             raise ValueError(f"unknown SB3 algorithm {self.algo!r}; valid: {', '.join(ALGOS)}")
-        if self.preset not in HYPERPARAMS:
+        if self.preset is None:
+            self.preset = ENV_PRESETS.get(self.env_id, "sb3-defaults")
+        if self.preset not in HYPERPARAMS and self.preset != "sb3-defaults":
             raise ValueError(
                 f"unknown hyper-parameter preset {self.preset!r}; valid: {', '.join(HYPERPARAMS)}"
             )
@@ -182,7 +138,7 @@ class SB3Config:
 
     def hyperparams(self) -> dict[str, Any]:
         """The preset's zoo hyper-parameters with ``overrides`` applied."""
-        hp = json.loads(json.dumps(HYPERPARAMS[self.preset][self.algo]))  # deep copy
+        hp = json.loads(json.dumps(HYPERPARAMS.get(self.preset, {}).get(self.algo, {})))
         hp.update(self.overrides)
         return hp
 
@@ -220,7 +176,12 @@ def _make_vec_env(cfg: SB3Config, runner: dict[str, Any], stats_path: Path | Non
 
     import mcpilco.envs  # noqa: F401  (registers the ids)
 
-    venv = make_vec_env(cfg.env_id, n_envs=int(runner.get("n_envs", 1)), seed=cfg.seed)
+    venv = make_vec_env(
+        cfg.env_id,
+        n_envs=int(runner.get("n_envs", 1)),
+        seed=cfg.seed,
+        env_kwargs={"max_episode_steps": episode_steps(cfg.env_id)},
+    )
     if runner.get("normalize"):
         if stats_path is not None:
             venv = VecNormalize.load(str(stats_path), venv)
@@ -389,8 +350,8 @@ def run_sb3(
     out.mkdir(parents=True, exist_ok=True)
     curve_path = out / CURVE_NAME
 
-    horizon = episode_steps(config.env_id)
-    task = TaskSpec.for_env(config.env_id).replace(horizon=horizon)
+    task = TaskSpec.for_env(config.env_id)
+    horizon = task.horizon
     eval_env = make_env(config.env_id, horizon, task)
     dt = env_dt(eval_env, task)
     action_dim = int(np.prod(eval_env.action_space.shape))
