@@ -168,7 +168,14 @@ class PilcoConfig:
 
     @classmethod
     def from_dict(cls, d: dict[str, Any]) -> PilcoConfig:
-        """Inverse of :meth:`to_dict` (fields added later: ``LEGACY_FIELD_VALUES``)."""
+        """Inverse of :meth:`to_dict` (fields added later: ``LEGACY_FIELD_VALUES``; the
+        cart-pole's ``l_x``, ``l_theta`` read as ``cost_length_scales``)."""
+        d = dict(d)
+        if "l_x" in d or "l_theta" in d:
+            d.setdefault(
+                "cost_length_scales", {"x": d.pop("l_x", 1.0), "theta": d.pop("l_theta", 3.0)}
+            )
+            d.pop("l_x", None), d.pop("l_theta", None)
         return cls(**{**LEGACY_FIELD_VALUES, **d})
 
 

@@ -84,7 +84,7 @@ ROLLOUT_DTYPES = ("float32", "float64")
 """Choices of :attr:`MCPilcoConfig.rollout_dtype`."""
 CONF_DIR = Path(__file__).resolve().parent / "conf"
 """The shipped per-env config files (one YAML file per env id)."""
-LEGACY_FIELD_VALUES: dict[str, Any] = {}
+LEGACY_FIELD_VALUES: dict[str, Any] = {"explore_hold": 1}
 """Value of each config field added after results were saved, for configs that lack it."""
 CANDIDATE_SEED_STRIDE = 7919
 """Candidate ``k`` of run ``seed`` is initialised with seed ``seed + 7919 k``."""
@@ -233,7 +233,16 @@ class MCPilcoConfig:
 
     @classmethod
     def from_dict(cls, d: dict[str, Any]) -> MCPilcoConfig:
-        """Inverse of :meth:`to_dict`; unknown fields are an error that names them."""
+        """Inverse of :meth:`to_dict`; unknown fields are an error that names them. Configs
+        saved with the cart-pole's cost fields ``l_x``, ``l_theta``, ``cost_wrap_angle`` read
+        as the same cost (``cost_length_scales``, ``cost_angle_mode``)."""
+        d = dict(d)
+        if {"l_x", "l_theta", "cost_wrap_angle"} & set(d):
+            d.setdefault(
+                "cost_length_scales", {"x": d.pop("l_x", 1.0), "theta": d.pop("l_theta", 3.0)}
+            )
+            d.setdefault("cost_angle_mode", "wrap" if d.pop("cost_wrap_angle", False) else "abs")
+            d.pop("l_x", None), d.pop("l_theta", None), d.pop("cost_wrap_angle", None)
         known = {f.name for f in dataclasses.fields(cls)}
         unknown = sorted(set(d) - known)
         if unknown:

@@ -109,3 +109,32 @@ def test_importing_envs_is_light():
         "'mcpilco.models') if m in sys.modules]; print(bad); assert not bad"
     )
     subprocess.run([sys.executable, "-c", code], check=True, timeout=60)
+
+
+@pytest.mark.parametrize("env_id", ["mcpilco/CartpoleSwingUp-v0", "mcpilco/DMCCartpoleSwingUp-v0"])
+def test_shipped_task_files_state_this_task(env_id):
+    """The cart-poles' task files (read by the agents) against the constants and functions
+    here: same period, horizon, states, initial distribution, cost and success test."""
+    from mcpilco.agents.mc_pilco.task import TaskSpec
+
+    task = TaskSpec.for_env(env_id)
+    assert (task.dt, task.horizon) == (CARTPOLE_TASK["dt"], CARTPOLE_TASK["horizon"])
+    assert task.state_names == CARTPOLE_TASK["state_names"] and task.angles == ("theta",)
+    assert task.init_mean == CARTPOLE_TASK["init_mean"]
+    assert task.init_std == (CARTPOLE_TASK["init_std"],) * 4
+    rng = np.random.default_rng(0)
+    states = rng.normal(size=(400, 4)) * np.array([1.0, 1.0, 8.0, 1.0])
+    np.testing.assert_allclose(task.cost(states), cartpole_cost(states), atol=1e-12)
+    # success by the bounds (no info flag) on episodes near the bounds (about half succeed)
+    # and hanging down
+    outcomes = []
+    for k in range(200):
+        ep = rng.normal(size=(60, 4)) * np.array([0.22, 1.0, 0.07, 1.0])
+        ep[:, 2] += np.pi * rng.choice([1.0, -1.0, 3.0]) if k % 4 else 0.0
+        outcomes.append(swingup_success(ep))
+        assert task.is_success(ep, {}, 60) == outcomes[-1], k
+    assert 40 < sum(outcomes) < 160
+    assert task.is_success(_episode(60, upright_from=40), {}, 60)
+    assert not task.is_success(_episode(60, upright_from=41), {}, 60)
+    # the env's own flag, where given, is the answer
+    assert task.is_success(_episode(60, upright_from=0), {"success": False}, 60) is False

@@ -6,7 +6,10 @@ import dataclasses
 
 import pytest
 
+from mcpilco.agents.mc_pilco import DEFAULT_ENV_ID, load_config
 from mcpilco.scripts.bench_mcpilco import _run_seed, main
+
+BENCH_CONFIG = load_config(DEFAULT_ENV_ID, preset="bench")
 
 
 def test_finished_seed_is_resumed_not_rerun(tmp_path):
@@ -31,13 +34,27 @@ def test_candidate_scales_must_match_candidates(tmp_path, capsys):
     assert "candidate_weight_scales must hold num_candidates=3" in capsys.readouterr().err
 
 
+def test_unknown_preset_or_env_is_an_error(tmp_path, capsys):
+    argv = ["--parts", "runs", "--out", str(tmp_path), "--runs-dir", str(tmp_path / "runs")]
+    with pytest.raises(SystemExit):
+        main([*argv, "--preset", "fast"])
+    err = capsys.readouterr().err
+    assert "unknown preset 'fast'" in err and "bench" in err
+    with pytest.raises(SystemExit):
+        main([*argv, "--env", "mcpilco/Nope-v0"])
+    err = capsys.readouterr().err
+    assert "no task ships for env id 'mcpilco/Nope-v0'" in err
+    assert "mcpilco/CartpoleSwingUp-v0" in err
+    assert not (tmp_path / "runs").exists()
+
+
 def _fake_runs(seeds, n_trials, rng):
     """Run dicts as :func:`_run_seed` returns them, with random per-trial outcomes."""
     runs = []
     for seed in seeds:
         records = [
-            {"experience_s": 3.0, "kind": "exploration", "success": False, "time_upright": 0.0}
-            | {"mean_abs_x": float(rng.uniform(0, 2)), "cost": 60.0, "wall_s": 0.1}
+            {"experience_s": 3.0, "kind": "exploration", "success": False, "time_in_goal": 0.0}
+            | {"steps": 60, "cost": 60.0, "wall_s": 0.1}
         ]
         for k in range(1, n_trials + 1):
             records.append(
@@ -45,8 +62,8 @@ def _fake_runs(seeds, n_trials, rng):
                     "experience_s": 3.0 * (k + 1),
                     "kind": "policy",
                     "success": bool(rng.random() < 0.6),
-                    "time_upright": float(rng.uniform(0, 2.5)),
-                    "mean_abs_x": float(rng.uniform(0, 1)),
+                    "time_in_goal": float(rng.uniform(0, 2.5)),
+                    "steps": 60,
                     "cost": float(rng.uniform(5, 60)),
                     "wall_s": float(rng.uniform(50, 300)),
                     "opt_steps": int(rng.integers(100, 1000)),
@@ -67,7 +84,6 @@ def test_pooled_sections_equal_the_aggregate_over_all_seeds():
     the mean over that set alone."""
     import numpy as np
 
-    from mcpilco.agents.mc_pilco import BENCH_CONFIG
     from mcpilco.scripts.bench_mcpilco import aggregate_runs, make_section, pool_sections
 
     rng = np.random.default_rng(0)
@@ -81,19 +97,18 @@ def test_pooled_sections_equal_the_aggregate_over_all_seeds():
     assert len(pooled["per_trial"]) == 6 and len(union) == 5
     for got, want in zip(pooled["per_trial"], union, strict=False):
         assert got["seeds"] == 12
-        for key in ("success_rate", "time_upright_s", "mean_abs_x_m", "wall_s_per_trial"):
+        for key in ("success_rate", "time_in_goal_s", "cost", "wall_s_per_trial"):
             assert got[key] == pytest.approx(want[key], rel=1e-12)
     last = pooled["per_trial"][5]
     assert last["seeds"] == 5
-    want = np.mean([r["records"][5]["time_upright"] for r in runs_b])
-    assert last["time_upright_s"] == pytest.approx(want, rel=1e-12)
+    want = np.mean([r["records"][5]["time_in_goal"] for r in runs_b])
+    assert last["time_in_goal_s"] == pytest.approx(want, rel=1e-12)
     assert pooled["seeds"] == list(range(12)) and pooled["config"]["num_trials"] == 5
 
 
 def test_pooling_refuses_other_configs_and_repeated_seeds():
     import numpy as np
 
-    from mcpilco.agents.mc_pilco import BENCH_CONFIG
     from mcpilco.scripts.bench_mcpilco import make_section, pool_sections
 
     rng = np.random.default_rng(1)
@@ -109,7 +124,6 @@ def test_pooling_refuses_other_configs_and_repeated_seeds():
 def test_report_states_what_each_policy_was_trained_on(tmp_path):
     import numpy as np
 
-    from mcpilco.agents.mc_pilco import BENCH_CONFIG
     from mcpilco.scripts.bench_mcpilco import _md_table, make_section
 
     section = make_section(
@@ -117,6 +131,8 @@ def test_report_states_what_each_policy_was_trained_on(tmp_path):
     )
     table = _md_table("env", section)
     assert "4 seeds (0-2, 5)" in table
+    assert "| success rate | time in goal [s] |" in table
+    assert "time upright" not in table and "mean abs x" not in table
     rows = [line for line in table.splitlines() if line.startswith("| ") and " s (" in line]
     assert [r.split("|")[1:3] for r in rows] == [
         [" 3 s (exploration) ", " - "],
@@ -130,7 +146,6 @@ def test_sections_saved_before_explore_hold_are_kept_apart_and_labelled_iid():
     says 1 step, and pooling it with a held-exploration section is refused."""
     import numpy as np
 
-    from mcpilco.agents.mc_pilco import BENCH_CONFIG
     from mcpilco.scripts.bench_mcpilco import _md_table, make_section, pool_sections
 
     rng = np.random.default_rng(3)
@@ -149,7 +164,6 @@ def test_pool_option_adds_a_pooled_section(tmp_path, capsys):
 
     import numpy as np
 
-    from mcpilco.agents.mc_pilco import BENCH_CONFIG, DEFAULT_ENV_ID
     from mcpilco.scripts.bench_mcpilco import make_section, section_key
 
     rng = np.random.default_rng(3)
@@ -172,7 +186,6 @@ def test_pool_option_adds_a_pooled_section(tmp_path, capsys):
 def test_pooled_report_names_the_seeds_of_a_trial_only_some_ran():
     import numpy as np
 
-    from mcpilco.agents.mc_pilco import BENCH_CONFIG
     from mcpilco.scripts.bench_mcpilco import _md_table, make_section, pool_sections
 
     rng = np.random.default_rng(4)
@@ -262,7 +275,8 @@ def test_rmse_runs_part_uses_only_runs_that_swung_up_and_groups_by_their_kernel(
     assert main([*argv, "--rmse-runs", str(tmp_path / "failed"), str(tmp_path / "ok")]) == 0
     res = json.loads((tmp_path / "out" / "mcpilco_cartpole.json").read_text())["rmse_runs"]
     assert sorted(r["run_kernel"] for r in res["per_run"]) == ["rbf", "rbf+mpk"]
-    assert all(r["n_data"] == SMOKE.horizon for r in res["per_run"])  # exploration only
+    horizon = SMOKE.task_spec().horizon
+    assert all(r["n_data"] == horizon for r in res["per_run"])  # exploration only
     for r in res["per_run"]:
         assert all(math.isfinite(r[k]) and r[k] > 0 for k in ("rbf+mpk", "rbf"))
     env = SMOKE.env_id

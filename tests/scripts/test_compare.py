@@ -196,8 +196,9 @@ def test_unknown_env_lists_task_envs(capsys, tmp_path):
 
 def test_env_without_task_is_refused(capsys, tmp_path):
     err = _error_of(["--env", "mcpilco/MarkerCamera-v0", "--out", str(tmp_path)], capsys)
-    assert "not a registered env with a task" in err
-    assert "valid env ids: mcpilco/CartpoleSwingUp-v0, mcpilco/DMCCartpoleSwingUp-v0" in err
+    assert "env 'mcpilco/MarkerCamera-v0' has no task specification" in err
+    valid = "valid env ids: InvertedPendulum-v5, mcpilco/CartpoleSwingUp-v0, "
+    assert valid + "mcpilco/DMCCartpoleSwingUp-v0" in err
 
 
 @pytest.mark.parametrize(
@@ -285,11 +286,13 @@ def test_a_failing_run_is_reported_not_raised(tmp_path):
     assert "max_points must be an integer >= 10" in res["error"]
 
 
-def test_mcpilco_from_a_labelled_bench_section(tmp_path, capsys):
+@pytest.mark.parametrize("horizon", [60, None])
+def test_mcpilco_from_a_labelled_bench_section(horizon, tmp_path, capsys):
     """Three seeds of a bench JSON section: successes from trial 3, 2 and 4 (12, 9, 15 s)
-    -> mean 0, 0, 1/3, 2/3, 1 at 3..15 s -> T90 = 15 s; the unlabelled section is ignored."""
+    -> mean 0, 0, 1/3, 2/3, 1 at 3..15 s -> T90 = 15 s; the unlabelled section is ignored.
+    A config without a horizon (None) ran the task's (60 steps on the cart-pole)."""
     section = {
-        "config": {"horizon": 60},
+        "config": {"horizon": horizon},
         "per_trial": [{"experience_s": 3.0 * (k + 1)} for k in range(5)],
         "per_seed": [
             {"seed": 0, "success": [False, False, False, True, True], "seconds": 10.0},

@@ -8,21 +8,27 @@ import dataclasses
 import torch
 
 import mcpilco.scripts.demo as demo
-from mcpilco.agents.mc_pilco import DEMO_CONFIG
+from mcpilco.agents.mc_pilco import DEFAULT_ENV_ID, load_config
 
 
 def test_demo_prints_per_trial_outcome_and_output_paths(tmp_path, monkeypatch, capsys):
-    tiny = dataclasses.replace(
-        DEMO_CONFIG,
-        num_trials=1,
-        num_particles=8,
-        opt=dataclasses.replace(DEMO_CONFIG.opt, max_steps=3),
-        opt_steps_first=3,
-        gp_adam_iters=5,
-        gp_lbfgs_iters=0,
-        log_particles=4,
-    )
-    monkeypatch.setattr(demo, "DEMO_CONFIG", tiny)
+    asked = []
+
+    def tiny_config(env_id, *args, **kwargs):  # the demo preset at a tiny budget
+        asked.append((env_id, kwargs.get("preset")))
+        cfg = load_config(env_id, *args, **kwargs)
+        return dataclasses.replace(
+            cfg,
+            num_trials=1,
+            num_particles=8,
+            opt=dataclasses.replace(cfg.opt, max_steps=3),
+            opt_steps_first=3,
+            gp_adam_iters=5,
+            gp_lbfgs_iters=0,
+            log_particles=4,
+        )
+
+    monkeypatch.setattr(demo, "load_config", tiny_config)
     threads = torch.get_num_threads()
     torch.set_num_threads(1)
     try:
@@ -37,6 +43,14 @@ def test_demo_prints_per_trial_outcome_and_output_paths(tmp_path, monkeypatch, c
     assert f"checkpoint        : {tmp_path / 'demo'}" in out
     assert "run.rrd" in out and ".png" in out
     assert (tmp_path / "demo" / "checkpoint.pt").is_file()
+    assert asked == [(DEFAULT_ENV_ID, "demo")]
+
+
+def test_demo_preset_is_the_bench_budget_stopped_after_three_policy_trials():
+    demo_cfg = load_config(DEFAULT_ENV_ID, preset="demo")
+    bench = load_config(DEFAULT_ENV_ID, preset="bench")
+    assert demo_cfg.num_trials == 3 and bench.num_trials == 4
+    assert dataclasses.replace(demo_cfg, num_trials=4) == bench
 
 
 def test_demo_refuses_a_gpu_it_cannot_see(tmp_path, monkeypatch, capsys):

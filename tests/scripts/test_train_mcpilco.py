@@ -5,7 +5,9 @@ from __future__ import annotations
 import json
 
 import pytest
+import yaml
 
+from mcpilco.envs.tasks import task_data
 from mcpilco.scripts.train_mcpilco import build_parser, config_from_args, main
 
 
@@ -16,10 +18,34 @@ def _error_of(argv, capsys) -> str:
     return capsys.readouterr().err
 
 
-def test_unknown_env_lists_registered_ids(capsys, tmp_path):
+def test_unknown_env_lists_the_envs_with_a_task(capsys, tmp_path):
     err = _error_of(["--env", "mcpilco/Nope-v0", "--out", str(tmp_path)], capsys)
+    assert "no task specification ships for 'mcpilco/Nope-v0'" in err
+    assert "mcpilco/CartpoleSwingUp-v0" in err and "mcpilco/DMCCartpoleSwingUp-v0" in err
+
+
+def test_unknown_env_with_a_task_file_lists_registered_ids(capsys, tmp_path):
+    task = tmp_path / "nope.yaml"
+    task.write_text(
+        yaml.safe_dump({**task_data("mcpilco/CartpoleSwingUp-v0"), "env_id": "mcpilco/Nope-v0"})
+    )
+    argv = ["--env", "mcpilco/Nope-v0", "--task", str(task), "--out", str(tmp_path)]
+    err = _error_of(argv, capsys)
     assert "unknown env id 'mcpilco/Nope-v0'" in err
     assert "mcpilco/CartpoleSwingUp-v0" in err and "mcpilco/DMCCartpoleSwingUp-v0" in err
+
+
+def test_task_file_reaches_the_config_and_its_errors_name_the_field(capsys, tmp_path):
+    data = task_data("mcpilco/CartpoleSwingUp-v0")
+    task = tmp_path / "task.yaml"
+    task.write_text(yaml.safe_dump({**data, "horizon": 60, "init_std": 0.02}))
+    cfg = config_from_args(build_parser().parse_args(["--task", str(task)]))
+    assert cfg.task["init_std"] == 0.02 and cfg.task_spec().init_std == (0.02,) * 4
+    task.write_text(yaml.safe_dump({**data, "angles": ["phi"]}))
+    err = _error_of(["--task", str(task), "--out", str(tmp_path)], capsys)
+    assert "task.angles[0]: unknown state name 'phi'" in err
+    err = _error_of(["--task", str(tmp_path / "missing.yaml"), "--out", str(tmp_path)], capsys)
+    assert "--task" in err and "missing.yaml" in err
 
 
 @pytest.mark.parametrize("value", ["0", "-3", "ten"])
@@ -47,6 +73,28 @@ def test_overrides_reach_the_config():
     assert (cfg.num_trials, cfg.num_particles, cfg.opt.max_steps) == (2, 7, 9)
     assert cfg.explore_hold == 1
     assert cfg.opt_steps_first <= 9 and cfg.num_candidates == 3
+
+
+def test_set_overrides_nested_fields_and_the_options_win():
+    args = build_parser().parse_args(
+        ["--set", "opt.max_steps=5", "--set", "num_particles=9", "--set", "cost_angle_mode=wrap"]
+        + ["--set", "cost_length_scales={x: 2.0}", "--preset", "bench"]
+    )
+    cfg = config_from_args(args)
+    assert (cfg.opt.max_steps, cfg.opt.monitor_patience) == (5, 100)  # the preset's patience
+    assert cfg.num_particles == 9 and cfg.cost_angle_mode == "wrap"
+    assert cfg.cost_length_scales == {"x": 2.0, "theta": 3.0}
+    told = build_parser().parse_args(["--set", "num_particles=9", "--particles", "11"])
+    assert config_from_args(told).num_particles == 11
+
+
+def test_unknown_preset_or_field_is_an_error(capsys, tmp_path):
+    err = _error_of(["--preset", "fast", "--out", str(tmp_path)], capsys)
+    assert "unknown preset 'fast'" in err and "bench" in err and "demo" in err
+    err = _error_of(["--set", "l_x=1.0", "--out", str(tmp_path)], capsys)
+    assert "unknown MC-PILCO config fields ['l_x']" in err
+    err = _error_of(["--set", "num_particles", "--out", str(tmp_path)], capsys)
+    assert "--set takes key=value" in err
 
 
 def test_dm_control_env_gets_iid_exploration_unless_told():

@@ -23,11 +23,12 @@ from mcpilco.agents.baselines.pilco import (
     make_cost,
     optimize_controller,
 )
-from mcpilco.agents.mc_pilco import MCPilcoConfig, run_mcpilco
+from mcpilco.agents.mc_pilco import TaskSpec, load_config, run_mcpilco
 from mcpilco.envs.cartpole_task import cartpole_cost
 from mcpilco.scripts.compare import run_method
 
 ENV = "mcpilco/CartpoleSwingUp-v0"
+TASK = TaskSpec.for_env(ENV)
 
 
 def _expected_cost(cost, mean, cov) -> np.ndarray:
@@ -52,9 +53,14 @@ def test_cost_on_a_point_state_is_the_env_cost(l_x, l_theta):
             rng.normal(size=50),
         ]
     )
-    got = _expected_cost(make_cost(l_x, l_theta), states, np.zeros((50, 4, 4)))
+    got = _expected_cost(
+        make_cost(TASK, {"x": l_x, "theta": l_theta}), states, np.zeros((50, 4, 4))
+    )
     # ExponentialQuadraticCost adds a 1e-5 jitter to its covariance term
     np.testing.assert_allclose(got, cartpole_cost(states, l_theta, l_x), atol=1e-4)
+    if (l_x, l_theta) == (1.5, 1.0):  # the task's own length scales: its evaluation cost
+        own = _expected_cost(make_cost(TASK), states, np.zeros((50, 4, 4)))
+        np.testing.assert_allclose(own, got, rtol=0, atol=0)
 
 
 def test_expected_cost_matches_monte_carlo():
@@ -62,7 +68,7 @@ def test_expected_cost_matches_monte_carlo():
     mean = np.array([0.3, 0.1, 2.2, -0.2])
     a = rng.normal(size=(4, 4)) * 0.05
     cov = a @ a.T + 0.01 * np.eye(4)
-    closed = _expected_cost(make_cost(1.0, 3.0), mean[None], cov[None])[0]
+    closed = _expected_cost(make_cost(TASK, {"x": 1.0, "theta": 3.0}), mean[None], cov[None])[0]
     samples = rng.multivariate_normal(mean, cov, size=200_000)
     assert np.all(samples[:, 2] < np.pi)  # the quadratic and the wrapped cost agree there
     mc = cartpole_cost(samples, 3.0, 1.0).mean()
@@ -135,6 +141,8 @@ def test_config_validation():
         PilcoConfig(num_trials=-1)
     with pytest.raises(ValueError, match="optimizer must be one of"):
         PilcoConfig(optimizer="bfgs")
+    with pytest.raises(ValueError, match="cost length scales must be > 0"):
+        PilcoConfig(cost_length_scales={"x": 1.0, "theta": 0.0})
 
 
 TINY = {"max_points": 30, "opt_steps": 2, "num_basis": 5}
@@ -150,8 +158,15 @@ def pilco_run(tmp_path_factory):
 
 def test_smoke_run_through_the_compare_entry_point(pilco_run):
     out, _, curve = pilco_run
-    recs = json.loads((out / "records.json").read_text())["records"]
+    saved = json.loads((out / "records.json").read_text())
+    recs = saved["records"]
     assert [r["kind"] for r in recs] == ["exploration", "policy"]
+    # MC-PILCO's exploration hold and optimisation cost (its bench config) reach PILCO
+    mc = load_config(ENV, preset="bench")
+    assert saved["config"]["explore_hold"] == mc.explore_hold == 2
+    assert (
+        saved["config"]["cost_length_scales"] == mc.cost_length_scales == {"x": 1.0, "theta": 3.0}
+    )
     # L-BFGS stops after the iteration that reaches opt_steps evaluations (its line search
     # may add up to 25)
     assert 2 <= recs[1]["opt_steps"] <= 2 + 25 and recs[1]["gp_points"] == 30
@@ -163,15 +178,19 @@ def test_smoke_run_through_the_compare_entry_point(pilco_run):
 def test_exploration_trial_is_mc_pilcos(pilco_run, tmp_path):
     out, _, _ = pilco_run
     pilco0 = json.loads((out / "records.json").read_text())["records"][0]
+    # MC-PILCO's bench config, as the compare entry point gives PILCO its exploration hold
+    config = load_config(
+        ENV, preset="bench", overrides={"num_trials": 0, "seed": 2, "torch_threads": 1}
+    )
     mc = run_mcpilco(
-        MCPilcoConfig(num_trials=0, seed=2, torch_threads=1),
+        config,
         tmp_path,
         progress=False,
         log=None,
         write_rrd=False,
     )
     mc0 = mc.records[0]
-    for key in ("cost", "success", "time_upright", "mean_abs_x", "experience_s"):
+    for key in ("cost", "success", "time_in_goal", "steps", "experience_s"):
         assert pilco0[key] == mc0[key], key
 
 

@@ -48,6 +48,8 @@ def test_smoke_run_records_success_vs_experience(algo, env_id, tmp_path):
     assert all(p["episodes"] == 2 and p["success_rate"] in (0.0, 0.5, 1.0) for p in pts)
     # a near-random policy never swings the pole up: the env cost stays near 60 per episode
     assert all(50.0 < p["mean_cost"] <= 60.0 for p in pts)
+    # seconds within the task's success bounds, at most the 3 s episode
+    assert all(0.0 <= p["time_in_goal_s"] <= 3.0 for p in pts)
     ckpt = curve["checkpoint"]
     assert (tmp_path / ckpt["model"]).is_file()
     if algo == "ppo":  # the swing-up zoo preset normalises observations and rewards

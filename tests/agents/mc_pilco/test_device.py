@@ -19,8 +19,10 @@ from mcpilco.agents.mc_pilco import (
     GPDynamicsModel,
     MCPilcoConfig,
     MCPilcoLoss,
+    SaturatingCost,
     SquashedRBFPolicy,
-    SwingUpCost,
+    StateLayout,
+    TaskSpec,
     make_policy_module,
     run_mcpilco,
 )
@@ -30,6 +32,8 @@ from mcpilco.models.device import check_device_name, resolve_device
 from mcpilco.scripts import train_mcpilco
 
 f64 = torch.float64
+TASK = TaskSpec.for_env("mcpilco/CartpoleSwingUp-v0")
+LAYOUT = StateLayout.from_task(TASK)
 needs_cuda = pytest.mark.skipif(not torch.cuda.is_available(), reason="needs a CUDA device")
 
 
@@ -69,7 +73,7 @@ def _gp_model(kernel: str = "rbf+mpk", n: int = 60, seed: int = 0) -> GPDynamics
     s = torch.randn(n, 4, generator=gen, dtype=f64) * torch.tensor([0.5, 1.0, 2.0, 2.0], dtype=f64)
     a = torch.rand(n, 1, generator=gen, dtype=f64) * 2 - 1
     s1 = s + 0.05 * torch.randn(n, 4, generator=gen, dtype=f64)
-    return GPDynamicsModel(kernel=kernel, adam_iters=20, lbfgs_iters=5).fit(s, a, s1)
+    return GPDynamicsModel(TASK, kernel=kernel, adam_iters=20, lbfgs_iters=5).fit(s, a, s1)
 
 
 @needs_cuda
@@ -93,13 +97,14 @@ def test_rollout_and_policy_gradient_on_cuda_equal_cpu():
     model = _gp_model()
     results = []
     for dev in ("cpu", "cuda"):
-        policy = SquashedRBFPolicy(num_basis=50, weight_scale=0.5, seed=1).to(dev)
+        policy = SquashedRBFPolicy(LAYOUT, num_basis=50, weight_scale=0.5, seed=1).to(dev)
         loss = MCPilcoLoss(
             make_policy_module(policy),
             model.particle_dynamics(f64).to(dev),
-            SwingUpCost(),
+            SaturatingCost.from_task(TASK),
             horizon=30,
             num_particles=200,
+            init_mean=TASK.init_mean,
         ).to(dev)
         gen = torch.Generator().manual_seed(7)
         x0 = 0.1 * torch.randn(200, 4, generator=gen)
@@ -149,13 +154,14 @@ def test_run_on_cuda_checkpoints_loadable_on_cpu_and_resumes(tmp_path):
 # ------------------------------------------------------------ CUDA graph of a step
 def _loss_and_policy(dev: str, fixed: bool, particles: int = 200):
     """A loss on ``dev``; ``fixed``: initial particles and noise passed in (no sampling)."""
-    policy = SquashedRBFPolicy(num_basis=50, weight_scale=0.5, seed=1).to(dev)
+    policy = SquashedRBFPolicy(LAYOUT, num_basis=50, weight_scale=0.5, seed=1).to(dev)
     loss = MCPilcoLoss(
         make_policy_module(policy),
         _gp_model().particle_dynamics().to(dev),
-        SwingUpCost(),
+        SaturatingCost.from_task(TASK),
         horizon=30,
         num_particles=particles,
+        init_mean=TASK.init_mean,
         obs_noise_std=0.0 if fixed else 0.01,
     ).to(dev)
     if not fixed:

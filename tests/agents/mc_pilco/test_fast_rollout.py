@@ -22,10 +22,12 @@ from mcpilco.agents.mc_pilco import (
     GPDynamicsModel,
     MCPilcoLoss,
     PolicyPopulation,
+    SaturatingCost,
     SpeedIntegrationDynamics,
     SquashedRBFPolicy,
-    SwingUpCost,
-    cartpole_gp_inputs,
+    StateLayout,
+    TaskSpec,
+    gp_inputs,
     make_policy_module,
 )
 from mcpilco.agents.mc_pilco.direct_compile import DirectRollout
@@ -34,6 +36,17 @@ from mcpilco.models.gp.fused import FusedRBFMPKPredictor
 
 f64 = torch.float64
 DT = 0.05
+TASK = TaskSpec.for_env("mcpilco/CartpoleSwingUp-v0")
+LAYOUT = StateLayout.from_task(TASK)  # [x, x_dot, theta, theta_dot], theta an angle
+MU0 = TASK.init_mean  # (0, 0, 0, 0)
+
+
+def swingup_cost(l_x: float = 1.5, l_theta: float = 1.0, wrap: bool = True) -> SaturatingCost:
+    """The cart-pole's saturating cost on ``x`` (target 0) and ``theta`` (target pi), with the
+    wrapped angle or ``|theta| - pi``."""
+    return SaturatingCost.from_task(
+        TASK, length_scales={"x": l_x, "theta": l_theta}, angle_mode="wrap" if wrap else "abs"
+    )
 
 
 def _gp_model(kernel: str, n: int = 40, seed: int = 0) -> GPDynamicsModel:
@@ -41,7 +54,7 @@ def _gp_model(kernel: str, n: int = 40, seed: int = 0) -> GPDynamicsModel:
     s = torch.randn(n, 4, generator=gen, dtype=f64) * torch.tensor([0.5, 1.0, 2.0, 2.0], dtype=f64)
     a = torch.rand(n, 1, generator=gen, dtype=f64) * 2 - 1
     s1 = s + 0.05 * torch.randn(n, 4, generator=gen, dtype=f64)
-    return GPDynamicsModel(kernel=kernel, adam_iters=10, lbfgs_iters=0).fit(s, a, s1)
+    return GPDynamicsModel(TASK, kernel=kernel, adam_iters=10, lbfgs_iters=0).fit(s, a, s1)
 
 
 # ---------------------------------------------------------------- gradchecks, float64
@@ -54,8 +67,12 @@ def test_fused_posterior_backward_matches_finite_differences(kernel):
 
 
 def test_policy_backward_matches_finite_differences():
-    """Two policies batched (K = 2, different parameters), with and without a mask."""
-    pols = [SquashedRBFPolicy(num_basis=6, action_dim=2, u_max=0.8, seed=s).to(f64) for s in (0, 1)]
+    """Two policies batched (K = 2, different parameters), with and without a mask; two
+    actions, one with symmetric and one with asymmetric bounds."""
+    low, high = (-0.8, -0.3), (0.8, 1.0)
+    pols = [SquashedRBFPolicy(LAYOUT, low, high, num_basis=6, seed=s).to(f64) for s in (0, 1)]
+    bounds = (pols[0].u_mid, pols[0].u_half)
+    assert bounds[0].dtype == f64 and bounds[0].tolist() == pytest.approx([0.0, 0.35])
     obs = torch.randn(2, 5, 4, dtype=f64).requires_grad_(True)
     c = torch.stack([p.centers.detach() for p in pols]).requires_grad_(True)
     log_l = torch.stack([p.log_lengthscales.detach() + 0.1 * i for i, p in enumerate(pols)])
@@ -65,7 +82,7 @@ def test_policy_backward_matches_finite_differences():
     mask = (torch.rand(2, 5, 6, generator=gen) < 0.6).to(f64) / 0.6
     for m in (None, mask):  # without and with a dropout mask on the activations
         assert torch.autograd.gradcheck(
-            lambda o, c_, l_, w_, m=m: _SquashedRBF.apply(o, c_, l_, w_, 0.8, m),
+            lambda o, c_, l_, w_, m=m: _SquashedRBF.apply(o, c_, l_, w_, bounds, m, LAYOUT),
             (obs, c, log_l, w),
         )
 
@@ -74,9 +91,9 @@ def test_gp_inputs_and_cost_backward_match_finite_differences():
     gen = torch.Generator().manual_seed(2)
     state = (torch.randn(7, 4, generator=gen, dtype=f64) * 2).requires_grad_(True)
     action = torch.randn(7, 1, generator=gen, dtype=f64).requires_grad_(True)
-    assert torch.autograd.gradcheck(cartpole_gp_inputs, (state, action))
+    assert torch.autograd.gradcheck(lambda s, a: gp_inputs(s, a, LAYOUT), (state, action))
     for wrap in (True, False):
-        cost = SwingUpCost(l_x=1.2, l_theta=2.5, wrap=wrap)
+        cost = swingup_cost(l_x=1.2, l_theta=2.5, wrap=wrap)
         assert torch.autograd.gradcheck(cost, (state,))
 
 
@@ -86,7 +103,7 @@ def test_sample_clip_integrate_backward_matches_finite_differences():
             return torch.tanh(z[..., :2] + z[..., 4:6]), 0.01 + z[..., 2:4] ** 2
 
     bound = torch.tensor([0.5, 0.8], dtype=f64)
-    dyn = SpeedIntegrationDynamics(Stub(), DT, delta_bound=bound)
+    dyn = SpeedIntegrationDynamics(Stub(), DT, LAYOUT, delta_bound=bound)
     gen = torch.Generator().manual_seed(3)
     state = torch.randn(9, 4, generator=gen, dtype=f64).requires_grad_(True)
     action = torch.randn(9, 1, generator=gen, dtype=f64).requires_grad_(True)
@@ -111,7 +128,7 @@ def _reference_rollout(pol, pred, bound, cost_l, x0, noise, obs_noise_std, seed)
     for t in range(H):
         o = x + obs_noise[t]
         feats = torch.stack(
-            [o[:, 0], o[:, 1], o[:, 3], torch.cos(o[:, 2]), torch.sin(o[:, 2])], dim=-1
+            [o[:, 0], o[:, 1], o[:, 3], torch.sin(o[:, 2]), torch.cos(o[:, 2])], dim=-1
         )
         ell = pol.log_lengthscales.exp()
         phi = torch.exp(-0.5 * (((feats[:, None, :] - pol.centers) / ell) ** 2).sum(-1))
@@ -142,12 +159,12 @@ def test_rollout_and_policy_gradient_match_plain_autograd_reference(kernel):
     x0 = 0.3 * torch.randn(M, 4, generator=gen, dtype=f64)
     noise = torch.randn(H, M, 2, generator=gen, dtype=f64)
 
-    pol = SquashedRBFPolicy(num_basis=30, weight_scale=1.0, dropout=0.25, seed=0).to(f64)
+    pol = SquashedRBFPolicy(LAYOUT, num_basis=30, weight_scale=1.0, dropout=0.25, seed=0).to(f64)
     pol.train()
     dyn = model.particle_dynamics(f64)
     assert isinstance(dyn.delta_model, FusedRBFMPKPredictor)
-    cost = SwingUpCost(*cost_l, wrap=False)
-    loss = MCPilcoLoss(make_policy_module(pol), dyn, cost, H, M, obs_noise_std=0.05)
+    cost = swingup_cost(*cost_l, wrap=False)
+    loss = MCPilcoLoss(make_policy_module(pol), dyn, cost, H, M, MU0, obs_noise_std=0.05)
     with torch.no_grad():  # bound |Delta x_dot| at its 70th percentile: the clip acts sometimes
         pre = loss.rollout(initial_state=x0, noise=noise).states[:, :, 1]
     bound = dyn.delta_bound.clone()
@@ -177,13 +194,15 @@ def test_float32_rollout_matches_the_float64_gp_posterior():
     noise and policy, a float64 posterior (``rollout_dtype="float64"``) must give the same
     expected cost and policy gradient to float32 accuracy over a whole horizon."""
     model = _gp_model("rbf+mpk", n=60, seed=4)
-    pol = SquashedRBFPolicy(num_basis=30, weight_scale=1.0, seed=0)  # float32 parameters
+    pol = SquashedRBFPolicy(LAYOUT, num_basis=30, weight_scale=1.0, seed=0)  # float32 parameters
     pol.eval()
     out = {}
     for dtype in (torch.float32, torch.float64):
         dyn = model.particle_dynamics(dtype)
         assert dyn.delta_model.dtype == dtype
-        loss = MCPilcoLoss(make_policy_module(pol), dyn, SwingUpCost(), 30, 64, obs_noise_std=0.01)
+        loss = MCPilcoLoss(
+            make_policy_module(pol), dyn, swingup_cost(), 30, 64, MU0, obs_noise_std=0.01
+        )
         torch.manual_seed(0)
         J = loss()["loss_cost"]
         assert J.dtype == torch.float32  # particles stay float32 either way
@@ -203,11 +222,11 @@ def test_compiled_step_is_one_graph_and_matches_the_eager_rollout(backend):
     (l_theta = 3) gives a gradient far from zero, so that a compiler returning zero gradients
     (torch 2.11 did, for this step) fails here."""
     model = _gp_model("rbf+mpk", n=40, seed=2)
-    pol = SquashedRBFPolicy(num_basis=20, weight_scale=1.0, seed=0, dropout=0.25)
+    pol = SquashedRBFPolicy(LAYOUT, num_basis=20, weight_scale=1.0, seed=0, dropout=0.25)
     pol.train()
     loss = MCPilcoLoss(
-        make_policy_module(pol), model.particle_dynamics(), SwingUpCost(l_theta=3.0), 8, 16,
-        obs_noise_std=0.01,
+        make_policy_module(pol), model.particle_dynamics(), swingup_cost(l_theta=3.0), 8, 16,
+        MU0, obs_noise_std=0.01,
     )  # fmt: skip
     x0 = loss.sample_initial_state()
     mask = pol.draw_dropout_mask(x0)
@@ -279,9 +298,9 @@ def test_a_compiled_step_with_a_wrong_gradient_is_dropped_for_the_eager_one(
     from mcpilco.agents.mc_pilco import direct_compile
 
     model = _gp_model("rbf+mpk", n=40, seed=2)
-    pol = SquashedRBFPolicy(num_basis=20, weight_scale=1.0, seed=0)
+    pol = SquashedRBFPolicy(LAYOUT, num_basis=20, weight_scale=1.0, seed=0)
     loss = MCPilcoLoss(
-        make_policy_module(pol), model.particle_dynamics(), SwingUpCost(l_theta=3.0), 8, 16
+        make_policy_module(pol), model.particle_dynamics(), swingup_cost(l_theta=3.0), 8, 16, MU0
     )
     params = list(pol.parameters())
     pol.eval()  # the check runs it in training mode, then restores this
@@ -313,8 +332,10 @@ def test_a_compilation_that_raises_leaves_the_eager_step(monkeypatch, backend):
     from mcpilco.agents.mc_pilco.loop import record_line
 
     model = _gp_model("rbf", n=30, seed=1)
-    pol = SquashedRBFPolicy(num_basis=10, seed=0)
-    loss = MCPilcoLoss(make_policy_module(pol), model.particle_dynamics(), SwingUpCost(), 4, 8)
+    pol = SquashedRBFPolicy(LAYOUT, num_basis=10, seed=0)
+    loss = MCPilcoLoss(
+        make_policy_module(pol), model.particle_dynamics(), swingup_cost(), 4, 8, MU0
+    )
 
     def failing_compile(fn, *_, **__):
         def step(*args):
@@ -331,7 +352,7 @@ def test_a_compilation_that_raises_leaves_the_eager_step(monkeypatch, backend):
     assert torch.isfinite(loss()["loss_cost"])  # the eager step runs
     rec = {
         "index": 1, "kind": "policy", "experience_s": 6.0, "cost": 50.0, "success": False,
-        "time_upright": 0.0, "mean_abs_x": 0.1, "wall_s": 10.0, "gp_fit_s": 1.0,
+        "time_in_goal": 0.0, "steps": 60, "wall_s": 10.0, "gp_fit_s": 1.0,
         "gp_points": 60, "opt_steps": 10, "s_per_opt_step": 0.1, "cpu_s_per_opt_step": 0.1,
         "opt_final_cost": 40.0, "compiled_step": False, "compile_error": loss.compile_error,
     }  # fmt: skip
@@ -353,11 +374,11 @@ def test_direct_backend_with_a_population_matches_the_eager_rollout_and_knows_it
     makes ``backend="auto"`` pick dynamo, and ``backend="direct"`` refuse with the reason."""
     model = _gp_model("rbf+mpk", n=40, seed=2)
     pop = PolicyPopulation(
-        [SquashedRBFPolicy(num_basis=20, weight_scale=1.0, seed=s) for s in (0, 1)]
+        [SquashedRBFPolicy(LAYOUT, num_basis=20, weight_scale=1.0, seed=s) for s in (0, 1)]
     )
     pop.train()
     loss = MCPilcoLoss(
-        make_policy_module(pop), model.particle_dynamics(), SwingUpCost(l_theta=3.0), 8, 16
+        make_policy_module(pop), model.particle_dynamics(), swingup_cost(l_theta=3.0), 8, 16, MU0
     )
     params = list(pop.parameters())
     out = []
@@ -414,7 +435,7 @@ def test_direct_backend_with_a_population_matches_the_eager_rollout_and_knows_it
 
     dyn = model.particle_dynamics()
     dyn.delta_model = Plain(dyn.delta_model)
-    other = MCPilcoLoss(make_policy_module(pop), dyn, SwingUpCost(), 4, 8)
+    other = MCPilcoLoss(make_policy_module(pop), dyn, swingup_cost(), 4, 8, MU0)
     assert other.compile_step(verify=False) and other.compile_backend == "dynamo"
     with pytest.raises(ValueError, match="direct backend cannot compile.*not fused"):
         other.compile_step(backend="direct")
@@ -431,9 +452,9 @@ def test_direct_backend_falls_back_to_the_eager_rollout_without_extra_draws():
     random draws included: with simulated observation noise it gives the eager loss and
     leaves torch's random stream where the eager loss leaves it."""
     model = _gp_model("rbf", n=30, seed=1)
-    pol = SquashedRBFPolicy(num_basis=10, seed=0)
+    pol = SquashedRBFPolicy(LAYOUT, num_basis=10, seed=0)
     loss = MCPilcoLoss(
-        make_policy_module(pol), model.particle_dynamics(), SwingUpCost(), 4, 8,
+        make_policy_module(pol), model.particle_dynamics(), swingup_cost(), 4, 8, MU0,
         obs_noise_std=0.01,
     )  # fmt: skip
     td = {"initial_state": torch.zeros(5, 4)}
@@ -540,8 +561,8 @@ def test_shards_hold_each_candidates_particles_in_order():
     not divide the particles is refused."""
 
     model = _gp_model("rbf", n=30, seed=1)
-    pop = PolicyPopulation([SquashedRBFPolicy(num_basis=4, seed=s) for s in (0, 1)])
-    dyn, cost = model.particle_dynamics(), SwingUpCost()
+    pop = PolicyPopulation([SquashedRBFPolicy(LAYOUT, num_basis=4, seed=s) for s in (0, 1)])
+    dyn, cost = model.particle_dynamics(), swingup_cost()
     runner = DirectRollout(pop, dyn, cost, rows=2 * 6, compiler=lambda fn, _: fn, shards=3)
     rows = torch.arange(12.0)  # candidate 0: particles 0..5, candidate 1: 6..11
     parts = runner.split(rows.repeat(2, 1), 1)
@@ -593,18 +614,18 @@ def test_native_rollout_matches_the_eager_rollout(kernel, n, sample_noise, clip,
     ones), sampling noise on or off, clipping on or off, a wrapped or unwrapped angle in
     the cost. It is not a vanishing gradient (a wide cost)."""
     model = GPDynamicsModel(
-        kernel=kernel, adam_iters=10, lbfgs_iters=0, sample_noise=sample_noise,
+        TASK, kernel=kernel, adam_iters=10, lbfgs_iters=0, sample_noise=sample_noise,
         delta_clip_factor=clip,
     )  # fmt: skip
     gen = torch.Generator().manual_seed(3)
     s = torch.randn(n, 4, generator=gen, dtype=f64) * torch.tensor([0.5, 1.0, 2.0, 2.0], dtype=f64)
     a = torch.rand(n, 1, generator=gen, dtype=f64) * 2 - 1
     model.fit(s, a, s + 0.05 * torch.randn(n, 4, generator=gen, dtype=f64))
-    pol = SquashedRBFPolicy(num_basis=27, weight_scale=1.0, seed=0, dropout=0.25)
+    pol = SquashedRBFPolicy(LAYOUT, num_basis=27, weight_scale=1.0, seed=0, dropout=0.25)
     pol.train()
     loss = MCPilcoLoss(
         make_policy_module(pol), model.particle_dynamics(),
-        SwingUpCost(l_theta=3.0, wrap=wrap), 25, 40, obs_noise_std=0.01,
+        swingup_cost(l_theta=3.0, wrap=wrap), 25, 40, MU0, obs_noise_std=0.01,
     )  # fmt: skip
     assert isinstance(loss.dynamics.delta_model, FusedRBFMPKPredictor)
     assert loss.dynamics.delta_model.p == (2 if kernel == "rbf+mpk" else 0)
@@ -637,18 +658,31 @@ def test_native_backend_knows_its_limits_and_drops_a_wrong_gradient(monkeypatch)
     from mcpilco.agents.mc_pilco import native_rollout
 
     model = _gp_model("rbf+mpk", n=30, seed=1)
-    pol = SquashedRBFPolicy(num_basis=16, weight_scale=1.0, seed=0)
+    pol = SquashedRBFPolicy(LAYOUT, num_basis=16, weight_scale=1.0, seed=0)
     loss = MCPilcoLoss(
-        make_policy_module(pol), model.particle_dynamics(), SwingUpCost(l_theta=3.0), 6, 16
+        make_policy_module(pol), model.particle_dynamics(), swingup_cost(l_theta=3.0), 6, 16, MU0
     )
     assert loss.compile_step(verify=False) and loss.compile_backend == "native"
     wide = MCPilcoLoss(
-        make_policy_module(SquashedRBFPolicy(num_basis=16, seed=0).double()),
-        model.particle_dynamics(dtype=f64), SwingUpCost(), 6, 16,
+        make_policy_module(SquashedRBFPolicy(LAYOUT, num_basis=16, seed=0).double()),
+        model.particle_dynamics(dtype=f64), swingup_cost(), 6, 16, MU0,
     )  # fmt: skip
     with pytest.raises(ValueError, match="native backend cannot run.*float32 only"):
         wide.compile_step(backend="native")
     assert wide.compile_step(verify=False) and wide.compile_backend == "direct"
+    # the C++ loop is written for symmetric bounds and the cart-pole's cost on x and theta
+    lopsided = MCPilcoLoss(
+        make_policy_module(SquashedRBFPolicy(LAYOUT, (-0.5,), (1.0,), num_basis=16, seed=0)),
+        model.particle_dynamics(), swingup_cost(), 6, 16, MU0,
+    )  # fmt: skip
+    with pytest.raises(ValueError, match="native backend cannot run.*symmetric action bounds"):
+        lopsided.compile_step(backend="native")
+    assert lopsided.compile_step(verify=False) and lopsided.compile_backend == "direct"
+    x_only = SaturatingCost(4, idx=(0,), targets=(0.0,), length_scales=(1.0,), modes=(0,))
+    no_theta = MCPilcoLoss(make_policy_module(pol), model.particle_dynamics(), x_only, 6, 16, MU0)
+    with pytest.raises(ValueError, match="native backend cannot run.*cost on x_0"):
+        no_theta.compile_step(backend="native")
+    assert no_theta.compile_step(verify=False) and no_theta.compile_backend == "direct"
 
     backward = native_rollout.NativeRollout.backward_shard
 

@@ -8,20 +8,35 @@ import json
 import pytest
 import torch
 
-from mcpilco.agents.mc_pilco import MCPilcoConfig, PolicyOptConfig, make_env, run_mcpilco
+from mcpilco.agents.mc_pilco import (
+    DEFAULT_ENV_ID,
+    MCPilcoConfig,
+    SquashedRBFPolicy,
+    TaskSpec,
+    load_config,
+    make_env,
+    parse_set,
+    run_mcpilco,
+)
 from mcpilco.agents.mc_pilco.checkpoint import load_checkpoint
 
-SMOKE = MCPilcoConfig(
-    num_trials=1,
-    num_particles=20,
-    max_points=100,
-    gp_adam_iters=20,
-    gp_lbfgs_iters=5,
-    num_basis=50,
-    opt=PolicyOptConfig(max_steps=30, monitor_patience=10),
-    log_particles=20,
-    seed=3,
-    torch_threads=1,
+TASK = TaskSpec.for_env(DEFAULT_ENV_ID)
+# the cart-pole's config file (MC-PILCO's cost l_x = 1, l_theta = 3 on |theta| - pi, actions
+# held 2 steps in exploration) with a tiny budget
+SMOKE = load_config(
+    DEFAULT_ENV_ID,
+    overrides={
+        "num_trials": 1,
+        "num_particles": 20,
+        "max_points": 100,
+        "gp_adam_iters": 20,
+        "gp_lbfgs_iters": 5,
+        "num_basis": 50,
+        "opt": {"max_steps": 30, "monitor_patience": 10},
+        "log_particles": 20,
+        "seed": 3,
+        "torch_threads": 1,
+    },
 )
 
 
@@ -39,10 +54,22 @@ def test_smoke_run_writes_checkpoint_png_and_rrd(smoke_run):
     assert 1 <= rec["opt_steps"] <= 30
     assert isinstance(rec["success"], bool)
     assert rec["gp_points"] == 60 and len(rec["gp_rmse"]) == 2
+    for k, r in enumerate(summary.records):  # the cart-pole's episodes run all 60 steps
+        assert r["steps"] == 60 and r["experience_s"] == pytest.approx(3.0 * (k + 1))
+        assert 0.0 <= r["time_in_goal"] <= 3.0
     ckpt = load_checkpoint(summary.checkpoint)
     assert ckpt["next_trial"] == 2
     assert len(ckpt["episodes"]) == 2
     assert ckpt["episodes"][0]["obs"].shape == (61, 4)
+    # the saved settings rebuild the applied policy
+    policy = SquashedRBFPolicy(**ckpt["policy_settings"])
+    policy.load_state_dict(ckpt["policy"])
+    policy.eval()
+    assert policy.num_basis == 50 and policy.u_max == 1.0
+    x = torch.tensor([[0.1, -0.2, 3.0, 0.5]])
+    with torch.no_grad():
+        u = policy(x)
+    assert u.shape == (1, 1) and torch.isfinite(u).all() and u.abs().max() <= 1.0
     assert (out / ckpt["gp_file"]).is_file()
     png = out / "trial_01_particles.png"
     assert png.is_file() and png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
@@ -64,6 +91,7 @@ def test_rrd_is_readable_by_rerun(smoke_run):
     for entity in (
         "/particles/x/model",
         "/particles/theta/real",
+        "/particles/theta_dot/model",  # one plot per state coordinate
         "/optimisation/expected_cost",
         "/gp/one_step_rmse/delta_theta_dot",
     ):
@@ -113,7 +141,7 @@ def test_bad_arguments_give_clear_errors():
     with pytest.raises(ValueError, match="registered mcpilco ids: .*mcpilco/CartpoleSwingUp-v0"):
         make_env("mcpilco/NoSuchEnv-v0", 60)
     with pytest.raises(ValueError, match="horizon mismatch"):
-        make_env("mcpilco/CartpoleSwingUp-v0", 50)
+        make_env("mcpilco/CartpoleSwingUp-v0", 50, TASK)
     with pytest.raises(ValueError, match="num_particles"):
         MCPilcoConfig(num_particles=0)
     with pytest.raises(ValueError, match="kernel"):
@@ -131,7 +159,7 @@ def test_fused_predictor_matches_gp_cached_predictor():
     a = torch.rand(50, 1, generator=gen, dtype=torch.float64) * 2 - 1
     s1 = s + 0.05 * torch.randn(50, 4, generator=gen, dtype=torch.float64)
     for kernel in ("rbf+mpk", "rbf"):
-        model = GPDynamicsModel(kernel=kernel, adam_iters=10, lbfgs_iters=0).fit(s, a, s1)
+        model = GPDynamicsModel(TASK, kernel=kernel, adam_iters=10, lbfgs_iters=0).fit(s, a, s1)
         pred = model.gp_.cached_predictor(dtype=torch.float64)
         fused = FusedRBFMPKPredictor.from_cached(pred)
         assert fused is not None
@@ -156,7 +184,7 @@ def test_fused_predictor_stays_finite_when_the_rbf_is_switched_off():
     s = torch.randn(40, 4, generator=gen, dtype=torch.float64)
     a = torch.rand(40, 1, generator=gen, dtype=torch.float64) * 2 - 1
     s1 = s + 0.05 * torch.randn(40, 4, generator=gen, dtype=torch.float64)
-    model = GPDynamicsModel(kernel="rbf+mpk", adam_iters=5, lbfgs_iters=0).fit(s, a, s1)
+    model = GPDynamicsModel(TASK, kernel="rbf+mpk", adam_iters=5, lbfgs_iters=0).fit(s, a, s1)
     rbf = model.gp_.model_.covar_module.kernels[0]
     with torch.no_grad():
         rbf.raw_outputscale.fill_(-900.0)  # softplus -> exactly 0 in float64
@@ -172,7 +200,7 @@ def test_fused_predictor_stays_finite_when_the_rbf_is_switched_off():
 
 
 def test_config_overrides_keep_unset_fields_and_cap_the_first_trial_steps():
-    from mcpilco.agents.mc_pilco import BENCH_CONFIG
+    BENCH_CONFIG = load_config(DEFAULT_ENV_ID, preset="bench")
 
     cfg = BENCH_CONFIG.with_overrides(num_trials=None, kernel="rbf", opt_steps=300)
     assert cfg.num_trials == BENCH_CONFIG.num_trials and cfg.kernel == "rbf"
@@ -195,43 +223,75 @@ def test_exploration_actions_hold_each_draw_and_keep_the_iid_stream():
     np.testing.assert_array_equal(held[:, 0], np.repeat(iid[:4, 0], 2)[:7])
     with pytest.raises(ValueError, match="hold must be an integer >= 1"):
         exploration_actions(np.random.default_rng(0), 60, 0)
+    # two actions, each uniform within its own bounds
+    wide = exploration_actions(np.random.default_rng(5), 500, 1, low=(-3.0, 0.0), high=(3.0, 0.5))
+    assert wide.shape == (500, 2)
+    assert wide[:, 0].min() >= -3.0 and wide[:, 0].max() <= 3.0 and wide[:, 0].min() < -2.5
+    assert wide[:, 1].min() >= 0.0 and wide[:, 1].max() <= 0.5 and wide[:, 1].max() > 0.45
     with pytest.raises(ValueError, match="explore_hold"):
         MCPilcoConfig(explore_hold=0)
 
 
-def test_configs_saved_before_explore_hold_read_as_iid_exploration():
-    from mcpilco.agents.baselines.pilco import PilcoConfig
-    from mcpilco.agents.mc_pilco.loop import check_resume
-
-    assert MCPilcoConfig().explore_hold == 2
-    old = MCPilcoConfig().to_dict()
-    del old["explore_hold"]  # a run saved before the field existed explored i.i.d.
-    assert MCPilcoConfig.from_dict(old).explore_hold == 1
-    old_pilco = PilcoConfig().to_dict()
-    del old_pilco["explore_hold"]
-    assert PilcoConfig.from_dict(old_pilco).explore_hold == 1
-    check_resume(old, MCPilcoConfig(explore_hold=1), ("explore_hold",))
-    with pytest.raises(ValueError, match="cannot resume: explore_hold=2 differs .* 1"):
-        check_resume(old, MCPilcoConfig(), ("explore_hold",))
+def test_config_from_dict_round_trips_and_names_unknown_fields():
+    """A saved config reads back as it was; a field the config does not have (e.g. the
+    cart-pole-only ``l_x`` of configs saved before task specifications) is an error that
+    names it."""
+    saved = SMOKE.to_dict()
+    assert MCPilcoConfig.from_dict(saved) == SMOKE
+    old = {**saved, "l_x": 1.0, "cost_wrap_angle": False}
+    unknown = r"unknown MC-PILCO config fields \['cost_wrap_angle', 'l_x'\]"
+    with pytest.raises(ValueError, match=unknown):
+        MCPilcoConfig.from_dict(old)
 
 
 DMC_ID = "mcpilco/DMCCartpoleSwingUp-v0"
 
 
-def test_explore_hold_defaults_to_the_envs_measured_value():
+def test_explore_hold_comes_from_the_envs_config_file():
     """Held exploration on our cartpole, i.i.d. on the dm-control adapter (whose held pushes
-    hit the rail's end stop); an explicit value always wins, also when the env changes."""
-    from mcpilco.agents.baselines.pilco import PilcoConfig
-    from mcpilco.agents.mc_pilco import PRESETS
+    hit the rail's end stop), in every preset; an explicit value always wins."""
+    from mcpilco.agents.mc_pilco.loop import check_resume
 
-    assert MCPilcoConfig().explore_hold == 2
-    assert MCPilcoConfig(env_id=DMC_ID).explore_hold == 1
-    assert PilcoConfig().explore_hold == 2 and PilcoConfig(env_id=DMC_ID).explore_hold == 1
-    for preset in PRESETS.values():  # presets are built on the default env
-        assert preset.with_overrides(env_id=DMC_ID).explore_hold == 1
-        assert preset.with_overrides(env_id=DMC_ID, explore_hold=2).explore_hold == 2
-    # a non-default hold is the user's choice: a later env change keeps it
-    assert MCPilcoConfig(explore_hold=3).with_overrides(env_id=DMC_ID).explore_hold == 3
-    # saved configs carry the resolved value, so a resume compares like with like
-    saved = MCPilcoConfig(env_id=DMC_ID).to_dict()
+    assert MCPilcoConfig().explore_hold == 1  # no file: i.i.d.
+    assert load_config(DEFAULT_ENV_ID).explore_hold == 2
+    assert load_config(DMC_ID).explore_hold == 1
+    for preset in ("bench", "demo", "small"):
+        assert load_config(DEFAULT_ENV_ID, preset=preset).explore_hold == 2
+        assert load_config(DMC_ID, preset=preset).explore_hold == 1
+        told = load_config(DMC_ID, preset=preset, overrides={"explore_hold": 2})
+        assert told.explore_hold == 2
+    # saved configs carry the value, so a resume compares like with like
+    saved = load_config(DMC_ID).to_dict()
     assert saved["explore_hold"] == 1 and MCPilcoConfig.from_dict(saved).explore_hold == 1
+    check_resume(saved, load_config(DMC_ID), ("explore_hold",))
+    with pytest.raises(ValueError, match="cannot resume: explore_hold=2 differs .* 1"):
+        check_resume(saved, load_config(DEFAULT_ENV_ID), ("explore_hold",))
+
+
+def test_load_config_reads_the_file_then_the_preset_then_the_overrides():
+    """The cart-pole's file holds MC-PILCO's optimised cost (Amadio et al. 2022), its presets
+    the bench / demo / small budgets; overrides (``parse_set``) come last, nested fields
+    merged; an unknown preset or field is a clear error."""
+    base = load_config(DEFAULT_ENV_ID)
+    assert base.cost_length_scales == {"x": 1.0, "theta": 3.0}
+    assert base.cost_angle_mode == "abs" and base.horizon is None
+    assert base.task_spec().horizon == 60 and base.task_spec() == TASK
+    bench = load_config(DEFAULT_ENV_ID, preset="bench")
+    assert (bench.num_trials, bench.max_points, bench.opt_steps_first) == (4, 250, 500)
+    assert (bench.opt.max_steps, bench.opt.monitor_patience) == (1000, 100)
+    assert load_config(DEFAULT_ENV_ID, preset="demo").num_trials == 3
+    small = load_config(DEFAULT_ENV_ID, preset="small")
+    assert (small.num_particles, small.num_candidates) == (100, 2)
+    over = parse_set(["opt.max_steps=5", "num_particles=7", "cost_length_scales={x: 2}"])
+    assert over == {"opt": {"max_steps": 5}, "num_particles": 7, "cost_length_scales": {"x": 2}}
+    cfg = load_config(DEFAULT_ENV_ID, preset="bench", overrides=over)
+    assert (cfg.opt.max_steps, cfg.opt.monitor_patience) == (5, 100)  # merged, not replaced
+    assert cfg.num_particles == 7
+    assert cfg.cost_length_scales == {"x": 2.0, "theta": 3.0}  # a mapping is merged too
+    assert cfg.max_points == 250  # the preset's
+    with pytest.raises(ValueError, match="unknown preset 'fast'.*bench"):
+        load_config(DEFAULT_ENV_ID, preset="fast")
+    with pytest.raises(ValueError, match=r"unknown MC-PILCO config fields \['l_theta'\]"):
+        load_config(DEFAULT_ENV_ID, overrides={"l_theta": 3.0})
+    with pytest.raises(ValueError, match="--set takes key=value"):
+        parse_set(["num_particles"])

@@ -15,9 +15,11 @@ from mcpilco.agents.mc_pilco import (
     CostMonitor,
     MCPilcoLoss,
     PolicyOptConfig,
+    SaturatingCost,
     SpeedIntegrationDynamics,
     SquashedRBFPolicy,
-    SwingUpCost,
+    StateLayout,
+    TaskSpec,
     make_policy_module,
     optimize_policy,
     speed_integration,
@@ -26,6 +28,16 @@ from mcpilco.agents.mc_pilco.policy import dropout_mask
 from mcpilco.envs.cartpole_task import cartpole_cost
 
 DT = 0.05
+TASK = TaskSpec.for_env("mcpilco/CartpoleSwingUp-v0")
+LAYOUT = StateLayout.from_task(TASK)  # [x, x_dot, theta, theta_dot], theta an angle
+
+
+def swingup_cost(l_x: float = 1.5, l_theta: float = 1.0, wrap: bool = True) -> SaturatingCost:
+    """The cart-pole's saturating cost with the given length scales (the task's by default,
+    thesis 5.5.1) and the wrapped angle or ``|theta| - pi``."""
+    return SaturatingCost.from_task(
+        TASK, length_scales={"x": l_x, "theta": l_theta}, angle_mode="wrap" if wrap else "abs"
+    )
 
 
 # ------------------------------------------------------------------------------ cost
@@ -35,16 +47,28 @@ def test_cost_matches_env_numpy_cost():
     states[:5, 2] = [0.0, np.pi, -np.pi, 3 * np.pi, -5 * np.pi]
     states[:5, 0] = 0.0
     expected = cartpole_cost(states, l_theta=1.0, l_x=1.5)
-    got = SwingUpCost(l_x=1.5, l_theta=1.0)(torch.as_tensor(states)).numpy()
+    cost = swingup_cost(l_x=1.5, l_theta=1.0)
+    assert cost.idx == (0, 2) and cost.targets == (0.0, math.pi)
+    assert cost.length_scales == (1.5, 1.0)
+    got = cost(torch.as_tensor(states)).numpy()
     np.testing.assert_allclose(got, expected, atol=1e-12)
     assert got[1] == pytest.approx(0.0, abs=1e-12)  # upright, cart at origin
+    # the task's own cost (no overrides) and its numpy evaluation cost are the same cost
+    np.testing.assert_allclose(
+        SaturatingCost.from_task(TASK)(torch.as_tensor(states)).numpy(), expected, atol=1e-12
+    )
+    np.testing.assert_allclose(TASK.cost(states), expected, atol=1e-12)
 
 
 def test_cost_rejects_bad_shape_and_lengthscale():
     with pytest.raises(ValueError, match="length scales"):
-        SwingUpCost(l_x=0.0)
+        swingup_cost(l_x=0.0)
+    with pytest.raises(ValueError, match="no cost term"):
+        SaturatingCost.from_task(TASK, length_scales={"x_dot": 1.0})
+    with pytest.raises(ValueError, match="angle_mode"):
+        SaturatingCost.from_task(TASK, angle_mode="spin")
     with pytest.raises(ValueError, match=r"\(\.\.\., 4\)"):
-        SwingUpCost()(torch.zeros(3, 5))
+        swingup_cost()(torch.zeros(3, 5))
 
 
 # ------------------------------------------------------------------- speed integration
@@ -65,7 +89,7 @@ def test_speed_integration_is_exact_for_constant_acceleration():
     q0 = torch.tensor([0.1, 0.3], dtype=torch.float64)
     v0 = torch.tensor([-0.5, 1.2], dtype=torch.float64)
     x = torch.stack([q0, v0], -1).flatten()  # [x, x_dot, theta, theta_dot]
-    dyn = SpeedIntegrationDynamics(ConstantDelta(accel), DT)
+    dyn = SpeedIntegrationDynamics(ConstantDelta(accel), DT, LAYOUT)
     u = torch.zeros(1, dtype=torch.float64)
     for _ in range(40):
         x = dyn(x, u)
@@ -78,7 +102,7 @@ def test_speed_integration_is_exact_for_constant_acceleration():
 
 def test_speed_integration_layout():
     state = torch.tensor([1.0, 2.0, 3.0, 4.0])
-    nxt = speed_integration(state, torch.tensor([0.5, -1.0]), 0.1)
+    nxt = speed_integration(state, torch.tensor([0.5, -1.0]), 0.1, LAYOUT)
     # x+ = 1 + 0.1*2 + 0.05*0.5, xd+ = 2.5, th+ = 3 + 0.4 - 0.05, thd+ = 3
     torch.testing.assert_close(nxt, torch.tensor([1.225, 2.5, 3.35, 3.0]))
 
@@ -110,7 +134,7 @@ def _linear_setup(sigma2_val: float):
     policy = nn.Linear(4, 1, bias=False, dtype=f64)
     with torch.no_grad():
         policy.weight.copy_(k_pol)
-    dyn = SpeedIntegrationDynamics(LinearDelta(B, c, sigma2), DT)
+    dyn = SpeedIntegrationDynamics(LinearDelta(B, c, sigma2), DT, LAYOUT)
     # analytic closed loop x+ = F x + g + E eps with state [x, xd, th, thd]
     # Delta = B_s x + B_u u + c with B_s acting on [x, xd, thd]
     Bs = torch.zeros(2, 4, dtype=f64)
@@ -132,13 +156,15 @@ def _linear_setup(sigma2_val: float):
 def test_rollout_with_linear_model_gives_analytic_mean_without_noise(horizon):
     policy, dyn, F, g, _ = _linear_setup(0.0)
     x0 = torch.tensor([[0.2, -0.1, 0.5, 0.3], [0.0, 0.4, -1.0, 0.0]], dtype=torch.float64)
-    loss = MCPilcoLoss(policy, dyn, SwingUpCost(), horizon=horizon, num_particles=2)
+    loss = MCPilcoLoss(
+        policy, dyn, swingup_cost(), horizon=horizon, num_particles=2, init_mean=TASK.init_mean
+    )
     ro = loss.rollout(initial_state=x0, noise=torch.zeros(horizon, 2, 2, dtype=torch.float64))
     x = x0.clone()
     expected_cost = torch.zeros((), dtype=torch.float64)
     for _ in range(horizon):
         x = x @ F.T + g
-        expected_cost = expected_cost + SwingUpCost()(x).mean()
+        expected_cost = expected_cost + swingup_cost()(x).mean()
     torch.testing.assert_close(ro.states[:, -1], x, atol=1e-10, rtol=0)
     td = loss(
         TensorDict(
@@ -154,7 +180,7 @@ def test_rollout_with_linear_gaussian_model_gives_analytic_mean_and_covariance()
     policy, dyn, F, g, E = _linear_setup(1e-3)
     mu0 = torch.tensor([0.1, 0.0, 0.2, 0.0], dtype=torch.float64)
     std0 = 0.05
-    loss = MCPilcoLoss(policy, dyn, SwingUpCost(), H, M, init_mean=mu0, init_std=std0)
+    loss = MCPilcoLoss(policy, dyn, swingup_cost(), H, M, init_mean=mu0, init_std=std0)
     x0 = mu0 + std0 * torch.randn(M, 4, dtype=torch.float64)
     with torch.no_grad():
         xs = loss.rollout(initial_state=x0).states[:, -1]
@@ -172,11 +198,13 @@ def test_rollout_with_linear_gaussian_model_gives_analytic_mean_and_covariance()
 
 def test_loss_validates_arguments():
     policy, dyn, *_ = _linear_setup(0.0)
+    mu0 = TASK.init_mean
     with pytest.raises(ValueError, match="num_particles"):
-        MCPilcoLoss(policy, dyn, SwingUpCost(), horizon=10, num_particles=0)
+        MCPilcoLoss(policy, dyn, swingup_cost(), horizon=10, num_particles=0, init_mean=mu0)
     with pytest.raises(ValueError, match="horizon"):
-        MCPilcoLoss(policy, dyn, SwingUpCost(), horizon=0, num_particles=3)
-    loss = MCPilcoLoss(policy, dyn, SwingUpCost(), horizon=10, num_particles=3)
+        MCPilcoLoss(policy, dyn, swingup_cost(), horizon=0, num_particles=3, init_mean=mu0)
+    loss = MCPilcoLoss(policy, dyn, swingup_cost(), horizon=10, num_particles=3, init_mean=mu0)
+    assert loss.delta_dim == 2  # one GP per velocity, from the dynamics' layout
     with pytest.raises(ValueError, match="horizon of the noise"):
         loss.rollout(
             initial_state=torch.zeros(3, 4, dtype=torch.float64),
@@ -185,12 +213,14 @@ def test_loss_validates_arguments():
 
 
 def test_loss_gradient_reaches_policy_parameters():
-    policy = make_policy_module(SquashedRBFPolicy(num_basis=20, seed=0))
+    policy = make_policy_module(SquashedRBFPolicy(LAYOUT, num_basis=20, seed=0))
     _, dyn, *_ = _linear_setup(1e-4)
     dyn.delta_model.B = dyn.delta_model.B.float()
     dyn.delta_model.c = dyn.delta_model.c.float()
     dyn.delta_model.sigma2 = dyn.delta_model.sigma2.float()
-    loss = MCPilcoLoss(policy, dyn, SwingUpCost(), horizon=15, num_particles=8)
+    loss = MCPilcoLoss(
+        policy, dyn, swingup_cost(), horizon=15, num_particles=8, init_mean=TASK.init_mean
+    )
     out = loss()
     assert set(out.keys()) >= {"loss_cost", "cost_std"}
     out["loss_cost"].backward()
@@ -200,8 +230,10 @@ def test_loss_gradient_reaches_policy_parameters():
 
 
 # ---------------------------------------------------------------------------- policy
-def test_policy_squashing_bounds_and_tensordict_keys():
-    pol = SquashedRBFPolicy(num_basis=50, u_max=0.7, seed=1)
+@pytest.mark.parametrize("low, high", [(-0.7, 0.7), (-0.2, 1.0)])
+def test_policy_squashing_bounds_and_tensordict_keys(low, high):
+    pol = SquashedRBFPolicy(LAYOUT, (low,), (high,), num_basis=50, seed=1)
+    assert pol.u_max == pytest.approx((high - low) / 2)
     with torch.no_grad():
         pol.weights.mul_(1e4)  # saturate
     module = make_policy_module(pol)
@@ -212,19 +244,20 @@ def test_policy_squashing_bounds_and_tensordict_keys():
     td = module(TensorDict({"observation": obs}, [256]))
     u = td["action"]
     assert u.shape == (256, 1)
-    assert u.abs().max() <= 0.7 + 1e-6
-    assert u.abs().max() > 0.69  # really saturates at u_max
+    assert u.min() >= low - 1e-6 and u.max() <= high + 1e-6
+    assert u.min() < low + 0.01 and u.max() > high - 0.01  # really saturates at both bounds
 
 
 def test_policy_is_periodic_in_theta_and_matches_formula():
-    pol = SquashedRBFPolicy(num_basis=7, seed=3)
+    pol = SquashedRBFPolicy(LAYOUT, num_basis=7, seed=3)
     pol.eval()
     obs = torch.tensor([[0.1, -0.2, 0.4, 1.0]])
     obs2 = obs.clone()
     obs2[0, 2] += 2 * math.pi
     torch.testing.assert_close(pol(obs), pol(obs2), atol=1e-5, rtol=0)
-    # independent evaluation of u = u_max tanh(sum_i w_i phi_i / u_max)
-    xt = torch.tensor([0.1, -0.2, 1.0, math.cos(0.4), math.sin(0.4)])
+    # independent evaluation of u = u_max tanh(sum_i w_i phi_i / u_max) on the features
+    # x~ = [x, x_dot, theta_dot, sin theta, cos theta]
+    xt = torch.tensor([0.1, -0.2, 1.0, math.sin(0.4), math.cos(0.4)])
     ell = pol.log_lengthscales.exp()
     phi = torch.exp(-0.5 * (((xt - pol.centers) / ell) ** 2).sum(-1))
     expected = pol.u_max * torch.tanh((phi @ pol.weights) / pol.u_max)
@@ -232,7 +265,7 @@ def test_policy_is_periodic_in_theta_and_matches_formula():
 
 
 def test_policy_dropout_only_in_training():
-    pol = SquashedRBFPolicy(num_basis=50, dropout=0.5, seed=0)
+    pol = SquashedRBFPolicy(LAYOUT, num_basis=50, dropout=0.5, seed=0)
     obs = torch.randn(10, 4)
     pol.eval()
     torch.testing.assert_close(pol(obs), pol(obs))
@@ -306,7 +339,7 @@ class StalledLoss(nn.Module):
 
 
 def test_optimizer_halves_lr_and_reduces_dropout_on_stall():
-    pol = SquashedRBFPolicy(num_basis=5, seed=0)
+    pol = SquashedRBFPolicy(LAYOUT, num_basis=5, seed=0)
     cfg = PolicyOptConfig(
         max_steps=5000, lr=0.01, lr_min=0.0025, dropout=0.25, monitor_patience=20, min_steps=20
     )
@@ -323,7 +356,7 @@ def test_optimizer_halves_lr_and_reduces_dropout_on_stall():
 
 
 def test_optimizer_reinitialises_policy_on_nan_cost():
-    pol = SquashedRBFPolicy(num_basis=5, seed=0)
+    pol = SquashedRBFPolicy(LAYOUT, num_basis=5, seed=0)
     cfg = PolicyOptConfig(max_steps=10, monitor_patience=100)
     res = optimize_policy(StalledLoss(pol, nan_first=2), pol, cfg)
     assert res.num_reinits == 2
@@ -333,13 +366,13 @@ def test_optimizer_reinitialises_policy_on_nan_cost():
 
 
 def test_unwrapped_cost_penalises_full_rotations():
-    cost = SwingUpCost(l_x=1.0, l_theta=3.0, wrap=False)
+    cost = swingup_cost(l_x=1.0, l_theta=3.0, wrap=False)
     up_once = torch.tensor([0.0, 0.0, math.pi, 0.0])
     up_after_spin = torch.tensor([0.0, 0.0, 3 * math.pi, 0.0])
     assert float(cost(up_once)) == pytest.approx(0.0, abs=1e-12)
     expected = 1 - math.exp(-((2 * math.pi) ** 2) / 9.0)  # |theta| - pi = 2 pi
     assert float(cost(up_after_spin)) == pytest.approx(expected, rel=1e-6)
-    assert float(SwingUpCost(wrap=True)(up_after_spin)) == pytest.approx(0.0, abs=1e-12)
+    assert float(swingup_cost(wrap=True)(up_after_spin)) == pytest.approx(0.0, abs=1e-12)
 
 
 @pytest.mark.parametrize("p", [0.25, 0.125, 0.5])

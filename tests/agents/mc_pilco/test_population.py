@@ -12,9 +12,11 @@ from torch import nn
 from mcpilco.agents.mc_pilco import (
     MCPilcoLoss,
     PolicyPopulation,
+    SaturatingCost,
     SpeedIntegrationDynamics,
     SquashedRBFPolicy,
-    SwingUpCost,
+    StateLayout,
+    TaskSpec,
     make_policy_module,
     run_mcpilco,
 )
@@ -22,6 +24,9 @@ from mcpilco.agents.mc_pilco.checkpoint import load_checkpoint
 from mcpilco.agents.mc_pilco.loop import choose_candidate
 
 f64 = torch.float64
+TASK = TaskSpec.for_env("mcpilco/CartpoleSwingUp-v0")
+LAYOUT = StateLayout.from_task(TASK)
+MU0 = TASK.init_mean
 
 
 class LinearDelta(nn.Module):
@@ -32,7 +37,9 @@ class LinearDelta(nn.Module):
 
 
 def _candidates(k: int) -> list[SquashedRBFPolicy]:
-    return [SquashedRBFPolicy(num_basis=20, weight_scale=0.8, seed=s).to(f64) for s in range(k)]
+    return [
+        SquashedRBFPolicy(LAYOUT, num_basis=20, weight_scale=0.8, seed=s).to(f64) for s in range(k)
+    ]
 
 
 def test_population_rows_use_their_own_candidate():
@@ -48,20 +55,29 @@ def test_population_rows_use_their_own_candidate():
     with pytest.raises(ValueError, match="K = 3"):
         pop(torch.randn(8, 4, dtype=f64))
     with pytest.raises(ValueError, match="same architecture"):
-        PolicyPopulation([SquashedRBFPolicy(num_basis=5), SquashedRBFPolicy(num_basis=6)])
+        PolicyPopulation(
+            [SquashedRBFPolicy(LAYOUT, num_basis=5), SquashedRBFPolicy(LAYOUT, num_basis=6)]
+        )
+    with pytest.raises(ValueError, match="same architecture"):  # other action bounds
+        PolicyPopulation(
+            [
+                SquashedRBFPolicy(LAYOUT, num_basis=5),
+                SquashedRBFPolicy(LAYOUT, (-2.0,), (2.0,), num_basis=5),
+            ]
+        )
 
 
 def test_population_loss_and_gradients_equal_each_candidate_alone():
     K, M, H = 3, 16, 10
     cands = _candidates(K)
-    dyn = SpeedIntegrationDynamics(LinearDelta(), 0.05)
-    cost = SwingUpCost(l_x=1.0, l_theta=3.0, wrap=False)
+    dyn = SpeedIntegrationDynamics(LinearDelta(), 0.05, LAYOUT)
+    cost = SaturatingCost.from_task(TASK, {"x": 1.0, "theta": 3.0}, angle_mode="abs")
     pop = PolicyPopulation(cands).to(f64)
     pop.eval()  # no dropout: deterministic given the noise
     gen = torch.Generator().manual_seed(0)
     x0 = 0.1 * torch.randn(K * M, 4, generator=gen, dtype=f64)
     eps = torch.randn(H, K * M, 2, generator=gen, dtype=f64)
-    loss = MCPilcoLoss(make_policy_module(pop), dyn, cost, H, M)
+    loss = MCPilcoLoss(make_policy_module(pop), dyn, cost, H, M, MU0)
     from tensordict import TensorDict
 
     out = loss(TensorDict({"initial_state": x0, "noise": eps}, []))
@@ -69,7 +85,7 @@ def test_population_loss_and_gradients_equal_each_candidate_alone():
     for k, p in enumerate(cands):
         p.eval()
         rows = slice(k * M, (k + 1) * M)
-        single = MCPilcoLoss(make_policy_module(p), dyn, cost, H, M)
+        single = MCPilcoLoss(make_policy_module(p), dyn, cost, H, M, MU0)
         o = single(TensorDict({"initial_state": x0[rows], "noise": eps[:, rows]}, []))
         torch.testing.assert_close(out["candidate_costs"][k], o["loss_cost"].detach())
         g = torch.autograd.grad(o["loss_cost"], [p.centers, p.weights, p.log_lengthscales])
@@ -80,13 +96,14 @@ def test_population_loss_and_gradients_equal_each_candidate_alone():
 
 def test_choose_candidate_copies_the_lowest_expected_cost():
     K, M, H = 3, 64, 20  # float32, as in the loop
-    cands = [SquashedRBFPolicy(num_basis=20, weight_scale=0.8, seed=s) for s in range(K)]
+    cands = [SquashedRBFPolicy(LAYOUT, num_basis=20, weight_scale=0.8, seed=s) for s in range(K)]
     with torch.no_grad():
         cands[1].weights.zero_()  # u = 0: the pole stays down, the highest cost
-    dyn = SpeedIntegrationDynamics(LinearDelta(), 0.05)
+    dyn = SpeedIntegrationDynamics(LinearDelta(), 0.05, LAYOUT)
     pop = PolicyPopulation(cands)
-    loss = MCPilcoLoss(make_policy_module(pop), dyn, SwingUpCost(wrap=False), H, M)
-    applied = SquashedRBFPolicy(num_basis=20, weight_scale=0.8)
+    cost = SaturatingCost.from_task(TASK, angle_mode="abs")
+    loss = MCPilcoLoss(make_policy_module(pop), dyn, cost, H, M, MU0)
+    applied = SquashedRBFPolicy(LAYOUT, num_basis=20, weight_scale=0.8)
     costs = choose_candidate(loss, pop, applied)
     best = int(costs.argmin())
     assert costs.shape == (K,) and best != 1
@@ -130,7 +147,10 @@ def test_candidates_may_differ_only_in_initial_weight_scale(tmp_path):
         assert float(w[k].abs().max()) <= s and float(w[k].abs().max()) > 0.8 * s
     with pytest.raises(ValueError, match="same architecture"):
         PolicyPopulation(
-            [SquashedRBFPolicy(num_basis=5, dropout=0.1), SquashedRBFPolicy(num_basis=5)]
+            [
+                SquashedRBFPolicy(LAYOUT, num_basis=5, dropout=0.1),
+                SquashedRBFPolicy(LAYOUT, num_basis=5),
+            ]
         )
     with pytest.raises(ValueError, match="candidate_weight_scales"):
         dataclasses.replace(SMOKE, num_candidates=2, candidate_weight_scales=[0.1])
