@@ -25,12 +25,13 @@ from __future__ import annotations
 
 import argparse
 import json
-import sys
 import time
 from collections.abc import Sequence
 from pathlib import Path
 
 import numpy as np
+
+from mcpilco.agents.common.cli import console_main
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -60,14 +61,10 @@ def build_parser() -> argparse.ArgumentParser:
     return p
 
 
+@console_main("mcpilco-diagnose")
 def main(argv: Sequence[str] | None = None) -> int:
-    """Run the loop; returns 0, or 2 on bad input (the message names the problem)."""
-    args = build_parser().parse_args(argv)
-    try:
-        return _run(args)
-    except (ValueError, FileNotFoundError) as err:
-        print(f"mcpilco-diagnose: error: {err}", file=sys.stderr)
-        return 2
+    """Run the loop; returns 0, or 2 on bad input (one line naming the problem)."""
+    return _run(build_parser().parse_args(argv))
 
 
 def _run(args: argparse.Namespace) -> int:

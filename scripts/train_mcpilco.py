@@ -9,6 +9,7 @@ Usage::
 
     mcpilco-train --trials 4 --out runs/seed0
     mcpilco-train --trials 5 --out runs/seed0 --resume     # continue a killed / shorter run
+    mcpilco-train --trials 4 --out runs/seed0 --overwrite  # delete the run in runs/seed0 first
     mcpilco-train --preset demo --out runs/demo            # make demo's budget (12 s)
     mcpilco-train --env mcpilco/DMCCartpoleSwingUp-v0 --kernel rbf --seed 3
     mcpilco-train --preset small --out runs/k2             # 100 particles, 2 policies
@@ -21,6 +22,7 @@ import argparse
 import sys
 from pathlib import Path
 
+from mcpilco.agents.common.cli import console_main
 from mcpilco.agents.mc_pilco import DEFAULT_ENV_ID, PRESETS, MCPilcoConfig
 from mcpilco.agents.mc_pilco.dynamics import KERNEL_CHOICES
 from mcpilco.agents.mc_pilco.loop import ROLLOUT_DTYPES
@@ -85,7 +87,7 @@ def build_parser() -> argparse.ArgumentParser:
         "against the eager step and falls back to the eager step, with a warning, if they "
         "disagree",
     )
-    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--seed", type=_non_negative_int, default=0)
     p.add_argument("--threads", type=_positive_int, help="torch threads (default: torch's)")
     p.add_argument(
         "--device",
@@ -94,6 +96,9 @@ def build_parser() -> argparse.ArgumentParser:
     )
     p.add_argument("--out", type=Path, default=Path("runs/mcpilco"), help="output folder")
     p.add_argument("--resume", action="store_true", help="continue from OUT/checkpoint.pt")
+    p.add_argument(
+        "--overwrite", action="store_true", help="delete the run found in OUT first (else refused)"
+    )
     p.add_argument("--no-progress", action="store_true", help="no tqdm bars")
     p.add_argument("--no-rrd", action="store_true", help="do not write run.rrd")
     return p
@@ -119,6 +124,7 @@ def config_from_args(args: argparse.Namespace) -> MCPilcoConfig:
     )
 
 
+@console_main("mcpilco-train")
 def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
@@ -145,6 +151,7 @@ def main(argv: list[str] | None = None) -> int:
         progress=not args.no_progress,
         log=print,
         write_rrd=not args.no_rrd,
+        overwrite=args.overwrite,
     )
     print(
         f"done in {summary.seconds:.1f} s: success={summary.success}, first success at trial "

@@ -37,6 +37,7 @@ from typing import Any
 import numpy as np
 import torch
 
+from mcpilco.agents.common.run_folder import RUN_OUTPUTS, open_run_folder
 from mcpilco.agents.mc_pilco.checkpoint import (
     CHECKPOINT_VERSION,
     atomic_torch_save,
@@ -536,6 +537,7 @@ def run_mcpilco(
     progress: bool = True,
     log: Callable[[str], None] | None = print,
     write_rrd: bool = True,
+    overwrite: bool = False,
 ) -> RunSummary:
     """Run (or resume) MC-PILCO; writes checkpoint, PNGs, ``run.rrd`` and ``records.json``.
 
@@ -547,10 +549,12 @@ def run_mcpilco(
         progress: tqdm bars on trials and optimisation steps.
         log: called with one line per trial (None: silent).
         write_rrd: write the Rerun recording.
+        overwrite: delete another run found in ``out_dir`` first (else it is refused; the
+            folder is locked and its files listed in ``manifest.json``: :mod:`.run_folder`).
     """
     t_start = time.perf_counter()
     out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
+    run = open_run_folder(out, resume=resume, overwrite=overwrite)
     ckpt_path = out / CHECKPOINT_NAME
     device = resolve_device(config.device)
     if config.compile_rollout:
@@ -745,6 +749,7 @@ def run_mcpilco(
             for old_gp in out.glob("gp_trial*.pt"):
                 if old_gp.name != gp_file:
                     old_gp.unlink(missing_ok=True)
+            run.record(*RUN_OUTPUTS)  # the manifest lists every file written so far
             if log:
                 log(record_line(rec))
             if bar is not None:
@@ -753,6 +758,7 @@ def run_mcpilco(
         if bar is not None:
             bar.close()
         env.close()
+        run.close()
     if not pngs:
         pngs = sorted(out.glob("trial_*_particles.png"))
     opt_png = out / "optimisation.png"
