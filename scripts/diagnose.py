@@ -80,6 +80,7 @@ def _run(args: argparse.Namespace) -> int:
         parse_effect,
         residual_report,
     )
+    from mcpilco.models.diagnosis.data import MIN_FIT_ROWS, MIN_HELDOUT_ROWS, require_rows
 
     t_start = time.perf_counter()
     learned = {k: getattr(args, k) for k in LEARNED_STARTS if getattr(args, k) is not None}
@@ -104,7 +105,14 @@ def _run(args: argparse.Namespace) -> int:
     else:
         train, test = train.split_time(0.7)
         print(f"held out: the last 30% of {train.names[0]}")
+    require_rows(train, MIN_FIT_ROWS, "fitting a diagnosis model")  # before any work
+    require_rows(test, MIN_HELDOUT_ROWS, "confirming effects on held-out data")
+    data_warnings = list(dict.fromkeys(train.warnings + test.warnings))
+    for text in data_warnings:
+        print(f"warning: {text}")
     out = Path(args.out)
+    if out.exists() and not out.is_dir():
+        raise ValueError(f"--out {out} is a file; give a folder")
     out.mkdir(parents=True, exist_ok=True)
     unit = "A" if train.output == "i" else None
 
@@ -225,9 +233,12 @@ def _run(args: argparse.Namespace) -> int:
         "diagnoses": {k: d.to_dict() for k, d in diag_obj.items()},
         "saved": saved,
         "artefacts": artefacts,
+        "data_warnings": data_warnings,
         "seconds": time.perf_counter() - t_start,
     }
     (out / "summary.json").write_text(json.dumps(summary, indent=1, default=float))
+    for text in data_warnings:  # repeated where the report ends
+        print(f"warning: {text}")
     print(f"\nsummary: {out / 'summary.json'} ({summary['seconds']:.1f} s)")
     return 0
 
