@@ -361,6 +361,23 @@ def sampling_warnings(derivative: FloatArray, g: str, of: str, source: str) -> l
     return out
 
 
+def _read_table(path: Path, suffix: str) -> tuple[pd.DataFrame, dict[str, Any]]:
+    """The frame of a CSV or Parquet file and the metadata stored with it."""
+    stored: dict[str, Any] = {}
+    if suffix == ".csv":
+        df = pd.read_csv(path)
+        sidecar = path.with_suffix(path.suffix + ".json")
+        if sidecar.exists():
+            stored = json.loads(sidecar.read_text())
+        return df, stored
+    import pyarrow.parquet as pq
+
+    table = pq.read_table(path)
+    raw = (table.schema.metadata or {}).get(b"mcpilco")
+    stored = json.loads(raw) if raw else {}
+    return table.to_pandas(), stored
+
+
 def load_dataset(path: str | Path, n_joints: int | None = None) -> RobotDataset:
     """Read and validate a CSV (``.csv``) or Parquet (``.parquet``/``.pq``) robot file.
 
@@ -370,22 +387,21 @@ def load_dataset(path: str | Path, n_joints: int | None = None) -> RobotDataset:
     path = Path(path)
     if not path.exists():
         raise FileNotFoundError(f"no dataset at {path}")
+    if not path.is_file():
+        raise ValueError(f"{path} is not a file; give a .csv or .parquet measurement file")
     suffix = path.suffix.lower()
-    stored: dict[str, Any] = {}
-    if suffix in (".parquet", ".pq"):
-        import pyarrow.parquet as pq
-
-        table = pq.read_table(path)
-        raw = (table.schema.metadata or {}).get(b"mcpilco")
-        stored = json.loads(raw) if raw else {}
-        df = table.to_pandas()
-    elif suffix == ".csv":
-        df = pd.read_csv(path)
-        sidecar = path.with_suffix(path.suffix + ".json")
-        if sidecar.exists():
-            stored = json.loads(sidecar.read_text())
-    else:
+    if suffix not in (".parquet", ".pq", ".csv"):
         raise ValueError(f"{path}: unknown file type {suffix!r}; use .csv or .parquet")
+    try:
+        df, stored = _read_table(path, suffix)
+    except (ValueError, OSError, UnicodeDecodeError, ImportError) as err:
+        what = " ".join(str(err).split())[:200] or type(err).__name__
+        raise ValueError(
+            f"{path}: cannot be read as {suffix[1:]} ({what}); check that it is a complete "
+            "measurement file of that type"
+        ) from err
+    if df.shape[0] == 0:
+        raise ValueError(f"{path}: holds no rows; give a file with measurements")
     ds = from_frame(df, n_joints=n_joints, source=str(path))
     ds.metadata = {**stored, **ds.metadata}
     return ds

@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import os
 import pickle
+import re
 import zipfile
 from pathlib import Path
 from typing import Any
@@ -99,13 +100,19 @@ def load_torch_file(path: str | os.PathLike, what: str, remedy: str) -> Any:
         raise ValueError(f"{what} {path} is not a file; {remedy}")
     if path.stat().st_size == 0:
         raise ValueError(f"{what} {path} is empty (0 bytes); {remedy}")
+    if not zipfile.is_zipfile(path):
+        raise ValueError(
+            f"{what} {path} is damaged or truncated (not the zip archive torch.save writes); "
+            f"{remedy}"
+        )
     try:
         payload = torch.load(path, map_location="cpu", weights_only=True)
     except pickle.UnpicklingError as err:
-        first = " ".join(str(err).split())[:200]
+        found = re.search(r"Unsupported global: GLOBAL (\S+)", str(err))
+        which = f" ({found.group(1)})" if found else ""
         raise ValueError(
-            f"{what} {path} holds objects other than tensors and plain data and is not "
-            f"loaded ({first}); {remedy}"
+            f"{what} {path} holds objects other than tensors and plain data{which}, which "
+            f"are not loaded because loading them could run code; {remedy}"
         ) from err
     except (RuntimeError, EOFError, OSError, zipfile.BadZipFile, ValueError, KeyError) as err:
         raise ValueError(
