@@ -101,3 +101,27 @@ def test_resume_of_a_damaged_checkpoint_is_one_line_exit_2(tmp_path, capsys):
     err = capsys.readouterr().err.splitlines()
     assert code == 2 and len(err) == 1
     assert "checkpoint.pt" in err[0] and "--overwrite" in err[0]
+
+
+@pytest.mark.slow
+def test_sigkill_after_a_trial_loses_no_finished_trial(tmp_path):
+    """A real kill: SIGKILL once the exploration trial is reported, then --resume."""
+    import os
+    import signal
+    import subprocess
+    import sys
+
+    cmd = [sys.executable, "-m", "mcpilco.scripts.train_mcpilco", "--out", str(tmp_path)]
+    cmd += ["--trials", "1", "--particles", "10", "--opt-steps", "3", "--max-points", "30"]
+    cmd += ["--threads", "1", "--no-progress", "--no-rrd"]
+    env = {**os.environ, "MUJOCO_GL": "egl"}
+    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, text=True, env=env)
+    line = proc.stdout.readline()
+    while line and not line.startswith("trial 0 "):
+        line = proc.stdout.readline()
+    proc.send_signal(signal.SIGKILL)
+    proc.wait()
+    assert line.startswith("trial 0 ")
+    done = subprocess.run([*cmd, "--resume"], capture_output=True, text=True, env=env)
+    assert done.returncode == 0, done.stderr
+    assert "trials 0..0 done" in done.stdout or "trials 0..1 done" in done.stdout
