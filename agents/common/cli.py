@@ -5,9 +5,9 @@ arguments, files or file system (``ValueError``, ``TypeError``, ``OSError``, ``E
 and their subclasses, e.g. ``FileNotFoundError``, ``json.JSONDecodeError``) are printed as
 ``<prog>: error: <message>`` on one line to stderr and the script returns 2. ``--debug``
 anywhere on the command line (removed before the script parses it) lets them propagate with
-their traceback. ``raise SystemExit("message")`` is reported the same way (one line,
-status 2). ``KeyboardInterrupt`` prints one line and returns 130. Other exceptions are
-bugs and keep their traceback.
+their traceback. ``raise SystemExit("message")`` is printed the same way and becomes
+``SystemExit(2)``, as argparse's errors. ``KeyboardInterrupt`` prints one line and returns
+130. Other exceptions are bugs and keep their traceback.
 """
 
 from __future__ import annotations
@@ -42,7 +42,8 @@ def console_main(prog: str) -> Callable[[MainFunction], Callable[..., int]]:
     """Decorator for the ``main(argv)`` of console script ``prog`` (see the module docstring).
 
     The wrapped function takes ``argv`` (default ``sys.argv[1:]``) and returns the exit
-    status: what ``main`` returned (None counts as 0), 2 on a user error, 130 on Ctrl-C.
+    status: what ``main`` returned (None counts as 0), 2 on a user error, 130 on Ctrl-C
+    (``SystemExit`` with a message becomes ``SystemExit(2)``).
     """
 
     def decorate(main: MainFunction) -> Callable[..., int]:
@@ -65,7 +66,7 @@ def console_main(prog: str) -> Callable[[MainFunction], Callable[..., int]]:
                 if debug or stop.code is None or isinstance(stop.code, int):
                     raise
                 print(f"{prog}: error: {' '.join(str(stop.code).split())}", file=sys.stderr)
-                return 2
+                raise SystemExit(2) from None  # as argparse's parser.error
             except KeyboardInterrupt:
                 if debug:
                     raise

@@ -29,7 +29,12 @@ def _main_raising(err: BaseException):
     ],
 )
 def test_user_errors_are_one_line_and_exit_2(err, capsys):
-    assert _main_raising(err)([]) == 2
+    if isinstance(err, SystemExit):
+        with pytest.raises(SystemExit) as stop:
+            _main_raising(err)([])
+        assert stop.value.code == 2
+    else:
+        assert _main_raising(err)([]) == 2
     lines = capsys.readouterr().err.splitlines()
     assert len(lines) == 1 and lines[0].startswith("prog: error: ")
     if isinstance(err, OSError):
