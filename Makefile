@@ -16,7 +16,7 @@ $(STAMP): pyproject.toml
 	touch $(STAMP)
 
 demo: $(STAMP)
-	MUJOCO_GL=$${MUJOCO_GL:-egl} $(PY) -m mcpilco.scripts.demo
+	MUJOCO_GL=$${MUJOCO_GL:-egl} $(PY) -m mcpilco.scripts.demo --overwrite
 
 test: $(STAMP)
 	$(PY) -m ruff check .

@@ -44,6 +44,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from mcpilco.envs.arm_builder import ArmSpec, build_arm_model
 from mcpilco.envs.arms import scara, ur10
+from mcpilco.envs.display import MUJOCO_OFFSCREEN_MODES, check_render_mode, render_modes
 
 FloatArray = NDArray[np.float64]
 
@@ -216,7 +217,7 @@ class ArmTrackingEnv(gym.Env):
     * v0: initial version.
     """
 
-    metadata = {"render_modes": ["human", "rgb_array", "depth_array"], "render_fps": 125}
+    metadata = {"render_modes": render_modes(*MUJOCO_OFFSCREEN_MODES), "render_fps": 125}
 
     def __init__(
         self,
@@ -246,8 +247,7 @@ class ArmTrackingEnv(gym.Env):
             raise ValueError("n_substeps must be >= 1 and sample_time > 0")
         if not 0.0 < qdd_filter <= 1.0:
             raise ValueError(f"qdd_filter must be in (0, 1], got {qdd_filter}")
-        if render_mode is not None and render_mode not in self.metadata["render_modes"]:
-            raise ValueError(f"render_mode must be one of {self.metadata['render_modes']}")
+        check_render_mode(render_mode, MUJOCO_OFFSCREEN_MODES)
         self.arm = arm
         self.n_joints = n
         self.sample_time = float(sample_time)

@@ -24,6 +24,7 @@ from mcpilco.envs.cartpole_task import (
     validate_action,
     wrap_angle,
 )
+from mcpilco.envs.display import MUJOCO_OFFSCREEN_MODES, check_render_mode, render_modes
 
 __all__ = [
     "CARTPOLE_TASK",
@@ -132,7 +133,7 @@ class CartpoleSwingUpEnv(MujocoEnv, utils.EzPickle):
     * v0: Initial version (MuJoCo 3.x, Gymnasium 1.x).
     """
 
-    metadata = {"render_modes": ["human", "rgb_array", "depth_array"]}
+    metadata = {"render_modes": render_modes(*MUJOCO_OFFSCREEN_MODES)}
 
     def __init__(
         self,
@@ -164,6 +165,7 @@ class CartpoleSwingUpEnv(MujocoEnv, utils.EzPickle):
             raise ValueError(f"reset_noise_scale must be >= 0, got {reset_noise_scale}")
         if int(frame_skip) != frame_skip or frame_skip < 1:
             raise ValueError(f"frame_skip must be a positive integer, got {frame_skip!r}")
+        check_render_mode(kwargs.get("render_mode"), MUJOCO_OFFSCREEN_MODES)
         self._obs_noise_std = float(obs_noise_std)
         self._reset_noise_scale = float(reset_noise_scale)
         self._scorer = SwingUpScorer(l_theta, l_x, episode_steps)
@@ -178,7 +180,7 @@ class CartpoleSwingUpEnv(MujocoEnv, utils.EzPickle):
             **kwargs,
         )
         self.metadata = {
-            "render_modes": ["human", "rgb_array", "depth_array"],
+            "render_modes": render_modes(*MUJOCO_OFFSCREEN_MODES),
             "render_fps": int(np.round(1.0 / self.dt)),
         }
         self.observation_structure = {name: 1 for name in STATE_NAMES}

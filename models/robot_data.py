@@ -33,6 +33,7 @@ from __future__ import annotations
 
 import json
 import re
+import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -65,6 +66,30 @@ OUTPUT_GROUPS: tuple[str, ...] = ("tau", "i")
 
 SAVGOL_WINDOW = 9
 SAVGOL_ORDER = 3
+
+PLAUSIBLE_LIMITS: dict[str, float] = {
+    "t": 1e7,
+    "q": 1e3,
+    "qd": 1e3,
+    "qdd": 1e5,
+    "tau": 1e6,
+    "i": 1e4,
+    "i_cmd": 1e4,
+    "e_q": 1e3,
+    "e_qd": 1e3,
+}
+"""Largest plausible magnitude of each group in the units of :data:`UNITS` (1e3 rad is 160
+turns; 1e6 N m is 100 times a large industrial arm's joint torque); beyond it a value is
+a unit or logging error."""
+UNIT_FACTOR_LIMIT = 3.0
+"""A position and the time integral of its velocity that disagree by more than this factor
+(either way) are in different units (180/pi = 57.3: an angle in degrees)."""
+UNIT_CHECK_CORRELATION = 0.9
+"""Correlation of ``diff(q)`` with the integral of ``qd`` above which their ratio is trusted
+as a unit factor (below it the signals are too noisy or too still to tell)."""
+MIN_SAMPLES_PER_SWING = SAVGOL_WINDOW
+"""Fewest samples between velocity reversals for a computed derivative: fewer and the
+derivative filter's window spans a whole swing and flattens it."""
 
 
 def column_names(n_joints: int, groups: tuple[str, ...] = JOINT_GROUPS) -> list[str]:
@@ -218,6 +243,7 @@ def from_frame(
             f"{source}: row {df.index[row]} has a NaN/inf/non-numeric value in column "
             f"'{used[col]}'; drop or fill that row"
         )
+    check_plausible(values, used, df.index, source)
     t = values[:, 0]
     if t.size < 2:
         raise ValueError(f"{source}: need at least 2 rows, got {t.size}")
@@ -233,19 +259,123 @@ def from_frame(
         if present[g]:
             idx = [used.index(f"{g}{j}") for j in range(1, n + 1)]
             arrays[g] = values[:, idx]
-    computed = []
-    if "qd" not in arrays:
-        arrays["qd"] = differentiate(arrays["q"], t)
-        computed.append("qd")
-    if "qdd" not in arrays:
-        arrays["qdd"] = differentiate(arrays["qd"], t)
-        computed.append("qdd")
+    check_units(arrays, t, source)
+    computed: list[str] = []
+    warned: list[str] = []
+    for g, of in (("qd", "q"), ("qdd", "qd")):
+        if g not in arrays:
+            if t.size < 3:
+                raise ValueError(
+                    f"{source}: {t.size} rows; computing {g} from {of} needs at least 3 "
+                    f"(give {g}1..{g}{n} or more rows)"
+                )
+            arrays[g] = differentiate(arrays[of], t)
+            computed.append(g)
+            warned += sampling_warnings(arrays[g], g, of, source)
     contact = None
     if "contact" in used:
         contact = values[:, used.index("contact")].astype(np.int64)
     extras = {c: df[c].to_numpy() for c in cols if c not in used}
-    metadata = {"source": source, "computed": computed}
+    metadata: dict[str, Any] = {"source": source, "computed": computed}
+    if warned:
+        metadata["warnings"] = warned
+        for text in warned:
+            warnings.warn(text, RuntimeWarning, stacklevel=2)
     return RobotDataset(t=t, contact=contact, extras=extras, metadata=metadata, **arrays)
+
+
+def check_plausible(values: FloatArray, columns: list[str], index: Any, source: str) -> None:
+    """Raise ValueError naming the column, row and value of the first entry beyond
+    :data:`PLAUSIBLE_LIMITS` (``values`` holds ``columns``; ``index`` gives row labels)."""
+    for c, name in enumerate(columns):
+        m = _COL.match(name)
+        limit = PLAUSIBLE_LIMITS.get(m.group(1) if m else name)
+        if limit is None:
+            continue
+        big = np.abs(values[:, c]) > limit
+        if big.any():
+            r = int(np.argmax(big))
+            group = m.group(1) if m else name
+            raise ValueError(
+                f"{source}: column '{name}' holds {values[r, c]:.3g} at row {index[r]}, beyond "
+                f"the plausible +-{limit:g} {UNITS[group]}; check the unit of that column or "
+                "drop the row"
+            )
+
+
+def unit_factor(x: FloatArray, xd: FloatArray, t: FloatArray) -> float | None:
+    """Least-squares factor ``k`` in ``diff(x) = k * integral(xd dt)`` (trapezoid per
+    sample), or None when the two do not correlate well enough to tell
+    (:data:`UNIT_CHECK_CORRELATION`); ``k = 1`` when both are in the same unit."""
+    dx = np.diff(x)
+    integral = 0.5 * (xd[1:] + xd[:-1]) * np.diff(t)
+    norm = float(np.linalg.norm(dx) * np.linalg.norm(integral))
+    if not norm > 0 or not np.isfinite(norm):
+        return None
+    dot = float(dx @ integral)
+    if dot / norm < UNIT_CHECK_CORRELATION:
+        return None
+    return dot / float(integral @ integral)
+
+
+def check_units(arrays: dict[str, FloatArray], t: FloatArray, source: str) -> None:
+    """Raise ValueError when a position and its given velocity (or a velocity and its given
+    acceleration) disagree by more than :data:`UNIT_FACTOR_LIMIT`, e.g. ``q`` in degrees and
+    ``qd`` in rad/s (factor 180/pi)."""
+    for g, of in (("qd", "q"), ("qdd", "qd")):
+        if g not in arrays or of not in arrays or t.size < 3:
+            continue
+        for j in range(arrays[of].shape[1]):
+            k = unit_factor(arrays[of][:, j], arrays[g][:, j], t)
+            if k is None or 1.0 / UNIT_FACTOR_LIMIT <= k <= UNIT_FACTOR_LIMIT:
+                continue
+            deg = 180.0 / np.pi
+            if abs(k / deg - 1.0) < 0.1:
+                hint = f"{of}{j + 1} looks like degrees: convert it to rad (x pi/180)"
+            elif abs(k * deg - 1.0) < 0.1:
+                hint = f"{g}{j + 1} looks like degrees per second: convert it to rad (x pi/180)"
+            else:
+                hint = f"give both in the units of the schema ({UNITS[of]}, {UNITS[g]})"
+            raise ValueError(
+                f"{source}: '{of}{j + 1}' and the time integral of '{g}{j + 1}' disagree by a "
+                f"factor {k:.3g}; {hint}"
+            )
+
+
+def sampling_warnings(derivative: FloatArray, g: str, of: str, source: str) -> list[str]:
+    """Warnings for joints whose computed ``g`` (derivative of ``of``) reverses sign in fewer
+    than :data:`MIN_SAMPLES_PER_SWING` samples on average: sampled too coarsely for it."""
+    out = []
+    for j in range(derivative.shape[1]):
+        d = derivative[:, j]
+        big = np.abs(d) > 0.1 * float(np.max(np.abs(d)) or 1.0)
+        signs = np.sign(d[big])
+        reversals = int(np.count_nonzero(signs[1:] != signs[:-1]))
+        if reversals and d.size / (reversals + 1) < MIN_SAMPLES_PER_SWING:
+            out.append(
+                f"{source}: {g}{j + 1} computed from {of}{j + 1} changes sign every "
+                f"{d.size / (reversals + 1):.1f} samples on average, fewer than the "
+                f"{MIN_SAMPLES_PER_SWING} the derivative needs: sample faster or give "
+                f"{g}{j + 1}; results that use {g} are unreliable"
+            )
+    return out
+
+
+def _read_table(path: Path, suffix: str) -> tuple[pd.DataFrame, dict[str, Any]]:
+    """The frame of a CSV or Parquet file and the metadata stored with it."""
+    stored: dict[str, Any] = {}
+    if suffix == ".csv":
+        df = pd.read_csv(path)
+        sidecar = path.with_suffix(path.suffix + ".json")
+        if sidecar.exists():
+            stored = json.loads(sidecar.read_text())
+        return df, stored
+    import pyarrow.parquet as pq
+
+    table = pq.read_table(path)
+    raw = (table.schema.metadata or {}).get(b"mcpilco")
+    stored = json.loads(raw) if raw else {}
+    return table.to_pandas(), stored
 
 
 def load_dataset(path: str | Path, n_joints: int | None = None) -> RobotDataset:
@@ -257,22 +387,21 @@ def load_dataset(path: str | Path, n_joints: int | None = None) -> RobotDataset:
     path = Path(path)
     if not path.exists():
         raise FileNotFoundError(f"no dataset at {path}")
+    if not path.is_file():
+        raise ValueError(f"{path} is not a file; give a .csv or .parquet measurement file")
     suffix = path.suffix.lower()
-    stored: dict[str, Any] = {}
-    if suffix in (".parquet", ".pq"):
-        import pyarrow.parquet as pq
-
-        table = pq.read_table(path)
-        raw = (table.schema.metadata or {}).get(b"mcpilco")
-        stored = json.loads(raw) if raw else {}
-        df = table.to_pandas()
-    elif suffix == ".csv":
-        df = pd.read_csv(path)
-        sidecar = path.with_suffix(path.suffix + ".json")
-        if sidecar.exists():
-            stored = json.loads(sidecar.read_text())
-    else:
+    if suffix not in (".parquet", ".pq", ".csv"):
         raise ValueError(f"{path}: unknown file type {suffix!r}; use .csv or .parquet")
+    try:
+        df, stored = _read_table(path, suffix)
+    except (ValueError, OSError, UnicodeDecodeError, ImportError) as err:
+        what = " ".join(str(err).split())[:200] or type(err).__name__
+        raise ValueError(
+            f"{path}: cannot be read as {suffix[1:]} ({what}); check that it is a complete "
+            "measurement file of that type"
+        ) from err
+    if df.shape[0] == 0:
+        raise ValueError(f"{path}: holds no rows; give a file with measurements")
     ds = from_frame(df, n_joints=n_joints, source=str(path))
     ds.metadata = {**stored, **ds.metadata}
     return ds

@@ -73,6 +73,7 @@ import numpy as np
 import torch
 from tqdm.auto import tqdm
 
+from mcpilco.agents.common.cli import console_main
 from mcpilco.envs.arm_builder import dh_forward_kinematics
 from mcpilco.envs.arm_data import (
     PiecewiseTrajectory,
@@ -776,6 +777,7 @@ def _list(value: str, kind: type = str) -> list:
     return [kind(v) for v in value.split(",") if v.strip()]
 
 
+@console_main("mcpilco-bench-collision")
 def main(argv: Sequence[str] | None = None) -> int:
     """Run the benchmark; write JSON, PNGs and Markdown; print the Markdown. Returns 0."""
     args = build_parser().parse_args(argv)

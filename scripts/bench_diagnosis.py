@@ -31,6 +31,8 @@ from typing import Any
 
 import numpy as np
 
+from mcpilco.agents.common.cli import console_main
+
 
 def _affected_joints(effect: dict[str, Any]) -> list[int]:
     """0-based joints an injected effect changes by at least one noise std."""
@@ -168,6 +170,7 @@ def summarise(records: list[dict[str, Any]]) -> dict[str, Any]:
     }
 
 
+@console_main("mcpilco-bench-diagnosis")
 def main(argv: Sequence[str] | None = None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     p.add_argument("--cases", type=int, default=30)

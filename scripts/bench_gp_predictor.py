@@ -40,6 +40,7 @@ from pathlib import Path
 import gpytorch
 import torch
 
+from mcpilco.agents.common.cli import console_main
 from mcpilco.models.device import resolve_device, retain_host_memory
 from mcpilco.models.gp import GPRegressor, exact_gp_settings
 from mcpilco.models.gp.dense import dense_covar
@@ -242,6 +243,7 @@ def markdown_table(result: dict) -> str:
     return "\n".join(lines)
 
 
+@console_main("mcpilco-bench-gp")
 def main(argv: list[str] | None = None) -> int:
     """Command-line entry point (``mcpilco-bench-gp``)."""
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])

@@ -67,6 +67,7 @@ import numpy as np
 import torch
 from tqdm.auto import tqdm
 
+from mcpilco.agents.common.cli import console_main
 from mcpilco.envs.arm_builder import ArmSpec, LinkInertia, arm_to_xml, solid_cylinder_inertia
 from mcpilco.envs.arm_data import collect, inverse_dynamics_samples, make_arm_env
 from mcpilco.envs.arm_env import SumOfSinusoids
@@ -708,6 +709,7 @@ def _list(value: str, kind: type = str) -> list:
     return [kind(v) for v in value.split(",") if v.strip()]
 
 
+@console_main("mcpilco-bench-inverse-dynamics")
 def main(argv: Sequence[str] | None = None) -> int:
     """Run the selected parts, write JSON, PNGs and Markdown; print the Markdown. Returns 0."""
     args = build_parser().parse_args(argv)

@@ -97,6 +97,7 @@ import numpy as np
 import torch
 from tqdm.auto import tqdm
 
+from mcpilco.agents.common.cli import console_main
 from mcpilco.envs.marker_camera import NOISE_DEFAULTS, MarkerCameraEnv
 from mcpilco.models.gp import GPRegressor
 from mcpilco.models.kinematics import (
@@ -1407,6 +1408,7 @@ def _parser() -> argparse.ArgumentParser:
     return p
 
 
+@console_main("mcpilco-bench-kinematics")
 def main(argv: list[str] | None = None) -> int:
     """Command-line entry point; returns 0."""
     parser = _parser()

@@ -36,6 +36,8 @@ from typing import Any
 
 import matplotlib
 
+from mcpilco.agents.common.cli import console_main
+
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
@@ -303,6 +305,7 @@ def _parser() -> argparse.ArgumentParser:
     return p
 
 
+@console_main("mcpilco-bench-markers")
 def main(argv: list[str] | None = None) -> int:
     """Command-line entry point; returns 0."""
     args = _parser().parse_args(argv)

@@ -55,6 +55,7 @@ from typing import Any
 
 import numpy as np
 
+from mcpilco.agents.common.cli import console_main
 from mcpilco.agents.mc_pilco import DEFAULT_ENV_ID, MCPilcoConfig, TaskSpec, load_config
 from mcpilco.agents.mc_pilco.dynamics import KERNEL_CHOICES
 from mcpilco.agents.mc_pilco.loop import ROLLOUT_DTYPES
@@ -972,6 +973,7 @@ def build_parser() -> argparse.ArgumentParser:
     return p
 
 
+@console_main("mcpilco-bench-mcpilco")
 def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)

@@ -74,6 +74,8 @@ from typing import Any
 
 import numpy as np
 
+from mcpilco.agents.common.cli import console_main
+
 # one config per experiment: every default of the benchmark lives here
 EXP1 = {
     "memory": 6,
@@ -704,6 +706,7 @@ def _parser() -> argparse.ArgumentParser:
     return p
 
 
+@console_main("mcpilco-bench-volterra")
 def main(argv: list[str] | None = None) -> int:
     """Command-line entry point (``mcpilco-bench-volterra``)."""
     args = _parser().parse_args(argv)

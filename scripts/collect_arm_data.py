@@ -15,6 +15,7 @@ from __future__ import annotations
 import argparse
 from collections.abc import Sequence
 
+from mcpilco.agents.common.cli import console_main
 from mcpilco.envs.arm_data import PROGRAMS, collect
 from mcpilco.models.robot_data import save_dataset
 
@@ -32,6 +33,7 @@ def build_parser() -> argparse.ArgumentParser:
     return p
 
 
+@console_main("mcpilco-collect-arm-data")
 def main(argv: Sequence[str] | None = None) -> int:
     """Parse ``argv``, collect, save; print the file and its size. Returns 0."""
     args = build_parser().parse_args(argv)

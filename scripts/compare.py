@@ -58,6 +58,7 @@ from mcpilco.agents.baselines.common import (
     trial_records_to_points,
 )
 from mcpilco.agents.baselines.pilco import OPTIMIZERS
+from mcpilco.agents.common.cli import console_main
 from mcpilco.agents.mc_pilco.loop import DEFAULT_ENV_ID, load_config
 from mcpilco.agents.mc_pilco.task import TaskSpec
 from mcpilco.models.device import retain_host_memory
@@ -684,6 +685,7 @@ def build_parser() -> argparse.ArgumentParser:
     return p
 
 
+@console_main("mcpilco-compare")
 def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)

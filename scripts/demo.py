@@ -14,8 +14,8 @@ compiler the demo says so and runs eagerly.
 
 Usage::
 
-    python -m mcpilco.scripts.demo [--out runs/demo] [--seed 0] [--resume] [--eager]
-                                   [--device cuda]
+    python -m mcpilco.scripts.demo [--out runs/demo] [--seed 0] [--resume | --overwrite]
+                                   [--eager] [--device cuda]
 
 With ``--device cuda`` the policy optimisation runs on a GPU, each step one replayed CUDA
 graph (on an H100: 70 s for seed 0; 2.8 min with the native rollout on 2 CPU cores).
@@ -30,6 +30,7 @@ from pathlib import Path
 
 import torch
 
+from mcpilco.agents.common.cli import console_main
 from mcpilco.agents.mc_pilco import DEFAULT_ENV_ID, load_config, run_mcpilco
 from mcpilco.agents.mc_pilco.loop import check_compile_toolchain
 from mcpilco.models.device import resolve_device, retain_host_memory
@@ -44,6 +45,9 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--seed", type=int, default=0, help="random seed")
     parser.add_argument(
         "--resume", action="store_true", help="continue a killed demo from its checkpoint"
+    )
+    parser.add_argument(
+        "--overwrite", action="store_true", help="delete the run found in --out first"
     )
     parser.add_argument(
         "--eager",
@@ -86,6 +90,7 @@ def rollout_mode(records: Sequence[dict]) -> str:
     return f"compiled ({how}) in {len(compiled)} of {len(policy)} policy trials"
 
 
+@console_main("mcpilco-demo")
 def main(argv: Sequence[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
@@ -102,7 +107,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     config = config.with_overrides(compile_rollout=compile_rollout)
     retain_host_memory()  # no page faults on the rollout's freed blocks
     start = time.perf_counter()
-    summary = run_mcpilco(config, args.out, resume=args.resume)
+    summary = run_mcpilco(config, args.out, resume=args.resume, overwrite=args.overwrite)
     minutes = (time.perf_counter() - start) / 60.0
     first = summary.first_success_trial
     print()

@@ -41,6 +41,7 @@ from typing import Any
 
 import numpy as np
 
+from mcpilco.agents.common.cli import console_main
 from mcpilco.models.collision import (
     CollisionDetector,
     as_collision_inputs,
@@ -258,6 +259,7 @@ def run(argv: Sequence[str] | None = None) -> dict[str, Any]:
     return summary
 
 
+@console_main("mcpilco-detect-collisions")
 def main(argv: Sequence[str] | None = None) -> int:
     """CLI entry point: 0 on success, 2 on a bad file or option (message on stderr)."""
     try:

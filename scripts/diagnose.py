@@ -25,12 +25,13 @@ from __future__ import annotations
 
 import argparse
 import json
-import sys
 import time
 from collections.abc import Sequence
 from pathlib import Path
 
 import numpy as np
+
+from mcpilco.agents.common.cli import console_main
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -60,14 +61,10 @@ def build_parser() -> argparse.ArgumentParser:
     return p
 
 
+@console_main("mcpilco-diagnose")
 def main(argv: Sequence[str] | None = None) -> int:
-    """Run the loop; returns 0, or 2 on bad input (the message names the problem)."""
-    args = build_parser().parse_args(argv)
-    try:
-        return _run(args)
-    except (ValueError, FileNotFoundError) as err:
-        print(f"mcpilco-diagnose: error: {err}", file=sys.stderr)
-        return 2
+    """Run the loop; returns 0, or 2 on bad input (one line naming the problem)."""
+    return _run(build_parser().parse_args(argv))
 
 
 def _run(args: argparse.Namespace) -> int:
@@ -83,6 +80,7 @@ def _run(args: argparse.Namespace) -> int:
         parse_effect,
         residual_report,
     )
+    from mcpilco.models.diagnosis.data import MIN_FIT_ROWS, MIN_HELDOUT_ROWS, require_rows
 
     t_start = time.perf_counter()
     learned = {k: getattr(args, k) for k in LEARNED_STARTS if getattr(args, k) is not None}
@@ -107,7 +105,14 @@ def _run(args: argparse.Namespace) -> int:
     else:
         train, test = train.split_time(0.7)
         print(f"held out: the last 30% of {train.names[0]}")
+    require_rows(train, MIN_FIT_ROWS, "fitting a diagnosis model")  # before any work
+    require_rows(test, MIN_HELDOUT_ROWS, "confirming effects on held-out data")
+    data_warnings = list(dict.fromkeys(train.warnings + test.warnings))
+    for text in data_warnings:
+        print(f"warning: {text}")
     out = Path(args.out)
+    if out.exists() and not out.is_dir():
+        raise ValueError(f"--out {out} is a file; give a folder")
     out.mkdir(parents=True, exist_ok=True)
     unit = "A" if train.output == "i" else None
 
@@ -228,9 +233,12 @@ def _run(args: argparse.Namespace) -> int:
         "diagnoses": {k: d.to_dict() for k, d in diag_obj.items()},
         "saved": saved,
         "artefacts": artefacts,
+        "data_warnings": data_warnings,
         "seconds": time.perf_counter() - t_start,
     }
     (out / "summary.json").write_text(json.dumps(summary, indent=1, default=float))
+    for text in data_warnings:  # repeated where the report ends
+        print(f"warning: {text}")
     print(f"\nsummary: {out / 'summary.json'} ({summary['seconds']:.1f} s)")
     return 0
 

@@ -10,6 +10,7 @@ Usage::
 
     mcpilco-train --trials 4 --out runs/seed0
     mcpilco-train --trials 5 --out runs/seed0 --resume     # continue a killed / shorter run
+    mcpilco-train --trials 4 --out runs/seed0 --overwrite  # delete the run in runs/seed0 first
     mcpilco-train --preset demo --out runs/demo            # make demo's budget (12 s)
     mcpilco-train --env mcpilco/DMCCartpoleSwingUp-v0 --kernel rbf --seed 3
     mcpilco-train --env InvertedPendulum-v5 --set num_particles=100 --set opt.max_steps=300
@@ -22,6 +23,7 @@ import argparse
 import sys
 from pathlib import Path
 
+from mcpilco.agents.common.cli import console_main
 from mcpilco.agents.mc_pilco import DEFAULT_ENV_ID, MCPilcoConfig, load_config, parse_set
 from mcpilco.agents.mc_pilco.dynamics import KERNEL_CHOICES
 from mcpilco.agents.mc_pilco.loop import ROLLOUT_DTYPES
@@ -96,7 +98,7 @@ def build_parser() -> argparse.ArgumentParser:
         "against the eager step and falls back to the eager step, with a warning, if they "
         "disagree",
     )
-    p.add_argument("--seed", type=int)
+    p.add_argument("--seed", type=_non_negative_int)
     p.add_argument("--threads", type=_positive_int, help="torch threads (default: torch's)")
     p.add_argument(
         "--device",
@@ -105,6 +107,9 @@ def build_parser() -> argparse.ArgumentParser:
     )
     p.add_argument("--out", type=Path, default=Path("runs/mcpilco"), help="output folder")
     p.add_argument("--resume", action="store_true", help="continue from OUT/checkpoint.pt")
+    p.add_argument(
+        "--overwrite", action="store_true", help="delete the run found in OUT first (else refused)"
+    )
     p.add_argument("--no-progress", action="store_true", help="no tqdm bars")
     p.add_argument("--no-rrd", action="store_true", help="do not write run.rrd")
     return p
@@ -139,6 +144,7 @@ def config_from_args(args: argparse.Namespace) -> MCPilcoConfig:
     )
 
 
+@console_main("mcpilco-train")
 def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
@@ -166,6 +172,7 @@ def main(argv: list[str] | None = None) -> int:
         progress=not args.no_progress,
         log=print,
         write_rrd=not args.no_rrd,
+        overwrite=args.overwrite,
     )
     print(
         f"done in {summary.seconds:.1f} s: success={summary.success}, first success at trial "

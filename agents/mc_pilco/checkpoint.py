@@ -1,8 +1,14 @@
-"""Atomic checkpoints of an MC-PILCO run (one file per run, replaced after every trial).
+"""Atomic, safe checkpoints of an MC-PILCO run (one file per run, replaced after every trial).
 
 A checkpoint is written to ``<path>.tmp`` and moved over ``<path>`` with ``os.replace``,
 which is atomic on POSIX: a run killed while writing leaves the previous checkpoint intact,
-so ``--resume`` never loses a finished trial.
+so ``--resume`` never loses a finished trial; a run killed while writing its first one
+leaves no checkpoint, and ``--resume`` says that no trial finished.
+
+Checkpoints hold only tensors and plain data (numpy arrays as tagged tensors, the numpy
+generator's state as integers) and are read with ``torch.load(weights_only=True)``
+(:mod:`mcpilco.models.torch_files`): loading a checkpoint from someone else cannot run code.
+A missing, empty, truncated or damaged file is reported naming the file and what to do.
 """
 
 from __future__ import annotations
@@ -15,18 +21,19 @@ from typing import Any
 import numpy as np
 import torch
 
-CHECKPOINT_VERSION = 2
+from mcpilco.models.torch_files import atomic_torch_save, load_torch_file
 
+__all__ = [
+    "CHECKPOINT_VERSION",
+    "atomic_torch_save",
+    "load_checkpoint",
+    "rng_state",
+    "set_rng_state",
+]
 
-def atomic_torch_save(obj: Any, path: str | os.PathLike) -> None:
-    """``torch.save(obj, path)`` through a temporary file and ``os.replace``."""
-    path = Path(path)
-    tmp = path.with_name(path.name + ".tmp")
-    with open(tmp, "wb") as fh:
-        torch.save(obj, fh)
-        fh.flush()
-        os.fsync(fh.fileno())
-    os.replace(tmp, path)
+CHECKPOINT_VERSION = 3
+"""Format of the checkpoint dict (3: tensors and plain data only, numpy arrays tagged)."""
+_REQUIRED_KEYS = ("version", "config", "next_trial")  # keys every checkpoint holds
 
 
 def rng_state(np_rng: np.random.Generator) -> dict[str, Any]:
@@ -54,15 +61,35 @@ def set_rng_state(state: dict[str, Any], np_rng: np.random.Generator) -> None:
 
 
 def load_checkpoint(path: str | os.PathLike) -> dict[str, Any]:
-    """Load a checkpoint written by the MC-PILCO loop; checks the format version."""
+    """Load a checkpoint written by an MC-PILCO or PILCO loop (``weights_only=True``);
+    checks the format version.
+
+    Raises:
+        FileNotFoundError: no checkpoint at ``path`` (no trial of the run finished).
+        ValueError: the file is empty, truncated, damaged, unsafe or of another version
+            (the message names the file and what to do).
+    """
     path = Path(path)
-    if not path.is_file():
+    remedy = (
+        "start the run again with --overwrite (or restore the file from a backup); "
+        "its finished trials cannot be resumed from this file"
+    )
+    if not path.exists():
+        partial = path.with_name(path.name + ".tmp").exists()
         raise FileNotFoundError(
-            f"no checkpoint at {path}; run without --resume first (or pass the run's --out)"
+            f"no checkpoint at {path}: no trial of a run in {path.parent} finished"
+            + (" (the run was stopped while writing its first checkpoint)" if partial else "")
+            + "; start the run without --resume (with --overwrite if the folder holds files "
+            "of the stopped run), or pass the --out of the run to resume"
         )
-    ckpt = torch.load(path, map_location="cpu", weights_only=False)
+    ckpt = load_torch_file(path, "checkpoint", remedy)
+    if not isinstance(ckpt, dict) or any(k not in ckpt for k in _REQUIRED_KEYS):
+        raise ValueError(
+            f"checkpoint {path} is not a run checkpoint (no {_REQUIRED_KEYS}); {remedy}"
+        )
     if ckpt.get("version") != CHECKPOINT_VERSION:
         raise ValueError(
-            f"checkpoint {path} has version {ckpt.get('version')}, expected {CHECKPOINT_VERSION}"
+            f"checkpoint {path} has format version {ckpt.get('version')}, this version reads "
+            f"{CHECKPOINT_VERSION}; {remedy}"
         )
     return ckpt

@@ -41,6 +41,7 @@ from typing import Any
 import numpy as np
 import torch
 
+from mcpilco.agents.common.run_folder import RUN_OUTPUTS, open_run_folder
 from mcpilco.agents.mc_pilco.checkpoint import (
     CHECKPOINT_VERSION,
     atomic_torch_save,
@@ -591,6 +592,7 @@ def run_mcpilco(
     log: Callable[[str], None] | None = print,
     write_rrd: bool = True,
     task: TaskSpec | None = None,
+    overwrite: bool = False,
 ) -> RunSummary:
     """Run (or resume) MC-PILCO; writes checkpoint, PNGs, ``run.rrd`` and ``records.json``.
 
@@ -604,78 +606,91 @@ def run_mcpilco(
         progress: tqdm bars on trials and optimisation steps.
         log: called with one line per trial (None: silent).
         write_rrd: write the Rerun recording.
+        overwrite: delete another run found in ``out_dir`` first (else it is refused; the
+            folder is locked and its files listed in ``manifest.json``: :mod:`.run_folder`).
     """
     t_start = time.perf_counter()
     out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
-    ckpt_path = out / CHECKPOINT_NAME
-    device = resolve_device(config.device)
-    if config.compile_rollout:
-        check_compile_toolchain(device)
-    if config.torch_threads is not None:
-        torch.set_num_threads(int(config.torch_threads))
-    if task is None:
-        task = config.task_spec()
-    elif config.horizon is not None and config.horizon != task.horizon:
-        task = task.replace(horizon=int(config.horizon))
-    horizon = task.horizon
-    env = make_env(config.env_id, horizon, task)
-    dt = task.dt
-    layout = StateLayout.from_task(task)
+    run = open_run_folder(out, resume=resume, overwrite=overwrite)
+    env = None
+    try:  # the setup; the folder is released if it fails
+        ckpt_path = out / CHECKPOINT_NAME
+        device = resolve_device(config.device)
+        if config.compile_rollout:
+            check_compile_toolchain(device)
+        if config.torch_threads is not None:
+            torch.set_num_threads(int(config.torch_threads))
+        if task is None:
+            task = config.task_spec()
+        elif config.horizon is not None and config.horizon != task.horizon:
+            task = task.replace(horizon=int(config.horizon))
+        horizon = task.horizon
+        env = make_env(config.env_id, horizon, task)
+        dt = task.dt
+        layout = StateLayout.from_task(task)
 
-    torch.manual_seed(config.seed)
-    np_rng = np.random.default_rng(config.seed)
-    scales = config.candidate_weight_scales or [config.policy_weight_scale] * config.num_candidates
-    candidates = [
-        SquashedRBFPolicy(
-            layout,
-            task.action_low,
-            task.action_high,
-            num_basis=config.num_basis,
-            centers_box=config.policy_centers_box,
-            weight_scale=scale,
-            seed=config.seed + CANDIDATE_SEED_STRIDE * k,
+        torch.manual_seed(config.seed)
+        np_rng = np.random.default_rng(config.seed)
+        scales = (
+            config.candidate_weight_scales or [config.policy_weight_scale] * config.num_candidates
         )
-        for k, scale in enumerate(scales)
-    ]
-    policy = candidates[0].to(device)  # the policy applied to the system (the chosen one)
-    population = PolicyPopulation(candidates).to(device)
-    policy_module = make_policy_module(population)
-    model = GPDynamicsModel(
-        task,
-        kernel=config.kernel,
-        max_points=config.max_points,
-        adam_iters=config.gp_adam_iters,
-        lbfgs_iters=config.gp_lbfgs_iters,
-    )
-    episodes: list[dict[str, Any]] = []
-    records: list[dict[str, Any]] = []
-    arrays: list[dict[str, Any]] = []
-    opt_state = None
-    start_trial = 0
-    resumed_from = None
-    if resume:
-        ckpt = load_checkpoint(ckpt_path)
-        check_resume(ckpt["config"], config, _RESUME_FIXED)
-        episodes = ckpt["episodes"]
-        records = ckpt["records"]
-        arrays = ckpt["arrays"]
-        policy.load_state_dict(ckpt["policy"])
-        population.load_state_dict(ckpt["population"])
-        opt_state = ckpt["optimizer"]
-        if ckpt["gp_file"] is not None:
-            model.load(out / ckpt["gp_file"])
-        set_rng_state(ckpt["rng"], np_rng)
-        start_trial = int(ckpt["next_trial"])
-        resumed_from = start_trial
-        if log:
-            log(f"resumed {ckpt_path}: trials 0..{start_trial - 1} done")
+        candidates = [
+            SquashedRBFPolicy(
+                layout,
+                task.action_low,
+                task.action_high,
+                num_basis=config.num_basis,
+                centers_box=config.policy_centers_box,
+                weight_scale=scale,
+                seed=config.seed + CANDIDATE_SEED_STRIDE * k,
+            )
+            for k, scale in enumerate(scales)
+        ]
+        policy = candidates[0].to(device)  # the policy applied to the system (the chosen one)
+        population = PolicyPopulation(candidates).to(device)
+        policy_module = make_policy_module(population)
+        model = GPDynamicsModel(
+            task,
+            kernel=config.kernel,
+            max_points=config.max_points,
+            adam_iters=config.gp_adam_iters,
+            lbfgs_iters=config.gp_lbfgs_iters,
+        )
+        episodes: list[dict[str, Any]] = []
+        records: list[dict[str, Any]] = []
+        arrays: list[dict[str, Any]] = []
+        opt_state = None
+        start_trial = 0
+        resumed_from = None
+        if resume:
+            ckpt = load_checkpoint(ckpt_path)
+            check_resume(ckpt["config"], config, _RESUME_FIXED)
+            episodes = ckpt["episodes"]
+            records = ckpt["records"]
+            arrays = ckpt["arrays"]
+            policy.load_state_dict(ckpt["policy"])
+            population.load_state_dict(ckpt["population"])
+            opt_state = ckpt["optimizer"]
+            if ckpt["gp_file"] is not None:
+                model.load(out / ckpt["gp_file"])
+            set_rng_state(ckpt["rng"], np_rng)
+            start_trial = int(ckpt["next_trial"])
+            resumed_from = start_trial
+            if log:
+                log(f"resumed {ckpt_path}: trials 0..{start_trial - 1} done")
 
-    if task.cost_fn is not None:
-        cost_fn = task.cost_fn if isinstance(task.cost_fn, torch.nn.Module) else _CostFn(task)
-    else:
-        cost_fn = SaturatingCost.from_task(task, config.cost_length_scales, config.cost_angle_mode)
-    init_std = task.init_std if config.init_std is None else config.init_std
+        if task.cost_fn is not None:
+            cost_fn = task.cost_fn if isinstance(task.cost_fn, torch.nn.Module) else _CostFn(task)
+        else:
+            cost_fn = SaturatingCost.from_task(
+                task, config.cost_length_scales, config.cost_angle_mode
+            )
+        init_std = task.init_std if config.init_std is None else config.init_std
+    except BaseException:
+        if env is not None:
+            env.close()
+        run.close()
+        raise
     total = config.num_trials + 1
     bar = None
     if progress:
@@ -821,6 +836,7 @@ def run_mcpilco(
             for old_gp in out.glob("gp_trial*.pt"):
                 if old_gp.name != gp_file:
                     old_gp.unlink(missing_ok=True)
+            run.record(*RUN_OUTPUTS)  # the manifest lists every file written so far
             if log:
                 log(record_line(rec))
             if bar is not None:
@@ -829,6 +845,7 @@ def run_mcpilco(
         if bar is not None:
             bar.close()
         env.close()
+        run.close()
     if not pngs:
         pngs = sorted(out.glob("trial_*_particles.png"))
     opt_png = out / "optimisation.png"

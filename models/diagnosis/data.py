@@ -28,7 +28,21 @@ from mcpilco.models.robot_data import RobotDataset, load_dataset
 
 FloatArray = NDArray[np.float64]
 
-__all__ = ["Trajectories", "as_trajectories", "load_trajectories"]
+__all__ = [
+    "MIN_FIT_ROWS",
+    "MIN_HELDOUT_ROWS",
+    "Trajectories",
+    "as_trajectories",
+    "load_trajectories",
+    "require_rows",
+]
+
+MIN_FIT_ROWS = 100
+"""Fewest training rows a diagnosis model is fitted on: the start model, the noise level
+and up to a dozen effect parameters per joint are estimated from them."""
+MIN_HELDOUT_ROWS = 50
+"""Fewest held-out rows an effect is confirmed or rejected on (the held-out RMSE change
+must stand out from its sampling noise)."""
 
 
 @dataclass
@@ -48,6 +62,7 @@ class Trajectories:
     segment: NDArray[np.int64]
     output: str = "tau"
     names: list[str] = field(default_factory=list)
+    warnings: list[str] = field(default_factory=list)
 
     @property
     def n_joints(self) -> int:
@@ -89,6 +104,7 @@ class Trajectories:
             segment=np.array([remap[s] for s in seg.tolist()], dtype=np.int64),
             output=self.output,
             names=[self.names[s] for s in sorted(remap)],
+            warnings=list(self.warnings),
         )
 
     def split_time(self, fraction: float) -> tuple[Trajectories, Trajectories]:
@@ -111,6 +127,7 @@ class Trajectories:
             segment=self.segment[keep],
             output=self.output,
             names=list(self.names),
+            warnings=list(self.warnings),
         )
 
     def shift_index(self, rows: NDArray[np.int64], k: int) -> NDArray[np.int64]:
@@ -184,9 +201,21 @@ def as_trajectories(
         **{k: np.concatenate(v) for k, v in parts.items()},
         output=output,
         names=[str(ds.metadata.get("source", "<arrays>")) for ds in datasets],
+        warnings=[w for ds in datasets for w in ds.metadata.get("warnings", [])],
     )
 
 
 def load_trajectories(paths: Sequence[str | Path], n_joints: int | None = None) -> Trajectories:
     """Load and validate measurement files (CSV/Parquet, schema of ``models.robot_data``)."""
     return as_trajectories([load_dataset(p, n_joints=n_joints) for p in paths], n_joints)
+
+
+def require_rows(traj: Trajectories, needed: int, what: str) -> None:
+    """Raise ValueError when ``traj`` has fewer than ``needed`` rows for ``what`` (e.g.
+    ``"the fit"``); the message gives both numbers and the files."""
+    if traj.n_samples < needed:
+        files = ", ".join(traj.names) or "<arrays>"
+        raise ValueError(
+            f"{what} needs at least {needed} rows, got {traj.n_samples} ({files}); give longer "
+            "or more measurement files"
+        )

@@ -40,7 +40,12 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from mcpilco.models.diagnosis.data import Trajectories, as_trajectories
+from mcpilco.models.diagnosis.data import (
+    MIN_FIT_ROWS,
+    Trajectories,
+    as_trajectories,
+    require_rows,
+)
 from mcpilco.models.diagnosis.effects import Delay, Effect, FeatureContext, effect_from_spec
 from mcpilco.models.diagnosis.start_models import (
     LEARNED_STARTS,
@@ -262,6 +267,7 @@ class DiagnosisModel:
             ValueError: joint count of the data differs from the model's (both named).
         """
         traj = as_trajectories(train, self.n_joints)
+        require_rows(traj, MIN_FIT_ROWS, "fitting a diagnosis model")
         if self.start.robot is not None:
             self.start.robot.check(traj.n_joints)
         self.train_ = traj

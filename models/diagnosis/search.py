@@ -42,7 +42,12 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.special import logsumexp
 
-from mcpilco.models.diagnosis.data import Trajectories, as_trajectories
+from mcpilco.models.diagnosis.data import (
+    MIN_HELDOUT_ROWS,
+    Trajectories,
+    as_trajectories,
+    require_rows,
+)
 from mcpilco.models.diagnosis.effects import Effect, ParamEstimate, default_library
 from mcpilco.models.diagnosis.model import DiagnosisModel
 from mcpilco.models.gp.linear_gp import single_thread
@@ -383,6 +388,7 @@ def diagnose(
         a :class:`Diagnosis` (``.table()``, ``.verdict()``, ``.best``).
     """
     held = as_trajectories(heldout, model.n_joints)
+    require_rows(held, MIN_HELDOUT_ROWS, "confirming effects on held-out data")
     cands = score_candidates(model, library, progress=progress)
     _group(cands[:12], group_correlation)
     base_rmse = None

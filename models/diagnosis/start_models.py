@@ -53,8 +53,33 @@ def read_robot_text(source: str | Path) -> str:
         path = Path(source)
         if not path.exists():
             raise ValueError(f"no robot description at {path}; give an MJCF (.xml) or URDF file")
-        return path.read_text()
+        if not path.is_file():
+            raise ValueError(f"robot description {path} is not a file; give an MJCF or URDF file")
+        try:
+            text = path.read_text()
+        except UnicodeDecodeError as err:
+            raise ValueError(f"robot description {path} is not text ({err})") from err
+        check_robot_text(text, str(path))
+        return text
+    check_robot_text(str(source), "the robot description text")
     return str(source)
+
+
+def check_robot_text(text: str, source: str) -> None:
+    """Raise ValueError naming ``source`` when ``text`` is empty, not well-formed XML, or
+    neither MJCF (``<mujoco>``) nor URDF (``<robot>``)."""
+    import xml.etree.ElementTree as ET
+
+    if not text.strip():
+        raise ValueError(f"{source} is empty; give an MJCF (.xml) or URDF robot description")
+    try:
+        root = ET.fromstring(text)
+    except ET.ParseError as err:
+        raise ValueError(f"{source} is not well-formed XML ({err}); fix or replace it") from err
+    if root.tag not in ("mujoco", "robot"):
+        raise ValueError(
+            f"{source} is neither MJCF (<mujoco>) nor URDF (<robot>): its root is <{root.tag}>"
+        )
 
 
 def _joint_types(model: Any) -> str:

@@ -41,8 +41,10 @@ from mcpilco.models.gp.subset import greedy_subset
 from mcpilco.models.gp.validation import (
     as_tensor_2d,
     check_finite_columns,
+    check_magnitude_columns,
     check_targets_vary,
 )
+from mcpilco.models.torch_files import atomic_torch_save, load_torch_file
 
 __all__ = ["BatchIndependentExactGP", "GPRegressor", "KernelFactory", "exact_gp_settings"]
 
@@ -200,6 +202,7 @@ class GPRegressor:
                 f"X must have shape (n, {d}) (the training input dimension), got {tuple(x.shape)}"
             )
         check_finite_columns(x, "X", self.input_names)
+        check_magnitude_columns(x, "X", self.input_names)
         return x
 
     def _validate_training_data(
@@ -224,6 +227,8 @@ class GPRegressor:
             )
         check_finite_columns(x, "X", self.input_names)
         check_finite_columns(y, "Y", self.output_names)
+        check_magnitude_columns(x, "X", self.input_names)
+        check_magnitude_columns(y, "Y", self.output_names)
         check_targets_vary(y, self.output_names)
         return x, y
 
@@ -599,7 +604,8 @@ class GPRegressor:
 
     # ------------------------------------------------------------------ persistence
     def save(self, path: str | os.PathLike) -> None:
-        """Write hyperparameters (state_dict), training data and constants to ``path``."""
+        """Write hyperparameters (state_dict), training data and constants to ``path``
+        (atomically, tensors and plain data only)."""
         self._check_fitted()
         xs, ys, _ = self._standardized_train()
         payload = {
@@ -623,14 +629,22 @@ class GPRegressor:
             "y_scale": self.y_scale_,
             "subset_indices": self.subset_indices_,
         }
-        torch.save(payload, path)
+        atomic_torch_save(payload, path)
 
     @classmethod
     def load(cls, path: str | os.PathLike, kernel_factory: KernelFactory) -> GPRegressor:
-        """Rebuild a GP saved by :meth:`save` (same ``kernel_factory`` structure required)."""
-        payload = torch.load(path, map_location="cpu", weights_only=True)
+        """Rebuild a GP saved by :meth:`save` (same ``kernel_factory`` structure required).
+
+        Raises:
+            FileNotFoundError: no file at ``path``.
+            ValueError: the file is empty, damaged, unsafe or not a GP file (names it).
+        """
+        remedy = "restore it, or fit the GP again (a run: start it again with --overwrite)"
+        payload = load_torch_file(path, "GP file", remedy)
         if not isinstance(payload, dict) or payload.get("format") != _FORMAT:
-            raise ValueError(f"{path} is not a GPRegressor file written by GPRegressor.save")
+            raise ValueError(
+                f"GP file {path} is not a GPRegressor file written by GPRegressor.save; {remedy}"
+            )
         gp = cls(kernel_factory, **payload["config"])
         gp.x_mean_, gp.x_scale_ = payload["x_mean"], payload["x_scale"]
         gp.y_mean_, gp.y_scale_ = payload["y_mean"], payload["y_scale"]

@@ -8,7 +8,18 @@ import numpy as np
 import torch
 from torch import Tensor
 
-__all__ = ["as_tensor_2d", "column_name", "check_finite_columns", "check_targets_vary"]
+__all__ = [
+    "MAX_ABS_VALUE",
+    "as_tensor_2d",
+    "column_name",
+    "check_finite_columns",
+    "check_magnitude_columns",
+    "check_targets_vary",
+]
+
+MAX_ABS_VALUE = 1e150
+"""Largest magnitude accepted in GP data: sums of 1e8 squares of it stay below float64's
+maximum (1.8e308), so means, spreads and kernel distances stay finite."""
 
 
 def column_name(names: Sequence[str] | None, array: str, j: int) -> str:
@@ -91,3 +102,17 @@ def check_targets_vary(y: Tensor, names: Sequence[str] | None) -> None:
                 f"{y.shape[0]} rows): a GP cannot learn from it; drop this output or collect "
                 "data where it varies"
             )
+
+
+def check_magnitude_columns(t: Tensor, array: str, names: Sequence[str] | None) -> None:
+    """Raise ValueError naming the column and row of the first value beyond
+    :data:`MAX_ABS_VALUE` (its square would overflow float64 in the standardisation)."""
+    big = t.abs() > MAX_ABS_VALUE
+    if bool(big.any()):
+        j = int(big.any(0).nonzero()[0, 0])
+        i = int(big[:, j].nonzero()[0, 0])
+        raise ValueError(
+            f"{column_name(names, array, j)} holds {float(t[i, j]):.3g} at row {i}, beyond "
+            f"+-{MAX_ABS_VALUE:g} (its square overflows float64): check the units of that "
+            "column or drop the row before fitting"
+        )

@@ -95,14 +95,20 @@ def load_pinocchio_model(source: Any) -> Any:
         if not path.exists():
             raise ValueError(f"no robot description at {path}; give an MJCF/URDF path or text")
         text = path.read_text()
-        if "<robot" in text:
-            return pin.buildModelFromUrdf(str(path))
-        if "<mujoco" in text:
-            return pin.buildModelFromMJCF(str(path))
+        try:
+            if "<robot" in text:
+                return pin.buildModelFromUrdf(str(path))
+            if "<mujoco" in text:
+                return pin.buildModelFromMJCF(str(path))
+        except RuntimeError as err:
+            raise ValueError(f"pinocchio cannot build the robot in {path}: {err}") from err
         raise ValueError(f"{path} is neither MJCF (<mujoco>) nor URDF (<robot>)")
     if isinstance(source, str):
         if "<robot" in source:
-            return pin.buildModelFromXML(source)
+            try:
+                return pin.buildModelFromXML(source)
+            except RuntimeError as err:
+                raise ValueError(f"pinocchio cannot build the URDF robot: {err}") from err
         if "<mujoco" in source:
             # pinocchio's MJCF importer reads files only
             fd, name = tempfile.mkstemp(suffix=".xml")
@@ -110,6 +116,9 @@ def load_pinocchio_model(source: Any) -> Any:
                 with os.fdopen(fd, "w") as fh:
                     fh.write(source)
                 return pin.buildModelFromMJCF(name)
+            except RuntimeError as err:  # named after the text, not the temporary file
+                msg = " ".join(str(err).replace(name, "<MJCF text>").split())
+                raise ValueError(f"pinocchio cannot build the MJCF robot: {msg}") from err
             finally:
                 os.unlink(name)
         raise ValueError("robot description text must be MJCF (<mujoco>) or URDF (<robot>)")

@@ -233,15 +233,18 @@ def test_exploration_actions_hold_each_draw_and_keep_the_iid_stream():
 
 
 def test_config_from_dict_round_trips_and_names_unknown_fields():
-    """A saved config reads back as it was; a field the config does not have (e.g. the
-    cart-pole-only ``l_x`` of configs saved before task specifications) is an error that
-    names it."""
+    """A saved config reads back as it was; a config saved with the cart-pole's cost fields
+    (``l_x``, ``l_theta``, ``cost_wrap_angle``) reads as the same cost; a field no config
+    has is an error that names it."""
     saved = SMOKE.to_dict()
     assert MCPilcoConfig.from_dict(saved) == SMOKE
-    old = {**saved, "l_x": 1.0, "cost_wrap_angle": False}
-    unknown = r"unknown MC-PILCO config fields \['cost_wrap_angle', 'l_x'\]"
-    with pytest.raises(ValueError, match=unknown):
-        MCPilcoConfig.from_dict(old)
+    old = {k: v for k, v in saved.items() if k not in ("cost_length_scales", "cost_angle_mode")}
+    old.update(l_x=1.5, l_theta=2.0, cost_wrap_angle=True)
+    cfg = MCPilcoConfig.from_dict(old)
+    assert cfg.cost_length_scales == {"x": 1.5, "theta": 2.0}
+    assert cfg.cost_angle_mode == "wrap"
+    with pytest.raises(ValueError, match=r"unknown MC-PILCO config fields \['colour'\]"):
+        MCPilcoConfig.from_dict({**saved, "colour": "red"})
 
 
 DMC_ID = "mcpilco/DMCCartpoleSwingUp-v0"
@@ -291,7 +294,7 @@ def test_load_config_reads_the_file_then_the_preset_then_the_overrides():
     assert cfg.max_points == 250  # the preset's
     with pytest.raises(ValueError, match="unknown preset 'fast'.*bench"):
         load_config(DEFAULT_ENV_ID, preset="fast")
-    with pytest.raises(ValueError, match=r"unknown MC-PILCO config fields \['l_theta'\]"):
-        load_config(DEFAULT_ENV_ID, overrides={"l_theta": 3.0})
+    with pytest.raises(ValueError, match=r"unknown MC-PILCO config fields \['particles'\]"):
+        load_config(DEFAULT_ENV_ID, overrides={"particles": 3})
     with pytest.raises(ValueError, match="--set takes key=value"):
         parse_set(["num_particles"])
