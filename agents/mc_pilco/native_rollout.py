@@ -41,6 +41,7 @@ import hashlib
 import os
 import platform
 import shutil
+import subprocess
 import threading
 from pathlib import Path
 from types import ModuleType
@@ -148,8 +149,11 @@ def load_library() -> ModuleType:
         except (OSError, ImportError) as err:  # unwritable cache, unloadable module
             _LIB_ERROR = f"{type(err).__name__}: {err}"
             raise RuntimeError(_LIB_ERROR) from err
-        except RuntimeError as err:  # the compiler's or ninja's message
-            _LIB_ERROR = f"{cxx}: {err}".strip()[:4000]
+        except (RuntimeError, subprocess.SubprocessError) as err:  # the compiler's message
+            said = [getattr(err, key, None) for key in ("stderr", "output")]
+            said = [x.decode(errors="replace") if isinstance(x, bytes) else x for x in said]
+            detail = " ".join(x.strip() for x in said if x)
+            _LIB_ERROR = f"{cxx}: {err} {detail}".strip()[:4000]
             raise RuntimeError(_LIB_ERROR) from err
         finally:
             if before is None:

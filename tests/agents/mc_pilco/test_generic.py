@@ -178,7 +178,7 @@ def six_state_task(pairs: bool) -> TaskSpec:
             "init_std": 0.2,
             "cost": {
                 "terms": [
-                    {"state": "a0", "target": 3.14159, "length_scale": 1.5},
+                    {"state": "a0", "target": 3.14159, "length_scale": 3.0},
                     {"state": "p", "target": 0.2, "length_scale": 1.0},
                     {"state": "o", "target": -0.3, "length_scale": 0.8},
                 ]
