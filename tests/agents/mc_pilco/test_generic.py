@@ -118,11 +118,11 @@ def fitted_loss(
     s1 = s + 0.1 * np.tanh(s @ rng.normal(size=(n, n)) + u @ rng.normal(size=(a, n)))
     model = GPDynamicsModel(task, kernel=kernel, adam_iters=5, lbfgs_iters=0, max_points=None)
     model.fit(s, u, s1)
+    layout = StateLayout.from_task(task)
     policies = [
         SquashedRBFPolicy(
-            StateLayout.from_task(task), task.action_low, task.action_high, num_basis=7,
-            seed=1 + k, weight_scale=0.5,
-        )  # fmt: skip
+            layout, task.action_low, task.action_high, num_basis=7, seed=1 + k, weight_scale=0.5
+        )
         for k in range(candidates)
     ]
     policy = policies[0] if candidates == 1 else PolicyPopulation(policies)
