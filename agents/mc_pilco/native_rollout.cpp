@@ -167,21 +167,105 @@ struct Pol {
 // scratch of one thread, sized for the model
 struct Work {
     std::vector<float> E, xa, mean, var, u, feat, dV, dR, dx, dxs, dpsi, wprior, gmean, gvar,
-        gstate, G, gs, gin, gf, xo, delta;
+        gstate, G, gs, gin, gf, ga, xo, delta;
     explicit Work(const Model &M)
         : E(pad_rows(M.N) * TILE), xa((M.d + 2) * TILE), mean(M.m * TILE), var(M.m * TILE),
           u(M.A * TILE), feat(M.fp), dV(pad_rows(M.N + 1) * TILE),
           dR((int64_t)pad_rows(M.f + M.N) * TILE), dx(pad_rows(M.d + 1) * TILE),
           dxs(M.d * TILE), dpsi((M.f > 0 ? M.f : 1) * TILE), wprior(M.d * TILE),
           gmean(M.m * TILE), gvar(M.m * TILE), gstate(M.n * TILE), G((int64_t)TILE * M.nb),
-          gs(M.A * TILE), gin(M.d), gf(M.fp), xo(M.n), delta(M.m) {}
+          gs(M.A * TILE), gin(M.d), gf(M.fp), ga(M.fp), xo(M.n), delta(M.m) {}
 };
+
+// One particle's policy activations phi_i = exp(-1/2 |a - b_i|^2) D_i (i < nb) from
+// a = x~ / l (fp entries, |a|^2 = asq), b = c / l transposed (fp, nb), -|b_i|^2 / 2 and the
+// dropout bytes (D_i = 1[byte < keep_t] keep_scale).  FPT: fp as a compile-time constant
+// (the loops over the features unrolled, their broadcasts kept in registers), 0: at run time.
+template <int FPT>
+void phi_row_t(int fp_rt, int nb, const float *a, float asq, const float *bT, const float *bsq,
+               const uint8_t *by, float keep_t, float keep_scale, float *phi) {
+    const int fp = FPT ? FPT : fp_rt;
+    v8 av[FPT ? FPT : 1];
+    if (FPT)
+        for (int j = 0; j < FPT; ++j) av[j] = bc(a[j]);
+    const v8 half_asq = bc(0.5f * asq), tv = bc(keep_t), sv = bc(keep_scale);
+    int i = 0;
+    for (; i + 8 <= nb; i += 8) {
+        v8 lp = ld(bsq + i);  // -|b_i|^2 / 2
+        if (FPT) {
+#pragma GCC unroll 32
+            for (int j = 0; j < FPT; ++j) lp += av[j] * ld(bT + j * nb + i);
+        } else {
+            for (int j = 0; j < fp; ++j) lp += bc(a[j]) * ld(bT + j * nb + i);
+        }
+        lp -= half_asq;
+        v8 ph = vexp_floor(lp);
+        v8 bf = __builtin_convertvector(*(const v8b *)(by + i), v8);
+        st(phi + i, ph * (bf < tv ? sv : bc(0.0f)));
+    }
+    for (; i < nb; ++i) {
+        float lp = bsq[i];
+        for (int j = 0; j < fp; ++j) lp += a[j] * bT[j * nb + i];
+        lp -= 0.5f * asq;
+        phi[i] = exp_floor(lp) * (((float)by[i] < keep_t) ? keep_scale : 0.0f);
+    }
+}
+
+// ga_j = sum_i G_i b_ji (j < fp) for one particle, one pass over i; FPT as in phi_row_t
+template <int FPT>
+void ga_row_t(int fp_rt, int nb, const float *G, const float *bT, float *ga) {
+    const int fp = FPT ? FPT : fp_rt;
+    if (FPT) {
+        v8 acc[FPT ? FPT : 1];
+        for (int j = 0; j < FPT; ++j) acc[j] = bc(0.0f);
+        int i = 0;
+        for (; i + 8 <= nb; i += 8) {
+            v8 g = ld(G + i);
+#pragma GCC unroll 32
+            for (int j = 0; j < FPT; ++j) acc[j] += g * ld(bT + j * nb + i);
+        }
+        for (int j = 0; j < FPT; ++j) ga[j] = hsum(acc[j]);
+        for (; i < nb; ++i)
+            for (int j = 0; j < FPT; ++j) ga[j] += G[i] * bT[j * nb + i];
+        return;
+    }
+    for (int j = 0; j < fp; ++j) {
+        const float *bj = bT + j * nb;
+        v8 acc = bc(0.0f);
+        int i = 0;
+        for (; i + 8 <= nb; i += 8) acc += ld(G + i) * ld(bj + i);
+        float s = hsum(acc);
+        for (; i < nb; ++i) s += G[i] * bj[i];
+        ga[j] = s;
+    }
+}
+
+typedef void (*PhiRow)(int, int, const float *, float, const float *, const float *,
+                       const uint8_t *, float, float, float *);
+typedef void (*GaRow)(int, int, const float *, const float *, float *);
+
+constexpr int MAX_UNROLLED_FEATURES = 16;  // policy feature counts with their own unrolled code
+
+template <int K>
+struct Pick {  // the K-feature instantiation for fp = K, else the next K
+    static PhiRow phi(int fp) { return fp == K ? phi_row_t<K> : Pick<K + 1>::phi(fp); }
+    static GaRow ga(int fp) { return fp == K ? ga_row_t<K> : Pick<K + 1>::ga(fp); }
+};
+template <>
+struct Pick<MAX_UNROLLED_FEATURES + 1> {
+    static PhiRow phi(int) { return phi_row_t<0>; }
+    static GaRow ga(int) { return ga_row_t<0>; }
+};
+
+inline PhiRow pick_phi_row(int fp) { return Pick<1>::phi(fp); }
+inline GaRow pick_ga_row(int fp) { return Pick<1>::ga(fp); }
 
 // u = u_mid + u_half tanh((D o phi) w / u_half) for the tile's particles (u: A x 16)
 void policy_forward(const Model &M, const Lay &L, const Pol &P, const float *x, const float *nu,
                     const uint8_t *bytes, int valid, float keep_t, float keep_scale, float *rec,
                     Work &W) {
     const int nb = M.nb, fp = M.fp, np = M.n_plain;
+    const PhiRow phi_row = pick_phi_row(fp);
     float *feat = W.feat.data();
     for (int q = 0; q < TILE; ++q) {
         for (int k = 0; k < np; ++k) {
@@ -206,23 +290,8 @@ void policy_forward(const Model &M, const Lay &L, const Pol &P, const float *x, 
         }
         float *phi = rec + L.phi + (int64_t)q * nb;
         const uint8_t *by = bytes + (int64_t)(q < valid ? q : 0) * nb;
-        const float *bT = P.bT.data(), *bsq = P.bsq.data();
-        const v8 half_asq = bc(0.5f * asq), tv = bc(keep_t), sv = bc(keep_scale);
-        int i = 0;
-        for (; i + 8 <= nb; i += 8) {
-            v8 lp = ld(bsq + i);  // -|b_i|^2 / 2
-            for (int j = 0; j < fp; ++j) lp += bc(feat[j]) * ld(bT + j * nb + i);
-            lp -= half_asq;
-            v8 ph = vexp_floor(lp);
-            v8 bf = __builtin_convertvector(*(const v8b *)(by + i), v8);
-            st(phi + i, ph * (bf < tv ? sv : bc(0.0f)));
-        }
-        for (; i < nb; ++i) {
-            float lp = bsq[i];
-            for (int j = 0; j < fp; ++j) lp += feat[j] * bT[j * nb + i];
-            lp -= 0.5f * asq;
-            phi[i] = exp_floor(lp) * (((float)by[i] < keep_t) ? keep_scale : 0.0f);
-        }
+        phi_row(fp, nb, feat, asq, P.bT.data(), P.bsq.data(), by, keep_t, keep_scale, phi);
+        int i;
         for (int a = 0; a < M.A; ++a) {
             const float *wa = P.wT.data() + (int64_t)a * nb;
             v8 acc = bc(0.0f);
@@ -424,7 +493,7 @@ void step_backward_tile(const Model &M, const Lay &L, const Pol &P, const float 
                                  (2.0f * rec[L.sd + b * TILE + q]) * rec[L.varon + b * TILE + q];
         }
     }
-    const float *xs = rec + L.xs, *psi = rec + L.psi;
+    const float *xs = rec + L.xs;
     float *dxs = W.dxs.data(), *dpsi = W.dpsi.data(), *wprior = W.wprior.data();
     float *dV = W.dV.data(), *dR = W.dR.data(), *dx = W.dx.data();
     std::memset(dxs, 0, sizeof(float) * d * TILE);
@@ -480,11 +549,11 @@ void step_backward_tile(const Model &M, const Lay &L, const Pol &P, const float 
             }
         }
     }
-    (void)psi;
     if (M.p > 0)
         for (int j = 0; j < d * TILE; ++j) dxs[j] += 2.0f * xs[j] * wprior[j];
     // GP inputs -> state and action; policy
     float *gin = W.gin.data(), *gf = W.gf.data(), *gs = W.gs.data(), *Gb = W.G.data();
+    const GaRow ga_row = pick_ga_row(fp);
     const float *bT = P.bT.data(), *wT = P.wT.data(), *a_rec = rec + L.a;
     for (int q = 0; q < TILE; ++q) {
         for (int j = 0; j < d; ++j) gin[j] = dxs[j * TILE + q] / M.x_scale[j];
@@ -518,15 +587,10 @@ void step_backward_tile(const Model &M, const Lay &L, const Pol &P, const float 
             rs += Gq[i];
         }
         // dJ/da = G b - a rowsum(G); dJ/dfeat = dJ/da / l
+        ga_row(fp, nb, Gq, bT, W.ga.data());
         for (int j = 0; j < fp; ++j) {
-            const float *bj = bT + j * nb;
-            v8 acc = bc(0.0f);
-            i = 0;
-            for (; i + 8 <= nb; i += 8) acc += ld(Gq + i) * ld(bj + i);
-            float ga = hsum(acc);
-            for (; i < nb; ++i) ga += Gq[i] * bj[i];
             float aj = a_rec[j * TILE + q];
-            float g_a = ga - aj * rs;
+            float g_a = W.ga[j] - aj * rs;
             PG.gl[j] += g_a * aj;
             gf[j] = g_a * P.inv_l[j];
         }
@@ -536,21 +600,34 @@ void step_backward_tile(const Model &M, const Lay &L, const Pol &P, const float 
             g[M.angle_idx[k] * TILE + q] += gf[np + 2 * k] * co - gf[np + 2 * k + 1] * so;
         }
     }
-    // the tile's sums over its particles: colsum(G), phi^T gs and G^T a
+    // the tile's sums over its particles: colsum(G), phi^T gs and G^T a, 8 columns at a time
     const float *phi = rec + L.phi;
-    for (int q = 0; q < TILE; ++q) {
-        const float *Gq = Gb + (int64_t)q * nb, *pq = phi + (int64_t)q * nb;
-        float *gcol = PG.gcol.data();
-        for (int i = 0; i < nb; ++i) gcol[i] += Gq[i];
+    float *gcol = PG.gcol.data(), *gw = PG.gw.data(), *gb = PG.gb.data();
+    int i = 0;
+    for (; i + 8 <= nb; i += 8) {
+        v8 sc = ld(gcol + i);
+        for (int q = 0; q < TILE; ++q) sc += ld(Gb + (int64_t)q * nb + i);
+        st(gcol + i, sc);
         for (int a = 0; a < M.A; ++a) {
-            float s = gs[a * TILE + q];
-            float *gwa = PG.gw.data() + (int64_t)a * nb;
-            for (int i = 0; i < nb; ++i) gwa[i] += pq[i] * s;
+            v8 sw = ld(gw + (int64_t)a * nb + i);
+            for (int q = 0; q < TILE; ++q)
+                sw += ld(phi + (int64_t)q * nb + i) * bc(gs[a * TILE + q]);
+            st(gw + (int64_t)a * nb + i, sw);
         }
         for (int j = 0; j < fp; ++j) {
-            float aj = a_rec[j * TILE + q];
-            float *gbj = PG.gb.data() + (int64_t)j * nb;
-            for (int i = 0; i < nb; ++i) gbj[i] += Gq[i] * aj;
+            v8 sb = ld(gb + (int64_t)j * nb + i);
+            for (int q = 0; q < TILE; ++q)
+                sb += ld(Gb + (int64_t)q * nb + i) * bc(a_rec[j * TILE + q]);
+            st(gb + (int64_t)j * nb + i, sb);
+        }
+    }
+    for (; i < nb; ++i) {
+        for (int q = 0; q < TILE; ++q) {
+            float Gi = Gb[(int64_t)q * nb + i];
+            gcol[i] += Gi;
+            for (int a = 0; a < M.A; ++a)
+                gw[(int64_t)a * nb + i] += phi[(int64_t)q * nb + i] * gs[a * TILE + q];
+            for (int j = 0; j < fp; ++j) gb[(int64_t)j * nb + i] += Gi * a_rec[j * TILE + q];
         }
     }
 }
