@@ -70,7 +70,6 @@ inline int pad_rows(int rows) { return (rows + RB - 1) / RB * RB; }
 // C[r][16] = sum_{k in [beg_b, end_b)} A[r][k] X(k)[16] for the rows r of every block b of
 // the packed matrix P, where X(k) = X1 + 16 k for k < split, X2 + 16 (k - split) after.
 void gemm_tile(const Packed &P, const float *X1, int split, const float *X2, float *C) {
-    const float *X2s = X2 - (int64_t)split * TILE;
     for (int b = 0; b < P.blocks; ++b) {
         v8 c0[RB], c1[RB];
 #pragma GCC unroll 8
@@ -87,13 +86,16 @@ void gemm_tile(const Packed &P, const float *X1, int split, const float *X2, flo
                 c1[r] += ar * x1;
             }
         }
-        for (; k < e; ++k, a += RB) {
-            v8 x0 = ld(X2s + k * TILE), x1 = ld(X2s + k * TILE + 8);
+        if (k < e) {
+            const float *x = X2 + (int64_t)(k - split) * TILE;
+            for (; k < e; ++k, a += RB, x += TILE) {
+                v8 x0 = ld(x), x1 = ld(x + 8);
 #pragma GCC unroll 8
-            for (int r = 0; r < RB; ++r) {
-                v8 ar = bc(a[r]);
-                c0[r] += ar * x0;
-                c1[r] += ar * x1;
+                for (int r = 0; r < RB; ++r) {
+                    v8 ar = bc(a[r]);
+                    c0[r] += ar * x0;
+                    c1[r] += ar * x1;
+                }
             }
         }
         float *c = C + b * RB * TILE;
@@ -167,28 +169,31 @@ struct Pol {
 // scratch of one thread, sized for the model
 struct Work {
     std::vector<float> E, xa, mean, var, u, feat, dV, dR, dx, dxs, dpsi, wprior, gmean, gvar,
-        gstate, G, gs, gin, gf, ga, xo, delta;
+        gstate, G, gs, gin, gf, ga, gx, csum, delta;
     explicit Work(const Model &M)
         : E(pad_rows(M.N) * TILE), xa((M.d + 2) * TILE), mean(M.m * TILE), var(M.m * TILE),
           u(M.A * TILE), feat(M.fp), dV(pad_rows(M.N + 1) * TILE),
           dR((int64_t)pad_rows(M.f + M.N) * TILE), dx(pad_rows(M.d + 1) * TILE),
           dxs(M.d * TILE), dpsi((M.f > 0 ? M.f : 1) * TILE), wprior(M.d * TILE),
           gmean(M.m * TILE), gvar(M.m * TILE), gstate(M.n * TILE), G((int64_t)TILE * M.nb),
-          gs(M.A * TILE), gin(M.d), gf(M.fp), ga(M.fp), xo(M.n), delta(M.m) {}
+          gs(M.A * TILE), gin(M.d * TILE), gf(M.fp * TILE), ga(M.fp), gx(M.n * TILE),
+          csum(TILE), delta(M.m * TILE) {}
 };
 
 // One particle's policy activations phi_i = exp(-1/2 |a - b_i|^2) D_i (i < nb) from
 // a = x~ / l (fp entries, |a|^2 = asq), b = c / l transposed (fp, nb), -|b_i|^2 / 2 and the
-// dropout bytes (D_i = 1[byte < keep_t] keep_scale).  FPT: fp as a compile-time constant
+// dropout bytes (D_i = 1[byte < keep_t] keep_scale); returns sum_i phi_i w0_i (the first
+// action's weights, summed in the same pass).  FPT: fp as a compile-time constant
 // (the loops over the features unrolled, their broadcasts kept in registers), 0: at run time.
 template <int FPT>
-void phi_row_t(int fp_rt, int nb, const float *a, float asq, const float *bT, const float *bsq,
-               const uint8_t *by, float keep_t, float keep_scale, float *phi) {
+float phi_row_t(int fp_rt, int nb, const float *a, float asq, const float *bT, const float *bsq,
+                const uint8_t *by, float keep_t, float keep_scale, const float *w0, float *phi) {
     const int fp = FPT ? FPT : fp_rt;
     v8 av[FPT ? FPT : 1];
     if (FPT)
         for (int j = 0; j < FPT; ++j) av[j] = bc(a[j]);
     const v8 half_asq = bc(0.5f * asq), tv = bc(keep_t), sv = bc(keep_scale);
+    v8 acc = bc(0.0f);
     int i = 0;
     for (; i + 8 <= nb; i += 8) {
         v8 lp = ld(bsq + i);  // -|b_i|^2 / 2
@@ -201,64 +206,143 @@ void phi_row_t(int fp_rt, int nb, const float *a, float asq, const float *bT, co
         lp -= half_asq;
         v8 ph = vexp_floor(lp);
         v8 bf = __builtin_convertvector(*(const v8b *)(by + i), v8);
-        st(phi + i, ph * (bf < tv ? sv : bc(0.0f)));
+        ph = ph * (bf < tv ? sv : bc(0.0f));
+        st(phi + i, ph);
+        acc += ph * ld(w0 + i);
     }
+    float s = hsum(acc);
     for (; i < nb; ++i) {
         float lp = bsq[i];
         for (int j = 0; j < fp; ++j) lp += a[j] * bT[j * nb + i];
         lp -= 0.5f * asq;
         phi[i] = exp_floor(lp) * (((float)by[i] < keep_t) ? keep_scale : 0.0f);
+        s += phi[i] * w0[i];
     }
+    return s;
 }
 
-// ga_j = sum_i G_i b_ji (j < fp) for one particle, one pass over i; FPT as in phi_row_t
+// One particle's G_i = (sum_a gs_a w_ia) phi_i = dJ/d log phi_i (i < nb, stored in G), its
+// row sum (returned) and ga_j = sum_i G_i b_ji (j < fp), in one pass over i; w^T (A, nb),
+// gs (A entries, stride TILE); FPT as in phi_row_t.
 template <int FPT>
-void ga_row_t(int fp_rt, int nb, const float *G, const float *bT, float *ga) {
+float g_row_t(int fp_rt, int A, int nb, const float *phi, const float *gs, const float *wT,
+              const float *bT, float *G, float *ga) {
     const int fp = FPT ? FPT : fp_rt;
-    if (FPT) {
-        v8 acc[FPT ? FPT : 1];
-        for (int j = 0; j < FPT; ++j) acc[j] = bc(0.0f);
-        int i = 0;
-        for (; i + 8 <= nb; i += 8) {
-            v8 g = ld(G + i);
+    constexpr int NACC = FPT ? FPT : 1;
+    v8 acc[NACC];
+    for (int j = 0; j < NACC; ++j) acc[j] = bc(0.0f);
+    v8 rows = bc(0.0f);
+    int i = 0;
+    for (; i + 8 <= nb; i += 8) {
+        v8 gw = bc(gs[0]) * ld(wT + i);
+        for (int a = 1; a < A; ++a) gw += bc(gs[a * TILE]) * ld(wT + a * nb + i);
+        const v8 Gi = gw * ld(phi + i);
+        st(G + i, Gi);
+        rows += Gi;
+        if (FPT) {
 #pragma GCC unroll 32
-            for (int j = 0; j < FPT; ++j) acc[j] += g * ld(bT + j * nb + i);
+            for (int j = 0; j < NACC; ++j) acc[j] += Gi * ld(bT + j * nb + i);
         }
-        for (int j = 0; j < FPT; ++j) ga[j] = hsum(acc[j]);
-        for (; i < nb; ++i)
-            for (int j = 0; j < FPT; ++j) ga[j] += G[i] * bT[j * nb + i];
-        return;
+    }
+    float rs = hsum(rows);
+    const int vec_end = i;
+    for (; i < nb; ++i) {
+        float gw = 0.0f;
+        for (int a = 0; a < A; ++a) gw += gs[a * TILE] * wT[a * nb + i];
+        G[i] = gw * phi[i];
+        rs += G[i];
     }
     for (int j = 0; j < fp; ++j) {
         const float *bj = bT + j * nb;
-        v8 acc = bc(0.0f);
-        int i = 0;
-        for (; i + 8 <= nb; i += 8) acc += ld(G + i) * ld(bj + i);
-        float s = hsum(acc);
-        for (; i < nb; ++i) s += G[i] * bj[i];
+        float s = 0.0f;
+        int k = 0;
+        if (FPT) {
+            s = hsum(acc[j < NACC ? j : 0]);
+            k = vec_end;
+        } else {
+            v8 v = bc(0.0f);
+            for (; k + 8 <= nb; k += 8) v += ld(G + k) * ld(bj + k);
+            s = hsum(v);
+        }
+        for (; k < nb; ++k) s += G[k] * bj[k];
         ga[j] = s;
+    }
+    return rs;
+}
+
+// The tile's sums over its 16 particles, added to the candidate's running sums:
+// colsum(G) (nb), phi^T gs (A, nb) and G^T a (fp, nb), 8 columns at a time with the
+// accumulators in registers; FPT as in phi_row_t.
+template <int FPT>
+void tile_sums_t(int fp_rt, int A, int nb, const float *Gb, const float *phi, const float *gs,
+                 const float *a_rec, float *gcol, float *gw, float *gb) {
+    const int fp = FPT ? FPT : fp_rt;
+    int i = 0;
+    for (; i + 8 <= nb; i += 8) {
+        v8 sc = ld(gcol + i);
+        if (FPT) {
+            v8 sb[FPT ? FPT : 1];
+            for (int j = 0; j < FPT; ++j) sb[j] = ld(gb + (int64_t)j * nb + i);
+            for (int q = 0; q < TILE; ++q) {
+                const v8 G = ld(Gb + (int64_t)q * nb + i);
+                sc += G;
+#pragma GCC unroll 32
+                for (int j = 0; j < FPT; ++j) sb[j] += G * bc(a_rec[j * TILE + q]);
+            }
+            for (int j = 0; j < FPT; ++j) st(gb + (int64_t)j * nb + i, sb[j]);
+        } else {
+            for (int q = 0; q < TILE; ++q) sc += ld(Gb + (int64_t)q * nb + i);
+            for (int j = 0; j < fp; ++j) {
+                v8 sb = ld(gb + (int64_t)j * nb + i);
+                for (int q = 0; q < TILE; ++q)
+                    sb += ld(Gb + (int64_t)q * nb + i) * bc(a_rec[j * TILE + q]);
+                st(gb + (int64_t)j * nb + i, sb);
+            }
+        }
+        st(gcol + i, sc);
+        for (int a = 0; a < A; ++a) {
+            v8 sw = ld(gw + (int64_t)a * nb + i);
+            for (int q = 0; q < TILE; ++q)
+                sw += ld(phi + (int64_t)q * nb + i) * bc(gs[a * TILE + q]);
+            st(gw + (int64_t)a * nb + i, sw);
+        }
+    }
+    for (; i < nb; ++i) {
+        for (int q = 0; q < TILE; ++q) {
+            const float Gi = Gb[(int64_t)q * nb + i];
+            gcol[i] += Gi;
+            for (int a = 0; a < A; ++a)
+                gw[(int64_t)a * nb + i] += phi[(int64_t)q * nb + i] * gs[a * TILE + q];
+            for (int j = 0; j < fp; ++j) gb[(int64_t)j * nb + i] += Gi * a_rec[j * TILE + q];
+        }
     }
 }
 
-typedef void (*PhiRow)(int, int, const float *, float, const float *, const float *,
-                       const uint8_t *, float, float, float *);
-typedef void (*GaRow)(int, int, const float *, const float *, float *);
+typedef float (*PhiRow)(int, int, const float *, float, const float *, const float *,
+                        const uint8_t *, float, float, const float *, float *);
+typedef float (*GRow)(int, int, int, const float *, const float *, const float *,
+                      const float *, float *, float *);
+typedef void (*TileSums)(int, int, int, const float *, const float *, const float *,
+                         const float *, float *, float *, float *);
 
 constexpr int MAX_UNROLLED_FEATURES = 16;  // policy feature counts with their own unrolled code
 
 template <int K>
 struct Pick {  // the K-feature instantiation for fp = K, else the next K
     static PhiRow phi(int fp) { return fp == K ? phi_row_t<K> : Pick<K + 1>::phi(fp); }
-    static GaRow ga(int fp) { return fp == K ? ga_row_t<K> : Pick<K + 1>::ga(fp); }
+    static GRow g(int fp) { return fp == K ? g_row_t<K> : Pick<K + 1>::g(fp); }
+    static TileSums sums(int fp) { return fp == K ? tile_sums_t<K> : Pick<K + 1>::sums(fp); }
 };
 template <>
 struct Pick<MAX_UNROLLED_FEATURES + 1> {
     static PhiRow phi(int) { return phi_row_t<0>; }
-    static GaRow ga(int) { return ga_row_t<0>; }
+    static GRow g(int) { return g_row_t<0>; }
+    static TileSums sums(int) { return tile_sums_t<0>; }
 };
 
 inline PhiRow pick_phi_row(int fp) { return Pick<1>::phi(fp); }
-inline GaRow pick_ga_row(int fp) { return Pick<1>::ga(fp); }
+inline GRow pick_g_row(int fp) { return Pick<1>::g(fp); }
+inline TileSums pick_tile_sums(int fp) { return Pick<1>::sums(fp); }
 
 // u = u_mid + u_half tanh((D o phi) w / u_half) for the tile's particles (u: A x 16)
 void policy_forward(const Model &M, const Lay &L, const Pol &P, const float *x, const float *nu,
@@ -290,15 +374,18 @@ void policy_forward(const Model &M, const Lay &L, const Pol &P, const float *x, 
         }
         float *phi = rec + L.phi + (int64_t)q * nb;
         const uint8_t *by = bytes + (int64_t)(q < valid ? q : 0) * nb;
-        phi_row(fp, nb, feat, asq, P.bT.data(), P.bsq.data(), by, keep_t, keep_scale, phi);
-        int i;
+        const float s0 = phi_row(fp, nb, feat, asq, P.bT.data(), P.bsq.data(), by, keep_t,
+                                 keep_scale, P.wT.data(), phi);
         for (int a = 0; a < M.A; ++a) {
-            const float *wa = P.wT.data() + (int64_t)a * nb;
-            v8 acc = bc(0.0f);
-            i = 0;
-            for (; i + 8 <= nb; i += 8) acc += ld(phi + i) * ld(wa + i);
-            float s = hsum(acc);
-            for (; i < nb; ++i) s += phi[i] * wa[i];
+            float s = s0;
+            if (a > 0) {
+                const float *wa = P.wT.data() + (int64_t)a * nb;
+                v8 acc = bc(0.0f);
+                int i = 0;
+                for (; i + 8 <= nb; i += 8) acc += ld(phi + i) * ld(wa + i);
+                s = hsum(acc);
+                for (; i < nb; ++i) s += phi[i] * wa[i];
+            }
             float t = std::tanh(s / M.u_half[a]);
             rec[L.t + a * TILE + q] = t;
             W.u[a * TILE + q] = M.u_mid[a] + M.u_half[a] * t;
@@ -395,60 +482,83 @@ void step_forward_tile(const Model &M, const Lay &L, const Pol &P, float *x, con
             st(W.var.data() + b * TILE + h, vo);
         }
     }
-    // Delta = clip(mean + sqrt(max(var, floor)) eps), x+ = x A^T + Delta S^T, cost c(x+)
-    float *xo = W.xo.data(), *delta = W.delta.data();
-    for (int q = 0; q < TILE; ++q) {
-        for (int b = 0; b < m; ++b) {
-            float vr = W.var[b * TILE + q];
-            float on = vr >= VAR_FLOOR ? 1.0f : 0.0f;
-            float sd = std::sqrt(vr < VAR_FLOOR ? VAR_FLOOR : vr);
-            float e = eps[b * TILE + q];
-            float dl = W.mean[b * TILE + q] + sd * e;
-            float in = 1.0f;
-            if (M.bound) {
-                float bd = M.bound[b];
-                in = (dl >= -bd && dl <= bd) ? 1.0f : 0.0f;
-                dl = dl < -bd ? -bd : (dl > bd ? bd : dl);
+    // Delta = clip(mean + sqrt(max(var, floor)) eps), x+ = x A^T + Delta S^T, cost c(x+);
+    // loops over the tile's 16 particles (the compiler vectorises them)
+    float *delta = W.delta.data();
+    for (int b = 0; b < m; ++b) {
+        const float *mn = W.mean.data() + b * TILE, *vr = W.var.data() + b * TILE;
+        const float *e = eps + b * TILE;
+        float *dl = delta + b * TILE, *re = rec + L.eps + b * TILE, *rs = rec + L.sd + b * TILE;
+        float *ro = rec + L.varon + b * TILE, *ri = rec + L.inside + b * TILE;
+        for (int q = 0; q < TILE; ++q) {
+            const float v = vr[q];
+            const float sd = std::sqrt(v < VAR_FLOOR ? VAR_FLOOR : v);
+            ro[q] = v >= VAR_FLOOR ? 1.0f : 0.0f;
+            rs[q] = sd;
+            re[q] = e[q];
+            dl[q] = mn[q] + sd * e[q];
+        }
+        if (M.bound) {
+            const float bd = M.bound[b];
+            for (int q = 0; q < TILE; ++q) {
+                const float v = dl[q];
+                ri[q] = (v >= -bd && v <= bd) ? 1.0f : 0.0f;
+                dl[q] = v < -bd ? -bd : (v > bd ? bd : v);  // NaN kept, as torch.clamp
             }
-            rec[L.eps + b * TILE + q] = e;
-            rec[L.sd + b * TILE + q] = sd;
-            rec[L.varon + b * TILE + q] = on;
-            rec[L.inside + b * TILE + q] = in;
-            delta[b] = dl;
+        } else {
+            for (int q = 0; q < TILE; ++q) ri[q] = 1.0f;
         }
-        for (int j = 0; j < M.n; ++j) xo[j] = x[j * TILE + q];
-        const float dt = M.dt;
-        for (int k = 0; k < M.n_pairs; ++k) {
-            int ip = M.position_idx[k], iv = M.velocity_idx[k];
-            x[ip * TILE + q] = xo[ip] + dt * xo[iv] + 0.5f * dt * delta[k];
-            x[iv * TILE + q] = xo[iv] + delta[k];
+    }
+    const float dt = M.dt, half_dt = 0.5f * dt;
+    for (int k = 0; k < M.n_pairs; ++k) {
+        float *xp = x + M.position_idx[k] * TILE, *xv = x + M.velocity_idx[k] * TILE;
+        const float *dk = delta + k * TILE;
+        for (int q = 0; q < TILE; ++q) {
+            const float p0 = xp[q], v0 = xv[q];
+            xp[q] = p0 + dt * v0 + half_dt * dk[q];
+            xv[q] = v0 + dk[q];
         }
-        for (int k = 0; k < M.n_delta; ++k) {
-            int io = M.delta_idx[k];
-            x[io * TILE + q] = xo[io] + delta[M.n_pairs + k];
-        }
-        // c = 1 - exp(-sum_j (d_j / l_j)^2), d_j by the term's mode (cost.py)
-        float s = 0.0f;
-        for (int j = 0; j < M.n_terms; ++j) {
-            float v = x[M.cost_idx[j] * TILE + q], tg = M.cost_target[j], dj, slope = 1.0f;
-            if (M.cost_mode[j] == 0) {
-                dj = v - tg;
-            } else if (M.cost_mode[j] == 1) {  // torch.remainder(v - t + pi, 2 pi) - pi
-                float a = (v - tg) + PI_F;
-                float mod = std::fmod(a, TWO_PI_F);
-                if (mod != 0.0f && (mod < 0.0f)) mod += TWO_PI_F;
-                dj = mod - PI_F;
-            } else {  // |v| - |t|, slope sign(v)
-                dj = std::fabs(v) - std::fabs(tg);
-                slope = v > 0.0f ? 1.0f : (v < 0.0f ? -1.0f : 0.0f);
+    }
+    for (int k = 0; k < M.n_delta; ++k) {
+        float *xo = x + M.delta_idx[k] * TILE;
+        const float *dk = delta + (M.n_pairs + k) * TILE;
+        for (int q = 0; q < TILE; ++q) xo[q] += dk[q];
+    }
+    // c = 1 - exp(-sum_j (d_j / l_j)^2), d_j by the term's mode (cost.py)
+    float *sum = W.csum.data();
+    for (int q = 0; q < TILE; ++q) sum[q] = 0.0f;
+    for (int j = 0; j < M.n_terms; ++j) {
+        const float *xv = x + M.cost_idx[j] * TILE;
+        const float tg = M.cost_target[j], ls = M.cost_ls[j];
+        float *cd = rec + L.cd + j * TILE;  // d_j d'_j
+        if (M.cost_mode[j] == 0) {
+            for (int q = 0; q < TILE; ++q) {
+                const float dj = xv[q] - tg, z = dj / ls;
+                sum[q] += z * z;
+                cd[q] = dj;
             }
-            float z = dj / M.cost_ls[j];
-            s += z * z;
-            rec[L.cd + j * TILE + q] = dj * slope;
+        } else if (M.cost_mode[j] == 1) {  // torch.remainder(v - t + pi, 2 pi) - pi
+            for (int q = 0; q < TILE; ++q) {
+                float mod = std::fmod((xv[q] - tg) + PI_F, TWO_PI_F);
+                if (mod != 0.0f && mod < 0.0f) mod += TWO_PI_F;
+                const float dj = mod - PI_F, z = dj / ls;
+                sum[q] += z * z;
+                cd[q] = dj;
+            }
+        } else {  // |v| - |t|, slope sign(v)
+            const float at = std::fabs(tg);
+            for (int q = 0; q < TILE; ++q) {
+                const float v = xv[q], dj = std::fabs(v) - at, z = dj / ls;
+                const float slope = v > 0.0f ? 1.0f : (v < 0.0f ? -1.0f : 0.0f);
+                sum[q] += z * z;
+                cd[q] = dj * slope;
+            }
         }
-        float E = std::exp(-s);
-        rec[L.cE + q] = E;
-        cost[q] = 1.0f - E;
+    }
+    for (int h = 0; h < TILE; h += 8) {
+        const v8 E = vexp_floor(-ld(sum + h));
+        st(rec + L.cE + h, E);
+        st(cost + h, bc(1.0f) - E);
     }
 }
 
@@ -469,28 +579,38 @@ void step_backward_tile(const Model &M, const Lay &L, const Pol &P, const float 
                         float *g, const float *gc, PolGrad &PG) {
     const int m = M.m, N = M.N, d = M.d, F = M.f, np = M.n_plain, fp = M.fp, nb = M.nb;
     float *gstate = W.gstate.data(), *gmean = W.gmean.data(), *gvar = W.gvar.data();
-    float *gx = W.xo.data();
-    for (int q = 0; q < TILE; ++q) {
-        // cost: dc/dx_j = 2 E d_j d'_j / l_j^2
-        for (int j = 0; j < M.n; ++j) gx[j] = g[j * TILE + q];
-        float gE2 = 2.0f * gc[q] * rec[L.cE + q];
-        for (int j = 0; j < M.n_terms; ++j)
-            gx[M.cost_idx[j]] += gE2 * rec[L.cd + j * TILE + q] / M.cost_ls2[j];
-        // integration: g_state = g A, g_Delta = (g S) 1[inside]
-        for (int j = 0; j < M.n; ++j) gstate[j * TILE + q] = gx[j];
-        const float dt = M.dt;
-        for (int k = 0; k < M.n_pairs; ++k) {
-            int ip = M.position_idx[k], iv = M.velocity_idx[k];
-            gstate[iv * TILE + q] += dt * gx[ip];
-            gmean[k * TILE + q] = 0.5f * dt * gx[ip] + gx[iv];
+    // cost: dc/dx_j = 2 E d_j d'_j / l_j^2; loops over the tile's 16 particles
+    float *gx = W.gx.data(), *gE2 = W.csum.data();
+    std::memcpy(gx, g, sizeof(float) * M.n * TILE);
+    for (int q = 0; q < TILE; ++q) gE2[q] = 2.0f * gc[q] * rec[L.cE + q];
+    for (int j = 0; j < M.n_terms; ++j) {
+        float *gj = gx + M.cost_idx[j] * TILE;
+        const float *cd = rec + L.cd + j * TILE;
+        const float ls2 = M.cost_ls2[j];
+        for (int q = 0; q < TILE; ++q) gj[q] += gE2[q] * cd[q] / ls2;
+    }
+    // integration: g_state = g A, g_Delta = (g S) 1[inside]
+    std::memcpy(gstate, gx, sizeof(float) * M.n * TILE);
+    const float dt = M.dt, half_dt = 0.5f * dt;
+    for (int k = 0; k < M.n_pairs; ++k) {
+        const float *gp = gx + M.position_idx[k] * TILE, *gv = gx + M.velocity_idx[k] * TILE;
+        float *sv = gstate + M.velocity_idx[k] * TILE, *gm = gmean + k * TILE;
+        for (int q = 0; q < TILE; ++q) {
+            sv[q] += dt * gp[q];
+            gm[q] = half_dt * gp[q] + gv[q];
         }
-        for (int k = 0; k < M.n_delta; ++k)
-            gmean[(M.n_pairs + k) * TILE + q] = gx[M.delta_idx[k]];
-        for (int b = 0; b < m; ++b) {
-            float gd = gmean[b * TILE + q] * rec[L.inside + b * TILE + q];
-            gmean[b * TILE + q] = gd;
-            gvar[b * TILE + q] = gd * rec[L.eps + b * TILE + q] /
-                                 (2.0f * rec[L.sd + b * TILE + q]) * rec[L.varon + b * TILE + q];
+    }
+    for (int k = 0; k < M.n_delta; ++k)
+        std::memcpy(gmean + (M.n_pairs + k) * TILE, gx + M.delta_idx[k] * TILE,
+                    sizeof(float) * TILE);
+    for (int b = 0; b < m; ++b) {
+        float *gm = gmean + b * TILE, *gv = gvar + b * TILE;
+        const float *in = rec + L.inside + b * TILE, *e = rec + L.eps + b * TILE;
+        const float *sd = rec + L.sd + b * TILE, *on = rec + L.varon + b * TILE;
+        for (int q = 0; q < TILE; ++q) {
+            const float gd = gm[q] * in[q];
+            gm[q] = gd;
+            gv[q] = gd * e[q] / (2.0f * sd[q]) * on[q];
         }
     }
     const float *xs = rec + L.xs;
@@ -551,85 +671,57 @@ void step_backward_tile(const Model &M, const Lay &L, const Pol &P, const float 
     }
     if (M.p > 0)
         for (int j = 0; j < d * TILE; ++j) dxs[j] += 2.0f * xs[j] * wprior[j];
-    // GP inputs -> state and action; policy
+    // GP inputs -> state and action (loops over the tile's particles); policy
     float *gin = W.gin.data(), *gf = W.gf.data(), *gs = W.gs.data(), *Gb = W.G.data();
-    const GaRow ga_row = pick_ga_row(fp);
+    const GRow g_row = pick_g_row(fp);
+    const TileSums tile_sums = pick_tile_sums(fp);
     const float *bT = P.bT.data(), *wT = P.wT.data(), *a_rec = rec + L.a;
+    for (int j = 0; j < d; ++j) {
+        const float sc = M.x_scale[j];
+        for (int q = 0; q < TILE; ++q) gin[j * TILE + q] = dxs[j * TILE + q] / sc;
+    }
+    std::memcpy(g, gstate, sizeof(float) * M.n * TILE);
+    for (int k = 0; k < np; ++k) {
+        float *gk = g + M.plain_idx[k] * TILE;
+        for (int q = 0; q < TILE; ++q) gk[q] += gin[k * TILE + q];
+    }
+    for (int k = 0; k < M.n_ang; ++k) {
+        float *gk = g + M.angle_idx[k] * TILE;
+        const float *gsn = gin + (np + 2 * k) * TILE, *gcs = gsn + TILE;
+        const float *sn = rec + L.sn + k * TILE, *cs = rec + L.cs + k * TILE;
+        for (int q = 0; q < TILE; ++q) gk[q] += gsn[q] * cs[q] - gcs[q] * sn[q];
+    }
+    // policy: gs = g_u (1 - t^2), G = (gs w^T) o phi = dJ/d log phi
+    for (int a = 0; a < M.A; ++a) {
+        const float *t = rec + L.t + a * TILE, *gu = gin + (fp + a) * TILE;
+        for (int q = 0; q < TILE; ++q) gs[a * TILE + q] = gu[q] * (1.0f - t[q] * t[q]);
+    }
     for (int q = 0; q < TILE; ++q) {
-        for (int j = 0; j < d; ++j) gin[j] = dxs[j * TILE + q] / M.x_scale[j];
-        for (int j = 0; j < M.n; ++j) g[j * TILE + q] = gstate[j * TILE + q];
-        for (int k = 0; k < np; ++k) g[M.plain_idx[k] * TILE + q] += gin[k];
-        for (int k = 0; k < M.n_ang; ++k) {
-            float sn = rec[L.sn + k * TILE + q], cs = rec[L.cs + k * TILE + q];
-            g[M.angle_idx[k] * TILE + q] += gin[np + 2 * k] * cs - gin[np + 2 * k + 1] * sn;
-        }
-        // policy: gs = g_u (1 - t^2), G = (gs w^T) o phi = dJ/d log phi
-        for (int a = 0; a < M.A; ++a) {
-            float t = rec[L.t + a * TILE + q];
-            gs[a * TILE + q] = gin[fp + a] * (1.0f - t * t);
-        }
         const float *phi = rec + L.phi + (int64_t)q * nb;
-        float *Gq = Gb + (int64_t)q * nb;
-        v8 rows = bc(0.0f);
-        int i = 0;
-        for (; i + 8 <= nb; i += 8) {
-            v8 gw = bc(0.0f);
-            for (int a = 0; a < M.A; ++a) gw += bc(gs[a * TILE + q]) * ld(wT + a * nb + i);
-            v8 Gi = gw * ld(phi + i);
-            st(Gq + i, Gi);
-            rows += Gi;
-        }
-        float rs = hsum(rows);
-        for (; i < nb; ++i) {
-            float gw = 0.0f;
-            for (int a = 0; a < M.A; ++a) gw += gs[a * TILE + q] * wT[a * nb + i];
-            Gq[i] = gw * phi[i];
-            rs += Gq[i];
-        }
         // dJ/da = G b - a rowsum(G); dJ/dfeat = dJ/da / l
-        ga_row(fp, nb, Gq, bT, W.ga.data());
+        const float rs = g_row(fp, M.A, nb, phi, gs + q, wT, bT, Gb + (int64_t)q * nb,
+                               W.ga.data());
         for (int j = 0; j < fp; ++j) {
             float aj = a_rec[j * TILE + q];
             float g_a = W.ga[j] - aj * rs;
             PG.gl[j] += g_a * aj;
-            gf[j] = g_a * P.inv_l[j];
-        }
-        for (int k = 0; k < np; ++k) g[M.plain_idx[k] * TILE + q] += gf[k];
-        for (int k = 0; k < M.n_ang; ++k) {
-            float so = rec[L.so + k * TILE + q], co = rec[L.co + k * TILE + q];
-            g[M.angle_idx[k] * TILE + q] += gf[np + 2 * k] * co - gf[np + 2 * k + 1] * so;
+            gf[j * TILE + q] = g_a * P.inv_l[j];
         }
     }
-    // the tile's sums over its particles: colsum(G), phi^T gs and G^T a, 8 columns at a time
-    const float *phi = rec + L.phi;
-    float *gcol = PG.gcol.data(), *gw = PG.gw.data(), *gb = PG.gb.data();
-    int i = 0;
-    for (; i + 8 <= nb; i += 8) {
-        v8 sc = ld(gcol + i);
-        for (int q = 0; q < TILE; ++q) sc += ld(Gb + (int64_t)q * nb + i);
-        st(gcol + i, sc);
-        for (int a = 0; a < M.A; ++a) {
-            v8 sw = ld(gw + (int64_t)a * nb + i);
-            for (int q = 0; q < TILE; ++q)
-                sw += ld(phi + (int64_t)q * nb + i) * bc(gs[a * TILE + q]);
-            st(gw + (int64_t)a * nb + i, sw);
-        }
-        for (int j = 0; j < fp; ++j) {
-            v8 sb = ld(gb + (int64_t)j * nb + i);
-            for (int q = 0; q < TILE; ++q)
-                sb += ld(Gb + (int64_t)q * nb + i) * bc(a_rec[j * TILE + q]);
-            st(gb + (int64_t)j * nb + i, sb);
-        }
+    // the policy input's features -> state
+    for (int k = 0; k < np; ++k) {
+        float *gk = g + M.plain_idx[k] * TILE;
+        for (int q = 0; q < TILE; ++q) gk[q] += gf[k * TILE + q];
     }
-    for (; i < nb; ++i) {
-        for (int q = 0; q < TILE; ++q) {
-            float Gi = Gb[(int64_t)q * nb + i];
-            gcol[i] += Gi;
-            for (int a = 0; a < M.A; ++a)
-                gw[(int64_t)a * nb + i] += phi[(int64_t)q * nb + i] * gs[a * TILE + q];
-            for (int j = 0; j < fp; ++j) gb[(int64_t)j * nb + i] += Gi * a_rec[j * TILE + q];
-        }
+    for (int k = 0; k < M.n_ang; ++k) {
+        float *gk = g + M.angle_idx[k] * TILE;
+        const float *gsn = gf + (np + 2 * k) * TILE, *gcs = gsn + TILE;
+        const float *so = rec + L.so + k * TILE, *co = rec + L.co + k * TILE;
+        for (int q = 0; q < TILE; ++q) gk[q] += gsn[q] * co[q] - gcs[q] * so[q];
     }
+    // the tile's sums over its particles: colsum(G), phi^T gs and G^T a
+    tile_sums(fp, M.A, nb, Gb, rec + L.phi, gs, a_rec, PG.gcol.data(), PG.gw.data(),
+              PG.gb.data());
 }
 
 }  // namespace
