@@ -308,8 +308,9 @@ class NativeRollout(DirectRollout):
     """:class:`~mcpilco.agents.mc_pilco.direct_compile.DirectRollout`'s interface (shards,
     split and join, the dropout inputs) with each shard's forward and backward loops run by
     the C++ extension. Each forward keeps its saved tensors in a float32 buffer of
-    ``H x K x ceil(M / (S K 16)) x record`` floats (about ``4 m N + F`` floats per particle
-    and step), returned to a pool by its backward."""
+    ``H x K x ceil(M / (S K 16)) x record`` floats (about ``2 m N + F + n_b`` floats per
+    particle and step: ``r`` and ``V`` of each output, ``psi``, the policy's activations),
+    returned to a pool by its backward."""
 
     def __init__(
         self, policy, dynamics, cost, rows: int, delta_dim: int | None = None, shards: int = 1
