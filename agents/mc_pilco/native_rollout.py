@@ -115,6 +115,16 @@ def cpp_compiler() -> str | None:
     return next((name for name in cpp_compiler_names() if shutil.which(name)), None)
 
 
+def _ninja_dir() -> str | None:
+    """The folder of the ``ninja`` binary of the ``ninja`` Python package (a dependency; it
+    is on ``PATH`` only in an activated environment), None without the package."""
+    try:
+        import ninja
+    except ImportError:
+        return None
+    return getattr(ninja, "BIN_DIR", None)
+
+
 def load_library() -> ModuleType:
     """The compiled rollout extension, built on first use (see the module docstring).
 
@@ -135,10 +145,12 @@ def load_library() -> ModuleType:
 
         name = extension_name(cxx)
         build = cache_dir() / name
-        before = os.environ.get("CXX")
+        before = {key: os.environ.get(key) for key in ("CXX", "PATH")}
         try:
             build.mkdir(parents=True, exist_ok=True)
             os.environ["CXX"] = cxx  # the compiler cpp_extension runs
+            if shutil.which("ninja") is None:  # the ninja package's binary, off PATH
+                os.environ["PATH"] = os.pathsep.join(filter(None, (_ninja_dir(), before["PATH"])))
             lib = cpp_extension.load(
                 name,
                 [str(p) for p in SOURCES],
@@ -156,10 +168,11 @@ def load_library() -> ModuleType:
             _LIB_ERROR = f"{cxx}: {err} {detail}".strip()[:4000]
             raise RuntimeError(_LIB_ERROR) from err
         finally:
-            if before is None:
-                os.environ.pop("CXX", None)
-            else:
-                os.environ["CXX"] = before
+            for key, value in before.items():
+                if value is None:
+                    os.environ.pop(key, None)
+                else:
+                    os.environ[key] = value
         _LIB = lib
         return lib
 
