@@ -67,7 +67,7 @@ _LIB_LOCK = threading.Lock()
 
 def cache_dir() -> Path:
     """Where the extensions are built: ``$MCPILCO_NATIVE_CACHE``, else PyTorch's extension
-    folder (``$TORCH_EXTENSIONS_DIR``, else ``~/.cache/torch_extensions/py311_cpu``,
+    folder (``$TORCH_EXTENSIONS_DIR``, else ``~/.cache/torch_extensions``,
     :func:`torch.utils.cpp_extension.get_default_build_root`); the extension is in its
     subfolder :func:`extension_name`."""
     env = os.environ.get("MCPILCO_NATIVE_CACHE")
