@@ -193,11 +193,12 @@ class MCPilcoLoss(LossModule):
 
         ``"native"``
             the whole rollout, forward and backward through time, evaluated by the package's
-            C++ loop (:mod:`~mcpilco.agents.mc_pilco.native_rollout`: particles in tiles of
-            16, the GP's constant matrices packed once per fit, no per-op dispatch), the
-            same maths as ``"direct"``; built on first use with the system's C++ compiler
-            (2-3 s, then cached). Needs what ``"direct"`` needs, in float32, with the
-            package's two kernels; used like ``"direct"``.
+            C++ loop for any task layout (:mod:`~mcpilco.agents.mc_pilco.native_rollout`:
+            particles in tiles of 16, the GP's constant matrices packed once per fit, no
+            per-op dispatch), the same maths as ``"direct"``; a PyTorch C++ extension built
+            on first use (``torch.utils.cpp_extension``, then cached). Needs what
+            ``"direct"`` needs, in float32, with the package's two kernels; used like
+            ``"direct"``.
         ``"direct"``
             forward and backward of a time step chained by hand from the parts' analytic
             backward passes, traced once and compiled by inductor; the rollout is one

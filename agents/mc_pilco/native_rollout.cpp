@@ -1,6 +1,6 @@
 // The MC-PILCO particle rollout (forward and backward through time) written by hand, for
-// one shard of particles on one thread.  Built and called by native_rollout.py, which holds
-// the symbol glossary and the maths (the same as the parts' analytic backward passes that
+// one shard of particles on one thread, for any task layout.  native_rollout.py holds the
+// symbol glossary and the maths (the same as the parts' analytic backward passes that
 // direct_compile.py chains); this file only evaluates it.
 //
 // Layout: particles are processed in tiles of TILE = 16 (two 8-float vectors); within a
@@ -10,33 +10,34 @@
 // with its own range of columns (so the zeros of the triangular factors are skipped).
 // The policy works on one particle at a time, vectorised over its basis functions.
 //
-// No torch headers: plain C++ with GCC vector extensions, called through ctypes (which
-// releases the GIL, so shards run in parallel threads).
+// No torch headers: plain C++ with GCC vector extensions; native_rollout_ext.cpp binds it.
+
+#include "native_rollout.h"
 
 #include <cmath>
-#include <cstdint>
 #include <cstring>
+#include <vector>
+
+namespace mcp {
+namespace {
 
 typedef float v8 __attribute__((vector_size(32), aligned(32)));
 typedef float v8u __attribute__((vector_size(32), aligned(4)));
 typedef int32_t v8i __attribute__((vector_size(32), aligned(32)));
 typedef uint8_t v8b __attribute__((vector_size(8), aligned(1)));
 
-static const int TILE = 16;
-#ifndef MCP_RB
-#define MCP_RB 6
-#endif
-static const int RB = MCP_RB;  // rows per block of a packed matrix
-static const float EXP_FLOOR = -87.0f;
-static const float VAR_FLOOR = 1e-12f;
+constexpr float EXP_FLOOR = -87.0f;  // exp's argument floor (models/numerics.py)
+constexpr float VAR_FLOOR = 1e-12f;  // variance floor of the sample (dynamics.py)
+constexpr float PI_F = 3.14159265358979323846f;  // pi rounded to float, as torch rounds it
+constexpr float TWO_PI_F = 6.28318530717958647692f;  // 2 pi rounded to float
 
-static inline v8 ld(const float *p) { return *(const v8u *)p; }
-static inline void st(float *p, v8 v) { *(v8u *)p = v; }
-static inline v8 bc(float a) { return (v8){a, a, a, a, a, a, a, a}; }
+inline v8 ld(const float *p) { return *(const v8u *)p; }
+inline void st(float *p, v8 v) { *(v8u *)p = v; }
+inline v8 bc(float a) { return (v8){a, a, a, a, a, a, a, a}; }
 
 // exp(x) for x >= -87 (the callers clamp first; NaN passes through), about 1 ulp:
 // x = n ln2 + r, |r| <= ln2/2, exp(r) by a degree-6 polynomial, 2^n by the exponent bits.
-static inline v8 vexp(v8 x) {
+inline v8 vexp(v8 x) {
     const v8 log2e = bc(1.44269504088896341f), c1 = bc(0.693359375f), c2 = bc(-2.12194440e-4f);
     const v8 magic = bc(12582912.0f);  // 1.5 2^23: (y + magic) - magic rounds y to nearest
     v8 n = (x * log2e + magic) - magic;
@@ -55,29 +56,46 @@ static inline v8 vexp(v8 x) {
     return p * scale;
 }
 
-static inline float hsum(v8 v) {
+inline float hsum(v8 v) {
     return ((v[0] + v[4]) + (v[1] + v[5])) + ((v[2] + v[6]) + (v[3] + v[7]));
 }
 
 // exp(max(x, -87)) with NaN kept (torch's clamp keeps NaN)
-static inline v8 vexp_floor(v8 x) { return vexp(x < bc(EXP_FLOOR) ? bc(EXP_FLOOR) : x); }
+inline v8 vexp_floor(v8 x) { return vexp(x < bc(EXP_FLOOR) ? bc(EXP_FLOOR) : x); }
 
-// C[r][16] = sum_{k in [beg_b, end_b)} A[r][k] X[k][16] for the rows r of every block b
-// (A packed: block b holds (end_b - beg_b) groups of its RB rows' entries, from off[b]).
-static void gemm_tile(const float *A, const int *beg, const int *end, const int64_t *off,
-                      int blocks, const float *X, float *C) {
-    for (int b = 0; b < blocks; ++b) {
+inline float exp_floor(float x) { return std::exp(x < EXP_FLOOR ? EXP_FLOOR : x); }
+
+inline int pad_rows(int rows) { return (rows + RB - 1) / RB * RB; }
+
+// C[r][16] = sum_{k in [beg_b, end_b)} A[r][k] X(k)[16] for the rows r of every block b of
+// the packed matrix P, where X(k) = X1 + 16 k for k < split, X2 + 16 (k - split) after.
+void gemm_tile(const Packed &P, const float *X1, int split, const float *X2, float *C) {
+    for (int b = 0; b < P.blocks; ++b) {
         v8 c0[RB], c1[RB];
 #pragma GCC unroll 8
         for (int r = 0; r < RB; ++r) c0[r] = c1[r] = bc(0.0f);
-        const float *a = A + off[b];
-        for (int k = beg[b]; k < end[b]; ++k, a += RB) {
-            v8 x0 = ld(X + k * TILE), x1 = ld(X + k * TILE + 8);
+        const float *a = P.a + P.off[b];
+        int k = P.beg[b];
+        const int e = P.end[b], e1 = e < split ? e : split;
+        for (; k < e1; ++k, a += RB) {
+            v8 x0 = ld(X1 + k * TILE), x1 = ld(X1 + k * TILE + 8);
 #pragma GCC unroll 8
             for (int r = 0; r < RB; ++r) {
                 v8 ar = bc(a[r]);
                 c0[r] += ar * x0;
                 c1[r] += ar * x1;
+            }
+        }
+        if (k < e) {
+            const float *x = X2 + (int64_t)(k - split) * TILE;
+            for (; k < e; ++k, a += RB, x += TILE) {
+                v8 x0 = ld(x), x1 = ld(x + 8);
+#pragma GCC unroll 8
+                for (int r = 0; r < RB; ++r) {
+                    v8 ar = bc(a[r]);
+                    c0[r] += ar * x0;
+                    c1[r] += ar * x1;
+                }
             }
         }
         float *c = C + b * RB * TILE;
@@ -89,212 +107,364 @@ static void gemm_tile(const float *A, const int *beg, const int *end, const int6
     }
 }
 
-struct Packed {  // one packed constant matrix (see gemm_tile)
-    const float *a;
-    const int *beg, *end;
-    const int64_t *off;
-    int blocks;
-};
+constexpr int NO_SPLIT = 1 << 30;  // split of a gemm_tile whose X is one block of rows
 
-struct Gp {  // the fused GP posterior of m outputs (models/gp/fused.py), float32
-    int m, n, d, p, f;          // outputs, training points, inputs, MPK degree, MPK features
-    const int *idx_a, *idx_c;   // psi_f = z[idx_a[f]] z[idx_c[f]] (p = 2)
-    const float *x_mean, *x_scale;       // (d)
-    const float *y_mean, *y_scale;       // (m)
-    const float *inv_l2;                 // (m, d)
-    const float *outputscale;            // (m)
-    const float *sig_diag, *sig2;        // (p, m, d), (p, m)
-    const float *noise_var;              // (m) added to the variance, or null
-    const float *bound;                  // (m) clip bound of Delta, or null
-    Packed w_aug[2], fwd[2], bwd[2], w_t[2];  // per output (m <= 2)
-};
-
-struct Pol {  // squashed RBF policy (policy.py), one candidate
-    int nb;
-    float u_max;
-};
-
-struct Cost {
-    float l_x, l_theta, dt;
-    int wrap;
-};
-
-static inline int pad_rows(int rows) { return (rows + RB - 1) / RB * RB; }
-
-// per-tile record of the saved tensors of one step (floats, each block a multiple of 16)
-struct Layout {
-    int64_t phi, a, t, cso, sno, cs, sn, xs, R, V, active, fac, eps, sd, varon, inside, cx, cd,
-        csg, cE, size;
-    void init(int nb, int m, int n, int f, int p) {
+// offsets (floats) of a tile's record of one step, each block a multiple of 16
+struct Lay {
+    int64_t phi, a, t, so, co, sn, cs, xs, psi, r, V, active, fac, eps, sd, varon, inside, cd,
+        cE, size;
+    int vrows;  // rows of one output's [V; mean], padded to RB
+    explicit Lay(const Model &M) {
+        const int64_t T = TILE;
+        vrows = pad_rows(M.N + 1);
         int64_t o = 0;
-        phi = o; o += (int64_t)TILE * nb;
-        a = o; o += 5 * TILE;
-        t = o; o += TILE;
-        cso = o; o += TILE;
-        sno = o; o += TILE;
-        cs = o; o += TILE;
-        sn = o; o += TILE;
-        xs = o; o += 6 * TILE;
-        R = o; o += (int64_t)m * (f + n) * TILE;
-        V = o; o += (int64_t)m * pad_rows(n + 1) * TILE;  // [V; mean] rows, padded
-        active = o; o += m * TILE;
-        fac = o; o += (int64_t)(p > 0 ? p : 1) * m * TILE;
-        eps = o; o += 2 * TILE;
-        sd = o; o += 2 * TILE;
-        varon = o; o += 2 * TILE;
-        inside = o; o += 2 * TILE;
-        cx = o; o += TILE;
-        cd = o; o += TILE;
-        csg = o; o += TILE;
-        cE = o; o += TILE;
+        auto take = [&o](int64_t floats) {
+            int64_t at = o;
+            o += floats;
+            return at;
+        };
+        phi = take(T * M.nb);
+        a = take(T * M.fp);
+        t = take(T * M.A);
+        so = take(T * M.n_ang);
+        co = take(T * M.n_ang);
+        sn = take(T * M.n_ang);
+        cs = take(T * M.n_ang);
+        xs = take(T * M.d);
+        psi = take(T * M.f);
+        r = take(T * M.m * M.N);
+        V = take(T * M.m * vrows);
+        active = take(T * M.m);
+        fac = take(T * M.m * (M.p > 0 ? M.p : 1));
+        eps = take(T * M.m);
+        sd = take(T * M.m);
+        varon = take(T * M.m);
+        inside = take(T * M.m);
+        cd = take(T * M.n_terms);
+        cE = take(T);
         size = o;
     }
 };
 
-// scratch for one tile: the products' outputs (rows padded to RB)
-struct Scratch {  // sizes for n <= 511, f <= 64, RB <= 8
-    float E[520 * TILE];
-    float dV[520 * TILE];
-    float dR[584 * TILE];
-    float dx[8 * TILE + RB * TILE];
+// one candidate's policy constants: b = c / l transposed (Fp, nb), -|b_i|^2 / 2, w^T (A, nb)
+struct Pol {
+    std::vector<float> bT, bsq, wT, inv_l;
+    Pol(const Model &M) : bT(M.fp * M.nb), bsq(M.nb), wT(M.A * M.nb), inv_l(M.fp) {}
+    void load(const Model &M, const float *centers, const float *log_l, const float *w) {
+        const int nb = M.nb, fp = M.fp;
+        for (int j = 0; j < fp; ++j) inv_l[j] = std::exp(-log_l[j]);
+        for (int i = 0; i < nb; ++i) {
+            float s = 0.0f;
+            for (int j = 0; j < fp; ++j) {
+                float bv = centers[(int64_t)i * fp + j] * inv_l[j];
+                bT[j * nb + i] = bv;
+                s += bv * bv;
+            }
+            bsq[i] = -0.5f * s;
+            for (int a = 0; a < M.A; ++a) wT[a * nb + i] = w[(int64_t)i * M.A + a];
+        }
+    }
 };
 
-extern "C" int64_t mcp_record_floats(int nb, int m, int n, int f, int p) {
-    Layout L;
-    L.init(nb, m, n, f, p);
-    return L.size;
-}
+// scratch of one thread, sized for the model
+struct Work {
+    std::vector<float> E, xa, mean, var, u, feat, dV, dR, dx, dxs, dpsi, wprior, gmean, gvar,
+        gstate, G, gs, gin, gf, ga, gx, csum, delta;
+    explicit Work(const Model &M)
+        : E(pad_rows(M.N) * TILE), xa((M.d + 2) * TILE), mean(M.m * TILE), var(M.m * TILE),
+          u(M.A * TILE), feat(M.fp), dV(pad_rows(M.N + 1) * TILE),
+          dR((int64_t)pad_rows(M.f + M.N) * TILE), dx(pad_rows(M.d + 1) * TILE),
+          dxs(M.d * TILE), dpsi((M.f > 0 ? M.f : 1) * TILE), wprior(M.d * TILE),
+          gmean(M.m * TILE), gvar(M.m * TILE), gstate(M.n * TILE), G((int64_t)TILE * M.nb),
+          gs(M.A * TILE), gin(M.d * TILE), gf(M.fp * TILE), ga(M.fp), gx(M.n * TILE),
+          csum(TILE), delta(M.m * TILE) {}
+};
 
-extern "C" int mcp_row_block() { return RB; }
-
-extern "C" int mcp_tile() { return TILE; }
-
-// policy for one particle: u = u_max tanh(sum_i w_i D_i phi_i / u_max)
-static float policy_forward(const Pol &P, const float *bT, const float *bsq, const float *w,
-                            const float *inv_l, const float *obs, const uint8_t *bytes,
-                            float keep_t, float keep_scale, float *phi, float *a_out,
-                            float *cso, float *sno) {
-    const int nb = P.nb;
-    float co = std::cos(obs[2]), so = std::sin(obs[2]);
-    float feat[5] = {obs[0], obs[1], obs[3], so, co};
-    float a[5], asq = 0.0f;
-    for (int d = 0; d < 5; ++d) {
-        a[d] = feat[d] * inv_l[d];
-        asq += a[d] * a[d];
-    }
-    *cso = co;
-    *sno = so;
-    for (int d = 0; d < 5; ++d) a_out[d] = a[d];
-    v8 acc = bc(0.0f);
+// One particle's policy activations phi_i = exp(-1/2 |a - b_i|^2) D_i (i < nb) from
+// a = x~ / l (fp entries, |a|^2 = asq), b = c / l transposed (fp, nb), -|b_i|^2 / 2 and the
+// dropout bytes (D_i = 1[byte < keep_t] keep_scale); returns sum_i phi_i w0_i (the first
+// action's weights, summed in the same pass).  FPT: fp as a compile-time constant
+// (the loops over the features unrolled, their broadcasts kept in registers), 0: at run time.
+template <int FPT>
+float phi_row_t(int fp_rt, int nb, const float *a, float asq, const float *bT, const float *bsq,
+                const uint8_t *by, float keep_t, float keep_scale, const float *w0, float *phi) {
+    const int fp = FPT ? FPT : fp_rt;
+    v8 av[FPT ? FPT : 1];
+    if (FPT)
+        for (int j = 0; j < FPT; ++j) av[j] = bc(a[j]);
     const v8 half_asq = bc(0.5f * asq), tv = bc(keep_t), sv = bc(keep_scale);
+    v8 acc = bc(0.0f);
     int i = 0;
     for (; i + 8 <= nb; i += 8) {
         v8 lp = ld(bsq + i);  // -|b_i|^2 / 2
-        for (int d = 0; d < 5; ++d) lp += bc(a[d]) * ld(bT + d * nb + i);
+        if (FPT) {
+#pragma GCC unroll 32
+            for (int j = 0; j < FPT; ++j) lp += av[j] * ld(bT + j * nb + i);
+        } else {
+            for (int j = 0; j < fp; ++j) lp += bc(a[j]) * ld(bT + j * nb + i);
+        }
         lp -= half_asq;
         v8 ph = vexp_floor(lp);
-        v8b by = *(const v8b *)(bytes + i);
-        v8 bf = __builtin_convertvector(by, v8);
+        v8 bf = __builtin_convertvector(*(const v8b *)(by + i), v8);
         ph = ph * (bf < tv ? sv : bc(0.0f));
         st(phi + i, ph);
-        acc += ph * ld(w + i);
+        acc += ph * ld(w0 + i);
     }
     float s = hsum(acc);
     for (; i < nb; ++i) {
         float lp = bsq[i];
-        for (int d = 0; d < 5; ++d) lp += a[d] * bT[d * nb + i];
+        for (int j = 0; j < fp; ++j) lp += a[j] * bT[j * nb + i];
         lp -= 0.5f * asq;
-        float ph = std::exp(lp < EXP_FLOOR ? EXP_FLOOR : lp);
-        ph *= ((float)bytes[i] < keep_t) ? keep_scale : 0.0f;
-        phi[i] = ph;
-        s += ph * w[i];
+        phi[i] = exp_floor(lp) * (((float)by[i] < keep_t) ? keep_scale : 0.0f);
+        s += phi[i] * w0[i];
     }
-    return std::tanh(s / P.u_max);
+    return s;
 }
 
-// one tile's time step: x (4 x 16, in/out), cost (16) out, record filled
-static void step_forward_tile(const Gp &G, const Pol &P, const Cost &C, const float *bT,
-                              const float *bsq, const float *w, const float *inv_l,
-                              float *x, const float *eps, const float *nu,
-                              const uint8_t *bytes, int valid, float keep_t, float keep_scale,
-                              float *rec, const Layout &L, Scratch &W, float *cost) {
-    const int m = G.m, n = G.n, d = G.d, F = G.f;
-    float u[TILE];
-    // policy, particle by particle
-    for (int q = 0; q < TILE; ++q) {
-        float obs[4];
-        for (int j = 0; j < 4; ++j) obs[j] = x[j * TILE + q] + nu[j * TILE + q];
-        float a[5];
-        float t = policy_forward(P, bT, bsq, w, inv_l, obs,
-                                 bytes + (int64_t)(q < valid ? q : 0) * P.nb, keep_t,
-                                 keep_scale, rec + L.phi + (int64_t)q * P.nb, a,
-                                 rec + L.cso + q, rec + L.sno + q);
-        for (int j = 0; j < 5; ++j) rec[L.a + j * TILE + q] = a[j];
-        rec[L.t + q] = t;
-        u[q] = P.u_max * t;
+// One particle's G_i = (sum_a gs_a w_ia) phi_i = dJ/d log phi_i (i < nb, stored in G), its
+// row sum (returned) and ga_j = sum_i G_i b_ji (j < fp), in one pass over i; w^T (A, nb),
+// gs (A entries, stride TILE); FPT as in phi_row_t.
+template <int FPT>
+float g_row_t(int fp_rt, int A, int nb, const float *phi, const float *gs, const float *wT,
+              const float *bT, float *G, float *ga) {
+    const int fp = FPT ? FPT : fp_rt;
+    constexpr int NACC = FPT ? FPT : 1;
+    v8 acc[NACC];
+    for (int j = 0; j < NACC; ++j) acc[j] = bc(0.0f);
+    v8 rows = bc(0.0f);
+    int i = 0;
+    for (; i + 8 <= nb; i += 8) {
+        v8 gw = bc(gs[0]) * ld(wT + i);
+        for (int a = 1; a < A; ++a) gw += bc(gs[a * TILE]) * ld(wT + a * nb + i);
+        const v8 Gi = gw * ld(phi + i);
+        st(G + i, Gi);
+        rows += Gi;
+        if (FPT) {
+#pragma GCC unroll 32
+            for (int j = 0; j < NACC; ++j) acc[j] += Gi * ld(bT + j * nb + i);
+        }
     }
-    // GP inputs [x, x_dot, theta_dot, sin theta, cos theta, u], standardised
+    float rs = hsum(rows);
+    const int vec_end = i;
+    for (; i < nb; ++i) {
+        float gw = 0.0f;
+        for (int a = 0; a < A; ++a) gw += gs[a * TILE] * wT[a * nb + i];
+        G[i] = gw * phi[i];
+        rs += G[i];
+    }
+    for (int j = 0; j < fp; ++j) {
+        const float *bj = bT + j * nb;
+        float s = 0.0f;
+        int k = 0;
+        if (FPT) {
+            s = hsum(acc[j < NACC ? j : 0]);
+            k = vec_end;
+        } else {
+            v8 v = bc(0.0f);
+            for (; k + 8 <= nb; k += 8) v += ld(G + k) * ld(bj + k);
+            s = hsum(v);
+        }
+        for (; k < nb; ++k) s += G[k] * bj[k];
+        ga[j] = s;
+    }
+    return rs;
+}
+
+// The tile's sums over its 16 particles, added to the candidate's running sums:
+// colsum(G) (nb), phi^T gs (A, nb) and G^T a (fp, nb), 8 columns at a time with the
+// accumulators in registers; FPT as in phi_row_t.
+template <int FPT>
+void tile_sums_t(int fp_rt, int A, int nb, const float *Gb, const float *phi, const float *gs,
+                 const float *a_rec, float *gcol, float *gw, float *gb) {
+    const int fp = FPT ? FPT : fp_rt;
+    int i = 0;
+    for (; i + 8 <= nb; i += 8) {
+        v8 sc = ld(gcol + i);
+        if (FPT) {
+            v8 sb[FPT ? FPT : 1];
+            for (int j = 0; j < FPT; ++j) sb[j] = ld(gb + (int64_t)j * nb + i);
+            for (int q = 0; q < TILE; ++q) {
+                const v8 G = ld(Gb + (int64_t)q * nb + i);
+                sc += G;
+#pragma GCC unroll 32
+                for (int j = 0; j < FPT; ++j) sb[j] += G * bc(a_rec[j * TILE + q]);
+            }
+            for (int j = 0; j < FPT; ++j) st(gb + (int64_t)j * nb + i, sb[j]);
+        } else {
+            for (int q = 0; q < TILE; ++q) sc += ld(Gb + (int64_t)q * nb + i);
+            for (int j = 0; j < fp; ++j) {
+                v8 sb = ld(gb + (int64_t)j * nb + i);
+                for (int q = 0; q < TILE; ++q)
+                    sb += ld(Gb + (int64_t)q * nb + i) * bc(a_rec[j * TILE + q]);
+                st(gb + (int64_t)j * nb + i, sb);
+            }
+        }
+        st(gcol + i, sc);
+        for (int a = 0; a < A; ++a) {
+            v8 sw = ld(gw + (int64_t)a * nb + i);
+            for (int q = 0; q < TILE; ++q)
+                sw += ld(phi + (int64_t)q * nb + i) * bc(gs[a * TILE + q]);
+            st(gw + (int64_t)a * nb + i, sw);
+        }
+    }
+    for (; i < nb; ++i) {
+        for (int q = 0; q < TILE; ++q) {
+            const float Gi = Gb[(int64_t)q * nb + i];
+            gcol[i] += Gi;
+            for (int a = 0; a < A; ++a)
+                gw[(int64_t)a * nb + i] += phi[(int64_t)q * nb + i] * gs[a * TILE + q];
+            for (int j = 0; j < fp; ++j) gb[(int64_t)j * nb + i] += Gi * a_rec[j * TILE + q];
+        }
+    }
+}
+
+typedef float (*PhiRow)(int, int, const float *, float, const float *, const float *,
+                        const uint8_t *, float, float, const float *, float *);
+typedef float (*GRow)(int, int, int, const float *, const float *, const float *,
+                      const float *, float *, float *);
+typedef void (*TileSums)(int, int, int, const float *, const float *, const float *,
+                         const float *, float *, float *, float *);
+
+constexpr int MAX_UNROLLED_FEATURES = 16;  // policy feature counts with their own unrolled code
+
+template <int K>
+struct Pick {  // the K-feature instantiation for fp = K, else the next K
+    static PhiRow phi(int fp) { return fp == K ? phi_row_t<K> : Pick<K + 1>::phi(fp); }
+    static GRow g(int fp) { return fp == K ? g_row_t<K> : Pick<K + 1>::g(fp); }
+    static TileSums sums(int fp) { return fp == K ? tile_sums_t<K> : Pick<K + 1>::sums(fp); }
+};
+template <>
+struct Pick<MAX_UNROLLED_FEATURES + 1> {
+    static PhiRow phi(int) { return phi_row_t<0>; }
+    static GRow g(int) { return g_row_t<0>; }
+    static TileSums sums(int) { return tile_sums_t<0>; }
+};
+
+inline PhiRow pick_phi_row(int fp) { return Pick<1>::phi(fp); }
+inline GRow pick_g_row(int fp) { return Pick<1>::g(fp); }
+inline TileSums pick_tile_sums(int fp) { return Pick<1>::sums(fp); }
+
+// u = u_mid + u_half tanh((D o phi) w / u_half) for the tile's particles (u: A x 16)
+void policy_forward(const Model &M, const Lay &L, const Pol &P, const float *x, const float *nu,
+                    const uint8_t *bytes, int valid, float keep_t, float keep_scale, float *rec,
+                    Work &W) {
+    const int nb = M.nb, fp = M.fp, np = M.n_plain;
+    const PhiRow phi_row = pick_phi_row(fp);
+    float *feat = W.feat.data();
+    for (int q = 0; q < TILE; ++q) {
+        for (int k = 0; k < np; ++k) {
+            int j = M.plain_idx[k];
+            feat[k] = x[j * TILE + q] + nu[j * TILE + q];
+        }
+        for (int k = 0; k < M.n_ang; ++k) {
+            int j = M.angle_idx[k];
+            float th = x[j * TILE + q] + nu[j * TILE + q];
+            float s = std::sin(th), c = std::cos(th);
+            feat[np + 2 * k] = s;
+            feat[np + 2 * k + 1] = c;
+            rec[L.so + k * TILE + q] = s;
+            rec[L.co + k * TILE + q] = c;
+        }
+        float asq = 0.0f;
+        for (int j = 0; j < fp; ++j) {
+            float a = feat[j] * P.inv_l[j];
+            feat[j] = a;
+            asq += a * a;
+            rec[L.a + j * TILE + q] = a;
+        }
+        float *phi = rec + L.phi + (int64_t)q * nb;
+        const uint8_t *by = bytes + (int64_t)(q < valid ? q : 0) * nb;
+        const float s0 = phi_row(fp, nb, feat, asq, P.bT.data(), P.bsq.data(), by, keep_t,
+                                 keep_scale, P.wT.data(), phi);
+        for (int a = 0; a < M.A; ++a) {
+            float s = s0;
+            if (a > 0) {
+                const float *wa = P.wT.data() + (int64_t)a * nb;
+                v8 acc = bc(0.0f);
+                int i = 0;
+                for (; i + 8 <= nb; i += 8) acc += ld(phi + i) * ld(wa + i);
+                s = hsum(acc);
+                for (; i < nb; ++i) s += phi[i] * wa[i];
+            }
+            float t = std::tanh(s / M.u_half[a]);
+            rec[L.t + a * TILE + q] = t;
+            W.u[a * TILE + q] = M.u_mid[a] + M.u_half[a] * t;
+        }
+    }
+}
+
+// one tile's time step: x (n x 16, in/out), cost (16) out, record filled
+void step_forward_tile(const Model &M, const Lay &L, const Pol &P, float *x, const float *eps,
+                       const float *nu, const uint8_t *bytes, int valid, float keep_t,
+                       float keep_scale, float *rec, Work &W, float *cost) {
+    const int m = M.m, N = M.N, d = M.d, F = M.f, np = M.n_plain, fp = M.fp;
+    policy_forward(M, L, P, x, nu, bytes, valid, keep_t, keep_scale, rec, W);
+    // GP inputs [f(x), u], standardised
     float *xs = rec + L.xs;
     for (int q = 0; q < TILE; ++q) {
-        float th = x[2 * TILE + q];
-        float sn = std::sin(th), cs = std::cos(th);
-        rec[L.sn + q] = sn;
-        rec[L.cs + q] = cs;
-        float in[6] = {x[q], x[TILE + q], x[3 * TILE + q], sn, cs, u[q]};
-        for (int j = 0; j < d; ++j) xs[j * TILE + q] = (in[j] - G.x_mean[j]) / G.x_scale[j];
+        for (int k = 0; k < np; ++k) {
+            int j = M.plain_idx[k];
+            xs[k * TILE + q] = (x[j * TILE + q] - M.x_mean[k]) / M.x_scale[k];
+        }
+        for (int k = 0; k < M.n_ang; ++k) {
+            float th = x[M.angle_idx[k] * TILE + q];
+            float s = std::sin(th), c = std::cos(th);
+            rec[L.sn + k * TILE + q] = s;
+            rec[L.cs + k * TILE + q] = c;
+            int j = np + 2 * k;
+            xs[j * TILE + q] = (s - M.x_mean[j]) / M.x_scale[j];
+            xs[(j + 1) * TILE + q] = (c - M.x_mean[j + 1]) / M.x_scale[j + 1];
+        }
+        for (int a = 0; a < M.A; ++a) {
+            int j = fp + a;
+            xs[j * TILE + q] = (W.u[a * TILE + q] - M.x_mean[j]) / M.x_scale[j];
+        }
     }
-    float mean[2][TILE], var[2][TILE];
+    // psi(z), z = [1, x^] (shared by the outputs)
+    float *psi = rec + L.psi;
+    if (M.p == 2) {
+        for (int fi = 0; fi < F; ++fi) {
+            int ia = M.idx_a[fi], ic = M.idx_c[fi];
+            for (int h = 0; h < TILE; h += 8) {
+                v8 za = ia == 0 ? bc(1.0f) : ld(xs + (ia - 1) * TILE + h);
+                v8 zc = ic == 0 ? bc(1.0f) : ld(xs + (ic - 1) * TILE + h);
+                st(psi + fi * TILE + h, za * zc);
+            }
+        }
+    }
+    float *xa = W.xa.data();
     for (int b = 0; b < m; ++b) {
-        float *R = rec + L.R + (int64_t)b * (F + n) * TILE;
-        float *V = rec + L.V + (int64_t)b * pad_rows(n + 1) * TILE;  // then the mean row
-        // x_aug = [x^; 1; -||x^/l_b||^2 / 2] (8 rows) -> E = W_aug x_aug, r = exp(E)
-        float xa[8 * TILE];
-        for (int h = 0; h < 2; ++h) {
+        float *r = rec + L.r + (int64_t)b * N * TILE;
+        float *V = rec + L.V + (int64_t)b * L.vrows * TILE;  // then the mean row
+        // x_aug = [x^; 1; -||x^/l_b||^2 / 2] -> E = W_aug x_aug, r = exp(E)
+        for (int h = 0; h < TILE; h += 8) {
             v8 sq = bc(0.0f);
             for (int j = 0; j < d; ++j) {
-                v8 v = ld(xs + j * TILE + 8 * h);
-                st(xa + j * TILE + 8 * h, v);
-                sq += bc(G.inv_l2[b * d + j]) * (v * v);
+                v8 v = ld(xs + j * TILE + h);
+                st(xa + j * TILE + h, v);
+                sq += bc(M.inv_l2[b * d + j]) * (v * v);
             }
-            st(xa + d * TILE + 8 * h, bc(1.0f));
-            st(xa + (d + 1) * TILE + 8 * h, sq * bc(-0.5f));
+            st(xa + d * TILE + h, bc(1.0f));
+            st(xa + (d + 1) * TILE + h, sq * bc(-0.5f));
         }
-        const Packed &Wa = G.w_aug[b];
-        gemm_tile(Wa.a, Wa.beg, Wa.end, Wa.off, Wa.blocks, xa, W.E);
-        for (int j = 0; j < n * TILE; j += 8) st(R + F * TILE + j, vexp_floor(ld(W.E + j)));
-        // psi(z), z = [1, x^]
-        if (G.p == 1) {
-            for (int h = 0; h < TILE; h += 8) {
-                st(R + h, bc(1.0f));
-                for (int j = 0; j < d; ++j) st(R + (j + 1) * TILE + h, ld(xs + j * TILE + h));
-            }
-        } else if (G.p == 2) {
-            for (int fi = 0; fi < F; ++fi) {
-                int ia = G.idx_a[fi], ic = G.idx_c[fi];
-                for (int h = 0; h < TILE; h += 8) {
-                    v8 za = ia == 0 ? bc(1.0f) : ld(xs + (ia - 1) * TILE + h);
-                    v8 zc = ic == 0 ? bc(1.0f) : ld(xs + (ic - 1) * TILE + h);
-                    st(R + fi * TILE + h, za * zc);
-                }
-            }
-        }
-        // [V; mean] = [B; alpha_aug] R
-        const Packed &Bf = G.fwd[b];
-        gemm_tile(Bf.a, Bf.beg, Bf.end, Bf.off, Bf.blocks, R, V);
+        gemm_tile(M.w_aug[b], xa, NO_SPLIT, xa, W.E.data());
+        for (int j = 0; j < N * TILE; j += 8) st(r + j, vexp_floor(ld(W.E.data() + j)));
+        // [V; mean] = [B; alpha_aug] [psi; r]
+        gemm_tile(M.fwd[b], psi, F, r, V);
         for (int h = 0; h < TILE; h += 8) {
             v8 vv = bc(0.0f);
-            for (int i = 0; i < n; ++i) {
+            for (int i = 0; i < N; ++i) {
                 v8 s = ld(V + i * TILE + h);
                 vv += s * s;
             }
-            v8 prior = bc(G.outputscale[b]);
-            if (G.p > 0) {
+            v8 prior = bc(M.outputscale[b]);
+            if (M.p > 0) {
                 v8 prod = bc(1.0f);
-                for (int s = 0; s < G.p; ++s) {
-                    v8 fac = bc(G.sig2[s * m + b]);
+                for (int s = 0; s < M.p; ++s) {
+                    v8 fac = bc(M.sig2[s * m + b]);
                     for (int j = 0; j < d; ++j) {
                         v8 v = ld(xs + j * TILE + h);
-                        fac += bc(G.sig_diag[(s * m + b) * d + j]) * (v * v);
+                        fac += bc(M.sig_diag[(s * m + b) * d + j]) * (v * v);
                     }
                     st(rec + L.fac + (s * m + b) * TILE + h, fac);
                     prod *= fac;
@@ -305,137 +475,191 @@ static void step_forward_tile(const Gp &G, const Pol &P, const Cost &C, const fl
             v8 on = v >= bc(0.0f) ? bc(1.0f) : bc(0.0f);
             v = v < bc(0.0f) ? bc(0.0f) : v;  // clamp_min keeps NaN
             st(rec + L.active + b * TILE + h, on);
-            v8 ys = bc(G.y_scale[b]);
-            st(mean[b] + h, ld(V + n * TILE + h) * ys + bc(G.y_mean[b]));
+            v8 ys = bc(M.y_scale[b]);
+            st(W.mean.data() + b * TILE + h, ld(V + N * TILE + h) * ys + bc(M.y_mean[b]));
             v8 vo = v * (ys * ys);
-            if (G.noise_var) vo += bc(G.noise_var[b]);
-            st(var[b] + h, vo);
+            if (M.noise_var) vo += bc(M.noise_var[b]);
+            st(W.var.data() + b * TILE + h, vo);
         }
     }
-    // Delta = clip(mean + sqrt(max(var, floor)) eps), x+ = x A^T + Delta S^T, cost c(x+)
-    for (int q = 0; q < TILE; ++q) {
-        float delta[2];
-        for (int b = 0; b < 2; ++b) {
-            float vr = var[b][q];
-            float on = vr >= VAR_FLOOR ? 1.0f : 0.0f;
-            float sd = std::sqrt(vr < VAR_FLOOR ? VAR_FLOOR : vr);
-            float e = eps[b * TILE + q];
-            float dl = mean[b][q] + sd * e;
-            float in = 1.0f;
-            if (G.bound) {
-                float bd = G.bound[b];
-                in = (dl >= -bd && dl <= bd) ? 1.0f : 0.0f;
-                dl = dl < -bd ? -bd : (dl > bd ? bd : dl);
-            }
-            rec[L.eps + b * TILE + q] = e;
-            rec[L.sd + b * TILE + q] = sd;
-            rec[L.varon + b * TILE + q] = on;
-            rec[L.inside + b * TILE + q] = in;
-            delta[b] = dl;
+    // Delta = clip(mean + sqrt(max(var, floor)) eps), x+ = x A^T + Delta S^T, cost c(x+);
+    // loops over the tile's 16 particles (the compiler vectorises them)
+    float *delta = W.delta.data();
+    for (int b = 0; b < m; ++b) {
+        const float *mn = W.mean.data() + b * TILE, *vr = W.var.data() + b * TILE;
+        const float *e = eps + b * TILE;
+        float *dl = delta + b * TILE, *re = rec + L.eps + b * TILE, *rs = rec + L.sd + b * TILE;
+        float *ro = rec + L.varon + b * TILE, *ri = rec + L.inside + b * TILE;
+        for (int q = 0; q < TILE; ++q) {
+            const float v = vr[q];
+            const float sd = std::sqrt(v < VAR_FLOOR ? VAR_FLOOR : v);
+            ro[q] = v >= VAR_FLOOR ? 1.0f : 0.0f;
+            rs[q] = sd;
+            re[q] = e[q];
+            dl[q] = mn[q] + sd * e[q];
         }
-        float dt = C.dt;
-        float x0 = x[q], x1 = x[TILE + q], x2 = x[2 * TILE + q], x3 = x[3 * TILE + q];
-        x[q] = x0 + dt * x1 + 0.5f * dt * delta[0];
-        x[TILE + q] = x1 + delta[0];
-        x[2 * TILE + q] = x2 + dt * x3 + 0.5f * dt * delta[1];
-        x[3 * TILE + q] = x3 + delta[1];
-        float px = x[q], th = x[2 * TILE + q];
-        if (C.wrap) th = std::atan2(std::sin(th), std::cos(th));
-        float dth = std::fabs(th) - (float)M_PI;
-        float sg = th > 0.0f ? 1.0f : (th < 0.0f ? -1.0f : 0.0f);
-        float z1 = dth / C.l_theta, z2 = px / C.l_x;
-        float E = std::exp(-(z1 * z1) - z2 * z2);
-        rec[L.cx + q] = px;
-        rec[L.cd + q] = dth;
-        rec[L.csg + q] = sg;
-        rec[L.cE + q] = E;
-        cost[q] = 1.0f - E;
+        if (M.bound) {
+            const float bd = M.bound[b];
+            for (int q = 0; q < TILE; ++q) {
+                const float v = dl[q];
+                ri[q] = (v >= -bd && v <= bd) ? 1.0f : 0.0f;
+                dl[q] = v < -bd ? -bd : (v > bd ? bd : v);  // NaN kept, as torch.clamp
+            }
+        } else {
+            for (int q = 0; q < TILE; ++q) ri[q] = 1.0f;
+        }
+    }
+    const float dt = M.dt, half_dt = 0.5f * dt;
+    for (int k = 0; k < M.n_pairs; ++k) {
+        float *xp = x + M.position_idx[k] * TILE, *xv = x + M.velocity_idx[k] * TILE;
+        const float *dk = delta + k * TILE;
+        for (int q = 0; q < TILE; ++q) {
+            const float p0 = xp[q], v0 = xv[q];
+            xp[q] = p0 + dt * v0 + half_dt * dk[q];
+            xv[q] = v0 + dk[q];
+        }
+    }
+    for (int k = 0; k < M.n_delta; ++k) {
+        float *xo = x + M.delta_idx[k] * TILE;
+        const float *dk = delta + (M.n_pairs + k) * TILE;
+        for (int q = 0; q < TILE; ++q) xo[q] += dk[q];
+    }
+    // c = 1 - exp(-sum_j (d_j / l_j)^2), d_j by the term's mode (cost.py)
+    float *sum = W.csum.data();
+    for (int q = 0; q < TILE; ++q) sum[q] = 0.0f;
+    for (int j = 0; j < M.n_terms; ++j) {
+        const float *xv = x + M.cost_idx[j] * TILE;
+        const float tg = M.cost_target[j], ls = M.cost_ls[j];
+        float *cd = rec + L.cd + j * TILE;  // d_j d'_j
+        if (M.cost_mode[j] == 0) {
+            for (int q = 0; q < TILE; ++q) {
+                const float dj = xv[q] - tg, z = dj / ls;
+                sum[q] += z * z;
+                cd[q] = dj;
+            }
+        } else if (M.cost_mode[j] == 1) {  // torch.remainder(v - t + pi, 2 pi) - pi
+            for (int q = 0; q < TILE; ++q) {
+                float mod = std::fmod((xv[q] - tg) + PI_F, TWO_PI_F);
+                if (mod != 0.0f && mod < 0.0f) mod += TWO_PI_F;
+                const float dj = mod - PI_F, z = dj / ls;
+                sum[q] += z * z;
+                cd[q] = dj;
+            }
+        } else {  // |v| - |t|, slope sign(v)
+            const float at = std::fabs(tg);
+            for (int q = 0; q < TILE; ++q) {
+                const float v = xv[q], dj = std::fabs(v) - at, z = dj / ls;
+                const float slope = v > 0.0f ? 1.0f : (v < 0.0f ? -1.0f : 0.0f);
+                sum[q] += z * z;
+                cd[q] = dj * slope;
+            }
+        }
+    }
+    for (int h = 0; h < TILE; h += 8) {
+        const v8 E = vexp_floor(-ld(sum + h));
+        st(rec + L.cE + h, E);
+        st(cost + h, bc(1.0f) - E);
     }
 }
 
-// one tile's backward: g (4 x 16) in: dJ/dx_{t+1}; out: dJ/dx_t.  gc (16): dJ/dc_{t+1}.
-// Policy-parameter gradients accumulate into gb (5 x nb, sum_q G a), gcol (nb), gw (nb),
-// gl (5, sum_q g_a o a); Gbuf (16 x nb) is scratch for the tile's G = dJ/d log phi.
-static void step_backward_tile(const Gp &G, const Pol &P, const Cost &C, const float *bT,
-                               const float *w, const float *inv_l, const float *rec,
-                               const Layout &L, Scratch &W, float *g, const float *gc,
-                               float *gb, float *gcol, float *gw, float *gl, float *Gbuf) {
-    float gsq[TILE];
-    const int m = G.m, n = G.n, d = G.d, F = G.f;
-    float gmean[2][TILE], gvar[2][TILE], gstate[4][TILE];
-    for (int q = 0; q < TILE; ++q) {
-        // cost
-        float E = rec[L.cE + q], gE2 = 2.0f * gc[q] * E;
-        float g0 = g[q] + gE2 * rec[L.cx + q] / (C.l_x * C.l_x);
-        float g1 = g[TILE + q];
-        float g2 = g[2 * TILE + q] + gE2 * rec[L.cd + q] * rec[L.csg + q] / (C.l_theta * C.l_theta);
-        float g3 = g[3 * TILE + q];
-        // integration: g_state = g A, g_Delta = (g S) 1[inside]
-        float dt = C.dt;
-        gstate[0][q] = g0;
-        gstate[1][q] = dt * g0 + g1;
-        gstate[2][q] = g2;
-        gstate[3][q] = dt * g2 + g3;
-        float gd[2] = {(0.5f * dt * g0 + g1) * rec[L.inside + q],
-                       (0.5f * dt * g2 + g3) * rec[L.inside + TILE + q]};
-        for (int b = 0; b < 2; ++b) {
-            gmean[b][q] = gd[b];
-            gvar[b][q] = gd[b] * rec[L.eps + b * TILE + q] / (2.0f * rec[L.sd + b * TILE + q]) *
-                         rec[L.varon + b * TILE + q];
+// The tile's running sums of the policy-parameter gradients of one candidate.
+struct PolGrad {
+    std::vector<float> gb, gcol, gw, gl;  // (Fp, nb) sum G a; (nb) colsum G; (A, nb); (Fp)
+    explicit PolGrad(const Model &M) : gb(M.fp * M.nb), gcol(M.nb), gw(M.A * M.nb), gl(M.fp) {}
+    void zero() {
+        std::fill(gb.begin(), gb.end(), 0.0f);
+        std::fill(gcol.begin(), gcol.end(), 0.0f);
+        std::fill(gw.begin(), gw.end(), 0.0f);
+        std::fill(gl.begin(), gl.end(), 0.0f);
+    }
+};
+
+// one tile's backward: g (n x 16) in: dJ/dx_{t+1}; out: dJ/dx_t.  gc (16): dJ/dc_{t+1}.
+void step_backward_tile(const Model &M, const Lay &L, const Pol &P, const float *rec, Work &W,
+                        float *g, const float *gc, PolGrad &PG) {
+    const int m = M.m, N = M.N, d = M.d, F = M.f, np = M.n_plain, fp = M.fp, nb = M.nb;
+    float *gstate = W.gstate.data(), *gmean = W.gmean.data(), *gvar = W.gvar.data();
+    // cost: dc/dx_j = 2 E d_j d'_j / l_j^2; loops over the tile's 16 particles
+    float *gx = W.gx.data(), *gE2 = W.csum.data();
+    std::memcpy(gx, g, sizeof(float) * M.n * TILE);
+    for (int q = 0; q < TILE; ++q) gE2[q] = 2.0f * gc[q] * rec[L.cE + q];
+    for (int j = 0; j < M.n_terms; ++j) {
+        float *gj = gx + M.cost_idx[j] * TILE;
+        const float *cd = rec + L.cd + j * TILE;
+        const float ls2 = M.cost_ls2[j];
+        for (int q = 0; q < TILE; ++q) gj[q] += gE2[q] * cd[q] / ls2;
+    }
+    // integration: g_state = g A, g_Delta = (g S) 1[inside]
+    std::memcpy(gstate, gx, sizeof(float) * M.n * TILE);
+    const float dt = M.dt, half_dt = 0.5f * dt;
+    for (int k = 0; k < M.n_pairs; ++k) {
+        const float *gp = gx + M.position_idx[k] * TILE, *gv = gx + M.velocity_idx[k] * TILE;
+        float *sv = gstate + M.velocity_idx[k] * TILE, *gm = gmean + k * TILE;
+        for (int q = 0; q < TILE; ++q) {
+            sv[q] += dt * gp[q];
+            gm[q] = half_dt * gp[q] + gv[q];
+        }
+    }
+    for (int k = 0; k < M.n_delta; ++k)
+        std::memcpy(gmean + (M.n_pairs + k) * TILE, gx + M.delta_idx[k] * TILE,
+                    sizeof(float) * TILE);
+    for (int b = 0; b < m; ++b) {
+        float *gm = gmean + b * TILE, *gv = gvar + b * TILE;
+        const float *in = rec + L.inside + b * TILE, *e = rec + L.eps + b * TILE;
+        const float *sd = rec + L.sd + b * TILE, *on = rec + L.varon + b * TILE;
+        for (int q = 0; q < TILE; ++q) {
+            const float gd = gm[q] * in[q];
+            gm[q] = gd;
+            gv[q] = gd * e[q] / (2.0f * sd[q]) * on[q];
         }
     }
     const float *xs = rec + L.xs;
-    float dxs[6 * TILE];
-    for (int j = 0; j < 6 * TILE; ++j) dxs[j] = 0.0f;
-    float dpsi[64 * TILE];
-    if (F) std::memset(dpsi, 0, sizeof(float) * F * TILE);
-    float wprior[6 * TILE];  // sum_{s,b} gv_b others_{s,b} Sigma_{s,b,j}
-    for (int j = 0; j < d * TILE; ++j) wprior[j] = 0.0f;
+    float *dxs = W.dxs.data(), *dpsi = W.dpsi.data(), *wprior = W.wprior.data();
+    float *dV = W.dV.data(), *dR = W.dR.data(), *dx = W.dx.data();
+    std::memset(dxs, 0, sizeof(float) * d * TILE);
+    std::memset(dpsi, 0, sizeof(float) * W.dpsi.size());
+    std::memset(wprior, 0, sizeof(float) * d * TILE);
     for (int b = 0; b < m; ++b) {
-        const float *R = rec + L.R + (int64_t)b * (F + n) * TILE;
-        const float *V = rec + L.V + (int64_t)b * pad_rows(n + 1) * TILE;
+        const float *r = rec + L.r + (int64_t)b * N * TILE;
+        const float *V = rec + L.V + (int64_t)b * L.vrows * TILE;
         for (int h = 0; h < TILE; h += 8) {
-            v8 ys = bc(G.y_scale[b]);
-            v8 gm = ld(gmean[b] + h) * ys;
-            v8 gv = ld(gvar[b] + h) * (ys * ys) * ld(rec + L.active + b * TILE + h);
+            v8 ys = bc(M.y_scale[b]);
+            v8 gm = ld(gmean + b * TILE + h) * ys;
+            v8 gv = ld(gvar + b * TILE + h) * (ys * ys) * ld(rec + L.active + b * TILE + h);
             v8 m2gv = bc(-2.0f) * gv;
-            for (int i = 0; i < n; ++i) st(W.dV + i * TILE + h, ld(V + i * TILE + h) * m2gv);
-            st(W.dV + n * TILE + h, gm);
-            if (G.p > 0) {  // prior: d/dx^ prod_s fac_s = sum_s prod_{s' != s} fac_s' 2 Sigma_s x^
-                for (int s = 0; s < G.p; ++s) {
-                    v8 other = G.p == 1 ? bc(1.0f)
-                                        : ld(rec + L.fac + ((1 - s) * m + b) * TILE + h);
+            for (int i = 0; i < N; ++i) st(dV + i * TILE + h, ld(V + i * TILE + h) * m2gv);
+            st(dV + N * TILE + h, gm);
+            if (M.p > 0) {  // prior: d/dx^ prod_s fac_s = sum_s prod_{s' != s} fac_s' 2 Sigma_s x^
+                for (int s = 0; s < M.p; ++s) {
+                    v8 other =
+                        M.p == 1 ? bc(1.0f) : ld(rec + L.fac + ((1 - s) * m + b) * TILE + h);
                     v8 wv = gv * other;
                     for (int j = 0; j < d; ++j) {
                         v8 acc = ld(wprior + j * TILE + h);
-                        st(wprior + j * TILE + h, acc + wv * bc(G.sig_diag[(s * m + b) * d + j]));
+                        st(wprior + j * TILE + h, acc + wv * bc(M.sig_diag[(s * m + b) * d + j]));
                     }
                 }
             }
         }
         // dR = [B; alpha_aug]^T [dV; g_m]
-        const Packed &Bb = G.bwd[b];
-        gemm_tile(Bb.a, Bb.beg, Bb.end, Bb.off, Bb.blocks, W.dV, W.dR);
-        for (int j = 0; j < F * TILE; j += 8) st(dpsi + j, ld(dpsi + j) + ld(W.dR + j));
+        gemm_tile(M.bwd[b], dV, NO_SPLIT, dV, dR);
+        for (int j = 0; j < F * TILE; j += 8) st(dpsi + j, ld(dpsi + j) + ld(dR + j));
         // dE = dr o r, then [(X/l^2)^T dE; 1^T dE] = W_t dE
-        for (int j = 0; j < n * TILE; j += 8)
-            st(W.dR + F * TILE + j, ld(W.dR + F * TILE + j) * ld(R + F * TILE + j));
-        const Packed &Wt = G.w_t[b];
-        gemm_tile(Wt.a, Wt.beg, Wt.end, Wt.off, Wt.blocks, W.dR + F * TILE, W.dx);
+        float *dE = dR + (int64_t)F * TILE;
+        for (int j = 0; j < N * TILE; j += 8) st(dE + j, ld(dE + j) * ld(r + j));
+        gemm_tile(M.w_t[b], dE, NO_SPLIT, dE, dx);
         for (int h = 0; h < TILE; h += 8) {
-            v8 sumE = ld(W.dx + d * TILE + h);
+            v8 sumE = ld(dx + d * TILE + h);
             for (int j = 0; j < d; ++j) {
-                v8 acc = ld(dxs + j * TILE + h) + ld(W.dx + j * TILE + h);
-                acc -= ld(xs + j * TILE + h) * (sumE * bc(G.inv_l2[b * d + j]));
+                v8 acc = ld(dxs + j * TILE + h) + ld(dx + j * TILE + h);
+                acc -= ld(xs + j * TILE + h) * (sumE * bc(M.inv_l2[b * d + j]));
                 st(dxs + j * TILE + h, acc);
             }
         }
     }
-    if (G.p == 1) {
-        for (int j = 0; j < d * TILE; ++j) dxs[j] += dpsi[TILE + j];
-    } else if (G.p == 2) {
+    if (M.p == 2) {
         for (int fi = 0; fi < F; ++fi) {
-            int ia = G.idx_a[fi], ic = G.idx_c[fi];
+            int ia = M.idx_a[fi], ic = M.idx_c[fi];
             for (int h = 0; h < TILE; h += 8) {
                 v8 dp = ld(dpsi + fi * TILE + h);
                 v8 za = ia == 0 ? bc(1.0f) : ld(xs + (ia - 1) * TILE + h);
@@ -445,194 +669,142 @@ static void step_backward_tile(const Gp &G, const Pol &P, const Cost &C, const f
             }
         }
     }
-    if (G.p > 0)
+    if (M.p > 0)
         for (int j = 0; j < d * TILE; ++j) dxs[j] += 2.0f * xs[j] * wprior[j];
-    // GP inputs -> state and action; policy
+    // GP inputs -> state and action (loops over the tile's particles); policy
+    float *gin = W.gin.data(), *gf = W.gf.data(), *gs = W.gs.data(), *Gb = W.G.data();
+    const GRow g_row = pick_g_row(fp);
+    const TileSums tile_sums = pick_tile_sums(fp);
+    const float *bT = P.bT.data(), *wT = P.wT.data(), *a_rec = rec + L.a;
+    for (int j = 0; j < d; ++j) {
+        const float sc = M.x_scale[j];
+        for (int q = 0; q < TILE; ++q) gin[j * TILE + q] = dxs[j * TILE + q] / sc;
+    }
+    std::memcpy(g, gstate, sizeof(float) * M.n * TILE);
+    for (int k = 0; k < np; ++k) {
+        float *gk = g + M.plain_idx[k] * TILE;
+        for (int q = 0; q < TILE; ++q) gk[q] += gin[k * TILE + q];
+    }
+    for (int k = 0; k < M.n_ang; ++k) {
+        float *gk = g + M.angle_idx[k] * TILE;
+        const float *gsn = gin + (np + 2 * k) * TILE, *gcs = gsn + TILE;
+        const float *sn = rec + L.sn + k * TILE, *cs = rec + L.cs + k * TILE;
+        for (int q = 0; q < TILE; ++q) gk[q] += gsn[q] * cs[q] - gcs[q] * sn[q];
+    }
+    // policy: gs = g_u (1 - t^2), G = (gs w^T) o phi = dJ/d log phi
+    for (int a = 0; a < M.A; ++a) {
+        const float *t = rec + L.t + a * TILE, *gu = gin + (fp + a) * TILE;
+        for (int q = 0; q < TILE; ++q) gs[a * TILE + q] = gu[q] * (1.0f - t[q] * t[q]);
+    }
     for (int q = 0; q < TILE; ++q) {
-        float gin[6];
-        for (int j = 0; j < 6; ++j) gin[j] = dxs[j * TILE + q] / G.x_scale[j];
-        float sn = rec[L.sn + q], cs = rec[L.cs + q];
-        float gx0 = gstate[0][q] + gin[0];
-        float gx1 = gstate[1][q] + gin[1];
-        float gx2 = gstate[2][q] + gin[3] * cs - gin[4] * sn;
-        float gx3 = gstate[3][q] + gin[2];
-        float t = rec[L.t + q];
-        float gs = gin[5] * (1.0f - t * t);  // dJ/d(phi w)
-        const float *phi = rec + L.phi + (int64_t)q * P.nb;
-        float *Gq = Gbuf + (int64_t)q * P.nb;
-        float a[5];
-        for (int j = 0; j < 5; ++j) a[j] = rec[L.a + j * TILE + q];
-        gsq[q] = gs;
-        v8 ga[5] = {bc(0), bc(0), bc(0), bc(0), bc(0)};
-        v8 rows = bc(0.0f);
-        const v8 gsv = bc(gs);
-        int i = 0;
-        for (; i + 8 <= P.nb; i += 8) {
-            v8 Gi = gsv * ld(w + i) * ld(phi + i);  // dJ/d log phi_i
-            st(Gq + i, Gi);
-            rows += Gi;
-            for (int j = 0; j < 5; ++j) ga[j] += Gi * ld(bT + j * P.nb + i);
-        }
-        float rs = hsum(rows), gaj[5];
-        for (int j = 0; j < 5; ++j) gaj[j] = hsum(ga[j]);
-        for (; i < P.nb; ++i) {
-            float Gi = gs * w[i] * phi[i];
-            Gq[i] = Gi;
-            rs += Gi;
-            for (int j = 0; j < 5; ++j) gaj[j] += Gi * bT[j * P.nb + i];
-        }
-        float gf[5];
-        for (int j = 0; j < 5; ++j) {
-            float g_a = gaj[j] - a[j] * rs;
-            gl[j] += g_a * a[j];
-            gf[j] = g_a * inv_l[j];
-        }
-        float co = rec[L.cso + q], so = rec[L.sno + q];
-        g[q] = gx0 + gf[0];
-        g[TILE + q] = gx1 + gf[1];
-        g[2 * TILE + q] = gx2 + gf[3] * co - gf[4] * so;
-        g[3 * TILE + q] = gx3 + gf[2];
-    }
-    // the tile's sums over its particles: colsum(G), phi^T gs and G^T a, one pass per column
-    const float *a = rec + L.a, *phi = rec + L.phi;
-    int i = 0;
-    for (; i + 8 <= P.nb; i += 8) {
-        v8 sc = bc(0), sw = bc(0), sb[5] = {bc(0), bc(0), bc(0), bc(0), bc(0)};
-        for (int q = 0; q < TILE; ++q) {
-            v8 Gi = ld(Gbuf + (int64_t)q * P.nb + i);
-            sc += Gi;
-            sw += ld(phi + (int64_t)q * P.nb + i) * bc(gsq[q]);
-            for (int j = 0; j < 5; ++j) sb[j] += Gi * bc(a[j * TILE + q]);
-        }
-        st(gcol + i, ld(gcol + i) + sc);
-        st(gw + i, ld(gw + i) + sw);
-        for (int j = 0; j < 5; ++j) st(gb + j * P.nb + i, ld(gb + j * P.nb + i) + sb[j]);
-    }
-    for (; i < P.nb; ++i) {
-        for (int q = 0; q < TILE; ++q) {
-            float Gi = Gbuf[(int64_t)q * P.nb + i];
-            gcol[i] += Gi;
-            gw[i] += phi[(int64_t)q * P.nb + i] * gsq[q];
-            for (int j = 0; j < 5; ++j) gb[j * P.nb + i] += Gi * a[j * TILE + q];
+        const float *phi = rec + L.phi + (int64_t)q * nb;
+        // dJ/da = G b - a rowsum(G); dJ/dfeat = dJ/da / l
+        const float rs = g_row(fp, M.A, nb, phi, gs + q, wT, bT, Gb + (int64_t)q * nb,
+                               W.ga.data());
+        for (int j = 0; j < fp; ++j) {
+            float aj = a_rec[j * TILE + q];
+            float g_a = W.ga[j] - aj * rs;
+            PG.gl[j] += g_a * aj;
+            gf[j * TILE + q] = g_a * P.inv_l[j];
         }
     }
+    // the policy input's features -> state
+    for (int k = 0; k < np; ++k) {
+        float *gk = g + M.plain_idx[k] * TILE;
+        for (int q = 0; q < TILE; ++q) gk[q] += gf[k * TILE + q];
+    }
+    for (int k = 0; k < M.n_ang; ++k) {
+        float *gk = g + M.angle_idx[k] * TILE;
+        const float *gsn = gf + (np + 2 * k) * TILE, *gcs = gsn + TILE;
+        const float *so = rec + L.so + k * TILE, *co = rec + L.co + k * TILE;
+        for (int q = 0; q < TILE; ++q) gk[q] += gsn[q] * co[q] - gcs[q] * so[q];
+    }
+    // the tile's sums over its particles: colsum(G), phi^T gs and G^T a
+    tile_sums(fp, M.A, nb, Gb, rec + L.phi, gs, a_rec, PG.gcol.data(), PG.gw.data(),
+              PG.gb.data());
 }
 
-struct Shard {  // one shard's rollout: rows = K candidates x per particles each
-    int horizon, K, per, tiles_per;  // tiles per candidate
-};
+}  // namespace
 
-// Forward rollout of one shard.  x0 (K*per, 4), eps (H, K*per, 2), nu (H, K*per, 4) row-major;
-// bytes[t] (K*per, nb) uint8; theta per candidate: centers (K, nb, 5), log_l (K, 5),
-// w (K, nb).  costs (H, K*per) out; rec (H, K*tiles_per, record) out.
-extern "C" int mcp_forward(const Gp *G, const Pol *P, const Cost *C, const Shard *S,
-                           const float *x0, const float *eps, const float *nu,
-                           const uint8_t *const *bytes, float keep_t, float keep_scale,
-                           const float *centers, const float *log_l, const float *w,
-                           float *costs, float *rec) {
-    if (G->m > 2 || G->f > 64 || G->n + 1 > 512 || G->d != 6) return 1;
-    const int nb = P->nb, rows = S->K * S->per;
-    Layout L;
-    L.init(nb, G->m, G->n, G->f, G->p);
-    Scratch *W = new Scratch;
-    float *bT = new float[5 * nb], *bsq = new float[nb];
-    float x[4 * TILE], e[2 * TILE], v[4 * TILE], cost[TILE];
-    for (int k = 0; k < S->K; ++k) {
-        float inv_l[5];
-        for (int j = 0; j < 5; ++j) inv_l[j] = std::exp(-log_l[k * 5 + j]);
-        for (int i = 0; i < nb; ++i) {
-            float s = 0.0f;
-            for (int j = 0; j < 5; ++j) {
-                float bv = centers[((int64_t)k * nb + i) * 5 + j] * inv_l[j];
-                bT[j * nb + i] = bv;
-                s += bv * bv;
-            }
-            bsq[i] = -0.5f * s;
-        }
-        const float *wk = w + (int64_t)k * nb;
-        for (int tile = 0; tile < S->tiles_per; ++tile) {
-            int first = k * S->per + tile * TILE;
-            int valid = S->per - tile * TILE < TILE ? S->per - tile * TILE : TILE;
-            for (int j = 0; j < 4 * TILE; ++j) x[j] = 0.0f;
+int64_t record_floats(const Model &M) { return Lay(M).size; }
+
+void forward(const Model &M, int horizon, int K, int per, const float *x0, const float *eps,
+             const float *nu, const uint8_t *const *bytes, float keep_t, float keep_scale,
+             const float *centers, const float *log_l, const float *w, float *costs, float *rec) {
+    const int n = M.n, m = M.m, nb = M.nb, rows = K * per, tiles_per = (per + TILE - 1) / TILE;
+    const Lay L(M);
+    Work W(M);
+    Pol P(M);
+    std::vector<float> x(n * TILE), e(m * TILE), v(n * TILE);
+    float cost[TILE];
+    for (int k = 0; k < K; ++k) {
+        P.load(M, centers + (int64_t)k * nb * M.fp, log_l + (int64_t)k * M.fp,
+               w + (int64_t)k * nb * M.A);
+        for (int tile = 0; tile < tiles_per; ++tile) {
+            const int first = k * per + tile * TILE;
+            const int valid = per - tile * TILE < TILE ? per - tile * TILE : TILE;
+            std::fill(x.begin(), x.end(), 0.0f);
             for (int q = 0; q < valid; ++q)
-                for (int j = 0; j < 4; ++j) x[j * TILE + q] = x0[(int64_t)(first + q) * 4 + j];
-            for (int t = 0; t < S->horizon; ++t) {
-                for (int j = 0; j < 4 * TILE; ++j) v[j] = 0.0f;
-                for (int j = 0; j < 2 * TILE; ++j) e[j] = 0.0f;
+                for (int j = 0; j < n; ++j) x[j * TILE + q] = x0[(int64_t)(first + q) * n + j];
+            for (int t = 0; t < horizon; ++t) {
+                std::fill(v.begin(), v.end(), 0.0f);
+                std::fill(e.begin(), e.end(), 0.0f);
                 for (int q = 0; q < valid; ++q) {
-                    int64_t r = (int64_t)t * rows + first + q;
-                    for (int j = 0; j < 4; ++j) v[j * TILE + q] = nu[r * 4 + j];
-                    for (int j = 0; j < 2; ++j) e[j * TILE + q] = eps[r * 2 + j];
+                    const int64_t r = (int64_t)t * rows + first + q;
+                    for (int j = 0; j < n; ++j) v[j * TILE + q] = nu[r * n + j];
+                    for (int j = 0; j < m; ++j) e[j * TILE + q] = eps[r * m + j];
                 }
-                float *rc = rec + ((int64_t)t * S->K * S->tiles_per + k * S->tiles_per + tile) * L.size;
-                step_forward_tile(*G, *P, *C, bT, bsq, wk, inv_l, x, e, v,
-                                  bytes[t] + (int64_t)first * nb, valid, keep_t, keep_scale, rc, L,
-                                  *W, cost);
+                float *rc = rec + ((int64_t)t * K * tiles_per + (int64_t)k * tiles_per + tile) * L.size;
+                step_forward_tile(M, L, P, x.data(), e.data(), v.data(),
+                                  bytes[t] + (int64_t)first * nb, valid, keep_t, keep_scale, rc,
+                                  W, cost);
                 for (int q = 0; q < valid; ++q) costs[(int64_t)t * rows + first + q] = cost[q];
             }
         }
     }
-    delete W;
-    delete[] bT;
-    delete[] bsq;
-    return 0;
 }
 
-// Backward rollout of one shard from g_costs (H, K*per): adds dJ/dtheta to g_centers
-// (K, nb, 5), g_log_l (K, 5), g_w (K, nb).
-extern "C" int mcp_backward(const Gp *G, const Pol *P, const Cost *C, const Shard *S,
-                            const float *rec, const float *centers, const float *log_l,
-                            const float *w, const float *g_costs, float *g_centers,
-                            float *g_log_l, float *g_w) {
-    const int nb = P->nb, rows = S->K * S->per;
-    Layout L;
-    L.init(nb, G->m, G->n, G->f, G->p);
-    Scratch *W = new Scratch;
-    float *bT = new float[5 * nb], *gb = new float[5 * nb], *gcol = new float[nb];
-    float *gw = new float[nb], *Gbuf = new float[(int64_t)TILE * nb];
-    float g[4 * TILE], gc[TILE], gl[5];
-    for (int k = 0; k < S->K; ++k) {
-        float inv_l[5];
-        for (int j = 0; j < 5; ++j) inv_l[j] = std::exp(-log_l[k * 5 + j]);
-        for (int i = 0; i < nb; ++i)
-            for (int j = 0; j < 5; ++j)
-                bT[j * nb + i] = centers[((int64_t)k * nb + i) * 5 + j] * inv_l[j];
-        std::memset(gb, 0, sizeof(float) * 5 * nb);
-        std::memset(gcol, 0, sizeof(float) * nb);
-        std::memset(gw, 0, sizeof(float) * nb);
-        for (int j = 0; j < 5; ++j) gl[j] = 0.0f;
-        const float *wk = w + (int64_t)k * nb;
-        for (int tile = 0; tile < S->tiles_per; ++tile) {
-            int first = k * S->per + tile * TILE;
-            int valid = S->per - tile * TILE < TILE ? S->per - tile * TILE : TILE;
-            for (int j = 0; j < 4 * TILE; ++j) g[j] = 0.0f;
-            for (int t = S->horizon - 1; t >= 0; --t) {
+void backward(const Model &M, int horizon, int K, int per, const float *rec,
+              const float *centers, const float *log_l, const float *w, const float *g_costs,
+              float *g_centers, float *g_log_l, float *g_w) {
+    const int n = M.n, nb = M.nb, fp = M.fp, rows = K * per, tiles_per = (per + TILE - 1) / TILE;
+    const Lay L(M);
+    Work W(M);
+    Pol P(M);
+    PolGrad PG(M);
+    std::vector<float> g(n * TILE);
+    float gc[TILE];
+    for (int k = 0; k < K; ++k) {
+        P.load(M, centers + (int64_t)k * nb * fp, log_l + (int64_t)k * fp,
+               w + (int64_t)k * nb * M.A);
+        PG.zero();
+        for (int tile = 0; tile < tiles_per; ++tile) {
+            const int first = k * per + tile * TILE;
+            const int valid = per - tile * TILE < TILE ? per - tile * TILE : TILE;
+            std::fill(g.begin(), g.end(), 0.0f);
+            for (int t = horizon - 1; t >= 0; --t) {
                 for (int q = 0; q < TILE; ++q)
                     gc[q] = q < valid ? g_costs[(int64_t)t * rows + first + q] : 0.0f;
                 const float *rc =
-                    rec + ((int64_t)t * S->K * S->tiles_per + k * S->tiles_per + tile) * L.size;
-                step_backward_tile(*G, *P, *C, bT, wk, inv_l, rc, L, *W, g, gc, gb, gcol, gw,
-                                   gl, Gbuf);
+                    rec + ((int64_t)t * K * tiles_per + (int64_t)k * tiles_per + tile) * L.size;
+                step_backward_tile(M, L, P, rc, W, g.data(), gc, PG);
             }
         }
         // g_b = G^T a - b o colsum(G); g_c = g_b / l; g_log_l = -(sum g_a o a + sum g_b o b)
-        for (int j = 0; j < 5; ++j) {
+        for (int j = 0; j < fp; ++j) {
             float sb = 0.0f;
             for (int i = 0; i < nb; ++i) {
-                float bv = bT[j * nb + i];
-                float g_b = gb[j * nb + i] - bv * gcol[i];
+                float bv = P.bT[j * nb + i];
+                float g_b = PG.gb[j * nb + i] - bv * PG.gcol[i];
                 sb += g_b * bv;
-                g_centers[((int64_t)k * nb + i) * 5 + j] += g_b * inv_l[j];
+                g_centers[((int64_t)k * nb + i) * fp + j] += g_b * P.inv_l[j];
             }
-            g_log_l[k * 5 + j] += -(gl[j] + sb);
+            g_log_l[(int64_t)k * fp + j] += -(PG.gl[j] + sb);
         }
-        for (int i = 0; i < nb; ++i) g_w[(int64_t)k * nb + i] += gw[i];
+        for (int i = 0; i < nb; ++i)
+            for (int a = 0; a < M.A; ++a)
+                g_w[((int64_t)k * nb + i) * M.A + a] += PG.gw[a * nb + i];
     }
-    delete W;
-    delete[] bT;
-    delete[] gb;
-    delete[] gcol;
-    delete[] gw;
-    delete[] Gbuf;
-    return 0;
 }
+
+}  // namespace mcp

@@ -1,141 +1,87 @@
 r"""The particle rollout written by hand in C++: ``backend="native"`` of
-:meth:`~mcpilco.agents.mc_pilco.loss.MCPilcoLoss.compile_step`.
+:meth:`~mcpilco.agents.mc_pilco.loss.MCPilcoLoss.compile_step`, for any task layout.
 
 The same maths as :mod:`~mcpilco.agents.mc_pilco.direct_compile` (the parts' analytic
 backward passes, chained by hand through time), evaluated by one C++ function per shard for
 the whole forward loop and one for the whole backward loop (``native_rollout.cpp``), instead
-of ``2 H`` calls of inductor-compiled graphs per shard. What that buys:
+of ``2 H`` calls of compiled graphs per shard. The task is data, not code: the state layout
+(``n`` coordinates; plain ones and angles, which enter the policy and the GP as ``(sin,
+cos)``; speed-integration pairs and unpaired coordinates), the ``A`` action bounds, the
+``m`` GP outputs over ``d = F_x + A`` inputs and the saturating cost's terms (index, target,
+length scale, mode plain / wrap / abs) are arrays the C++ loop reads. What the loop buys:
 
-* particles in tiles of 16 (the library's ``mcp_tile()``): a tile's whole time step
-  (policy, GP posterior, sampling, integration, cost) runs on data that stays in the
-  core's caches;
+* particles in tiles of 16 (the extension's ``tile()``): a tile's whole time step (policy,
+  GP posterior, sampling, integration, cost) runs on data that stays in the core's caches;
 * the products with the GP's constant matrices, ``[V; m] = [L^{-1} Phi, L^{-1}; alpha^T Phi,
-  alpha^T] R`` forward and ``dR = [...]^T [dV; g_m]`` backward (glossary of
-  :mod:`~mcpilco.models.gp.fused`), use one register-blocked kernel over the constant matrix
-  packed once per GP fit, by blocks of 6 rows (``mcp_row_block()``; 6 x 16 accumulators)
-  with each block's own range of columns: the zeros of the triangular factor are skipped
-  row block by row block (about ``N^2 / 2 + F N`` multiply-adds per particle and output,
-  each way);
+  alpha^T] [psi; r]`` forward and ``dR = [...]^T [dV; g_m]`` backward (glossary of
+  :mod:`~mcpilco.models.gp.fused`), per output, use one register-blocked kernel over the
+  constant matrix packed once per GP fit, by blocks of 6 rows (``row_block()``; 6 x 16
+  accumulators) with each block's own range of columns: the zeros of the triangular factor
+  are skipped row block by row block (about ``N^2 / 2 + F N`` multiply-adds per particle and
+  output, each way);
 * no per-op allocation, dispatch or Python between the time steps.
 
-The C++ file has no torch headers: it is compiled on first use with the system's C++
-compiler (``-O3 -march=native``, 2-3 s), cached by the hash of its source and flags under
-:func:`cache_dir`, and called through ``ctypes`` (which releases the GIL, so the shards run
-in parallel threads). Float32 only, one state layout (:data:`NATIVE_LAYOUT`) only
+Build: a PyTorch C++ extension (:func:`torch.utils.cpp_extension.load`, with ninja) of
+``native_rollout.cpp`` (the loops, no torch headers) and ``native_rollout_ext.cpp`` (the
+pybind11 binding: ``torch::Tensor`` arguments, the GIL released while a shard runs, so the
+shards run in parallel threads), compiled on first use with ``-O3 -march=native`` into
+:func:`cache_dir` and rebuilt by ninja only when a source changes. Float32 on the CPU, the
+fused RBF (+ degree-2 MPK) posterior and :class:`~.cost.SaturatingCost` only
 (:func:`native_unsupported_reason`); ``compile_step`` checks the result against the eager
 rollout like every compiled path.
 
 Glossary: as in :mod:`~mcpilco.agents.mc_pilco.direct_compile` (``K`` candidates, ``M``
 particles, ``S`` shards, ``H`` horizon) and :mod:`~mcpilco.models.gp.fused` (``N`` training
-points, ``F`` MPK features, ``m = 2`` outputs, ``d = 6`` GP inputs).
+points, ``F`` MPK features, ``m`` outputs, ``d`` GP inputs).
 """
 
 from __future__ import annotations
 
-import ctypes
 import hashlib
-import math
 import os
 import platform
 import shutil
 import subprocess
-import tempfile
 import threading
 from pathlib import Path
+from types import ModuleType
 from typing import Any
 
 import torch
 from torch import Tensor
 
-from mcpilco.agents.mc_pilco.cost import MODE_PLAIN, MODE_WRAP
 from mcpilco.agents.mc_pilco.direct_compile import DirectRollout, unsupported_reason
-from mcpilco.agents.mc_pilco.features import StateLayout
 
-SOURCE = Path(__file__).with_name("native_rollout.cpp")
-"""The C++ source of the rollout."""
+SOURCES = tuple(
+    Path(__file__).with_name(name) for name in ("native_rollout_ext.cpp", "native_rollout.cpp")
+)
+"""The extension's C++ sources (the binding, then the loops)."""
 
-CXX_FLAGS = ("-O3", "-march=native", "-fno-math-errno", "-shared", "-fPIC")
+CXX_FLAGS = ("-O3", "-march=native", "-fno-math-errno")
 """Compiler flags (no ``-ffast-math``: NaN must propagate, the loss restarts on a NaN cost)."""
 
-NATIVE_LAYOUT = StateLayout(
-    n=4, plain_idx=(0, 1, 3), angle_idx=(2,), position_idx=(0, 2), velocity_idx=(1, 3)
-)
-"""The one state layout the C++ loop is written for: ``[p, p_dot, a, a_dot]`` with the angle
-``a`` (a cart-pole or any such 1-D base with a pendulum)."""
-
-_LIB: ctypes.CDLL | None = None
+_LIB: ModuleType | None = None
 _LIB_ERROR: str | None = None
 _LIB_LOCK = threading.Lock()
 
 
-class _Packed(ctypes.Structure):
-    _fields_ = [
-        ("a", ctypes.c_void_p),
-        ("beg", ctypes.c_void_p),
-        ("end", ctypes.c_void_p),
-        ("off", ctypes.c_void_p),
-        ("blocks", ctypes.c_int),
-    ]
-
-
-class _Gp(ctypes.Structure):
-    _fields_ = [
-        *((name, ctypes.c_int) for name in ("m", "n", "d", "p", "f")),
-        *(
-            (name, ctypes.c_void_p)
-            for name in (
-                "idx_a",
-                "idx_c",
-                "x_mean",
-                "x_scale",
-                "y_mean",
-                "y_scale",
-                "inv_l2",
-                "outputscale",
-                "sig_diag",
-                "sig2",
-                "noise_var",
-                "bound",
-            )
-        ),  # fmt: skip
-        ("w_aug", _Packed * 2),
-        ("fwd", _Packed * 2),
-        ("bwd", _Packed * 2),
-        ("w_t", _Packed * 2),
-    ]
-
-
-class _Pol(ctypes.Structure):
-    _fields_ = [("nb", ctypes.c_int), ("u_max", ctypes.c_float)]
-
-
-class _Cost(ctypes.Structure):
-    _fields_ = [
-        ("l_x", ctypes.c_float),
-        ("l_theta", ctypes.c_float),
-        ("dt", ctypes.c_float),
-        ("wrap", ctypes.c_int),
-    ]
-
-
-class _Shard(ctypes.Structure):
-    _fields_ = [(name, ctypes.c_int) for name in ("horizon", "K", "per", "tiles_per")]
-
-
 def cache_dir() -> Path:
-    """Where the compiled library is kept: ``$MCPILCO_NATIVE_CACHE``, else
-    ``$XDG_CACHE_HOME/mcpilco/native`` (``~/.cache/mcpilco/native``)."""
+    """Where the extensions are built: ``$MCPILCO_NATIVE_CACHE``, else PyTorch's extension
+    folder (``$TORCH_EXTENSIONS_DIR``, else ``~/.cache/torch_extensions``,
+    :func:`torch.utils.cpp_extension.get_default_build_root`); the extension is in its
+    subfolder :func:`extension_name`."""
     env = os.environ.get("MCPILCO_NATIVE_CACHE")
     if env:
         return Path(env)
-    base = os.environ.get("XDG_CACHE_HOME") or str(Path.home() / ".cache")
-    return Path(base) / "mcpilco" / "native"
+    from torch.utils.cpp_extension import get_default_build_root
+
+    return Path(os.environ.get("TORCH_EXTENSIONS_DIR") or get_default_build_root())
 
 
 def _cpu_key() -> str:
     """What ``-march=native`` compiles for: the CPU's model and feature flags (Linux), else
-    the platform's processor name; part of the cache key, so that a cache shared between
-    machines never hands one a library built for another CPU."""
+    the platform's processor name; part of the extension's name, so that a cache shared
+    between machines never hands one an extension built for another CPU."""
     try:
         with open("/proc/cpuinfo") as f:
             lines = [ln for ln in f if ln.startswith(("model name", "flags"))]
@@ -144,14 +90,23 @@ def _cpu_key() -> str:
         return platform.machine() + platform.processor()
 
 
+def extension_name(cxx: str) -> str:
+    """The extension's module name for compiler ``cxx``: a hash of the compiler, the flags,
+    the CPU and the torch version (one build folder each). A change of the sources is
+    rebuilt in the same folder (ninja tracks the sources and the header they include)."""
+    key = repr((cxx, CXX_FLAGS, _cpu_key(), torch.__version__)).encode()
+    return f"mcpilco_native_rollout_{hashlib.sha256(key).hexdigest()[:16]}"
+
+
 def build_error() -> str | None:
-    """Why building the library failed in this process (None: it did not fail)."""
+    """Why building the extension failed in this process (None: it did not fail)."""
     return _LIB_ERROR
 
 
 def cpp_compiler_names() -> list[str]:
     """The C++ compilers looked for, in order: ``$CXX`` alone if it is set, else ``g++`` and
-    ``clang++`` (the compilers inductor's CPU backend uses too)."""
+    ``clang++`` (the compilers inductor's CPU backend uses too); the one found is the one
+    :func:`torch.utils.cpp_extension.load` runs."""
     return [os.environ["CXX"]] if os.environ.get("CXX") else ["g++", "clang++"]
 
 
@@ -160,31 +115,21 @@ def cpp_compiler() -> str | None:
     return next((name for name in cpp_compiler_names() if shutil.which(name)), None)
 
 
-def _build(cxx: str) -> Path:
-    """The library's path in :func:`cache_dir`, compiled there by ``cxx`` unless it is
-    already (raises ``RuntimeError`` with the compiler's message if the build fails)."""
-    source = SOURCE.read_bytes()
-    key = repr((cxx, CXX_FLAGS, _cpu_key())).encode()
-    target = cache_dir() / f"native_rollout_{hashlib.sha256(source + key).hexdigest()[:16]}.so"
-    if target.exists():
-        return target
-    target.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(suffix=".so", dir=target.parent)
-    os.close(fd)
-    cmd = [cxx, *CXX_FLAGS, "-o", tmp, str(SOURCE)]
-    done = subprocess.run(cmd, capture_output=True, text=True, check=False)
-    if done.returncode != 0:
-        os.unlink(tmp)
-        raise RuntimeError(f"{' '.join(cmd)} failed: {done.stderr.strip()[:2000]}")
-    os.replace(tmp, target)  # atomic: a concurrent build writes the same bytes
-    return target
+def _ninja_dir() -> str | None:
+    """The folder of the ``ninja`` binary of the ``ninja`` Python package (a dependency; it
+    is on ``PATH`` only in an activated environment), None without the package."""
+    try:
+        import ninja
+    except ImportError:
+        return None
+    return getattr(ninja, "BIN_DIR", None)
 
 
-def load_library() -> ctypes.CDLL:
-    """The compiled rollout library, built on first use (see the module docstring).
+def load_library() -> ModuleType:
+    """The compiled rollout extension, built on first use (see the module docstring).
 
     Raises ``RuntimeError`` (with the compiler's message) if no C++ compiler is found, the
-    build fails or the library does not load (e.g. an unwritable cache folder); a failure
+    build fails or the extension does not load (e.g. an unwritable cache folder); a failure
     other than a missing compiler is remembered for the process."""
     global _LIB, _LIB_ERROR
     with _LIB_LOCK:
@@ -196,20 +141,38 @@ def load_library() -> ctypes.CDLL:
         if cxx is None:
             # not remembered: a compiler installed (or CXX set) later in the process is used
             raise RuntimeError(f"no C++ compiler found ({' or '.join(cpp_compiler_names())})")
+        from torch.utils import cpp_extension
+
+        name = extension_name(cxx)
+        build = cache_dir() / name
+        before = {key: os.environ.get(key) for key in ("CXX", "PATH")}
         try:
-            lib = ctypes.CDLL(str(_build(cxx)))
-        except (OSError, subprocess.SubprocessError) as err:  # unwritable cache, bad .so
+            build.mkdir(parents=True, exist_ok=True)
+            os.environ["CXX"] = cxx  # the compiler cpp_extension runs
+            if shutil.which("ninja") is None:  # the ninja package's binary, off PATH
+                os.environ["PATH"] = os.pathsep.join(filter(None, (_ninja_dir(), before["PATH"])))
+            lib = cpp_extension.load(
+                name,
+                [str(p) for p in SOURCES],
+                extra_cflags=list(CXX_FLAGS),
+                build_directory=str(build),
+                verbose=False,
+            )
+        except (OSError, ImportError) as err:  # unwritable cache, unloadable module
             _LIB_ERROR = f"{type(err).__name__}: {err}"
             raise RuntimeError(_LIB_ERROR) from err
-        except RuntimeError as err:
-            _LIB_ERROR = str(err)
-            raise
-        lib.mcp_record_floats.restype = ctypes.c_int64
-        lib.mcp_record_floats.argtypes = [ctypes.c_int] * 5
-        lib.mcp_row_block.restype = ctypes.c_int
-        lib.mcp_tile.restype = ctypes.c_int
-        lib.mcp_forward.restype = ctypes.c_int
-        lib.mcp_backward.restype = ctypes.c_int
+        except (RuntimeError, subprocess.SubprocessError) as err:  # the compiler's message
+            said = [getattr(err, key, None) for key in ("stderr", "output")]
+            said = [x.decode(errors="replace") if isinstance(x, bytes) else x for x in said]
+            detail = " ".join(x.strip() for x in said if x)
+            _LIB_ERROR = f"{cxx}: {err} {detail}".strip()[:4000]
+            raise RuntimeError(_LIB_ERROR) from err
+        finally:
+            for key, value in before.items():
+                if value is None:
+                    os.environ.pop(key, None)
+                else:
+                    os.environ[key] = value
         _LIB = lib
         return lib
 
@@ -218,35 +181,27 @@ def native_unsupported_reason(
     policy: Any, dynamics: Any, cost: Any, device: torch.device
 ) -> str | None:
     """Why the native rollout cannot run this loss (None: it can): the direct backend's
-    conditions (:func:`~mcpilco.agents.mc_pilco.direct_compile.unsupported_reason`), float32
-    throughout, one action, a GP of 2 outputs over the 6 cart-pole inputs (RBF, or RBF plus a
-    degree-2 MPK, the package's two kernels) with at most 511 training points, and a working
-    C++ compiler."""
+    conditions (:func:`~mcpilco.agents.mc_pilco.direct_compile.unsupported_reason`: the
+    package's policy, dynamics over the fused GP posterior and
+    :class:`~mcpilco.agents.mc_pilco.cost.SaturatingCost`, on the CPU), float32 throughout,
+    an RBF or RBF + degree-2 MPK kernel (the package's two), and a working C++ toolchain.
+    Any state layout, number of actions, GP outputs and training points."""
     reason = unsupported_reason(policy, dynamics, cost, device)
     if reason is not None:
         return reason
     pred = dynamics.delta_model
     if policy.weights.dtype != torch.float32 or pred.dtype != torch.float32:
         return "it runs in float32 only"
-    if policy.weights.shape[-1] != 1:
-        return f"it needs one action, the policy has {policy.weights.shape[-1]}"
-    if float(policy.u_mid.abs().max()) != 0.0:
-        return "it needs symmetric action bounds"
-    if dynamics.layout != NATIVE_LAYOUT:
-        return f"it needs the state layout {NATIVE_LAYOUT}, got {dynamics.layout}"
-    if (
-        cost.idx != (0, 2)
-        or cost.targets != (0.0, math.pi)
-        or cost.modes[0] != MODE_PLAIN
-        or cost.modes[1] == MODE_PLAIN
-    ):
-        return f"it needs a cost on x_0 (target 0) and the angle x_2 (target pi), got {cost}"
-    if pred.m != 2 or pred.input_dim != 6:
-        return f"it needs a GP of 2 outputs over 6 inputs, got {pred.m} over {pred.input_dim}"
     if pred.p not in (0, 2):
         return f"it takes RBF or RBF + degree-2 MPK kernels, not MPK degree {pred.p}"
-    if pred.n + 1 > 512:
-        return f"it takes at most 511 training points, the GP has {pred.n}"
+    layout = dynamics.layout
+    if policy.layout != layout or cost.state_dim != layout.n:
+        return "the policy, dynamics and cost have different state layouts"
+    if pred.m != layout.output_dim or pred.input_dim != layout.feature_dim + policy.action_dim:
+        return (
+            f"the GP has {pred.m} outputs over {pred.input_dim} inputs, the layout needs "
+            f"{layout.output_dim} over {layout.feature_dim + policy.action_dim}"
+        )
     try:
         load_library()
     except RuntimeError as err:
@@ -282,124 +237,113 @@ def pack_blocks(
     )
 
 
-def _ptr(t: Tensor | None) -> int | None:
-    return None if t is None else t.data_ptr()
+def packed_gp(pred: Any, rb: int) -> list[list[Tensor]]:
+    """The fused GP posterior's constant matrices packed for the C++ rollout
+    (:func:`pack_blocks`; 4 tensors per output): per output ``b``, ``W_aug`` (``N`` rows,
+    ``d + 2`` columns), the forward matrix ``[B; alpha_aug]`` with ``B = [L^{-1} Phi,
+    L^{-1}]`` (``N + 1`` rows; a block of rows ``r .. r + rb - 1 < N`` needs columns
+    ``< F + r + rb``), the backward matrix ``[B; alpha_aug]^T`` (``F + N`` rows; a block of
+    rows ``j .. j + rb - 1`` needs columns ``>= j - F``) and ``W_t`` (``d + 1`` rows)."""
+    m, n, d = pred.m, pred.n, pred.input_dim
+    F = pred.row_blocks.features
+    linv = pred.linv.dense().to(torch.float64).expand(m, n, n)
+    B = torch.cat([pred.linv_phi.to(torch.float64), linv], dim=2) if F else linv
+    alpha_aug = pred.row_blocks.alpha.to(torch.float64)  # (m, 1, F + N)
+    packed: list[list[Tensor]] = [[], [], [], []]
+    nblk = lambda rows: -(-rows // rb)  # noqa: E731
+    for b in range(m):
+        packed[0] += pack_blocks(pred.W_aug[b], [0] * nblk(n), [d + 2] * nblk(n), rb)
+        fwd = torch.cat([B[b], alpha_aug[b]], dim=0)  # (N + 1, F + N)
+        ends = [F + n if r + rb > n else min(F + r + rb, F + n) for r in range(0, n + 1, rb)]
+        packed[1] += pack_blocks(fwd, [0] * len(ends), ends, rb)
+        begs = [max(0, j - F) for j in range(0, F + n, rb)]
+        packed[2] += pack_blocks(fwd.T, begs, [n + 1] * len(begs), rb)
+        packed[3] += pack_blocks(pred.W_t[b], [0] * nblk(d + 1), [n] * nblk(d + 1), rb)
+    return packed
 
 
-class NativeGP:
-    """The fused GP posterior's constants, packed for the C++ rollout (kept alive here).
+def native_model(lib: ModuleType, policy: Any, dynamics: Any, cost: Any) -> Any:
+    """The extension's ``NativeModel`` of one loss: the task layout, the action bounds, the
+    cost's terms and the GP posterior's constants (float32, int32 index arrays)."""
+    pred, layout = dynamics.delta_model, dynamics.layout
+    f32, i32 = torch.float32, torch.int32
+    m, d = pred.m, pred.input_dim
 
-    Per output ``b``: ``W_aug`` (``N`` rows, 8 columns), the forward matrix ``[B; alpha_aug]``
-    with ``B = [L^{-1} Phi, L^{-1}]`` (``N + 1`` rows; a block of rows ``r .. r + rb - 1 < N``
-    needs columns ``< F + r + rb``), the backward matrix ``[B; alpha_aug]^T`` (``F + N`` rows;
-    a block of rows ``j .. j + rb - 1`` needs columns ``>= j - F``) and ``W_t`` (``d + 1``
-    rows); ``rb`` rows per block (the library's ``mcp_row_block()``)."""
+    def ints(values) -> Tensor:
+        return torch.tensor(list(values), dtype=i32)
 
-    def __init__(self, dynamics, rb: int) -> None:
-        pred = dynamics.delta_model
-        f32 = torch.float32
-        m, n, d, p = pred.m, pred.n, pred.input_dim, pred.p
-        blocks = pred.row_blocks
-        F = blocks.features
-        linv = pred.linv.dense().to(torch.float64).expand(m, n, n)
-        if F:
-            B = torch.cat([pred.linv_phi.to(torch.float64), linv], dim=2)  # (m, N, F + N)
-        else:
-            B = linv
-        alpha_aug = blocks.alpha.to(torch.float64)  # (m, 1, F + N)
-        keep: list[Tensor] = []
-        packed = {"w_aug": [], "fwd": [], "bwd": [], "w_t": []}
+    def floats(t) -> Tensor:
+        return torch.as_tensor(t).detach().to(f32).reshape(-1).contiguous()
 
-        def add(kind: str, A: Tensor, beg: list[int], end: list[int]) -> None:
-            a, bg, en, off = pack_blocks(A, beg, end, rb)
-            keep.extend([a, bg, en, off])
-            packed[kind].append(
-                _Packed(a.data_ptr(), bg.data_ptr(), en.data_ptr(), off.data_ptr(), len(beg))
-            )
+    def per_output(t) -> Tensor:  # (m,), a shared value repeated
+        return torch.broadcast_to(floats(t), (m,)).contiguous()
 
-        nblk = lambda rows: -(-rows // rb)  # noqa: E731
-        for b in range(m):
-            add("w_aug", pred.W_aug[b], [0] * nblk(n), [d + 2] * nblk(n))
-            fwd = torch.cat([B[b], alpha_aug[b]], dim=0)  # (N + 1, F + N)
-            ends = [F + n if r + rb > n else min(F + r + rb, F + n) for r in range(0, n + 1, rb)]
-            add("fwd", fwd, [0] * len(ends), ends)
-            bwd = fwd.T  # (F + N, N + 1)
-            begs = [max(0, j - F) for j in range(0, F + n, rb)]
-            add("bwd", bwd, begs, [n + 1] * len(begs))
-            add("w_t", pred.W_t[b], [0] * nblk(d + 1), [n] * nblk(d + 1))
-        vec = lambda t: t.to(f32).reshape(-1).contiguous()  # noqa: E731
-
-        def per_output(t: Tensor) -> Tensor:  # (m,), a shared value repeated
-            return torch.broadcast_to(t.to(f32).reshape(-1), (m,)).contiguous()
-
-        self.tensors = {
-            "idx_a": pred.idx_a.to(torch.int32).contiguous(),
-            "idx_c": pred.idx_c.to(torch.int32).contiguous(),
-            "x_mean": vec(pred.x_mean),
-            "x_scale": vec(pred.x_scale),
-            "y_mean": per_output(pred.y_mean),
-            "y_scale": per_output(pred.y_scale),
-            "inv_l2": vec(pred.inv_l2),
-            "outputscale": per_output(pred.outputscale),
-            "sig_diag": vec(pred.mp_sigma_diag) if p else None,
-            "sig2": vec(pred.mp_sigma2) if p else None,
-            "noise_var": per_output(dynamics.noise_variance) if dynamics.sample_noise else None,
-            "bound": None if dynamics.delta_bound is None else per_output(dynamics.delta_bound),
-        }
-        self._keep = keep
-        self.struct = _Gp(
-            m, n, d, p, F,
-            *(_ptr(self.tensors[k]) for k in (
-                "idx_a", "idx_c", "x_mean", "x_scale", "y_mean", "y_scale", "inv_l2",
-                "outputscale", "sig_diag", "sig2", "noise_var", "bound",
-            )),
-            (_Packed * 2)(*packed["w_aug"]),
-            (_Packed * 2)(*packed["fwd"]),
-            (_Packed * 2)(*packed["bwd"]),
-            (_Packed * 2)(*packed["w_t"]),
-        )  # fmt: skip
-        self.features = F
+    none = torch.empty(0, dtype=f32)
+    p = pred.p
+    ls = torch.tensor(cost.length_scales, dtype=torch.float64)
+    index = [
+        ints(layout.plain_idx),
+        ints(layout.angle_idx),
+        ints(layout.position_idx),
+        ints(layout.velocity_idx),
+        ints(layout.delta_idx),
+        ints(cost.idx),
+        ints(cost.modes),
+        pred.idx_a.to(i32).contiguous(),
+        pred.idx_c.to(i32).contiguous(),
+    ]
+    values = [
+        floats(policy.u_mid),
+        floats(policy.u_half),
+        floats(torch.tensor(cost.targets, dtype=torch.float64)),
+        floats(ls),
+        floats(ls * ls),
+        floats(pred.x_mean),
+        floats(pred.x_scale),
+        per_output(pred.y_mean),
+        per_output(pred.y_scale),
+        floats(pred.inv_l2),
+        per_output(pred.outputscale),
+        floats(pred.mp_sigma_diag) if p else none,
+        floats(pred.mp_sigma2) if p else none,
+        per_output(dynamics.noise_variance) if dynamics.sample_noise else none,
+        none if dynamics.delta_bound is None else per_output(dynamics.delta_bound),
+    ]
+    sizes = [
+        layout.n, policy.action_dim, m, d, layout.feature_dim, policy.num_basis, pred.n, p,
+        pred.row_blocks.features,
+    ]  # fmt: skip
+    packed = packed_gp(pred, int(lib.row_block()))
+    return lib.NativeModel(sizes, index, values, float(dynamics.dt), packed)
 
 
 class NativeRollout(DirectRollout):
     """:class:`~mcpilco.agents.mc_pilco.direct_compile.DirectRollout`'s interface (shards,
     split and join, the dropout inputs) with each shard's forward and backward loops run by
-    the C++ library. Each forward keeps its saved tensors in a float32 buffer of
-    ``H x K x ceil(M / (S K 16)) x record`` floats (about 2.8 kB per particle and step at
-    ``N = 100``), returned to a pool by its backward."""
+    the C++ extension. Each forward keeps its saved tensors in a float32 buffer of
+    ``H x K x ceil(M / (S K 16)) x record`` floats (about ``2 m N + F + n_b`` floats per
+    particle and step: ``r`` and ``V`` of each output, ``psi``, the policy's activations),
+    returned to a pool by its backward."""
 
     def __init__(
-        self, policy, dynamics, cost, rows: int, delta_dim: int = 2, shards: int = 1
+        self, policy, dynamics, cost, rows: int, delta_dim: int | None = None, shards: int = 1
     ) -> None:
         reason = native_unsupported_reason(policy, dynamics, cost, torch.device("cpu"))
         if reason is not None:
             raise ValueError(f"the native rollout cannot run this loss: {reason}")
-        if delta_dim != 2:
-            raise ValueError(f"the native rollout needs delta_dim 2, got {delta_dim}")
+        out = dynamics.layout.output_dim
+        if delta_dim is not None and delta_dim != out:
+            raise ValueError(f"the native rollout needs delta_dim {out}, got {delta_dim}")
         self._init_shards(policy, dynamics, cost, rows, shards)
         self.lib = load_library()
-        self.gp = NativeGP(dynamics, int(self.lib.mcp_row_block()))
-        nb = policy.num_basis
-        self.pol = _Pol(nb, float(policy.u_half[0]))
-        self.cost_params = _Cost(
-            float(cost.length_scales[0]),
-            float(cost.length_scales[1]),
-            float(dynamics.dt),
-            int(cost.modes[1] == MODE_WRAP),
-        )
-        per = self.shard_rows // self.candidates
-        self.tiles_per = -(-per // int(self.lib.mcp_tile()))
-        pred = dynamics.delta_model
-        self.record = int(self.lib.mcp_record_floats(nb, pred.m, pred.n, self.gp.features, pred.p))
-        self._per = per
+        self.model = native_model(self.lib, policy, dynamics, cost)
+        self._per = self.shard_rows // self.candidates
+        self.tiles_per = -(-self._per // int(self.lib.tile()))
+        self.record = int(self.model.record_floats())
         self._buffers: list[Tensor] = []
 
-    def _shard_struct(self, horizon: int) -> _Shard:
-        return _Shard(horizon, self.candidates, self._per, self.tiles_per)
-
     def _theta(self, theta: tuple[Tensor, ...]) -> list[Tensor]:
-        c, log_l, w = (t.detach().to(torch.float32).contiguous() for t in theta)
-        return [c, log_l, w]
+        return [t.detach().to(torch.float32).contiguous() for t in theta]
 
     def forward_shard(self, x, noise, nu, bits, keep, theta):
         """One shard's forward loop: costs ``(H, KM/S)`` and the state its backward needs."""
@@ -414,18 +358,10 @@ class NativeRollout(DirectRollout):
         costs = torch.empty(horizon, self.shard_rows, dtype=torch.float32)
         th = self._theta(theta)
         x, noise, nu = (t.to(torch.float32).contiguous() for t in (x, noise, nu))
-        byte_ptrs = (ctypes.c_void_p * horizon)(*(b.data_ptr() for b in bits))
-        status = self.lib.mcp_forward(
-            ctypes.byref(self.gp.struct), ctypes.byref(self.pol), ctypes.byref(self.cost_params),
-            ctypes.byref(self._shard_struct(horizon)),
-            ctypes.c_void_p(x.data_ptr()), ctypes.c_void_p(noise.data_ptr()),
-            ctypes.c_void_p(nu.data_ptr()), byte_ptrs,
-            ctypes.c_float(float(keep[0])), ctypes.c_float(float(keep[1])),
-            *(ctypes.c_void_p(t.data_ptr()) for t in th),
-            ctypes.c_void_p(costs.data_ptr()), ctypes.c_void_p(rec.data_ptr()),
+        self.model.forward(
+            self.candidates, self._per, x, noise, nu, [b.contiguous() for b in bits],
+            float(keep[0]), float(keep[1]), *th, costs, rec,
         )  # fmt: skip
-        if status != 0:
-            raise RuntimeError(f"native rollout forward failed (status {status})")
         return list(costs), (rec, th, horizon)
 
     def backward_shard(self, state, g_costs, grads):
@@ -434,15 +370,7 @@ class NativeRollout(DirectRollout):
         rec, th, horizon = state
         g_costs = g_costs.to(torch.float32).contiguous()
         out = [g.to(torch.float32).contiguous().clone() for g in grads]
-        status = self.lib.mcp_backward(
-            ctypes.byref(self.gp.struct), ctypes.byref(self.pol), ctypes.byref(self.cost_params),
-            ctypes.byref(self._shard_struct(horizon)), ctypes.c_void_p(rec.data_ptr()),
-            *(ctypes.c_void_p(t.data_ptr()) for t in th),
-            ctypes.c_void_p(g_costs.data_ptr()),
-            *(ctypes.c_void_p(g.data_ptr()) for g in out),
-        )  # fmt: skip
-        if status != 0:
-            raise RuntimeError(f"native rollout backward failed (status {status})")
+        self.model.backward(self.candidates, self._per, horizon, rec, *th, g_costs, *out)
         self._buffers.append(rec)
         return [o.to(g.dtype) for o, g in zip(out, grads, strict=True)]
 
@@ -450,9 +378,13 @@ class NativeRollout(DirectRollout):
 __all__ = [
     "NativeRollout",
     "build_error",
+    "cache_dir",
     "cpp_compiler",
     "cpp_compiler_names",
+    "extension_name",
     "load_library",
+    "native_model",
     "native_unsupported_reason",
     "pack_blocks",
+    "packed_gp",
 ]

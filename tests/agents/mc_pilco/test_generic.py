@@ -21,6 +21,7 @@ from mcpilco.agents.mc_pilco import (
     MCPilcoConfig,
     MCPilcoLoss,
     PolicyOptConfig,
+    PolicyPopulation,
     SaturatingCost,
     SquashedRBFPolicy,
     StateLayout,
@@ -101,19 +102,32 @@ def random_task(rng: np.random.Generator) -> TaskSpec:
     )
 
 
-def fitted_loss(task: TaskSpec, rng: np.random.Generator, kernel: str, particles: int = 12):
-    """An MCPilcoLoss over a GP fitted (briefly) on smooth random transitions of ``task``."""
+def fitted_loss(
+    task: TaskSpec,
+    rng: np.random.Generator,
+    kernel: str,
+    particles: int = 12,
+    candidates: int = 1,
+    angle_mode: str | None = None,
+):
+    """An MCPilcoLoss over a GP fitted (briefly) on smooth random transitions of ``task``;
+    ``candidates > 1``: a :class:`PolicyPopulation` of that many (returned as the policy)."""
     n, a = task.state_dim, task.action_dim
     s = rng.normal(size=(40, n))
     u = rng.uniform(-2, 1, size=(40, a))
     s1 = s + 0.1 * np.tanh(s @ rng.normal(size=(n, n)) + u @ rng.normal(size=(a, n)))
     model = GPDynamicsModel(task, kernel=kernel, adam_iters=5, lbfgs_iters=0, max_points=None)
     model.fit(s, u, s1)
-    policy = SquashedRBFPolicy(
-        StateLayout.from_task(task), task.action_low, task.action_high, num_basis=7, seed=1,
-        weight_scale=0.5,
-    )  # fmt: skip
-    cost = SaturatingCost.from_task(task, angle_mode=str(rng.choice(["wrap", "abs"])))
+    layout = StateLayout.from_task(task)
+    policies = [
+        SquashedRBFPolicy(
+            layout, task.action_low, task.action_high, num_basis=7, seed=1 + k, weight_scale=0.5
+        )
+        for k in range(candidates)
+    ]
+    policy = policies[0] if candidates == 1 else PolicyPopulation(policies)
+    mode = angle_mode or str(rng.choice(["wrap", "abs"]))
+    cost = SaturatingCost.from_task(task, angle_mode=mode)
     loss = MCPilcoLoss(
         make_policy_module(policy),
         model.particle_dynamics(torch.float32),
@@ -143,6 +157,71 @@ def test_hand_chained_rollout_matches_autograd_on_random_tasks(seed):
     check = loss.compare_compiled_step(seed=seed, horizon=None)
     assert check["J_rel"] < 1e-5, (task, check)
     assert check["grad_rel"] < 1e-4, (task, check)
+
+
+def six_state_task(pairs: bool) -> TaskSpec:
+    """Six states with angles at indices 0 and 2 (one of them a pair's position), three
+    actions, a cost on an angle, a plain state and an unpaired one; ``pairs=False``: every
+    coordinate predicted as its own change (no speed integration)."""
+    names = ["a0", "p", "a1", "v_a0", "v", "o"]
+    return TaskSpec.from_dict(
+        {
+            "env_id": "any",
+            "state_names": names,
+            "angles": ["a0", "a1"],
+            "pairs": [["a0", "v_a0"], ["p", "v"]] if pairs else [],
+            "action_low": [-1.0, -2.0, -0.5],
+            "action_high": [1.0, 1.0, 1.5],
+            "dt": 0.05,
+            "horizon": 8,
+            "init_mean": [0.5, 0.1, -2.5, 0.0, 0.2, 0.3],
+            "init_std": 0.2,
+            "cost": {
+                "terms": [
+                    {"state": "a0", "target": 3.14159, "length_scale": 3.0},
+                    {"state": "p", "target": 0.2, "length_scale": 1.0},
+                    {"state": "o", "target": -0.3, "length_scale": 0.8},
+                ]
+            },
+            "success": {"bounds": {"p": {"target": 0.0, "tol": 0.1}}},
+        }
+    )
+
+
+NATIVE_CASES = [
+    # (task, kernel, candidates, shards, angle mode)
+    ("pairs", "rbf+mpk", 2, 2, "wrap"),
+    ("pairs", "rbf", 1, 1, "abs"),
+    ("deltas", "rbf+mpk", 1, 2, "abs"),
+    ("deltas", "rbf", 2, 1, "wrap"),
+    *((f"random{seed}", ("rbf+mpk", "rbf")[seed % 2], 2, 1 + seed % 2, None) for seed in range(6)),
+]
+
+
+@pytest.mark.parametrize(("name", "kernel", "candidates", "shards", "mode"), NATIVE_CASES)
+def test_native_rollout_matches_autograd_on_task_layouts(name, kernel, candidates, shards, mode):
+    """The C++ rollout (``backend="native"``) against the autograd rollout, from the same
+    random numbers over the whole horizon (dropout masks and observation noise on): J^ and
+    every policy-parameter gradient, on the six-state task with and without speed
+    integration (4 or 6 GP outputs, 3 actions, angles at indices 0 and 2) and on random
+    layouts, both kernels, 1 or 2 candidates, 1 or 2 shards (20 particles per candidate: a
+    full tile and a part-filled one, or two part-filled ones)."""
+    from mcpilco.agents.mc_pilco.native_rollout import build_error
+
+    if name.startswith("random"):
+        rng = np.random.default_rng(100 + int(name[6:]))
+        task = random_task(rng)
+    else:
+        rng = np.random.default_rng(7)
+        task = six_state_task(pairs=name == "pairs")
+    loss, policy = fitted_loss(task, rng, kernel, 20, candidates, mode)
+    assert loss.compile_step(backend="native", shards=shards, verify=False), build_error()
+    assert loss.compile_backend == "native" and loss.rollout_shards == shards
+    check = loss.compare_compiled_step(seed=3, horizon=None)
+    assert check["J_rel"] < 1e-4, (task, check)
+    assert check["grad_rel"] < 1e-3, (task, check)
+    # "auto" picks the native rollout for every layout
+    assert loss.compile_step(verify=False) and loss.compile_backend == "native"
 
 
 @pytest.mark.slow

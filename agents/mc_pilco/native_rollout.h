@@ -1,0 +1,66 @@
+// The MC-PILCO particle rollout in C++: the model it runs (task layout, policy, GP posterior,
+// cost) as plain pointers into tensors held by the Python extension (native_rollout_ext.cpp),
+// and the two loops over one shard of particles (native_rollout.cpp).  No torch headers here:
+// the kernel file compiles in a few seconds and is the only one a change to the maths touches.
+#pragma once
+
+#include <cstdint>
+
+namespace mcp {
+
+constexpr int TILE = 16;  // particles per tile (two 8-float vectors)
+constexpr int RB = 6;     // rows per block of a packed constant matrix (6 x 16 accumulators)
+
+// one packed constant matrix: block b holds rows RB b .. RB b + RB - 1, columns beg[b] ..
+// end[b] - 1, column by column with its RB rows' entries together, from a + off[b]
+struct Packed {
+    const float *a;
+    const int32_t *beg, *end;
+    const int64_t *off;
+    int blocks;
+};
+
+// Everything a rollout needs besides the policy parameters and the random numbers, float32.
+// States: n coordinates; features f(x) (Fp of them) = plain coordinates, then (sin, cos) of
+// each angle; GP inputs [f(x), u] (d = Fp + A); GP outputs (m): the velocity of each
+// speed-integration pair, then each unpaired coordinate (its own change).
+struct Model {
+    int n, A, m, d, fp, n_plain, n_ang, n_pairs, n_delta, n_terms, nb;
+    const int32_t *plain_idx, *angle_idx;        // (n_plain), (n_ang)
+    const int32_t *position_idx, *velocity_idx;  // (n_pairs)
+    const int32_t *delta_idx;                    // (n_delta)
+    const float *u_mid, *u_half;                 // (A)
+    const int32_t *cost_idx, *cost_mode;         // (n_terms): state index; 0 plain, 1 wrap, 2 abs
+    const float *cost_target, *cost_ls, *cost_ls2;  // (n_terms): x*, l, l^2
+    float dt;
+    // the fused GP posterior (models/gp/fused.py): N points, MPK degree p, F MPK features
+    int N, p, f;
+    const int32_t *idx_a, *idx_c;  // (F): psi_f = z[idx_a[f]] z[idx_c[f]], z = [1, x^] (p = 2)
+    const float *x_mean, *x_scale;  // (d)
+    const float *y_mean, *y_scale;  // (m)
+    const float *inv_l2;            // (m, d)
+    const float *outputscale;       // (m)
+    const float *sig_diag, *sig2;   // (p, m, d), (p, m); null for p = 0
+    const float *noise_var;         // (m) added to the variance, or null
+    const float *bound;             // (m) clip bound of Delta, or null
+    const Packed *w_aug, *fwd, *bwd, *w_t;  // (m) each
+};
+
+// floats of one tile's record of one time step (what its backward reads)
+int64_t record_floats(const Model &M);
+
+// Forward rollout of one shard of K candidates x per particles (rows candidate-major):
+// x0 (K per, n), eps (H, K per, m), nu (H, K per, n); bytes[t] (K per, nb) uint8, the dropout
+// mask 1[b < keep_t] keep_scale; policy parameters centers (K, nb, Fp), log_l (K, Fp),
+// w (K, nb, A).  Writes costs (H, K per) and rec (H, K tiles, record_floats).
+void forward(const Model &M, int horizon, int K, int per, const float *x0, const float *eps,
+             const float *nu, const uint8_t *const *bytes, float keep_t, float keep_scale,
+             const float *centers, const float *log_l, const float *w, float *costs, float *rec);
+
+// Backward rollout of that shard from g_costs (H, K per): adds dJ/dtheta to g_centers,
+// g_log_l, g_w (shapes of the parameters).
+void backward(const Model &M, int horizon, int K, int per, const float *rec,
+              const float *centers, const float *log_l, const float *w, const float *g_costs,
+              float *g_centers, float *g_log_l, float *g_w);
+
+}  // namespace mcp

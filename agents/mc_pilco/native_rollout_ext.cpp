@@ -1,0 +1,200 @@
+// Python binding of the native rollout (native_rollout.cpp), built by
+// torch.utils.cpp_extension: a NativeModel holds the tensors of one loss's task, GP and cost
+// (float32, int32 and int64 CPU tensors, checked here) and runs one shard's forward or
+// backward loop on tensors given by Python, without the GIL.
+
+#include <torch/extension.h>
+
+#include <string>
+#include <vector>
+
+#include "native_rollout.h"
+
+namespace {
+
+using torch::Tensor;
+
+// a contiguous CPU tensor of `dtype` with `numel` entries (-1: any), else a clear error
+const Tensor &checked(const Tensor &t, torch::ScalarType dtype, int64_t numel, const char *name) {
+    TORCH_CHECK(t.device().is_cpu(), name, " must be on the CPU");
+    TORCH_CHECK(t.scalar_type() == dtype, name, " must be ", c10::toString(dtype), ", got ",
+                c10::toString(t.scalar_type()));
+    TORCH_CHECK(t.is_contiguous(), name, " must be contiguous");
+    TORCH_CHECK(numel < 0 || t.numel() == numel, name, " must have ", numel, " entries, got ",
+                t.numel());
+    return t;
+}
+
+class NativeModel {
+  public:
+    // ints: n, A, m, d, fp, nb, N, p, f; index: plain, angle, position, velocity, delta,
+    // cost_idx, cost_mode, idx_a, idx_c (int32); floats: u_mid, u_half, cost_target, cost_ls,
+    // cost_ls2, x_mean, x_scale, y_mean, y_scale, inv_l2, outputscale, sig_diag, sig2,
+    // noise_var, bound (empty: none); packed: per output (w_aug, fwd, bwd, w_t) as 4 tensors
+    // each (values, beg, end, off).
+    NativeModel(std::vector<int64_t> ints, std::vector<Tensor> index, std::vector<Tensor> floats,
+                double dt, std::vector<std::vector<Tensor>> packed)
+        : index_(std::move(index)), floats_(std::move(floats)) {
+        TORCH_CHECK(ints.size() == 9 && index_.size() == 9 && floats_.size() == 15,
+                    "NativeModel: wrong argument counts");
+        mcp::Model &M = model_;
+        M.n = (int)ints[0];
+        M.A = (int)ints[1];
+        M.m = (int)ints[2];
+        M.d = (int)ints[3];
+        M.fp = (int)ints[4];
+        M.nb = (int)ints[5];
+        M.N = (int)ints[6];
+        M.p = (int)ints[7];
+        M.f = (int)ints[8];
+        TORCH_CHECK(M.d == M.fp + M.A, "GP inputs must be the features and the actions");
+        TORCH_CHECK(M.p == 0 || M.p == 2, "MPK degree must be 0 or 2");
+        auto idx = [&](int i, const char *name) {
+            return checked(index_[i], torch::kInt32, -1, name).data_ptr<int32_t>();
+        };
+        M.n_plain = (int)index_[0].numel();
+        M.n_ang = (int)index_[1].numel();
+        M.n_pairs = (int)index_[2].numel();
+        M.n_delta = (int)index_[4].numel();
+        M.n_terms = (int)index_[5].numel();
+        TORCH_CHECK(M.n_plain + M.n_ang == M.n && M.n_plain + 2 * M.n_ang == M.fp,
+                    "plain and angle coordinates must split the state");
+        TORCH_CHECK(M.n_pairs + M.n_delta == M.m && (int)index_[3].numel() == M.n_pairs,
+                    "the GP outputs must be the pairs' velocities and the unpaired coordinates");
+        M.plain_idx = idx(0, "plain_idx");
+        M.angle_idx = idx(1, "angle_idx");
+        M.position_idx = idx(2, "position_idx");
+        M.velocity_idx = idx(3, "velocity_idx");
+        M.delta_idx = idx(4, "delta_idx");
+        M.cost_idx = idx(5, "cost_idx");
+        TORCH_CHECK(index_[6].numel() == M.n_terms, "cost_mode needs one entry per term");
+        M.cost_mode = idx(6, "cost_mode");
+        const int F = M.p == 2 ? M.f : 0;
+        TORCH_CHECK(index_[7].numel() >= F && index_[8].numel() >= F, "idx_a, idx_c too short");
+        M.idx_a = idx(7, "idx_a");
+        M.idx_c = idx(8, "idx_c");
+        auto flt = [&](int i, int64_t numel, const char *name) -> const float * {
+            if (numel == 0 && floats_[i].numel() == 0) return nullptr;
+            return checked(floats_[i], torch::kFloat32, numel, name).data_ptr<float>();
+        };
+        const int m = M.m, d = M.d;
+        M.u_mid = flt(0, M.A, "u_mid");
+        M.u_half = flt(1, M.A, "u_half");
+        M.cost_target = flt(2, M.n_terms, "cost_target");
+        M.cost_ls = flt(3, M.n_terms, "cost_ls");
+        M.cost_ls2 = flt(4, M.n_terms, "cost_ls2");
+        M.x_mean = flt(5, d, "x_mean");
+        M.x_scale = flt(6, d, "x_scale");
+        M.y_mean = flt(7, m, "y_mean");
+        M.y_scale = flt(8, m, "y_scale");
+        M.inv_l2 = flt(9, (int64_t)m * d, "inv_l2");
+        M.outputscale = flt(10, m, "outputscale");
+        M.sig_diag = M.p ? flt(11, (int64_t)M.p * m * d, "sig_diag") : nullptr;
+        M.sig2 = M.p ? flt(12, (int64_t)M.p * m, "sig2") : nullptr;
+        M.noise_var = floats_[13].numel() ? flt(13, m, "noise_var") : nullptr;
+        M.bound = floats_[14].numel() ? flt(14, m, "bound") : nullptr;
+        M.dt = (float)dt;
+        TORCH_CHECK((int)packed.size() == 4, "packed needs w_aug, fwd, bwd, w_t");
+        for (auto &kind : packed) {
+            TORCH_CHECK((int)kind.size() == 4 * m, "packed needs 4 tensors per output");
+            for (auto &t : kind) packed_tensors_.push_back(t);
+        }
+        const int nblk = (M.N + mcp::RB - 1) / mcp::RB;
+        const int want[4] = {nblk, (M.N + 1 + mcp::RB - 1) / mcp::RB,
+                             (F + M.N + mcp::RB - 1) / mcp::RB, (d + 1 + mcp::RB - 1) / mcp::RB};
+        for (int kind = 0; kind < 4; ++kind) {
+            for (int b = 0; b < m; ++b) {
+                const Tensor *t = &packed[kind][4 * b];
+                mcp::Packed P;
+                P.a = checked(t[0], torch::kFloat32, -1, "packed values").data_ptr<float>();
+                P.blocks = (int)t[1].numel();
+                TORCH_CHECK(P.blocks == want[kind] && t[2].numel() == P.blocks &&
+                                t[3].numel() == P.blocks,
+                            "packed matrix ", kind, " has ", P.blocks, " blocks, expected ",
+                            want[kind]);
+                P.beg = checked(t[1], torch::kInt32, -1, "packed beg").data_ptr<int32_t>();
+                P.end = checked(t[2], torch::kInt32, -1, "packed end").data_ptr<int32_t>();
+                P.off = checked(t[3], torch::kInt64, -1, "packed off").data_ptr<int64_t>();
+                packs_[kind].push_back(P);
+            }
+        }
+        M.w_aug = packs_[0].data();
+        M.fwd = packs_[1].data();
+        M.bwd = packs_[2].data();
+        M.w_t = packs_[3].data();
+    }
+
+    int64_t record_floats() const { return mcp::record_floats(model_); }
+
+    // one shard's forward loop (native_rollout.h); K candidates of `per` particles each
+    void forward(int64_t K, int64_t per, const Tensor &x0, const Tensor &eps, const Tensor &nu,
+                 const std::vector<Tensor> &bytes, double keep_t, double keep_scale,
+                 const Tensor &centers, const Tensor &log_l, const Tensor &w, Tensor costs,
+                 Tensor rec) const {
+        const mcp::Model &M = model_;
+        const int64_t rows = K * per, H = (int64_t)bytes.size();
+        checked(x0, torch::kFloat32, rows * M.n, "x0");
+        checked(eps, torch::kFloat32, H * rows * M.m, "eps");
+        checked(nu, torch::kFloat32, H * rows * M.n, "nu");
+        check_theta(K, centers, log_l, w);
+        checked(costs, torch::kFloat32, H * rows, "costs");
+        const int64_t tiles = K * ((per + mcp::TILE - 1) / mcp::TILE);
+        checked(rec, torch::kFloat32, H * tiles * record_floats(), "rec");
+        std::vector<const uint8_t *> ptrs;
+        for (const Tensor &b : bytes)
+            ptrs.push_back(checked(b, torch::kUInt8, rows * M.nb, "bytes").data_ptr<uint8_t>());
+        const float *px0 = x0.data_ptr<float>(), *peps = eps.data_ptr<float>(),
+                    *pnu = nu.data_ptr<float>(), *pc = centers.data_ptr<float>(),
+                    *pl = log_l.data_ptr<float>(), *pw = w.data_ptr<float>();
+        float *pcost = costs.data_ptr<float>(), *prec = rec.data_ptr<float>();
+        pybind11::gil_scoped_release unlocked;
+        mcp::forward(M, (int)H, (int)K, (int)per, px0, peps, pnu, ptrs.data(), (float)keep_t,
+                     (float)keep_scale, pc, pl, pw, pcost, prec);
+    }
+
+    // one shard's backward loop: adds dJ/dtheta to g_centers, g_log_l, g_w
+    void backward(int64_t K, int64_t per, int64_t horizon, const Tensor &rec,
+                  const Tensor &centers, const Tensor &log_l, const Tensor &w,
+                  const Tensor &g_costs, Tensor g_centers, Tensor g_log_l, Tensor g_w) const {
+        const mcp::Model &M = model_;
+        const int64_t rows = K * per;
+        const int64_t tiles = K * ((per + mcp::TILE - 1) / mcp::TILE);
+        checked(rec, torch::kFloat32, horizon * tiles * record_floats(), "rec");
+        check_theta(K, centers, log_l, w);
+        check_theta(K, g_centers, g_log_l, g_w);
+        checked(g_costs, torch::kFloat32, horizon * rows, "g_costs");
+        const float *prec = rec.data_ptr<float>(), *pc = centers.data_ptr<float>(),
+                    *pl = log_l.data_ptr<float>(), *pw = w.data_ptr<float>(),
+                    *pg = g_costs.data_ptr<float>();
+        float *gc = g_centers.data_ptr<float>(), *gl = g_log_l.data_ptr<float>(),
+              *gw = g_w.data_ptr<float>();
+        pybind11::gil_scoped_release unlocked;
+        mcp::backward(M, (int)horizon, (int)K, (int)per, prec, pc, pl, pw, pg, gc, gl, gw);
+    }
+
+  private:
+    void check_theta(int64_t K, const Tensor &c, const Tensor &l, const Tensor &w) const {
+        const mcp::Model &M = model_;
+        checked(c, torch::kFloat32, K * M.nb * M.fp, "centers");
+        checked(l, torch::kFloat32, K * M.fp, "log_lengthscales");
+        checked(w, torch::kFloat32, K * M.nb * M.A, "weights");
+    }
+
+    std::vector<Tensor> index_, floats_, packed_tensors_;  // kept alive: the model points in
+    std::vector<mcp::Packed> packs_[4];
+    mcp::Model model_{};
+};
+
+}  // namespace
+
+PYBIND11_MODULE(TORCH_EXTENSION_NAME, m) {
+    m.doc() = "MC-PILCO particle rollout, forward and backward through time, for one shard";
+    m.def("tile", [] { return mcp::TILE; }, "particles per tile");
+    m.def("row_block", [] { return mcp::RB; }, "rows per block of a packed matrix");
+    pybind11::class_<NativeModel>(m, "NativeModel")
+        .def(pybind11::init<std::vector<int64_t>, std::vector<Tensor>, std::vector<Tensor>,
+                            double, std::vector<std::vector<Tensor>>>())
+        .def("record_floats", &NativeModel::record_floats)
+        .def("forward", &NativeModel::forward)
+        .def("backward", &NativeModel::backward);
+}
