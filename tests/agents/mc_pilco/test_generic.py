@@ -29,6 +29,7 @@ from mcpilco.agents.mc_pilco import (
     make_policy_module,
     run_mcpilco,
 )
+from mcpilco.agents.mc_pilco.checkpoint import load_checkpoint
 from mcpilco.agents.mc_pilco.direct_compile import DirectRollout
 from tests.agents.mc_pilco.toy_env import ENV_ID, TASK
 
@@ -63,7 +64,7 @@ def test_toy_env_reaches_its_goal(tmp_path):
     assert policy["success"], policy
     assert policy["cost"] < 0.6 * explore["cost"]
     # the particles predicted the real trajectory: final positions within 0.15 of it
-    arr = torch.load(tmp_path / "checkpoint.pt", weights_only=False)["arrays"][-1]
+    arr = load_checkpoint(tmp_path / "checkpoint.pt")["arrays"][-1]
     pred_end = np.asarray(arr["particles"])[:, -1].mean(0)
     real_end = np.asarray(arr["real"])[-1]
     assert np.abs(pred_end[[0, 2]] - real_end[[0, 2]]).max() < 0.15
