@@ -277,12 +277,25 @@ def test_a_seed_given_twice_counts_once(tmp_path, capsys):
     assert "counted once" in capsys.readouterr().err
 
 
-def test_a_failing_run_is_reported_not_raised(tmp_path):
-    from mcpilco.scripts.compare import _job
-
-    res = _job(("pilco", ENV, 0, str(tmp_path), {"pilco": {"max_points": 3}, "log": False}))
-    assert res["failed"] and res["method"] == "pilco" and res["seed"] == 0
-    assert "max_points must be an integer >= 10" in res["error"]
+def test_a_failing_run_is_reported_and_sets_the_exit_code(tmp_path, capsys):
+    # MC-PILCO seed 0 is finished in the runs folder (2 points cover --trials 1): collected,
+    # not rerun; PILCO seed 0 fails (too few GP points): reported with its traceback file
+    runs = tmp_path / "runs"
+    save_curve(runs / "CartpoleSwingUp-v0" / "mcpilco" / "seed0" / "curve.json",
+               _trial_curve(0, [False, True]))  # fmt: skip
+    argv = ["--methods", "mcpilco", "pilco", "--seeds", "1", "--trials", "1", "--no-progress"]
+    argv += ["--pilco-max-points", "3", "--runs-dir", str(runs), "--out", str(tmp_path / "r")]
+    assert main(argv) == 1
+    err = capsys.readouterr().err
+    assert "FAILED pilco/seed0" in err and "max_points must be an integer >= 10" in err
+    report = json.loads((tmp_path / "r" / "compare_CartpoleSwingUp-v0.json").read_text())
+    (failed,) = report["failed"]
+    assert failed["method"] == "pilco" and failed["seed"] == 0
+    assert "max_points must be an integer >= 10" in failed["error"]
+    trace = runs / "CartpoleSwingUp-v0" / "pilco" / "seed0.error.txt"
+    assert failed["traceback"] == str(trace) and "Traceback" in trace.read_text()
+    assert report["methods"]["mcpilco"]["seeds"] == [0]
+    assert not (runs / "CartpoleSwingUp-v0" / "mcpilco" / "seed0.json").exists()  # not rerun
 
 
 def test_mcpilco_from_a_labelled_bench_section(tmp_path, capsys):
