@@ -424,6 +424,9 @@ class RayBackend:
         if ray.is_initialized():
             return self
         if self.address is None:
+            constants = getattr(getattr(ray, "_private", None), "ray_constants", None)
+            if getattr(constants, "ENABLE_RAY_CLUSTER", False):  # imported without LOCAL_RAY_ENV
+                raise SweepError(self._not_loopback("the routable address"))
             ctx = ray.init(
                 num_cpus=self.num_cpus,
                 include_dashboard=False,
@@ -435,15 +438,20 @@ class RayBackend:
             node_ip = ctx.address_info.get("node_ip_address")
             if node_ip != LOOPBACK:
                 self.__exit__()
-                raise SweepError(
-                    f"the local Ray instance took the address {node_ip}, not {LOOPBACK}: "
-                    "import ray only after the sweep runner set "
-                    f"{', '.join(f'{k}={v}' for k, v in LOCAL_RAY_ENV.items())}"
-                )
+                raise SweepError(self._not_loopback(node_ip))
         else:
             ray.init(address=self.address, configure_logging=False, log_to_driver=True)
         self._owns = True
         return self
+
+    @staticmethod
+    def _not_loopback(address: str) -> str:
+        return (
+            f"a local Ray instance would take {address}, not {LOOPBACK}: ray was imported "
+            "before the sweep runner set "
+            f"{', '.join(f'{k}={v}' for k, v in LOCAL_RAY_ENV.items())}; set them in the "
+            "environment, or let import_ray(local=True) import it"
+        )
 
     def __exit__(self, *exc: object) -> None:
         if self._owns:

@@ -48,7 +48,7 @@ def main(argv: list[str] | None = None) -> int:
         parser.error("--n, --cpus and --repeats must be >= 1 and --seconds > 0")
     if "ray" in args.backends:
         try:
-            import_ray()
+            import_ray(local=True)
         except SweepError as err:
             parser.error(str(err))
     result = measure(args.backends, args.kinds, args.n, args.seconds, args.cpus, args.repeats)
