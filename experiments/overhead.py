@@ -18,11 +18,14 @@ job kind (:data:`~mcpilco.experiments.probe.KINDS`):
 ``job_wall_s``
     mean wall time of a job as the worker measured it (``spin``: its CPU work, which slows
     down when other processes share the cores).
+``load_1min``
+    the machine's 1-minute load average around the sweep, to read the figures against.
 """
 
 from __future__ import annotations
 
 import math
+import os
 import platform
 import statistics
 import tempfile
@@ -61,8 +64,10 @@ def measure_sweep(
     jobs = probe_jobs(n, seconds, kind, rounds=rounds)
     runner = SweepRunner(make_backend(backend, cpus), progress=False, log=None)
     with tempfile.TemporaryDirectory(prefix="sweep-overhead-") as tmp:
+        load_before = os.getloadavg()[0]
         t_start = time.time()
         report = runner.run(jobs, tmp)
+        load_after = os.getloadavg()[0]
         records = [_read(result_path(Path(tmp), j.key)) for j in jobs]
     if report.failed:
         raise RuntimeError(report.summary())
@@ -93,6 +98,7 @@ def measure_sweep(
         "dispatch_gap_s": statistics.mean(gaps) if gaps else None,
         "job_wall_s": statistics.mean(r["wall_s"] for r in records),
         "worker_processes": len(by_pid),
+        "load_1min": (load_before + load_after) / 2,
     }
 
 
@@ -138,7 +144,8 @@ def summarise(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
     for backend, kind in keys:
         sel = [r for r in rows if r["backend"] == backend and r["kind"] == kind]
         row = {"backend": backend, "kind": kind, "repeats": len(sel)}
-        for field in ("wall_s", "startup_s", "overhead_per_job_s", "dispatch_gap_s", "job_wall_s"):
+        fields = ("wall_s", "startup_s", "overhead_per_job_s", "dispatch_gap_s", "job_wall_s")
+        for field in (*fields, "load_1min"):
             vals = [r[field] for r in sel if r[field] is not None]
             row[field] = statistics.median(vals) if vals else None
         row["ideal_s"] = sel[0]["ideal_s"]
@@ -164,18 +171,21 @@ def markdown(result: dict[str, Any], command: str) -> str:
         "127.0.0.1) and shuts it down, as a benchmark script does.",
         "",
         "| jobs | backend | wall s | startup s | overhead per job s | dispatch gap s "
-        "| job wall s |",
-        "|---|---|---|---|---|---|---|",
+        "| job wall s | load |",
+        "|---|---|---|---|---|---|---|---|",
     ]
     for r in result["summary"]:
         lines.append(
             f"| {r['kind']} | {r['backend']} | {f(r['wall_s'])} | {f(r['startup_s'])} | "
-            f"{f(r['overhead_per_job_s'])} | {f(r['dispatch_gap_s'], 3)} | {f(r['job_wall_s'])} |"
+            f"{f(r['overhead_per_job_s'])} | {f(r['dispatch_gap_s'], 3)} | {f(r['job_wall_s'])} | "
+            f"{f(r['load_1min'], 1)} |"
         )
     lines += [
         "",
         "overhead per job = (wall - ideal) x CPUs / jobs, startup included; dispatch gap = "
         "mean time between the end of a job and the start of the next one in the same "
-        "worker (steady state).",
+        "worker (steady state); load = the machine's 1-minute load average during the sweeps "
+        f"(other processes included; {result['cpus']} = the backend's CPUs busy). Where it "
+        "exceeds the CPUs, the jobs share the cores with other work and the figures grow.",
     ]
     return "\n".join(lines) + "\n"
