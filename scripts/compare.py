@@ -746,7 +746,11 @@ def main(argv: list[str] | None = None) -> int:
         # the runs to do were chosen above from their curves (a killed run resumes from its
         # checkpoint), so the sweep reruns every job it is given
         sweep = runner.run(jobs, args.runs_dir / args.env.split("/")[-1], rerun=True, desc="runs")
-        curves += list(sweep.results.values())
+        for curve in sweep.results.values():  # a run on another node wrote its curve there
+            path = curve_path(args.runs_dir, args.env, curve["method"], curve["seed"])
+            if not path.is_file():
+                save_curve(path, curve)
+            curves.append(curve)
         failed = [
             {
                 "failed": True,

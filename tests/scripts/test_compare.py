@@ -6,6 +6,7 @@ The expected numbers are computed by hand from the fake curves below, not by the
 from __future__ import annotations
 
 import json
+import os
 
 import pytest
 
@@ -324,3 +325,19 @@ def test_mcpilco_from_a_labelled_bench_section(tmp_path, capsys):
     with pytest.raises(SystemExit):
         main([*common, "--mcpilco-label", "K9"])
     assert "--label K9" in capsys.readouterr().err
+
+
+def test_runs_go_through_the_sweep_runner_and_keep_their_result(tmp_path):
+    # MC-PILCO with no policy trial (exploration only): a real run in a spawned worker
+    runs = tmp_path / "runs"
+    argv = ["--methods", "mcpilco", "--seeds", "1", "--trials", "0", "--jobs", "2"]
+    argv += ["--mcpilco-preset", "small", "--runs-dir", str(runs), "--out", str(tmp_path / "r")]
+    argv += ["--no-progress"]
+    assert main(argv) == 0
+    record = json.loads((runs / "CartpoleSwingUp-v0" / "mcpilco" / "seed0.json").read_text())
+    curve = json.loads(
+        (runs / "CartpoleSwingUp-v0" / "mcpilco" / "seed0" / "curve.json").read_text()
+    )
+    assert record["result"] == curve and record["pid"] != os.getpid()
+    report = json.loads((tmp_path / "r" / "compare_CartpoleSwingUp-v0.json").read_text())
+    assert report["methods"]["mcpilco"]["seeds"] == [0] and report["failed"] == []
