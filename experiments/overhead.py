@@ -12,6 +12,10 @@ job kind (:data:`~mcpilco.experiments.probe.KINDS`):
 ``overhead_per_job_s``
     ``(wall_s - ideal_s) * cpus / n``: what each job adds to the wall time of a CPU slot,
     startup included.
+``workers_up_s``
+    from the call to the first job of the last worker to start (every CPU busy from then).
+``shutdown_s``
+    from the end of the last job to the end of the call (last result file, shutdown).
 ``dispatch_gap_s``
     mean time between the end of a job and the start of the next one in the same worker
     process: the steady-state cost per job (result transfer, result file, next submission).
@@ -67,6 +71,7 @@ def measure_sweep(
         load_before = os.getloadavg()[0]
         t_start = time.time()
         report = runner.run(jobs, tmp)
+        t_end = time.time()
         load_after = os.getloadavg()[0]
         records = [_read(result_path(Path(tmp), j.key)) for j in jobs]
     if report.failed:
@@ -94,6 +99,8 @@ def measure_sweep(
         "ideal_s": ideal,
         "wall_s": report.wall_s,
         "startup_s": min(r["start"] for r in records) - t_start,
+        "workers_up_s": max(min(r["start"] for r in recs) for recs in by_pid.values()) - t_start,
+        "shutdown_s": t_end - max(r["end"] for r in records),
         "overhead_per_job_s": (report.wall_s - ideal) * cpus / n,
         "dispatch_gap_s": statistics.mean(gaps) if gaps else None,
         "job_wall_s": statistics.mean(r["wall_s"] for r in records),
@@ -144,7 +151,15 @@ def summarise(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
     for backend, kind in keys:
         sel = [r for r in rows if r["backend"] == backend and r["kind"] == kind]
         row = {"backend": backend, "kind": kind, "repeats": len(sel)}
-        fields = ("wall_s", "startup_s", "overhead_per_job_s", "dispatch_gap_s", "job_wall_s")
+        fields = (
+            "wall_s",
+            "startup_s",
+            "workers_up_s",
+            "shutdown_s",
+            "overhead_per_job_s",
+            "dispatch_gap_s",
+            "job_wall_s",
+        )
         for field in (*fields, "load_1min"):
             vals = [r[field] for r in sel if r[field] is not None]
             row[field] = statistics.median(vals) if vals else None
@@ -170,19 +185,21 @@ def markdown(result: dict[str, Any], command: str) -> str:
         "Each sweep starts its backend (spawned processes, or a local Ray instance on "
         "127.0.0.1) and shuts it down, as a benchmark script does.",
         "",
-        "| jobs | backend | wall s | startup s | overhead per job s | dispatch gap s "
-        "| job wall s | load |",
-        "|---|---|---|---|---|---|---|---|",
+        "| jobs | backend | wall s | first job starts s | all workers up s | shutdown s "
+        "| overhead per job s | dispatch gap s | job wall s | load |",
+        "|---|---|---|---|---|---|---|---|---|---|",
     ]
     for r in result["summary"]:
         lines.append(
             f"| {r['kind']} | {r['backend']} | {f(r['wall_s'])} | {f(r['startup_s'])} | "
-            f"{f(r['overhead_per_job_s'])} | {f(r['dispatch_gap_s'], 3)} | {f(r['job_wall_s'])} | "
+            f"{f(r['workers_up_s'])} | {f(r['shutdown_s'])} | {f(r['overhead_per_job_s'])} | "
+            f"{f(r['dispatch_gap_s'], 3)} | {f(r['job_wall_s'])} | "
             f"{f(r['load_1min'], 1)} |"
         )
     lines += [
         "",
-        "overhead per job = (wall - ideal) x CPUs / jobs, startup included; dispatch gap = "
+        "overhead per job = (wall - ideal) x CPUs / jobs, startup included (the backend's "
+        "start and each worker's first import of torch); dispatch gap = "
         "mean time between the end of a job and the start of the next one in the same "
         "worker (steady state); load = the machine's 1-minute load average during the sweeps "
         f"(other processes included; {result['cpus']} = the backend's CPUs busy). Where it "

@@ -382,7 +382,9 @@ class LocalBackend:
                             broken = True
                             yield i, _died(err)
             finally:
-                pool.shutdown(wait=not broken, cancel_futures=True)
+                # no wait for the idle workers' exit (seconds with torch loaded): the
+                # interpreter joins them at its end
+                pool.shutdown(wait=False, cancel_futures=True)
 
 
 LOCAL_RAY_ENV = {"RAY_ENABLE_WINDOWS_OR_OSX_CLUSTER": "0", "RAY_USAGE_STATS_ENABLED": "0"}
