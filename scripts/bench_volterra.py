@@ -387,7 +387,7 @@ def markdown_table(summary: dict, meta: dict) -> str:
         f"Command: `{meta['command']}`; base seed {meta['base_seed']}, "
         f"{meta['jobs']} worker process(es), wall time {meta['wall_s']:.0f} s"
         + (
-            f" ({meta['runs_reused']} runs reused from volterra_runs.jsonl, not counted)"
+            f" ({meta['runs_reused']} runs reused from earlier result files, not counted)"
             if meta.get("runs_reused")
             else ""
         )
