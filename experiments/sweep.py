@@ -336,8 +336,9 @@ class InProcessBackend:
 
 
 class LocalBackend:
-    """``workers`` spawned processes; at most ``workers`` jobs in flight, so that a kill loses
-    at most those. A worker that dies fails the jobs in flight and the pool is restarted."""
+    """``workers`` spawned processes (CPUs); jobs in flight use at most ``workers`` CPUs
+    together (``Job.cpus``; a job wider than that runs alone), so that a kill loses at most
+    those. A worker that dies fails the jobs in flight and the pool is restarted."""
 
     def __init__(self, workers: int) -> None:
         if workers < 1:
@@ -360,6 +361,11 @@ class LocalBackend:
         # spawned, not forked: a fork copies the parent's torch thread pools and CUDA state
         return ProcessPoolExecutor(self.workers, mp_context=multiprocessing.get_context("spawn"))
 
+    def _fits(self, job: Job, inflight: Mapping[Future, int], jobs: Sequence[Job]) -> bool:
+        """Whether ``job`` can start next to the jobs in flight."""
+        busy = sum(jobs[i].cpus for i in inflight.values())
+        return not inflight or busy + job.cpus <= self.workers
+
     def map_unordered(self, jobs: Sequence[Job]) -> Iterator[tuple[int, dict[str, Any]]]:
         pending = collections.deque(range(len(jobs)))
         while pending:
@@ -368,7 +374,7 @@ class LocalBackend:
             broken = False
             try:
                 while (pending and not broken) or inflight:
-                    while pending and not broken and len(inflight) < self.workers:
+                    while pending and not broken and self._fits(jobs[pending[0]], inflight, jobs):
                         i = pending.popleft()
                         job = jobs[i]
                         fut = pool.submit(execute, job.fn, dict(job.kwargs), job.thread_count)

@@ -81,17 +81,23 @@ def test_a_failing_job_is_recorded_and_the_sweep_goes_on(tmp_path):
     assert fixed.results == _expected(4)
 
 
-def test_local_processes_set_the_threads_and_report_failures(tmp_path):
+def test_local_processes_set_the_threads_keep_the_cpus_and_report_failures(tmp_path):
     jobs = [
-        Job("t/one", sleep_job, {"index": 1, "seconds": 0.0}, cpus=1),
-        Job("t/two", sleep_job, {"index": 2, "seconds": 0.0}, cpus=2, threads=3),
-        Job("t/bad", sleep_job, {"index": 3, "seconds": 0.0, "fail": True}),
+        Job("t/one", sleep_job, {"index": 1, "seconds": 0.3}, cpus=1),
+        Job("t/two", sleep_job, {"index": 2, "seconds": 0.3}, cpus=2, threads=3),
+        Job("t/three", sleep_job, {"index": 3, "seconds": 0.3}, cpus=1),
+        Job("t/bad", sleep_job, {"index": 4, "seconds": 0.0, "fail": True}),
     ]
     report = SweepRunner(LocalBackend(2), progress=False, log=None).run(jobs, tmp_path)
-    assert sorted(report.ran) == ["t/one", "t/two"] and [f.key for f in report.failed] == ["t/bad"]
-    two = json.loads((tmp_path / "t" / "two.json").read_text())
-    assert two["threads"] == 3 and two["pid"] != os.getpid()
+    assert sorted(report.ran) == ["t/one", "t/three", "t/two"]
+    assert [f.key for f in report.failed] == ["t/bad"]
     assert (tmp_path / "t" / "bad.error.txt").is_file()
+    rec = {k: json.loads((tmp_path / f"{k}.json").read_text()) for k in report.ran}
+    assert rec["t/two"]["threads"] == 3 and rec["t/two"]["pid"] != os.getpid()
+    # the 2-CPU job ran alone: no other job's time overlaps it on the 2 CPUs
+    two = rec["t/two"]
+    for key in ("t/one", "t/three"):
+        assert rec[key]["end"] <= two["start"] or rec[key]["start"] >= two["end"], key
 
 
 def test_jobs_are_checked():
@@ -150,7 +156,7 @@ def test_local_sweep_killed_halfway_resumes_the_rest(tmp_path):
     assert _results(out) == _expected(8)
 
 
-@pytest.mark.slow  # 50 s on 2 busy cores: two local Ray starts (6-9 s each) and the sweeps
+@pytest.mark.slow  # 50-65 s on 2 busy cores: two local Ray starts (6-9 s each), the sweeps
 def test_ray_sweep_killed_halfway_resumes_to_the_local_results(tmp_path):
     """A local Ray instance of 2 CPUs on 127.0.0.1, started by the sweep subprocess."""
     pytest.importorskip("ray")
@@ -165,3 +171,21 @@ def test_ray_sweep_killed_halfway_resumes_to_the_local_results(tmp_path):
     assert sorted(ray_records) == sorted(p.name for p in (tmp_path / "local").glob("*.json"))
     assert _results(out) == local.results == _expected(8)
     assert {r["pid"] for r in ray_records.values()} != {os.getpid()}
+
+
+def test_a_local_ray_instance_is_refused_where_it_would_not_be_loopback_only():
+    """Ray imported before the runner set its environment would listen on every interface:
+    the backend refuses to start it (and starts nothing)."""
+    pytest.importorskip("ray")
+    code = (
+        "import ray\n"
+        "from mcpilco.experiments.sweep import RayBackend, SweepError\n"
+        "try:\n"
+        "    RayBackend(None, num_cpus=1).__enter__()\n"
+        "except SweepError as err:\n"
+        "    print('refused:', err, ray.is_initialized())\n"
+    )
+    env = {k: v for k, v in os.environ.items() if not k.startswith("RAY_")}
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env)
+    assert "refused: a local Ray instance would take the routable address" in out.stdout, out
+    assert out.stdout.strip().endswith("False")
