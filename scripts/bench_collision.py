@@ -45,6 +45,13 @@ Cost (2-core machine, one torch thread): the reduced run ``--gp-points 2000 --hy
 issue's 5000 conditioning rows a prediction costs ~3.9 ms per row (mean) and ~13 ms per row
 (with variance), so the default run needs about an hour.
 
+Jobs: the simulated data are kept in ``RUNS_DIR/data.pkl`` (reused while the data options
+are the same); the ``sigma_v`` cross-validation and each estimator's fit and evaluation are
+sweep jobs (:mod:`mcpilco.experiments.sweep`) in ``--jobs`` local processes or on Ray
+(``--ray [ADDRESS]``; the jobs read ``RUNS_DIR/data.pkl``, so a multi-node cluster needs
+``--runs-dir`` on a shared file system), FC after the cross-validation. Each writes
+``RUNS_DIR/<label>.json``: a rerun computes only the jobs without one.
+
 Outputs (``--out-dir``, default ``results/``): ``collision.json``, ``collision.md``,
 ``collision_rmse.png`` (Fig. 4.2), ``collision_detection.png`` (Fig. 4.3),
 ``collision_roc.png``.
@@ -59,9 +66,11 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import functools
 import json
 import math
 import os
+import pickle
 import platform
 import time
 import warnings
@@ -83,6 +92,13 @@ from mcpilco.envs.arm_data import (
     rollout,
 )
 from mcpilco.envs.arm_env import PUSH_RANGES, UR10_HOME, Push, UR10Env
+from mcpilco.experiments.sweep import (
+    Job,
+    SweepError,
+    add_sweep_arguments,
+    runner_from_args,
+    write_atomic,
+)
 from mcpilco.models.collision import (
     CollisionDetector,
     CollisionInputs,
@@ -453,6 +469,102 @@ def evaluate_estimator(
     return out
 
 
+# ----------------------------------------------------------------------------- jobs
+
+DATA_OPTIONS = (
+    "seed", "train_waypoints", "test_waypoints", "final_rest", "push_free_minutes",
+    "push_waypoints", "scenario_force",
+)  # fmt: skip
+"""Options that set the simulated data (:func:`simulate`)."""
+
+MODEL_OPTIONS = (
+    "seed", "gp_points", "hyper_points", "adam_iters", "lbfgs_iters", "cv_points",
+    "cv_validation", "cv_hyper_points", "sigma_v_candidates", "rmse_sigma_v", "persistence",
+    "alphas", "roc_persistence",
+)  # fmt: skip
+"""Options of the cross-validation, the fits and the evaluation (the jobs' arguments)."""
+
+
+def simulated_sets(args: argparse.Namespace, path: Path, bar: tqdm) -> dict[str, Any]:
+    """:func:`simulate`, kept in ``path`` (a pickle with the :data:`DATA_OPTIONS` it was made
+    with) and read back from it while those options are the same."""
+    options = {k: getattr(args, k) for k in DATA_OPTIONS}
+    if path.is_file():
+        with open(path, "rb") as fh:
+            saved = pickle.load(fh)
+        if saved["options"] == options:
+            bar.update(5)
+            return saved["sets"]
+    sets = simulate(args, bar)
+    data = {"options": options, "sets": sets}
+    write_atomic(path, pickle.dumps(data, protocol=pickle.HIGHEST_PROTOCOL))
+    return sets
+
+
+@functools.lru_cache(maxsize=1)
+def _load_sets(path: str, mtime_ns: int) -> dict[str, Any]:
+    """The simulated sets in ``path`` (cached per worker process while the file is the same)."""
+    with open(path, "rb") as fh:
+        return pickle.load(fh)["sets"]
+
+
+def _sets(data_path: str) -> dict[str, Any]:
+    return _load_sets(data_path, Path(data_path).stat().st_mtime_ns)
+
+
+def _gp_rows(train: dict[str, FloatArray], gp_points: int) -> tuple[CollisionInputs, FloatArray]:
+    """The GP's conditioning rows: ``gp_points`` rows of the training run, a constant step."""
+    X = as_collision_inputs(train)
+    step = max(X.n_samples // gp_points, 1)
+    rows = np.arange(0, X.n_samples, step)[:gp_points]
+    return X.rows(rows), train["i"][rows]
+
+
+def cv_job(data_path: str, data: dict[str, Any], options: dict[str, Any]) -> dict[str, Any]:
+    """The ``sigma_v`` cross-validation (:func:`choose_sigma_v`) as a sweep job; ``data``:
+    the :data:`DATA_OPTIONS` of the file (they identify it)."""
+    args = argparse.Namespace(**options)
+    return choose_sigma_v(args, nominal_model("ur10"), _sets(data_path)["train"])
+
+
+def estimator_job(
+    label: str,
+    name: str,
+    kwargs: dict[str, Any],
+    data_path: str,
+    data: dict[str, Any],
+    options: dict[str, Any],
+    variance: bool,
+    save_detector: str | None = None,
+) -> dict[str, Any]:
+    """Fit estimator ``name`` (``kwargs``) on the GP rows and evaluate it on every set
+    (:func:`evaluate_estimator`; ``PP-sign``: the RMSE split only), as a sweep job; ``data``
+    as in :func:`cv_job`. ``save_detector``: also write the FC detector (max rule) there."""
+    args = argparse.Namespace(**options)
+    sets = dict(_sets(data_path))
+    sets["push_records"] = push_records(
+        sets["pushes"], sets["push_list"], sets["push_at_rest"], sets["current_gain"]
+    )
+    xml = nominal_model("ur10")
+    Xs, ys = _gp_rows(sets["train"], args.gp_points)
+    t0 = time.perf_counter()
+    est = fit(name, xml, Xs, ys, **kwargs)
+    fit_s = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    if label == "PP-sign":  # RMSE only
+        mean, _ = est.predict(as_collision_inputs(sets["validation"]), return_var=False)
+        val = sets["validation"]
+        r = rmse_split(val["i"], mean, val["qd"], args.rmse_sigma_v)
+        result = {"rmse": {k: np.asarray(v).tolist() for k, v in r.items()}}
+    else:
+        result = evaluate_estimator(est, sets, args, variance=variance)
+    if save_detector:
+        det = CollisionDetector(est, "max", 0.0, args.persistence[0], 0.008)
+        det.scale_ = np.asarray(result["thresholds"]["max"])
+        det.save(save_detector)
+    return {"fit_s": fit_s, "evaluate_s": time.perf_counter() - t0, "result": result}
+
+
 # ----------------------------------------------------------------------------- plots
 
 
@@ -769,7 +881,14 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--threads", type=int, default=1, help="torch threads")
     p.add_argument("--out-dir", default="results")
     p.add_argument("--save-detector", default=None, help="write the FC detector (max rule)")
+    p.add_argument(
+        "--runs-dir",
+        type=Path,
+        default=Path("runs/bench_collision"),
+        help="simulated data (data.pkl) and one result file per job, reused by a rerun",
+    )
     p.add_argument("--no-progress", action="store_true")
+    add_sweep_arguments(p)  # --jobs N (local processes), --ray [ADDRESS]: CV and estimators
     return p
 
 
@@ -779,8 +898,14 @@ def _list(value: str, kind: type = str) -> list:
 
 @console_main("mcpilco-bench-collision")
 def main(argv: Sequence[str] | None = None) -> int:
-    """Run the benchmark; write JSON, PNGs and Markdown; print the Markdown. Returns 0."""
-    args = build_parser().parse_args(argv)
+    """Run the benchmark; write JSON, PNGs and Markdown; print the Markdown. Returns 0 (1 when
+    a job failed)."""
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    try:
+        runner = runner_from_args(args, progress=not args.no_progress)
+    except SweepError as err:
+        parser.error(str(err))
     args.estimators = _list(args.estimators)
     bad = [e for e in args.estimators if e not in ESTIMATOR_NAMES]
     if bad:
@@ -795,64 +920,60 @@ def main(argv: Sequence[str] | None = None) -> int:
     out_dir.mkdir(parents=True, exist_ok=True)
     t_wall, t_cpu = time.perf_counter(), time.process_time()
     timing: dict[str, float] = {}
-    n_models = len(args.estimators) + int(args.pp_sign)
-    bar = tqdm(total=5 + 1 + 2 * n_models, disable=args.no_progress, desc="bench")
+    bar = tqdm(total=5, disable=args.no_progress, desc="simulation")
 
     t0 = time.perf_counter()
-    sets = simulate(args, bar)
+    data_path = args.runs_dir / "data.pkl"
+    sets = simulated_sets(args, data_path, bar)
+    bar.close()
     timing["simulation"] = time.perf_counter() - t0
     gain = sets["current_gain"]
     sets["push_records"] = push_records(
         sets["pushes"], sets["push_list"], sets["push_at_rest"], gain
     )
-    xml = nominal_model("ur10")
     train = sets["train"]
     X = as_collision_inputs(train)
-    step = max(X.n_samples // args.gp_points, 1)
-    rows = np.arange(0, X.n_samples, step)[: args.gp_points]
-    Xs, ys = X.rows(rows), train["i"][rows]
+    Xs, _ = _gp_rows(train, args.gp_points)
 
-    bar.set_postfix_str("sigma_v CV")
-    cv = choose_sigma_v(args, xml, train) if "FC" in args.estimators else {"best": 1e-2}
-    timing["sigma_v_cv"] = cv.get("seconds", 0.0)
-    bar.update(1)
+    common = {
+        "data_path": str(data_path),
+        "data": {k: getattr(args, k) for k in DATA_OPTIONS},
+        "options": {k: getattr(args, k) for k in MODEL_OPTIONS},
+    }
 
-    runs_: list[tuple[str, str, dict[str, Any]]] = []
-    for name in args.estimators:
-        kw = gp_options(args)
-        if name == "FC":
-            kw["sigma_v"] = cv["best"]
-        runs_.append((name, name, kw))
+    def estimator(label: str, name: str, kw: dict[str, Any]) -> Job:
+        save = args.save_detector if label == "FC" else None
+        kwargs = {"label": label, "name": name, "kwargs": kw, **common}
+        kwargs.update(variance=label in args.variance_estimators, save_detector=save)
+        return Job(label, estimator_job, kwargs, cpus=args.threads)
+
+    first = [estimator(name, name, gp_options(args)) for name in args.estimators if name != "FC"]
     if args.pp_sign:
-        runs_.append(("PP-sign", "PP", {**gp_options(args), "coulomb_velocity": 0.0}))
+        first.append(estimator("PP-sign", "PP", {**gp_options(args), "coulomb_velocity": 0.0}))
+    if "FC" in args.estimators:
+        first.insert(0, Job("sigma_v_cv", cv_job, common, cpus=args.threads))
+    sweeps = [runner.run(first, args.runs_dir, desc="sigma_v CV and estimators")]
+    cv = sweeps[0].results.get("sigma_v_cv", {"best": 1e-2})
+    timing["sigma_v_cv"] = cv.get("seconds", 0.0)
+    if "FC" in args.estimators and "sigma_v_cv" in sweeps[0].results:
+        fc = estimator("FC", "FC", {**gp_options(args), "sigma_v": cv["best"]})
+        sweeps.append(runner.run([fc], args.runs_dir, desc="FC"))
+    done = {k: v for sw in sweeps for k, v in sw.results.items() if k != "sigma_v_cv"}
+    failed = [f for sw in sweeps for f in sw.failed]
     estimators: dict[str, Any] = {}
-    fitted: dict[str, Any] = {}
-    for label, name, kw in runs_:
-        bar.set_postfix_str(f"fit {label}")
-        t0 = time.perf_counter()
-        est = fit(name, xml, Xs, ys, **kw)
-        timing[f"fit {label}"] = time.perf_counter() - t0
-        fitted[label] = est
-        bar.update(1)
-        bar.set_postfix_str(f"predict {label}")
-        t0 = time.perf_counter()
-        if label == "PP-sign":  # RMSE only
-            mean, _ = est.predict(as_collision_inputs(sets["validation"]), return_var=False)
-            val = sets["validation"]
-            r = rmse_split(val["i"], mean, val["qd"], args.rmse_sigma_v)
-            estimators[label] = {"rmse": {k: np.asarray(v).tolist() for k, v in r.items()}}
-        else:
-            estimators[label] = evaluate_estimator(
-                est, sets, args, variance=label in args.variance_estimators
-            )
-        timing[f"evaluate {label}"] = time.perf_counter() - t0
-        bar.update(1)
-    bar.close()
-
-    if args.save_detector and "FC" in fitted:
-        det = CollisionDetector(fitted["FC"], "max", 0.0, args.persistence[0], 0.008)
-        det.scale_ = np.asarray(estimators["FC"]["thresholds"]["max"])
-        det.save(args.save_detector)
+    for label in [*args.estimators, *(["PP-sign"] if args.pp_sign else [])]:
+        if label not in done:
+            continue
+        res = done[label]["result"]
+        if "_signals" in res:  # arrays again for the scenario figure
+            res["_signals"] = {
+                k: {kk: np.asarray(vv) for kk, vv in v.items()} for k, v in res["_signals"].items()
+            }
+        estimators[label] = res
+        timing[f"fit {label}"] = done[label]["fit_s"]
+        timing[f"evaluate {label}"] = done[label]["evaluate_s"]
+    for sw in sweeps:
+        print(sw.summary())
 
     results: dict[str, Any] = {
         "config": {k: v for k, v in vars(args).items()},
@@ -885,11 +1006,13 @@ def main(argv: Sequence[str] | None = None) -> int:
     if "FC" in estimators or "SP" in estimators:
         plot_scenario(results, sets, out_dir / "collision_detection.png")
     plot_roc(results, out_dir / "collision_roc.png")
-    (out_dir / "collision.json").write_text(json.dumps(strip(results), indent=1))
+    (out_dir / "collision.json").write_text(json.dumps(strip(results), indent=1, default=str))
     text = markdown(results)
     (out_dir / "collision.md").write_text(text)
     print(text)
-    return 0
+    if failed:
+        print(f"failed jobs (see their .error.txt in {args.runs_dir}): {[f.key for f in failed]}")
+    return 1 if failed else 0
 
 
 if __name__ == "__main__":

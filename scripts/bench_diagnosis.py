@@ -13,10 +13,13 @@ first), the held-out RMSE / noise of the affected joints before and after, false
 the control cases (a *missing* effect named) and, apart, controls where an in-span refinement
 was suggested, seconds per case.
 
+Each case is a sweep job (:mod:`mcpilco.experiments.sweep`, one thread) in ``--jobs`` local
+processes or on Ray (``--ray [ADDRESS]``), its record kept in
+``RUNS_DIR/<robot>/<start>/seed<s>.json``: a rerun computes only the cases without one.
 Writes ``results/diagnosis.json`` and ``results/diagnosis.md``. Example (about 10-20 s per
 case on one core)::
 
-    python -m mcpilco.scripts.bench_diagnosis --cases 30 --robot scara --workers 2
+    python -m mcpilco.scripts.bench_diagnosis --cases 30 --robot scara --jobs 2
 """
 
 from __future__ import annotations
@@ -25,13 +28,13 @@ import argparse
 import json
 import time
 from collections.abc import Sequence
-from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from mcpilco.agents.common.cli import console_main
+from mcpilco.experiments.sweep import Job, SweepError, add_sweep_arguments, runner_from_args
 
 
 def _affected_joints(effect: dict[str, Any]) -> list[int]:
@@ -73,9 +76,6 @@ def run_case(
     with several effects each must be in the first ``k + n_effects - 1``). After
     :func:`auto_improve` the held-out RMSE of the affected joints is divided by the noise std.
     """
-    import torch
-
-    torch.set_num_threads(1)
     from mcpilco.models.diagnosis import DiagnosisModel, as_trajectories, auto_improve, heldout_rmse
     from mcpilco.scripts.make_hidden_effect_data import make_case
 
@@ -185,9 +185,16 @@ def main(argv: Sequence[str] | None = None) -> int:
     p.add_argument("--iters", type=int, default=100, help="Adam iterations of a learned start")
     p.add_argument("--duration", type=float, default=12.0, help="seconds per file")
     p.add_argument("--train-files", type=int, default=2, help="training files per case")
-    p.add_argument("--workers", type=int, default=1)
     p.add_argument("--out", default="results/diagnosis")
+    p.add_argument(
+        "--runs-dir", type=Path, default=Path("runs/bench_diagnosis"), help="per-case records"
+    )
+    add_sweep_arguments(p)  # --jobs N (local processes, 1 thread each), --ray [ADDRESS]
     args = p.parse_args(argv)
+    try:
+        runner = runner_from_args(args)
+    except SweepError as err:
+        p.error(str(err))
     seeds = [args.first_seed + k for k in range(args.cases)]
     n_effects = []
     for k in range(args.cases):
@@ -197,22 +204,29 @@ def main(argv: Sequence[str] | None = None) -> int:
             n_effects.append(2)
         else:
             n_effects.append(1)
+    case = {
+        "robot": args.robot,
+        "duration": args.duration,
+        "start": args.start,
+        "max_points": args.max_points,
+        "iters": args.iters,
+        "train_files": args.train_files,
+    }
     jobs = [
-        (args.robot, s, n, args.duration, args.start, args.max_points, args.iters, args.train_files)
+        Job(f"seed{s}", run_case, {**case, "seed": s, "n_effects": n})
         for s, n in zip(seeds, n_effects, strict=True)
     ]
-    from tqdm import tqdm
-
-    if args.workers > 1:
-        with ProcessPoolExecutor(args.workers) as pool:
-            futures = [pool.submit(run_case, *j) for j in jobs]
-            records = [f.result() for f in tqdm(futures, desc="cases")]
-    else:
-        records = [run_case(*j) for j in tqdm(jobs, desc="cases")]
+    sweep = runner.run(jobs, args.runs_dir / args.robot / args.start, desc="cases")
+    print(sweep.summary())
+    records = list(sweep.results.values())
+    if not records:
+        return 1
     summary = summarise(records)
     out = Path(args.out)
     out.parent.mkdir(parents=True, exist_ok=True)
     payload = {"config": vars(args), "summary": summary, "cases": records}
+    if sweep.failed:
+        payload["failed"] = [f.key for f in sweep.failed]
     out.with_suffix(".json").write_text(json.dumps(payload, indent=1, default=str))
     lines = [
         f"# Diagnosis benchmark ({args.robot}, {len(records)} cases, seeds "
@@ -241,7 +255,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         )
     out.with_suffix(".md").write_text("\n".join(lines) + "\n")
     print("\n".join(lines[:12]))
-    return 0
+    return sweep.exit_code
 
 
 if __name__ == "__main__":

@@ -11,7 +11,9 @@ Parts (``--parts``, comma separated; all by default):
     ``[-2, 2]`` rad/s; torques from the exact inverse dynamics (``mj_inverse``, rotor inertia
     included, no friction) plus Gaussian noise of std ``--noise`` N m; ``--n-train`` training
     and ``--n-test`` test samples, ``--dt`` s apart. Output: nMSE per joint per estimator
-    (boxplot PNG + table).
+    (boxplot PNG + table). Each run is a sweep job (:mod:`mcpilco.experiments.sweep`) in
+    ``--jobs`` local processes or on Ray (``--ray [ADDRESS]``), its result kept in
+    ``RUNS_DIR/scara/run<i>.json``: a rerun computes only the runs without one.
 ``efficiency``
     Data efficiency without model bias (thesis Fig. 3.3): the nominal robot generates the
     data; GMSE (sum over joints of the test MSE) vs training-set size ``--sizes`` for GIP,
@@ -72,6 +74,13 @@ from mcpilco.envs.arm_builder import ArmSpec, LinkInertia, arm_to_xml, solid_cyl
 from mcpilco.envs.arm_data import collect, inverse_dynamics_samples, make_arm_env
 from mcpilco.envs.arm_env import SumOfSinusoids
 from mcpilco.envs.arms import scara, ur10
+from mcpilco.experiments.sweep import (
+    Job,
+    SweepError,
+    SweepRunner,
+    add_sweep_arguments,
+    runner_from_args,
+)
 from mcpilco.models.inverse_dynamics import (
     FisherianEstimator,
     GIPEstimator,
@@ -228,37 +237,60 @@ def nominal_scara(args: argparse.Namespace) -> ArmSpec:
 # ----------------------------------------------------------------------------- parts
 
 
-def part_scara(args: argparse.Namespace, bar: tqdm) -> dict[str, Any]:
-    """Monte Carlo nMSE with model bias (see the module docstring)."""
+SCARA_OPTIONS = (
+    "seed", "no_tool", "n_sinusoids", "n_train", "n_test", "dt", "noise", "estimators",
+    "gip_std", "adam_iters", "lbfgs_iters", "hyper_points", "nn_hidden", "nn_epochs",
+    "nn_patience", "nn_batch",
+)  # fmt: skip
+"""Options of the ``scara`` part's runs (the arguments of their sweep jobs)."""
+
+
+def scara_run(run: int, options: dict[str, Any]) -> dict[str, Any]:
+    """Monte Carlo run ``run`` of the ``scara`` part (``options``: :data:`SCARA_OPTIONS`):
+    noise floor, nMSE per joint and fit seconds per estimator. A sweep job."""
+    args = argparse.Namespace(**options)
     nominal = nominal_scara(args)
     xml = arm_to_xml(without_limits(nominal).without_friction())
+    rng = np.random.default_rng([args.seed, run])
+    real = perturb_kinematics(nominal, rng)
+    ref_train = sinusoid_reference(nominal, rng, args.n_sinusoids)
+    ref_test = sinusoid_reference(nominal, rng, args.n_sinusoids)
+    X, y = simulated_data(real, ref_train, args.n_train, args.dt, args.noise, rng)
+    Xt, yt = simulated_data(real, ref_test, args.n_test, args.dt, args.noise, rng)
+    out: dict[str, Any] = {"floor": (args.noise**2 / yt.var(0)).tolist(), "nmse": {}, "fit_s": {}}
+    for name in list(args.estimators) + (["GIP-std"] if args.gip_std else []):
+        est = make_estimator(name, args, xml, nominal.joint_types, friction=False)
+        mean, t_fit, _ = fit_predict(est, X, y, Xt)
+        out["nmse"][name] = nmse(yt, mean).tolist()
+        out["fit_s"][name] = t_fit
+    return out
+
+
+def part_scara(
+    args: argparse.Namespace, bar: tqdm, runner: SweepRunner | None = None
+) -> dict[str, Any]:
+    """Monte Carlo nMSE with model bias (see the module docstring); the runs are sweep jobs
+    of ``runner`` (default: in this process) kept in ``args.runs_dir/scara``."""
+    runner = runner if runner is not None else SweepRunner(progress=False)
+    nominal = nominal_scara(args)
     names = list(args.estimators) + (["GIP-std"] if args.gip_std else [])
-    nmses: dict[str, list[list[float]]] = {k: [] for k in names}
-    times: dict[str, list[float]] = {k: [] for k in names}
-    floors = []
-    for run in range(args.runs):
-        rng = np.random.default_rng([args.seed, run])
-        real = perturb_kinematics(nominal, rng)
-        ref_train = sinusoid_reference(nominal, rng, args.n_sinusoids)
-        ref_test = sinusoid_reference(nominal, rng, args.n_sinusoids)
-        X, y = simulated_data(real, ref_train, args.n_train, args.dt, args.noise, rng)
-        Xt, yt = simulated_data(real, ref_test, args.n_test, args.dt, args.noise, rng)
-        floors.append((args.noise**2 / yt.var(0)).tolist())
-        for name in names:
-            bar.set_postfix_str(f"scara run {run} {name}")
-            est = make_estimator(name, args, xml, nominal.joint_types, friction=False)
-            mean, t_fit, _ = fit_predict(est, X, y, Xt)
-            nmses[name].append(nmse(yt, mean).tolist())
-            times[name].append(t_fit)
-            bar.update(1)
+    options = {k: getattr(args, k) for k in SCARA_OPTIONS}
+    jobs = [
+        Job(f"run{run}", scara_run, {"run": run, "options": options}, cpus=args.threads)
+        for run in range(args.runs)
+    ]
+    sweep = runner.run(jobs, Path(args.runs_dir) / "scara", desc="scara runs")
+    bar.update(len(jobs) * len(names))
+    runs = list(sweep.results.values())
     return {
         "joint_types": nominal.joint_types,
-        "nmse": nmses,
-        "fit_seconds": times,
-        "noise_floor": floors,
+        "nmse": {k: [r["nmse"][k] for r in runs] for k in names},
+        "fit_seconds": {k: [r["fit_s"][k] for r in runs] for k in names},
+        "noise_floor": [r["floor"] for r in runs],
         "n_train": args.n_train,
         "n_test": args.n_test,
-        "runs": args.runs,
+        "runs": len(runs),
+        "failed_runs": [f.key for f in sweep.failed],
     }
 
 
@@ -696,7 +728,13 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--threads", type=int, default=1, help="torch threads")
     p.add_argument("--out-dir", default="results")
+    p.add_argument(
+        "--runs-dir",
+        default="runs/bench_inverse_dynamics",
+        help="one result file per scara run (reused by a later call with the same options)",
+    )
     p.add_argument("--no-progress", action="store_true")
+    add_sweep_arguments(p)  # --jobs N (local processes), --ray [ADDRESS]: the scara runs
     p.add_argument(
         "--append",
         action="store_true",
@@ -712,7 +750,12 @@ def _list(value: str, kind: type = str) -> list:
 @console_main("mcpilco-bench-inverse-dynamics")
 def main(argv: Sequence[str] | None = None) -> int:
     """Run the selected parts, write JSON, PNGs and Markdown; print the Markdown. Returns 0."""
-    args = build_parser().parse_args(argv)
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    try:
+        runner = runner_from_args(args, progress=not args.no_progress)
+    except SweepError as err:
+        parser.error(str(err))
     parts = _list(args.parts)
     bad = [p for p in parts if p not in PARTS]
     if bad:
@@ -740,7 +783,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     }
     t0 = time.perf_counter()
     runners = {
-        "scara": part_scara,
+        "scara": lambda a, b: part_scara(a, b, runner),
         "efficiency": part_efficiency,
         "ur10": part_ur10,
         "timing": part_timing,
@@ -754,7 +797,10 @@ def main(argv: Sequence[str] | None = None) -> int:
         text = write_outputs(results, out_dir, args.append)  # after every part
     bar.close()
     print(text)
-    return 0
+    failed = results.get("scara", {}).get("failed_runs", [])
+    if failed:
+        print(f"failed scara runs (see their .error.txt in {args.runs_dir}/scara): {failed}")
+    return 1 if failed else 0
 
 
 if __name__ == "__main__":

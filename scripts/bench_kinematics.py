@@ -99,6 +99,13 @@ from tqdm.auto import tqdm
 
 from mcpilco.agents.common.cli import console_main
 from mcpilco.envs.marker_camera import NOISE_DEFAULTS, MarkerCameraEnv
+from mcpilco.experiments.sweep import (
+    Job,
+    SweepError,
+    SweepRunner,
+    add_sweep_arguments,
+    runner_from_args,
+)
 from mcpilco.models.gp import GPRegressor
 from mcpilco.models.kinematics import (
     ChainForwardKinematicsGP,
@@ -667,6 +674,42 @@ SEED_STUDY_KEYS = ("polynomial", "polynomial_true", "nine_elements", "chain", "c
 """Per-seed RMSE rows of the seed study that get a mean / min / max summary."""
 
 
+def fk_seed_row(
+    seed: int,
+    samples: int,
+    span: float,
+    noise_scale: float,
+    n_train: int,
+    facing_cone: float | None,
+    visibility_cone: float | None,
+    selection: str = "design",
+) -> dict[str, Any]:
+    """Part (c) on one seed (its own markers, permutations, waypoints and noise): the RMSEs
+    of each model against the measured poses. A sweep job of :func:`fk_seed_study`."""
+    data = ur10_datasets(
+        seed, samples, span, noise_scale, facing_cone=facing_cone,
+        visibility_cone=visibility_cone,
+    )  # fmt: skip
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", UserWarning)
+        idn = identify_ur10(data)
+    structure = idn["structure"] if idn["correct"] else true_structure(data["env"])
+    fk = fk_gp_part(data, structure, n_train, seed, diagnostics=False, selection=selection)
+    if "chain_error" in fk:
+        raise RuntimeError(f"seed {seed}: the chain model was not fitted: {fk['chain_error']}")
+    return dict(
+        seed=seed,
+        identified=bool(idn["correct"]),
+        polynomial=fk["polynomial_rmse_measured"],
+        polynomial_true=fk["polynomial_rmse_true"],
+        nine_elements=fk["nine_elements_rmse_measured"],
+        rbf=fk["rbf_rmse_measured"],
+        chain=fk["chain_rmse_measured"],
+        chain_true=fk["chain_rmse_true"],
+        noise=fk["measurement_noise_rmse"],
+    )
+
+
 def fk_seed_study(
     seeds: list[int],
     samples: int,
@@ -677,36 +720,26 @@ def fk_seed_study(
     visibility_cone: float | None,
     progress: bool,
     selection: str = "design",
+    runner: SweepRunner | None = None,
+    runs_dir: str | Path = "runs/bench_kinematics",
 ) -> dict[str, Any]:
-    """Part (c) on several seeds (each its own markers, permutations, waypoints and noise):
-    per-seed RMSEs against the measured poses, their mean and range, and on how many seeds
-    each axis meets :data:`FK_GOAL`."""
-    rows = []
-    for seed in tqdm(seeds, desc="(c) seeds", disable=not progress):
-        data = ur10_datasets(
-            seed, samples, span, noise_scale, facing_cone=facing_cone,
-            visibility_cone=visibility_cone,
-        )  # fmt: skip
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore", UserWarning)
-            idn = identify_ur10(data)
-        structure = idn["structure"] if idn["correct"] else true_structure(data["env"])
-        fk = fk_gp_part(data, structure, n_train, seed, diagnostics=False, selection=selection)
-        if "chain_error" in fk:
-            raise RuntimeError(f"seed {seed}: the chain model was not fitted: {fk['chain_error']}")
-        rows.append(
-            dict(
-                seed=seed,
-                identified=bool(idn["correct"]),
-                polynomial=fk["polynomial_rmse_measured"],
-                polynomial_true=fk["polynomial_rmse_true"],
-                nine_elements=fk["nine_elements_rmse_measured"],
-                rbf=fk["rbf_rmse_measured"],
-                chain=fk["chain_rmse_measured"],
-                chain_true=fk["chain_rmse_true"],
-                noise=fk["measurement_noise_rmse"],
-            )
-        )
+    """Part (c) on several seeds (:func:`fk_seed_row`, sweep jobs of ``runner``, default in
+    this process, kept in ``runs_dir/c_seeds``): per-seed RMSEs against the measured poses,
+    their mean and range, and on how many seeds each axis meets :data:`FK_GOAL`.
+
+    Raises:
+        RuntimeError: when a seed failed (its traceback is in ``runs_dir/c_seeds``).
+    """
+    runner = runner if runner is not None else SweepRunner(progress=progress)
+    settings = dict(
+        samples=samples, span=span, noise_scale=noise_scale, n_train=n_train,
+        facing_cone=facing_cone, visibility_cone=visibility_cone, selection=selection,
+    )  # fmt: skip
+    jobs = [Job(f"seed{seed}", fk_seed_row, {"seed": seed, **settings}) for seed in seeds]
+    sweep = runner.run(jobs, Path(runs_dir) / "c_seeds", desc="(c) seeds")
+    if sweep.failed:
+        raise RuntimeError(sweep.summary())
+    rows = list(sweep.results.values())
     summary = {}
     for key in SEED_STUDY_KEYS:
         table = np.array([r[key] for r in rows])
@@ -1404,13 +1437,19 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--quick", action="store_true", help="tiny sizes for a smoke run")
     p.add_argument("--out-dir", default="results")
+    p.add_argument(
+        "--runs-dir",
+        default="runs/bench_kinematics",
+        help="--fk-seeds: one result file per seed (reused by a later call, same options)",
+    )
     p.add_argument("--no-progress", action="store_true")
+    add_sweep_arguments(p)  # --jobs N (local processes), --ray [ADDRESS]: the --fk-seeds seeds
     return p
 
 
 @console_main("mcpilco-bench-kinematics")
 def main(argv: list[str] | None = None) -> int:
-    """Command-line entry point; returns 0."""
+    """Command-line entry point; returns 0 (1 when a seed of ``--fk-seeds`` failed)."""
     parser = _parser()
     args = parser.parse_args(argv)
     if args.quick:
@@ -1424,6 +1463,10 @@ def main(argv: list[str] | None = None) -> int:
         )
     if args.fk_seeds is not None and (args.measurement != "ideal" or args.merge):
         parser.error("--fk-seeds runs part (c) with the noise model alone (no --merge)")
+    try:
+        runner = runner_from_args(args, progress=not args.no_progress)
+    except SweepError as err:
+        parser.error(str(err))
     torch.set_num_threads(1)
     out = Path(args.out_dir)
     out.mkdir(parents=True, exist_ok=True)
@@ -1432,10 +1475,15 @@ def main(argv: list[str] | None = None) -> int:
         sys.argv[1:] if argv is None else argv
     )
     if args.fk_seeds is not None:
-        study = fk_seed_study(
-            args.fk_seeds, args.samples, args.span, args.noise_scale, args.fk_train,
-            args.facing_cone, args.visibility_cone, progress, args.train_selection,
-        )  # fmt: skip
+        try:
+            study = fk_seed_study(
+                args.fk_seeds, args.samples, args.span, args.noise_scale, args.fk_train,
+                args.facing_cone, args.visibility_cone, progress, args.train_selection,
+                runner=runner, runs_dir=args.runs_dir,
+            )  # fmt: skip
+        except RuntimeError as err:  # a seed failed: the others are kept for the next call
+            print(err, file=sys.stderr)
+            return 1
         study["command"] = cmd.strip()
         (out / "kinematics_c_seeds.json").write_text(json.dumps(study, indent=1))
         text = fk_seed_markdown(study, cmd.strip())

@@ -4,8 +4,9 @@ Four parts, each optional:
 
 1. ``runs``: S seeds of the whole loop (exploration + policy trials) per env; per trial
    (3, 6, 9, 12, 15 s of experience) the success rate, mean time upright, mean ``|x|``,
-   wall-clock per trial and per optimisation step. Seeds run in ``--jobs`` parallel
-   processes with one torch thread each.
+   wall-clock per trial and per optimisation step. Seeds are sweep jobs
+   (:mod:`mcpilco.experiments.sweep`) with one torch thread each, in ``--jobs`` local
+   processes or on Ray (``--ray [ADDRESS]``); a finished seed is not rerun.
 2. ``timing``: seconds per policy optimisation step (forward + backward through the
    ``M x H`` particle rollout + Adam step) at ``M = 400`` particles (``--timing-particles``:
    e.g. ``25 400``, where the few-particle step is the fixed, op-by-op cost of the horizon),
@@ -44,12 +45,10 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import json
-import multiprocessing
 import resource
 import statistics
 import sys
 import time
-from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 from typing import Any
 
@@ -59,6 +58,14 @@ from mcpilco.agents.common.cli import console_main
 from mcpilco.agents.mc_pilco import DEFAULT_ENV_ID, MCPilcoConfig, TaskSpec, load_config
 from mcpilco.agents.mc_pilco.dynamics import KERNEL_CHOICES
 from mcpilco.agents.mc_pilco.loop import ROLLOUT_DTYPES
+from mcpilco.experiments.sweep import (
+    Job,
+    SweepError,
+    SweepReport,
+    SweepRunner,
+    add_sweep_arguments,
+    runner_from_args,
+)
 
 PARTS = ("runs", "timing", "rmse", "rmse_runs")
 
@@ -74,25 +81,22 @@ def section_key(env_id: str, label: str = "") -> str:
     return env_id + (f" ({label})" if label else "")
 
 
-def _run_seed(job: tuple[dict[str, Any], str]) -> dict[str, Any]:
-    """One seed's run in ``out``; a finished or killed run found there is resumed, so that
-    seeds can be added to a section later (``--first-seed 0 --seeds 12`` after 6 seeds reruns
-    only seeds 6..11). ``seconds`` is the sum of the trials' ``wall_s`` (GP fit, policy
-    optimisation, episode), the same whether the trials ran now or in an earlier call."""
-    import torch
-
+def run_seed(config: dict[str, Any], out: str) -> dict[str, Any]:
+    """One seed's run (``config``: an :class:`MCPilcoConfig` dict) in ``out``; a finished or
+    killed run found there is resumed, so that seeds can be added to a section later
+    (``--first-seed 0 --seeds 12`` after 6 seeds reruns only seeds 6..11). ``seconds`` is the
+    sum of the trials' ``wall_s`` (GP fit, policy optimisation, episode), the same whether the
+    trials ran now or in an earlier call. A sweep job of :func:`bench_runs`."""
     from mcpilco.agents.mc_pilco import run_mcpilco
     from mcpilco.models.device import retain_host_memory
 
-    torch.set_num_threads(1)
     retain_host_memory()
-
-    cfg_dict, out = job
-    cfg = MCPilcoConfig.from_dict(cfg_dict)
+    cfg = MCPilcoConfig.from_dict(config)
     summary = run_mcpilco(
         cfg,
         out,
         resume=(Path(out) / "checkpoint.pt").is_file(),
+        overwrite=not (Path(out) / "checkpoint.pt").is_file(),  # the seed's own folder
         progress=False,
         log=None,
         write_rrd=False,
@@ -128,40 +132,35 @@ def aggregate_runs(runs: list[dict[str, Any]]) -> list[dict[str, Any]]:
     return rows
 
 
-def bench_runs(cfg: MCPilcoConfig, seeds: list[int], jobs: int, runs_dir: Path) -> dict:
-    jobs_list = [
-        (dataclasses.replace(cfg, seed=s, torch_threads=1).to_dict(), str(runs_dir / f"seed{s}"))
+def bench_runs(
+    cfg: MCPilcoConfig, seeds: list[int], runner: SweepRunner, runs_dir: Path
+) -> tuple[dict[str, Any] | None, SweepReport]:
+    """The seeds' runs (:func:`run_seed`, one torch thread each) as sweep jobs: run ``seed<s>``
+    in ``runs_dir/seed<s>``, its result in ``runs_dir/seed<s>.json``. Returns the section of
+    the seeds that finished (None when none did) and the sweep's report."""
+    jobs = [
+        Job(
+            f"seed{s}",
+            run_seed,
+            {
+                "config": dataclasses.replace(cfg, seed=s, torch_threads=1).to_dict(),
+                "out": str(runs_dir / f"seed{s}"),
+            },
+        )
         for s in seeds
     ]
     t0 = time.perf_counter()
-    runs = []
-    try:
-        from tqdm.auto import tqdm
-    except ImportError:  # pragma: no cover
-        tqdm = None
-    bar = tqdm(total=len(seeds), desc=f"seeds {cfg.env_id}") if tqdm else None
-    if jobs > 1:
-        # a CUDA context does not survive fork: processes that use a GPU are spawned
-        ctx = multiprocessing.get_context("spawn") if cfg.device.startswith("cuda") else None
-        with ProcessPoolExecutor(max_workers=jobs, mp_context=ctx) as pool:
-            for res in pool.map(_run_seed, jobs_list):
-                runs.append(res)
-                if bar:
-                    bar.update(1)
-    else:
-        for job in jobs_list:
-            runs.append(_run_seed(job))
-            if bar:
-                bar.update(1)
-    if bar:
-        bar.close()
-    return make_section(cfg.to_dict(), runs, jobs, time.perf_counter() - t0)
+    sweep = runner.run(jobs, runs_dir, desc=f"seeds {cfg.env_id}")
+    runs = list(sweep.results.values())
+    if not runs:
+        return None, sweep
+    return make_section(cfg.to_dict(), runs, runner.slots(), time.perf_counter() - t0), sweep
 
 
 def make_section(
     config: dict[str, Any], runs: list[dict[str, Any]], jobs: int, wall_s_total: float
 ) -> dict[str, Any]:
-    """The results section of ``runs`` (the dicts of :func:`_run_seed`, one per seed)."""
+    """The results section of ``runs`` (the dicts of :func:`run_seed`, one per seed)."""
     return {
         "config": config,
         "seeds": [r["seed"] for r in runs],
@@ -890,7 +889,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--env", nargs="+", default=[DEFAULT_ENV_ID], help="env ids for the runs")
     p.add_argument("--seeds", type=int, default=20, help="number of seeds S (0..S-1)")
     p.add_argument("--first-seed", type=int, default=0)
-    p.add_argument("--jobs", type=int, default=1, help="parallel processes (1 thread each)")
+    add_sweep_arguments(p)  # --jobs N (local processes, 1 thread each), --ray [ADDRESS]
     p.add_argument("--preset", default="bench", help="preset of each env's config file")
     p.add_argument("--trials", type=int, help="policy trials (override)")
     p.add_argument("--particles", type=int, help="particles (override)")
@@ -979,8 +978,12 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     if args.parts is None:
         args.parts = [] if args.pool else list(PARTS)
-    if args.seeds < 1 or args.jobs < 1:
-        parser.error("--seeds and --jobs must be >= 1")
+    if args.seeds < 1:
+        parser.error("--seeds must be >= 1")
+    try:
+        runner = runner_from_args(args)
+    except SweepError as err:
+        parser.error(str(err))
     for name in ("timing_n", "timing_threads", "timing_particles"):
         if min(getattr(args, name)) < 1:
             parser.error(f"--{name.replace('_', '-')} values must be >= 1")
@@ -1022,13 +1025,18 @@ def main(argv: list[str] | None = None) -> int:
     if json_path.is_file():
         results = json.loads(json_path.read_text())
     seeds = list(range(args.first_seed, args.first_seed + args.seeds))
+    failed = 0
     if "runs" in args.parts:
         results.setdefault("runs", {})
         for env_id in args.env:
             env_cfg = env_cfgs[env_id]
             tag = env_id.split("/")[-1] + (f"_{args.label}" if args.label else "")
             key = section_key(env_id, args.label)
-            section = bench_runs(env_cfg, seeds, args.jobs, args.runs_dir / tag)
+            section, sweep = bench_runs(env_cfg, seeds, runner, args.runs_dir / tag)
+            print(sweep.summary())
+            failed += len(sweep.failed)
+            if section is None:
+                continue
             results["runs"][key] = section
             print(_md_table(key, section))
             write_report(results, args.out)
@@ -1122,7 +1130,7 @@ def main(argv: list[str] | None = None) -> int:
             print(_md_table(key, pooled))
         write_report(results, args.out)
     print(f"wrote {json_path} and {args.out / 'mcpilco_cartpole.md'}")
-    return 0
+    return 1 if failed else 0
 
 
 if __name__ == "__main__":

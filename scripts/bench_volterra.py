@@ -45,7 +45,10 @@ Protocol and compute-saving choices:
   draw, the orders of experiment 2 share the input), the noise from
   ``SeedSequence(seed, spawn_key=(experiment, 2, config))``; the three (two) estimators of a
   run see the same data. Results are reproducible for a given ``--base-seed``;
-* runs are spread over ``--jobs`` worker processes, one torch thread each.
+* every run is a sweep job (:mod:`mcpilco.experiments.sweep`) with one torch thread, in
+  ``--jobs`` worker processes or on Ray (``--ray [ADDRESS]``); its result is kept in
+  ``volterra_runs/exp<e>/<config>/seed<s>.json``, so that a killed or extended benchmark
+  recomputes only the runs without one (``--rerun``: all).
 
 Outputs (``--out-dir``, default ``results/``): ``volterra.json`` (config, every per-run Fit,
 timings), ``volterra_exp1.png`` and ``volterra_exp2.png`` (boxplots), ``volterra.md``
@@ -64,17 +67,24 @@ from __future__ import annotations
 import argparse
 import json
 import math
-import os
 import sys
 import time
-from concurrent.futures import ProcessPoolExecutor, as_completed
-from dataclasses import dataclass, field
+from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from mcpilco.agents.common.cli import console_main
+from mcpilco.experiments.sweep import (
+    InProcessBackend,
+    Job,
+    LocalBackend,
+    SweepError,
+    SweepRunner,
+    add_sweep_arguments,
+    runner_from_args,
+)
 
 # one config per experiment: every default of the benchmark lives here
 EXP1 = {
@@ -243,13 +253,15 @@ def config_name(order: int, snr_db: float) -> str:
 # --------------------------------------------------------------------------------------------
 # one task
 # --------------------------------------------------------------------------------------------
-def run_task(task: Task, exp1: dict, exp2: dict) -> dict[str, Any]:
-    """Fit every estimator of the task's experiment on the same data; Fit% and timings."""
+def run_task(task: Task | dict[str, Any], exp1: dict, exp2: dict) -> dict[str, Any]:
+    """Fit every estimator of the task's experiment on the same data; Fit% and timings.
+    ``task``: a :class:`Task` or its dict (as in a sweep job)."""
     import torch
 
     from mcpilco.models.volterra import VolterraGP, fit_percent
 
-    torch.set_num_threads(1)
+    if isinstance(task, dict):
+        task = Task(**task)
     p = task.params
     if task.experiment == 1:
         cfg = exp1
@@ -317,11 +329,16 @@ def run_task(task: Task, exp1: dict, exp2: dict) -> dict[str, Any]:
     return out
 
 
-def _worker_init() -> None:
-    import torch
-
-    torch.set_num_threads(1)
-    os.environ.setdefault("OMP_NUM_THREADS", "1")
+def task_job(task: Task, exp1: dict, exp2: dict) -> Job:
+    """The sweep job of ``task`` (:func:`run_task`, one thread), keyed
+    ``exp<e>/<config>/seed<s>``; only its own experiment's settings are in its arguments."""
+    cfg = {k: v for k, v in (exp1 if task.experiment == 1 else exp2).items() if k != "runs"}
+    kwargs = {
+        "task": asdict(task),
+        "exp1": cfg if task.experiment == 1 else {},
+        "exp2": cfg if task.experiment == 2 else {},
+    }
+    return Job(f"exp{task.experiment}/{task.config}/seed{task.seed}", run_task, kwargs)
 
 
 # --------------------------------------------------------------------------------------------
@@ -371,7 +388,7 @@ def markdown_table(summary: dict, meta: dict) -> str:
         f"Command: `{meta['command']}`; base seed {meta['base_seed']}, "
         f"{meta['jobs']} worker process(es), wall time {meta['wall_s']:.0f} s"
         + (
-            f" ({meta['runs_reused']} runs reused from volterra_runs.jsonl, not counted)"
+            f" ({meta['runs_reused']} runs reused from earlier result files, not counted)"
             if meta.get("runs_reused")
             else ""
         )
@@ -506,7 +523,8 @@ def run_benchmark(
     exp2_overrides: dict | None = None,
     progress: bool = True,
     command: str | None = None,
-    resume: bool = False,
+    rerun: bool = False,
+    runner: SweepRunner | None = None,
 ) -> dict:
     """Run the benchmark and write JSON, PNG(s) and the Markdown table to ``out_dir``.
 
@@ -516,21 +534,22 @@ def run_benchmark(
         runs_exp2: runs of experiment 2 (default ``EXP2["runs"]`` = 40).
         experiments: subset of ``(1, 2)``.
         out_dir: output folder (created).
-        jobs: worker processes (1: in this process).
+        jobs: worker processes (1: in this process) when no ``runner`` is given.
         base_seed: run ``i`` uses seed ``base_seed + i``.
         exp1_overrides, exp2_overrides: entries replacing those of ``EXP1`` / ``EXP2``
             (e.g. ``{"n_train": 100}``, ``{"orders": [3]}``).
         progress: tqdm bar over runs.
         command: the command line recorded in the outputs.
-        resume: reuse the runs already logged in ``out_dir/volterra_runs.jsonl`` (written
-            as runs finish) instead of recomputing them; the wall time then counts this
-            invocation only.
+        rerun: recompute the runs that have a result in ``out_dir/volterra_runs`` (by
+            default they are reused: those of the same experiment, configuration, seed and
+            settings); the wall time counts this invocation only.
+        runner: the sweep runner (default: ``jobs`` local processes).
 
     Returns:
-        ``{"summary": ..., "paths": {"json", "markdown", "exp1_png", "exp2_png"}, "wall_s"}``.
+        ``{"summary": ..., "paths": {"json", "markdown", "exp1_png", "exp2_png"}, "wall_s",
+        "failed"}`` (``failed``: keys of the runs whose job failed, see their
+        ``.error.txt``).
     """
-    from tqdm.auto import tqdm
-
     experiments = tuple(sorted(set(experiments)))
     if not experiments or any(e not in (1, 2) for e in experiments):
         raise ValueError(f"experiments must be a non-empty subset of (1, 2), got {experiments}")
@@ -542,67 +561,38 @@ def run_benchmark(
         raise ValueError(f"runs must be >= 1, got runs={runs1}, runs_exp2={runs2}")
     if jobs < 1:
         raise ValueError(f"jobs must be >= 1, got {jobs}")
+    if runner is None:
+        backend = LocalBackend(jobs) if jobs > 1 else InProcessBackend()
+        runner = SweepRunner(backend, progress=progress, log=print)
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
 
     tasks = make_tasks(experiments, runs1, runs2, base_seed, exp1, exp2)
-    # every finished run is appended to a JSON-lines log; resume=True reuses the runs found
-    # there (same experiment, configuration and seed) instead of recomputing them
-    log_path = out / "volterra_runs.jsonl"
-    results: list[dict] = []
-    if resume and log_path.exists():
-        done = {}
-        for line in log_path.read_text().splitlines():
-            if line.strip():
-                rec = json.loads(line)
-                done[(rec["experiment"], rec["config"], rec["seed"])] = rec
-        wanted = {(t.experiment, t.config, t.seed) for t in tasks}
-        results = [rec for key, rec in done.items() if key in wanted]
-        tasks = [t for t in tasks if (t.experiment, t.config, t.seed) not in done]
-    elif log_path.exists():
-        log_path.unlink()
-    n_reused = len(results)
     t0 = time.perf_counter()
-    bar = tqdm(
-        total=len(tasks) + len(results),
-        initial=len(results),
+    sweep = runner.run(
+        [task_job(t, exp1, exp2) for t in tasks],
+        out / "volterra_runs",
+        rerun=rerun,
         desc="volterra runs",
-        disable=not progress,
-        file=sys.stderr,
     )
-
-    def _record(res: dict) -> None:
-        results.append(res)
-        with open(log_path, "a") as fh:
-            fh.write(json.dumps(res, default=_json_default) + "\n")
-        bar.update(1)
-
-    if jobs == 1:
-        for task in tasks:
-            _record(run_task(task, exp1, exp2))
-    else:
-        import multiprocessing as mp
-
-        ctx = mp.get_context("spawn")
-        with ProcessPoolExecutor(jobs, mp_context=ctx, initializer=_worker_init) as pool:
-            futs = [pool.submit(run_task, t, exp1, exp2) for t in tasks]
-            for fut in as_completed(futs):
-                _record(fut.result())
-    bar.close()
+    results = list(sweep.results.values())
+    n_reused = len(sweep.skipped)
     wall = time.perf_counter() - t0
 
     coll = collect(results, experiments, exp1, exp2)
     meta = {
         "command": command
         or f"run_benchmark(runs={runs1}, runs_exp2={runs2}, "
-        f"experiments={experiments}, jobs={jobs}, base_seed={base_seed})",
+        f"experiments={experiments}, jobs={runner.slots()}, base_seed={base_seed})",
         "experiments": list(experiments),
         "runs_exp1": runs1 if 1 in experiments else 0,
         "runs_exp2": runs2 if 2 in experiments else 0,
         "base_seed": base_seed,
-        "jobs": jobs,
+        "jobs": runner.slots(),
+        "backend": sweep.backend,
         "wall_s": wall,
         "runs_reused": n_reused,
+        "runs_failed": [f.key for f in sweep.failed],
         "compute_s": float(sum(sum(r["seconds"].values()) for r in results)),
         "exp1": exp1,
         "exp2": exp2,
@@ -629,7 +619,14 @@ def run_benchmark(
     if "exp2" in coll["fits"]:
         paths["exp2_png"] = str(out / "volterra_exp2.png")
         plot_exp2(coll["fits"]["exp2"], Path(paths["exp2_png"]))
-    return {"summary": coll["summary"], "paths": paths, "wall_s": wall}
+    if sweep.failed:
+        print(sweep.summary(), file=sys.stderr)
+    return {
+        "summary": coll["summary"],
+        "paths": paths,
+        "wall_s": wall,
+        "failed": [f.key for f in sweep.failed],
+    }
 
 
 def quick_benchmark(out_dir: str | Path = "results/volterra_quick", jobs: int = 2) -> dict:
@@ -685,7 +682,7 @@ def _parser() -> argparse.ArgumentParser:
         default=None,
         help=f"experiment-2 SNRs in dB (default {EXP2['snrs_db']})",
     )
-    p.add_argument("--jobs", type=int, default=1, help="worker processes (1 torch thread each)")
+    add_sweep_arguments(p)  # --jobs N (worker processes, 1 torch thread each), --ray [ADDRESS]
     p.add_argument("--base-seed", type=int, default=0, help="run i uses seed base_seed + i")
     p.add_argument("--out-dir", default="results")
     p.add_argument(
@@ -696,9 +693,10 @@ def _parser() -> argparse.ArgumentParser:
     )
     p.add_argument("--no-progress", action="store_true")
     p.add_argument(
-        "--resume",
+        "--rerun",
         action="store_true",
-        help="reuse runs logged in OUT_DIR/volterra_runs.jsonl by an interrupted invocation",
+        help="recompute the runs that have a result in OUT_DIR/volterra_runs (by default "
+        "they are reused, e.g. after an interrupted invocation)",
     )
     # hidden options for tests and budget studies
     for name in ("n-train", "n-test", "ml-points", "adam-iters", "lbfgs-iters"):
@@ -709,7 +707,12 @@ def _parser() -> argparse.ArgumentParser:
 @console_main("mcpilco-bench-volterra")
 def main(argv: list[str] | None = None) -> int:
     """Command-line entry point (``mcpilco-bench-volterra``)."""
-    args = _parser().parse_args(argv)
+    parser = _parser()
+    args = parser.parse_args(argv)
+    try:
+        runner = runner_from_args(args, progress=not args.no_progress)
+    except SweepError as err:
+        parser.error(str(err))
     experiments = tuple(args.experiments)
     runs, runs2 = args.runs, args.runs_exp2
     over1: dict[str, Any] = {}
@@ -740,18 +743,18 @@ def main(argv: list[str] | None = None) -> int:
         runs_exp2=runs2,
         experiments=experiments,
         out_dir=args.out_dir,
-        jobs=args.jobs,
+        runner=runner,
         base_seed=args.base_seed,
         exp1_overrides=over1,
         exp2_overrides=over2,
         progress=not args.no_progress,
-        resume=args.resume,
+        rerun=args.rerun,
         command=cmd.strip(),
     )
     print(Path(res["paths"]["markdown"]).read_text())
     for name, path in res["paths"].items():
         print(f"{name}: {path}")
-    return 0
+    return 1 if res["failed"] else 0
 
 
 if __name__ == "__main__":

@@ -31,6 +31,7 @@ per-seed successes from ``mcpilco-bench-mcpilco``'s JSON instead of running it.
 Usage::
 
     mcpilco-compare --seeds 5 --jobs 2                             # all methods, full budgets
+    mcpilco-compare --methods sac td3 --seeds 10 --ray auto        # on a Ray cluster
     mcpilco-compare --methods mcpilco sac --seeds 3 --steps sac=30000
     mcpilco-compare --env mcpilco/DMCCartpoleSwingUp-v0 --methods ppo --steps 50000
     mcpilco-compare --collect-only --inputs a.json b.json --tag mine
@@ -44,7 +45,6 @@ import json
 import math
 import sys
 import time
-from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 from typing import Any
 
@@ -61,6 +61,7 @@ from mcpilco.agents.baselines.pilco import OPTIMIZERS
 from mcpilco.agents.common.cli import console_main
 from mcpilco.agents.mc_pilco.loop import DEFAULT_ENV_ID, load_config
 from mcpilco.agents.mc_pilco.task import TaskSpec
+from mcpilco.experiments.sweep import Job, SweepError, add_sweep_arguments, runner_from_args
 from mcpilco.models.device import retain_host_memory
 
 SB3_METHODS = ("sac", "td3", "ppo")
@@ -458,6 +459,7 @@ def run_method(
             cfg_m,
             out,
             resume=(out / "checkpoint.pt").is_file(),
+            overwrite=not (out / "checkpoint.pt").is_file(),  # the run's own folder
             progress=progress,
             log=log,
             write_rrd=False,
@@ -500,19 +502,11 @@ def run_method(
     return curve
 
 
-def _job(args: tuple[str, str, int, str, dict[str, Any]]) -> dict[str, Any]:
-    """One run; a failure is returned (not raised) so that the other runs still count."""
-    method, env_id, seed, out, opts = args
-    try:
-        return run_method(method, env_id, seed, out, opts)
-    except Exception as err:  # noqa: BLE001  (reported in the table and the JSON)
-        return {
-            "failed": True,
-            "method": method,
-            "seed": seed,
-            "out": out,
-            "error": f"{type(err).__name__}: {err}",
-        }
+def run_job(method: str, env_id: str, seed: int, out: str, opts: dict[str, Any]) -> Job:
+    """The sweep job of one run (:func:`run_method`), keyed ``<method>/seed<s>``: its result
+    file is ``<method>/seed<s>.json`` next to the run folder ``out``."""
+    kwargs = {"method": method, "env_id": env_id, "seed": seed, "out_dir": out, "opts": opts}
+    return Job(f"{method}/seed{seed}", run_method, kwargs, cpus=int(opts.get("threads") or 1))
 
 
 def _covers(curve: dict[str, Any], method: str, opts: dict[str, Any]) -> bool:
@@ -676,7 +670,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument(
         "--rerun", action="store_true", help="ignore complete curves (resume / extend runs)"
     )
-    p.add_argument("--jobs", type=int, default=1, help="parallel processes (1 torch thread each)")
+    add_sweep_arguments(p)  # --jobs N (local processes, 1 torch thread each), --ray [ADDRESS]
     p.add_argument("--runs-dir", type=Path, default=Path("runs/compare"))
     p.add_argument("--out", type=Path, default=Path("results"))
     p.add_argument("--tag", help="suffix of the output names (e.g. reduced)")
@@ -698,8 +692,12 @@ def main(argv: list[str] | None = None) -> int:
         check_task_env(args.env)
     except ValueError as err:
         parser.error(str(err))
-    if args.seeds < 1 or args.jobs < 1 or args.eval_every < 1 or args.eval_episodes < 1:
-        parser.error("--seeds, --jobs, --eval-every and --eval-episodes must be >= 1")
+    if args.seeds < 1 or args.eval_every < 1 or args.eval_episodes < 1:
+        parser.error("--seeds, --eval-every and --eval-episodes must be >= 1")
+    try:
+        runner = runner_from_args(args, progress=not args.no_progress)
+    except SweepError as err:
+        parser.error(str(err))
     if args.trials is not None and args.trials < 0:
         parser.error(f"--trials must be >= 0, got {args.trials}")
     try:
@@ -727,8 +725,8 @@ def main(argv: list[str] | None = None) -> int:
         "sb3_preset": args.sb3_preset,
         "sb3_hp": sb3_hp,
         "threads": 1,
-        "progress": not args.no_progress and args.jobs == 1,
-        "log": args.jobs == 1,
+        "progress": not args.no_progress and runner.in_process,
+        "log": runner.in_process,
     }
     curves: list[dict[str, Any]] = []
     for path in args.inputs:
@@ -754,23 +752,32 @@ def main(argv: list[str] | None = None) -> int:
                     curves.append(c)
                     continue
             if not args.collect_only:
-                jobs.append((m, args.env, s, str(path.parent), opts))
+                jobs.append(run_job(m, args.env, s, str(path.parent), opts))
     t0 = time.perf_counter()
+    failed = []
     if jobs:
-        print(f"running {len(jobs)} job(s): {', '.join(f'{m}/seed{s}' for m, _, s, _, _ in jobs)}")
-        if args.jobs > 1:
-            with ProcessPoolExecutor(max_workers=args.jobs) as pool:
-                results = list(pool.map(_job, jobs))
-        else:
-            results = [_job(j) for j in jobs]
-        failed = [r for r in results if r.get("failed")]
-        curves += [r for r in results if not r.get("failed")]
-        for f in failed:
-            print(
-                f"FAILED {f['method']} seed {f['seed']} ({f['out']}): {f['error']}", file=sys.stderr
-            )
-    else:
-        failed = []
+        print(f"running {len(jobs)} job(s): {', '.join(j.key for j in jobs)}")
+        # the runs to do were chosen above from their curves (a killed run resumes from its
+        # checkpoint), so the sweep reruns every job it is given
+        sweep = runner.run(jobs, args.runs_dir / args.env.split("/")[-1], rerun=True, desc="runs")
+        for curve in sweep.results.values():  # a run on another node wrote its curve there
+            path = curve_path(args.runs_dir, args.env, curve["method"], curve["seed"])
+            if not path.is_file():
+                save_curve(path, curve)
+            curves.append(curve)
+        failed = [
+            {
+                "failed": True,
+                "method": f.kwargs["method"],
+                "seed": f.kwargs["seed"],
+                "out": f.kwargs["out_dir"],
+                "error": f.error,
+                "traceback": str(f.error_path),
+            }
+            for f in sweep.failed
+        ]
+        if failed:
+            print(sweep.summary(), file=sys.stderr)
     try:
         report = build_report(args.env, curves, tag=args.tag, note=args.note)
     except ValueError as err:
@@ -789,7 +796,7 @@ def main(argv: list[str] | None = None) -> int:
     paths = write_report(report, args.out)
     print(markdown(report))
     print(f"wrote {paths['json']}, {paths['md']} and {paths['png']}")
-    return 0
+    return 1 if failed else 0
 
 
 if __name__ == "__main__":

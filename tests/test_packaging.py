@@ -15,6 +15,7 @@ TOP = {
     "agents": "mcpilco.agents",
     "models": "mcpilco.models",
     "scripts": "mcpilco.scripts",
+    "experiments": "mcpilco.experiments",
 }
 
 
@@ -61,3 +62,14 @@ def test_models_do_not_import_agents_or_envs() -> None:
         if pattern.search(path.read_text()):
             offenders.append(str(path.relative_to(ROOT)))
     assert not offenders, f"models/ must not import agents/ or envs/: {offenders}"
+
+
+def test_agents_and_models_do_not_import_experiments() -> None:
+    pattern = re.compile(r"^\s*(from|import)\s+mcpilco\.experiments\b", re.MULTILINE)
+    offenders = [
+        str(path.relative_to(ROOT))
+        for folder in ("agents", "models", "envs")
+        for path in (ROOT / folder).rglob("*.py")
+        if pattern.search(path.read_text())
+    ]
+    assert not offenders, f"agents/, models/ and envs/ must not import experiments/: {offenders}"

@@ -44,3 +44,21 @@ def test_summary_counts():
     assert s["false_alarm_rate"] == 0.5
     assert s["controls_with_in_span_refinement"] == "1/2"
     assert s["seconds_per_case"] == 10.0 / 6
+
+
+def test_a_case_is_a_sweep_job_reused_by_the_next_call(tmp_path, capsys):
+    import json
+
+    from mcpilco.scripts.bench_diagnosis import main
+
+    argv = ["--cases", "1", "--duration", "3", "--out", str(tmp_path / "diag")]
+    argv += ["--runs-dir", str(tmp_path / "runs")]
+    assert main(argv) == 0
+    record = tmp_path / "runs" / "scara" / "nominal" / "seed1000.json"
+    stamp = record.stat().st_mtime_ns
+    first = json.loads((tmp_path / "diag.json").read_text())
+    assert first["summary"]["n_control_cases"] == 1  # case 0 is a control case
+    assert main(argv) == 0  # the case is read back, not recomputed
+    assert "0 ran, 1 reused, 0 failed" in capsys.readouterr().out
+    assert record.stat().st_mtime_ns == stamp
+    assert json.loads((tmp_path / "diag.json").read_text())["cases"] == first["cases"]

@@ -21,7 +21,7 @@ def test_tiny_benchmark_writes_outputs(tmp_path) -> None:
         "--ur10-train", "300", "--ur10-subset", "100", "--ur10-test-exploration", "100",
         "--no-ur10-circle", "--ur10-estimators", "FE,GIP,NN",
         "--timing-n", "60", "--timing-adam-iters", "1", "--timing-lbfgs-iters", "0",
-        "--out-dir", str(tmp_path), "--no-progress",
+        "--out-dir", str(tmp_path), "--runs-dir", str(tmp_path / "runs"), "--no-progress",
     ]  # fmt: skip
     try:
         assert bench.main(argv) == 0
@@ -32,6 +32,9 @@ def test_tiny_benchmark_writes_outputs(tmp_path) -> None:
     assert set(scara["nmse"]) == set(bench.ESTIMATORS)
     assert np.asarray(scara["nmse"]["GIP"]).shape == (2, 4)
     assert np.all(np.isfinite(np.asarray(scara["nmse"]["FE"])))
+    # one result file per Monte Carlo run, holding what the table shows
+    run1 = json.loads((tmp_path / "runs" / "scara" / "run1.json").read_text())["result"]
+    assert run1["nmse"]["GIP"] == scara["nmse"]["GIP"][1]
     assert res["efficiency"]["sizes"] == [30, 60]
     assert len(res["efficiency"]["gmse"]["GIP"]) == 2
     assert len(res["ur10"]["noise_floor"]) == 6 and res["ur10"]["n_gp"] == 100

@@ -152,10 +152,12 @@ def test_waypoint_rejection_sampling_keeps_accepted_draws_and_gives_up_clearly()
 
 
 def test_fk_seed_study_writes_its_table_and_counts_the_goal_from_its_rows(tmp_path, capsys):
-    out = ["--out-dir", str(tmp_path), "--no-progress"]
+    out = ["--out-dir", str(tmp_path), "--no-progress", "--runs-dir", str(tmp_path / "runs")]
     assert main(["--fk-seeds", "0", "1", "--samples", "72", "--fk-train", "20", *out]) == 0
     study = json.loads((tmp_path / "kinematics_c_seeds.json").read_text())
     assert [r["seed"] for r in study["rows"]] == [0, 1]
+    row1 = json.loads((tmp_path / "runs" / "c_seeds" / "seed1.json").read_text())["result"]
+    assert row1 == study["rows"][1]  # one result file per seed
     assert not (tmp_path / "kinematics.json").exists()  # the study writes only its own files
     limits = np.array([0.006] * 3 + [0.04] * 3)
     for key in ("polynomial", "nine_elements", "chain"):

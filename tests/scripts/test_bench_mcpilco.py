@@ -7,7 +7,8 @@ import dataclasses
 import pytest
 
 from mcpilco.agents.mc_pilco import DEFAULT_ENV_ID, load_config
-from mcpilco.scripts.bench_mcpilco import _run_seed, main
+from mcpilco.experiments.sweep import SweepRunner
+from mcpilco.scripts.bench_mcpilco import bench_runs, main, run_seed
 
 BENCH_CONFIG = load_config(DEFAULT_ENV_ID, preset="bench")
 
@@ -16,13 +17,27 @@ def test_finished_seed_is_resumed_not_rerun(tmp_path):
     from tests.agents.mc_pilco.test_loop import SMOKE
 
     job = (dataclasses.replace(SMOKE, num_trials=0).to_dict(), str(tmp_path / "seed3"))
-    first = _run_seed(job)
+    first = run_seed(*job)
     ckpt = tmp_path / "seed3" / "checkpoint.pt"
     stamp = ckpt.stat().st_mtime_ns
-    again = _run_seed(job)
+    again = run_seed(*job)
     # a re-run would have rewritten the checkpoint and measured new wall-clock times
     assert ckpt.stat().st_mtime_ns == stamp
     assert again["records"] == first["records"] and again["seconds"] == first["seconds"] > 0
+
+
+def test_seeds_are_sweep_jobs_with_one_result_file_each(tmp_path):
+    from tests.agents.mc_pilco.test_loop import SMOKE
+
+    cfg = dataclasses.replace(SMOKE, num_trials=0)
+    runner = SweepRunner(progress=False, log=None)
+    section, sweep = bench_runs(cfg, [0, 1], runner, tmp_path)
+    assert sweep.ran == ["seed0", "seed1"] and section["seeds"] == [0, 1]
+    assert (tmp_path / "seed1.json").is_file() and (tmp_path / "seed1" / "checkpoint.pt").is_file()
+    # one more seed: the two finished ones are read back from their result files
+    more, sweep = bench_runs(cfg, [0, 1, 2], runner, tmp_path)
+    assert sweep.ran == ["seed2"] and sweep.skipped == ["seed0", "seed1"]
+    assert more["seeds"] == [0, 1, 2] and more["per_seed"][:2] == section["per_seed"]
 
 
 def test_candidate_scales_must_match_candidates(tmp_path, capsys):
@@ -49,7 +64,7 @@ def test_unknown_preset_or_env_is_an_error(tmp_path, capsys):
 
 
 def _fake_runs(seeds, n_trials, rng):
-    """Run dicts as :func:`_run_seed` returns them, with random per-trial outcomes."""
+    """Run dicts as :func:`run_seed` returns them, with random per-trial outcomes."""
     runs = []
     for seed in seeds:
         records = [
@@ -255,7 +270,7 @@ def test_rmse_runs_part_uses_only_runs_that_swung_up_and_groups_by_their_kernel(
 
     from tests.agents.mc_pilco.test_loop import SMOKE
 
-    _run_seed((SMOKE.to_dict(), str(tmp_path / "failed" / "seed3")))
+    run_seed(SMOKE.to_dict(), str(tmp_path / "failed" / "seed3"))
     src = tmp_path / "failed" / "seed3" / "checkpoint.pt"
     ckpt = torch.load(src, weights_only=False)
     ckpt["records"][-1]["success"] = False

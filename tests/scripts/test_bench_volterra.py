@@ -55,19 +55,23 @@ def test_tiny_benchmark_writes_json_pngs_and_table(tmp_path):
     assert "| 2 | 20 | MPK | 1 |" in table
     assert "| setup2 | LS_ORACLE | 1 |" in table and "14 monomials" in table
 
-    # --resume reuses the logged runs (nothing recomputed: same Fits, no new log lines)
-    n_lines = len((out / "volterra_runs.jsonl").read_text().splitlines())
+    # one result file per run; a second call reuses them (nothing recomputed: same Fits)
+    files = sorted((out / "volterra_runs").rglob("*.json"))
+    assert [f.relative_to(out / "volterra_runs").as_posix() for f in files] == [
+        "exp1/setup1/seed0.json", "exp1/setup2/seed0.json", "exp2/r2_snr20/seed0.json"
+    ]  # fmt: skip
+    stamps = [f.stat().st_mtime_ns for f in files]
     again = bench.run_benchmark(
         runs=1,
         out_dir=out,
         progress=False,
-        resume=True,
         exp1_overrides={"n_train": 40, "n_test": 30, "adam_iters": 2, "lbfgs_iters": 0},
         exp2_overrides={"n_train": 40, "n_test": 30, "adam_iters": 2, "lbfgs_iters": 0,
                         "orders": [2], "snrs_db": [20.0]},
     )  # fmt: skip
-    assert again["summary"] == data["summary"]
-    assert len((out / "volterra_runs.jsonl").read_text().splitlines()) == n_lines
+    assert again["summary"] == data["summary"] and again["failed"] == []
+    assert [f.stat().st_mtime_ns for f in files] == stamps
+    assert json.loads((out / "volterra.json").read_text())["meta"]["runs_reused"] == 3
 
 
 def test_data_generation_is_reproducible_and_consistent():

@@ -6,6 +6,7 @@ The expected numbers are computed by hand from the fake curves below, not by the
 from __future__ import annotations
 
 import json
+import os
 
 import pytest
 
@@ -278,12 +279,25 @@ def test_a_seed_given_twice_counts_once(tmp_path, capsys):
     assert "counted once" in capsys.readouterr().err
 
 
-def test_a_failing_run_is_reported_not_raised(tmp_path):
-    from mcpilco.scripts.compare import _job
-
-    res = _job(("pilco", ENV, 0, str(tmp_path), {"pilco": {"max_points": 3}, "log": False}))
-    assert res["failed"] and res["method"] == "pilco" and res["seed"] == 0
-    assert "max_points must be an integer >= 10" in res["error"]
+def test_a_failing_run_is_reported_and_sets_the_exit_code(tmp_path, capsys):
+    # MC-PILCO seed 0 is finished in the runs folder (2 points cover --trials 1): collected,
+    # not rerun; PILCO seed 0 fails (too few GP points): reported with its traceback file
+    runs = tmp_path / "runs"
+    save_curve(runs / "CartpoleSwingUp-v0" / "mcpilco" / "seed0" / "curve.json",
+               _trial_curve(0, [False, True]))  # fmt: skip
+    argv = ["--methods", "mcpilco", "pilco", "--seeds", "1", "--trials", "1", "--no-progress"]
+    argv += ["--pilco-max-points", "3", "--runs-dir", str(runs), "--out", str(tmp_path / "r")]
+    assert main(argv) == 1
+    err = capsys.readouterr().err
+    assert "FAILED pilco/seed0" in err and "max_points must be an integer >= 10" in err
+    report = json.loads((tmp_path / "r" / "compare_CartpoleSwingUp-v0.json").read_text())
+    (failed,) = report["failed"]
+    assert failed["method"] == "pilco" and failed["seed"] == 0
+    assert "max_points must be an integer >= 10" in failed["error"]
+    trace = runs / "CartpoleSwingUp-v0" / "pilco" / "seed0.error.txt"
+    assert failed["traceback"] == str(trace) and "Traceback" in trace.read_text()
+    assert report["methods"]["mcpilco"]["seeds"] == [0]
+    assert not (runs / "CartpoleSwingUp-v0" / "mcpilco" / "seed0.json").exists()  # not rerun
 
 
 @pytest.mark.parametrize("horizon", [60, None])
@@ -314,3 +328,19 @@ def test_mcpilco_from_a_labelled_bench_section(horizon, tmp_path, capsys):
     with pytest.raises(SystemExit):
         main([*common, "--mcpilco-label", "K9"])
     assert "--label K9" in capsys.readouterr().err
+
+
+def test_runs_go_through_the_sweep_runner_and_keep_their_result(tmp_path):
+    # MC-PILCO with no policy trial (exploration only): a real run in a spawned worker
+    runs = tmp_path / "runs"
+    argv = ["--methods", "mcpilco", "--seeds", "1", "--trials", "0", "--jobs", "2"]
+    argv += ["--mcpilco-preset", "small", "--runs-dir", str(runs), "--out", str(tmp_path / "r")]
+    argv += ["--no-progress"]
+    assert main(argv) == 0
+    record = json.loads((runs / "CartpoleSwingUp-v0" / "mcpilco" / "seed0.json").read_text())
+    curve = json.loads(
+        (runs / "CartpoleSwingUp-v0" / "mcpilco" / "seed0" / "curve.json").read_text()
+    )
+    assert record["result"] == curve and record["pid"] != os.getpid()
+    report = json.loads((tmp_path / "r" / "compare_CartpoleSwingUp-v0.json").read_text())
+    assert report["methods"]["mcpilco"]["seeds"] == [0] and report["failed"] == []

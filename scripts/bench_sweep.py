@@ -1,0 +1,66 @@
+"""Overhead per job of the sweep runner: local processes vs a local Ray instance
+(console script ``mcpilco-bench-sweep``).
+
+The same sweep of ``--n`` probe jobs (``--seconds`` each: ``sleep`` jobs wait, ``spin`` jobs
+do a fixed amount of CPU work) runs on every backend of ``--backends`` with ``--cpus`` CPUs,
+``--repeats`` times; see :mod:`mcpilco.experiments.overhead` for the figures. Writes
+``results/sweep_overhead.json`` and ``results/sweep_overhead.md``. The ``ray`` backend needs
+``pip install 'mcpilco[cluster]'``.
+
+Usage::
+
+    mcpilco-bench-sweep                                  # 8 jobs of 1 s, 2 CPUs, both backends
+    mcpilco-bench-sweep --backends local --kinds sleep --repeats 1
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+
+from mcpilco.experiments.overhead import BACKENDS, markdown, measure
+from mcpilco.experiments.probe import KINDS
+from mcpilco.experiments.sweep import SweepError, import_ray
+
+
+def build_parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(
+        prog="mcpilco-bench-sweep",
+        description=__doc__,
+        formatter_class=argparse.RawTextHelpFormatter,
+    )
+    p.add_argument("--backends", nargs="+", choices=BACKENDS, default=list(BACKENDS))
+    p.add_argument("--kinds", nargs="+", choices=KINDS, default=list(KINDS))
+    p.add_argument("--n", type=int, default=8, help="jobs per sweep")
+    p.add_argument("--seconds", type=float, default=1.0, help="seconds per job")
+    p.add_argument("--cpus", type=int, default=2, help="CPUs of every backend")
+    p.add_argument("--repeats", type=int, default=3, help="sweeps per backend and kind")
+    p.add_argument("--out", type=Path, default=Path("results"))
+    return p
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    if min(args.n, args.cpus, args.repeats) < 1 or args.seconds <= 0:
+        parser.error("--n, --cpus and --repeats must be >= 1 and --seconds > 0")
+    if "ray" in args.backends:
+        try:
+            import_ray(local=True)
+        except SweepError as err:
+            parser.error(str(err))
+    result = measure(args.backends, args.kinds, args.n, args.seconds, args.cpus, args.repeats)
+    command = "mcpilco-bench-sweep " + " ".join(sys.argv[1:] if argv is None else argv)
+    result["command"] = command.strip()
+    args.out.mkdir(parents=True, exist_ok=True)
+    (args.out / "sweep_overhead.json").write_text(json.dumps(result, indent=1) + "\n")
+    text = markdown(result, result["command"])
+    (args.out / "sweep_overhead.md").write_text(text)
+    print(text)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
