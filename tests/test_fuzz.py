@@ -1,4 +1,5 @@
-"""Property-based fuzzing (Hypothesis) of the loaders, the GP core and a console script.
+"""Property-based fuzzing (Hypothesis) of the loaders, the GP core, the task specifications and
+a console script.
 
 Every call ends in a result or a clear error (``ValueError`` / ``TypeError`` with a
 message); a result never holds NaN or inf. The fast part runs in the default suite (few
@@ -200,3 +201,102 @@ def test_diagnose_cli_on_damaged_training_files(tmp_path_factory, content, rows)
         code = diagnose.main(argv)
     lines = err.getvalue().strip().splitlines()
     assert code == 2 and len(lines) == 1 and "train.csv" in lines[0], err.getvalue()
+
+
+# -------------------------------------------------------------------------- task specs
+NAMES = ["x", "x_dot", "theta", "theta_dot", "q"]
+junk = st.one_of(
+    st.none(), st.integers(-3, 5), st.text(max_size=4), values, st.lists(st.integers(-1, 6))
+)
+
+
+@st.composite
+def task_dicts(draw):
+    """A valid task file with 0-3 of its fields broken: deleted, replaced by junk of any type,
+    or given fuzzed numbers, duplicate or unknown names."""
+    n = draw(st.integers(1, 5))
+    names = NAMES[:n]
+    angles = draw(st.lists(st.sampled_from(names), unique=True, max_size=2))
+    pairs = [[names[0], names[1]]] if n >= 2 and names[1] not in angles else []
+    d = {
+        "env_id": "fuzz",
+        "state_names": list(names),
+        "angles": angles,
+        "pairs": pairs,
+        "action_low": [-1.0],
+        "action_high": [1.0],
+        "dt": 0.05,
+        "horizon": 10,
+        "init_std": 0.01,
+        "cost": {"terms": [{"state": names[-1], "target": 1.0, "length_scale": 0.5}]},
+        "success": {"window": 5, "bounds": {names[0]: {"target": 0.0, "tol": 0.1}}},
+    }
+    broken = {
+        "state_names": st.lists(st.sampled_from(NAMES + ["", "x"]), max_size=6),
+        "angles": st.lists(st.sampled_from(NAMES + ["phi"]), max_size=3),
+        "pairs": st.lists(st.lists(st.sampled_from(NAMES + [None]), max_size=3), max_size=3),
+        "action_low": st.lists(values, max_size=2),
+        "action_high": st.lists(values, max_size=2),
+        "dt": values,
+        "horizon": st.one_of(st.integers(-2, 100), values),
+        "init_std": st.one_of(values, st.lists(values, max_size=5)),
+        "cost": st.fixed_dictionaries(
+            {
+                "terms": st.lists(
+                    st.fixed_dictionaries(
+                        {"state": st.sampled_from(NAMES + ["z"]), "length_scale": values},
+                        optional={"target": values, "angle_mode": st.sampled_from(["wrap", "x"])},
+                    ),
+                    max_size=3,
+                )
+            }
+        ),
+        "success": st.fixed_dictionaries(
+            {},
+            optional={
+                "window": st.one_of(st.none(), st.integers(-1, 200)),
+                "info_key": st.sampled_from(["success", None]),
+                "bounds": st.dictionaries(
+                    st.sampled_from(NAMES + ["q"]),
+                    st.fixed_dictionaries({"tol": values}, optional={"target": values}),
+                    max_size=2,
+                ),
+            },
+        ),
+    }
+    for key in draw(st.lists(st.sampled_from(sorted(broken)), max_size=3)):
+        how = draw(st.integers(0, 2))
+        if how == 0:
+            d.pop(key, None)
+        else:
+            d[key] = draw(junk if how == 1 else broken[key])
+    return d
+
+
+def _check_task(d) -> None:
+    from mcpilco.agents.mc_pilco.task import TaskSpec, TaskSpecError
+
+    try:
+        task = TaskSpec.from_dict(d)
+    except TaskSpecError as err:  # names the field: "task.<field>: ..."
+        _clear(err)
+        assert str(err).startswith("task"), str(err)
+        return
+    # a spec that validates is usable: finite bounds, a positive period and a cost in [0, 1)
+    assert all(np.isfinite(task.action_low)) and task.dt > 0 and task.horizon >= 1
+    x = np.zeros((3, task.state_dim))
+    c = task.cost(x)
+    assert np.all((c >= 0) & (c < 1))
+
+
+@FAST
+@given(task_dicts())
+def test_task_specs_validate_or_fail_clearly(d):
+    _check_task(d)
+
+
+@pytest.mark.slow
+@LONG
+@given(task_dicts())
+def test_task_specs_validate_or_fail_clearly_long(d):
+    _check_task(d)

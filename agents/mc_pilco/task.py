@@ -408,6 +408,7 @@ class TaskSpec:
         for key in ("env_id", "state_names", "action_low", "action_high", "dt", "horizon"):
             if key not in d:
                 raise _fail(key, "is required")
+        _check_types(d)
         cost = d.pop("cost", None) or {}
         if not isinstance(cost, Mapping):
             raise _fail("cost", "expected a mapping with 'terms'")
@@ -453,6 +454,42 @@ class TaskSpec:
             return cls.from_dict(task_data(env_id))
         except KeyError as err:
             raise ValueError(err.args[0]) from None
+
+
+def _is_number(v: Any) -> bool:
+    return isinstance(v, int | float) and not isinstance(v, bool)
+
+
+def _check_types(d: Mapping[str, Any]) -> None:
+    """The plain-data types of a task file's fields, each error naming its field."""
+
+    def seq(key: str, item, what: str, allow_none: bool = False) -> None:
+        v = d.get(key)
+        if v is None and (allow_none or key not in d):
+            return
+        if isinstance(v, str) or not isinstance(v, Sequence) or not all(item(e) for e in v):
+            raise _fail(key, f"expected a list of {what}, got {v!r}")
+
+    seq("state_names", lambda e: isinstance(e, str) and e != "", "non-empty names")
+    seq("angles", lambda e: isinstance(e, str), "state names")
+    seq("action_low", _is_number, "numbers")
+    seq("action_high", _is_number, "numbers")
+    seq("init_mean", _is_number, "numbers", allow_none=True)
+    seq("obs_indices", lambda e: isinstance(e, int) and not isinstance(e, bool), "integers", True)
+    seq(
+        "pairs",
+        lambda e: isinstance(e, Sequence) and not isinstance(e, str),
+        "[position, velocity]",
+    )
+    if not _is_number(d["dt"]):
+        raise _fail("dt", f"expected a number of seconds, got {d['dt']!r}")
+    if not isinstance(d["horizon"], int) or isinstance(d["horizon"], bool):
+        raise _fail("horizon", f"expected an integer number of steps, got {d['horizon']!r}")
+    std = d.get("init_std", 0.01)
+    if not _is_number(std):
+        seq("init_std", _is_number, "numbers")
+    if not isinstance(d.get("success") or {}, Mapping):
+        raise _fail("success", f"expected a mapping, got {d['success']!r}")
 
 
 def _parse_term(t: Any, path: str) -> CostTerm:
