@@ -91,8 +91,8 @@ def test_set_overrides_nested_fields_and_the_options_win():
 def test_unknown_preset_or_field_is_an_error(capsys, tmp_path):
     err = _error_of(["--preset", "fast", "--out", str(tmp_path)], capsys)
     assert "unknown preset 'fast'" in err and "bench" in err and "demo" in err
-    err = _error_of(["--set", "l_x=1.0", "--out", str(tmp_path)], capsys)
-    assert "unknown MC-PILCO config fields ['l_x']" in err
+    err = _error_of(["--set", "particles=3", "--out", str(tmp_path)], capsys)
+    assert "unknown MC-PILCO config fields ['particles']" in err
     err = _error_of(["--set", "num_particles", "--out", str(tmp_path)], capsys)
     assert "--set takes key=value" in err
 
