@@ -1,10 +1,13 @@
-"""Fixtures for offscreen rendering: which headless OpenGL backend works here."""
+"""Shared fixtures: which headless OpenGL backend works here, and running console scripts
+as commands."""
 
 from __future__ import annotations
 
+import importlib.metadata
 import os
 import subprocess
 import sys
+from collections.abc import Callable, Sequence
 
 import pytest
 
@@ -54,3 +57,29 @@ def gl_in_process() -> None:
         pytest.skip(
             f"MUJOCO_GL={os.environ.get('MUJOCO_GL')!r} does not render here: {_last_line(proc)}"
         )
+
+
+def _command_main(name: str) -> Callable[..., int]:
+    """The ``main`` that console script ``name`` (e.g. ``mcpilco-train``) runs, read from the
+    installed distribution's entry points, so that tests drive the command a user types and
+    never import from ``mcpilco.scripts``."""
+    for entry in importlib.metadata.entry_points(group="console_scripts"):
+        if entry.name == name and entry.value.startswith("mcpilco."):
+            return entry.load()
+    raise LookupError(f"no console script {name!r} is installed (pip install -e .)")
+
+
+def run_command(name: str, argv: Sequence[str]) -> int:
+    """Run console script ``name`` in this process with arguments ``argv``; its exit status
+    (``SystemExit`` from argparse or the script is caught and its code returned)."""
+    try:
+        status = _command_main(name)(list(argv))
+    except SystemExit as stop:
+        status = stop.code if isinstance(stop.code, int) else (0 if stop.code is None else 2)
+    return 0 if status is None else int(status)
+
+
+@pytest.fixture
+def command() -> Callable[[str, Sequence[str]], int]:
+    """``command(name, argv)``: run a console script in-process, return its exit status."""
+    return run_command
