@@ -4,14 +4,17 @@ PYTHON ?= python3.11
 VENV   := .venv
 PY     := $(VENV)/bin/python
 STAMP  := $(VENV)/.installed
+# PyTorch's official index of CPU-only wheels (PyPI's default Linux torch pulls CUDA wheels)
+TORCH_CPU_INDEX ?= https://download.pytorch.org/whl/cpu
 
 .PHONY: demo test test-all lint format bench clean
 
 $(STAMP): pyproject.toml
 	test -x $(PY) || $(PYTHON) -m venv $(VENV)
 	$(PY) -m pip install --upgrade pip
-	# CPU torch first (a local wheel on these machines); any other spec pulls CUDA wheels.
-	$(PY) -m pip install "torch==2.13.0"
+	# CPU torch first: a wheel already in pip's find-links if there is one, else the CPU index.
+	$(PY) -m pip install --no-index --no-deps "torch>=2.13" \
+		|| $(PY) -m pip install "torch>=2.13" --index-url $(TORCH_CPU_INDEX)
 	$(PY) -m pip install -e ".[dev]"
 	touch $(STAMP)
 

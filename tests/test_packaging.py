@@ -73,3 +73,31 @@ def test_agents_and_models_do_not_import_experiments() -> None:
         if pattern.search(path.read_text())
     ]
     assert not offenders, f"agents/, models/ and envs/ must not import experiments/: {offenders}"
+
+
+SCRIPT_IMPORT = re.compile(
+    r"^\s*(from\s+mcpilco\.scripts\b|import\s+mcpilco\.scripts\b|from\s+mcpilco\s+import\s+scripts\b)",
+    re.MULTILINE,
+)  # an import of the command-line faces
+MAX_SCRIPT_LINES = 300  # a console script parses arguments and calls the library
+
+
+def test_nothing_imports_from_scripts() -> None:
+    """Library code, other scripts and tests use the library; a command is run, not imported
+    (tests run commands through the ``command`` fixture of tests/conftest.py)."""
+    offenders = [
+        str(path.relative_to(ROOT))
+        for folder in ("agents", "models", "envs", "experiments", "scripts", "tests")
+        for path in (ROOT / folder).rglob("*.py")
+        if SCRIPT_IMPORT.search(path.read_text())
+    ]
+    assert not offenders, f"these import from mcpilco.scripts: {offenders}"
+
+
+def test_scripts_are_thin() -> None:
+    long = {
+        path.name: n
+        for path in (ROOT / "scripts").glob("*.py")
+        if (n := len(path.read_text().splitlines())) > MAX_SCRIPT_LINES
+    }
+    assert not long, f"move the logic of these scripts into the library: {long}"
