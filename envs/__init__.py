@@ -17,7 +17,7 @@ gymnasium.register(
     max_episode_steps=60,
 )
 
-# Arms (issue 5): joint-trajectory tracking behind a PD + gravity controller, 8 ms samples.
+# Arms: joint-trajectory tracking behind a PD + gravity controller, 8 ms samples.
 gymnasium.register(
     id="mcpilco/UR10-v0",
     entry_point="mcpilco.envs.arm_env:UR10Env",

@@ -67,9 +67,8 @@ FRICTION_SOLREF: tuple[float, float] = (0.002, 1.0)
 """``solref`` of the dry-friction constraints (time constant 2 ms, critically damped)."""
 
 FRICTION_SOLIMP: tuple[float, float, float, float, float] = (0.9999, 0.9999, 0.001, 0.5, 2.0)
-"""``solimp`` of the dry-friction constraints: impedance 0.9999 (MuJoCo's default is 0.9-0.95)
-makes the constraint nearly hard, so a joint held by stiction creeps by ~1e-6 rad/s instead of
-~1e-3 rad/s (the soft-constraint regulariser ``R = (1 - d)/d A`` sets the creep)."""
+"""``solimp`` of the dry-friction constraints: impedance 0.9999 (MuJoCo: 0.9-0.95), nearly hard
+stiction (the regulariser ``R = (1 - d)/d A`` sets the creep of a held joint)."""
 
 JOINT_TYPES = ("R", "P")
 

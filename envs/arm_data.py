@@ -7,7 +7,7 @@ those joint references and rolls them out on :class:`~mcpilco.envs.arm_env.ArmTr
 
 A rollout returns plain numpy arrays keyed like the dataset schema of
 ``mcpilco.models.robot_data`` (``t, q, qd, qdd, tau, i, i_cmd, e_q, e_qd, contact`` plus
-``q_ref, qd_ref, f_ext``); ``scripts/collect_arm_data.py`` turns them into a file. Nothing
+``q_ref, qd_ref, f_ext``); ``mcpilco-collect-arm-data`` turns them into a file. Nothing
 here imports ``mcpilco.models``.
 
 Glossary

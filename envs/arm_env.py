@@ -355,8 +355,8 @@ class ArmTrackingEnv(gym.Env):
     ) -> Push:
         """Push ``link`` (1-based) with the world ``force`` [N] from now for ``duration`` s.
 
-        The hook later issues build on: the force goes to ``data.xfrc_applied`` of body
-        ``link{link}`` at its centre of mass, and ``info["contact"]`` is 1 while it acts.
+        The force goes to ``data.xfrc_applied`` of body ``link{link}`` at its centre of mass,
+        and ``info["contact"]`` is 1 while it acts (the collision data's ground truth).
         """
         if not 1 <= link <= self.n_joints:
             raise ValueError(f"link must be in 1..{self.n_joints}, got {link}")

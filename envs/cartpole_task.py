@@ -18,7 +18,7 @@ upright
     ``|wrap(q2)|`` within 10 degrees of pi.
 success
     upright during the whole last second of the episode (the last 20 steps of 0.05 s) with
-    ``|q1| < 0.5`` m over those steps (thesis section 5.5.1 plus the brief's cart bound).
+    ``|q1| < 0.5`` m over those steps (thesis section 5.5.1, plus a bound on the cart).
 """
 
 from __future__ import annotations

@@ -177,12 +177,9 @@ class MarkerCameraEnv(gym.Env):
     times that), the orientation error a rotation vector with ``angle_noise * f`` per
     component (geodesic RMS ``sqrt(3)`` times that). Face-on at ``d0 = 2`` m this is 2 mm per
     axis (3.5 mm as a 3-D norm) and 0.012 rad geodesic, AprilTag-like (thesis section
-    2.4.2); grazing incidence doubles it. Marker orientations are uniformly random, so over a
-    trajectory ``f`` is well above 1: on the UR10 data of ``scripts/bench_kinematics.py``
-    (end marker 1.8-3.0 m from the camera, 2.5 m on average, mean ``|cos theta|`` 0.47) the
-    mean ``f`` is 2.5 and the end-marker noise measures 5.2 mm per axis (8.9 mm 3-D) and
-    0.032 rad geodesic (0.02-0.035 rad on the yaw-pitch-roll angles): x1.65 from the
-    distance, x1.55 from the incidence; the time offset and encoder noise add < 0.1 mm.
+    2.4.2); grazing incidence doubles it. ``f`` grows with the distance and the incidence,
+    so over a trajectory the noise is usually larger than these face-on figures (the
+    end-marker noise of the ``mcpilco-bench-kinematics`` data is in ``results/kinematics.md``).
     ``|cos theta|`` also treats a marker seen from behind as face-on. A real detector would not
     see it: with ``visibility_cone`` set, a marker whose normal is more than that angle from its
     line of sight to the camera (:meth:`facing_cosines`) reads as a row of NaN and

@@ -186,10 +186,9 @@ class ArucoMarkerDetector:
             [rad] reprojects less than ``min_ambiguity_ratio`` times worse (the planar pose
             ambiguity of small, distant markers; near face-on the two IPPE solutions are
             close and both harmless). ``min_ambiguity_ratio = 0`` keeps all. The default 3
-            was chosen on the UR10 trajectory of ``mcpilco-bench-markers`` (seed 0: 77 % of
-            the detections kept, gross errors 14.1 % -> 3.8 %) and checked on seed 5
-            (71 % kept, 16.8 % -> 2.7 %), both on unrefined corners; gross = 3-D error
-            > 0.1 m or angle > 0.3 rad.
+            trades detections kept against gross errors (3-D error > 0.1 m or angle
+            > 0.3 rad) on the UR10 trajectory of ``mcpilco-bench-markers``
+            (``results/marker_detection.md``).
         edge_refinement: move the corners to the intersections of lines fitted to the
             sides' sub-pixel edges (:func:`refine_corners_by_edges`).
     """

@@ -394,9 +394,8 @@ class LocalBackend:
 
 
 LOCAL_RAY_ENV = {"RAY_ENABLE_WINDOWS_OR_OSX_CLUSTER": "0", "RAY_USAGE_STATS_ENABLED": "0"}
-"""Environment of a local Ray instance, set before ``ray`` is imported: the node address is
-the loopback one (Ray otherwise takes the routable address and listens on every interface;
-the variable's name notwithstanding, it applies on Linux too), and no usage report is sent."""
+"""Environment of a local Ray instance (set before ``ray`` is imported): a loopback node address
+(the variable applies on Linux too) and no usage report."""
 
 
 def import_ray(local: bool = False) -> Any:

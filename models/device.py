@@ -64,9 +64,8 @@ MMAP_THRESHOLD_MAX = 32 * 2**20
 default."""
 
 GLIBC_INITIAL_THRESHOLD = 128 * 1024
-"""glibc's initial ``M_MMAP_THRESHOLD`` and ``M_TRIM_THRESHOLD`` (bytes):
-``retain_host_memory(GLIBC_INITIAL_THRESHOLD, GLIBC_INITIAL_THRESHOLD)`` pins a process to the
-faulting state the adaptive rule can leave it in (the bench's ``--timing-heap-contrast``)."""
+"""glibc's initial ``M_MMAP_THRESHOLD`` and ``M_TRIM_THRESHOLD`` (bytes); passed to
+:func:`retain_host_memory` it pins glibc's default behaviour (a contrast for benchmarks)."""
 
 _M_TRIM_THRESHOLD = -1  # glibc <malloc.h> parameter numbers
 _M_MMAP_THRESHOLD = -3
@@ -81,14 +80,12 @@ def retain_host_memory(
     ``M_MMAP_THRESHOLD`` bytes (128 KiB at start, raised adaptively) by a fresh ``mmap``
     and unmaps it on ``free``, and trims the heap's free top above ``M_TRIM_THRESHOLD``. A
     particle rollout allocates and frees hundreds of such blocks per optimisation step
-    (``(m, N, M)`` kernel panels: 320 KiB at N = 100, M = 400, float32), so each one is
-    zero-filled again page by page: 4,900-19,600 minor page faults per step in 10 of 13
-    fresh default processes at N = 100-200 (fewer than 130 in the others: the adaptive
-    threshold depends on the allocation history), 8,900-57,000 at N = 100-300 with the
-    initial 128 KiB thresholds, and a step up to 1.4x slower. Fixing both thresholds high
-    (``mallopt``) reuses the freed blocks instead (0-545 faults per step).
-    The price: the process keeps its peak heap (blocks above ``mmap_threshold`` are still
-    unmapped on free).
+    (``(m, N, M)`` kernel panels, ``4 m N M`` bytes in float32), so each one is zero-filled
+    again page by page, one minor page fault per 4 KiB page, unless the adaptive threshold
+    happens to have risen above the block size (it depends on the allocation history).
+    Fixing both thresholds high (``mallopt``) reuses the freed blocks instead (figures in
+    ``results/mcpilco_notes.md``). The price: the process keeps its peak heap (blocks above
+    ``mmap_threshold`` are still unmapped on free).
 
     Process-wide; call it once, from the program that owns the process (the scripts do).
 

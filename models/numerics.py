@@ -2,11 +2,10 @@
 
 ``exp`` of a very negative argument is slow on CPU: PyTorch's vectorised ``exp`` leaves its
 fast path when the result underflows below the smallest normal float
-(:math:`x < \\log(\\mathrm{tiny}) \\approx -87.3` in float32, :math:`-708.4` in float64). Measured
-here (one thread, 80,000 float32 elements): about 70 us with all arguments in [-87, 0] and
-800-2,400 us with all below -88. A GP with short lengthscales, or an RBF policy, puts most
-entries of its kernel matrix there: a 400-particle MC-PILCO optimisation step with a GP on
-60 points took 0.168 s instead of 0.117 s (one thread). :func:`exp_floor_` clamps the argument at
+(:math:`x < \\log(\\mathrm{tiny}) \\approx -87.3` in float32, :math:`-708.4` in float64), and
+is then many times slower per element. A GP with short lengthscales, or an RBF policy, puts
+most entries of its kernel matrix there, which slows a whole MC-PILCO optimisation step
+(``results/mcpilco_notes.md``). :func:`exp_floor_` clamps the argument at
 :math:`\\log(\\mathrm{tiny})` first, so such entries become the smallest normal float
 (1.2e-38 in float32, 2.2e-308 in float64) instead of 0 or a subnormal: a change below any
 tolerance the kernels or the policy can see, for one cheap clamp.

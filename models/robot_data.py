@@ -1,6 +1,6 @@
 """Robot measurement files: the one dataset schema, a validating loader and a saver.
 
-The arm envs' data (``scripts/collect_arm_data.py``) and the files users bring from their
+The arm envs' data (``mcpilco-collect-arm-data``) and the files users bring from their
 robots share this format: one row per sample, CSV or Parquet, columns
 
 ======================  ============================================  ========================
@@ -78,9 +78,8 @@ PLAUSIBLE_LIMITS: dict[str, float] = {
     "e_q": 1e3,
     "e_qd": 1e3,
 }
-"""Largest plausible magnitude of each group in the units of :data:`UNITS` (1e3 rad is 160
-turns; 1e6 N m is 100 times a large industrial arm's joint torque); beyond it a value is
-a unit or logging error."""
+"""Largest plausible magnitude of each group in the units of :data:`UNITS`; beyond it a value
+is a unit or logging error (1e3 rad is 160 turns)."""
 UNIT_FACTOR_LIMIT = 3.0
 """A position and the time integral of its velocity that disagree by more than this factor
 (either way) are in different units (180/pi = 57.3: an angle in degrees)."""

@@ -1,4 +1,4 @@
-"""Packaging contract: the card's folders install under one import root, and the
+"""Packaging contract: the top-level folders install under one import root, and the
 dependency direction of DESIGN.md holds (envs import neither torch-heavy agents nor models)."""
 
 from __future__ import annotations

@@ -26,8 +26,8 @@ cost ``c(x) = 1 - exp(-(x - x*)^T W (x - x*) / 2)``, ``E[c(x_t)]`` in closed for
     trial); Adam, as in TorchRL's ``sota-implementations/pilco`` example, is an option.
 units fix
     TorchRL 0.14's ``GPWorldModel`` keeps the signal and noise variances of botorch's
-    standardised targets next to the raw targets, which inflates every predicted variance
-    (``x``: ``0.08`` instead of ``1e-4`` m^2 per step); :func:`rescale_to_raw_targets` puts
+    standardised targets next to the raw targets, which scales every predicted variance by
+    ``1 / s_a^2`` (``s_a`` the target's std); :func:`rescale_to_raw_targets` puts
     them back in target units after each fit (tested against botorch's own posterior).
 outer loop
     exactly MC-PILCO's (:mod:`mcpilco.agents.mc_pilco.loop`): the same exploration trial
@@ -96,11 +96,10 @@ class PilcoConfig:
         num_basis: RBF centres of the controller (50: the size of PILCO's cart-pole policy).
         max_points: GP training set = the latest ``max_points`` transitions; 180 keeps all
             the data up to 12 s of experience (the bench budget's last trial drops the first
-            60). It matters: with 100 (the last 1.7 trials) neither seed 0 nor seed 1 swung up
-            in 27 s; with 180 seed 1 succeeds at 15 s. Measured with two runs on two cores:
-            one evaluation of ``J`` (60-step moment-matching rollout, forward and backward)
-            takes about 1.6-2.0 s at ``n = 100`` and 5.4-8.6 s at ``n = 180``; memory grows as
-            ``n^2`` (about 2.4 GB per process at ``n = 100``).
+            60). A smaller set forgets the swings of the earlier trials; a larger one costs
+            more: the memory of one evaluation of ``J`` (60-step moment-matching rollout,
+            forward and backward) grows as ``n^2``
+            (``results/compare_CartpoleSwingUp-v0_pilco_lbfgs_n180.md``).
         optimizer: ``"lbfgs"`` (default): L-BFGS with a strong-Wolfe line search on the
             deterministic ``J``, the kind of quasi-Newton search PILCO itself uses (its
             ``minimize``, conjugate gradients / BFGS with line searches); ``"adam"``: Adam as
@@ -243,10 +242,11 @@ def rescale_to_raw_targets(model) -> torch.Tensor:
     default standardise each target (``Standardize``: ``y~_a = (Delta_a - m_a) / s_a``), and
     then copies their signal and noise variances, fitted on ``y~_a``, next to the raw targets
     ``Delta_a``. The predictive mean ``k_*^T (K_a + sigma_eps_a^2 I)^{-1} Delta_a`` does not
-    depend on a common scale of ``K_a`` and ``sigma_eps_a^2``, but every variance does: the
-    belief of ``x`` (``s_x ~ 0.04`` m per step) grew by ``sigma_eps^2 ~ 0.08`` m^2 per step
-    instead of ``~1e-4``, so every imagined rollout spread over the whole state space and
-    the expected cost stayed near its maximum whatever the policy. Here
+    depend on a common scale of ``K_a`` and ``sigma_eps_a^2``, but every variance does: with
+    a small ``s_a`` (a coordinate that changes little per step) the belief grows by the
+    standardised noise variance instead of the raw one, so every imagined rollout spreads
+    over the whole state space and the expected cost stays near its maximum whatever the
+    policy. Here
 
         ``alpha_a^2 <- s_a^2 alpha_a^2``,  ``sigma_eps_a^2 <- s_a^2 sigma_eps_a^2``,
 

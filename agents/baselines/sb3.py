@@ -316,7 +316,7 @@ def _success_callback_class():
 
 
 def __getattr__(name: str):
-    if name == "SuccessEvalCallback":  # built lazily: importing SB3 costs about 1 s
+    if name == "SuccessEvalCallback":  # built lazily: importing SB3 is slow
         return _success_callback_class()
     raise AttributeError(name)
 

@@ -2,10 +2,10 @@
 
 A *run folder* is the ``--out`` folder of a training run. :func:`open_run_folder`
 
-* refuses a folder that holds another run (its ``manifest.json``, or the files a run wrote
-  before runs kept a manifest) unless the caller resumes it or overwrites it; ``overwrite``
-  first deletes the files the old run wrote (those its manifest lists, and the known run
-  outputs), never other files;
+* refuses a folder that holds another run (its ``manifest.json``, or, in a folder without
+  a manifest, the known run outputs) unless the caller resumes it or overwrites it;
+  ``overwrite`` first deletes the files the other run wrote (those its manifest lists, and
+  the known run outputs), never other files;
 * takes an exclusive ``fcntl.flock`` on ``run.lock`` so that a second process on the same
   folder fails at once; the kernel releases the lock when the process exits or is killed,
   so a killed run never leaves a stale lock;
@@ -35,8 +35,7 @@ __all__ = [
 MANIFEST_NAME = "manifest.json"
 # the lock file; held with flock while a process runs in the folder
 LOCK_NAME = "run.lock"
-# files and glob patterns of the outputs of an MC-PILCO run (recorded; recognised and cleared
-# also in folders of runs that kept no manifest)
+# files and glob patterns of an MC-PILCO run's outputs (recognised also without a manifest)
 RUN_OUTPUTS = (
     "checkpoint.pt",
     "checkpoint.pt.tmp",

@@ -143,14 +143,14 @@ def bypass_runtime_wrappers(compiled: Callable, examples: list[Tensor]) -> Calla
     they prepend the graph's constants (here the GP's fitted tensors, lifted as
     ``params_buffers_flat``), handle input mutations, regenerate outputs that alias inputs
     and record profiler ranges. The time step's functions mutate no input and run under
-    ``no_grad``, so the wrappers only cost time: about 40-70 us per call at 200 particles
-    on the 2-core CPU machine, against 0.3-0.6 ms for the call (``results/mcpilco_notes.md``),
-    and a rollout makes ``2 H`` calls per shard. The bare call is the compiled graph's
-    ``current_callable`` on ``[*constants, *inputs]``: the same compiled code, so the same
-    outputs to the bit. It is found through PyTorch internals (the wrapper's closure,
-    checked with torch 2.13), so it is used only when it is found, the graph mutates no
-    input, and on ``examples`` it returns outputs equal in value, dtype, shape and strides to
-    those of ``compiled``. The bare call keeps the wrapped one as its ``wrapped_call``.
+    ``no_grad``, so the wrappers only cost time, a noticeable share of a small call
+    (``results/mcpilco_notes.md``), and a rollout makes ``2 H`` calls per shard. The bare
+    call is the compiled graph's ``current_callable`` on ``[*constants, *inputs]``: the
+    same compiled code, so the same outputs to the bit. It is found through PyTorch
+    internals (the wrapper's closure, checked with torch 2.13), so it is used only when it
+    is found, the graph mutates no input, and on ``examples`` it returns outputs equal in
+    value, dtype, shape and strides to those of ``compiled``. The bare call keeps the
+    wrapped one as its ``wrapped_call``.
     """
     try:
         inner = inspect.unwrap(compiled, stop=lambda f: "params_buffers_flat" in _closure_cells(f))
@@ -314,13 +314,11 @@ class DirectRollout:
         joining its outputs) on one intra-op thread while ``S > 1`` shards use the cores.
 
         After each parallel op, the caller's OpenMP workers spin-wait on a core for a while
-        (libgomp's default wait policy) before they sleep. The caller's ops over 32768
-        entries (the scaling of the observation noise ``nu``, 400 x 60 x 4 entries, and the
-        copies of the shards' halves of it) started such spins just as the shards began: on
-        the 2-core CPU machine, a worker spun for 16 % of a core's time, and steps were
-        2-5 % slower (``results/mcpilco_notes.md``). With one thread the caller's ops start
-        no worker. ``S = 1``: nothing changes (the shard is the caller, with its own thread
-        count)."""
+        (libgomp's default wait policy) before they sleep. The caller's large ops (the
+        scaling of the observation noise ``nu`` and the copies of the shards' parts of it)
+        would start such spins just as the shards begin, taking core time from them
+        (``results/mcpilco_notes.md``). With one thread the caller's ops start no worker.
+        ``S = 1``: nothing changes (the shard is the caller, with its own thread count)."""
         if self.shards == 1:
             yield
             return
@@ -440,9 +438,9 @@ def _shard_task(fn: Callable[..., Any]) -> Callable[..., Any]:
 
     The count is set at each task, not once when the worker starts: a thread takes the
     process's default count (the caller's, once restored) at its first parallel op, which
-    undid a setting made at the start (each shard then ran its BLAS calls on 2 threads, on 2
-    cores shared by 2 shards). Autograd: a worker thread starts with it on; the compiled steps
-    take the policy parameters, which require gradients, as plain inputs."""
+    would undo a setting made at the start (each shard's BLAS calls would then run on every
+    core, which the other shards share). Autograd: a worker thread starts with it on; the
+    compiled steps take the policy parameters, which require gradients, as plain inputs."""
 
     def run(*args: Any) -> Any:
         torch.set_num_threads(1)

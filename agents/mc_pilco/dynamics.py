@@ -18,8 +18,8 @@ Glossary
 ``E[Delta^_t], var[Delta^_t]``
     GP posterior mean (5.3) and latent variance (5.4): no measurement noise ``sigma_i^2``.
 ``Delta_t = E[Delta^_t] + sqrt(var[Delta^_t]) eps``, ``eps ~ N(0, I)``
-    reparameterised sample of (5.5) (thesis 5.4.2, Kingma & Welling 2013). Decision: we use
-    the latent variance (5.4), as in (5.7), not ``var + sigma_i^2``: ``sigma_i^2`` is the
+    reparameterised sample of (5.5) (thesis 5.4.2, Kingma & Welling 2013). It uses the
+    latent variance (5.4), as in (5.7), not ``var + sigma_i^2``: ``sigma_i^2`` is the
     noise of the *measured* targets, not of the system's evolution; ``sample_noise=True``
     adds it (ablation).
 ``Delta_t <- clip(Delta_t, -b, b)``
@@ -256,11 +256,9 @@ class GPDynamicsModel:
         delta_clip_factor: ``c_clip``; the particle dynamics clip ``|Delta|`` at ``c_clip``
             times the largest ``|Delta|`` in the training data (None: no clipping).
         warm_start: start each :meth:`fit` from the previous hyperparameters instead of the
-            kernel's initial values. Off by default, as in the MC-PILCO reference code: on
-            the data of 24 cart-pole trials (6 runs) a fresh fit predicted the next trial
-            better (median one-step RMSE of ``Delta theta_dot`` 0.15 vs 0.25 rad/s, mean
-            20-step open-loop theta RMSE 0.044 vs 0.079 rad): a warm start keeps the
-            optimum of the first, poorer data.
+            kernel's initial values. Off by default, as in the MC-PILCO reference code: a
+            warm start keeps the optimum of the first, poorer data, and a fresh fit predicts
+            the next trial better (``results/mcpilco_notes.md``).
     """
 
     def __init__(

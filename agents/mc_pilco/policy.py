@@ -329,7 +329,7 @@ def dropout_threshold(p: float) -> int:
 
 def dropout_bytes(shape: tuple[int, ...], device: torch.device | None = None) -> Tensor:
     """I.i.d. uniform random bytes ``(shape)``, uint8, taken from 64-bit random integers
-    (about 7x cheaper than one float per entry)."""
+    (cheaper than one random float per entry)."""
     n = math.prod(shape)
     words = torch.randint(-(2**63), 2**63 - 1, ((n + 7) // 8,), dtype=torch.int64, device=device)
     return words.view(torch.uint8)[:n].view(shape)
@@ -344,7 +344,7 @@ def mask_from_bytes(
     and ``256 / t`` as 0-dim tensors in ``dtype``, so that they are inputs of its graph, not
     constants; their values are those of the Python numbers (the same mask)."""
     scale = 256.0 / t if scale is None else scale
-    return b.to(dtype).lt_(t).mul_(scale)  # 0..255 are exact: 6x faster than (b < t)
+    return b.to(dtype).lt_(t).mul_(scale)  # 0..255 are exact in dtype; faster than (b < t)
 
 
 def dropout_mask(
@@ -426,7 +426,7 @@ class _SquashedRBF(torch.autograd.Function):
         if need_obs or need_c or need_l:
             G = torch.bmm(gs, w.transpose(1, 2)).mul_(phi)  # (K, k, n_b), dJ/d log phi
             Gt = G.transpose(1, 2)
-            # (b^T G^T)^T and (a^T G)^T: the wide-output products are 5x faster than G b, G^T a
+            # (b^T G^T)^T and (a^T G)^T: the wide-output products are faster than G b, G^T a
             g_a = torch.bmm(b.transpose(1, 2), Gt).transpose(1, 2)
             g_a = g_a.addcmul(a, G.sum(2, keepdim=True), value=-1.0)
             g_b = torch.bmm(a.transpose(1, 2), G).transpose(1, 2)

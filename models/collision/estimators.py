@@ -86,11 +86,8 @@ SIGMA_V = 1e-2
 """Default quasi-static velocity threshold ``sigma_v`` [rad/s] (the thesis's CV value)."""
 
 COULOMB_VELOCITY = 1e-4
-"""[rad/s] ``sign(qd_i)`` of the Coulomb feature is evaluated as ``tanh(qd_i / 1e-4)``: the
-sign above ~3e-4 rad/s (so on every dynamic sample, ``|qd_i| >= sigma_v``) and 0 on a stuck
-joint. A stuck joint of the simulator creeps at ~1e-7 rad/s (MuJoCo's dry-friction
-constraint is soft) where a real encoder reads 0; the exact sign of that creep would leak
-the direction of the torque stiction holds, which no real sensor gives. ``0`` = exact sign."""
+"""[rad/s] The Coulomb feature's ``sign(qd_i)`` is ``tanh(qd_i / 1e-4)``: 0 on a stuck joint, whose
+simulated creep would otherwise leak the stiction torque's direction. ``0`` = exact sign."""
 
 _FORMAT = "mcpilco.collision.CurrentEstimator/1"
 

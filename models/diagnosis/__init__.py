@@ -1,6 +1,6 @@
 """Model diagnosis: compare a model with measurements, find the missing physical effect.
 
-The loop (see ``scripts/diagnose.py``, console script ``mcpilco-diagnose``):
+The loop (console script ``mcpilco-diagnose``):
 
 1. compare: :func:`fit_metrics` (nMSE, RMSE, NRMSE fit %), :func:`~.plots.plot_time`;
 2. where it fails: :func:`residual_report` (binned residuals, velocity reversals,

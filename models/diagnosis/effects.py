@@ -245,11 +245,8 @@ class ViscousFriction(Effect):
 
 
 EPS_SCAN: tuple[float, ...] = tuple(round(0.003 * 2 ** (k / 2), 5) for k in range(7))
-"""Smoothing velocities ``eps`` of ``tanh(qd / eps)`` scanned [rad/s or m/s]: 0.003 to 0.024
-in steps of sqrt(2). A factor-2 grid left a true ``eps`` near its geometric midpoints
-(0.016-0.018) mis-shaped enough that the Stribeck block, whose extra column acts at low
-speed, beat the true Coulomb by 2-3 nats (SCARA GIP seeds 5005, 5010); with sqrt(2) steps the
-Coulomb wins there and a true Stribeck still wins by 10 nats (seed 3003)."""
+"""Smoothing velocities ``eps`` of ``tanh(qd / eps)`` scanned [rad/s or m/s]: 0.003 to 0.024 in
+steps of sqrt(2), fine enough that a true Coulomb between two values does not lose to Stribeck."""
 
 
 @dataclass(frozen=True)

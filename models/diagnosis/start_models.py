@@ -304,8 +304,8 @@ class LearnedStart(StartModel):
     def refit(self, q: FloatArray, qd: FloatArray, qdd: FloatArray, y: FloatArray) -> LearnedStart:
         """A copy whose kernel hyperparameters are re-optimised on ``y`` (warm start from the
         current ones, the full ``adam_iters`` + ``lbfgs_iters`` budget): backfitting after
-        effects were added, so that the learned start stops absorbing them (a third of the
-        budget left a viscous case at 2x the noise; the full budget reaches it)."""
+        effects were added, so that the learned start stops absorbing them (a shorter budget
+        can stop before the start model has let go of them)."""
         import copy
 
         new = copy.copy(self)  # the robot (pinocchio) is shared; the estimator is copied

@@ -89,7 +89,7 @@ def _chol(B: FloatArray) -> FloatArray | None:
 @contextlib.contextmanager
 def single_thread() -> Iterator[None]:
     """One BLAS thread (threadpoolctl, when installed): the matrices of the evidence are tiny
-    and BLAS thread start-up dominates, 3-4x slower on a busy 2-core machine."""
+    and BLAS thread start-up would dominate them."""
     try:
         from threadpoolctl import ThreadpoolController
     except ImportError:  # pragma: no cover - optional

@@ -20,10 +20,8 @@ space spanned by the inhomogeneous MPK factors (degree <= 2 in each ``(cos q_b, 
 affine in ``[qd_v, qdd]``), so the RKHS is unchanged; only the prior weight of the
 monomials changes. ``GIPEstimator`` leaves the features unstandardised by default
 (``standardize_x=False``): ``cos``/``sin`` are already O(1), and on the SCARA benchmark both
-variants reach the noise floor (``scripts/bench_inverse_dynamics.py --gip-std`` reports them
-side by side; one run at N = 2000: nMSE 7.4e-7 / 4.5e-6 / 2.6e-4 / 3.0e-4 unstandardised vs
-1.0e-6 / 6.7e-6 / 2.4e-4 / 2.9e-4 standardised, noise floor 4.5e-7 / 3.1e-6 / 2.1e-4 /
-2.4e-4).
+variants reach the noise floor (``mcpilco-bench-inverse-dynamics --gip-std`` reports them
+side by side).
 """
 
 from __future__ import annotations

@@ -74,9 +74,8 @@ accepts (each link GP has at most 3 monomials per output)."""
 
 
 CONSTANT_OUTPUT = 1e-12
-"""An element whose spread over the frames is below this (relative to ``1 + max |y|``) is a
-constant of the link (e.g. ``R33`` of a joint turning about the marker's own ``z``): its
-weights are ``[mean, 0, ...]`` instead of a GP fit."""
+"""Relative spread (to ``1 + max |y|``) below which an element is a constant of the link: its
+weights are ``[mean, 0, ...]`` instead of a GP fit (e.g. ``R33`` about the marker's ``z``)."""
 
 
 def link_features(q_k: Tensor, joint_type: str) -> Tensor:

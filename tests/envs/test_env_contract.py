@@ -1,4 +1,4 @@
-"""Contract test over every registered ``mcpilco/*`` environment (later envs included)."""
+"""Contract test over every ``mcpilco/*`` environment that ``import mcpilco.envs`` registers."""
 
 import warnings
 

@@ -204,7 +204,7 @@ def test_config_overrides_keep_unset_fields_and_cap_the_first_trial_steps():
 
     cfg = BENCH_CONFIG.with_overrides(num_trials=None, kernel="rbf", opt_steps=300)
     assert cfg.num_trials == BENCH_CONFIG.num_trials and cfg.kernel == "rbf"
-    assert cfg.opt.max_steps == 300 and cfg.opt_steps_first == 300  # was 500
+    assert cfg.opt.max_steps == 300 and cfg.opt_steps_first == 300  # 500 capped at 300
     assert BENCH_CONFIG.with_overrides(opt_steps=2000).opt_steps_first == 500
     with pytest.raises(ValueError, match="num_particles"):
         BENCH_CONFIG.with_overrides(num_particles=0)

@@ -88,7 +88,7 @@ def test_evidence_is_exact_at_low_noise_with_a_dependent_column():
     """A block with an exactly dependent column (a payload regressor on a wrist joint is like
     this) and a target explained to 1e-3 of its size: the evidence must match an SVD-based
     second implementation over the whole (noise, prior variance) box, so that type-II ML
-    finds the true noise (forming Phi^T Phi / sigma^2 used to give spurious maxima)."""
+    finds the true noise (forming Phi^T Phi / sigma^2 would give spurious maxima)."""
     rng = np.random.default_rng(3)
     N = 2000
     F = rng.normal(size=(N, 4)) * np.array([1.0, 10.0, 0.1, 3.0])

@@ -159,7 +159,7 @@ def one_thread():
 
 
 def test_gip_gp_fits_arm_inverse_dynamics_and_beats_rbf(one_thread):
-    """Issue 2, test (b): GIP GP from 200 noiseless samples, nMSE < 1e-4 on 1000 fresh
+    """GIP GP from 200 noiseless samples, nMSE < 1e-4 on 1000 fresh
     samples; an RBF GP on x = (q, qd, qdd) does more than 10x worse.
 
     The targets are noiseless and the GIP Gram matrix has rank 150 < 200, so the noise floor
