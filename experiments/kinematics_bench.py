@@ -89,6 +89,18 @@ class KinematicsBenchSettings:
     measurement: str = "ideal"
     seed: int = 0
 
+    def __post_init__(self) -> None:
+        if not self.parts or set(self.parts) - set("abcd"):
+            raise ValueError(f"parts must be a subset of 'abcd', got {self.parts!r}")
+        if self.measurement not in ("ideal", "aruco"):
+            raise ValueError(f"measurement must be 'ideal' or 'aruco', got {self.measurement!r}")
+        if self.measurement == "aruco" and set(self.parts) & set("bd"):
+            raise ValueError(
+                "measurement 'aruco' supports parts a and c only: (b) counts misclassified "
+                "triplets over all 126 and (d) measures every reached pose, and both need the "
+                "markers seen in every frame"
+            )
+
     def quick(self) -> KinematicsBenchSettings:
         """These settings with the tiny sizes of :data:`QUICK`."""
         return dataclasses.replace(self, **QUICK)

@@ -158,16 +158,13 @@ def main(argv: list[str] | None = None) -> int:
     parser = _parser()
     args = parser.parse_args(argv)
     fields = {f.name for f in dataclasses.fields(KinematicsBenchSettings)}
-    settings = KinematicsBenchSettings(**{k: v for k, v in vars(args).items() if k in fields})
-    settings = dataclasses.replace(settings, sizes=tuple(settings.sizes))
-    if args.quick:
-        settings = settings.quick()
-    if settings.measurement == "aruco" and set(settings.parts) & set("bd"):
-        parser.error(
-            "--measurement aruco supports parts a and c only: (b) counts misclassified "
-            "triplets over all 126 and (d) measures every reached pose, and both need the "
-            "markers seen in every frame"
-        )
+    options = {k: v for k, v in vars(args).items() if k in fields}
+    try:
+        settings = KinematicsBenchSettings(**{**options, "sizes": tuple(args.sizes)})
+        if args.quick:
+            settings = settings.quick()
+    except ValueError as err:
+        parser.error(str(err))
     if args.fk_seeds is not None and (settings.measurement != "ideal" or args.merge):
         parser.error("--fk-seeds runs part (c) with the noise model alone (no --merge)")
     progress = not args.no_progress
