@@ -1,16 +1,15 @@
-"""Smoke test of scripts/bench_gp_predictor.py at a tiny size (no timing claims)."""
+"""Smoke test of ``mcpilco-bench-gp`` at a tiny size (no timing claims)."""
 
 from __future__ import annotations
 
 import json
 
-from mcpilco.scripts.bench_gp_predictor import main
 
-
-def test_bench_script_writes_json(tmp_path, capsys) -> None:
+def test_bench_script_writes_json(command, tmp_path, capsys) -> None:
     out = tmp_path / "bench.json"
-    rc = main(
-        ["--n-train", "30", "--n-test", "8", "--dim", "2", "--repeats", "1", "--out", str(out)]
+    rc = command(
+        "mcpilco-bench-gp",
+        ["--n-train", "30", "--n-test", "8", "--dim", "2", "--repeats", "1", "--out", str(out)],
     )
     assert rc == 0
     result = json.loads(out.read_text())
