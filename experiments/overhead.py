@@ -28,6 +28,7 @@ job kind (:data:`~mcpilco.experiments.probe.KINDS`):
 
 from __future__ import annotations
 
+import json
 import math
 import os
 import platform
@@ -206,3 +207,14 @@ def markdown(result: dict[str, Any], command: str) -> str:
         "exceeds the CPUs, the jobs share the cores with other work and the figures grow.",
     ]
     return "\n".join(lines) + "\n"
+
+
+def write_report(result: dict[str, Any], out_dir: Path) -> str:
+    """``sweep_overhead.json`` (``result``) and ``sweep_overhead.md`` (:func:`markdown` of
+    ``result["command"]``) in ``out_dir``; returns the Markdown."""
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    (out_dir / "sweep_overhead.json").write_text(json.dumps(result, indent=1) + "\n")
+    text = markdown(result, result["command"])
+    (out_dir / "sweep_overhead.md").write_text(text)
+    return text

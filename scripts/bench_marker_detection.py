@@ -1,305 +1,51 @@
-r"""Benchmark: marker poses from rendered images + ArUco detection against the truth.
+"""Benchmark: marker poses from rendered images + ArUco detection against the truth.
 
-The UR10 of ``mcpilco/MarkerCamera-v0`` with ``measurement="aruco"`` follows a trajectory
-through 25 random waypoints (``UR10_HOME + U(-span, span)`` per joint, as part (b) of
-:mod:`mcpilco.scripts.bench_kinematics`); every frame is rendered by MuJoCo and the marker
-poses are estimated by OpenCV (:mod:`mcpilco.envs.marker_detection`). The time offset is
-set to 0, so the truth is MuJoCo's marker pose at the rendered configuration.
+The UR10 of ``mcpilco/MarkerCamera-v0`` follows a trajectory through 25 random waypoints;
+every frame is rendered and its markers detected with OpenCV, and the detected poses are
+compared with MuJoCo's (statistics: :mod:`mcpilco.experiments.marker_detection_bench`).
 
-Per marker and over all markers: the detection rate, the position error per camera axis
-(RMSE, and the mean ``z`` error = depth bias) [mm], the median 3-D position error [mm], the
-geodesic orientation error (median and RMS) [rad], and the share of gross errors (3-D error
-> 0.1 m or geodesic > 0.3 rad: the planar pose ambiguity, partly hidden markers). Next to
-them, the env's noise model (``measurement="ideal"``) at the same frames: its per-axis
-position std ``position_noise f`` and geodesic RMS ``sqrt(3) angle_noise f``.
-
-Writes ``marker_detection.json``, ``marker_detection.md``, ``marker_detection.png``
-(errors against the camera distance, detection rate against the facing angle) and
-``marker_detection_frame.png`` (the frame with the most detections: estimated marker axes
-and true centres) under ``--out-dir``. Needs OpenCV
+Writes ``marker_detection.json``, ``marker_detection.md``, ``marker_detection.png`` and
+``marker_detection_frame.png`` under ``--out-dir``. Needs OpenCV
 (``pip install 'mcpilco[vision]'``) and offscreen OpenGL (``MUJOCO_GL=egl`` or ``osmesa``).
 
 Usage::
 
     MUJOCO_GL=egl mcpilco-bench-markers                 # 300 frames, ~1 min
-    MUJOCO_GL=egl mcpilco-bench-markers --frames 100 --marker-size 0.2 --out-dir /tmp/md
+    MUJOCO_GL=egl mcpilco-bench-markers --frames 100 --marker-size 0.2 --out-dir runs/markers
 """
 
 from __future__ import annotations
 
 import argparse
-import json
 import sys
-import time
 from pathlib import Path
-from typing import Any
-
-import matplotlib
 
 from mcpilco.agents.common.cli import console_main
+from mcpilco.experiments.marker_detection_bench import (
+    MIN_FRAMES,
+    MarkerBenchSettings,
+    run,
+    write_outputs,
+)
 
-matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
-import numpy as np  # noqa: E402
-
-from mcpilco.envs.marker_camera import MarkerCameraEnv, ypr_to_matrix  # noqa: E402
-from mcpilco.envs.marker_detection import camera_matrix  # noqa: E402
-from mcpilco.scripts.bench_kinematics import ur10_waypoints, waypoint_trajectory  # noqa: E402
-
-GROSS_POSITION = 0.1
-"""3-D position error [m] above which a detection counts as gross."""
-GROSS_ANGLE = 0.3
-"""Geodesic error [rad] above which a detection counts as gross."""
-
-
-def geodesic(pred: np.ndarray, true: np.ndarray) -> np.ndarray:
-    """Angle [rad] of ``R(pred)^T R(true)`` for yaw-pitch-roll rows ``(..., 3)``."""
-    R_err = np.swapaxes(ypr_to_matrix(pred), -1, -2) @ ypr_to_matrix(true)
-    return np.arccos(np.clip((np.trace(R_err, axis1=-2, axis2=-1) - 1.0) / 2.0, -1.0, 1.0))
-
-
-def collect(
-    env: MarkerCameraEnv, seed: int, frames: int, span: float, progress: bool
-) -> dict[str, np.ndarray]:
-    """Drive ``env`` through the 25 random waypoints of
-    :func:`~mcpilco.scripts.bench_kinematics.ur10_waypoints` in about ``frames`` frames;
-    returns the measured and true poses ``(T, n + 1, 6)`` (chain order), the detection mask
-    and the configurations ``(T, n)``."""
-    waypoints = ur10_waypoints(np.random.default_rng([seed, 1]), span)
-    obs, _ = env.reset(seed=seed, options={"q": waypoints[0]})
-    poses, _, q = waypoint_trajectory(env, obs, waypoints, frames, progress)
-    measured = poses[:, np.argsort(env.marker_permutation)]  # chain order
-    true = np.array([env.marker_poses(qq) for qq in q])  # time_offset = 0: what was imaged
-    return dict(measured=measured, true=true, q=q, detected=~np.isnan(measured[..., 0]))
-
-
-def error_stats(measured: np.ndarray, true: np.ndarray) -> dict[str, Any]:
-    """Statistics of the detected poses ``(k, 6)`` against the truth (module docstring)."""
-    if len(measured) == 0:
-        return dict(detections=0)
-    err = measured[:, :3] - true[:, :3]
-    norm = np.linalg.norm(err, axis=1)
-    ang = geodesic(measured[:, 3:], true[:, 3:])
-    gross = (norm > GROSS_POSITION) | (ang > GROSS_ANGLE)
-    good = ~gross
-    return dict(
-        detections=int(len(measured)),
-        position_rmse_per_axis_mm=(1e3 * np.sqrt((err**2).mean(0))).tolist(),
-        position_rmse_per_axis_mm_without_gross=(1e3 * np.sqrt((err[good] ** 2).mean(0))).tolist()
-        if good.any()
-        else None,
-        depth_bias_mm=float(1e3 * err[:, 2].mean()),
-        position_median_3d_mm=float(1e3 * np.median(norm)),
-        geodesic_median=float(np.median(ang)),
-        geodesic_rms=float(np.sqrt((ang**2).mean())),
-        geodesic_rms_without_gross=float(np.sqrt((ang[good] ** 2).mean())) if good.any() else None,
-        gross_fraction=float(gross.mean()),
-    )
-
-
-FACING_BINS = (0.0, 20.0, 40.0, 50.0, 60.0, 70.0, 80.0, 90.0, 180.0)
-"""Edges [deg] of the facing-angle bins of :func:`detection_by_facing_angle`."""
-
-
-def detection_by_facing_angle(facing_deg: np.ndarray, detected: np.ndarray) -> list[dict]:
-    """Detection rate of the marker views per bin of the facing angle ``phi`` (between the
-    marker normal and its line of sight to the camera, ``MarkerCameraEnv.facing_cosines``;
-    > 90 deg: turned away). Misses include views hidden by other links."""
-    rows = []
-    for lo, hi in zip(FACING_BINS[:-1], FACING_BINS[1:], strict=True):
-        inside = (facing_deg >= lo) & (facing_deg < hi)
-        views = int(inside.sum())
-        rate = float(detected[inside].mean()) if views else None
-        rows.append(dict(lo_deg=lo, hi_deg=hi, views=views, detection_rate=rate))
-    return rows
-
-
-def run(args: argparse.Namespace) -> dict[str, Any]:
-    env = MarkerCameraEnv(
-        measurement="aruco", max_increment=0.2, time_offset=0.0,
-        marker_size=args.marker_size, image_size=tuple(args.image_size), fovy=args.fovy,
-        pixel_noise=args.pixel_noise, marker_facing_cone=args.facing_cone,
-    )  # fmt: skip
-    t0 = time.perf_counter()
-    data = collect(env, args.seed, args.frames, args.span, not args.no_progress)
-    seconds = time.perf_counter() - t0
-    det, meas, true = data["detected"], data["measured"], data["true"]
-    # the env's noise model at the same configurations and frames
-    pos_std, ang_std = zip(*(env.measurement_noise_std(q) for q in data["q"]), strict=True)
-    pos_std, ang_std = np.array(pos_std), np.array(ang_std)
-    per_marker = []
-    for j in range(env.n_markers):
-        d = det[:, j]
-        row = dict(marker=j, detection_rate=float(d.mean()), **error_stats(meas[d, j], true[d, j]))
-        if d.any():
-            row["ideal_position_std_mm"] = float(1e3 * np.sqrt((pos_std[d, j] ** 2).mean()))
-            row["ideal_geodesic_rms"] = float(np.sqrt(3 * (ang_std[d, j] ** 2).mean()))
-            row["distance_mean_m"] = float(np.linalg.norm(true[d, j, :3], axis=1).mean())
-        per_marker.append(row)
-    overall = dict(
-        detection_rate=float(det.mean()),
-        **error_stats(meas[det], true[det]),
-        ideal_position_std_mm=float(1e3 * np.sqrt((pos_std[det] ** 2).mean())),
-        ideal_geodesic_rms=float(np.sqrt(3 * (ang_std[det] ** 2).mean())),
-    )
-    facing = np.degrees(np.arccos(np.clip([env.facing_cosines(q) for q in data["q"]], -1, 1)))
-    frame = annotated_frame(env, data)
-    env.close()
-    return dict(
-        _frame=frame,
-        config=dict(
-            frames=int(det.shape[0]),
-            seed=args.seed,
-            span=args.span,
-            marker_size=args.marker_size,
-            image_size=list(args.image_size),
-            fovy=args.fovy,
-            pixel_noise=args.pixel_noise,
-            facing_cone=env.marker_facing_cone,
-        ),  # fmt: skip
-        seconds=seconds,
-        seconds_per_frame=seconds / det.shape[0],
-        overall=overall,
-        per_marker=per_marker,
-        by_facing_angle=detection_by_facing_angle(facing, det),
-        _arrays=data,
-    )
-
-
-def annotated_frame(env: MarkerCameraEnv, data: dict[str, np.ndarray]) -> np.ndarray:
-    """The frame with the most detections, cropped around the markers: the estimated marker
-    frames drawn as axes (x red, y green, z blue; 5 cm) and the true marker centres as
-    white circles, with the chain index. RGB ``(h, w, 3)``."""
-    import cv2
-
-    t = int(data["detected"].sum(1).argmax())
-    img = np.ascontiguousarray(env.camera_image(data["q"][t])[:, :, ::-1])  # BGR for cv2
-    K = camera_matrix(*env.image_size, env.fovy)
-    uv = []
-    for j in range(env.n_markers):
-        l_true = data["true"][t, j, :3]
-        p = K @ l_true
-        c = (int(round(p[0] / p[2])), int(round(p[1] / p[2])))
-        uv.append(c)
-        cv2.circle(img, c, 6, (255, 255, 255), 2)
-        cv2.putText(img, str(j), (c[0] + 8, c[1] - 8), cv2.FONT_HERSHEY_SIMPLEX, 0.8,
-                    (0, 255, 255), 2)  # fmt: skip
-        if data["detected"][t, j]:
-            m = data["measured"][t, j]
-            rvec, _ = cv2.Rodrigues(ypr_to_matrix(m[3:]))
-            cv2.drawFrameAxes(img, K, None, rvec, m[:3].reshape(3, 1), 0.05, 2)
-    uv = np.array(uv)
-    lo = np.maximum(uv.min(0) - 120, 0)
-    hi = np.minimum(uv.max(0) + 120, [img.shape[1], img.shape[0]])
-    return img[lo[1] : hi[1], lo[0] : hi[0], ::-1]
-
-
-def plot(res: dict[str, Any], path: Path) -> None:
-    data = res["_arrays"]
-    det, meas, true = data["detected"], data["measured"], data["true"]
-    dist = np.linalg.norm(true[..., :3], axis=-1)
-    err = np.linalg.norm(meas[..., :3] - true[..., :3], axis=-1)
-    ang = np.full(det.shape, np.nan)
-    ang[det] = geodesic(meas[det][:, 3:], true[det][:, 3:])
-    fig, axes = plt.subplots(1, 3, figsize=(16, 4.2))
-    for j in range(det.shape[1]):
-        d = det[:, j]
-        if d.any():
-            axes[0].scatter(dist[d, j], 1e3 * err[d, j], s=6, label=f"marker {j}")
-            axes[1].scatter(dist[d, j], ang[d, j], s=6)
-    ideal = res["overall"]
-    axes[0].axhline(np.sqrt(3) * ideal["ideal_position_std_mm"], color="k", ls="--",
-                    label="noise model, 3-D RMS")  # fmt: skip
-    axes[1].axhline(ideal["ideal_geodesic_rms"], color="k", ls="--", label="noise model RMS")
-    axes[0].set(xlabel="camera distance [m]", ylabel="3-D position error [mm]", yscale="log",
-                title="rendered ArUco detection: position")  # fmt: skip
-    axes[1].set(xlabel="camera distance [m]", ylabel="geodesic error [rad]", yscale="log",
-                title="orientation")  # fmt: skip
-    axes[0].legend(fontsize=7, markerscale=2)
-    axes[1].legend(fontsize=7)
-    bins = res["by_facing_angle"]
-    labels = [f"{b['lo_deg']:.0f}-{b['hi_deg']:.0f}" for b in bins]
-    rates = [100 * (b["detection_rate"] or 0.0) for b in bins]
-    axes[2].bar(labels, rates, color="tab:blue")
-    for i, b in enumerate(bins):
-        axes[2].text(i, rates[i] + 1, f"n={b['views']}", ha="center", fontsize=7)
-    axes[2].set(xlabel="facing angle: marker normal to line of sight [deg]",
-                ylabel="marker views detected [%]", ylim=(0, 100),
-                title="detection rate (misses include occlusion)")  # fmt: skip
-    axes[2].tick_params(axis="x", labelsize=7)
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-
-
-def markdown(res: dict[str, Any], command: str) -> str:
-    c = res["config"]
-    lines = [
-        "# Rendered markers: ArUco detection against the truth (MarkerCamera-v0, UR10)",
-        "",
-        f"Command: `{command}`; {c['frames']} frames, seed {c['seed']}, waypoints home +- "
-        f"{c['span']} rad, marker face {c['marker_size']} m, {c['image_size'][0]}x"
-        f"{c['image_size'][1]} px, fovy {c['fovy']} deg, pixel noise {c['pixel_noise']}, "
-        f"facing cone {c['facing_cone']} deg; {res['seconds_per_frame']:.3f} s per frame "
-        "(render + detect).",
-        "",
-        "| marker | detected | RMSE x / y / z [mm] | depth bias [mm] | median 3-D [mm] | "
-        "geodesic median / RMS [rad] | gross | noise model std / axis [mm] | noise model "
-        "geodesic RMS [rad] |",
-        "|---|---:|---|---:|---:|---|---:|---:|---:|",
-    ]
-    for row in [*res["per_marker"], dict(marker="all", **res["overall"])]:
-        if not row.get("detections"):
-            lines.append(f"| {row['marker']} | {100 * row['detection_rate']:.0f} % | - | - | - "
-                         "| - | - | - | - |")  # fmt: skip
-            continue
-        rm = row["position_rmse_per_axis_mm"]
-        lines.append(
-            f"| {row['marker']} | {100 * row['detection_rate']:.0f} % | "
-            f"{rm[0]:.1f} / {rm[1]:.1f} / {rm[2]:.1f} | {row['depth_bias_mm']:.1f} | "
-            f"{row['position_median_3d_mm']:.1f} | {row['geodesic_median']:.3f} / "
-            f"{row['geodesic_rms']:.3f} | {100 * row['gross_fraction']:.1f} % | "
-            f"{row['ideal_position_std_mm']:.1f} | {row['ideal_geodesic_rms']:.3f} |"
-        )
-    o = res["overall"]
-    if o.get("position_rmse_per_axis_mm_without_gross"):
-        rm = o["position_rmse_per_axis_mm_without_gross"]
-        lines += [
-            "",
-            f"Without the gross errors: RMSE {rm[0]:.1f} / {rm[1]:.1f} / {rm[2]:.1f} mm "
-            f"(x / y / z), geodesic RMS {o['geodesic_rms_without_gross']:.3f} rad.",
-        ]
-    lines += [
-        "",
-        "Detection rate against the facing angle (marker normal to its line of sight to the "
-        "camera; misses include markers hidden by other links):",
-        "",
-        "| facing angle [deg] | views | detected |",
-        "|---|---:|---:|",
-    ]
-    for b in res["by_facing_angle"]:
-        rate = "-" if b["detection_rate"] is None else f"{100 * b['detection_rate']:.0f} %"
-        lines.append(f"| {b['lo_deg']:.0f}-{b['hi_deg']:.0f} | {b['views']} | {rate} |")
-    lines += [
-        "",
-        f"Gross = 3-D error > {GROSS_POSITION} m or geodesic > {GROSS_ANGLE} rad. The camera "
-        "z axis is the depth. Plots: `marker_detection.png` (errors against the distance, "
-        "detection rate against the facing angle), `marker_detection_frame.png` (a frame with "
-        "the estimated marker axes).",
-    ]
-    return "\n".join(lines) + "\n"
+DEFAULTS = MarkerBenchSettings()
 
 
 def _parser() -> argparse.ArgumentParser:
+    d = DEFAULTS
     p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    p.add_argument("--frames", type=int, default=300, help="frames of the trajectory")
-    p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--span", type=float, default=1.0, help="waypoints: home +- span rad")
-    p.add_argument("--marker-size", type=float, default=0.12, help="marker face side [m]")
-    p.add_argument("--image-size", type=int, nargs=2, default=[1920, 1080], help="W H [px]")
-    p.add_argument("--fovy", type=float, default=54.0, help="vertical field of view [deg]")
-    p.add_argument("--pixel-noise", type=float, default=2.0, help="image noise std [grey levels]")
-    p.add_argument("--facing-cone", type=float, default=40.0, help="marker facing cone [deg]")
+    p.add_argument("--frames", type=int, default=d.frames, help="frames of the trajectory")
+    p.add_argument("--seed", type=int, default=d.seed)
+    p.add_argument("--span", type=float, default=d.span, help="waypoints: home +- span rad")
+    p.add_argument("--marker-size", type=float, default=d.marker_size, help="marker face side [m]")
+    p.add_argument("--image-size", type=int, nargs=2, default=list(d.image_size), help="W H [px]")
+    p.add_argument("--fovy", type=float, default=d.fovy, help="vertical field of view [deg]")
+    p.add_argument(
+        "--pixel-noise", type=float, default=d.pixel_noise, help="image noise std [grey levels]"
+    )
+    p.add_argument(
+        "--facing-cone", type=float, default=d.facing_cone, help="marker facing cone [deg]"
+    )
     p.add_argument("--out-dir", default="results")
     p.add_argument("--no-progress", action="store_true")
     return p
@@ -309,23 +55,17 @@ def _parser() -> argparse.ArgumentParser:
 def main(argv: list[str] | None = None) -> int:
     """Command-line entry point; returns 0."""
     args = _parser().parse_args(argv)
-    if args.frames < 24:
-        raise SystemExit("--frames must be >= 24 (one per waypoint segment)")
-    out = Path(args.out_dir)
-    out.mkdir(parents=True, exist_ok=True)
-    command = "mcpilco-bench-markers " + " ".join(argv if argv is not None else sys.argv[1:])
-    res = run(args)
-    plot(res, out / "marker_detection.png")
-    import cv2
-
-    cv2.imwrite(str(out / "marker_detection_frame.png"), res.pop("_frame")[:, :, ::-1])
-    text = markdown(res, command.strip())
-    res.pop("_arrays")
-    res["command"] = command.strip()
-    (out / "marker_detection.json").write_text(json.dumps(res, indent=1))
-    (out / "marker_detection.md").write_text(text)
-    print(text)
-    print(f"wrote {out / 'marker_detection.json'}, .md and .png")
+    if args.frames < MIN_FRAMES:
+        raise SystemExit(f"--frames must be >= {MIN_FRAMES} (one per waypoint segment)")
+    settings = MarkerBenchSettings(
+        frames=args.frames, seed=args.seed, span=args.span, marker_size=args.marker_size,
+        image_size=tuple(args.image_size), fovy=args.fovy, pixel_noise=args.pixel_noise,
+        facing_cone=args.facing_cone,
+    )  # fmt: skip
+    command = " ".join(["mcpilco-bench-markers", *(argv if argv is not None else sys.argv[1:])])
+    res = run(settings, progress=not args.no_progress)
+    print(write_outputs(res, args.out_dir, command))
+    print(f"wrote {Path(args.out_dir) / 'marker_detection.json'}, .md and .png")
     return 0
 
 

@@ -16,11 +16,10 @@ Usage::
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 from pathlib import Path
 
-from mcpilco.experiments.overhead import BACKENDS, markdown, measure
+from mcpilco.experiments.overhead import BACKENDS, measure, write_report
 from mcpilco.experiments.probe import KINDS
 from mcpilco.experiments.sweep import SweepError, import_ray
 
@@ -54,11 +53,7 @@ def main(argv: list[str] | None = None) -> int:
     result = measure(args.backends, args.kinds, args.n, args.seconds, args.cpus, args.repeats)
     command = "mcpilco-bench-sweep " + " ".join(sys.argv[1:] if argv is None else argv)
     result["command"] = command.strip()
-    args.out.mkdir(parents=True, exist_ok=True)
-    (args.out / "sweep_overhead.json").write_text(json.dumps(result, indent=1) + "\n")
-    text = markdown(result, result["command"])
-    (args.out / "sweep_overhead.md").write_text(text)
-    print(text)
+    print(write_report(result, args.out))
     return 0
 
 

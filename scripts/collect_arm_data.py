@@ -2,7 +2,7 @@
 
 Example::
 
-    python -m mcpilco.scripts.collect_arm_data --robot ur10 --program mixed --duration 120 \\
+    mcpilco-collect-arm-data --robot ur10 --program mixed --duration 120 \\
         --seed 0 --out results/arm_data/ur10_mixed.parquet
 
 Programs: ``exploration`` (random waypoints with variable speed and rests), ``circle``

@@ -24,7 +24,8 @@ import sys
 from pathlib import Path
 
 from mcpilco.agents.common.cli import console_main
-from mcpilco.agents.mc_pilco import DEFAULT_ENV_ID, MCPilcoConfig, load_config, parse_set
+from mcpilco.agents.mc_pilco import DEFAULT_ENV_ID
+from mcpilco.agents.mc_pilco.cli import check_config, config_from_options, train
 from mcpilco.agents.mc_pilco.dynamics import KERNEL_CHOICES
 from mcpilco.agents.mc_pilco.loop import ROLLOUT_DTYPES
 
@@ -115,64 +116,41 @@ def build_parser() -> argparse.ArgumentParser:
     return p
 
 
-def config_from_args(args: argparse.Namespace) -> MCPilcoConfig:
-    """The env's config file and preset with ``--set`` and the options applied (validated by
-    MCPilcoConfig)."""
-    overrides = parse_set(args.set)
-    if args.task is not None:
-        import yaml
-
-        try:
-            overrides["task"] = yaml.safe_load(args.task.read_text())
-        except (OSError, yaml.YAMLError) as err:
-            raise ValueError(f"--task {args.task}: {err}") from None
-    config = load_config(args.env, preset=args.preset, overrides=overrides)
-    return config.with_overrides(
-        seed=args.seed,
-        num_trials=args.trials,
-        num_particles=args.particles,
-        horizon=args.horizon,
-        max_points=args.max_points,
-        kernel=args.kernel,
-        num_candidates=args.candidates,
-        torch_threads=args.threads,
-        rollout_dtype=args.rollout_dtype,
-        explore_hold=args.explore_hold,
-        device=args.device,
-        compile_rollout=args.compile_rollout,
-        opt_steps=args.opt_steps,
-    )
-
-
 @console_main("mcpilco-train")
 def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
-    try:
-        config = config_from_args(args)
+    try:  # unknown env id, task, preset or field; no such device; no compiler
+        config = config_from_options(
+            args.env,
+            preset=args.preset,
+            set_items=args.set,
+            task_file=args.task,
+            seed=args.seed,
+            num_trials=args.trials,
+            num_particles=args.particles,
+            horizon=args.horizon,
+            max_points=args.max_points,
+            kernel=args.kernel,
+            num_candidates=args.candidates,
+            torch_threads=args.threads,
+            rollout_dtype=args.rollout_dtype,
+            explore_hold=args.explore_hold,
+            device=args.device,
+            compile_rollout=args.compile_rollout,
+            opt_steps=args.opt_steps,
+        )
+        check_config(config)
     except ValueError as err:
         parser.error(str(err))
-    from mcpilco.agents.mc_pilco import make_env, run_mcpilco
-    from mcpilco.agents.mc_pilco.loop import check_compile_toolchain
-    from mcpilco.models.device import resolve_device, retain_host_memory
-
-    try:  # unknown env id or task, spaces or horizon mismatch, no such device or no compiler
-        task = config.task_spec()
-        make_env(config.env_id, task.horizon, task).close()
-        device = resolve_device(config.device)
-        if config.compile_rollout:
-            check_compile_toolchain(device)
-    except ValueError as err:
-        parser.error(str(err))
-    retain_host_memory()  # no page faults on the rollout's freed blocks
-    summary = run_mcpilco(
+    summary = train(
         config,
         args.out,
         resume=args.resume,
-        progress=not args.no_progress,
-        log=print,
-        write_rrd=not args.no_rrd,
         overwrite=args.overwrite,
+        progress=not args.no_progress,
+        write_rrd=not args.no_rrd,
+        log=print,
     )
     print(
         f"done in {summary.seconds:.1f} s: success={summary.success}, first success at trial "

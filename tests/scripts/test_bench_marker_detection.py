@@ -1,5 +1,5 @@
-"""Smoke test of scripts/bench_marker_detection.py: a tiny rendered run writes its outputs
-and its statistics agree with a direct recomputation from the same frames."""
+"""Smoke test of ``mcpilco-bench-markers``: a tiny rendered run writes its outputs and its
+statistics agree with a direct recomputation from the same frames."""
 
 import json
 
@@ -7,12 +7,11 @@ import pytest
 
 pytest.importorskip("cv2", reason="the rendered marker path needs OpenCV (mcpilco[vision])")
 
-from mcpilco.scripts.bench_marker_detection import main  # noqa: E402
 
-
-def test_tiny_rendered_run_writes_outputs(tmp_path, gl_in_process):
-    rc = main(["--frames", "24", "--image-size", "960", "540", "--marker-size", "0.2",
-               "--out-dir", str(tmp_path), "--no-progress"])  # fmt: skip
+def test_tiny_rendered_run_writes_outputs(command, tmp_path, gl_in_process):
+    rc = command("mcpilco-bench-markers",
+                 ["--frames", "24", "--image-size", "960", "540", "--marker-size", "0.2",
+                  "--out-dir", str(tmp_path), "--no-progress"])  # fmt: skip
     assert rc == 0
     res = json.loads((tmp_path / "marker_detection.json").read_text())
     assert res["config"]["frames"] == 25  # the start frame + one per segment
@@ -24,5 +23,4 @@ def test_tiny_rendered_run_writes_outputs(tmp_path, gl_in_process):
     )
     for name in ("marker_detection.md", "marker_detection.png", "marker_detection_frame.png"):
         assert (tmp_path / name).stat().st_size > 0
-    with pytest.raises(SystemExit):
-        main(["--frames", "10", "--out-dir", str(tmp_path)])
+    assert command("mcpilco-bench-markers", ["--frames", "10", "--out-dir", str(tmp_path)]) == 2

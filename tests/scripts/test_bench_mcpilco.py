@@ -1,185 +1,39 @@
-"""The MC-PILCO benchmark script: seeds resumed from their checkpoints, argument checks."""
+"""``mcpilco-bench-mcpilco``: argument checks, pooling, the timing and rmse_runs parts."""
 
 from __future__ import annotations
 
-import dataclasses
-
-import pytest
-
 from mcpilco.agents.mc_pilco import DEFAULT_ENV_ID, load_config
-from mcpilco.experiments.sweep import SweepRunner
-from mcpilco.scripts.bench_mcpilco import bench_runs, main, run_seed
+from mcpilco.experiments.mcpilco_bench import run_seed
+from tests.experiments.test_mcpilco_bench import _fake_runs
 
 BENCH_CONFIG = load_config(DEFAULT_ENV_ID, preset="bench")
 
 
-def test_finished_seed_is_resumed_not_rerun(tmp_path):
-    from tests.agents.mc_pilco.test_loop import SMOKE
-
-    job = (dataclasses.replace(SMOKE, num_trials=0).to_dict(), str(tmp_path / "seed3"))
-    first = run_seed(*job)
-    ckpt = tmp_path / "seed3" / "checkpoint.pt"
-    stamp = ckpt.stat().st_mtime_ns
-    again = run_seed(*job)
-    # a re-run would have rewritten the checkpoint and measured new wall-clock times
-    assert ckpt.stat().st_mtime_ns == stamp
-    assert again["records"] == first["records"] and again["seconds"] == first["seconds"] > 0
-
-
-def test_seeds_are_sweep_jobs_with_one_result_file_each(tmp_path):
-    from tests.agents.mc_pilco.test_loop import SMOKE
-
-    cfg = dataclasses.replace(SMOKE, num_trials=0)
-    runner = SweepRunner(progress=False, log=None)
-    section, sweep = bench_runs(cfg, [0, 1], runner, tmp_path)
-    assert sweep.ran == ["seed0", "seed1"] and section["seeds"] == [0, 1]
-    assert (tmp_path / "seed1.json").is_file() and (tmp_path / "seed1" / "checkpoint.pt").is_file()
-    # one more seed: the two finished ones are read back from their result files
-    more, sweep = bench_runs(cfg, [0, 1, 2], runner, tmp_path)
-    assert sweep.ran == ["seed2"] and sweep.skipped == ["seed0", "seed1"]
-    assert more["seeds"] == [0, 1, 2] and more["per_seed"][:2] == section["per_seed"]
-
-
-def test_candidate_scales_must_match_candidates(tmp_path, capsys):
-    with pytest.raises(SystemExit):
-        main(
-            ["--parts", "runs", "--candidates", "3", "--candidate-scales", "0.01", "0.1"]
-            + ["--out", str(tmp_path), "--runs-dir", str(tmp_path / "runs")]
-        )
+def test_candidate_scales_must_match_candidates(tmp_path, capsys, command):
+    argv = ["--parts", "runs", "--candidates", "3", "--candidate-scales", "0.01", "0.1"]
+    argv += ["--out", str(tmp_path), "--runs-dir", str(tmp_path / "runs")]
+    assert command("mcpilco-bench-mcpilco", argv) == 2
     assert "candidate_weight_scales must hold num_candidates=3" in capsys.readouterr().err
 
 
-def test_unknown_preset_or_env_is_an_error(tmp_path, capsys):
+def test_unknown_preset_or_env_is_an_error(tmp_path, capsys, command):
     argv = ["--parts", "runs", "--out", str(tmp_path), "--runs-dir", str(tmp_path / "runs")]
-    with pytest.raises(SystemExit):
-        main([*argv, "--preset", "fast"])
+    assert command("mcpilco-bench-mcpilco", [*argv, "--preset", "fast"]) == 2
     err = capsys.readouterr().err
     assert "unknown preset 'fast'" in err and "bench" in err
-    with pytest.raises(SystemExit):
-        main([*argv, "--env", "mcpilco/Nope-v0"])
+    assert command("mcpilco-bench-mcpilco", [*argv, "--env", "mcpilco/Nope-v0"]) == 2
     err = capsys.readouterr().err
     assert "no task ships for env id 'mcpilco/Nope-v0'" in err
     assert "mcpilco/CartpoleSwingUp-v0" in err
     assert not (tmp_path / "runs").exists()
 
 
-def _fake_runs(seeds, n_trials, rng):
-    """Run dicts as :func:`run_seed` returns them, with random per-trial outcomes."""
-    runs = []
-    for seed in seeds:
-        records = [
-            {"experience_s": 3.0, "kind": "exploration", "success": False, "time_in_goal": 0.0}
-            | {"steps": 60, "cost": 60.0, "wall_s": 0.1}
-        ]
-        for k in range(1, n_trials + 1):
-            records.append(
-                {
-                    "experience_s": 3.0 * (k + 1),
-                    "kind": "policy",
-                    "success": bool(rng.random() < 0.6),
-                    "time_in_goal": float(rng.uniform(0, 2.5)),
-                    "steps": 60,
-                    "cost": float(rng.uniform(5, 60)),
-                    "wall_s": float(rng.uniform(50, 300)),
-                    "opt_steps": int(rng.integers(100, 1000)),
-                    "s_per_opt_step": float(rng.uniform(0.1, 0.3)),
-                    "cpu_s_per_opt_step": float(rng.uniform(0.1, 0.3)),
-                    "gp_fit_s": float(rng.uniform(1, 10)),
-                }
-            )
-        runs.append(
-            {"seed": seed, "records": records, "seconds": sum(r["wall_s"] for r in records)}
-        )
-    return runs
-
-
-def test_pooled_sections_equal_the_aggregate_over_all_seeds():
-    """Pooling per-trial means of two seed sets must give the per-trial means of their union
-    (computed directly from the per-seed records), and a trial only the second set ran is
-    the mean over that set alone."""
-    import numpy as np
-
-    from mcpilco.scripts.bench_mcpilco import aggregate_runs, make_section, pool_sections
-
-    rng = np.random.default_rng(0)
-    runs_a, runs_b = _fake_runs(range(0, 7), 4, rng), _fake_runs(range(7, 12), 5, rng)
-    cfg_a = dataclasses.replace(BENCH_CONFIG, num_trials=4).to_dict()
-    cfg_b = dataclasses.replace(BENCH_CONFIG, num_trials=5).to_dict()
-    pooled = pool_sections(
-        [make_section(cfg_a, runs_a, 2, 10.0), make_section(cfg_b, runs_b, 2, 20.0)]
-    )
-    union = aggregate_runs(runs_a + runs_b)  # truncated to the 5 common trials
-    assert len(pooled["per_trial"]) == 6 and len(union) == 5
-    for got, want in zip(pooled["per_trial"], union, strict=False):
-        assert got["seeds"] == 12
-        for key in ("success_rate", "time_in_goal_s", "cost", "wall_s_per_trial"):
-            assert got[key] == pytest.approx(want[key], rel=1e-12)
-    last = pooled["per_trial"][5]
-    assert last["seeds"] == 5
-    want = np.mean([r["records"][5]["time_in_goal"] for r in runs_b])
-    assert last["time_in_goal_s"] == pytest.approx(want, rel=1e-12)
-    assert pooled["seeds"] == list(range(12)) and pooled["config"]["num_trials"] == 5
-
-
-def test_pooling_refuses_other_configs_and_repeated_seeds():
-    import numpy as np
-
-    from mcpilco.scripts.bench_mcpilco import make_section, pool_sections
-
-    rng = np.random.default_rng(1)
-    cfg = BENCH_CONFIG.to_dict()
-    a = make_section(cfg, _fake_runs([0, 1], 4, rng), 1, 1.0)
-    other = dataclasses.replace(BENCH_CONFIG, kernel="rbf").to_dict()
-    with pytest.raises(ValueError, match="kernel"):
-        pool_sections([a, make_section(other, _fake_runs([2], 4, rng), 1, 1.0)])
-    with pytest.raises(ValueError, match="a seed appears in two sections"):
-        pool_sections([a, make_section(cfg, _fake_runs([1, 2], 4, rng), 1, 1.0)])
-
-
-def test_report_states_what_each_policy_was_trained_on(tmp_path):
-    import numpy as np
-
-    from mcpilco.scripts.bench_mcpilco import _md_table, make_section
-
-    section = make_section(
-        BENCH_CONFIG.to_dict(), _fake_runs([0, 1, 2, 5], 2, np.random.default_rng(2)), 1, 1.0
-    )
-    table = _md_table("env", section)
-    assert "4 seeds (0-2, 5)" in table
-    assert "| success rate | time in goal [s] |" in table
-    assert "time upright" not in table and "mean abs x" not in table
-    rows = [line for line in table.splitlines() if line.startswith("| ") and " s (" in line]
-    assert [r.split("|")[1:3] for r in rows] == [
-        [" 3 s (exploration) ", " - "],
-        [" 6 s (policy) ", " 3 s "],
-        [" 9 s (policy) ", " 6 s "],
-    ]
-
-
-def test_sections_saved_before_explore_hold_are_kept_apart_and_labelled_iid():
-    """A section whose config predates ``explore_hold`` ran i.i.d. exploration: its header
-    says 1 step, and pooling it with a held-exploration section is refused."""
-    import numpy as np
-
-    from mcpilco.scripts.bench_mcpilco import _md_table, make_section, pool_sections
-
-    rng = np.random.default_rng(3)
-    old_cfg = BENCH_CONFIG.to_dict()
-    del old_cfg["explore_hold"]
-    old = make_section(old_cfg, _fake_runs([0, 1], 2, rng), 1, 1.0)
-    new = make_section(BENCH_CONFIG.to_dict(), _fake_runs([2, 3], 2, rng), 1, 1.0)
-    assert "exploration actions held 1 step(s)" in _md_table("env", old)
-    assert "exploration actions held 2 step(s)" in _md_table("env", new)
-    with pytest.raises(ValueError, match="explore_hold"):
-        pool_sections([old, new])
-
-
-def test_pool_option_adds_a_pooled_section(tmp_path, capsys):
+def test_pool_option_adds_a_pooled_section(tmp_path, capsys, command):
     import json
 
     import numpy as np
 
-    from mcpilco.scripts.bench_mcpilco import make_section, section_key
+    from mcpilco.experiments.mcpilco_bench import make_section, section_key
 
     rng = np.random.default_rng(3)
     cfg = BENCH_CONFIG.to_dict()
@@ -189,42 +43,26 @@ def test_pool_option_adds_a_pooled_section(tmp_path, capsys):
     }
     (tmp_path / "mcpilco_cartpole.json").write_text(json.dumps({"runs": runs}))
     argv = ["--out", str(tmp_path), "--runs-dir", str(tmp_path / "runs")]
-    assert main(["--pool", "a", "b"] + argv) == 0  # no parts run when only --pool is given
+    assert (
+        command("mcpilco-bench-mcpilco", ["--pool", "a", "b"] + argv) == 0
+    )  # no parts run when only --pool is given
     out = json.loads((tmp_path / "mcpilco_cartpole.json").read_text())
     assert out["runs"][section_key(DEFAULT_ENV_ID, "a+b")]["seeds"] == [0, 1, 2]
     assert "(a+b)" in (tmp_path / "mcpilco_cartpole.md").read_text()
-    with pytest.raises(SystemExit):
-        main(["--pool", "a", "c"] + argv)
+    assert command("mcpilco-bench-mcpilco", ["--pool", "a", "c"] + argv) == 2
     assert "--pool: no section" in capsys.readouterr().err
 
 
-def test_pooled_report_names_the_seeds_of_a_trial_only_some_ran():
-    import numpy as np
-
-    from mcpilco.scripts.bench_mcpilco import _md_table, make_section, pool_sections
-
-    rng = np.random.default_rng(4)
-    cfg_a = dataclasses.replace(BENCH_CONFIG, num_trials=1).to_dict()
-    a = make_section(cfg_a, _fake_runs([0, 1], 1, rng), 1, 1.0)
-    cfg_b = dataclasses.replace(BENCH_CONFIG, num_trials=2).to_dict()
-    b = make_section(cfg_b, _fake_runs([2], 2, rng), 1, 1.0)
-    table = _md_table("env", pool_sections([a, b]))
-    assert "Pooled from 2 runs of the same config (2 + 1 seeds" in table
-    assert "averages runs of [1, 2] policy trials" in table
-    assert "| 6 s (policy) |" in table and "| 9 s (policy, 1 seeds) |" in table
-
-
-def test_timing_part_reports_each_particle_count(tmp_path, capsys):
+def test_timing_part_reports_each_particle_count(tmp_path, capsys, command):
     """The timing part times every (N, threads, M) asked for and tables M; bad counts are
     refused before any work."""
     import json
 
     argv = ["--parts", "timing", "--timing-n", "20", "--timing-threads", "1"]
     argv += ["--out", str(tmp_path), "--runs-dir", str(tmp_path / "runs")]
-    with pytest.raises(SystemExit):
-        main([*argv, "--timing-particles", "0", "5"])
+    assert command("mcpilco-bench-mcpilco", [*argv, "--timing-particles", "0", "5"]) == 2
     assert "--timing-particles values must be >= 1" in capsys.readouterr().err
-    assert main([*argv, "--timing-particles", "3", "5"]) == 0
+    assert command("mcpilco-bench-mcpilco", [*argv, "--timing-particles", "3", "5"]) == 0
     timing = json.loads((tmp_path / "mcpilco_cartpole.json").read_text())["timing"]
     assert [(t["num_particles"], t["n_points"], t["threads"]) for t in timing] == [
         (3, 20, 1),
@@ -234,7 +72,10 @@ def test_timing_part_reports_each_particle_count(tmp_path, capsys):
     md = (tmp_path / "mcpilco_cartpole.md").read_text()
     assert "| 3 | 20 | cpu | no | 1 |" in md and "| 5 | 20 | cpu | no | 1 |" in md
     # --compile-rollout: the same row gains the compiled step, timed in the same rounds
-    assert main([*argv, "--timing-particles", "3", "--compile-rollout"]) == 0
+    assert (
+        command("mcpilco-bench-mcpilco", [*argv, "--timing-particles", "3", "--compile-rollout"])
+        == 0
+    )
     (t,) = json.loads((tmp_path / "mcpilco_cartpole.json").read_text())["timing"]
     assert t["compiled_s_per_step_wall"] > 0 and t["compile_s"] > 0
     assert not t["compiled_rejected"] and t["compile_check"]["grad_rel"] < 1e-2
@@ -249,7 +90,12 @@ def test_timing_part_reports_each_particle_count(tmp_path, capsys):
     assert f"| {t['direct_s_per_step_wall']:.3f} | {t['direct_s_per_step_cpu']:.3f} |" in md
     assert f"| {t['dynamo_s_per_step_wall']:.3f} | {t['dynamo_s_per_step_cpu']:.3f} |" in md
     # --timing-heap-contrast: the eager step again under glibc's initial heap thresholds
-    assert main([*argv, "--timing-particles", "3", "--timing-heap-contrast"]) == 0
+    assert (
+        command(
+            "mcpilco-bench-mcpilco", [*argv, "--timing-particles", "3", "--timing-heap-contrast"]
+        )
+        == 0
+    )
     (t,) = json.loads((tmp_path / "mcpilco_cartpole.json").read_text())["timing"]
     assert t["heap128k_s_per_step_wall"] > 0 and t["heap128k_page_faults_per_step"] >= 0
     assert t["page_faults_per_step"] >= 0 and "compiled_s_per_step_wall" not in t
@@ -258,7 +104,9 @@ def test_timing_part_reports_each_particle_count(tmp_path, capsys):
     assert row.count("|") == 21 and f"| {t['heap128k_s_per_step_wall']:.3f} |" in row
 
 
-def test_rmse_runs_part_uses_only_runs_that_swung_up_and_groups_by_their_kernel(tmp_path, capsys):
+def test_rmse_runs_part_uses_only_runs_that_swung_up_and_groups_by_their_kernel(
+    tmp_path, capsys, command
+):
     """Part ``rmse_runs``: a run whose last trial failed is not used (and alone is an error);
     each used run gives both kernels' RMSE on its data before the last trial, grouped by the
     kernel the run learned with."""
@@ -276,8 +124,7 @@ def test_rmse_runs_part_uses_only_runs_that_swung_up_and_groups_by_their_kernel(
     ckpt["records"][-1]["success"] = False
     torch.save(ckpt, src)
     argv = ["--parts", "rmse_runs", "--out", str(tmp_path / "out")]
-    with pytest.raises(SystemExit):
-        main([*argv, "--rmse-runs", str(tmp_path / "failed")])
+    assert command("mcpilco-bench-mcpilco", [*argv, "--rmse-runs", str(tmp_path / "failed")]) == 2
     assert "no run whose last trial swung up" in capsys.readouterr().err
     for kernel in ("rbf+mpk", "rbf"):  # the same data, labelled as learned with each kernel
         dst = tmp_path / "ok" / kernel / "checkpoint.pt"
@@ -287,7 +134,13 @@ def test_rmse_runs_part_uses_only_runs_that_swung_up_and_groups_by_their_kernel(
         ck["records"][-1]["success"] = True
         ck["config"]["kernel"] = kernel
         torch.save(ck, dst)
-    assert main([*argv, "--rmse-runs", str(tmp_path / "failed"), str(tmp_path / "ok")]) == 0
+    assert (
+        command(
+            "mcpilco-bench-mcpilco",
+            [*argv, "--rmse-runs", str(tmp_path / "failed"), str(tmp_path / "ok")],
+        )
+        == 0
+    )
     res = json.loads((tmp_path / "out" / "mcpilco_cartpole.json").read_text())["rmse_runs"]
     assert sorted(r["run_kernel"] for r in res["per_run"]) == ["rbf", "rbf+mpk"]
     horizon = SMOKE.task_spec().horizon

@@ -11,7 +11,7 @@ import os
 import pytest
 
 from mcpilco.agents.baselines.common import make_curve, save_curve
-from mcpilco.scripts.compare import aggregate_method, main
+from mcpilco.experiments.compare import aggregate_method
 
 ENV = "mcpilco/CartpoleSwingUp-v0"
 
@@ -62,7 +62,7 @@ def fake_files(tmp_path):
     return a, b
 
 
-def test_two_fake_files_give_table_plot_and_ratios(fake_files, tmp_path, capsys):
+def test_two_fake_files_give_table_plot_and_ratios(fake_files, tmp_path, capsys, command):
     a, b = fake_files
     out = tmp_path / "results"
     argv = [
@@ -80,7 +80,7 @@ def test_two_fake_files_give_table_plot_and_ratios(fake_files, tmp_path, capsys)
         "--tag",
         "fake",
     ]
-    assert main(argv) == 0
+    assert command("mcpilco-compare", argv) == 0
     stem = out / "compare_CartpoleSwingUp-v0_fake"
     report = json.loads(stem.with_suffix(".json").read_text())
     mc, sac = report["methods"]["mcpilco"], report["methods"]["sac"]
@@ -105,14 +105,15 @@ def test_two_fake_files_give_table_plot_and_ratios(fake_files, tmp_path, capsys)
     assert "wrote" in capsys.readouterr().out
 
 
-def test_unreached_target_gives_a_lower_bound(tmp_path):
+def test_unreached_target_gives_a_lower_bound(tmp_path, command):
     mc = [_trial_curve(0, [False, True, True])]  # T90 = 6 s
     slow = [_sb3_curve(0, [0.0, 0.5])]  # never 90% within 2000 s
     a = tmp_path / "a.json"
     a.write_text(json.dumps(mc + slow))
     out = tmp_path / "r"
     assert (
-        main(
+        command(
+            "mcpilco-compare",
             [
                 "--collect-only",
                 "--inputs",
@@ -121,7 +122,7 @@ def test_unreached_target_gives_a_lower_bound(tmp_path):
                 str(out),
                 "--runs-dir",
                 str(tmp_path / "none"),
-            ]
+            ],
         )
         == 0
     )
@@ -141,14 +142,15 @@ def test_unreached_target_gives_a_lower_bound(tmp_path):
         ([False, False, True], 1.5, False, "met"),
     ],
 )
-def test_pilco_goal(pilco, ratio, bound, status, tmp_path):
+def test_pilco_goal(pilco, ratio, bound, status, tmp_path, command):
     mc = _trial_curve(0, [False, True, True])  # T90 = 6 s
     pc = dict(_trial_curve(0, pilco), method="pilco")
     a = tmp_path / "a.json"
     a.write_text(json.dumps([mc, pc]))
     out = tmp_path / "r"
     assert (
-        main(
+        command(
+            "mcpilco-compare",
             [
                 "--collect-only",
                 "--inputs",
@@ -157,7 +159,7 @@ def test_pilco_goal(pilco, ratio, bound, status, tmp_path):
                 str(out),
                 "--runs-dir",
                 str(tmp_path / "none"),
-            ]
+            ],
         )
         == 0
     )
@@ -176,27 +178,31 @@ def test_mean_is_held_between_evaluations_and_cut_at_the_shortest_seed():
     assert agg["t90_s"] == 10.0
 
 
-def _error_of(argv, capsys) -> str:
-    with pytest.raises(SystemExit) as exc:
-        main(argv)
-    assert exc.value.code == 2
-    return capsys.readouterr().err
+@pytest.fixture
+def error_of(command, capsys):
+    """``error_of(argv)``: the stderr of ``mcpilco-compare argv``, which must exit 2."""
+
+    def error_of(argv) -> str:
+        assert command("mcpilco-compare", argv) == 2
+        return capsys.readouterr().err
+
+    return error_of
 
 
-def test_unknown_method_lists_valid_names(capsys, tmp_path):
-    err = _error_of(["--methods", "sac", "dqn", "--out", str(tmp_path)], capsys)
+def test_unknown_method_lists_valid_names(tmp_path, error_of):
+    err = error_of(["--methods", "sac", "dqn", "--out", str(tmp_path)])
     assert "unknown method(s) 'dqn'" in err
     assert "mcpilco, pilco, sac, td3, ppo" in err
 
 
-def test_unknown_env_lists_task_envs(capsys, tmp_path):
-    err = _error_of(["--env", "mcpilco/Nope-v0", "--out", str(tmp_path)], capsys)
+def test_unknown_env_lists_task_envs(tmp_path, error_of):
+    err = error_of(["--env", "mcpilco/Nope-v0", "--out", str(tmp_path)])
     assert "mcpilco/Nope-v0" in err
     assert "mcpilco/CartpoleSwingUp-v0" in err and "mcpilco/DMCCartpoleSwingUp-v0" in err
 
 
-def test_env_without_task_is_refused(capsys, tmp_path):
-    err = _error_of(["--env", "mcpilco/MarkerCamera-v0", "--out", str(tmp_path)], capsys)
+def test_env_without_task_is_refused(tmp_path, error_of):
+    err = error_of(["--env", "mcpilco/MarkerCamera-v0", "--out", str(tmp_path)])
     assert "env 'mcpilco/MarkerCamera-v0' has no task specification" in err
     valid = "valid env ids: InvertedPendulum-v5, mcpilco/CartpoleSwingUp-v0, "
     assert valid + "mcpilco/DMCCartpoleSwingUp-v0" in err
@@ -210,32 +216,31 @@ def test_env_without_task_is_refused(capsys, tmp_path):
         ("--sb3-hp", "learning_rate=1", "ALGO.KEY=VALUE"),
     ],
 )
-def test_bad_budget_or_hyperparameter(flag, value, message, capsys, tmp_path):
-    err = _error_of([flag, value, "--out", str(tmp_path)], capsys)
+def test_bad_budget_or_hyperparameter(flag, value, message, tmp_path, error_of):
+    err = error_of([flag, value, "--out", str(tmp_path)])
     assert message in err
 
 
-def test_collect_only_with_nothing_is_an_error(capsys, tmp_path):
-    err = _error_of(
-        ["--collect-only", "--out", str(tmp_path), "--runs-dir", str(tmp_path / "none")], capsys
-    )
+def test_collect_only_with_nothing_is_an_error(tmp_path, error_of):
+    err = error_of(["--collect-only", "--out", str(tmp_path), "--runs-dir", str(tmp_path / "none")])
     assert "no learning curves" in err
 
 
-def test_bad_input_file_is_an_error(capsys, tmp_path):
+def test_bad_input_file_is_an_error(tmp_path, error_of):
     bad = tmp_path / "bad.json"
     bad.write_text(json.dumps({"format": "other", "points": []}))
-    err = _error_of(["--collect-only", "--inputs", str(bad), "--out", str(tmp_path)], capsys)
+    err = error_of(["--collect-only", "--inputs", str(bad), "--out", str(tmp_path)])
     assert "format is 'other'" in err
 
 
-def test_runs_dir_curves_are_collected(tmp_path):
+def test_runs_dir_curves_are_collected(tmp_path, command):
     runs = tmp_path / "runs"
     c = _trial_curve(4, [False, True])
     save_curve(runs / "CartpoleSwingUp-v0" / "mcpilco" / "seed4" / "curve.json", c)
     out = tmp_path / "r"
     assert (
-        main(
+        command(
+            "mcpilco-compare",
             [
                 "--collect-only",
                 "--methods",
@@ -248,7 +253,7 @@ def test_runs_dir_curves_are_collected(tmp_path):
                 str(runs),
                 "--out",
                 str(out),
-            ]
+            ],
         )
         == 0
     )
@@ -257,7 +262,7 @@ def test_runs_dir_curves_are_collected(tmp_path):
     assert report["methods"]["mcpilco"]["t90_s"] == 6.0
 
 
-def test_a_seed_given_twice_counts_once(tmp_path, capsys):
+def test_a_seed_given_twice_counts_once(tmp_path, capsys, command):
     # SAC seed 0 in the runs folder (2 evaluations: 0.0, 1.0) and, longer, in --inputs
     # (3 evaluations: 0.0, 1.0, 0.5); seed 1 only in --inputs (0.0, 0.0, 1.0).
     # Kept: the 3-evaluation seed 0 and seed 1 -> 2 seeds, mean 0.0, 0.5, 0.75 at 1000,
@@ -268,7 +273,7 @@ def test_a_seed_given_twice_counts_once(tmp_path, capsys):
     extra.write_text(json.dumps([_sb3_curve(0, [0.0, 1.0, 0.5]), _sb3_curve(1, [0, 0, 1.0])]))
     out = tmp_path / "r"
     argv = ["--collect-only", "--methods", "sac", "--seeds", "2", "--runs-dir", str(runs)]
-    assert main([*argv, "--inputs", str(extra), "--out", str(out)]) == 0
+    assert command("mcpilco-compare", [*argv, "--inputs", str(extra), "--out", str(out)]) == 0
     report = json.loads((out / "compare_CartpoleSwingUp-v0.json").read_text())
     sac = report["methods"]["sac"]
     assert sorted(sac["seeds"]) == [0, 1]
@@ -279,7 +284,7 @@ def test_a_seed_given_twice_counts_once(tmp_path, capsys):
     assert "counted once" in capsys.readouterr().err
 
 
-def test_a_failing_run_is_reported_and_sets_the_exit_code(tmp_path, capsys):
+def test_a_failing_run_is_reported_and_sets_the_exit_code(tmp_path, capsys, command):
     # MC-PILCO seed 0 is finished in the runs folder (2 points cover --trials 1): collected,
     # not rerun; PILCO seed 0 fails (too few GP points): reported with its traceback file
     runs = tmp_path / "runs"
@@ -287,7 +292,7 @@ def test_a_failing_run_is_reported_and_sets_the_exit_code(tmp_path, capsys):
                _trial_curve(0, [False, True]))  # fmt: skip
     argv = ["--methods", "mcpilco", "pilco", "--seeds", "1", "--trials", "1", "--no-progress"]
     argv += ["--pilco-max-points", "3", "--runs-dir", str(runs), "--out", str(tmp_path / "r")]
-    assert main(argv) == 1
+    assert command("mcpilco-compare", argv) == 1
     err = capsys.readouterr().err
     assert "FAILED pilco/seed0" in err and "max_points must be an integer >= 10" in err
     report = json.loads((tmp_path / "r" / "compare_CartpoleSwingUp-v0.json").read_text())
@@ -301,7 +306,7 @@ def test_a_failing_run_is_reported_and_sets_the_exit_code(tmp_path, capsys):
 
 
 @pytest.mark.parametrize("horizon", [60, None])
-def test_mcpilco_from_a_labelled_bench_section(horizon, tmp_path, capsys):
+def test_mcpilco_from_a_labelled_bench_section(horizon, tmp_path, capsys, command):
     """Three seeds of a bench JSON section: successes from trial 3, 2 and 4 (12, 9, 15 s)
     -> mean 0, 0, 1/3, 2/3, 1 at 3..15 s -> T90 = 15 s; the unlabelled section is ignored.
     A config without a horizon (None) ran the task's (60 steps on the cart-pole)."""
@@ -320,23 +325,22 @@ def test_mcpilco_from_a_labelled_bench_section(horizon, tmp_path, capsys):
     out = tmp_path / "results"
     common = ["--methods", "mcpilco", "--mcpilco-json", str(bench), "--out", str(out)]
     common += ["--runs-dir", str(tmp_path / "none"), "--collect-only"]
-    assert main([*common, "--mcpilco-label", "K2"]) == 0
+    assert command("mcpilco-compare", [*common, "--mcpilco-label", "K2"]) == 0
     report = json.loads((out / "compare_CartpoleSwingUp-v0.json").read_text())
     mc = report["methods"]["mcpilco"]
     assert mc["success_mean"] == pytest.approx([0, 0, 1 / 3, 2 / 3, 1])
     assert mc["t90_s"] == pytest.approx(15.0)
-    with pytest.raises(SystemExit):
-        main([*common, "--mcpilco-label", "K9"])
+    assert command("mcpilco-compare", [*common, "--mcpilco-label", "K9"]) == 2
     assert "--label K9" in capsys.readouterr().err
 
 
-def test_runs_go_through_the_sweep_runner_and_keep_their_result(tmp_path):
+def test_runs_go_through_the_sweep_runner_and_keep_their_result(tmp_path, command):
     # MC-PILCO with no policy trial (exploration only): a real run in a spawned worker
     runs = tmp_path / "runs"
     argv = ["--methods", "mcpilco", "--seeds", "1", "--trials", "0", "--jobs", "2"]
     argv += ["--mcpilco-preset", "small", "--runs-dir", str(runs), "--out", str(tmp_path / "r")]
     argv += ["--no-progress"]
-    assert main(argv) == 0
+    assert command("mcpilco-compare", argv) == 0
     record = json.loads((runs / "CartpoleSwingUp-v0" / "mcpilco" / "seed0.json").read_text())
     curve = json.loads(
         (runs / "CartpoleSwingUp-v0" / "mcpilco" / "seed0" / "curve.json").read_text()

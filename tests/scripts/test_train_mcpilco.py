@@ -1,120 +1,150 @@
-"""Command-line checks of ``mcpilco-train``: clear errors for bad arguments, a tiny run."""
+"""Command-line checks of ``mcpilco-train``: clear errors for bad arguments, options that
+reach the config, a tiny run."""
 
 from __future__ import annotations
 
 import json
+from pathlib import Path
+from types import SimpleNamespace
 
 import pytest
 import yaml
 
+from mcpilco.agents.mc_pilco import cli as mc_cli
 from mcpilco.envs.tasks import task_data
-from mcpilco.scripts.train_mcpilco import build_parser, config_from_args, main
 
 
-def _error_of(argv, capsys) -> str:
-    with pytest.raises(SystemExit) as exc:
-        main(argv)
-    assert exc.value.code == 2  # argparse usage error
-    return capsys.readouterr().err
+@pytest.fixture
+def error_of(command, capsys):
+    """``error_of(argv)``: the stderr of ``mcpilco-train argv``, which must exit 2."""
+
+    def error_of(argv) -> str:
+        assert command("mcpilco-train", argv) == 2  # argparse usage error
+        return capsys.readouterr().err
+
+    return error_of
 
 
-def test_unknown_env_lists_the_envs_with_a_task(capsys, tmp_path):
-    err = _error_of(["--env", "mcpilco/Nope-v0", "--out", str(tmp_path)], capsys)
+@pytest.fixture
+def config_of(command, monkeypatch, tmp_path):
+    """``config_of(argv)``: the config that ``mcpilco-train argv`` would run (the run itself
+    replaced by one that records its config)."""
+    seen = []
+
+    def fake_run(config, out_dir, **_kwargs):
+        seen.append(config)
+        return SimpleNamespace(
+            seconds=0.0,
+            success=False,
+            first_success_trial=None,
+            out_dir=Path(out_dir),
+            checkpoint=Path(out_dir) / "checkpoint.pt",
+            rrd=None,
+            pngs=[],
+        )
+
+    monkeypatch.setattr(mc_cli, "run_mcpilco", fake_run)
+
+    def config_of(argv):
+        assert command("mcpilco-train", [*argv, "--out", str(tmp_path / "run")]) == 0
+        return seen[-1]
+
+    return config_of
+
+
+def test_unknown_env_lists_the_envs_with_a_task(tmp_path, error_of):
+    err = error_of(["--env", "mcpilco/Nope-v0", "--out", str(tmp_path)])
     assert "no task specification ships for 'mcpilco/Nope-v0'" in err
     assert "mcpilco/CartpoleSwingUp-v0" in err and "mcpilco/DMCCartpoleSwingUp-v0" in err
 
 
-def test_unknown_env_with_a_task_file_lists_registered_ids(capsys, tmp_path):
+def test_unknown_env_with_a_task_file_lists_registered_ids(tmp_path, error_of):
     task = tmp_path / "nope.yaml"
     task.write_text(
         yaml.safe_dump({**task_data("mcpilco/CartpoleSwingUp-v0"), "env_id": "mcpilco/Nope-v0"})
     )
     argv = ["--env", "mcpilco/Nope-v0", "--task", str(task), "--out", str(tmp_path)]
-    err = _error_of(argv, capsys)
+    err = error_of(argv)
     assert "unknown env id 'mcpilco/Nope-v0'" in err
     assert "mcpilco/CartpoleSwingUp-v0" in err and "mcpilco/DMCCartpoleSwingUp-v0" in err
 
 
-def test_task_file_reaches_the_config_and_its_errors_name_the_field(capsys, tmp_path):
+def test_task_file_reaches_the_config_and_its_errors_name_the_field(tmp_path, error_of, config_of):
     data = task_data("mcpilco/CartpoleSwingUp-v0")
     task = tmp_path / "task.yaml"
     task.write_text(yaml.safe_dump({**data, "horizon": 60, "init_std": 0.02}))
-    cfg = config_from_args(build_parser().parse_args(["--task", str(task)]))
+    cfg = config_of(["--task", str(task)])
     assert cfg.task["init_std"] == 0.02 and cfg.task_spec().init_std == (0.02,) * 4
     task.write_text(yaml.safe_dump({**data, "angles": ["phi"]}))
-    err = _error_of(["--task", str(task), "--out", str(tmp_path)], capsys)
+    err = error_of(["--task", str(task), "--out", str(tmp_path)])
     assert "task.angles[0]: unknown state name 'phi'" in err
-    err = _error_of(["--task", str(tmp_path / "missing.yaml"), "--out", str(tmp_path)], capsys)
+    err = error_of(["--task", str(tmp_path / "missing.yaml"), "--out", str(tmp_path)])
     assert "--task" in err and "missing.yaml" in err
 
 
 @pytest.mark.parametrize("value", ["0", "-3", "ten"])
-def test_non_positive_particles_is_an_error(value, capsys, tmp_path):
-    err = _error_of(["--particles", value, "--out", str(tmp_path)], capsys)
+def test_non_positive_particles_is_an_error(value, tmp_path, error_of):
+    err = error_of(["--particles", value, "--out", str(tmp_path)])
     assert "--particles" in err
 
 
-def test_horizon_mismatch_is_an_error(capsys, tmp_path):
-    err = _error_of(["--horizon", "40", "--out", str(tmp_path)], capsys)
+def test_horizon_mismatch_is_an_error(tmp_path, error_of):
+    err = error_of(["--horizon", "40", "--out", str(tmp_path)])
     assert "horizon mismatch" in err and "60" in err
 
 
-def test_unknown_kernel_is_an_error(capsys, tmp_path):
-    err = _error_of(["--kernel", "linear", "--out", str(tmp_path)], capsys)
+def test_unknown_kernel_is_an_error(tmp_path, error_of):
+    err = error_of(["--kernel", "linear", "--out", str(tmp_path)])
     assert "--kernel" in err
 
 
-def test_overrides_reach_the_config():
-    args = build_parser().parse_args(
+def test_overrides_reach_the_config(config_of):
+    cfg = config_of(
         ["--preset", "demo", "--trials", "2", "--particles", "7", "--opt-steps", "9"]
         + ["--candidates", "3", "--explore-hold", "1"]
     )
-    cfg = config_from_args(args)
     assert (cfg.num_trials, cfg.num_particles, cfg.opt.max_steps) == (2, 7, 9)
     assert cfg.explore_hold == 1
     assert cfg.opt_steps_first <= 9 and cfg.num_candidates == 3
 
 
-def test_set_overrides_nested_fields_and_the_options_win():
-    args = build_parser().parse_args(
+def test_set_overrides_nested_fields_and_the_options_win(config_of):
+    cfg = config_of(
         ["--set", "opt.max_steps=5", "--set", "num_particles=9", "--set", "cost_angle_mode=wrap"]
         + ["--set", "cost_length_scales={x: 2.0}", "--preset", "bench"]
     )
-    cfg = config_from_args(args)
     assert (cfg.opt.max_steps, cfg.opt.monitor_patience) == (5, 100)  # the preset's patience
     assert cfg.num_particles == 9 and cfg.cost_angle_mode == "wrap"
     assert cfg.cost_length_scales == {"x": 2.0, "theta": 3.0}
-    told = build_parser().parse_args(["--set", "num_particles=9", "--particles", "11"])
-    assert config_from_args(told).num_particles == 11
+    assert config_of(["--set", "num_particles=9", "--particles", "11"]).num_particles == 11
 
 
-def test_unknown_preset_or_field_is_an_error(capsys, tmp_path):
-    err = _error_of(["--preset", "fast", "--out", str(tmp_path)], capsys)
+def test_unknown_preset_or_field_is_an_error(tmp_path, error_of):
+    err = error_of(["--preset", "fast", "--out", str(tmp_path)])
     assert "unknown preset 'fast'" in err and "bench" in err and "demo" in err
-    err = _error_of(["--set", "particles=3", "--out", str(tmp_path)], capsys)
+    err = error_of(["--set", "particles=3", "--out", str(tmp_path)])
     assert "unknown MC-PILCO config fields ['particles']" in err
-    err = _error_of(["--set", "num_particles", "--out", str(tmp_path)], capsys)
+    err = error_of(["--set", "num_particles", "--out", str(tmp_path)])
     assert "--set takes key=value" in err
 
 
-def test_dm_control_env_gets_iid_exploration_unless_told():
+def test_dm_control_env_gets_iid_exploration_unless_told(config_of):
     dmc = ["--env", "mcpilco/DMCCartpoleSwingUp-v0"]
-    assert config_from_args(build_parser().parse_args(dmc)).explore_hold == 1
-    told = build_parser().parse_args(dmc + ["--explore-hold", "2"])
-    assert config_from_args(told).explore_hold == 2
-    assert config_from_args(build_parser().parse_args([])).explore_hold == 2
+    assert config_of(dmc).explore_hold == 1
+    assert config_of(dmc + ["--explore-hold", "2"]).explore_hold == 2
+    assert config_of([]).explore_hold == 2
 
 
-def test_zero_candidates_is_an_error(capsys, tmp_path):
-    err = _error_of(["--candidates", "0", "--out", str(tmp_path)], capsys)
+def test_zero_candidates_is_an_error(tmp_path, error_of):
+    err = error_of(["--candidates", "0", "--out", str(tmp_path)])
     assert "--candidates" in err
 
 
-def test_tiny_training_run(tmp_path, capsys):
+def test_tiny_training_run(tmp_path, capsys, command):
     out = tmp_path / "run"
     argv = ["--preset", "demo", "--trials", "1", "--particles", "8", "--opt-steps", "3"]
     argv += ["--threads", "1", "--no-progress", "--no-rrd", "--out", str(out), "--seed", "1"]
-    assert main(argv) == 0
+    assert command("mcpilco-train", argv) == 0
     text = capsys.readouterr().out
     assert "trial 1 (policy" in text and "success" in text and "done in" in text
     records = json.loads((out / "records.json").read_text())["records"]

@@ -73,9 +73,6 @@ def test_installed_script_reports_out_being_a_file_in_one_line(tmp_path):
     assert len(lines) == 1 and str(out) in lines[0] and "Traceback" not in done.stderr
 
 
-def test_negative_seed_is_an_argument_error(capsys):
-    from mcpilco.scripts import train_mcpilco
-
-    with pytest.raises(SystemExit) as stop:
-        train_mcpilco.main(["--seed", "-1"])
-    assert stop.value.code == 2 and "--seed" in capsys.readouterr().err
+def test_negative_seed_is_an_argument_error(capsys, command):
+    code = command("mcpilco-train", ["--seed", "-1"])
+    assert code == 2 and "--seed" in capsys.readouterr().err

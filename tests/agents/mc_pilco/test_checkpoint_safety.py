@@ -93,11 +93,9 @@ def test_missing_gp_file_is_named(tmp_path):
         GPRegressor.load(tmp_path / "gp_trial03.pt", lambda batch: None)
 
 
-def test_resume_of_a_damaged_checkpoint_is_one_line_exit_2(tmp_path, capsys):
-    from mcpilco.scripts import train_mcpilco
-
+def test_resume_of_a_damaged_checkpoint_is_one_line_exit_2(tmp_path, capsys, command):
     (tmp_path / "checkpoint.pt").write_bytes(pickle.dumps({"version": 3}))
-    code = train_mcpilco.main(["--out", str(tmp_path), "--resume", "--no-progress"])
+    code = command("mcpilco-train", ["--out", str(tmp_path), "--resume", "--no-progress"])
     err = capsys.readouterr().err.splitlines()
     assert code == 2 and len(err) == 1
     assert "checkpoint.pt" in err[0] and "--overwrite" in err[0]

@@ -29,7 +29,6 @@ from mcpilco.agents.mc_pilco import (
 from mcpilco.agents.mc_pilco.checkpoint import load_checkpoint
 from mcpilco.agents.mc_pilco.optimize import PolicyOptConfig, loss_and_grad_fn, optimize_policy
 from mcpilco.models.device import check_device_name, resolve_device
-from mcpilco.scripts import train_mcpilco
 
 f64 = torch.float64
 TASK = TaskSpec.for_env("mcpilco/CartpoleSwingUp-v0")
@@ -57,12 +56,13 @@ def test_a_cuda_config_loads_on_a_machine_without_cuda(monkeypatch):
     assert resolve_device("cpu") == torch.device("cpu")
 
 
-def test_train_script_refuses_cuda_without_a_gpu_before_any_work(monkeypatch, tmp_path, capsys):
+def test_train_script_refuses_cuda_without_a_gpu_before_any_work(
+    monkeypatch, tmp_path, capsys, command
+):
     monkeypatch.setattr(torch.cuda, "is_available", lambda: False)
     out = tmp_path / "run"
-    with pytest.raises(SystemExit) as exc:
-        train_mcpilco.main(["--device", "cuda", "--trials", "1", "--out", str(out)])
-    assert exc.value.code == 2
+    code = command("mcpilco-train", ["--device", "cuda", "--trials", "1", "--out", str(out)])
+    assert code == 2
     assert "sees no CUDA device" in capsys.readouterr().err
     assert not out.exists()
 

@@ -1,0 +1,692 @@
+"""The MC-PILCO benchmark of ``mcpilco-bench-mcpilco``: its four parts and its report.
+
+1. ``runs``: S seeds of the whole loop (exploration + policy trials) per env; per trial the
+   success rate, mean time in the goal region, cost, wall-clock per trial and per
+   optimisation step (:func:`bench_runs`). Seeds are sweep jobs
+   (:mod:`mcpilco.experiments.sweep`) with one torch thread each; a finished seed is read
+   back, not rerun. :func:`pool_sections` merges sections of the same config run on other
+   seeds into one section over all of them.
+2. ``timing``: seconds per policy optimisation step for several GP sizes, particle counts
+   and thread counts (:func:`timing_part`, :mod:`mcpilco.experiments.mcpilco_timing`).
+3. ``rmse``: RBF+MPK vs RBF-only particle RMSE of theta on exploration data (thesis
+   Fig. 5.5; :func:`rmse_part`, :mod:`mcpilco.experiments.mcpilco_rmse`).
+4. ``rmse_runs``: the same comparison on the data of finished runs (:func:`rmse_runs_part`).
+
+Results live in one JSON file, ``mcpilco_cartpole.json`` (one runs section per env and
+label, merged with the file found), with a Markdown report and plots next to it
+(:func:`write_report`).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import time
+from collections.abc import Callable, Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from mcpilco.agents.mc_pilco import DEFAULT_ENV_ID, MCPilcoConfig, load_config
+from mcpilco.experiments.sweep import Job, SweepReport, SweepRunner
+
+PARTS = ("runs", "timing", "rmse", "rmse_runs")  # the parts, in the order they run
+RESULTS_NAME = "mcpilco_cartpole"  # stem of the JSON, Markdown and PNG outputs
+
+__all__ = [
+    "PARTS",
+    "POOLED_MEANS",
+    "aggregate_runs",
+    "bench_configs",
+    "bench_runs",
+    "load_results",
+    "make_section",
+    "pool_part",
+    "pool_sections",
+    "rmse_part",
+    "rmse_runs_part",
+    "run_seed",
+    "runs_part",
+    "section_key",
+    "section_table",
+    "seed_ranges",
+    "timing_part",
+    "write_report",
+]
+
+
+# ------------------------------------------------------------------------------- runs
+def _fmt(v: float | None) -> str:
+    """A table cell: ``v`` to 2 decimals, ``-`` where the section did not record it."""
+    return "-" if v is None else f"{v:.2f}"
+
+
+def section_key(env_id: str, label: str = "") -> str:
+    """Key of a ``--label``-ed section under ``runs`` in ``mcpilco_cartpole.json``."""
+    return env_id + (f" ({label})" if label else "")
+
+
+def run_seed(config: dict[str, Any], out: str) -> dict[str, Any]:
+    """One seed's run (``config``: an :class:`MCPilcoConfig` dict) in ``out``; a finished or
+    killed run found there is resumed, so that seeds can be added to a section later
+    (``--first-seed 0 --seeds 12`` after 6 seeds reruns only seeds 6..11). ``seconds`` is the
+    sum of the trials' ``wall_s`` (GP fit, policy optimisation, episode), the same whether the
+    trials ran now or in an earlier call. A sweep job of :func:`bench_runs`."""
+    from mcpilco.agents.mc_pilco import run_mcpilco
+    from mcpilco.models.device import retain_host_memory
+
+    retain_host_memory()
+    cfg = MCPilcoConfig.from_dict(config)
+    summary = run_mcpilco(
+        cfg,
+        out,
+        resume=(Path(out) / "checkpoint.pt").is_file(),
+        overwrite=not (Path(out) / "checkpoint.pt").is_file(),  # the seed's own folder
+        progress=False,
+        log=None,
+        write_rrd=False,
+    )
+    seconds = float(sum(r["wall_s"] for r in summary.records))
+    return {"seed": cfg.seed, "records": summary.records, "seconds": seconds}
+
+
+def aggregate_runs(runs: list[dict[str, Any]]) -> list[dict[str, Any]]:
+    """Per trial index: success rate, mean time in the goal region, timings over seeds."""
+    rows = []
+    n_trials = min(len(r["records"]) for r in runs)
+    for k in range(n_trials):
+        recs = [r["records"][k] for r in runs]
+        row = {
+            "trial": k,
+            "experience_s": recs[0]["experience_s"],
+            "kind": recs[0]["kind"],
+            "seeds": len(recs),
+            "success_rate": float(np.mean([r["success"] for r in recs])),
+            "time_in_goal_s": float(np.mean([r["time_in_goal"] for r in recs])),
+            "cost": float(np.mean([r["cost"] for r in recs])),
+            "wall_s_per_trial": float(np.mean([r["wall_s"] for r in recs])),
+        }
+        if recs[0]["kind"] == "policy":
+            row["opt_steps"] = float(np.mean([r["opt_steps"] for r in recs]))
+            row["s_per_opt_step"] = float(np.mean([r["s_per_opt_step"] for r in recs]))
+            row["cpu_s_per_opt_step"] = float(
+                np.mean([r.get("cpu_s_per_opt_step", np.nan) for r in recs])
+            )
+            row["gp_fit_s"] = float(np.mean([r["gp_fit_s"] for r in recs]))
+        rows.append(row)
+    return rows
+
+
+def bench_runs(
+    cfg: MCPilcoConfig, seeds: list[int], runner: SweepRunner, runs_dir: Path
+) -> tuple[dict[str, Any] | None, SweepReport]:
+    """The seeds' runs (:func:`run_seed`, one torch thread each) as sweep jobs: run ``seed<s>``
+    in ``runs_dir/seed<s>``, its result in ``runs_dir/seed<s>.json``. Returns the section of
+    the seeds that finished (None when none did) and the sweep's report."""
+    jobs = [
+        Job(
+            f"seed{s}",
+            run_seed,
+            {
+                "config": dataclasses.replace(cfg, seed=s, torch_threads=1).to_dict(),
+                "out": str(runs_dir / f"seed{s}"),
+            },
+        )
+        for s in seeds
+    ]
+    t0 = time.perf_counter()
+    sweep = runner.run(jobs, runs_dir, desc=f"seeds {cfg.env_id}")
+    runs = list(sweep.results.values())
+    if not runs:
+        return None, sweep
+    return make_section(cfg.to_dict(), runs, runner.slots(), time.perf_counter() - t0), sweep
+
+
+def make_section(
+    config: dict[str, Any], runs: list[dict[str, Any]], jobs: int, wall_s_total: float
+) -> dict[str, Any]:
+    """The results section of ``runs`` (the dicts of :func:`run_seed`, one per seed)."""
+    return {
+        "config": config,
+        "seeds": [r["seed"] for r in runs],
+        "jobs": jobs,
+        "wall_s_total": wall_s_total,
+        "wall_s_per_run": float(np.mean([r["seconds"] for r in runs])),
+        "per_trial": aggregate_runs(runs),
+        "per_seed": [
+            {
+                "seed": r["seed"],
+                "success": [bool(x["success"]) for x in r["records"]],
+                "seconds": r["seconds"],
+            }
+            for r in runs
+        ],
+    }
+
+
+POOLED_MEANS = (
+    "success_rate",
+    "time_in_goal_s",
+    "cost",
+    "wall_s_per_trial",
+    "opt_steps",
+    "s_per_opt_step",
+    "cpu_s_per_opt_step",
+    "gp_fit_s",
+)
+"""Per-trial fields of a section that are means over seeds (pooled weighted by seed count)."""
+
+_RUN_ONLY_FIELDS = ("num_trials", "seed", "torch_threads")
+"""Config fields that may differ between sections that are pooled."""
+
+
+def pool_sections(sections: list[dict[str, Any]]) -> dict[str, Any]:
+    """One section over the union of the seeds of ``sections`` (same experiment, other seeds).
+
+    Each per-trial field in :data:`POOLED_MEANS` is a mean over seeds, so the pooled value
+    is exact: :math:`\\bar v = \\sum_j S_j \\bar v_j / \\sum_j S_j` over the sections ``j``
+    that ran trial ``k`` (``S_j`` seeds each). Trials that only some sections ran are pooled
+    over those (their ``seeds`` count says how many).
+
+    Raises:
+        ValueError: if the configs differ in anything but the number of trials (and the
+            seed), or if a seed appears in two sections.
+    """
+    if len(sections) < 2:
+        raise ValueError(f"pooling needs at least 2 sections, got {len(sections)}")
+
+    def experiment(cfg: dict[str, Any]) -> dict[str, Any]:
+        # a field the saved section lacks (e.g. explore_hold) takes its default
+        full = MCPilcoConfig.from_dict(cfg).to_dict()
+        return {k: v for k, v in full.items() if k not in _RUN_ONLY_FIELDS}
+
+    ref = experiment(sections[0]["config"])
+    for sec in sections[1:]:
+        other = experiment(sec["config"])
+        if other != ref:
+            diff = sorted(k for k in set(ref) | set(other) if ref.get(k) != other.get(k))
+            raise ValueError(f"sections differ in config fields {diff}; only seeds may differ")
+    seeds = [s for sec in sections for s in sec["seeds"]]
+    if len(set(seeds)) != len(seeds):
+        raise ValueError(f"a seed appears in two sections: {sorted(seeds)}")
+    n_trials = max(len(sec["per_trial"]) for sec in sections)
+    rows = []
+    for k in range(n_trials):
+        have = [sec["per_trial"][k] for sec in sections if len(sec["per_trial"]) > k]
+        total = sum(r["seeds"] for r in have)
+        row = {key: have[0][key] for key in ("trial", "experience_s", "kind")}
+        row["seeds"] = total
+        for key in POOLED_MEANS:
+            if all(key in r for r in have):
+                row[key] = float(sum(r["seeds"] * r[key] for r in have) / total)
+        rows.append(row)
+    config = dict(sections[0]["config"])
+    config["num_trials"] = max(sec["config"]["num_trials"] for sec in sections)
+    n_seeds = [len(sec["seeds"]) for sec in sections]
+    return {
+        "config": config,
+        "seeds": seeds,
+        "jobs": sections[0]["jobs"],
+        "wall_s_total": float(sum(sec["wall_s_total"] for sec in sections)),
+        "wall_s_per_run": float(
+            sum(n * sec["wall_s_per_run"] for n, sec in zip(n_seeds, sections, strict=True))
+            / sum(n_seeds)
+        ),
+        "per_trial": rows,
+        "per_seed": [p for sec in sections for p in sec["per_seed"]],
+        "pooled_from": [len(sec["seeds"]) for sec in sections],
+        "pooled_num_trials": [int(sec["config"]["num_trials"]) for sec in sections],
+    }
+
+
+# ------------------------------------------------------------------------------ parts
+def bench_configs(
+    env_ids: Sequence[str], preset: str = "bench", **options: Any
+) -> dict[str, MCPilcoConfig]:
+    """One config per env: the env's file and ``preset``, then ``options``
+    (:meth:`MCPilcoConfig.with_overrides` keywords; None keeps the env's value, so an env
+    keeps its own exploration hold unless one is given). ``candidate_weight_scales``
+    without ``num_candidates`` sets the number of candidates.
+
+    Raises:
+        ValueError: an env without a shipped task, an unknown preset, a bad value, a device
+            this machine lacks, ``compile_rollout`` without a C++ compiler.
+    """
+    from mcpilco.agents.mc_pilco.loop import check_compile_toolchain
+    from mcpilco.envs.tasks import task_ids
+    from mcpilco.models.device import resolve_device
+
+    ids = task_ids()
+    for env_id in env_ids:
+        if env_id not in ids:
+            raise ValueError(f"no task ships for env id {env_id!r}; tasks: {', '.join(ids)}")
+    scales = options.get("candidate_weight_scales")
+    if options.get("num_candidates") is None and scales:
+        options["num_candidates"] = len(scales)
+    configs = {
+        env_id: load_config(env_id, preset=preset).with_overrides(**options) for env_id in env_ids
+    }
+    device = options.get("device") or "cpu"
+    if options.get("compile_rollout"):
+        check_compile_toolchain(resolve_device(device))
+    resolve_device(device)
+    return configs
+
+
+def load_results(out_dir: Path) -> dict[str, Any]:
+    """The results in ``out_dir/mcpilco_cartpole.json`` (empty when there is none yet)."""
+    path = Path(out_dir) / f"{RESULTS_NAME}.json"
+    return json.loads(path.read_text()) if path.is_file() else {}
+
+
+def runs_part(
+    results: dict[str, Any],
+    configs: dict[str, MCPilcoConfig],
+    seeds: Sequence[int],
+    runner: SweepRunner,
+    runs_dir: Path,
+    out_dir: Path,
+    label: str = "",
+    log: Callable[[str], None] = print,
+) -> int:
+    """Part ``runs``: the seeds of each config (:func:`bench_runs`) in
+    ``runs_dir/<env name>[_<label>]``, each env's section stored under
+    :func:`section_key` and the report written after each env. Returns the number of
+    failed seeds."""
+    failed = 0
+    results.setdefault("runs", {})
+    for env_id, cfg in configs.items():
+        tag = env_id.split("/")[-1] + (f"_{label}" if label else "")
+        key = section_key(env_id, label)
+        section, sweep = bench_runs(cfg, list(seeds), runner, Path(runs_dir) / tag)
+        log(sweep.summary())
+        failed += len(sweep.failed)
+        if section is None:
+            continue
+        results["runs"][key] = section
+        log(section_table(key, section))
+        write_report(results, out_dir)
+    return failed
+
+
+def timing_part(
+    results: dict[str, Any],
+    out_dir: Path,
+    n_points: Sequence[int],
+    threads: Sequence[int],
+    particles: Sequence[int],
+    device: str = "cpu",
+    compile_rollout: bool = False,
+    heap_contrast: bool = False,
+    log: Callable[[str], None] = print,
+) -> list[dict[str, Any]]:
+    """Part ``timing``: :func:`~mcpilco.experiments.mcpilco_timing.time_opt_step` for every
+    GP size, thread count and particle count (on a CUDA device both with and without a CUDA
+    graph); replaces ``results["timing"]`` and writes the report."""
+    from mcpilco.experiments.mcpilco_timing import time_opt_step
+
+    rows = []
+    graphs = (True, False) if device.startswith("cuda") else (False,)
+    for n in n_points:
+        for th in threads:
+            for m in particles:
+                for graph in graphs:
+                    t = time_opt_step(
+                        n, num_particles=m, threads=th, device=device, cuda_graph=graph,
+                        compile_rollout=compile_rollout, heap_contrast=heap_contrast,
+                    )  # fmt: skip
+                    comp = t.get("compiled_s_per_step_wall")
+                    log(
+                        f"N={n} M={m} threads={th} device={t['device']} "
+                        f"graph={t['cuda_graph']}: {t['s_per_step_wall']:.3f} s/step wall"
+                        + (f", compiled {comp:.3f}" if comp is not None else "")
+                        + (", compiled step rejected" if t.get("compiled_rejected") else "")
+                        + (
+                            f", 128 KiB heap {t['heap128k_s_per_step_wall']:.3f}"
+                            if "heap128k_s_per_step_wall" in t
+                            else ""
+                        )
+                    )
+                    rows.append(t)
+    results["timing"] = rows
+    write_report(results, out_dir)
+    return rows
+
+
+def rmse_part(
+    results: dict[str, Any],
+    out_dir: Path,
+    seeds: int,
+    policy_ckpt: Path | None = None,
+    runs_dir: Path | None = None,
+    explore_hold: int | None = None,
+    log: Callable[[str], None] = print,
+) -> dict[str, Any]:
+    """Part ``rmse``: :func:`~mcpilco.experiments.mcpilco_rmse.particle_rmse` on ``seeds``
+    exploration seeds of the default env (actions held ``explore_hold`` steps, default: its
+    config's), under the policy of ``policy_ckpt`` (default: the first run under
+    ``runs_dir`` whose last trial swung up); writes the plot ``mcpilco_cartpole_rmse.png``
+    (which alone keeps the particles), stores the summary in ``results["rmse"]`` and writes
+    the report.
+
+    Raises:
+        FileNotFoundError: no policy given and no run under ``runs_dir`` swung up.
+    """
+    from mcpilco.experiments.mcpilco_rmse import (
+        find_swingup_policy,
+        particle_rmse,
+        plot_rmse,
+        summarise_rmse,
+    )
+
+    if policy_ckpt is None:
+        policy_ckpt = find_swingup_policy(Path(runs_dir or "."))
+    if explore_hold is None:
+        explore_hold = load_config(DEFAULT_ENV_ID).explore_hold
+    per_seed = [particle_rmse(s, policy_ckpt, explore_hold=explore_hold) for s in range(seeds)]
+    rm = summarise_rmse(per_seed)
+    rm.update(policy=str(policy_ckpt), explore_hold=explore_hold)
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    plot_rmse(rm, out_dir / f"{RESULTS_NAME}_rmse.png")
+    for p in rm["per_seed"]:  # keep the JSON small: particles only in the plot
+        for k in list(p):
+            if k.endswith("_particles"):
+                del p[k]
+    results["rmse"] = rm
+    log(f"theta RMSE: rbf+mpk {rm['rbf+mpk']}, rbf {rm['rbf']}")
+    write_report(results, out_dir)
+    return rm
+
+
+def rmse_runs_part(
+    results: dict[str, Any],
+    out_dir: Path,
+    run_dirs: Sequence[Path],
+    log: Callable[[str], None] = print,
+) -> dict[str, Any]:
+    """Part ``rmse_runs``: :func:`~mcpilco.experiments.mcpilco_rmse.particle_rmse_on_run` on
+    every run under ``run_dirs`` whose last trial swung up, summarised per group (the kernel
+    a run learned with, its env); writes ``mcpilco_cartpole_rmse_runs.png`` (which alone
+    keeps the per-step curves), stores ``results["rmse_runs"]`` and writes the report.
+
+    Raises:
+        ValueError: no such run under ``run_dirs``.
+    """
+    from tqdm.auto import tqdm
+
+    from mcpilco.experiments.mcpilco_rmse import (
+        particle_rmse_on_run,
+        plot_rmse_runs,
+        summarise_rmse_runs,
+        swingup_runs,
+    )
+
+    ckpts = [c for d in run_dirs for c in swingup_runs(d)]
+    if not ckpts:
+        raise ValueError("rmse_runs: no run whose last trial swung up; run the 'runs' part first")
+    per_run = [particle_rmse_on_run(c) for c in tqdm(ckpts, desc="rmse on runs")]
+    groups = summarise_rmse_runs(per_run)
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    plot_rmse_runs(per_run, out_dir / f"{RESULTS_NAME}_rmse_runs.png")
+    for r in per_run:  # keep the JSON small: per-step curves only in the plot
+        for k in ("rbf+mpk", "rbf"):
+            del r[f"{k}_per_step"]
+    results["rmse_runs"] = {"per_run": per_run, "groups": groups}
+    for kern, g in groups.items():
+        log(f"runs learned with {kern}: {g}")
+    write_report(results, out_dir)
+    return results["rmse_runs"]
+
+
+def pool_part(
+    results: dict[str, Any],
+    out_dir: Path,
+    env_ids: Sequence[str],
+    labels: Sequence[str],
+    log: Callable[[str], None] = print,
+) -> list[str]:
+    """Pool the sections labelled ``labels`` of each env (:func:`pool_sections`) into a
+    section labelled ``LABEL1+LABEL2...``; writes the report and returns the new keys.
+
+    Raises:
+        ValueError: a missing section, or sections that may not be pooled.
+    """
+    sections = results.setdefault("runs", {})
+    pooled_keys = []
+    for env_id in env_ids:
+        keys = [section_key(env_id, label) for label in labels]
+        missing = [k for k in keys if k not in sections]
+        if missing:
+            raise ValueError(
+                f"--pool: no section {missing} in {Path(out_dir) / f'{RESULTS_NAME}.json'}; "
+                f"have {list(sections)}"
+            )
+        try:
+            pooled = pool_sections([sections[k] for k in keys])
+        except ValueError as err:
+            raise ValueError(f"--pool: {err}") from None
+        key = section_key(env_id, "+".join(labels))
+        sections[key] = pooled
+        pooled_keys.append(key)
+        log(section_table(key, pooled))
+    write_report(results, out_dir)
+    return pooled_keys
+
+
+# ------------------------------------------------------------------------------ report
+def section_table(env_id: str, section: dict) -> str:
+    """The Markdown table of a runs section (:func:`make_section` or :func:`pool_sections`)
+    under the heading ``env_id``: its config in one paragraph, then one row per trial."""
+    lines = [f"### {env_id}", ""]
+    cfg = section["config"]
+    seeds = section["seeds"]
+    pooled = ""
+    if section.get("pooled_from"):
+        pooled = (
+            f"Pooled from {len(section['pooled_from'])} runs of the same config "
+            f"({' + '.join(str(n) for n in section['pooled_from'])} seeds; a trial that "
+            "only some ran is over those seeds, as its row says"
+        )
+        trials = sorted(set(section.get("pooled_num_trials", [])))
+        if len(trials) > 1:
+            pooled += f"; the wall-clock per run averages runs of {trials} policy trials"
+        pooled += "). "
+    lines.append(
+        pooled + f"{len(seeds)} seeds ({seed_ranges(seeds)}); M={cfg['num_particles']} particles, "
+        f"max {cfg['opt']['max_steps']} opt steps per trial (first: {cfg['opt_steps_first']}), "
+        f"GP subset N<={cfg['max_points']}, kernel {cfg['kernel']}, "
+        f"K={cfg.get('num_candidates', 1)} candidate policies, "
+        f"rollout GP {cfg.get('rollout_dtype', 'float32')}"
+        f"{', time step compiled (--compile-rollout)' if cfg.get('compile_rollout') else ''}, "
+        "exploration actions held "
+        f"{cfg.get('explore_hold', 1)} step(s); "
+        f"{section['jobs']} parallel "
+        f"jobs x 1 thread; mean wall-clock per run {section['wall_s_per_run']:.0f} s."
+    )
+    lines += [
+        "",
+        "| experience | policy trained on | success rate | time in goal [s] "
+        "| wall per trial [s] | opt steps | s / opt step (wall) | s / opt step (CPU) |",
+        "|---|---|---|---|---|---|---|---|",
+    ]
+    prev = None
+    for r in section["per_trial"]:
+        trained = f"{prev:.0f} s" if prev is not None and r["kind"] == "policy" else "-"
+        prev = r["experience_s"]
+        kind = (
+            r["kind"]
+            if r.get("seeds", len(seeds)) == len(seeds)
+            else f"{r['kind']}, {r['seeds']} seeds"
+        )
+        lines.append(
+            f"| {r['experience_s']:.0f} s ({kind}) | {trained} "
+            f"| {100 * r['success_rate']:.0f}% "
+            f"| {_fmt(r.get('time_in_goal_s'))} | {r['wall_s_per_trial']:.1f} "
+            f"| {r.get('opt_steps', 0):.0f} | {r.get('s_per_opt_step', float('nan')):.3f} "
+            f"| {r.get('cpu_s_per_opt_step', float('nan')):.3f} |"
+        )
+    return "\n".join(lines) + "\n"
+
+
+def seed_ranges(seeds: list[int]) -> str:
+    """``[0, 1, 2, 5, 6]`` -> ``"0-2, 5-6"``."""
+    runs: list[list[int]] = []  # [first, last] of each run of consecutive seeds
+    for s in sorted(seeds):
+        if runs and runs[-1][1] == s - 1:
+            runs[-1][1] = s
+        else:
+            runs.append([s, s])
+    return ", ".join(str(a) if a == b else f"{a}-{b}" for a, b in runs)
+
+
+CONVENTION_NOTE = (
+    "Rows: `experience` counts the seconds of interaction up to the end of that trial (the "
+    "trial included); `policy trained on` is the data the trial's policy was optimised on. "
+    "Thesis Table 5.1 indexes its columns by the latter (its 3.8 % at 3 s is a policy trial, "
+    "not the random exploration)."
+)
+
+
+def write_report(results: dict, out_dir: Path) -> None:
+    """``mcpilco_cartpole.md``, ``.json`` and (with runs) ``.png`` of ``results`` in
+    ``out_dir``: one table per runs section, the timing table, the two RMSE tables; the
+    plot shows success rate and time in goal against experience, one curve per section."""
+    out_dir.mkdir(parents=True, exist_ok=True)
+    md = ["# MC-PILCO on the cartpole swing-up", "", CONVENTION_NOTE, ""]
+    if results.get("machine"):
+        md += [f"Machine: {results['machine']}.", ""]
+    for env_id, section in results.get("runs", {}).items():
+        md.append(section_table(env_id, section))
+    if results.get("timing"):
+        md += [
+            "### Seconds per optimisation step (H = 60)",
+            "",
+            "A step at a few particles is the fixed cost of the 60-step rollout (one op after "
+            "another, forward and backward); the rest grows with M.",
+            "",
+            "Compiled: the same step compiled (`--compile-rollout`) by the default backend "
+            "(column backend; `native`: the whole rollout, forward and backward, in the "
+            "package's C++ loop; `direct`: forward and backward of a time step chained by hand "
+            "and compiled by inductor, no dynamo and no autograd per time step), alternating "
+            "with the eager step in each round; compile s: the compilation and its check "
+            "against the eager step (for `direct`, about 1 s where inductor's on-disk cache "
+            "already held graphs of the same size, from any GP); shards: the threads a "
+            "compiled rollout is split over, by particles (two threads: 2 at 400 particles, 1 "
+            "at 25). Direct: the `direct` backend in the same rounds, where the default is "
+            "`native`. Dynamo: the time step `torch.compile`-d instead, in the same rounds.",
+            "",
+            "Faults: minor page faults per step, with the freed memory kept in the process "
+            "(`retain_host_memory`). 128 KiB heap: the eager step with glibc's initial "
+            "allocator thresholds instead (`--timing-heap-contrast`), in the same rounds.",
+            "",
+            "| particles M | GP points N | device | CUDA graph | threads | wall s/step "
+            "| CPU s/step | faults | compiled: backend | wall s/step | CPU s/step "
+            "| speed-up (CPU) | compile s | shards | direct: wall s/step | CPU s/step "
+            "| dynamo: wall s/step | CPU s/step | 128 KiB heap: wall s/step | faults |",
+            "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|",
+        ]
+        for t in results["timing"]:
+            graph = "yes" if t.get("cuda_graph") else "no"
+            comp = "| - | - | - | - | - | -"
+            backend = t.get("compile_backend") or "-"
+            if t.get("compile_error"):
+                comp = f"| {backend} | compilation failed | - | - | - | -"
+            elif t.get("compiled_rejected"):
+                comp = f"| {backend} | failed its check against the eager step | - | - | - | -"
+            elif "compiled_s_per_step_wall" in t:
+                comp = (
+                    f"| {backend} | {t['compiled_s_per_step_wall']:.3f} "
+                    f"| {t['compiled_s_per_step_cpu']:.3f} "
+                    f"| {t['s_per_step_cpu'] / t['compiled_s_per_step_cpu']:.2f}x "
+                    f"| {t['compile_s']:.1f} | {t.get('rollout_shards', 1)}"
+                )
+            if "direct_s_per_step_wall" in t:
+                comp += f" | {t['direct_s_per_step_wall']:.3f} | {t['direct_s_per_step_cpu']:.3f}"
+            else:
+                comp += " | - | -"
+            if "dynamo_s_per_step_wall" in t:
+                comp += f" | {t['dynamo_s_per_step_wall']:.3f} | {t['dynamo_s_per_step_cpu']:.3f}"
+            else:
+                comp += " | - | -"
+            faults = t.get("page_faults_per_step")
+            heap = "| - | -"
+            if "heap128k_s_per_step_wall" in t:
+                heap = (
+                    f"| {t['heap128k_s_per_step_wall']:.3f} "
+                    f"| {t['heap128k_page_faults_per_step']:.0f}"
+                )
+            md.append(
+                f"| {t['num_particles']} | {t['n_points']} | {t.get('device', 'cpu')} | {graph} "
+                f"| {t['threads']} | {t['s_per_step_wall']:.3f} | {t['s_per_step_cpu']:.3f} "
+                f"| {'-' if faults is None else f'{faults:.0f}'} {comp} {heap} |"
+            )
+        md.append("")
+    if results.get("rmse"):
+        r = results["rmse"]
+        md += [
+            "### Particle RMSE of theta over 60 steps (thesis Fig. 5.5: learned swing-up "
+            "policy, GPs on 3 s of exploration)",
+            "",
+            "| kernel | RMSE theta [rad], mean +- std over seeds | median |",
+            "|---|---|---|",
+        ]
+        for k in ("rbf+mpk", "rbf"):
+            med = r[k].get("median", float("nan"))
+            md.append(f"| {k} | {r[k]['mean']:.3f} +- {r[k]['std']:.3f} | {med:.3f} |")
+        md.append(
+            f"\n{r['seeds']} exploration seeds (actions held "
+            f"{r.get('explore_hold', 1)} steps); "
+            f"RBF+MPK lower in {r['mpk_better']} of them; "
+            f"policy from `{r.get('policy', '?')}`. Plot: `mcpilco_cartpole_rmse.png`.\n"
+        )
+    if results.get("rmse_runs"):
+        md += [
+            "### Particle RMSE of theta on the runs' own data (Fig. 5.5 protocol, part "
+            "`rmse_runs`)",
+            "",
+            "GPs fitted on each run's data before its last trial; particles under that "
+            "trial's policy from its real initial state, against its real trajectory. "
+            "Plot: `mcpilco_cartpole_rmse_runs.png`.",
+            "",
+            "| policy learned with, env | runs | RBF+MPK mean / median [rad] | RBF mean / median "
+            "[rad] | RBF+MPK lower in |",
+            "|---|---|---|---|---|",
+        ]
+        for kern, g in results["rmse_runs"]["groups"].items():
+            a, b = g["rbf+mpk"], g["rbf"]
+            md.append(
+                f"| {kern} | {g['runs']} | {a['mean']:.4f} / {a['median']:.4f} "
+                f"| {b['mean']:.4f} / {b['median']:.4f} | {g['mpk_better']} of {g['runs']} |"
+            )
+        md.append("")
+    (out_dir / f"{RESULTS_NAME}.md").write_text("\n".join(md))
+    with open(out_dir / f"{RESULTS_NAME}.json", "w") as fh:
+        json.dump(results, fh, indent=1)
+    if results.get("runs"):
+        import matplotlib
+
+        matplotlib.use("Agg")
+        import matplotlib.pyplot as plt
+
+        n_sections = len(results["runs"])
+        fig, axes = plt.subplots(1, 2, figsize=(9, 3.5 + 0.25 * -(-n_sections // 3)))
+        for env_id, section in results["runs"].items():
+            rows = section["per_trial"]
+            t = [r["experience_s"] for r in rows]
+            axes[0].plot(t, [100 * r["success_rate"] for r in rows], "o-", label=env_id)
+            goal = [r.get("time_in_goal_s", float("nan")) for r in rows]
+            axes[1].plot(t, goal, "o-", label=env_id)
+        for ax, lab in zip(axes, ["success rate [%]", "time in goal [s]"], strict=True):
+            ax.set_xlabel("experience [s]")
+            ax.set_ylabel(lab)
+            ax.grid(alpha=0.3)
+        handles, labels = axes[0].get_legend_handles_labels()
+        ncol = 3
+        fig.legend(handles, labels, loc="lower center", ncol=ncol, fontsize=8, frameon=False)
+        legend_rows = -(-len(labels) // ncol)
+        fig.tight_layout(rect=(0, 0.06 * legend_rows, 1, 1))  # the legend below the panels
+        fig.savefig(out_dir / f"{RESULTS_NAME}.png", dpi=110)
+        plt.close(fig)

@@ -1,0 +1,190 @@
+"""Seconds per MC-PILCO policy optimisation step, the ``timing`` part of
+``mcpilco-bench-mcpilco``.
+
+One step is the forward pass through the ``M x H`` particle rollout, its backward pass and an
+Adam step, on a GP fitted to random-exploration data. :func:`time_opt_step` times it eager
+and, on request, compiled by each backend of :meth:`MCPilcoLoss.compile_step`, alternating
+the variants within each round so that their ratios hold on a busy machine.
+"""
+
+from __future__ import annotations
+
+import resource
+import statistics
+import time
+
+import numpy as np
+
+from mcpilco.agents.mc_pilco import DEFAULT_ENV_ID, TaskSpec
+
+__all__ = ["exploration_data", "time_opt_step"]
+
+
+def exploration_data(env_id: str, n_points: int, seed: int, hold: int = 1):
+    """``n_points`` transitions of random-exploration episodes (actions held ``hold`` steps,
+    :func:`~mcpilco.agents.mc_pilco.loop.exploration_actions`)."""
+    from mcpilco.agents.mc_pilco.loop import exploration_actions, make_env, run_episode, transitions
+
+    task = TaskSpec.for_env(env_id)
+    H = task.horizon
+    env = make_env(env_id, H, task)
+    rng = np.random.default_rng(seed)
+    eps = []
+    while sum(len(e["actions"]) for e in eps) < n_points:
+        it = iter(exploration_actions(rng, H, hold, task.action_low, task.action_high))
+        eps.append(run_episode(env, lambda _o, it=it: next(it), seed * 1000 + len(eps), H, task))
+    env.close()
+    s, a, s1 = transitions(eps)
+    return s[:n_points], a[:n_points], s1[:n_points], eps
+
+
+def time_opt_step(
+    n_points: int,
+    num_particles: int = 400,
+    horizon: int = 60,
+    kernel: str = "rbf+mpk",
+    threads: int = 1,
+    repeats: int = 5,
+    env_id: str = DEFAULT_ENV_ID,
+    device: str = "cpu",
+    cuda_graph: bool = True,
+    compile_rollout: bool = False,
+    heap_contrast: bool = False,
+) -> dict[str, float]:
+    """Median wall and CPU seconds of one optimisation step (rollout, backward, Adam).
+
+    ``compile_rollout``: also time the same step compiled (:meth:`MCPilcoLoss.compile_step`)
+    by its default backend (``compiled_*``: ``native`` where it applies, else ``direct``), by
+    the ``direct`` backend (``direct_*``, when the default is ``native``) and by
+    ``torch.compile`` of the time step (``dynamo_*``, when the default is not already that),
+    each on its own loss module sharing the policy and the GP posterior; the eager and the
+    compiled steps alternate within each round, so their ratios hold on a busy machine.
+    ``compile_s``: the time of ``compile_step`` (the compilation and its check against the
+    eager step, one step of each); ``compile_check`` its figures. A compiled step that fails
+    the check is not timed (``compiled_rejected``).
+
+    The process keeps its freed memory (:func:`~mcpilco.models.device.retain_host_memory`,
+    as a training run does); ``page_faults_per_step`` counts the minor page faults of each
+    timed step. ``heap_contrast``: also time the eager step with glibc's initial heap thresholds
+    (128 KiB, where its adaptive rule can stay), in the same rounds (``heap128k_*``); each
+    timed step then follows an untimed one in the same setting.
+
+    On a CUDA ``device`` the GP is fitted on the CPU and its posterior, the policy and the
+    particles move to the device; each timed step ends with a synchronisation, and with
+    ``cuda_graph`` the forward and backward pass is one replayed CUDA graph, as in
+    :func:`~mcpilco.agents.mc_pilco.optimize_policy`.
+    """
+    import torch
+
+    from mcpilco.agents.mc_pilco import (
+        GPDynamicsModel,
+        MCPilcoLoss,
+        SaturatingCost,
+        SquashedRBFPolicy,
+        StateLayout,
+        make_policy_module,
+    )
+    from mcpilco.agents.mc_pilco.optimize import loss_and_grad_fn
+    from mcpilco.models.device import (
+        GLIBC_INITIAL_THRESHOLD,
+        resolve_device,
+        retain_host_memory,
+    )
+
+    dev = resolve_device(device)
+    sync = torch.cuda.synchronize if dev.type == "cuda" else (lambda: None)
+    torch.set_num_threads(threads)
+    retain_host_memory()
+    s, a, s1, _ = exploration_data(env_id, n_points, 0)
+    task = TaskSpec.for_env(env_id)
+    model = GPDynamicsModel(task, kernel=kernel, adam_iters=30, lbfgs_iters=5, max_points=None)
+    model.fit(s, a, s1)
+    policy = SquashedRBFPolicy(
+        StateLayout.from_task(task), task.action_low, task.action_high, seed=0
+    )
+    module, dynamics = make_policy_module(policy), model.particle_dynamics()
+    cost = SaturatingCost.from_task(task)
+
+    def make_loss() -> MCPilcoLoss:  # moves the policy and the GP posterior with it
+        args = (module, dynamics, cost, horizon, num_particles, task.init_mean)
+        return MCPilcoLoss(*args, obs_noise_std=0.01).to(dev)
+
+    opt = torch.optim.Adam(policy.parameters(), lr=0.01)
+    policy.train()
+    # the optimiser's own step: eager on the CPU, one CUDA graph on a GPU (captured here)
+    params = list(policy.parameters())
+    step_fns = {"eager": loss_and_grad_fn(make_loss(), params, cuda_graph=cuda_graph)}
+    compile_info: dict[str, object] = {}
+    compiled_losses = []
+    if compile_rollout:
+        # "compiled": the default backend (native, else direct, where they apply);
+        # "direct": inductor-compiled time steps; "dynamo": torch.compile of the time step
+        for name, backend in (("compiled", "auto"), ("direct", "direct"), ("dynamo", "dynamo")):
+            if name == "direct" and compile_info.get("compile_backend") != "native":
+                continue  # the default already is direct (or direct does not apply)
+            compiled = make_loss()
+            t_compile = time.perf_counter()
+            accepted = compiled.compile_step(backend=backend, dynamic=False)
+            prefix = "" if name == "compiled" else f"{name}_"
+            compile_info.update(
+                {
+                    f"{prefix}compile_backend": compiled.compile_backend,
+                    f"{prefix}rollout_shards": compiled.rollout_shards,
+                    f"{prefix}compile_s": time.perf_counter() - t_compile,
+                    f"{prefix}compile_check": compiled.compile_check,
+                    f"{prefix}compile_error": compiled.compile_error,
+                    f"{prefix}compiled_rejected": not accepted,
+                }
+            )
+            compiled_losses.append(compiled)
+            if accepted:
+                step_fns[name] = loss_and_grad_fn(compiled, params, cuda_graph=cuda_graph)
+            if compiled.compile_backend == "dynamo" and name == "compiled":
+                break  # the default already is dynamo here
+    if heap_contrast:
+        step_fns["heap128k"] = step_fns["eager"]
+    walls: dict[str, list[float]] = {k: [] for k in step_fns}
+    cpus: dict[str, list[float]] = {k: [] for k in step_fns}
+    faults: dict[str, list[int]] = {k: [] for k in step_fns}
+    for i in range(repeats + 1):
+        for name, step_fn in step_fns.items():
+            if name == "heap128k":
+                retain_host_memory(GLIBC_INITIAL_THRESHOLD, GLIBC_INITIAL_THRESHOLD)
+            if heap_contrast:  # one untimed step after each switch: the heap settles first
+                step_fn()
+                opt.step()
+            sync()
+            t, c = time.perf_counter(), time.process_time()
+            f0 = resource.getrusage(resource.RUSAGE_SELF).ru_minflt
+            step_fn()
+            opt.step()
+            sync()
+            if i:  # the first round is a warm-up
+                walls[name].append(time.perf_counter() - t)
+                cpus[name].append(time.process_time() - c)
+                faults[name].append(resource.getrusage(resource.RUSAGE_SELF).ru_minflt - f0)
+            if name == "heap128k":
+                retain_host_memory()
+    out = {
+        "n_points": n_points,
+        "num_particles": num_particles,
+        "threads": threads,
+        "device": str(dev),
+        "cuda_graph": bool(cuda_graph and dev.type == "cuda"),
+        "s_per_step_wall": statistics.median(walls["eager"]),
+        "s_per_step_cpu": statistics.median(cpus["eager"]),
+        "page_faults_per_step": statistics.median(faults["eager"]),
+    }
+    out.update(compile_info)
+    for name in ("compiled", "direct", "dynamo", "heap128k"):
+        if name in step_fns:
+            out.update(
+                {
+                    f"{name}_s_per_step_wall": statistics.median(walls[name]),
+                    f"{name}_s_per_step_cpu": statistics.median(cpus[name]),
+                    f"{name}_page_faults_per_step": statistics.median(faults[name]),
+                }
+            )
+    for compiled in compiled_losses:
+        compiled.compile_step(False)
+    return out
