@@ -57,6 +57,8 @@ SOURCES = tuple(
 )
 """The extension's C++ sources (the binding, then the loops)."""
 
+HEADER = Path(__file__).with_name("native_rollout.h")  # included by both sources
+
 CXX_FLAGS = ("-O3", "-march=native", "-fno-math-errno")
 """Compiler flags (no ``-ffast-math``: NaN must propagate, the loss restarts on a NaN cost)."""
 
@@ -92,9 +94,10 @@ def _cpu_key() -> str:
 
 def extension_name(cxx: str) -> str:
     """The extension's module name for compiler ``cxx``: a hash of the compiler, the flags,
-    the CPU and the torch version (one build folder each). A change of the sources is
-    rebuilt in the same folder (ninja tracks the sources and the header they include)."""
-    key = repr((cxx, CXX_FLAGS, _cpu_key(), torch.__version__)).encode()
+    the CPU, the torch version and the sources' contents (one build folder each), so that
+    two installed versions of the package sharing a cache never rebuild each other's."""
+    sources = b"".join(path.read_bytes() for path in (*SOURCES, HEADER))
+    key = repr((cxx, CXX_FLAGS, _cpu_key(), torch.__version__)).encode() + sources
     return f"mcpilco_native_rollout_{hashlib.sha256(key).hexdigest()[:16]}"
 
 
