@@ -134,6 +134,8 @@ def _with_payload(arm: ArmSpec, mass: float, offset: np.ndarray) -> ArmSpec:
 def _draw_effect(
     key: str, joint: int | None, rng: np.random.Generator, arm: ArmSpec
 ) -> dict[str, Any]:
+    """The specification of effect ``key`` on ``joint`` (random when None; ``payload``: every
+    joint) with its shape values drawn from ``rng`` (module docstring)."""
     n = arm.n_joints
     if key == "payload":
         joint = None
