@@ -20,6 +20,7 @@ from hypothesis import strategies as st
 
 from mcpilco.models.gp import GPRegressor
 from mcpilco.models.robot_data import from_frame, load_dataset
+from tests.conftest import run_command
 from tests.models.gp.conftest import rbf_factory
 
 FAST = settings(
@@ -182,8 +183,6 @@ def test_file_loader_on_arbitrary_bytes(tmp_path_factory, content, suffix):
 @given(st.binary(max_size=200), st.integers(0, 3))
 def test_diagnose_cli_on_damaged_training_files(tmp_path_factory, content, rows):
     """Garbage, empty or tiny training files: exit 2 with one line naming the file."""
-    from mcpilco.scripts import diagnose
-
     folder = tmp_path_factory.mktemp("cli")
     train = folder / "train.csv"
     if rows:
@@ -198,7 +197,7 @@ def test_diagnose_cli_on_damaged_training_files(tmp_path_factory, content, rows)
 
     err = io.StringIO()
     with contextlib.redirect_stderr(err), contextlib.redirect_stdout(io.StringIO()):
-        code = diagnose.main(argv)
+        code = run_command("mcpilco-diagnose", argv)
     lines = err.getvalue().strip().splitlines()
     assert code == 2 and len(lines) == 1 and "train.csv" in lines[0], err.getvalue()
 

@@ -20,6 +20,9 @@ name                               meaning
 :class:`CollisionDetector`         estimator + thresholds (``"max"`` or ``"variance"`` rule,
                                    ``k sigma(x)``) + persistence; save / load
 :func:`evaluate_detection`         detection rate, latency, false alarms per minute
+:func:`train_detector`             a detector trained and calibrated on collision-free logs
+:func:`load_log`                   read and check a logged file (:mod:`.files`)
+:func:`plot_detection`             currents, monitoring ratio and alarms of a run
 =================================  =========================================================
 
 Nothing here imports ``mcpilco.envs``: data come as
@@ -54,6 +57,14 @@ from mcpilco.models.collision.estimators import (
     rmse_split,
     select_sigma_v,
 )
+from mcpilco.models.collision.files import (
+    INTERVAL_COLUMNS,
+    InputError,
+    check_sample_time,
+    load_log,
+    train_detector,
+    write_intervals,
+)
 from mcpilco.models.collision.inputs import (
     CONTROLLER_GROUPS,
     STATE_GROUPS,
@@ -61,12 +72,14 @@ from mcpilco.models.collision.inputs import (
     as_collision_inputs,
     quasi_static_gate,
 )
+from mcpilco.models.collision.plots import plot_detection
 
 __all__ = [
     "CONTROLLER_GROUPS",
     "COULOMB_VELOCITY",
     "ESTIMATORS",
     "FRICTION_BLOCKS",
+    "INTERVAL_COLUMNS",
     "RULES",
     "SIGMA_V",
     "STATE_GROUPS",
@@ -76,19 +89,25 @@ __all__ = [
     "Detection",
     "FCCurrentEstimator",
     "GatedKernel",
+    "InputError",
     "PPCurrentEstimator",
     "SPCurrentEstimator",
     "alarm_flags",
     "as_collision_inputs",
+    "check_sample_time",
     "evaluate_detection",
     "load_estimator",
+    "load_log",
     "make_estimator",
     "max_error_threshold",
     "monitoring_signal",
     "persistent",
+    "plot_detection",
     "quantile_threshold",
     "quasi_static_gate",
     "rmse_split",
     "runs",
     "select_sigma_v",
+    "train_detector",
+    "write_intervals",
 ]

@@ -254,7 +254,7 @@ class CollisionDetector:
             rule).
         persistence: ``m`` consecutive samples above threshold raise an alarm.
         sample_time: sampling time ``T`` [s] of the data the detector is made for (saved with
-            it; :mod:`mcpilco.scripts.detect_collisions` rejects files sampled otherwise).
+            it; ``mcpilco-detect-collisions`` rejects files sampled otherwise).
 
     Fitted (:meth:`calibrate`): ``scale_`` ``(n,)``: ``sigma_CD`` [A] (``"max"``) or ``k``
     (``"variance"``).

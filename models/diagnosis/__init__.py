@@ -1,6 +1,6 @@
 """Model diagnosis: compare a model with measurements, find the missing physical effect.
 
-The loop (console script ``mcpilco-diagnose``):
+The loop (:func:`run_diagnosis` runs it on files; console script ``mcpilco-diagnose``):
 
 1. compare: :func:`fit_metrics` (nMSE, RMSE, NRMSE fit %), :func:`~.plots.plot_time`;
 2. where it fails: :func:`residual_report` (binned residuals, velocity reversals,
@@ -53,6 +53,7 @@ from mcpilco.models.diagnosis.start_models import (
     NominalStart,
     RBFStart,
 )
+from mcpilco.models.diagnosis.workflow import run_diagnosis
 from mcpilco.models.gp.linear_gp import JointGP
 
 __all__ = [
@@ -90,6 +91,7 @@ __all__ = [
     "noise_floor",
     "parse_effect",
     "residual_report",
+    "run_diagnosis",
     "score_candidates",
     "score_effect",
 ]

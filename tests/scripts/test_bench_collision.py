@@ -6,8 +6,6 @@ import json
 
 import pytest
 
-from mcpilco.scripts.bench_collision import main
-
 TINY = [
     "--train-waypoints", "4", "--gp-points", "150", "--hyper-points", "60",
     "--adam-iters", "3", "--lbfgs-iters", "0", "--test-waypoints", "2", "--final-rest", "1",
@@ -18,15 +16,17 @@ TINY = [
 
 
 @pytest.mark.slow  # about 3 min on 2 busy cores, most of it the simulation
-def test_tiny_run_keeps_its_jobs_and_a_rerun_reuses_them(tmp_path, capsys):
+def test_tiny_run_keeps_its_jobs_and_a_rerun_reuses_them(tmp_path, capsys, command):
     argv = [*TINY, "--out-dir", str(tmp_path / "out"), "--runs-dir", str(tmp_path / "runs")]
-    assert main([*argv, "--jobs", "2"]) == 0
+    assert command("mcpilco-bench-collision", [*argv, "--jobs", "2"]) == 0
     first = json.loads((tmp_path / "out" / "collision.json").read_text())
     names = {p.stem for p in (tmp_path / "runs").glob("*.json")}
     assert names == {"sigma_v_cv", "PP", "SP", "FC", "PP-sign"}
     assert (tmp_path / "runs" / "data.pkl").is_file()
     capsys.readouterr()
-    assert main(argv) == 0  # in this process: every job is read back, nothing recomputed
+    assert (
+        command("mcpilco-bench-collision", argv) == 0
+    )  # in this process: every job is read back, nothing recomputed
     assert "0 ran, 4 reused" in capsys.readouterr().out
     again = json.loads((tmp_path / "out" / "collision.json").read_text())
     assert again["estimators"] == first["estimators"] and again["goals"] == first["goals"]

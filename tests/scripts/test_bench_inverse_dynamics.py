@@ -7,10 +7,10 @@ import json
 import numpy as np
 import torch
 
-from mcpilco.scripts import bench_inverse_dynamics as bench
+from mcpilco.experiments.inverse_dynamics_bench import ESTIMATORS
 
 
-def test_tiny_benchmark_writes_outputs(tmp_path) -> None:
+def test_tiny_benchmark_writes_outputs(tmp_path, command) -> None:
     threads = torch.get_num_threads()
     argv = [
         "--parts", "scara,efficiency,ur10,timing",
@@ -24,12 +24,12 @@ def test_tiny_benchmark_writes_outputs(tmp_path) -> None:
         "--out-dir", str(tmp_path), "--runs-dir", str(tmp_path / "runs"), "--no-progress",
     ]  # fmt: skip
     try:
-        assert bench.main(argv) == 0
+        assert command("mcpilco-bench-inverse-dynamics", argv) == 0
     finally:
         torch.set_num_threads(threads)
     res = json.loads((tmp_path / "inverse_dynamics.json").read_text())
     scara = res["scara"]
-    assert set(scara["nmse"]) == set(bench.ESTIMATORS)
+    assert set(scara["nmse"]) == set(ESTIMATORS)
     assert np.asarray(scara["nmse"]["GIP"]).shape == (2, 4)
     assert np.all(np.isfinite(np.asarray(scara["nmse"]["FE"])))
     # one result file per Monte Carlo run, holding what the table shows
@@ -44,16 +44,3 @@ def test_tiny_benchmark_writes_outputs(tmp_path) -> None:
         assert (tmp_path / f"inverse_dynamics_{name}.png").stat().st_size > 1000
     md = (tmp_path / "inverse_dynamics.md").read_text()
     assert "| GIP |" in md and "Cholesky" in md
-
-
-def test_perturbation_stays_in_the_thesis_ranges() -> None:
-    rng = np.random.default_rng(0)
-    nominal = bench.scara_with_tool()
-    real = bench.perturb_kinematics(nominal, rng)
-    for a, b in zip(nominal.joints, real.joints, strict=True):
-        assert abs(a.a - b.a) <= 0.05 and abs(a.d - b.d) <= 0.05
-        assert abs(a.alpha - b.alpha) <= np.radians(5) + 1e-12
-        assert abs(a.theta - b.theta) <= np.radians(5) + 1e-12
-        assert b.range is None
-    ref = bench.sinusoid_reference(nominal, rng, n_sinusoids=200)
-    assert ref.omegas.shape == (4, 200) and np.abs(ref.omegas).max() <= 2.0

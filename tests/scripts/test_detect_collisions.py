@@ -1,4 +1,4 @@
-"""scripts/detect_collisions.py: a detector trained on a collision-free log finds a known
+"""mcpilco-detect-collisions: a detector trained on a collision-free log finds a known
 push in another log; bad files give clear errors (exit status 2)."""
 
 from __future__ import annotations
@@ -15,7 +15,7 @@ from mcpilco.envs.arm_builder import dh_forward_kinematics
 from mcpilco.envs.arm_data import PiecewiseTrajectory, QuinticMove, random_waypoints, rollout
 from mcpilco.envs.arm_env import UR10_HOME, Push, UR10Env
 from mcpilco.models.robot_data import save_dataset
-from mcpilco.scripts.detect_collisions import main
+from tests.conftest import run_command
 
 SCHEMA = ("t", "q", "qd", "qdd", "tau", "i", "i_cmd", "e_q", "e_qd", "contact")
 PUSH = (2.0, 0.5)  # onset, duration [s]
@@ -47,7 +47,8 @@ def logs(tmp_path_factory) -> dict:
     _save(pushed, paths["pushed"])
     paths["pushed_arrays"] = pushed
     paths["detector"] = tmp / "pp.pt"
-    code = main(
+    code = run_command(
+        "mcpilco-detect-collisions",
         [
             str(paths["pushed"]),
             "--train",
@@ -66,15 +67,18 @@ def logs(tmp_path_factory) -> dict:
             str(paths["detector"]),
             "--out-dir",
             str(tmp / "out_train"),
-        ]
+        ],
     )
     assert code == 0
     return paths
 
 
-def test_detector_finds_the_push_and_writes_csv_and_png(logs, capsys) -> None:
+def test_detector_finds_the_push_and_writes_csv_and_png(logs, capsys, command) -> None:
     out = logs["dir"] / "out"
-    code = main([str(logs["pushed"]), "--detector", str(logs["detector"]), "--out-dir", str(out)])
+    code = command(
+        "mcpilco-detect-collisions",
+        [str(logs["pushed"]), "--detector", str(logs["detector"]), "--out-dir", str(out)],
+    )
     assert code == 0
     assert "detection rate 1.00" in capsys.readouterr().out
     rows = list(csv.DictReader((out / "pushed_collisions.csv").open()))
@@ -113,22 +117,27 @@ def _broken(logs, tmp_path, change) -> str:
         ),
     ],  # fmt: skip
 )
-def test_bad_files_give_clear_errors(logs, tmp_path, capsys, change, message) -> None:
+def test_bad_files_give_clear_errors(logs, tmp_path, capsys, command, change, message) -> None:
     bad = _broken(logs, tmp_path, change)
-    code = main([bad, "--detector", str(logs["detector"]), "--out-dir", str(tmp_path)])
+    code = command(
+        "mcpilco-detect-collisions",
+        [bad, "--detector", str(logs["detector"]), "--out-dir", str(tmp_path)],
+    )
     assert code == 2
     err = capsys.readouterr().err
     assert err.startswith("error: ")
     assert re.search(message, err), err
 
 
-def test_fc_training_needs_the_controller_columns(logs, tmp_path, capsys) -> None:
+def test_fc_training_needs_the_controller_columns(logs, tmp_path, capsys, command) -> None:
     free = _broken(
         {"pushed": logs["free"]},
         tmp_path,
         lambda d: d.drop(columns=[f"i_cmd{j}" for j in range(1, 7)]),
     )
-    code = main([str(logs["pushed"]), "--train", free, "--estimator", "FC"])
+    code = command(
+        "mcpilco-detect-collisions", [str(logs["pushed"]), "--train", free, "--estimator", "FC"]
+    )
     assert code == 2
     assert "i_cmd1..i_cmd6" in capsys.readouterr().err
     assert math.isfinite(float(np.sum(logs["pushed_arrays"]["i"])))

@@ -6,29 +6,17 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from mcpilco.scripts import diagnose, make_hidden_effect_data
+from mcpilco.experiments.hidden_effects import make_case, write_case
 
 
 @pytest.fixture(scope="module")
 def case_dir(tmp_path_factory):
     out = tmp_path_factory.mktemp("hidden")
-    argv = [
-        "--robot",
-        "scara",
-        "--effect",
-        "viscous:1",
-        "--seed",
-        "3",
-        "--duration",
-        "8",
-        "--out",
-        str(out),
-    ]
-    assert make_hidden_effect_data.main(argv) == 0
+    write_case(make_case("scara", ["viscous:1"], seed=3, duration=8.0), out)
     return out
 
 
-def test_cli_loop_writes_versions_plots_and_recording(case_dir, tmp_path, capsys):
+def test_cli_loop_writes_versions_plots_and_recording(case_dir, tmp_path, capsys, command):
     out = tmp_path / "run"
     argv = [
         "--model",
@@ -43,7 +31,7 @@ def test_cli_loop_writes_versions_plots_and_recording(case_dir, tmp_path, capsys
         "--out",
         str(out),
     ]
-    assert diagnose.main(argv) == 0
+    assert command("mcpilco-diagnose", argv) == 0
     text = capsys.readouterr().out
     assert "SIGNIFICANT" in text and "viscous:1" in text
     for name in (
@@ -59,17 +47,6 @@ def test_cli_loop_writes_versions_plots_and_recording(case_dir, tmp_path, capsys
     summary = json.loads((out / "summary.json").read_text())
     rmse = np.array(summary["heldout_rmse"])
     assert rmse[1, 0] < 0.5 * rmse[0, 0]
-
-
-def test_saved_versions_are_never_overwritten(case_dir, tmp_path):
-    from mcpilco.models.diagnosis import DiagnosisModel, NominalStart, load_trajectories
-
-    train = load_trajectories([case_dir / "train_1.csv"])
-    model = DiagnosisModel(NominalStart(case_dir / "robot.xml")).fit(train)
-    first, second = model.save(tmp_path), model.save(tmp_path)
-    assert first.name == "model_v0.json" and second.name == "model_v0-2.json"
-    again = DiagnosisModel.load(first).fit(train)
-    np.testing.assert_allclose(again.log_evidence_, model.log_evidence_)
 
 
 def _bad(case_dir, tmp_path, edit):
@@ -90,27 +67,27 @@ def _bad(case_dir, tmp_path, edit):
         (lambda df: df.drop(columns=["q4", "qd4", "qdd4", "tau4"]), "joint count mismatch"),
     ],
 )
-def test_bad_input_gives_clear_error(case_dir, tmp_path, capsys, edit, message):
+def test_bad_input_gives_clear_error(case_dir, tmp_path, capsys, command, edit, message):
     bad = _bad(case_dir, tmp_path, edit)
     argv = ["--model", str(case_dir / "robot.xml"), "--train", str(bad), "--out", str(tmp_path)]
-    assert diagnose.main(argv) == 2
+    assert command("mcpilco-diagnose", argv) == 2
     err = capsys.readouterr().err
     assert message in err, err
 
 
-def test_joint_count_of_model_file_is_named(case_dir, tmp_path, capsys):
+def test_joint_count_of_model_file_is_named(case_dir, tmp_path, capsys, command):
     from mcpilco.envs.arm_builder import arm_to_xml
     from mcpilco.envs.arms import ur10
 
     xml = tmp_path / "ur10.xml"
     xml.write_text(arm_to_xml(ur10(), friction=False))
     argv = ["--model", str(xml), "--train", str(case_dir / "train_1.csv"), "--out", str(tmp_path)]
-    assert diagnose.main(argv) == 2
+    assert command("mcpilco-diagnose", argv) == 2
     err = capsys.readouterr().err
     assert "4 joints" in err and "6" in err, err
 
 
-def test_shipped_example_finds_its_hidden_effect(tmp_path):
+def test_shipped_example_finds_its_hidden_effect(tmp_path, command):
     """The README walk-through: the shipped SCARA example's hidden effect (truth.json) is
     added by --auto, and the held-out error of its joint falls to the noise level."""
     from importlib.resources import files
@@ -121,7 +98,7 @@ def test_shipped_example_finds_its_hidden_effect(tmp_path):
     argv = ["--model", str(ex / "robot.xml"), "--train"]
     argv += [str(ex / "train_1.parquet"), str(ex / "train_2.parquet")]
     argv += ["--test", str(ex / "test_1.parquet"), "--auto", "2", "--out", str(out)]
-    assert diagnose.main([*argv, "--no-plots", "--no-rerun"]) == 0
+    assert command("mcpilco-diagnose", [*argv, "--no-plots", "--no-rerun"]) == 0
     summary = json.loads((out / "summary.json").read_text())
     (label,) = truth["labels"]
     assert len(summary["versions"]) == 2 and label in summary["versions"][1]

@@ -10,6 +10,7 @@ import math
 
 import numpy as np
 
+from mcpilco.experiments.hidden_effects import make_case
 from mcpilco.models.diagnosis import DiagnosisModel, GIPStart, as_trajectories, heldout_rmse
 from mcpilco.models.diagnosis.effects import Delay
 from mcpilco.models.diagnosis.search import (
@@ -17,7 +18,6 @@ from mcpilco.models.diagnosis.search import (
     heldout_change_pct,
     score_effect,
 )
-from mcpilco.scripts.make_hidden_effect_data import make_case
 
 
 def _gip_model(case, max_points=200):

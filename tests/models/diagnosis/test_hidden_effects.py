@@ -1,14 +1,15 @@
-"""The loop on data with hidden effects (scripts/make_hidden_effect_data.py, SCARA).
+"""The loop on data with hidden effects (:mod:`mcpilco.experiments.hidden_effects`, SCARA).
 
 Single random effects (seeded: random key, joint, magnitude): the true effect on the true
 joint is the verdict, and adding it brings the held-out RMSE of the affected joints within
 1.5x the true noise std. The control case reports no significant effect. Statistics over
-many cases: scripts/bench_diagnosis.py.
+many cases: ``mcpilco-bench-diagnosis``.
 """
 
 import numpy as np
 import pytest
 
+from mcpilco.experiments.hidden_effects import make_case
 from mcpilco.models.diagnosis import (
     CoulombFriction,
     DiagnosisModel,
@@ -19,7 +20,6 @@ from mcpilco.models.diagnosis import (
     diagnose,
     heldout_rmse,
 )
-from mcpilco.scripts.make_hidden_effect_data import make_case
 
 DURATION = 12.0
 

@@ -1,0 +1,245 @@
+"""The diagnosis loop on files: compare a robot model with measurements, see where it fails,
+find the missing physical effect, add it, watch the error fall (``mcpilco-diagnose``).
+
+:func:`run_diagnosis` runs the five steps of :mod:`mcpilco.models.diagnosis` on training and
+held-out files and reports each step as text lines (``log``). Start model: a nominal robot
+file (MJCF or URDF, rigid-body physics), or a GIP / RBF GP learned on the training files
+(the joint types set the joint count and which joints are angles; a robot file then only
+gives the payload candidate its regressor). Without held-out files the last training file
+(or, with one file, its last 30%) is held out. Effects are added by name (``coulomb:2``) or
+automatically, best first (missing effects before refinements inside a learned start's
+span), while one is significant. Every version is saved as ``<out>/models/model_v<k>.json``
+(never overwritten).
+
+Outputs under ``out``: ``compare_v<k>.png`` (measured vs predicted +-2 sigma),
+``residuals_v<k>.png``, ``waterfall.png``, ``diagnosis.rrd`` (Rerun), ``summary.json``.
+"""
+
+from __future__ import annotations
+
+import json
+import time
+from collections.abc import Callable, Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+
+def run_diagnosis(
+    train: Sequence[str | Path],
+    test: Sequence[str | Path] | None = None,
+    *,
+    model: str | Path | None = None,
+    learned: tuple[str, str] | None = None,
+    add: Sequence[str] = (),
+    auto: int = 0,
+    threshold: float = 5.0,
+    max_points: int = 600,
+    gip_iters: int = 100,
+    out: str | Path = "results/diagnosis_run",
+    plots: bool = True,
+    rerun: bool = True,
+    log: Callable[[str], None] = print,
+) -> dict[str, Any]:
+    """Run the diagnosis loop on files and write its outputs (module docstring).
+
+    Args:
+        train: training files (CSV / Parquet, dataset schema).
+        test: held-out files (default: split off the training files).
+        model: nominal robot file (MJCF ``.xml`` or URDF); the start model unless
+            ``learned`` is given.
+        learned: ``(kind, joint_types)``, kind in ``LEARNED_STARTS`` (``"gip"``, ``"rbf"``),
+            e.g. ``("gip", "RRPR")``: a learned start model.
+        add: effects to add, e.g. ``["coulomb:2"]``.
+        auto: add up to this many significant effects, best first.
+        threshold: log-evidence threshold of a significant effect [nats].
+        max_points: GP rows of a learned start.
+        gip_iters: Adam iterations of a learned start's fit.
+        out: output folder (created).
+        plots, rerun: write the PNG figures / the Rerun recording.
+        log: receives the report, one block of text at a time.
+
+    Returns:
+        The summary written to ``out/summary.json``: ``versions``, ``heldout_rmse`` (one row
+        per version), ``noise_floor``, ``diagnoses``, ``saved``, ``artefacts``,
+        ``data_warnings``, ``seconds``.
+
+    Raises:
+        ValueError: bad input (no start model, unreadable or too short files, a joint count
+            that differs from the model's, ``out`` a file), with a message naming it.
+    """
+    from mcpilco.models.diagnosis import (
+        LEARNED_STARTS,
+        DiagnosisModel,
+        NominalStart,
+        diagnose,
+        fit_metrics,
+        load_trajectories,
+        metrics_table,
+        noise_floor,
+        parse_effect,
+        residual_report,
+    )
+    from mcpilco.models.diagnosis.data import MIN_FIT_ROWS, MIN_HELDOUT_ROWS, require_rows
+
+    t_start = time.perf_counter()
+    if model is None and learned is None:
+        raise ValueError(
+            "give a start model: --model robot.xml (nominal), or --gip RRPR / --rbf RRPR (learned)"
+        )
+    effects_to_add = [parse_effect(a) for a in add]
+    if learned is not None:
+        kind, joint_types = learned
+        if kind not in LEARNED_STARTS:
+            raise ValueError(f"learned start must be one of {sorted(LEARNED_STARTS)}, got {kind!r}")
+        start = LEARNED_STARTS[kind](joint_types, robot=model, adam_iters=gip_iters)
+    else:
+        start = NominalStart(model)
+    n = start.n_joints
+    train = load_trajectories(train, n_joints=n)
+    if test:
+        test = load_trajectories(test, n_joints=n)
+    elif train.n_segments >= 2:
+        test = train.select([train.n_segments - 1])
+        train = train.select(range(train.n_segments - 1))
+        log(f"held out (whole file): {test.names[0]}")
+    else:
+        train, test = train.split_time(0.7)
+        log(f"held out: the last 30% of {train.names[0]}")
+    require_rows(train, MIN_FIT_ROWS, "fitting a diagnosis model")  # before any work
+    require_rows(test, MIN_HELDOUT_ROWS, "confirming effects on held-out data")
+    data_warnings = list(dict.fromkeys(train.warnings + test.warnings))
+    for text in data_warnings:
+        log(f"warning: {text}")
+    out = Path(out)
+    if out.exists() and not out.is_dir():
+        raise ValueError(f"--out {out} is a file; give a folder")
+    out.mkdir(parents=True, exist_ok=True)
+    unit = "A" if train.output == "i" else None
+
+    model = DiagnosisModel(start, max_points=max_points).fit(train)
+    log(f"\n== 1. compare: {model.describe()}")
+    versions = [model]
+
+    def compare(m: DiagnosisModel) -> dict:
+        mean_tr, _ = m.predict(train, with_var=False)
+        mean_te, var_te = m.predict(test)
+        rows = [
+            (m.name, "train", fit_metrics(train.y, mean_tr)),
+            (m.name, "held-out", fit_metrics(test.y, mean_te)),
+        ]
+        return {"rows": rows, "mean": mean_te, "var": var_te}
+
+    def where(m: DiagnosisModel, res: dict) -> None:
+        rep = residual_report(
+            test, res["mean"], None, start.joint_types, model_name=m.name, unit=unit
+        )
+        log(f"\n== 2. {rep.text()}")
+        if plots:
+            from mcpilco.models.diagnosis.plots import plot_residuals, plot_time
+
+            p1 = plot_time(
+                test,
+                res["mean"],
+                res["var"],
+                m.noise_std_,
+                out / f"compare_{m.name}.png",
+                title=m.describe(),
+            )
+            p2 = plot_residuals(rep, out / f"residuals_{m.name}.png")
+            log(f"   plots: {p1}  {p2}")
+
+    res = {model.name: compare(model)}
+    log(metrics_table(res[model.name]["rows"], n))
+    where(model, res[model.name])
+    log("\n== 3. which effect is missing")
+    diag = diagnose(model, test, threshold=threshold)
+    log(diag.table())
+    diag_obj = {model.name: diag}
+
+    log("\n== 4. add")
+    for e in effects_to_add:
+        model = model.add(e)
+        versions.append(model)
+        log(f"   {model.describe()}")
+    for _ in range(auto):
+        if model.name not in diag_obj:
+            diag_obj[model.name] = diagnose(model, test, threshold=threshold)
+            log(diag_obj[model.name].table(6))
+        lead = diag_obj[model.name].lead  # the missing effect, else an in-span refinement
+        if lead is None:
+            break
+        model = model.with_effect(lead.effect, backfit=True)
+        versions.append(model)
+        log(f"   {model.describe()}")
+    saved = [str(v.save(out / "models")) for v in versions]
+    log(f"   saved: {', '.join(saved)}")
+    for v in versions:
+        for p in v.parameters() if v is versions[-1] else []:
+            log(f"   {v.name} {p['effect']} (joint {p['output']}): {p['text']}")
+
+    log("\n== 5. watch the error fall (held-out)")
+    for v in versions[1:]:
+        res[v.name] = compare(v)
+    held = np.array([res[v.name]["rows"][1][2]["rmse"] for v in versions])
+    noise = noise_floor(test, res[versions[-1].name]["mean"])
+    head = f"{'version':<8}" + "".join(f"{'RMSE j' + str(j + 1):>12}" for j in range(n))
+    log(head + "   effects")
+    for v, r in zip(versions, held, strict=True):
+        added = ", ".join(e.variant_label for e in v.effects) or "-"
+        log(f"{v.name:<8}" + "".join(f"{x:>12.4g}" for x in r) + f"   {added}")
+    log(f"{'noise':<8}" + "".join(f"{x:>12.4g}" for x in noise) + "   (noise floor)")
+    if len(versions) > 1:
+        log(metrics_table([res[v.name]["rows"][1] for v in versions], n))
+    artefacts = {}
+    if plots:
+        from mcpilco.models.diagnosis.plots import plot_waterfall
+
+        artefacts["waterfall"] = str(
+            plot_waterfall(
+                [v.name for v in versions],
+                held,
+                versions[-1].noise_std_,
+                out / "waterfall.png",
+                labels=[
+                    v.describe().split(": ", 1)[0]
+                    + " "
+                    + (", ".join(e.label for e in v.effects) or "start")
+                    for v in versions
+                ],
+            )
+        )
+    if rerun:
+        from mcpilco.models.diagnosis.plots import write_rerun
+
+        artefacts["rerun"] = str(
+            write_rerun(
+                out / "diagnosis.rrd", test, {v.name: res[v.name]["mean"] for v in versions}
+            )
+        )
+    for k, p in artefacts.items():
+        log(f"   {k}: {p}")
+    if len(versions) > 1:
+        last = versions[-1]
+        where(last, res[last.name])
+        if last.name not in diag_obj:
+            diag_obj[last.name] = diagnose(last, test, threshold=threshold)
+            log(diag_obj[last.name].table(6))
+        else:
+            log(diag_obj[last.name].verdict())
+    summary = {
+        "versions": [v.describe() for v in versions],
+        "heldout_rmse": held.tolist(),
+        "noise_floor": noise.tolist(),
+        "diagnoses": {k: d.to_dict() for k, d in diag_obj.items()},
+        "saved": saved,
+        "artefacts": artefacts,
+        "data_warnings": data_warnings,
+        "seconds": time.perf_counter() - t_start,
+    }
+    (out / "summary.json").write_text(json.dumps(summary, indent=1, default=float))
+    for text in data_warnings:  # repeated where the report ends
+        log(f"warning: {text}")
+    log(f"\nsummary: {out / 'summary.json'} ({summary['seconds']:.1f} s)")
+    return summary
