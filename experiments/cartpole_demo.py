@@ -6,11 +6,11 @@ experience) and decides how the rollout runs (:func:`choose_compile`); :func:`ru
 it and :func:`demo_report` says whether the pole was swung up, the time taken, how the
 rollout ran and where the checkpoint, the Rerun recording (``run.rrd``) and the PNG plots are.
 
-On the CPU the rollout is compiled when a C++ compiler is found (``compile_rollout``, the
+On the CPU the fast rollout is used when a C++ compiler is found (``compile_rollout``, the
 ``native`` backend: the whole rollout, forward and backward through time, in the package's
-C++ loop, the particles split over the threads; ``direct``, inductor-compiled time steps,
-where ``native`` does not apply). Each trial checks the compiled rollout against the eager
-one and runs eagerly if they disagree. Without a compiler the demo says so and runs eagerly.
+C++ loop, the particles split over the threads). Each trial checks the fast rollout against
+the eager one and runs eagerly if they disagree. Without a compiler the demo says so and runs
+eagerly.
 On a GPU each policy-optimisation step is one replayed CUDA graph.
 """
 

@@ -567,26 +567,28 @@ def write_report(results: dict, out_dir: Path) -> None:
             "A step at a few particles is the fixed cost of the 60-step rollout (one op after "
             "another, forward and backward); the rest grows with M.",
             "",
-            "Compiled: the same step compiled (`--compile-rollout`) by the default backend "
-            "(column backend; `native`: the whole rollout, forward and backward, in the "
-            "package's C++ loop; `direct`: forward and backward of a time step chained by hand "
-            "and compiled by inductor, no dynamo and no autograd per time step), alternating "
-            "with the eager step in each round; compile s: the compilation and its check "
-            "against the eager step (for `direct`, about 1 s where inductor's on-disk cache "
-            "already held graphs of the same size, from any GP); shards: the threads a "
-            "compiled rollout is split over, by particles (two threads: 2 at 400 particles, 1 "
-            "at 25). Direct: the `direct` backend in the same rounds, where the default is "
-            "`native`. Dynamo: the time step `torch.compile`-d instead, in the same rounds.",
+            "Fast: the same step with the fast rollout (`--compile-rollout`) of the default "
+            "backend (column backend; `native`: the whole rollout, forward and backward, in "
+            "the package's C++ loop), alternating with the eager step in each round; build s: "
+            "building it and its check against the eager rollout; shards: the threads a "
+            "rollout is split over, by particles (two threads: 2 at 400 particles, 1 at 25). "
+            "Torch: the same chained maths in PyTorch ops (backend `torch`) in the same "
+            "rounds, where the default is `native`. Dynamo: the time step `torch.compile`-d "
+            "instead, in the same rounds. Floor: the flops of the GP posterior variance "
+            "(2 N^2 per particle, output and step, forward and backward) at this machine's "
+            "float32 matmul rate (column GFLOP/s, 512 x 512 product on the same threads).",
             "",
             "Faults: minor page faults per step, with the freed memory kept in the process "
             "(`retain_host_memory`). 128 KiB heap: the eager step with glibc's initial "
             "allocator thresholds instead (`--timing-heap-contrast`), in the same rounds.",
             "",
             "| particles M | GP points N | device | CUDA graph | threads | wall s/step "
-            "| CPU s/step | faults | compiled: backend | wall s/step | CPU s/step "
-            "| speed-up (CPU) | compile s | shards | direct: wall s/step | CPU s/step "
-            "| dynamo: wall s/step | CPU s/step | 128 KiB heap: wall s/step | faults |",
-            "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|",
+            "| CPU s/step | faults | fast: backend | wall s/step | CPU s/step "
+            "| speed-up (CPU) | build s | shards | torch: wall s/step | CPU s/step "
+            "| dynamo: wall s/step | CPU s/step | 128 KiB heap: wall s/step | faults "
+            "| floor s/step | GFLOP/s |",
+            "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"
+            "---|---|",
         ]
         for t in results["timing"]:
             graph = "yes" if t.get("cuda_graph") else "no"
@@ -603,8 +605,8 @@ def write_report(results: dict, out_dir: Path) -> None:
                     f"| {t['s_per_step_cpu'] / t['compiled_s_per_step_cpu']:.2f}x "
                     f"| {t['compile_s']:.1f} | {t.get('rollout_shards', 1)}"
                 )
-            if "direct_s_per_step_wall" in t:
-                comp += f" | {t['direct_s_per_step_wall']:.3f} | {t['direct_s_per_step_cpu']:.3f}"
+            if "torch_s_per_step_wall" in t:
+                comp += f" | {t['torch_s_per_step_wall']:.3f} | {t['torch_s_per_step_cpu']:.3f}"
             else:
                 comp += " | - | -"
             if "dynamo_s_per_step_wall" in t:
@@ -618,6 +620,10 @@ def write_report(results: dict, out_dir: Path) -> None:
                     f"| {t['heap128k_s_per_step_wall']:.3f} "
                     f"| {t['heap128k_page_faults_per_step']:.0f}"
                 )
+            if "floor_s" in t:
+                heap += f" | {t['floor_s']:.4f} | {t['matmul_gflops']:.0f}"
+            else:
+                heap += " | - | -"
             md.append(
                 f"| {t['num_particles']} | {t['n_points']} | {t.get('device', 'cpu')} | {graph} "
                 f"| {t['threads']} | {t['s_per_step_wall']:.3f} | {t['s_per_step_cpu']:.3f} "

@@ -3,8 +3,15 @@
 
 One step is the forward pass through the ``M x H`` particle rollout, its backward pass and an
 Adam step, on a GP fitted to random-exploration data. :func:`time_opt_step` times it eager
-and, on request, compiled by each backend of :meth:`MCPilcoLoss.compile_step`, alternating
-the variants within each round so that their ratios hold on a busy machine.
+and, on request, with each fast rollout of :func:`~mcpilco.agents.mc_pilco.use_fast_rollout`,
+alternating the variants within each round so that their ratios hold on a busy machine.
+
+Beside the times, :func:`time_opt_step` reports a floor: the flops of the GP posterior
+variance, the part of a step that grows with ``N`` squared, at this machine's float32 matmul
+rate (:func:`matmul_rate`). Per particle, GP output and time step, the variance
+``sigma^2 = k** - ||L^{-1} k*||^2`` costs about ``N^2`` flops forward (a triangular solve,
+``N^2 / 2`` multiply-adds) and as many backward, so a step's floor is
+``2 N^2 M m H / rate`` seconds (``M`` particles, ``m`` outputs, ``H`` steps).
 """
 
 from __future__ import annotations
@@ -17,7 +24,37 @@ import numpy as np
 
 from mcpilco.agents.mc_pilco import DEFAULT_ENV_ID, TaskSpec
 
-__all__ = ["exploration_data", "time_opt_step"]
+__all__ = ["exploration_data", "matmul_rate", "time_opt_step", "variance_flops"]
+
+MATMUL_SIZE = 512  # rows and columns of the square float32 product that measures the rate
+
+
+def variance_flops(n_points: int, num_particles: int, outputs: int, horizon: int) -> float:
+    """Flops of the GP posterior variance in one optimisation step, forward and backward:
+    ``2 N^2 M m H`` (module docstring)."""
+    return 2.0 * n_points**2 * num_particles * outputs * horizon
+
+
+def matmul_rate(threads: int, repeats: int = 20) -> float:
+    """Flops per second of a float32 ``512 x 512`` matrix product on ``threads`` intra-op
+    threads (the best of ``repeats``): what this machine's BLAS reaches on dense work."""
+    import torch
+
+    before = torch.get_num_threads()
+    torch.set_num_threads(threads)
+    try:
+        gen = torch.Generator().manual_seed(0)
+        a = torch.randn(MATMUL_SIZE, MATMUL_SIZE, generator=gen)
+        b = torch.randn(MATMUL_SIZE, MATMUL_SIZE, generator=gen)
+        a @ b  # warm-up
+        best = float("inf")
+        for _ in range(repeats):
+            t = time.perf_counter()
+            a @ b
+            best = min(best, time.perf_counter() - t)
+    finally:
+        torch.set_num_threads(before)
+    return 2.0 * MATMUL_SIZE**3 / best
 
 
 def exploration_data(env_id: str, n_points: int, seed: int, hold: int = 1):
@@ -53,15 +90,19 @@ def time_opt_step(
 ) -> dict[str, float]:
     """Median wall and CPU seconds of one optimisation step (rollout, backward, Adam).
 
-    ``compile_rollout``: also time the same step compiled (:meth:`MCPilcoLoss.compile_step`)
-    by its default backend (``compiled_*``: ``native`` where it applies, else ``direct``), by
-    the ``direct`` backend (``direct_*``, when the default is ``native``) and by
-    ``torch.compile`` of the time step (``dynamo_*``, when the default is not already that),
-    each on its own loss module sharing the policy and the GP posterior; the eager and the
-    compiled steps alternate within each round, so their ratios hold on a busy machine.
-    ``compile_s``: the time of ``compile_step`` (the compilation and its check against the
-    eager step, one step of each); ``compile_check`` its figures. A compiled step that fails
-    the check is not timed (``compiled_rejected``).
+    ``compile_rollout``: also time the same step with a fast rollout
+    (:func:`~mcpilco.agents.mc_pilco.use_fast_rollout`) of the default backend
+    (``compiled_*``: ``native`` where it applies, else ``dynamo``), of the ``torch``
+    backend (``torch_*``, the same chained maths in PyTorch ops, when the default is
+    ``native``) and of ``torch.compile`` of the time step (``dynamo_*``, when the default is
+    not already that), each on its own loss module sharing the policy and the GP posterior;
+    the eager and the fast steps alternate within each round, so their ratios hold on a busy
+    machine. ``compile_s``: the time of ``use_fast_rollout`` (the build and its check against
+    the eager rollout, one step of each); ``compile_check`` its figures. A fast rollout that
+    fails the check is not timed (``compiled_rejected``).
+
+    ``floor_s``: :func:`variance_flops` at :func:`matmul_rate` on ``threads`` threads
+    (``matmul_gflops``), the time the ``N``-squared part of a step needs at the least.
 
     The process keeps its freed memory (:func:`~mcpilco.models.device.retain_host_memory`,
     as a training run does); ``page_faults_per_step`` counts the minor page faults of each
@@ -83,6 +124,7 @@ def time_opt_step(
         SquashedRBFPolicy,
         StateLayout,
         make_policy_module,
+        use_fast_rollout,
     )
     from mcpilco.agents.mc_pilco.optimize import loss_and_grad_fn
     from mcpilco.models.device import (
@@ -117,29 +159,29 @@ def time_opt_step(
     compile_info: dict[str, object] = {}
     compiled_losses = []
     if compile_rollout:
-        # "compiled": the default backend (native, else direct, where they apply);
-        # "direct": inductor-compiled time steps; "dynamo": torch.compile of the time step
-        for name, backend in (("compiled", "auto"), ("direct", "direct"), ("dynamo", "dynamo")):
-            if name == "direct" and compile_info.get("compile_backend") != "native":
-                continue  # the default already is direct (or direct does not apply)
+        # "compiled": the default backend (native where it applies, else dynamo); "torch":
+        # the chained rollout in PyTorch ops; "dynamo": torch.compile of the time step
+        for name, backend in (("compiled", "auto"), ("torch", "torch"), ("dynamo", "dynamo")):
+            if name == "torch" and compile_info.get("compile_backend") != "native":
+                continue  # the chained rollout does not apply here
             compiled = make_loss()
             t_compile = time.perf_counter()
-            accepted = compiled.compile_step(backend=backend, dynamic=False)
+            fast = use_fast_rollout(compiled, backend=backend, dynamic=False)
             prefix = "" if name == "compiled" else f"{name}_"
             compile_info.update(
                 {
-                    f"{prefix}compile_backend": compiled.compile_backend,
-                    f"{prefix}rollout_shards": compiled.rollout_shards,
+                    f"{prefix}compile_backend": fast.backend,
+                    f"{prefix}rollout_shards": fast.shards,
                     f"{prefix}compile_s": time.perf_counter() - t_compile,
-                    f"{prefix}compile_check": compiled.compile_check,
-                    f"{prefix}compile_error": compiled.compile_error,
-                    f"{prefix}compiled_rejected": not accepted,
+                    f"{prefix}compile_check": fast.check,
+                    f"{prefix}compile_error": fast.error,
+                    f"{prefix}compiled_rejected": not fast.in_use,
                 }
             )
             compiled_losses.append(compiled)
-            if accepted:
+            if fast.in_use:
                 step_fns[name] = loss_and_grad_fn(compiled, params, cuda_graph=cuda_graph)
-            if compiled.compile_backend == "dynamo" and name == "compiled":
+            if fast.backend == "dynamo" and name == "compiled":
                 break  # the default already is dynamo here
     if heap_contrast:
         step_fns["heap128k"] = step_fns["eager"]
@@ -175,8 +217,11 @@ def time_opt_step(
         "s_per_step_cpu": statistics.median(cpus["eager"]),
         "page_faults_per_step": statistics.median(faults["eager"]),
     }
+    rate = matmul_rate(threads) if dev.type == "cpu" else float("nan")
+    flops = variance_flops(n_points, num_particles, dynamics.layout.output_dim, horizon)
+    out.update({"matmul_gflops": rate / 1e9, "floor_s": flops / rate})
     out.update(compile_info)
-    for name in ("compiled", "direct", "dynamo", "heap128k"):
+    for name in ("compiled", "torch", "dynamo", "heap128k"):
         if name in step_fns:
             out.update(
                 {
@@ -186,5 +231,5 @@ def time_opt_step(
                 }
             )
     for compiled in compiled_losses:
-        compiled.compile_step(False)
+        compiled.set_fast_rollout(None)
     return out

@@ -106,9 +106,9 @@ def build_parser() -> argparse.ArgumentParser:
         "--compile-rollout",
         action="store_true",
         default=None,
-        help="compile the rollout's time step in the runs (MCPilcoLoss.compile_step, default "
-        "backend); the timing part then also times every setting compiled, by the default "
-        "backend and by torch.compile",
+        help="use the fast rollout in the runs (use_fast_rollout, default backend); the "
+        "timing part then also times every setting with the default backend, the torch "
+        "backend and torch.compile",
     )
     p.add_argument(
         "--explore-hold",

@@ -8,12 +8,15 @@ TorchRL-style parts (Amadio et al., IEEE T-RO 2022) over any task that declares 
 * modules: :class:`SquashedRBFPolicy` (a ``TensorDictModule`` via :func:`make_policy_module`),
   :class:`GPDynamicsModel` / :class:`SpeedIntegrationDynamics` (GP changes, speed
   integration), :class:`SaturatingCost`;
-* objective: :class:`MCPilcoLoss` (particle rollout, ``loss_cost``);
+* objective: :class:`MCPilcoLoss` (particle rollout, ``loss_cost``); fast rollouts of it
+  (native C++, chained PyTorch, ``torch.compile``) chosen and checked against the eager one
+  by :func:`use_fast_rollout`;
 * loop: :func:`optimize_policy` (Adam + monitoring rule) and :func:`run_mcpilco` (trials,
   checkpoints, PNG and Rerun outputs), configured by :class:`MCPilcoConfig` and per-env
   YAML files (:func:`load_config`).
 """
 
+from mcpilco.agents.mc_pilco.backends import FastRollout, use_fast_rollout
 from mcpilco.agents.mc_pilco.cost import SaturatingCost
 from mcpilco.agents.mc_pilco.dynamics import (
     GPDynamicsModel,
@@ -51,6 +54,7 @@ from mcpilco.agents.mc_pilco.task import TaskSpec, TaskSpecError
 __all__ = [
     "DEFAULT_ENV_ID",
     "CostMonitor",
+    "FastRollout",
     "GPDynamicsModel",
     "MCPilcoConfig",
     "MCPilcoLoss",
@@ -77,4 +81,5 @@ __all__ = [
     "run_mcpilco",
     "speed_integration",
     "transitions_to_dataset",
+    "use_fast_rollout",
 ]

@@ -42,6 +42,7 @@ import numpy as np
 import torch
 
 from mcpilco.agents.common.run_folder import RUN_OUTPUTS, open_run_folder
+from mcpilco.agents.mc_pilco.backends import BACKENDS, use_fast_rollout
 from mcpilco.agents.mc_pilco.checkpoint import (
     CHECKPOINT_VERSION,
     atomic_torch_save,
@@ -132,11 +133,15 @@ class MCPilcoConfig:
         log_particles: particles kept per trial for the PNG / Rerun plots.
         seed: seeds torch, numpy and the env resets.
         torch_threads: ``torch.set_num_threads`` (None: leave as is).
-        compile_rollout: compile the rollout with its backward (:meth:`MCPilcoLoss.compile_step`,
-            default backend ``auto``); each trial checks the compiled rollout against the
-            eager one (``J^`` and its gradient) and runs eagerly if they disagree (the trial
-            record's ``compiled_step``, ``compile_backend``, ``rollout_shards`` and
-            ``compile_check``). Needs a C++ compiler on the CPU.
+        compile_rollout: use a fast rollout with its backward
+            (:func:`~mcpilco.agents.mc_pilco.backends.use_fast_rollout`, backend
+            ``rollout_backend``); each trial checks it against the eager rollout (``J^`` and
+            its gradient) and runs eagerly if they disagree (the trial record's
+            ``compiled_step``, ``compile_backend``, ``rollout_shards`` and ``compile_check``).
+            The native and dynamo backends need a C++ compiler on the CPU.
+        rollout_backend: ``"auto"`` (default: the native C++ rollout where it applies, else
+            ``torch.compile`` of the time step), ``"native"``, ``"torch"`` (the same chained
+            maths in plain PyTorch ops) or ``"dynamo"``.
         rollout_dtype: dtype of the GP posterior evaluated in the particle rollout,
             ``"float32"`` (default) or ``"float64"``; the particles, the policy and the GP
             fit are the same in both (float32, float32, float64).
@@ -170,6 +175,7 @@ class MCPilcoConfig:
     seed: int = 0
     torch_threads: int | None = None
     compile_rollout: bool = False
+    rollout_backend: str = "auto"
     rollout_dtype: str = "float32"
     device: str = "cpu"
 
@@ -198,6 +204,10 @@ class MCPilcoConfig:
             )
         if self.kernel not in KERNEL_CHOICES:
             raise ValueError(f"kernel must be one of {KERNEL_CHOICES}, got {self.kernel!r}")
+        if self.rollout_backend not in BACKENDS:
+            raise ValueError(
+                f"rollout_backend must be one of {BACKENDS}, got {self.rollout_backend!r}"
+            )
         if self.cost_angle_mode is not None and self.cost_angle_mode not in ANGLE_MODES:
             raise ValueError(
                 f"cost_angle_mode must be one of {ANGLE_MODES} or None, got "
@@ -568,19 +578,19 @@ def write_records(out: Path, config: Any, records: list[dict[str, Any]]) -> None
 
 
 # ---------------------------------------------------------------------------------- main
-def check_compile_toolchain(device: torch.device) -> None:
-    """Raise ValueError when ``compile_rollout`` cannot work here: the native rollout and
-    inductor's CPU backend build C++ (``$CXX``, else ``g++`` or ``clang++`` on ``PATH``).
-    Checked before any trial runs, so that a missing compiler does not stop the run inside
-    its first policy trial."""
-    if device.type != "cpu":
+def check_compile_toolchain(device: torch.device, backend: str = "auto") -> None:
+    """Raise ValueError when ``compile_rollout`` with ``backend`` cannot work here: the
+    native rollout and inductor's CPU backend build C++ (``$CXX``, else ``g++`` or
+    ``clang++`` on ``PATH``); the torch backend needs none. Checked before any trial runs,
+    so that a missing compiler does not stop the run inside its first policy trial."""
+    if device.type != "cpu" or backend == "torch":
         return
     if cpp_compiler() is None:
         names = cpp_compiler_names()
         raise ValueError(
             f"compile_rollout on the CPU needs a C++ compiler ({' or '.join(names)} not found "
-            "on PATH): install one (e.g. apt install g++), set CXX, or run without "
-            "--compile-rollout"
+            "on PATH): install one (e.g. apt install g++), set CXX, use the torch backend "
+            "(--set rollout_backend=torch), or run without --compile-rollout"
         )
 
 
@@ -617,7 +627,7 @@ def run_mcpilco(
         ckpt_path = out / CHECKPOINT_NAME
         device = resolve_device(config.device)
         if config.compile_rollout:
-            check_compile_toolchain(device)
+            check_compile_toolchain(device, config.rollout_backend)
         if config.torch_threads is not None:
             torch.set_num_threads(int(config.torch_threads))
         if task is None:
@@ -731,12 +741,13 @@ def run_mcpilco(
                     ).to(device)  # with the policy module and the dynamics in it
 
                 loss = make_loss(policy_module)
-                if config.compile_rollout:  # compiled, then checked against the eager step
-                    rec["compiled_step"] = loss.compile_step(dynamic=False)
-                    rec["compile_check"] = loss.compile_check
-                    rec["compile_error"] = loss.compile_error
-                    rec["compile_backend"] = loss.compile_backend
-                    rec["rollout_shards"] = loss.rollout_shards
+                if config.compile_rollout:  # built, then checked against the eager rollout
+                    fast = use_fast_rollout(loss, config.rollout_backend, dynamic=False)
+                    rec["compiled_step"] = fast.in_use
+                    rec["compile_check"] = fast.check
+                    rec["compile_error"] = fast.error
+                    rec["compile_backend"] = fast.backend
+                    rec["rollout_shards"] = fast.shards
                 # 2. policy update
                 opt_cfg = config.opt
                 if k == 1 and config.opt_steps_first is not None:

@@ -31,9 +31,9 @@ over ``(M, .)``; there is no Python loop over particles.
 
 from __future__ import annotations
 
-import warnings
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import torch
 from tensordict import TensorDict, TensorDictBase
@@ -41,29 +41,8 @@ from tensordict.nn import TensorDictModule
 from torch import Tensor, nn
 from torchrl.objectives import LossModule
 
-from mcpilco.agents.mc_pilco.direct_compile import (
-    PARAM_NAMES,
-    DirectRollout,
-    RolloutFunction,
-    unsupported_reason,
-)
-from mcpilco.agents.mc_pilco.native_rollout import (
-    NativeRollout,
-    build_error,
-    native_unsupported_reason,
-)
-
-COMPILE_CHECK_RTOL = 0.1
-"""Largest ``|J_c - J_e| / |J_e|`` and ``||g_c - g_e|| / ||g_e||`` of the compiled against the
-eager step (:meth:`MCPilcoLoss.compile_step`'s check); a wrong gradient gives about 1."""
-
-COMPILE_CHECK_HORIZON = 10
-"""Time steps of that check: few enough that float32 rounding, which particles near an unstable
-equilibrium amplify over a long horizon, stays small; every part of the step still runs."""
-
-MIN_SHARD_PARTICLES = 50
-"""Fewest particles per candidate and thread for which :meth:`MCPilcoLoss.compile_step`
-splits the direct rollout over threads by default (below, a thread's work is too small)."""
+if TYPE_CHECKING:
+    from mcpilco.agents.mc_pilco.backends import ShardedRollout
 
 
 @dataclass
@@ -153,11 +132,8 @@ class MCPilcoLoss(LossModule):
         else:
             self._policy_fn = policy
         self.num_candidates = int(getattr(self._policy_fn, "num_candidates", 1))
-        self._compiled_step = None  # the time step torch.compile-d (backend "dynamo")
-        self._direct: DirectRollout | None = None  # the rollout compiled by hand ("direct")
-        self.compile_backend: str | None = None  # the backend of the compiled path in use
-        self.compile_check: dict[str, float] | None = None  # figures of compile_step's check
-        self.compile_error: str | None = None  # compile_step's compilation error, if any
+        self._engine: ShardedRollout | None = None  # a chained rollout (backends module)
+        self._step_fn: Callable | None = None  # a replacement of _step (e.g. compiled)
 
     def _step(
         self, x: Tensor, eps: Tensor, nu: Tensor | None, mask: Tensor | None = None
@@ -169,193 +145,27 @@ class MCPilcoLoss(LossModule):
         x_next = self.dynamics(x, u, eps)
         return x_next, u, self.cost(x_next)
 
-    def compile_step(
-        self,
-        enable: bool = True,
-        verify: bool = True,
-        backend: str = "auto",
-        shards: int | None = None,
-        **compile_kwargs,
-    ) -> bool:
-        """Compile the rollout's time step; returns whether a compiled path is in use.
+    def set_fast_rollout(
+        self, engine: ShardedRollout | None = None, step_fn: Callable | None = None
+    ) -> None:
+        """Roll out with ``engine`` (a chained rollout of this loss's parts, used by
+        :meth:`forward` for rollouts of ``num_particles`` per candidate) and/or ``step_fn``
+        (a function with :meth:`_step`'s signature and results, e.g. ``torch.compile`` of it,
+        used by :meth:`rollout`); None for both: the eager rollout. The loss does not build
+        or choose them: :func:`~mcpilco.agents.mc_pilco.backends.use_fast_rollout` does,
+        and checks them against the eager rollout first."""
+        self._engine, self._step_fn = engine, step_fn
 
-        Backends:
-
-        ``"native"``
-            the whole rollout, forward and backward through time, evaluated by the package's
-            C++ loop for any task layout (:mod:`~mcpilco.agents.mc_pilco.native_rollout`:
-            particles in tiles of 16, the GP's constant matrices packed once per fit, no
-            per-op dispatch), the same maths as ``"direct"``; a PyTorch C++ extension built
-            on first use (``torch.utils.cpp_extension``, then cached). Needs what
-            ``"direct"`` needs, in float32, with the package's two kernels; used like
-            ``"direct"``.
-        ``"direct"``
-            forward and backward of a time step chained by hand from the parts' analytic
-            backward passes, traced once and compiled by inductor; the rollout is one
-            autograd node (:mod:`~mcpilco.agents.mc_pilco.direct_compile`). No dynamo guards
-            and no autograd engine per time step. Needs the package's own policy, dynamics
-            over a fused GP posterior, and cost, on the CPU; used by :meth:`forward` (the
-            optimisation loss) for rollouts of ``num_particles`` per candidate.
-        ``"dynamo"``
-            ``torch.compile`` of the per-time-step function (``compile_kwargs`` go to it): one
-            graph with the custom autograd functions (a test checks that no graph break
-            creeps in); used by every rollout.
-        ``"auto"`` (default)
-            ``"native"`` where it applies, else ``"direct"`` where it applies, else
-            ``"dynamo"``.
-
-        ``shards`` (native and direct backends): the number of threads each rollout is split
-        over, by particles, each with one intra-op thread (:class:`DirectRollout`). None
-        (default): ``torch.get_num_threads()`` where that divides the ``M`` particles into
-        shards of at least :data:`MIN_SHARD_PARTICLES`, else 1.
-
-        The policy's dropout masks are drawn outside the compiled code, so the same seed
-        gives the eager step's masks and noise. Enabling calls ``torch.compiler.reset()``
-        first: the graphs compiled for an earlier GP (an earlier trial) are dropped instead of
-        piling up to dynamo's recompile limit, beyond which it would silently run eagerly.
-
-        ``verify`` (default): compile now, on this module's shapes, and check the compiled
-        path against the eager one, ``J^`` and ``dJ^/dtheta`` over the first
-        :data:`COMPILE_CHECK_HORIZON` steps from the same random numbers
-        (:meth:`compare_compiled_step`, within :data:`COMPILE_CHECK_RTOL`). If they disagree
-        the compiled path is dropped with a warning and the eager step is used: a compiler
-        that returns wrong gradients would otherwise train nothing, silently. The check
-        leaves torch's random stream where it was. ``compile_check`` holds its figures. A
-        compilation that raises (no working C++ toolchain, an inductor error) is also caught
-        there: a warning, the eager step, and the error's text in ``compile_error``.
-        ``compile_backend`` names the backend in use (None: eager).
-        """
-        if backend not in ("auto", "native", "direct", "dynamo"):
-            raise ValueError(
-                f"backend must be 'auto', 'native', 'direct' or 'dynamo', got {backend!r}"
-            )
-        self.compile_check = None
-        self.compile_error = None
-        self._compiled_step = self._direct = self.compile_backend = None
-        if not enable:
-            return False
-        torch.compiler.reset()
-        reason = unsupported_reason(
-            self._policy_fn, self.dynamics, self.cost, self.init_mean.device
-        )
-        if backend == "direct" and reason is not None:
-            raise ValueError(f"the direct backend cannot compile this rollout: {reason}")
-        native_reason = None
-        if backend in ("auto", "native"):
-            native_reason = native_unsupported_reason(
-                self._policy_fn, self.dynamics, self.cost, self.init_mean.device
-            )
-        if backend == "native" and native_reason is not None:
-            raise ValueError(f"the native backend cannot run this rollout: {native_reason}")
-        failed = build_error()
-        if backend == "auto" and native_reason is not None and failed and failed in native_reason:
-            warnings.warn(
-                f"the native rollout was not used ({native_reason})", RuntimeWarning, stacklevel=2
-            )
-        if backend == "auto":
-            backend = (
-                "native" if native_reason is None else "direct" if reason is None else "dynamo"
-            )
-        self.compile_backend = backend
-        m = self.num_particles
-        if shards is None:
-            threads = torch.get_num_threads()
-            shards = threads if m % threads == 0 and m // threads >= MIN_SHARD_PARTICLES else 1
-        elif int(shards) != shards or shards < 1 or m % shards:
-            raise ValueError(
-                f"shards must be a positive divisor of the {m} particles, got {shards}"
-            )
-        elif shards > 1 and backend == "dynamo":
-            raise ValueError("shards > 1 needs the native or direct backend, got 'dynamo'")
-        problem = None
-        try:
-            if backend in ("native", "direct"):
-                runner = NativeRollout if backend == "native" else DirectRollout
-                self._direct = runner(
-                    self._policy_fn,
-                    self.dynamics,
-                    self.cost,
-                    self.num_candidates * self.num_particles,
-                    self.delta_dim,
-                    shards=shards,
-                )
-            else:
-                self._compiled_step = torch.compile(self._step, **compile_kwargs)
-            check = self.compare_compiled_step() if verify else None
-        except Exception as err:  # noqa: BLE001 (any compiler failure: run eagerly)
-            first_line = (str(err).strip().splitlines() or [""])[0]
-            self.compile_error = f"{type(err).__name__}: {first_line}"
-            problem = f"compiling the rollout step failed ({self.compile_error})"
-        else:
-            self.compile_check = check
-            if check is not None and not (
-                check["J_rel"] <= COMPILE_CHECK_RTOL >= check["grad_rel"]  # NaN fails
-            ):
-                problem = (
-                    f"the compiled rollout step ({backend}) disagrees with the eager step "
-                    f"(relative difference of J^ {check['J_rel']:.2e}, of dJ^/dtheta "
-                    f"{check['grad_rel']:.2e}; torch {torch.__version__})"
-                )
-        if problem is not None:
-            warnings.warn(f"{problem}: using the eager step", RuntimeWarning, stacklevel=2)
-            self._compiled_step = self._direct = self.compile_backend = None
-        return self.compile_backend is not None
-
-    def compare_compiled_step(
-        self, seed: int = 0, horizon: int | None = COMPILE_CHECK_HORIZON
-    ) -> dict[str, float]:
-        """``J^`` and ``dJ^/dtheta`` of the compiled and the eager step over the first
-        ``horizon`` steps (None: the loss's horizon) from the same random numbers (torch
-        seeded with ``seed`` inside a forked random state, so the caller's stream is
-        untouched): ``{"J_rel": |J_c - J_e| / |J_e|, "grad_rel": ||g_c - g_e|| / ||g_e||}``
-        (``g`` all policy parameters' gradients, one vector; 0 where both are 0). The policy
-        runs in training mode, with its dropout masks, as in the optimisation (its mode is
-        restored after). The first call of a fresh compiled step compiles it.
-        """
-        compiled = (self._compiled_step, self._direct)
-        if compiled == (None, None):
-            raise ValueError("compare_compiled_step needs a compiled step: call compile_step")
-        params = [p for p in self.parameters() if p.requires_grad]
-        dev = self.init_mean.device
-        results = []
-        full_horizon = self.horizon
-        self.horizon = full_horizon if horizon is None else min(int(horizon), full_horizon)
-        was_training = self._policy_fn.training
-        self._policy_fn.train()
-        try:
-            with torch.random.fork_rng(devices=[dev] if dev.type == "cuda" else []):
-                for self._compiled_step, self._direct in ((None, None), compiled):
-                    torch.manual_seed(seed)
-                    J = self()["loss_cost"]
-                    grads = (
-                        torch.autograd.grad(J, params, allow_unused=True)
-                        if J.requires_grad and params
-                        else [None] * len(params)
-                    )
-                    vec = [
-                        (torch.zeros_like(p) if g is None else g.detach()).flatten()
-                        for g, p in zip(grads, params, strict=True)
-                    ]
-                    results.append((J.detach(), torch.cat(vec or [J.new_zeros(0)])))
-        finally:
-            self._compiled_step, self._direct = compiled
-            self.horizon = full_horizon
-            self._policy_fn.train(was_training)
-        (J_e, g_e), (J_c, g_c) = results
-
-        def rel(diff: float, scale: float) -> float:
-            return 0.0 if diff == 0 else diff / scale if scale > 0 else float("inf")
-
-        return {
-            "J_rel": rel((J_c - J_e).abs().item(), J_e.abs().item()),
-            "grad_rel": rel((g_c - g_e).norm().item(), g_e.norm().item()),
-        }
+    @property
+    def fast_rollout(self) -> tuple[ShardedRollout | None, Callable | None]:
+        """``(engine, step_fn)`` as set by :meth:`set_fast_rollout`."""
+        return self._engine, self._step_fn
 
     @property
     def rollout_shards(self) -> int:
-        """The number of threads the compiled rollout is split over (1 unless the direct
-        backend splits it; see :meth:`compile_step`)."""
-        return 1 if self._direct is None else self._direct.shards
+        """The number of threads the rollout is split over (1 unless a chained rollout splits
+        it; :meth:`set_fast_rollout`)."""
+        return 1 if self._engine is None else self._engine.shards
 
     @property
     def functional(self) -> bool:  # the policy is used statefully (no functional params)
@@ -420,7 +230,7 @@ class MCPilcoLoss(LossModule):
         states = [x]
         actions = []
         costs = []
-        step = self._compiled_step if self._compiled_step is not None else self._step
+        step = self._step_fn if self._step_fn is not None else self._step
         # the policy's dropout masks are drawn here, step by step, outside the (possibly
         # compiled) step: the same random stream as a policy drawing its own
         draw_mask = getattr(self._policy_fn, "draw_dropout_mask", None)
@@ -440,22 +250,13 @@ class MCPilcoLoss(LossModule):
     def forward(self, tensordict: TensorDictBase | None = None) -> TensorDict:
         td = TensorDict({}, batch_size=[]) if tensordict is None else tensordict
         init, noise = td.get("initial_state", None), td.get("noise", None)
-        direct = self._direct
-        if direct is not None and init is not None and init.shape[:1] != (direct.rows,):
-            direct = None  # built for the module's particle count only: run eagerly
-        if direct is not None:
-            with direct.serial_caller():
+        engine = self._engine
+        if engine is not None and init is not None and init.shape[:1] != (engine.rows,):
+            engine = None  # built for the module's particle count only: run eagerly
+        if engine is not None:
+            with engine.serial_caller():
                 x, noise, obs_noise = self._draw_inputs(init, noise, None)
-                costs = RolloutFunction.apply(
-                    direct,
-                    getattr(self._policy_fn, "draw_dropout_bytes", lambda _x: None),
-                    x,
-                    noise,
-                    noise.new_zeros(*noise.shape[:2], self.state_dim)
-                    if obs_noise is None
-                    else obs_noise,
-                    *(getattr(self._policy_fn, name) for name in PARAM_NAMES),
-                ).T  # (K M, H)
+                costs = engine.costs(x, noise, obs_noise).T  # (K M, H)
         else:
             costs = self.rollout(initial_state=init, noise=noise, keep_states=False).costs
         per_particle = costs.sum(dim=1).view(self.num_candidates, -1)  # sum_t c, (K, M)

@@ -1,7 +1,7 @@
 // The MC-PILCO particle rollout (forward and backward through time) written by hand, for
 // one shard of particles on one thread, for any task layout.  native_rollout.py holds the
 // symbol glossary and the maths (the same as the parts' analytic backward passes that
-// direct_compile.py chains); this file only evaluates it.
+// backends.py chains in PyTorch ops); this file only evaluates it.
 //
 // Layout: particles are processed in tiles of TILE = 16 (two 8-float vectors); within a
 // tile every quantity is stored "structure of arrays", q[row][16].  The products with the

@@ -1,10 +1,10 @@
 r"""The particle rollout written by hand in C++: ``backend="native"`` of
-:meth:`~mcpilco.agents.mc_pilco.loss.MCPilcoLoss.compile_step`, for any task layout.
+:func:`~mcpilco.agents.mc_pilco.backends.use_fast_rollout`, for any task layout.
 
-The same maths as :mod:`~mcpilco.agents.mc_pilco.direct_compile` (the parts' analytic
+The same maths as :class:`~mcpilco.agents.mc_pilco.backends.TorchRollout` (the parts' analytic
 backward passes, chained by hand through time), evaluated by one C++ function per shard for
 the whole forward loop and one for the whole backward loop (``native_rollout.cpp``), instead
-of ``2 H`` calls of compiled graphs per shard. The task is data, not code: the state layout
+of ``2 H`` steps of tensor ops per shard. The task is data, not code: the state layout
 (``n`` coordinates; plain ones and angles, which enter the policy and the GP as ``(sin,
 cos)``; speed-integration pairs and unpaired coordinates), the ``A`` action bounds, the
 ``m`` GP outputs over ``d = F_x + A`` inputs and the saturating cost's terms (index, target,
@@ -27,10 +27,10 @@ pybind11 binding: ``torch::Tensor`` arguments, the GIL released while a shard ru
 shards run in parallel threads), compiled on first use with ``-O3 -march=native`` into
 :func:`cache_dir` and rebuilt by ninja only when a source changes. Float32 on the CPU, the
 fused RBF (+ degree-2 MPK) posterior and :class:`~.cost.SaturatingCost` only
-(:func:`native_unsupported_reason`); ``compile_step`` checks the result against the eager
-rollout like every compiled path.
+(:func:`native_unsupported_reason`); ``use_fast_rollout`` checks the result against the
+eager rollout like every fast path.
 
-Glossary: as in :mod:`~mcpilco.agents.mc_pilco.direct_compile` (``K`` candidates, ``M``
+Glossary: as in :mod:`~mcpilco.agents.mc_pilco.backends` (``K`` candidates, ``M``
 particles, ``S`` shards, ``H`` horizon) and :mod:`~mcpilco.models.gp.fused` (``N`` training
 points, ``F`` MPK features, ``m`` outputs, ``d`` GP inputs).
 """
@@ -50,12 +50,14 @@ from typing import Any
 import torch
 from torch import Tensor
 
-from mcpilco.agents.mc_pilco.direct_compile import DirectRollout, unsupported_reason
+from mcpilco.agents.mc_pilco.backends import ShardedRollout, unsupported_reason
 
 SOURCES = tuple(
     Path(__file__).with_name(name) for name in ("native_rollout_ext.cpp", "native_rollout.cpp")
 )
 """The extension's C++ sources (the binding, then the loops)."""
+
+HEADER = Path(__file__).with_name("native_rollout.h")  # included by both sources
 
 CXX_FLAGS = ("-O3", "-march=native", "-fno-math-errno")
 """Compiler flags (no ``-ffast-math``: NaN must propagate, the loss restarts on a NaN cost)."""
@@ -92,9 +94,10 @@ def _cpu_key() -> str:
 
 def extension_name(cxx: str) -> str:
     """The extension's module name for compiler ``cxx``: a hash of the compiler, the flags,
-    the CPU and the torch version (one build folder each). A change of the sources is
-    rebuilt in the same folder (ninja tracks the sources and the header they include)."""
-    key = repr((cxx, CXX_FLAGS, _cpu_key(), torch.__version__)).encode()
+    the CPU, the torch version and the sources' contents (one build folder each), so that
+    two installed versions of the package sharing a cache never rebuild each other's."""
+    sources = b"".join(path.read_bytes() for path in (*SOURCES, HEADER))
+    key = repr((cxx, CXX_FLAGS, _cpu_key(), torch.__version__)).encode() + sources
     return f"mcpilco_native_rollout_{hashlib.sha256(key).hexdigest()[:16]}"
 
 
@@ -180,8 +183,8 @@ def load_library() -> ModuleType:
 def native_unsupported_reason(
     policy: Any, dynamics: Any, cost: Any, device: torch.device
 ) -> str | None:
-    """Why the native rollout cannot run this loss (None: it can): the direct backend's
-    conditions (:func:`~mcpilco.agents.mc_pilco.direct_compile.unsupported_reason`: the
+    """Why the native rollout cannot run this loss (None: it can): the chained rollout's
+    conditions (:func:`~mcpilco.agents.mc_pilco.backends.unsupported_reason`: the
     package's policy, dynamics over the fused GP posterior and
     :class:`~mcpilco.agents.mc_pilco.cost.SaturatingCost`, on the CPU), float32 throughout,
     an RBF or RBF + degree-2 MPK kernel (the package's two), and a working C++ toolchain.
@@ -317,9 +320,9 @@ def native_model(lib: ModuleType, policy: Any, dynamics: Any, cost: Any) -> Any:
     return lib.NativeModel(sizes, index, values, float(dynamics.dt), packed)
 
 
-class NativeRollout(DirectRollout):
-    """:class:`~mcpilco.agents.mc_pilco.direct_compile.DirectRollout`'s interface (shards,
-    split and join, the dropout inputs) with each shard's forward and backward loops run by
+class NativeRollout(ShardedRollout):
+    """A :class:`~mcpilco.agents.mc_pilco.backends.ShardedRollout` (shards, split and join,
+    the dropout inputs) with each shard's forward and backward loops run by
     the C++ extension. Each forward keeps its saved tensors in a float32 buffer of
     ``H x K x ceil(M / (S K 16)) x record`` floats (about ``2 m N + F + n_b`` floats per
     particle and step: ``r`` and ``V`` of each output, ``psi``, the policy's activations),
@@ -334,7 +337,7 @@ class NativeRollout(DirectRollout):
         out = dynamics.layout.output_dim
         if delta_dim is not None and delta_dim != out:
             raise ValueError(f"the native rollout needs delta_dim {out}, got {delta_dim}")
-        self._init_shards(policy, dynamics, cost, rows, shards)
+        super().__init__(policy, dynamics, cost, rows, shards)
         self.lib = load_library()
         self.model = native_model(self.lib, policy, dynamics, cost)
         self._per = self.shard_rows // self.candidates

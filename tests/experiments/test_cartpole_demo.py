@@ -32,9 +32,9 @@ def test_demo_compiles_the_rollout_on_the_cpu_only_when_it_can(monkeypatch):
 def test_rollout_mode_reads_the_policy_trials_records():
     explore = {"kind": "exploration"}
     eager = {"kind": "policy", "compiled_step": False}
-    direct = {"kind": "policy", "compiled_step": True, "compile_backend": "direct"}
+    native = {"kind": "policy", "compiled_step": True, "compile_backend": "native"}
     assert rollout_mode([explore, eager]) == "eager"
-    two = [explore, {**direct, "rollout_shards": 2}, {**direct, "rollout_shards": 2}, eager]
-    assert rollout_mode(two) == "compiled (direct backend, 2 shards) in 2 of 3 policy trials"
-    one = [explore, {**direct, "rollout_shards": 1}]
-    assert rollout_mode(one) == "compiled (direct backend, 1 shard) in 1 of 1 policy trials"
+    two = [explore, {**native, "rollout_shards": 2}, {**native, "rollout_shards": 2}, eager]
+    assert rollout_mode(two) == "compiled (native backend, 2 shards) in 2 of 3 policy trials"
+    one = [explore, {**native, "rollout_shards": 1}]
+    assert rollout_mode(one) == "compiled (native backend, 1 shard) in 1 of 1 policy trials"

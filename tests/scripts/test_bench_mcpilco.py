@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import pytest
+
 from mcpilco.agents.mc_pilco import DEFAULT_ENV_ID, load_config
 from mcpilco.experiments.mcpilco_bench import run_seed
 from tests.experiments.test_mcpilco_bench import _fake_runs
@@ -79,15 +81,18 @@ def test_timing_part_reports_each_particle_count(tmp_path, capsys, command):
     (t,) = json.loads((tmp_path / "mcpilco_cartpole.json").read_text())["timing"]
     assert t["compiled_s_per_step_wall"] > 0 and t["compile_s"] > 0
     assert not t["compiled_rejected"] and t["compile_check"]["grad_rel"] < 1e-2
-    # the default backend (native), the direct one and torch.compile of the time step, timed
+    # the default backend (native), the torch one and torch.compile of the time step, timed
     assert t["compile_backend"] == "native" and t["dynamo_compile_backend"] == "dynamo"
-    assert t["direct_compile_backend"] == "direct" and t["direct_s_per_step_wall"] > 0
-    assert t["direct_compile_check"]["grad_rel"] < 1e-2
+    assert t["torch_compile_backend"] == "torch" and t["torch_s_per_step_wall"] > 0
+    assert t["torch_compile_check"]["grad_rel"] < 1e-2
     assert t["rollout_shards"] == 1  # 3 particles: too few to split over threads
     assert t["dynamo_s_per_step_wall"] > 0 and t["dynamo_compile_check"]["grad_rel"] < 1e-2
     md = (tmp_path / "mcpilco_cartpole.md").read_text()
     assert "| 3 | 20 | cpu | no | 1 |" in md and "x |" in md and "| native |" in md
-    assert f"| {t['direct_s_per_step_wall']:.3f} | {t['direct_s_per_step_cpu']:.3f} |" in md
+    assert f"| {t['torch_s_per_step_wall']:.3f} | {t['torch_s_per_step_cpu']:.3f} |" in md
+    # the floor: 2 N^2 M m H flops at the measured matmul rate
+    assert t["floor_s"] == pytest.approx(2 * 20**2 * 3 * 2 * 60 / (t["matmul_gflops"] * 1e9))
+    assert f"| {t['floor_s']:.4f} | {t['matmul_gflops']:.0f} |" in md
     assert f"| {t['dynamo_s_per_step_wall']:.3f} | {t['dynamo_s_per_step_cpu']:.3f} |" in md
     # --timing-heap-contrast: the eager step again under glibc's initial heap thresholds
     assert (
@@ -101,7 +106,7 @@ def test_timing_part_reports_each_particle_count(tmp_path, capsys, command):
     assert t["page_faults_per_step"] >= 0 and "compiled_s_per_step_wall" not in t
     md = (tmp_path / "mcpilco_cartpole.md").read_text()
     row = next(line for line in md.splitlines() if line.startswith("| 3 | 20 | cpu | no | 1 |"))
-    assert row.count("|") == 21 and f"| {t['heap128k_s_per_step_wall']:.3f} |" in row
+    assert row.count("|") == 23 and f"| {t['heap128k_s_per_step_wall']:.3f} |" in row
 
 
 def test_rmse_runs_part_uses_only_runs_that_swung_up_and_groups_by_their_kernel(

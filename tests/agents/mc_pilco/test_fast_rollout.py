@@ -32,12 +32,27 @@ from mcpilco.agents.mc_pilco import (
     gp_inputs,
     make_policy_module,
 )
-from mcpilco.agents.mc_pilco.direct_compile import DirectRollout
+from mcpilco.agents.mc_pilco.backends import (
+    FastRollout,
+    ShardedRollout,
+    TorchRollout,
+    use_fast_rollout,
+)
 from mcpilco.agents.mc_pilco.policy import _SquashedRBF, dropout_mask
 from mcpilco.models.gp.fused import FusedRBFMPKPredictor
 
 f64 = torch.float64
 DT = 0.05
+
+
+def _use(loss: MCPilcoLoss, enable: bool = True, **kwargs) -> FastRollout:
+    """``use_fast_rollout(loss, **kwargs)``, or the eager rollout when not ``enable``."""
+    if not enable:
+        loss.set_fast_rollout(None)
+        return FastRollout()
+    return use_fast_rollout(loss, **kwargs)
+
+
 TASK = TaskSpec.for_env("mcpilco/CartpoleSwingUp-v0")
 LAYOUT = StateLayout.from_task(TASK)  # [x, x_dot, theta, theta_dot], theta an angle
 MU0 = TASK.init_mean  # (0, 0, 0, 0)
@@ -215,14 +230,14 @@ def test_float32_rollout_matches_the_float64_gp_posterior():
         torch.testing.assert_close(a, b, rtol=0, atol=1e-4 * b.abs().max().item())
 
 
-@pytest.mark.parametrize("backend", ["dynamo", "direct", "native"])
-def test_compiled_step_is_one_graph_and_matches_the_eager_rollout(backend):
-    """``compile_step``: dynamo traces a time step (policy with its dropout mask, GP inputs,
-    fused posterior, sampling + integration, cost) as one graph, without a break; either
-    backend's compiled rollout gives the eager expected cost and policy gradient from the same
-    seed (the masks are drawn outside the compiled code, from torch's generator). A wide cost
-    (l_theta = 3) gives a gradient far from zero, so that a compiler returning zero gradients
-    (torch 2.11 did, for this step) fails here."""
+@pytest.mark.parametrize("backend", ["dynamo", "torch", "native"])
+def test_fast_rollout_is_one_graph_and_matches_the_eager_rollout(backend):
+    """``use_fast_rollout``: dynamo compiles a time step (policy with its dropout mask, GP
+    inputs, fused posterior, sampling + integration, cost) as one graph (``fullgraph=True``
+    fails on a graph break); every backend's rollout gives the eager expected cost and policy
+    gradient from the same seed (the masks are drawn outside the fast code, from torch's
+    generator). A wide cost (l_theta = 3) gives a gradient far from zero, so that a backend
+    returning zero gradients fails here."""
     model = _gp_model("rbf+mpk", n=40, seed=2)
     pol = SquashedRBFPolicy(LAYOUT, num_basis=20, weight_scale=1.0, seed=0, dropout=0.25)
     pol.train()
@@ -233,19 +248,18 @@ def test_compiled_step_is_one_graph_and_matches_the_eager_rollout(backend):
     x0 = loss.sample_initial_state()
     mask = pol.draw_dropout_mask(x0)
     assert mask is not None and (mask == 0).any()
-    explained = torch._dynamo.explain(loss._step)(x0, torch.zeros(16, 2), torch.zeros(16, 4), mask)
-    assert (explained.graph_count, explained.graph_break_count) == (1, 0), [
-        b.reason for b in explained.break_reasons
-    ]
+    torch.compiler.reset()
+    whole = torch.compile(loss._step, fullgraph=True, dynamic=False)
+    whole(x0, torch.zeros(16, 2), torch.zeros(16, 4), mask)  # raises on a graph break
     out = []
-    for compiled in (False, True):
+    for fast in (False, True):
         # passes its own check
-        assert loss.compile_step(compiled, backend=backend, dynamic=False) is compiled
-        assert loss.compile_backend == (backend if compiled else None)
+        used = _use(loss, fast, backend=backend, dynamic=False)
+        assert used.in_use is fast and used.backend == (backend if fast else None)
         torch.manual_seed(5)
         J = loss()["loss_cost"]
         out.append((J, torch.autograd.grad(J, list(pol.parameters())), torch.rand(2)))
-    loss.compile_step(False)
+    loss.set_fast_rollout(None)
     (J_eager, g_eager, after_eager), (J_comp, g_comp, after_comp) = out
     torch.testing.assert_close(after_comp, after_eager, rtol=0, atol=0)  # same draws
     torch.testing.assert_close(J_comp, J_eager, rtol=1e-5, atol=0)
@@ -269,36 +283,28 @@ def _broken_compile(kind: str):
     return compile_
 
 
-def _broken_direct_compiler(kind: str):
-    """The same two faults in the direct backend's compiler (``compile_traced``): its
-    backward step returns zero parameter gradients (``"zero"``) or passes no gradient back
-    to the previous time step (``"short"``)."""
+def _broken_step_backward(kind: str):
+    """The same two faults in the torch backend's ``step_backward``: zero parameter gradients
+    (``"zero"``) or no gradient passed back to the previous time step (``"short"``)."""
+    right = TorchRollout.step_backward
 
-    def compiler(fn, _inputs):
-        if fn.__name__ != "_backward_flat":
-            return fn
+    def step_backward(self, ctx, g_x_next, g_c_next, grads):
+        g_prev, new = right(self, ctx, g_x_next, g_c_next, grads)
+        if kind == "short":
+            return torch.zeros_like(g_prev), new
+        return g_prev, tuple(G + 0 * (g - G) for G, g in zip(grads, new, strict=True))
 
-        def step_backward(*args):
-            g_prev, *new = fn(*args)
-            if kind == "short":
-                return (torch.zeros_like(g_prev), *new)
-            return (g_prev, *[torch.zeros_like(g) for g in new])
-
-        return step_backward
-
-    return compiler
+    return step_backward
 
 
-@pytest.mark.parametrize("backend", ["dynamo", "direct"])
+@pytest.mark.parametrize("backend", ["dynamo", "torch"])
 @pytest.mark.parametrize("kind", ["zero", "short"])
-def test_a_compiled_step_with_a_wrong_gradient_is_dropped_for_the_eager_one(
+def test_a_fast_rollout_with_a_wrong_gradient_is_dropped_for_the_eager_one(
     monkeypatch, kind, backend
 ):
-    """``compile_step`` checks the compiled step against the eager one; a wrong gradient
-    (same ``J^``) makes it warn, keep the eager step, and leave torch's random stream where
+    """``use_fast_rollout`` checks the fast rollout against the eager one; a wrong gradient
+    (same ``J^``) makes it warn, keep the eager rollout, and leave torch's random stream where
     it was; the loss then equals the eager loss."""
-    from mcpilco.agents.mc_pilco import direct_compile
-
     model = _gp_model("rbf+mpk", n=40, seed=2)
     pol = SquashedRBFPolicy(LAYOUT, num_basis=20, weight_scale=1.0, seed=0)
     loss = MCPilcoLoss(
@@ -312,12 +318,12 @@ def test_a_compiled_step_with_a_wrong_gradient_is_dropped_for_the_eager_one(
     if backend == "dynamo":
         monkeypatch.setattr(torch, "compile", _broken_compile(kind))
     else:
-        monkeypatch.setattr(direct_compile, "compile_traced", _broken_direct_compiler(kind))
+        monkeypatch.setattr(TorchRollout, "step_backward", _broken_step_backward(kind))
     torch.manual_seed(3)
-    with pytest.warns(RuntimeWarning, match="disagrees with the eager step"):
-        assert loss.compile_step(backend=backend) is False
-    assert loss.compile_backend is None
-    assert loss.compile_check["J_rel"] < 1e-6 and loss.compile_check["grad_rel"] > 0.5
+    with pytest.warns(RuntimeWarning, match="disagrees with the eager one"):
+        used = use_fast_rollout(loss, backend=backend)
+    assert used.backend is None and loss.fast_rollout == (None, None)
+    assert used.check["J_rel"] < 1e-6 and used.check["grad_rel"] > 0.5
     assert loss.horizon == 8 and not pol.training  # the check's horizon and mode are undone
     J = loss()["loss_cost"]  # the stream continues from the seed: the check drew nothing
     torch.testing.assert_close(J, J_eager, rtol=0, atol=0)
@@ -325,12 +331,11 @@ def test_a_compiled_step_with_a_wrong_gradient_is_dropped_for_the_eager_one(
         torch.testing.assert_close(a, b, rtol=0, atol=0)
 
 
-@pytest.mark.parametrize("backend", ["dynamo", "direct"])
-def test_a_compilation_that_raises_leaves_the_eager_step(monkeypatch, backend):
-    """A compiler failure (here a stand-in step that raises as inductor does without a
-    working C++ toolchain) is caught by ``compile_step``: a warning naming the error, the
-    eager step, and the error's first line in ``compile_error``; the trial line says so."""
-    from mcpilco.agents.mc_pilco import direct_compile
+@pytest.mark.parametrize("backend", ["dynamo", "torch"])
+def test_a_build_that_raises_leaves_the_eager_step(monkeypatch, backend):
+    """A build or compiler failure (here a stand-in step that raises as inductor does without
+    a working C++ toolchain) is caught by ``use_fast_rollout``: a warning naming the error,
+    the eager rollout, and the error's first line in ``error``; the trial line says so."""
     from mcpilco.agents.mc_pilco.loop import record_line
 
     model = _gp_model("rbf", n=30, seed=1)
@@ -345,35 +350,39 @@ def test_a_compilation_that_raises_leaves_the_eager_step(monkeypatch, backend):
 
         return step
 
+    def failing_forward(self, *args):
+        raise RuntimeError("C++ compile error\ncc1plus: fatal error: Python.h")
+
     monkeypatch.setattr(torch, "compile", failing_compile)
-    monkeypatch.setattr(direct_compile, "compile_traced", failing_compile)
-    with pytest.warns(RuntimeWarning, match="compiling the rollout step failed"):
-        assert loss.compile_step(backend=backend) is False
-    assert loss.compile_error == "RuntimeError: C++ compile error"
-    assert loss.compile_check is None
+    monkeypatch.setattr(TorchRollout, "step_forward", failing_forward)
+    with pytest.warns(RuntimeWarning, match=f"building the {backend} rollout failed"):
+        used = use_fast_rollout(loss, backend=backend)
+    assert not used.in_use and used.error == "RuntimeError: C++ compile error"
+    assert used.check is None
     assert torch.isfinite(loss()["loss_cost"])  # the eager step runs
     rec = {
         "index": 1, "kind": "policy", "experience_s": 6.0, "cost": 50.0, "success": False,
         "time_in_goal": 0.0, "steps": 60, "wall_s": 10.0, "gp_fit_s": 1.0,
         "gp_points": 60, "opt_steps": 10, "s_per_opt_step": 0.1, "cpu_s_per_opt_step": 0.1,
-        "opt_final_cost": 40.0, "compiled_step": False, "compile_error": loss.compile_error,
+        "opt_final_cost": 40.0, "compiled_step": False, "compile_error": used.error,
     }  # fmt: skip
     assert "compiling the step failed (RuntimeError: C++ compile error): ran eagerly" in (
         record_line(rec)
     )
 
 
-def test_direct_backend_with_a_population_matches_the_eager_rollout_and_knows_its_limits(
+def test_chained_backends_with_a_population_match_the_eager_rollout_and_know_their_limits(
     monkeypatch,
 ):
-    """The direct backend with ``K = 2`` candidates, each with its own ``J^_k`` and gradient,
+    """The torch and native backends with ``K = 2`` candidates, each with its own ``J^_k`` and
+    gradient,
     equals the eager rollout from the same seed (dropout masks on), run in one thread and
     split over two threads by particles (each with one intra-op thread; meanwhile the
     caller's own ops, e.g. the splits, run on one thread too, and its count is restored
     after the forward and after the backward). A rollout of
-    another particle count runs eagerly (the compiled code is built for one count); a
+    another particle count runs eagerly (a chained rollout is built for one count); a
     rollout it cannot chain by hand (here a GP posterior behind a module it does not know)
-    makes ``backend="auto"`` pick dynamo, and ``backend="direct"`` refuse with the reason."""
+    makes ``backend="auto"`` pick dynamo, and ``backend="torch"`` refuse with the reason."""
     model = _gp_model("rbf+mpk", n=40, seed=2)
     pop = PolicyPopulation(
         [SquashedRBFPolicy(LAYOUT, num_basis=20, weight_scale=1.0, seed=s) for s in (0, 1)]
@@ -386,17 +395,17 @@ def test_direct_backend_with_a_population_matches_the_eager_rollout_and_knows_it
     out = []
     threads_before, threads = torch.get_num_threads(), 2
     torch.set_num_threads(threads)
-    split, caller_threads = DirectRollout.split, []
+    split, caller_threads = ShardedRollout.split, []
 
     def recording_split(runner, t, dim):  # called by the caller, in forward and backward
         caller_threads.append(torch.get_num_threads())
         return split(runner, t, dim)
 
-    monkeypatch.setattr(DirectRollout, "split", recording_split)
-    runs = ((None, 1), ("direct", 1), ("direct", 2), ("native", 1), ("native", 2))
+    monkeypatch.setattr(ShardedRollout, "split", recording_split)
+    runs = ((None, 1), ("torch", 1), ("torch", 2), ("native", 1), ("native", 2))
     for backend, shards in runs:
         enable = backend is not None
-        assert loss.compile_step(enable, backend=backend or "auto", shards=shards) is enable
+        assert _use(loss, enable, backend=backend or "auto", shards=shards).in_use is enable
         assert loss.rollout_shards == shards
         assert torch.get_num_threads() == threads  # the workers' one thread does not leak
         torch.manual_seed(4)
@@ -408,7 +417,7 @@ def test_direct_backend_with_a_population_matches_the_eager_rollout_and_knows_it
         # forward: x, eps, nu; backward: the costs' gradient (none for the eager rollout)
         assert caller_threads == ([] if not enable else [1 if shards > 1 else threads] * 4)
         if shards > 1:  # after compiled rollouts, each shard's task still runs one thread
-            seen = loss._direct.map_shards(lambda _i: torch.get_num_threads(), [0, 1])
+            seen = loss.fast_rollout[0].map_shards(lambda _i: torch.get_num_threads(), [0, 1])
             assert seen == [1, 1]
     torch.set_num_threads(threads_before)
     (J_e, g_e), *compiled = out
@@ -420,14 +429,13 @@ def test_direct_backend_with_a_population_matches_the_eager_rollout_and_knows_it
     x0 = torch.zeros(2 * 5, 4)
     noise = torch.randn(8, 10, 2)
     pop.eval()
-    loss.compile_step(backend="direct")
+    use_fast_rollout(loss, backend="torch")
     J_other = loss(TensorDict({"initial_state": x0, "noise": noise}, []))["loss_cost"]
-    loss.compile_step(False)
-    assert loss.compile_backend is None
+    loss.set_fast_rollout(None)
     J_ref = loss(TensorDict({"initial_state": x0, "noise": noise}, []))["loss_cost"]
     torch.testing.assert_close(J_other, J_ref, rtol=0, atol=0)
 
-    class Plain(nn.Module):  # a posterior the direct backend does not know
+    class Plain(nn.Module):  # a posterior the chained backends do not know
         def __init__(self, pred):
             super().__init__()
             self.pred = pred
@@ -438,19 +446,19 @@ def test_direct_backend_with_a_population_matches_the_eager_rollout_and_knows_it
     dyn = model.particle_dynamics()
     dyn.delta_model = Plain(dyn.delta_model)
     other = MCPilcoLoss(make_policy_module(pop), dyn, swingup_cost(), 4, 8, MU0)
-    assert other.compile_step(verify=False) and other.compile_backend == "dynamo"
-    with pytest.raises(ValueError, match="direct backend cannot compile.*not fused"):
-        other.compile_step(backend="direct")
+    assert use_fast_rollout(other, verify=False).backend == "dynamo"
+    with pytest.raises(ValueError, match="torch backend cannot run.*not fused"):
+        use_fast_rollout(other, backend="torch")
     with pytest.raises(ValueError, match="backend must be"):
-        other.compile_step(backend="inductor")
-    with pytest.raises(ValueError, match="shards > 1 needs the native or direct backend"):
-        other.compile_step(shards=2)  # auto picks dynamo here
+        use_fast_rollout(other, backend="inductor")
+    with pytest.raises(ValueError, match="shards > 1 needs the native or torch backend"):
+        use_fast_rollout(other, shards=2)  # auto picks dynamo here
     with pytest.raises(ValueError, match="positive divisor of the 16 particles, got 3"):
-        loss.compile_step(backend="direct", shards=3)
+        use_fast_rollout(loss, backend="torch", shards=3)
 
 
-def test_direct_backend_falls_back_to_the_eager_rollout_without_extra_draws():
-    """A rollout of another particle count under the direct backend is the eager rollout,
+def test_chained_backend_falls_back_to_the_eager_rollout_without_extra_draws():
+    """A rollout of another particle count under the torch backend is the eager rollout,
     random draws included: with simulated observation noise it gives the eager loss and
     leaves torch's random stream where the eager loss leaves it."""
     model = _gp_model("rbf", n=30, seed=1)
@@ -461,100 +469,13 @@ def test_direct_backend_falls_back_to_the_eager_rollout_without_extra_draws():
     )  # fmt: skip
     td = {"initial_state": torch.zeros(5, 4)}
     out = []
-    for backend in (None, "direct"):
-        assert loss.compile_step(backend is not None, backend=backend or "auto") is bool(backend)
+    for backend in (None, "torch"):
+        assert _use(loss, backend is not None, backend=backend or "auto").in_use is bool(backend)
         torch.manual_seed(2)
         out.append((loss(TensorDict(td, []))["loss_cost"], torch.rand(3)))
     (J_e, after_e), (J_d, after_d) = out
     torch.testing.assert_close(J_d, J_e, rtol=0, atol=0)
     torch.testing.assert_close(after_d, after_e, rtol=0, atol=0)
-
-
-def test_compile_traced_keeps_an_input_passed_twice_apart():
-    """The tracer tells inputs apart by tensor object: an example tensor given for two
-    arguments must still give a function of two inputs (else ``a + 2 b`` would compile as
-    ``3 a``)."""
-    from mcpilco.agents.mc_pilco.direct_compile import compile_traced
-
-    def fn(a, b):
-        return a + 2.0 * b, a * b
-
-    t = torch.ones(3)
-    compiled = compile_traced(fn, [t, t])
-    a, b = torch.tensor([1.0, 2.0, 3.0]), torch.tensor([10.0, 20.0, 30.0])
-    s, prod = compiled(a, b)
-    torch.testing.assert_close(s, torch.tensor([21.0, 42.0, 63.0]))
-    torch.testing.assert_close(prod, torch.tensor([10.0, 40.0, 90.0]))
-
-
-def test_compile_traced_calls_the_compiled_graph_without_its_wrappers():
-    """The compiled function is called bare (constants prepended, no AOTAutograd runtime
-    wrappers) and gives, on inputs other than the examples it was checked on, the outputs
-    of the wrapped call to the bit and those of the eager function to float32 rounding."""
-    from mcpilco.agents.mc_pilco.direct_compile import compile_traced
-
-    gen = torch.Generator().manual_seed(0)
-    const = torch.randn(5, 3, generator=gen)
-
-    def fn(a, b):
-        h = torch.tanh(a @ const) * b
-        return h.sum(1), h, a.t()  # the last aliases an input
-
-    compiled = compile_traced(fn, [torch.zeros(4, 5), torch.zeros(4, 3)])
-    assert callable(getattr(compiled, "wrapped_call", None))
-    a, b = torch.randn(4, 5, generator=gen), torch.randn(4, 3, generator=gen)
-    got, want, eager = compiled(a, b), compiled.wrapped_call(a, b), fn(a, b)
-    for g, w, e in zip(got, want, eager, strict=True):
-        assert g.shape == w.shape and g.stride() == w.stride()
-        torch.testing.assert_close(g, w, rtol=0, atol=0)
-        torch.testing.assert_close(g, e)
-
-
-class _FakeGraph:
-    """Stands in for inductor's ``CompiledFxGraph`` in the bypass's fallback tests."""
-
-    def __init__(self, call, mutated=()):
-        self.current_callable, self.mutated_inputs = call, set(mutated)
-
-
-def _wrapped(graph, constants):
-    """A callable shaped like AOTAutograd's wrapper: it closes over ``params_buffers_flat``
-    and ``compiled_fn`` and calls ``compiled_fn([*constants, *args])``."""
-    params_buffers_flat, compiled_fn = list(constants), graph
-
-    def forward(*args):
-        return compiled_fn.current_callable([*params_buffers_flat, *args])
-
-    return forward
-
-
-def test_bypass_keeps_the_wrapped_call_unless_the_bare_one_is_safe(monkeypatch):
-    """The bare call is taken only when it is found, the graph mutates no input and it gives
-    the wrapped call's outputs on the examples; otherwise the wrapped call is returned as
-    it is."""
-    from mcpilco.agents.mc_pilco import direct_compile
-
-    c = torch.tensor([2.0, 3.0])
-    x = [torch.tensor([1.0, -1.0])]
-    good = _FakeGraph(lambda args: (args[0] * args[1],))
-    # no wrapper closure at all: a plain function is kept as it is
-    plain = lambda a: (a + 1.0,)  # noqa: E731
-    assert direct_compile.bypass_runtime_wrappers(plain, x) is plain
-    monkeypatch.setattr(direct_compile, "_find_compiled_graph", lambda fn: fn)
-    bare = direct_compile.bypass_runtime_wrappers(_wrapped(good, [c]), x)
-    assert bare.wrapped_call is not None
-    torch.testing.assert_close(bare(torch.tensor([4.0, 5.0]))[0], torch.tensor([8.0, 15.0]))
-    # the bare call disagrees with the wrapped one (the wrapper did more than prepend)
-    mismatched = _wrapped(_FakeGraph(lambda args: (args[0] + args[1],)), [c])
-
-    def outer(*args):  # a wrapper whose own output differs from its inner graph's
-        return (mismatched(*args)[0] * 0.0,)
-
-    outer.__wrapped__ = mismatched
-    assert direct_compile.bypass_runtime_wrappers(outer, x) is outer
-    # a graph that mutates an input needs the wrapper to write the mutation back
-    mutating = _wrapped(_FakeGraph(good.current_callable, mutated={"arg0_1"}), [c])
-    assert direct_compile.bypass_runtime_wrappers(mutating, x) is mutating
 
 
 def test_shards_hold_each_candidates_particles_in_order():
@@ -565,7 +486,7 @@ def test_shards_hold_each_candidates_particles_in_order():
     model = _gp_model("rbf", n=30, seed=1)
     pop = PolicyPopulation([SquashedRBFPolicy(LAYOUT, num_basis=4, seed=s) for s in (0, 1)])
     dyn, cost = model.particle_dynamics(), swingup_cost()
-    runner = DirectRollout(pop, dyn, cost, rows=2 * 6, compiler=lambda fn, _: fn, shards=3)
+    runner = TorchRollout(pop, dyn, cost, rows=2 * 6, shards=3)
     rows = torch.arange(12.0)  # candidate 0: particles 0..5, candidate 1: 6..11
     parts = runner.split(rows.repeat(2, 1), 1)
     expected = [[0.0, 1.0, 6.0, 7.0], [2.0, 3.0, 8.0, 9.0], [4.0, 5.0, 10.0, 11.0]]
@@ -575,32 +496,7 @@ def test_shards_hold_each_candidates_particles_in_order():
     bits, keep = runner.no_dropout()
     assert bits.shape == (2, 2, 4) and bits.dtype == torch.uint8 and keep.tolist() == [256, 1]
     with pytest.raises(ValueError, match="shards must be >= 1 and divide the 6 particles"):
-        DirectRollout(pop, dyn, cost, rows=12, compiler=lambda fn, _: fn, shards=4)
-
-
-def test_compile_traced_falls_back_to_the_python_wrapper(monkeypatch):
-    """When inductor's C++ wrapper fails to build, the graph is compiled with the Python
-    wrapper instead, and computes the same."""
-    import torch._inductor
-    from torch._inductor import config as inductor_config
-
-    from mcpilco.agents.mc_pilco.direct_compile import compile_traced
-
-    real = torch._inductor.compile
-    wrappers = []
-
-    def compile_(graph, inputs):
-        wrappers.append(inductor_config.cpp_wrapper)
-        if inductor_config.cpp_wrapper:
-            raise RuntimeError("cpp wrapper build failed")
-        return real(graph, inputs)
-
-    monkeypatch.setattr(torch._inductor, "compile", compile_)
-    const = torch.tensor([1.0, -2.0, 0.5])
-    compiled = compile_traced(lambda a: (torch.exp(a) * const,), [torch.zeros(3)])
-    assert wrappers == [True, False]
-    a = torch.tensor([0.0, 1.0, 2.0])
-    torch.testing.assert_close(compiled(a)[0], torch.exp(a) * const)
+        TorchRollout(pop, dyn, cost, rows=12, shards=4)
 
 
 # ------------------------------------------------------------------ native (C++) rollout
@@ -637,8 +533,8 @@ def test_native_rollout_matches_the_eager_rollout(kernel, n, sample_noise, clip,
     try:
         for backend, shards in ((None, 1), ("native", 1), ("native", 2)):
             enable = backend is not None
-            assert loss.compile_step(enable, backend=backend or "auto", shards=shards) is enable
-            assert loss.compile_backend == backend
+            used = _use(loss, enable, backend=backend or "auto", shards=shards)
+            assert used.in_use is enable and used.backend == backend
             torch.manual_seed(7)
             J = loss()["loss_cost"]
             out.append((J, torch.autograd.grad(J, list(pol.parameters())), torch.rand(2)))
@@ -655,7 +551,7 @@ def test_native_rollout_matches_the_eager_rollout(kernel, n, sample_noise, clip,
 
 def test_native_backend_knows_its_limits_and_drops_a_wrong_gradient(monkeypatch):
     """``backend="native"`` refuses what it cannot run, with the reason (float64 parts:
-    ``"auto"`` then picks the direct backend), runs asymmetric bounds and any cost terms, and
+    ``"auto"`` then picks dynamo), runs asymmetric bounds and any cost terms, and
     a native rollout whose gradient disagrees with the eager one is dropped for the eager
     step, with a warning."""
     from mcpilco.agents.mc_pilco import native_rollout
@@ -665,14 +561,14 @@ def test_native_backend_knows_its_limits_and_drops_a_wrong_gradient(monkeypatch)
     loss = MCPilcoLoss(
         make_policy_module(pol), model.particle_dynamics(), swingup_cost(l_theta=3.0), 6, 16, MU0
     )
-    assert loss.compile_step(verify=False) and loss.compile_backend == "native"
+    assert use_fast_rollout(loss, verify=False).backend == "native"
     wide = MCPilcoLoss(
         make_policy_module(SquashedRBFPolicy(LAYOUT, num_basis=16, seed=0).double()),
         model.particle_dynamics(dtype=f64), swingup_cost(), 6, 16, MU0,
     )  # fmt: skip
     with pytest.raises(ValueError, match="native backend cannot run.*float32 only"):
-        wide.compile_step(backend="native")
-    assert wide.compile_step(verify=False) and wide.compile_backend == "direct"
+        use_fast_rollout(wide, backend="native")
+    assert use_fast_rollout(wide, verify=False).backend == "dynamo"
     # asymmetric action bounds and a cost on x alone run natively, as the eager rollout does
     lopsided = MCPilcoLoss(
         make_policy_module(SquashedRBFPolicy(LAYOUT, (-0.5,), (1.0,), num_basis=16, seed=0)),
@@ -681,8 +577,9 @@ def test_native_backend_knows_its_limits_and_drops_a_wrong_gradient(monkeypatch)
     x_only = SaturatingCost(4, idx=(0,), targets=(0.0,), length_scales=(1.0,), modes=(0,))
     no_theta = MCPilcoLoss(make_policy_module(pol), model.particle_dynamics(), x_only, 6, 16, MU0)
     for other in (lopsided, no_theta):
-        assert other.compile_step(backend="native") and other.compile_backend == "native"
-        assert other.compile_check["J_rel"] < 1e-4 and other.compile_check["grad_rel"] < 1e-3
+        used = use_fast_rollout(other, backend="native")
+        assert used.backend == "native"
+        assert used.check["J_rel"] < 1e-4 and used.check["grad_rel"] < 1e-3
 
     backward = native_rollout.NativeRollout.backward_shard
 
@@ -692,9 +589,9 @@ def test_native_backend_knows_its_limits_and_drops_a_wrong_gradient(monkeypatch)
         return [2 * g - b for g, b in zip(new, before, strict=True)]
 
     monkeypatch.setattr(native_rollout.NativeRollout, "backward_shard", doubled)
-    with pytest.warns(RuntimeWarning, match=r"compiled rollout step \(native\) disagrees"):
-        assert loss.compile_step(backend="native") is False
-    assert loss.compile_backend is None
+    with pytest.warns(RuntimeWarning, match=r"native rollout disagrees with the eager one"):
+        assert use_fast_rollout(loss, backend="native").backend is None
+    assert loss.fast_rollout == (None, None)
     monkeypatch.undo()
 
     def no_compiler():
@@ -702,14 +599,14 @@ def test_native_backend_knows_its_limits_and_drops_a_wrong_gradient(monkeypatch)
 
     monkeypatch.setattr(native_rollout, "load_library", no_compiler)
     with pytest.raises(ValueError, match="native library is not available.*no C\\+\\+ compiler"):
-        loss.compile_step(backend="native")
-    assert loss.compile_step(verify=False) and loss.compile_backend == "direct"
+        use_fast_rollout(loss, backend="native")
+    assert use_fast_rollout(loss, verify=False).backend == "dynamo"
     monkeypatch.undo()
-    # a compiler that fails to build the library: "auto" says so, then runs direct
+    # a compiler that fails to build the library: "auto" says so, then runs dynamo
     monkeypatch.setattr(native_rollout, "_LIB", None)
     monkeypatch.setattr(native_rollout, "_LIB_ERROR", "g++ ... failed: error: oops")
     with pytest.warns(RuntimeWarning, match="native rollout was not used.*failed: error: oops"):
-        assert loss.compile_step(verify=False) and loss.compile_backend == "direct"
+        assert use_fast_rollout(loss, verify=False).backend == "dynamo"
 
 
 def test_native_library_builds_once_and_its_failures_are_clear_errors(tmp_path, monkeypatch):

@@ -29,8 +29,8 @@ from mcpilco.agents.mc_pilco import (
     make_policy_module,
     run_mcpilco,
 )
+from mcpilco.agents.mc_pilco.backends import check_against_eager, use_fast_rollout
 from mcpilco.agents.mc_pilco.checkpoint import load_checkpoint
-from mcpilco.agents.mc_pilco.direct_compile import DirectRollout
 from tests.agents.mc_pilco.toy_env import ENV_ID, TASK
 
 ROOT = Path(__file__).resolve().parents[3]
@@ -144,18 +144,15 @@ def fitted_loss(
 
 @pytest.mark.parametrize("seed", range(6))
 def test_hand_chained_rollout_matches_autograd_on_random_tasks(seed):
-    """The direct backend's forward and hand-chained backward through time (run here
-    without a compiler) against the autograd rollout: same random numbers, J^ and every
-    policy-parameter gradient, on random layouts, action counts and both kernels."""
+    """The torch backend's forward and hand-chained backward through time against the
+    autograd rollout: same random numbers, J^ and every policy-parameter gradient, on random
+    layouts, action counts and both kernels."""
     rng = np.random.default_rng(seed)
     task = random_task(rng)
     loss, policy = fitted_loss(task, rng, ("rbf+mpk", "rbf")[seed % 2])
     policy.train()
-    loss._direct = DirectRollout(
-        policy, loss.dynamics, loss.cost, loss.num_particles, loss.delta_dim,
-        compiler=lambda fn, _examples: fn,
-    )  # fmt: skip
-    check = loss.compare_compiled_step(seed=seed, horizon=None)
+    assert use_fast_rollout(loss, backend="torch", verify=False).backend == "torch"
+    check = check_against_eager(loss, seed=seed, horizon=None)
     assert check["J_rel"] < 1e-5, (task, check)
     assert check["grad_rel"] < 1e-4, (task, check)
 
@@ -216,19 +213,19 @@ def test_native_rollout_matches_autograd_on_task_layouts(name, kernel, candidate
         rng = np.random.default_rng(7)
         task = six_state_task(pairs=name == "pairs")
     loss, policy = fitted_loss(task, rng, kernel, 20, candidates, mode)
-    assert loss.compile_step(backend="native", shards=shards, verify=False), build_error()
-    assert loss.compile_backend == "native" and loss.rollout_shards == shards
-    check = loss.compare_compiled_step(seed=3, horizon=None)
+    fast = use_fast_rollout(loss, backend="native", shards=shards, verify=False)
+    assert fast.backend == "native" and loss.rollout_shards == shards, build_error()
+    check = check_against_eager(loss, seed=3, horizon=None)
     assert check["J_rel"] < 1e-4, (task, check)
     assert check["grad_rel"] < 1e-3, (task, check)
     # "auto" picks the native rollout for every layout
-    assert loss.compile_step(verify=False) and loss.compile_backend == "native"
+    assert use_fast_rollout(loss, verify=False).backend == "native"
 
 
 @pytest.mark.slow
-def test_compiled_direct_rollout_on_a_non_cartpole_task():
-    """The inductor-compiled direct rollout on a 3-state, 2-action task with an angle at
-    index 0 agrees with the eager rollout (compile_step's own check)."""
+def test_compiled_dynamo_rollout_on_a_non_cartpole_task():
+    """``torch.compile`` of the time step on a 3-state, 2-action task with an angle at
+    index 0 agrees with the eager rollout (use_fast_rollout's own check)."""
     rng = np.random.default_rng(11)
     task = TaskSpec.from_dict(
         {
@@ -245,9 +242,9 @@ def test_compiled_direct_rollout_on_a_non_cartpole_task():
         }
     )
     loss, _ = fitted_loss(task, rng, "rbf+mpk", particles=16)
-    assert loss.compile_step(backend="direct", shards=1)
-    assert loss.compile_backend == "direct"
-    assert loss.compile_check["grad_rel"] < 1e-3
+    fast = use_fast_rollout(loss, backend="dynamo", dynamic=False)
+    assert fast.backend == "dynamo"
+    assert fast.check["grad_rel"] < 1e-3
 
 
 def _records(path: Path) -> list[dict]:
