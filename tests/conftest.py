@@ -7,7 +7,7 @@ import importlib.metadata
 import os
 import subprocess
 import sys
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterator, Sequence
 
 import pytest
 
@@ -83,3 +83,15 @@ def run_command(name: str, argv: Sequence[str]) -> int:
 def command() -> Callable[[str, Sequence[str]], int]:
     """``command(name, argv)``: run a console script in-process, return its exit status."""
     return run_command
+
+
+@pytest.fixture
+def one_torch_thread() -> Iterator[None]:
+    """One torch thread for the test (tiny GP fits would only oversubscribe the cores); the
+    count before it restored after."""
+    import torch
+
+    previous = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(previous)

@@ -4,19 +4,11 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-import torch
 
 from mcpilco.experiments import volterra_bench as bench
 from mcpilco.models.volterra import fit_percent, lag_matrix, spinelli_system, wiener_system
 
-
-@pytest.fixture(autouse=True)
-def _one_torch_thread():
-    """GP fits here are tiny: one thread avoids oversubscribing the 2 shared cores."""
-    previous = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(previous)
+pytestmark = pytest.mark.usefixtures("one_torch_thread")  # tiny GP fits
 
 
 def test_data_generation_is_reproducible_and_consistent():

@@ -6,7 +6,6 @@ import math
 
 import numpy as np
 import pytest
-import torch
 
 from mcpilco.models.volterra import (
     SPINELLI_TERMS,
@@ -18,14 +17,7 @@ from mcpilco.models.volterra import (
     wiener_system,
 )
 
-
-@pytest.fixture(autouse=True)
-def _one_torch_thread():
-    """GP fits here are tiny: one thread avoids oversubscribing the 2 shared cores."""
-    previous = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(previous)
+pytestmark = pytest.mark.usefixtures("one_torch_thread")  # tiny GP fits
 
 
 # ---------------------------------------------------------------------------- lag_matrix

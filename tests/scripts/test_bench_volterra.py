@@ -6,18 +6,10 @@ import json
 
 import numpy as np
 import pytest
-import torch
 
 from mcpilco.experiments import volterra_bench as bench
 
-
-@pytest.fixture(autouse=True)
-def _one_torch_thread():
-    """GP fits here are tiny: one thread avoids oversubscribing the 2 shared cores."""
-    previous = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(previous)
+pytestmark = pytest.mark.usefixtures("one_torch_thread")  # tiny GP fits
 
 
 def test_tiny_benchmark_writes_json_pngs_and_table(tmp_path, command):
