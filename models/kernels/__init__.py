@@ -1,4 +1,4 @@
-"""Kernels for structured GP regression: linear, PK/IPK, MPK, SED-MPK, GIP.
+"""Kernels for structured GP regression: linear, PK/IPK, MPK, SED-MPK, GIP, rigid-body dynamics.
 
 All are ``gpytorch.kernels.Kernel`` subclasses with a dense matmul-form ``forward``; see each
 class for the maths (thesis chapters 3 and 6).
@@ -14,6 +14,12 @@ from mcpilco.models.kernels.gip import (
 from mcpilco.models.kernels.linear import LinearKernel
 from mcpilco.models.kernels.mpk import MPKernel
 from mcpilco.models.kernels.polynomial import PolynomialKernel
+from mcpilco.models.kernels.rigid_body import (
+    RigidBodyDynamicsKernel,
+    rigid_body_feature_dim,
+    rigid_body_feature_names,
+    rigid_body_features,
+)
 from mcpilco.models.kernels.sed_mpk import SEDMPKernel, TiedSEDMPKernel, sed_matrix
 from mcpilco.models.kernels.volterra import VOLTERRA_KINDS, volterra_kernel
 
@@ -22,6 +28,7 @@ __all__ = [
     "LinearKernel",
     "MPKernel",
     "PolynomialKernel",
+    "RigidBodyDynamicsKernel",
     "SEDMPKernel",
     "TiedSEDMPKernel",
     "VOLTERRA_KINDS",
@@ -29,6 +36,9 @@ __all__ = [
     "gip_feature_dim",
     "gip_feature_names",
     "gip_features",
+    "rigid_body_feature_dim",
+    "rigid_body_feature_names",
+    "rigid_body_features",
     "sed_matrix",
     "volterra_kernel",
 ]

@@ -9,6 +9,7 @@ from mcpilco.models.kernels import (
     LinearKernel,
     MPKernel,
     PolynomialKernel,
+    RigidBodyDynamicsKernel,
     SEDMPKernel,
     TiedSEDMPKernel,
     gip_feature_dim,
@@ -91,6 +92,22 @@ class TestGIPKernel(KernelContract):
         g = torch.Generator().manual_seed(seed)
         q, qd, qdd = torch.randn(3, n, len(self.joint_types), generator=g, dtype=torch.float64)
         return gip_features(q, qd, qdd, self.joint_types).to(dtype)
+
+
+class TestRigidBodyDynamicsKernel(KernelContract):
+    input_dim = 9  # [q, qd, tau] of "RPR"
+
+    def make_kernel(self, batch_shape=EMPTY, active_dims=None):
+        return RigidBodyDynamicsKernel("RPR", batch_shape=batch_shape, active_dims=active_dims)
+
+
+class TestRigidBodyDynamicsKernelCoulomb(KernelContract):
+    input_dim = 6  # [q, qd, tau] of "RR"
+
+    def make_kernel(self, batch_shape=EMPTY, active_dims=None):
+        return RigidBodyDynamicsKernel(
+            "RR", coulomb_eps=0.2, batch_shape=batch_shape, active_dims=active_dims
+        )
 
 
 class TestVolterraPK(KernelContract):
