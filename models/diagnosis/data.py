@@ -13,28 +13,66 @@ Glossary
 ``segment``
     ``(N,)`` index of the file each sample came from; ``segments`` are the ``(start, stop)``
     row ranges.
+
+Position-only files
+-------------------
+A file that gives ``t, q`` and ``tau`` (or ``i``) but no ``qd``/``qdd`` columns, as a real
+controller's log often does, gets them from :func:`estimate_derivatives`: a central
+Savitzky-Golay filter of :func:`derivative_filter` (a local least-squares polynomial of order
+``p = 4`` over ``L = 2 m + 1`` samples, ``m = round(W / (2 T))`` with ``W = 0.1`` s and ``T``
+the sample time, at least ``L = 7``). ``qd`` and ``qdd`` are the first and second
+derivatives of that polynomial at the window's centre (both from ``q``, not ``qdd`` from
+``qd``). Properties (all in :class:`DerivativeFilter`):
+
+* zero lag: the coefficients are (anti)symmetric, so the phase is exactly ``-j w`` /
+  ``-w^2`` times a real gain; no delay is introduced (offline, non-causal). The first and
+  last ``m`` samples use a fit over the edge window (``mode="interp"``), less accurate.
+* noise gain: white noise of standard deviation ``sigma_q`` on ``q`` (e.g. encoder
+  quantisation, ``sigma_q = step / sqrt(12)``) becomes ``sigma_qd = ||c_1|| sigma_q`` and
+  ``sigma_qdd = ||c_2|| sigma_q`` with ``c_k`` the filter's coefficients (units 1/s and
+  1/s^2); for ``T = 4`` ms these are about 17 /s and 1.9e3 /s^2.
+* bandwidth: the highest frequency at which the gain of the ``k``-th derivative stays within
+  5 % of the exact ``w^k`` (about 7-8 Hz for ``W = 0.1`` s, whatever ``T``); faster content
+  is attenuated, which the residuals see as a model error.
+
+Files that already give ``qd`` and ``qdd`` are used as given. The estimate needs a uniform
+time grid: a segment whose sample intervals depart from their median by more than
+:data:`SAMPLING_TOLERANCE` (relative) is refused. :attr:`Trajectories.estimated` records,
+per segment, which groups were estimated and with which filter, so that the loop can count
+the noise they carry.
 """
 
 from __future__ import annotations
 
+import re
+import warnings
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 from numpy.typing import NDArray
+from scipy.signal import savgol_coeffs, savgol_filter
 
 from mcpilco.models.robot_data import RobotDataset, load_dataset
 
 FloatArray = NDArray[np.float64]
 
 __all__ = [
+    "DERIVATIVE_ORDER",
+    "DERIVATIVE_WINDOW",
     "MIN_FIT_ROWS",
+    "SAMPLING_TOLERANCE",
+    "DerivativeFilter",
+    "Estimate",
+    "derivative_filter",
+    "estimate_derivatives",
     "MIN_HELDOUT_ROWS",
     "Trajectories",
     "as_trajectories",
     "load_trajectories",
     "require_rows",
+    "uniform_sample_time",
 ]
 
 MIN_FIT_ROWS = 100
@@ -44,6 +82,125 @@ MIN_HELDOUT_ROWS = 50
 """Fewest held-out rows an effect is confirmed or rejected on (the held-out RMSE change
 must stand out from its sampling noise)."""
 
+DERIVATIVE_WINDOW = 0.1
+"""Time span ``W`` [s] of the Savitzky-Golay window that estimates ``qd``/``qdd`` from ``q``."""
+DERIVATIVE_ORDER = 4
+"""Polynomial order ``p`` of that filter."""
+SAMPLING_TOLERANCE = 1e-3
+"""Largest relative departure of a sample interval from the median one for an estimate."""
+BANDWIDTH_ERROR = 0.05
+"""Relative gain error that defines :attr:`DerivativeFilter.bandwidth`."""
+
+
+@dataclass(frozen=True)
+class DerivativeFilter:
+    """The central Savitzky-Golay filter that estimated ``qd``/``qdd`` (module docstring).
+
+    Attributes:
+        sample_time: ``T`` [s].
+        window: ``L = 2 m + 1`` samples (span ``(L - 1) T``).
+        order: polynomial order ``p``.
+        noise_gain_qd: ``||c_1||`` [1/s]: ``sigma_qd = noise_gain_qd * sigma_q``.
+        noise_gain_qdd: ``||c_2||`` [1/s^2]: ``sigma_qdd = noise_gain_qdd * sigma_q``.
+        bandwidth_qd: [Hz] highest frequency with ``qd`` gain within 5 % of exact.
+        bandwidth_qdd: [Hz] the same for ``qdd``.
+        lag: [s], 0 (central window).
+    """
+
+    sample_time: float
+    window: int
+    order: int
+    noise_gain_qd: float
+    noise_gain_qdd: float
+    bandwidth_qd: float
+    bandwidth_qdd: float
+    lag: float = 0.0
+
+    @property
+    def name(self) -> str:
+        return f"savgol(order={self.order}, window={self.window}, T={self.sample_time:g} s)"
+
+
+def _bandwidth(coeffs: FloatArray, deriv: int, dt: float) -> float:
+    """Frequency [Hz] where ``|H(w)| / w^deriv`` first departs from 1 by :data:`BANDWIDTH_ERROR`."""
+    m = (coeffs.size - 1) // 2
+    k = np.arange(-m, m + 1)
+    omega = np.linspace(1e-3, np.pi / dt, 4000)
+    gain = np.abs(np.exp(1j * np.outer(omega, k) * dt) @ coeffs) / omega**deriv
+    off = np.abs(gain - 1.0) > BANDWIDTH_ERROR
+    return float(omega[np.argmax(off)] / (2 * np.pi)) if off.any() else float(0.5 / dt)
+
+
+def derivative_filter(
+    sample_time: float, window: float = DERIVATIVE_WINDOW, order: int = DERIVATIVE_ORDER
+) -> DerivativeFilter:
+    """The filter for samples ``sample_time`` [s] apart: ``L = 2 round(window / (2 T)) + 1``
+    samples, at least ``order + 3``, with its noise gains and bandwidths."""
+    if not sample_time > 0:
+        raise ValueError(f"sample_time must be > 0, got {sample_time}")
+    half = max(int(round(window / (2.0 * sample_time))), (order + 2) // 2)
+    length = 2 * half + 1
+    c1 = savgol_coeffs(length, order, deriv=1, delta=sample_time, use="dot")
+    c2 = savgol_coeffs(length, order, deriv=2, delta=sample_time, use="dot")
+    return DerivativeFilter(
+        sample_time=float(sample_time),
+        window=length,
+        order=order,
+        noise_gain_qd=float(np.linalg.norm(c1)),
+        noise_gain_qdd=float(np.linalg.norm(c2)),
+        bandwidth_qd=_bandwidth(c1, 1, sample_time),
+        bandwidth_qdd=_bandwidth(c2, 2, sample_time),
+    )
+
+
+def uniform_sample_time(t: FloatArray, source: str = "<arrays>") -> float:
+    """The median sample interval of ``t`` [s]; ValueError when an interval departs from it
+    by more than :data:`SAMPLING_TOLERANCE` (relative)."""
+    dt = np.diff(np.asarray(t, dtype=np.float64))
+    if dt.size == 0:
+        raise ValueError(f"{source}: needs at least 2 samples to estimate derivatives")
+    med = float(np.median(dt))
+    worst = int(np.argmax(np.abs(dt - med)))
+    if not med > 0 or abs(dt[worst] - med) > SAMPLING_TOLERANCE * med:
+        raise ValueError(
+            f"{source}: non-uniform sampling: interval {dt[worst]:.6g} s at row {worst + 1} "
+            f"departs from the median {med:.6g} s by more than {SAMPLING_TOLERANCE:g} "
+            "(relative); qd/qdd can only be estimated on a uniform grid: resample the file "
+            "or give qd and qdd columns"
+        )
+    return med
+
+
+def estimate_derivatives(
+    t: FloatArray, q: FloatArray, source: str = "<arrays>"
+) -> tuple[FloatArray, FloatArray, DerivativeFilter]:
+    """``(qd, qdd, filter)`` estimated from positions ``q (N, n)`` sampled at times ``t (N,)``
+    with :func:`derivative_filter` (module docstring).
+
+    Raises:
+        ValueError: non-uniform sampling (:func:`uniform_sample_time`) or fewer samples than
+            the filter's window.
+    """
+    filt = derivative_filter(uniform_sample_time(t, source))
+    q = np.asarray(q, dtype=np.float64)
+    if q.shape[0] < filt.window:
+        raise ValueError(
+            f"{source}: {q.shape[0]} rows, fewer than the {filt.window}-sample window that "
+            "estimates qd/qdd; give a longer file or qd and qdd columns"
+        )
+    kw = dict(window_length=filt.window, polyorder=filt.order, delta=filt.sample_time, axis=0)
+    qd = savgol_filter(q, deriv=1, **kw)
+    qdd = savgol_filter(q, deriv=2, **kw)
+    return qd, qdd, filt
+
+
+@dataclass(frozen=True)
+class Estimate:
+    """Which derivative groups of one segment were estimated, and by which filter."""
+
+    groups: tuple[str, ...]
+    filter: DerivativeFilter
+
 
 @dataclass
 class Trajectories:
@@ -52,6 +209,9 @@ class Trajectories:
     Attributes:
         output: ``"tau"`` or ``"i"`` (what ``y`` holds).
         names: the source of every segment (file path or ``"<arrays>"``).
+        warnings: data warnings of the loader.
+        estimated: per segment (aligned with ``names``), the :class:`Estimate` of the
+            ``qd``/``qdd`` groups computed from ``q``, or ``None`` when the file gave them.
     """
 
     t: FloatArray
@@ -63,6 +223,7 @@ class Trajectories:
     output: str = "tau"
     names: list[str] = field(default_factory=list)
     warnings: list[str] = field(default_factory=list)
+    estimated: list[Estimate | None] = field(default_factory=list)
 
     @property
     def n_joints(self) -> int:
@@ -105,6 +266,7 @@ class Trajectories:
             output=self.output,
             names=[self.names[s] for s in sorted(remap)],
             warnings=list(self.warnings),
+            estimated=[self.estimated[s] for s in sorted(remap)] if self.estimated else [],
         )
 
     def split_time(self, fraction: float) -> tuple[Trajectories, Trajectories]:
@@ -128,6 +290,7 @@ class Trajectories:
             output=self.output,
             names=list(self.names),
             warnings=list(self.warnings),
+            estimated=list(self.estimated),
         )
 
     def shift_index(self, rows: NDArray[np.int64], k: int) -> NDArray[np.int64]:
@@ -190,24 +353,91 @@ def as_trajectories(
             "give the same output group (tau or i) in every file"
         )
     parts = {k: [] for k in ("t", "q", "qd", "qdd", "y", "segment")}
+    estimated: list[Estimate | None] = []
+    notes: list[str] = []
     for s, ds in enumerate(datasets):
+        qd, qdd, est = _derivatives(ds)
+        estimated.append(est)
+        notes += _data_warnings(ds, est, qd, qdd)
         parts["t"].append(ds.t)
         parts["q"].append(ds.q)
-        parts["qd"].append(ds.qd)
-        parts["qdd"].append(ds.qdd)
+        parts["qd"].append(qd)
+        parts["qdd"].append(qdd)
         parts["y"].append(ds.tau if output == "tau" else ds.i)
         parts["segment"].append(np.full(ds.n_samples, s, dtype=np.int64))
     return Trajectories(
         **{k: np.concatenate(v) for k, v in parts.items()},
         output=output,
         names=[str(ds.metadata.get("source", "<arrays>")) for ds in datasets],
-        warnings=[w for ds in datasets for w in ds.metadata.get("warnings", [])],
+        warnings=notes,
+        estimated=estimated,
     )
 
 
+def _data_warnings(
+    ds: RobotDataset, est: Estimate | None, qd: FloatArray, qdd: FloatArray
+) -> list[str]:
+    """The loader's warnings of ``ds``; those about derivatives it computed are replaced by
+    the same check on the estimates, with the estimate's window (``RuntimeWarning``)."""
+    notes = list(ds.metadata.get("warnings", []))
+    if est is None:
+        return notes
+    computed = re.compile(rf": ({'|'.join(est.groups)})\d+ computed from ")
+    notes = [w for w in notes if not computed.search(w)]
+    source = str(ds.metadata.get("source", "<arrays>"))
+    new: list[str] = []
+    for g, values in (("qd", qd), ("qdd", qdd)):
+        if g in est.groups:
+            of = "q" if "qd" in est.groups else "qd"
+            new += _swing_warnings(values, g, of, est.filter.window, source)
+    for text in new:
+        warnings.warn(text, RuntimeWarning, stacklevel=3)
+    return notes + new
+
+
+def _swing_warnings(values: FloatArray, g: str, of: str, window: int, source: str) -> list[str]:
+    """Joints whose estimated ``g`` reverses sign (beyond 10 % of its peak) in fewer samples
+    on average than the filter's ``window``: the window spans a whole swing and flattens it."""
+    out = []
+    for j in range(values.shape[1]):
+        d = values[:, j]
+        big = np.abs(d) > 0.1 * float(np.max(np.abs(d)) or 1.0)
+        signs = np.sign(d[big])
+        reversals = int(np.count_nonzero(signs[1:] != signs[:-1]))
+        if reversals and d.size / (reversals + 1) < window:
+            out.append(
+                f"{source}: {g}{j + 1} estimated from {of}{j + 1} changes sign every "
+                f"{d.size / (reversals + 1):.1f} samples on average, fewer than the {window} "
+                f"of the derivative filter: sample faster or give {g}{j + 1}; results that use "
+                f"{g} are unreliable"
+            )
+    return out
+
+
+def _derivatives(ds: RobotDataset) -> tuple[FloatArray, FloatArray, Estimate | None]:
+    """``qd, qdd`` of a dataset: as given, or estimated (module docstring) for the groups
+    that the file lacked (``ds.metadata["computed"]``); a given ``qd`` is differentiated
+    once for a missing ``qdd``."""
+    computed = tuple(g for g in ("qd", "qdd") if g in ds.metadata.get("computed", []))
+    if not computed:
+        return ds.qd, ds.qdd, None
+    source = str(ds.metadata.get("source", "<arrays>"))
+    qd, qdd, filt = estimate_derivatives(ds.t, ds.q, source)
+    if "qd" not in computed:
+        qd = ds.qd
+        kw = dict(window_length=filt.window, polyorder=filt.order, delta=filt.sample_time)
+        qdd = savgol_filter(ds.qd, deriv=1, axis=0, **kw)
+    return qd, qdd, Estimate(groups=computed, filter=filt)
+
+
 def load_trajectories(paths: Sequence[str | Path], n_joints: int | None = None) -> Trajectories:
-    """Load and validate measurement files (CSV/Parquet, schema of ``models.robot_data``)."""
-    return as_trajectories([load_dataset(p, n_joints=n_joints) for p in paths], n_joints)
+    """Load and validate measurement files (CSV/Parquet, schema of ``models.robot_data``);
+    ``qd``/``qdd`` that a file lacks are estimated (module docstring)."""
+    with warnings.catch_warnings():
+        # the loader's check of its own derivatives is redone on the estimates
+        warnings.filterwarnings("ignore", r".* computed from .*", RuntimeWarning)
+        datasets = [load_dataset(p, n_joints=n_joints) for p in paths]
+    return as_trajectories(datasets, n_joints)
 
 
 def require_rows(traj: Trajectories, needed: int, what: str) -> None:

@@ -1,0 +1,438 @@
+"""Synthetic robot logs made the way a real robot's are: simulated, controlled, measured.
+
+:func:`simulate_log` forward-simulates a serial arm (an
+:class:`~mcpilco.envs.arm_builder.ArmSpec`, e.g. :func:`~mcpilco.envs.arms.ur10`,
+:func:`~mcpilco.envs.arms.scara` or :func:`~mcpilco.envs.arms.random_arm`) in MuJoCo. Two
+models are built from the same table with :func:`~mcpilco.envs.arm_builder.build_arm_spec`
+(Euler integrator, which treats joint damping implicitly; timestep ``dt``):
+
+* the **nominal** model: the table as given (what the user believes; the controller's
+  model): rigid-body parameters, ``armature = J_m K_r^2``, ``damping = F_v`` and
+  ``frictionloss = F_s`` (the Coulomb/Stribeck correction of the arm envs is not applied;
+  use ``arm.rigid()`` for a friction-free nominal model);
+* the **true** model: the nominal one plus the :class:`HiddenEffect` list, written as MuJoCo
+  physics where MuJoCo has it, otherwise as an applied generalised force.
+
+The log holds only what a robot controller records: time, measured joint positions and
+measured joint torques. The ground truth (true states, true accelerations, noise-free torques,
+the effects, the settings and the true model's MJCF) comes back separately
+(:class:`LogTruth`).
+
+Controller (inner loop at the physics rate, exact state)
+--------------------------------------------------------
+``tau_c = Kp (q_ref - q) + Kd (qd_ref - qd) + g_nom(q)``, ``tau = clip(tau_c, +-tau_max)``
+
+* ``g_nom(q)``: gravity torques of the *nominal* model (MuJoCo RNE at zero velocity and
+  acceleration, ``qfrc_bias`` with ``qd = 0``), so every hidden effect shows up as a
+  tracking error and in the torque the controller has to apply.
+* gains per joint from the nominal mass matrix ``M_nom(q_ref(0))``:
+  ``Kp_j = M_jj w_c^2``, ``Kd_j = 2 zeta M_jj w_c`` with ``w_c = 2 pi f_c`` (``f_c =``
+  ``bandwidth`` Hz, default 5) and ``zeta = 1``.
+* ``tau_max``: the table's ``torque_limit`` (no limit when ``None``).
+* reference: :class:`~mcpilco.envs.arm_env.SumOfSinusoids` per joint (random amplitudes,
+  frequencies and phases from the seed), centred in the joint range (revolute ranges cut to
+  ``+-pi``) with ``sum |A| <= 0.3`` of the half range (and ``<= 1`` rad) and
+  ``sum |A w| <= 0.5 v_max``; the arm starts on the reference (``q = q_ref(0)``,
+  ``qd = qd_ref(0)``).
+
+Hidden effects (``HiddenEffect(kind, joint, value, ref)``; ``joint`` counts from 1)
+-----------------------------------------------------------------------------------
+``damping`` (N m s/rad or N s/m)
+    joint ``damping += value``: passive force ``-value qd_j`` (implicit in the integrator).
+``frictionloss`` (N m or N)
+    joint ``frictionloss += value``: MuJoCo's dry-friction constraint, ``value`` against the
+    motion while sliding, up to ``value`` holding the joint at rest.
+``armature`` (kg m^2 or kg)
+    joint ``armature += value``: extra reflected inertia ``value qdd_j``.
+``stiffness`` (N m/rad or N/m; ``ref`` in rad or m)
+    joint ``stiffness = value``, ``springref = ref``: force ``-value (q_j - ref)``.
+``mass`` (factor)
+    body ``link{joint}``: mass and inertia times ``value`` (a heavier link; centre of mass
+    unchanged).
+``payload`` (kg; ``ref`` in m)
+    a solid sphere of radius :data:`PAYLOAD_RADIUS` and mass ``value`` fixed to the last
+    link at the flange site ``ee``, moved ``ref`` along the flange's z axis.
+``position_friction`` (N m or N; ``ref`` in 1/rad or 1/m)
+    applied ``-value (1 + 0.5 sin(ref q_j)) tanh(qd_j / FRICTION_VELOCITY)``: a dry friction
+    whose level varies with position (no diagnosis candidate has this form).
+``cogging`` (N m or N; ``ref`` in 1/rad or 1/m)
+    applied ``value sin(ref q_j)``.
+
+The applied forces (``qfrc_applied``) are evaluated from the state at the start of every
+physics step (explicit in time).
+
+Measurement model (sample time ``T = substeps dt``; defaults ``dt = 1`` ms, ``T = 4`` ms)
+---------------------------------------------------------------------------------------
+* ``t_k = k T`` [s], one row every ``substeps`` physics steps.
+* ``q_k = s round((q(t_k) + e_k) / s)``: an encoder with step ``s = 2 pi / counts_per_rev``
+  rad (``1 / counts_per_metre`` m for prismatic joints) read with electrical noise
+  ``e_k ~ N(0, (encoder_noise s)^2)`` (``encoder_noise`` in counts); ``q_k`` lies on the
+  encoder grid ``s Z``. The quantisation alone has a standard deviation ``s / sqrt(12)``.
+* ``tau_k = tau(t_k) + n_k``, ``n_k ~ N(0, tau_noise^2)`` [N m or N]: the actuator torque
+  applied over the physics step that starts at ``t_k``, measured with noise.
+
+Ground truth (:class:`LogTruth`) per sample: the exact ``q, qd`` and ``qdd`` (MuJoCo's
+``qacc`` of the true model at that state and torque: the equation-of-motion acceleration),
+the noise-free ``tau``, and the reference. Without hidden effects and noise,
+``tau_k`` equals the nominal model's inverse dynamics (``mj_inverse``) at
+``(q, qd, qdd)(t_k)``; with effects, ``tau_k - ID_nom`` is the effects' torque.
+
+Files (:func:`write_log`): columns ``t, q1..qn, tau1..taun`` (the schema of
+``mcpilco.models.robot_data``; no ``qd``/``qdd``), CSV or Parquet by suffix; the ground truth
+optionally in a separate JSON file.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import mujoco
+import numpy as np
+import pandas as pd
+from numpy.typing import ArrayLike, NDArray
+
+from mcpilco.envs.arm_builder import ArmSpec, build_arm_spec
+from mcpilco.envs.arm_env import SumOfSinusoids
+
+FloatArray = NDArray[np.float64]
+
+__all__ = [
+    "EFFECT_KINDS",
+    "HiddenEffect",
+    "LogTruth",
+    "RobotLog",
+    "build_models",
+    "gravity_torque",
+    "simulate_log",
+    "write_log",
+]
+
+JOINT_KINDS = ("damping", "frictionloss", "armature", "stiffness")
+"""Effects written as MuJoCo joint attributes."""
+BODY_KINDS = ("mass", "payload")
+"""Effects written as MuJoCo bodies."""
+APPLIED_KINDS = ("position_friction", "cogging")
+"""Effects MuJoCo lacks, applied as generalised forces."""
+EFFECT_KINDS = JOINT_KINDS + BODY_KINDS + APPLIED_KINDS
+"""Every kind of :class:`HiddenEffect`."""
+
+PAYLOAD_RADIUS = 0.03
+"""Radius [m] of the solid sphere that gives the payload's inertia."""
+FRICTION_VELOCITY = 0.01
+"""Velocity [rad/s or m/s] of the ``tanh`` that smooths the applied dry friction's sign."""
+PHYSICS_TIMESTEP = 1e-3
+"""Default physics timestep [s]."""
+SUBSTEPS = 4
+"""Default physics steps per logged sample (``T = 4`` ms)."""
+
+
+@dataclass(frozen=True)
+class HiddenEffect:
+    """One physical effect of the true robot that the nominal model lacks (module docstring).
+
+    Attributes:
+        kind: one of :data:`EFFECT_KINDS`.
+        joint: joint number ``1..n``; for ``mass`` the link (body ``link{joint}``); ignored
+            for ``payload`` (always at the flange).
+        value: size of the effect (units per kind in the module docstring).
+        ref: second parameter: ``springref`` of ``stiffness``, spatial frequency of
+            ``position_friction``/``cogging``, offset of ``payload``.
+    """
+
+    kind: str
+    joint: int
+    value: float
+    ref: float = 0.0
+
+    def __post_init__(self) -> None:
+        if self.kind not in EFFECT_KINDS:
+            raise ValueError(f"unknown effect kind {self.kind!r}; use one of {EFFECT_KINDS}")
+        if self.joint < 1 and self.kind != "payload":
+            raise ValueError(f"joint counts from 1, got {self.joint}")
+        if self.kind in ("mass", "payload", "armature", "frictionloss") and self.value < 0:
+            raise ValueError(f"{self.kind} needs value >= 0, got {self.value}")
+
+
+@dataclass
+class LogTruth:
+    """What the log does not show: exact states, noise-free torques, effects and settings.
+
+    Attributes:
+        q, qd, qdd: exact ``(N, n)`` joint positions, velocities and equation-of-motion
+            accelerations of the true model at the logged instants.
+        tau: ``(N, n)`` applied torque before the measurement noise.
+        q_ref, qd_ref: ``(N, n)`` the controller's reference.
+        effects: the hidden effects.
+        settings: controller gains, encoder steps, noise levels, timestep, sample time.
+        true_xml: MJCF of the true model (the "corrected" model the diagnosis aims at).
+    """
+
+    q: FloatArray
+    qd: FloatArray
+    qdd: FloatArray
+    tau: FloatArray
+    q_ref: FloatArray
+    qd_ref: FloatArray
+    effects: tuple[HiddenEffect, ...]
+    settings: dict[str, Any]
+    true_xml: str
+
+    def to_json(self) -> dict[str, Any]:
+        """Effects and settings as JSON-serialisable data (no arrays)."""
+        return {
+            "effects": [dataclasses.asdict(e) for e in self.effects],
+            "settings": self.settings,
+        }
+
+
+@dataclass
+class RobotLog:
+    """A simulated log: ``table`` (columns ``t, q1..qn, tau1..taun``) and its ``truth``."""
+
+    table: pd.DataFrame
+    truth: LogTruth
+
+    @property
+    def n_joints(self) -> int:
+        return int(self.truth.q.shape[1])
+
+
+# ----------------------------------------------------------------------------- models
+
+
+def _true_spec(arm: ArmSpec, effects: Sequence[HiddenEffect], **build: Any) -> mujoco.MjSpec:
+    """The nominal spec with the MuJoCo-expressible effects written in."""
+    spec = build_arm_spec(arm, **build)
+    n = arm.n_joints
+    for e in effects:
+        if e.kind != "payload" and e.joint > n:
+            raise ValueError(f"{e.kind}: joint {e.joint} but the arm has {n} joints")
+        if e.kind in JOINT_KINDS:
+            jnt = spec.joint(f"j{e.joint}")
+            if e.kind == "damping":
+                jnt.damping[0] += e.value
+            elif e.kind == "frictionloss":
+                jnt.frictionloss += e.value
+            elif e.kind == "armature":
+                jnt.armature += e.value
+            else:
+                jnt.stiffness[0] = e.value
+                jnt.springref = e.ref
+        elif e.kind == "mass":
+            body = spec.body(f"link{e.joint}")
+            body.mass *= e.value
+            body.fullinertia = (np.asarray(body.fullinertia) * e.value).tolist()
+        elif e.kind == "payload":
+            site = spec.site("ee")
+            rot = np.zeros(9)
+            mujoco.mju_quat2Mat(rot, np.asarray(site.quat, dtype=np.float64))
+            pos = np.asarray(site.pos) + rot.reshape(3, 3) @ np.array([0.0, 0.0, e.ref])
+            load = spec.body(f"link{n}").add_body(name="payload", pos=pos.tolist())
+            load.explicitinertial = True
+            load.mass = e.value
+            load.ipos = [0.0, 0.0, 0.0]
+            load.inertia = [0.4 * e.value * PAYLOAD_RADIUS**2] * 3
+    return spec
+
+
+def build_models(
+    arm: ArmSpec, effects: Sequence[HiddenEffect] = (), timestep: float = PHYSICS_TIMESTEP
+) -> tuple[mujoco.MjModel, mujoco.MjModel, str]:
+    """``(nominal, true, true_xml)``: the compiled models of :func:`simulate_log` (Euler
+    integrator with implicit damping, no actuator limits: the controller clips) and the
+    true model's MJCF."""
+    build = dict(timestep=timestep, integrator="Euler", torque_limits=False)
+    nominal = build_arm_spec(arm, **build).compile()
+    spec = _true_spec(arm, effects, **build)
+    true = spec.compile()
+    return nominal, true, spec.to_xml()
+
+
+def _applied_force(effects: Sequence[HiddenEffect], q: FloatArray, qd: FloatArray) -> FloatArray:
+    """``qfrc_applied`` of the effects MuJoCo lacks at state ``(q, qd)``."""
+    out = np.zeros_like(q)
+    for e in effects:
+        j = e.joint - 1
+        if e.kind == "position_friction":
+            level = e.value * (1.0 + 0.5 * math.sin(e.ref * q[j]))
+            out[j] -= level * math.tanh(qd[j] / FRICTION_VELOCITY)
+        elif e.kind == "cogging":
+            out[j] += e.value * math.sin(e.ref * q[j])
+    return out
+
+
+def gravity_torque(model: mujoco.MjModel, data: mujoco.MjData, q: FloatArray) -> FloatArray:
+    """``g(q)``: RNE of ``model`` at zero velocity and acceleration (``data`` is scratch)."""
+    data.qpos[:] = q
+    data.qvel[:] = 0.0
+    mujoco.mj_kinematics(model, data)
+    mujoco.mj_comPos(model, data)
+    out = np.zeros(model.nv)
+    mujoco.mj_rne(model, data, 0, out)
+    return out
+
+
+def _reference(arm: ArmSpec, rng: np.random.Generator, duration: float) -> SumOfSinusoids:
+    ranges = arm.joint_ranges.copy()
+    for j, joint in enumerate(arm.joints):
+        if joint.type == "R":
+            ranges[j] = np.clip(ranges[j], -math.pi, math.pi)
+    centre = ranges.mean(axis=1)
+    amplitude = np.minimum(0.3 * 0.5 * (ranges[:, 1] - ranges[:, 0]), 1.0)
+    max_speed = 0.5 * arm.joint_array("velocity_limit")
+    return SumOfSinusoids.random(rng, centre, amplitude, max_speed, duration=duration)
+
+
+def _per_joint(value: ArrayLike, n: int, name: str) -> FloatArray:
+    arr = np.broadcast_to(np.asarray(value, dtype=np.float64), (n,)).copy()
+    if (arr < 0).any():
+        raise ValueError(f"{name} must be >= 0, got {arr}")
+    return arr
+
+
+# ----------------------------------------------------------------------------- simulation
+
+
+def simulate_log(
+    arm: ArmSpec,
+    effects: Sequence[HiddenEffect] = (),
+    duration: float = 10.0,
+    seed: int = 0,
+    *,
+    timestep: float = PHYSICS_TIMESTEP,
+    substeps: int = SUBSTEPS,
+    bandwidth: float = 5.0,
+    counts_per_rev: float = 2**17,
+    counts_per_metre: float = 1e6,
+    encoder_noise: float = 0.3,
+    tau_noise: ArrayLike = 0.05,
+    reference: SumOfSinusoids | None = None,
+) -> RobotLog:
+    """Simulate ``duration`` s of the true arm tracking a reference; measure it (module
+    docstring).
+
+    Args:
+        arm: the nominal arm table.
+        effects: hidden effects of the true arm.
+        duration: log length [s].
+        seed: seeds the reference and the measurement noise; same seed, same log.
+        timestep: physics timestep ``dt`` [s].
+        substeps: physics steps per sample (``T = substeps dt``).
+        bandwidth: controller bandwidth ``f_c`` [Hz].
+        counts_per_rev: encoder counts per revolution (revolute joints).
+        counts_per_metre: encoder counts per metre (prismatic joints).
+        encoder_noise: standard deviation of the encoder's reading noise [counts] before
+            quantisation (0: quantisation only).
+        tau_noise: standard deviation of the torque measurement noise [N m or N], one value
+            or one per joint.
+        reference: the joint reference; default a random one from ``seed``.
+
+    Returns:
+        the log and its ground truth.
+    """
+    if substeps < 1 or not timestep > 0 or not duration > 0:
+        raise ValueError("need substeps >= 1, timestep > 0 and duration > 0")
+    if not (counts_per_rev > 0 and counts_per_metre > 0 and encoder_noise >= 0):
+        raise ValueError(
+            f"encoder counts must be > 0 and encoder_noise >= 0, got counts_per_rev="
+            f"{counts_per_rev}, counts_per_metre={counts_per_metre}, encoder_noise={encoder_noise}"
+        )
+    effects = tuple(effects)
+    n = arm.n_joints
+    rng = np.random.default_rng(seed)
+    ref = reference if reference is not None else _reference(arm, rng, duration)
+    nominal, true, true_xml = build_models(arm, effects, timestep)
+    nom_data = mujoco.MjData(nominal)
+    data = mujoco.MjData(true)
+
+    q0, qd0, _ = ref(0.0)
+    nom_data.qpos[:] = q0
+    mujoco.mj_forward(nominal, nom_data)
+    mass = np.zeros((n, n))
+    mujoco.mj_fullM(nominal, nom_data, mass)
+    omega = 2.0 * math.pi * bandwidth
+    kp = np.diag(mass) * omega**2
+    kd = 2.0 * np.diag(mass) * omega
+    limit = arm.joint_array("torque_limit")
+    applied = any(e.kind in APPLIED_KINDS for e in effects)
+
+    n_samples = int(math.floor(duration / (timestep * substeps))) + 1
+    rec = {k: np.zeros((n_samples, n)) for k in ("q", "qd", "qdd", "tau", "q_ref", "qd_ref")}
+    data.qpos[:] = q0
+    data.qvel[:] = qd0
+    for k in range(n_samples):
+        for s in range(substeps):
+            t = (k * substeps + s) * timestep
+            q, qd = data.qpos.copy(), data.qvel.copy()
+            q_ref, qd_ref, _ = ref(t)
+            tau_c = kp * (q_ref - q) + kd * (qd_ref - qd) + gravity_torque(nominal, nom_data, q)
+            tau = np.clip(tau_c, -limit, limit)
+            data.ctrl[:] = tau
+            if applied:
+                data.qfrc_applied[:] = _applied_force(effects, q, qd)
+            mujoco.mj_step(true, data)  # qacc: acceleration at the state before the step
+            if s == 0:
+                rec["q"][k], rec["qd"][k], rec["qdd"][k] = q, qd, data.qacc
+                rec["tau"][k], rec["q_ref"][k], rec["qd_ref"][k] = tau, q_ref, qd_ref
+
+    step = np.array(
+        [
+            2.0 * math.pi / counts_per_rev if j.type == "R" else 1.0 / counts_per_metre
+            for j in arm.joints
+        ]
+    )
+    reading = rec["q"] + rng.normal(0.0, 1.0, rec["q"].shape) * encoder_noise * step
+    q_meas = np.round(reading / step) * step
+    sigma_tau = _per_joint(tau_noise, n, "tau_noise")
+    tau_meas = rec["tau"] + rng.normal(0.0, 1.0, rec["tau"].shape) * sigma_tau
+    t = np.arange(n_samples) * (timestep * substeps)
+    cols: dict[str, FloatArray] = {"t": t}
+    cols.update({f"q{j + 1}": q_meas[:, j] for j in range(n)})
+    cols.update({f"tau{j + 1}": tau_meas[:, j] for j in range(n)})
+    settings = {
+        "arm": arm.name,
+        "seed": seed,
+        "timestep": timestep,
+        "sample_time": timestep * substeps,
+        "bandwidth": bandwidth,
+        "kp": kp.tolist(),
+        "kd": kd.tolist(),
+        "encoder_step": step.tolist(),
+        "encoder_noise": encoder_noise,
+        "tau_noise": sigma_tau.tolist(),
+    }
+    truth = LogTruth(
+        q=rec["q"],
+        qd=rec["qd"],
+        qdd=rec["qdd"],
+        tau=rec["tau"],
+        q_ref=rec["q_ref"],
+        qd_ref=rec["qd_ref"],
+        effects=effects,
+        settings=settings,
+        true_xml=true_xml,
+    )
+    return RobotLog(table=pd.DataFrame(cols), truth=truth)
+
+
+def write_log(path: str | Path, log: RobotLog, truth_path: str | Path | None = None) -> Path:
+    """Write ``log.table`` as CSV (``.csv``) or Parquet (``.parquet``/``.pq``); with
+    ``truth_path`` also the effects and settings as JSON (kept apart from the log)."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    suffix = path.suffix.lower()
+    if suffix == ".csv":
+        log.table.to_csv(path, index=False)
+    elif suffix in (".parquet", ".pq"):
+        log.table.to_parquet(path, index=False)
+    else:
+        raise ValueError(f"{path}: unknown file type {suffix!r}; use .csv or .parquet")
+    if truth_path is not None:
+        Path(truth_path).write_text(json.dumps(log.truth.to_json(), indent=1))
+    return path

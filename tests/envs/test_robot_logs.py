@@ -1,0 +1,142 @@
+"""Synthetic robot logs: reproducibility, physics of the hidden effects, measurement model.
+
+The independent truth is MuJoCo's inverse dynamics (``mj_inverse``) of the nominal model at
+the exact states of the simulation: the residual ``tau - ID_nom`` must be the effect's torque.
+"""
+
+from __future__ import annotations
+
+import math
+
+import mujoco
+import numpy as np
+import pytest
+
+from mcpilco.envs.arms import random_arm
+from mcpilco.envs.robot_logs import HiddenEffect, build_models, simulate_log
+
+DURATION = 2.0
+QUIET = dict(tau_noise=0.0, encoder_noise=0.0)
+
+
+@pytest.fixture(scope="module")
+def arm():
+    return random_arm(3, seed=1, joint_types="RRR").rigid()
+
+
+def inverse_dynamics(model, q, qd, qdd):
+    data = mujoco.MjData(model)
+    out = np.zeros_like(q)
+    for k in range(q.shape[0]):
+        data.qpos[:], data.qvel[:], data.qacc[:] = q[k], qd[k], qdd[k]
+        mujoco.mj_inverse(model, data)
+        out[k] = data.qfrc_inverse
+    return out
+
+
+def residual(arm, log):
+    nominal, _, _ = build_models(arm)
+    tr = log.truth
+    return tr.tau - inverse_dynamics(nominal, tr.q, tr.qd, tr.qdd)
+
+
+def test_columns_and_reproducibility(arm):
+    a = simulate_log(arm, duration=DURATION, seed=4)
+    b = simulate_log(arm, duration=DURATION, seed=4)
+    c = simulate_log(arm, duration=DURATION, seed=5)
+    assert list(a.table.columns) == ["t", "q1", "q2", "q3", "tau1", "tau2", "tau3"]
+    assert a.table.equals(b.table)
+    assert not a.table.equals(c.table)
+    np.testing.assert_allclose(np.diff(a.table["t"]), 0.004, rtol=1e-9)
+    ranges = arm.joint_ranges
+    assert (a.truth.q > ranges[:, 0]).all() and (a.truth.q < ranges[:, 1]).all()
+
+
+def test_without_effects_tau_is_the_nominal_inverse_dynamics(arm):
+    log = simulate_log(arm, duration=DURATION, seed=0, **QUIET)
+    np.testing.assert_array_equal(log.table[["tau1", "tau2", "tau3"]].to_numpy(), log.truth.tau)
+    scale = np.abs(log.truth.tau).max()
+    assert scale > 0.1
+    np.testing.assert_allclose(residual(arm, log), 0.0, atol=1e-9 * scale)
+
+
+def test_damping_residual_is_b_qd(arm):
+    b = 0.7
+    log = simulate_log(arm, [HiddenEffect("damping", 2, b)], duration=DURATION, seed=0, **QUIET)
+    r = residual(arm, log)
+    np.testing.assert_allclose(r[:, 1], b * log.truth.qd[:, 1], atol=1e-9)
+    np.testing.assert_allclose(r[:, [0, 2]], 0.0, atol=1e-9)
+    assert np.abs(r[:, 1]).max() > 0.05  # the joint moves: the effect is visible
+
+
+def test_frictionloss_residual_is_the_friction_level_while_moving(arm):
+    level = 0.5
+    log = simulate_log(
+        arm, [HiddenEffect("frictionloss", 1, level)], duration=DURATION, seed=0, **QUIET
+    )
+    r = residual(arm, log)[:, 0]
+    moving = np.abs(log.truth.qd[:, 0]) > 0.02
+    assert moving.mean() > 0.5
+    np.testing.assert_allclose(np.abs(r[moving]), level, rtol=0.02)
+    np.testing.assert_array_equal(np.sign(r[moving]), np.sign(log.truth.qd[moving, 0]))
+    assert (np.abs(r) <= level * 1.02).all()
+
+
+@pytest.mark.parametrize(
+    "effect",
+    [HiddenEffect("mass", 3, 1.5), HiddenEffect("payload", 0, 1.0, 0.05)],
+    ids=["heavier_link", "payload"],
+)
+def test_inertial_residual_is_the_inverse_dynamics_difference(arm, effect):
+    log = simulate_log(arm, [effect], duration=DURATION, seed=0, **QUIET)
+    nominal, true, _ = build_models(arm, [effect])
+    tr = log.truth
+    diff = inverse_dynamics(true, tr.q, tr.qd, tr.qdd) - inverse_dynamics(
+        nominal, tr.q, tr.qd, tr.qdd
+    )
+    assert np.abs(diff).max() > 0.1
+    np.testing.assert_allclose(residual(arm, log), diff, atol=1e-8)
+
+
+def test_position_dependent_friction_is_applied_as_documented(arm):
+    level, freq = 0.3, 2.0
+    effect = HiddenEffect("position_friction", 2, level, freq)
+    log = simulate_log(arm, [effect], duration=DURATION, seed=0, **QUIET)
+    q, qd = log.truth.q[:, 1], log.truth.qd[:, 1]
+    expected = level * (1 + 0.5 * np.sin(freq * q)) * np.tanh(qd / 0.01)
+    np.testing.assert_allclose(residual(arm, log)[:, 1], expected, atol=1e-9)
+
+
+def test_stiffness_and_armature_residuals(arm):
+    k, ref, ia = 3.0, 0.1, 0.2
+    effects = [HiddenEffect("stiffness", 1, k, ref), HiddenEffect("armature", 3, ia)]
+    log = simulate_log(arm, effects, duration=DURATION, seed=0, **QUIET)
+    r = residual(arm, log)
+    np.testing.assert_allclose(r[:, 0], k * (log.truth.q[:, 0] - ref), atol=1e-9)
+    np.testing.assert_allclose(r[:, 2], ia * log.truth.qdd[:, 2], atol=1e-9)
+
+
+def test_encoder_quantisation_and_torque_noise(arm):
+    counts = 2**12
+    step = 2 * math.pi / counts
+    log = simulate_log(
+        arm, duration=DURATION, seed=0, counts_per_rev=counts, encoder_noise=0.0, tau_noise=0.05
+    )
+    q = log.table[["q1", "q2", "q3"]].to_numpy()
+    np.testing.assert_allclose(q / step, np.round(q / step), atol=1e-9)
+    assert np.abs(q - log.truth.q).max() <= step / 2 * (1 + 1e-9)
+    assert np.unique(q[:, 0]).size > 10
+    noise = log.table[["tau1", "tau2", "tau3"]].to_numpy() - log.truth.tau
+    np.testing.assert_allclose(noise.std(axis=0), 0.05, rtol=0.15)
+    noisy = simulate_log(arm, duration=DURATION, seed=0, counts_per_rev=counts, encoder_noise=2)
+    qn = noisy.table[["q1", "q2", "q3"]].to_numpy()
+    np.testing.assert_allclose(qn / step, np.round(qn / step), atol=1e-9)
+    # reading noise of 2 counts, then rounding: std sqrt(2^2 + 1/12) counts
+    np.testing.assert_allclose((qn - noisy.truth.q).std(axis=0) / step, 2.02, rtol=0.1)
+
+
+def test_bad_effects_are_refused(arm):
+    with pytest.raises(ValueError, match="unknown effect kind"):
+        HiddenEffect("magic", 1, 1.0)
+    with pytest.raises(ValueError, match="joint 5 but the arm has 3"):
+        simulate_log(arm, [HiddenEffect("damping", 5, 1.0)], duration=0.1)

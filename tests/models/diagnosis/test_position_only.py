@@ -1,0 +1,131 @@
+"""Position-only files: qd/qdd estimated by the documented Savitzky-Golay filter.
+
+Truth is analytic (``q = A sin(w t)``) or the simulator's exact states.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from mcpilco.models.diagnosis.data import (
+    derivative_filter,
+    estimate_derivatives,
+    load_trajectories,
+)
+
+A, W, DT, N = 0.8, 2 * math.pi * 0.5, 0.004, 2500
+STEP = 2 * math.pi / 2**17  # encoder step [rad]
+NOISE = 0.3  # encoder reading noise [counts]
+
+
+def encoder(q, rng):
+    return np.round((q + rng.normal(0.0, NOISE * STEP, q.shape)) / STEP) * STEP
+
+
+def analytic(rng):
+    t = np.arange(N) * DT
+    q = np.stack([A * np.sin(W * t), 0.5 * A * np.cos(2 * W * t)], axis=1)
+    qd = np.stack([A * W * np.cos(W * t), -A * W * np.sin(2 * W * t)], axis=1)
+    qdd = np.stack([-A * W**2 * np.sin(W * t), -2 * A * W**2 * np.cos(2 * W * t)], axis=1)
+    return t, q, qd, qdd
+
+
+def test_filter_follows_the_sample_time():
+    for dt in (0.002, 0.004, 0.008):
+        f = derivative_filter(dt)
+        assert f.window % 2 == 1 and abs((f.window - 1) * dt - 0.1) <= 1.01 * dt
+        assert f.order == 4 and f.lag == 0.0
+        assert 5.0 < f.bandwidth_qd < 12.0 and 5.0 < f.bandwidth_qdd < 12.0
+    assert derivative_filter(0.05).window == 7  # never shorter than order + 3
+
+
+def test_estimates_match_the_analytic_derivatives():
+    """Interior errors: qd within 2e-3 rad/s (0.1 % of A w), qdd within 0.25 rad/s^2
+    (3 % of A w^2), and their rms within 0.7..1.4 x the filter's noise gain."""
+    rng = np.random.default_rng(0)
+    t, q, qd, qdd = analytic(rng)
+    qd_hat, qdd_hat, filt = estimate_derivatives(t, encoder(q, rng))
+    m = filt.window // 2
+    e1, e2 = (qd_hat - qd)[m:-m], (qdd_hat - qdd)[m:-m]
+    assert np.abs(e1).max() < 2e-3
+    assert np.abs(e2).max() < 0.25
+    sigma_q = STEP * math.sqrt(NOISE**2 + 1 / 12)
+    for err, gain in ((e1, filt.noise_gain_qd), (e2, filt.noise_gain_qdd)):
+        ratio = np.sqrt((err**2).mean(axis=0)) / (gain * sigma_q)
+        assert ((ratio > 0.7) & (ratio < 1.4)).all(), ratio
+    # zero lag: the error does not correlate with the derivative of the estimated signal
+    lag = (e1[:, 0] @ qdd[m:-m, 0]) / (qdd[m:-m, 0] @ qdd[m:-m, 0])
+    assert abs(lag) < 1e-5  # [s]
+
+
+def write_csv(path, t, q, tau, **extra):
+    cols = {"t": t}
+    cols.update({f"q{j + 1}": q[:, j] for j in range(q.shape[1])})
+    for g, arr in extra.items():
+        cols.update({f"{g}{j + 1}": arr[:, j] for j in range(q.shape[1])})
+    cols.update({f"tau{j + 1}": tau[:, j] for j in range(q.shape[1])})
+    pd.DataFrame(cols).to_csv(path, index=False)
+    return path
+
+
+def test_position_only_file_loads_with_a_record_of_the_estimate(tmp_path):
+    rng = np.random.default_rng(1)
+    t, q, qd, qdd = analytic(rng)
+    tau = np.cos(t)[:, None].repeat(2, axis=1)
+    only_q = write_csv(tmp_path / "q_only.csv", t, encoder(q, rng), tau)
+    full = write_csv(tmp_path / "full.csv", t, q, tau, qd=qd, qdd=qdd)
+    traj = load_trajectories([only_q, full])
+    est, given = traj.estimated
+    assert given is None
+    assert est.groups == ("qd", "qdd") and est.filter.window == derivative_filter(DT).window
+    assert est.filter.sample_time == pytest.approx(DT, rel=1e-9)
+    a, b = traj.segments
+    m = est.filter.window // 2
+    assert np.abs(traj.qd[a[0] + m : a[1] - m] - qd[m:-m]).max() < 2e-3
+    # files with qd/qdd are used unchanged
+    np.testing.assert_allclose(traj.qd[b[0] : b[1]], qd, rtol=1e-12, atol=1e-12)
+    np.testing.assert_allclose(traj.qdd[b[0] : b[1]], qdd, rtol=1e-12, atol=1e-12)
+    assert traj.select([1]).estimated == [None]
+    assert traj.select([0]).estimated == [est]
+    first, last = traj.split_time(0.5)
+    assert first.estimated == traj.estimated == last.estimated
+
+
+def test_given_qd_is_differentiated_once_for_a_missing_qdd(tmp_path):
+    rng = np.random.default_rng(2)
+    t, q, qd, qdd = analytic(rng)
+    tau = np.zeros_like(q)
+    traj = load_trajectories([write_csv(tmp_path / "q_qd.csv", t, q, tau, qd=qd)])
+    assert traj.estimated[0].groups == ("qdd",)
+    np.testing.assert_array_equal(traj.qd, qd)
+    m = traj.estimated[0].filter.window // 2
+    assert np.abs(traj.qdd - qdd)[m:-m].max() < 1e-3
+
+
+def test_non_uniform_sampling_is_refused(tmp_path):
+    rng = np.random.default_rng(3)
+    t, q, _, _ = analytic(rng)
+    t = t.copy()
+    t[100:] += 0.001  # one interval of 5 ms among 4 ms ones
+    path = write_csv(tmp_path / "jitter.csv", t, q, np.zeros_like(q))
+    with pytest.raises(ValueError, match="non-uniform sampling: interval 0.005 s at row 100"):
+        load_trajectories([path])
+
+
+def test_simulated_log_round_trip(tmp_path):
+    from mcpilco.envs.arms import random_arm
+    from mcpilco.envs.robot_logs import simulate_log, write_log
+
+    arm = random_arm(3, seed=1, joint_types="RRR").rigid()
+    log = simulate_log(arm, duration=3.0, seed=0)
+    for suffix in (".csv", ".parquet"):
+        traj = load_trajectories([write_log(tmp_path / f"log{suffix}", log)])
+        np.testing.assert_array_equal(traj.q, log.table[["q1", "q2", "q3"]].to_numpy())
+        np.testing.assert_array_equal(traj.y, log.table[["tau1", "tau2", "tau3"]].to_numpy())
+        m = traj.estimated[0].filter.window // 2
+        scale = np.abs(log.truth.qd).max(axis=0)
+        assert (np.abs(traj.qd - log.truth.qd)[m:-m].max(axis=0) < 0.01 * scale).all()
