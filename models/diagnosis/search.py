@@ -439,6 +439,11 @@ class Diagnosis:
         if alike:
             names = ", ".join(c.effect.variant_label for c in alike)
             text += f"; the data cannot tell it apart from {names}"
+        if self.base is not None and not self.base.failing:
+            text += (
+                f"; the model was already at the noise floor on every joint (at most "
+                f"{float(np.max(self.base.ratio)):.2f}x), so the effect is small against the noise"
+            )
         if self.after is not None:
             if self.after.failing:
                 text += "; it explains part of the residual: with it, " + self.after.failing_text(

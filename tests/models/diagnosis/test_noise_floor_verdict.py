@@ -179,8 +179,11 @@ def test_verdict_follows_the_floor_checks():
     assert (
         "explains part of the residual" in text and "joint 2 remains unexplained at 1.50x" in text
     )
+    assert "already at the noise floor" not in text
     d.after = _check([1.0, 1.05])
     assert "at the noise floor on every joint" in d.verdict()
+    d.base = _check([1.0, 1.1])
+    assert "the model was already at the noise floor on every joint (at most 1.10x)" in d.verdict()
     d.base = _check([1.0, 3.0], rows=MIN_VERDICT_ROWS - 1)
     text = d.verdict()
     assert "not enough data" in text and "viscous:2" in text and "missing effect" not in text
