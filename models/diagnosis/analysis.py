@@ -186,17 +186,17 @@ def input_noise(traj: Trajectories, predict: Callable[[Trajectories], FloatArray
             safe = np.where(hk > 0, hk, 1.0)[:, None]
             grad[:, :, k] = np.where(hk[:, None] > 0, (y_up - y_down) / (2.0 * safe), 0.0)
         grads[g] = grad
-    for rows, groups, gram, dgram, sigma in parts:
+    for span, groups, gram, dgram, sigma in parts:
         # w: (rows, n_out, n_in, groups); var = sum_k sigma_k^2 w^T G w
         w = np.stack(
             [
-                grads[g][rows] if g in grads else np.zeros((rows.stop - rows.start, n, n))
+                grads[g][span] if g in grads else np.zeros((span.stop - span.start, n, n))
                 for g in groups
             ],
             axis=-1,
         )
-        var[rows] = np.einsum("tjkg,gh,tjkh,k->tj", w, gram, w, sigma**2)
-        dvar[rows] = 0.5 * np.einsum("tjkg,gh,tjkh,k->tj", w, dgram, w, sigma**2)
+        var[span] = np.einsum("tjkg,gh,tjkh,k->tj", w, gram, w, sigma**2)
+        dvar[span] = 0.5 * np.einsum("tjkg,gh,tjkh,k->tj", w, dgram, w, sigma**2)
     return InputNoise(np.sqrt(var.mean(axis=0)), np.sqrt(dvar.mean(axis=0)), pos)
 
 
