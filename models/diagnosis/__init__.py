@@ -4,7 +4,8 @@ The loop (:func:`run_diagnosis` runs it on files; console script ``mcpilco-diagn
 
 1. compare: :func:`fit_metrics` (nMSE, RMSE, NRMSE fit %), :func:`~.plots.plot_time`;
 2. where it fails: :func:`residual_report` (binned residuals, velocity reversals,
-   autocorrelation, worst windows and regions in words);
+   autocorrelation, worst windows and regions in words) against the noise floor
+   (:func:`heldout_floor`: measurement noise plus the noise of estimated ``qd``/``qdd``);
 3. which effect is missing: :func:`diagnose` scores every candidate of :mod:`.effects` on
    every joint by the log-evidence it adds (:mod:`mcpilco.models.gp.linear_gp`), confirms
    the best on held-out trajectories, groups look-alikes;
@@ -13,10 +14,13 @@ The loop (:func:`run_diagnosis` runs it on files; console script ``mcpilco-diagn
 """
 
 from mcpilco.models.diagnosis.analysis import (
+    InputNoise,
     ResidualReport,
     fit_metrics,
+    input_noise,
     metrics_table,
     noise_floor,
+    position_noise,
     residual_report,
 )
 from mcpilco.models.diagnosis.data import Trajectories, as_trajectories, load_trajectories
@@ -40,8 +44,11 @@ from mcpilco.models.diagnosis.model import DiagnosisModel
 from mcpilco.models.diagnosis.search import (
     Candidate,
     Diagnosis,
+    FloorCheck,
     auto_improve,
     diagnose,
+    floor_check,
+    heldout_floor,
     heldout_rmse,
     score_candidates,
     score_effect,
@@ -68,7 +75,9 @@ __all__ = [
     "Diagnosis",
     "DiagnosisModel",
     "Effect",
+    "FloorCheck",
     "GIPStart",
+    "InputNoise",
     "JointGP",
     "LearnedStart",
     "NominalStart",
@@ -85,11 +94,15 @@ __all__ = [
     "default_library",
     "diagnose",
     "fit_metrics",
+    "floor_check",
+    "heldout_floor",
     "heldout_rmse",
+    "input_noise",
     "load_trajectories",
     "metrics_table",
     "noise_floor",
     "parse_effect",
+    "position_noise",
     "residual_report",
     "run_diagnosis",
     "score_candidates",

@@ -15,40 +15,195 @@ Residual ``e = y - y_hat`` analysis
       std ``sigma_j`` of the model, and the worst time windows (rms of ``e`` over ``window``
       seconds), e.g. ``"joint 2, qd in [-0.05, 0.04] rad/s: mean residual 2.9 N·m, 14x
       noise"``.
+
+Noise floor (the error a perfect model still has on held-out data)
+    ``floor_j = sqrt(sigma_meas,j^2 + sigma_in,j^2)``. ``sigma_meas`` is the output's own
+    measurement noise (:func:`noise_floor`, first differences of the residual). ``sigma_in``
+    is the noise the *prediction* inherits when ``qd``/``qdd`` were estimated from measured
+    positions (:attr:`Trajectories.estimated`, :func:`input_noise`): with white noise of std
+    ``sigma_x,k`` on the differentiated signal ``x_k`` (``q_k``; ``qd_k`` when only ``qdd``
+    was estimated) and the filter's coefficient rows ``B = [delta, c_1, c_2]`` (the sample
+    itself and the first/second derivative coefficients),
+    ``sigma_in,j^2 = mean_t sum_k sigma_x,k^2 w_jk(t)^T B B^T w_jk(t)`` with
+    ``w_jk = (d tau_j / d q_k, d tau_j / d qd_k, d tau_j / d qdd_k)`` (central differences of
+    the model's prediction, step = the input's noise std). ``B B^T`` holds the noise gains
+    ``||c_1||^2``, ``||c_2||^2`` on its diagonal and the correlations between the sample and its
+    estimated derivatives off it. The filtered noise is not white, but the filter's edges make
+    part of it visible to the first differences that estimate ``sigma_meas``: that part,
+    ``sigma_x^2 w^T (Delta B)(Delta B)^T w / 2``, is taken out of ``sigma_meas^2`` so it is not
+    counted twice.
+``sigma_x`` (:func:`position_noise`)
+    estimated from ``x`` itself: ``r = x - S x`` with ``S`` the Savitzky-Golay *smoother* of
+    the same window and order (a projection, so white noise of std ``sigma`` gives
+    ``var(r) = sigma^2 (1 - s_m)``, ``s_m`` its centre coefficient; smooth motion passes
+    ``S`` unchanged), ``sigma_x = rms(r) / sqrt(1 - s_m)`` over the interior rows. The rms and
+    not a MAD: a uniform quantiser (step ``s``, std ``s / sqrt(12)``) is far from Gaussian, and
+    the rms is right for any white noise, quantisation and reading noise together; the
+    encoder step alone would miss the reading noise.
 """
 
 from __future__ import annotations
 
+import dataclasses
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
+from scipy.signal import savgol_coeffs, savgol_filter
 
 from mcpilco.models.diagnosis.data import Trajectories
 
 FloatArray = NDArray[np.float64]
 
 __all__ = [
+    "InputNoise",
     "JointResiduals",
     "ResidualReport",
     "fit_metrics",
+    "input_noise",
     "metrics_table",
     "noise_floor",
+    "position_noise",
     "residual_report",
 ]
 
 
-def noise_floor(traj: Trajectories, y_hat: FloatArray | None = None) -> FloatArray:
-    """``(n,)`` measurement-noise std from first differences, independent of any model:
+def noise_floor(
+    traj: Trajectories, y_hat: FloatArray | None = None, inputs: InputNoise | None = None
+) -> FloatArray:
+    """``(n,)`` noise floor per joint, independent of the model's fitted noise.
+
+    Without ``inputs``: the measurement-noise std from first differences,
     ``sigma = 1.4826 MAD(diff(e)) / sqrt(2)`` per segment, pooled (``e = y - y_hat``, or
     ``y``). Smooth signals and model errors nearly cancel in ``diff``; white noise of std
-    ``sigma`` gives ``diff`` std ``sqrt(2) sigma``; the MAD ignores the rare jumps."""
+    ``sigma`` gives ``diff`` std ``sqrt(2) sigma``; the MAD ignores the rare jumps.
+
+    With ``inputs`` (:func:`input_noise` of the same model on ``traj``): the floor a perfect
+    model sits at, ``sqrt(sigma_meas^2 + sigma_in^2)`` with the input noise's share of the
+    first differences removed from ``sigma_meas^2`` (module docstring)."""
     e = traj.y if y_hat is None else traj.y - y_hat
     d = np.concatenate([np.diff(e[a:b], axis=0) for a, b in traj.segments if b - a > 2])
     mad = np.median(np.abs(d - np.median(d, axis=0)), axis=0)
-    return 1.4826 * mad / np.sqrt(2.0)
+    sigma = 1.4826 * mad / np.sqrt(2.0)
+    if inputs is None:
+        return sigma
+    meas2 = np.maximum(sigma**2 - inputs.diff_std**2, 0.0)
+    return np.sqrt(meas2 + inputs.std**2)
 
+
+@dataclass
+class InputNoise:
+    """Noise that estimated ``qd``/``qdd`` put into a model's prediction (module docstring).
+
+    Attributes:
+        std: ``(n,)`` ``sigma_in`` per output joint (rms over all rows; 0 on rows whose
+            derivatives were given).
+        diff_std: ``(n,)`` the part of it that first differences see, ``sqrt(var(diff u) / 2)``.
+        position_std: per segment, ``(n,)`` ``sigma_x`` of the differentiated signal, or
+            ``None`` where nothing was estimated.
+    """
+
+    std: FloatArray
+    diff_std: FloatArray
+    position_std: list[FloatArray | None]
+
+
+def _filter_rows(est: Any) -> tuple[tuple[str, ...], FloatArray]:
+    """``(groups, B)``: the signals that the noise of the differentiated signal reaches and
+    the filter's coefficient rows for each (the sample itself, then its derivatives)."""
+    f = est.filter
+    m = f.window // 2
+    delta = np.zeros(f.window)
+    delta[m] = 1.0
+    c = [savgol_coeffs(f.window, f.order, deriv=k, delta=f.sample_time, use="dot") for k in (1, 2)]
+    if "qd" in est.groups:
+        return ("q", "qd", "qdd"), np.stack([delta, c[0], c[1]])
+    return ("qd", "qdd"), np.stack([delta, c[0]])
+
+
+def position_noise(traj: Trajectories) -> list[FloatArray | None]:
+    """Per segment, ``(n,)`` noise std of the signal its derivatives were estimated from
+    (``q``, or ``qd`` when only ``qdd`` was), or ``None`` where none was (module docstring)."""
+    out: list[FloatArray | None] = []
+    runs = {int(traj.segment[a]): (a, b) for a, b in traj.segments}
+    for s, est in enumerate(traj.estimated):
+        if est is None or s not in runs:
+            out.append(None)
+            continue
+        a, b = runs[s]
+        f = est.filter
+        m = f.window // 2
+        if b - a < f.window + 2 * m + 1:
+            out.append(None)
+            continue
+        x = traj.q[a:b] if "qd" in est.groups else traj.qd[a:b]
+        r = (x - savgol_filter(x, f.window, f.order, axis=0))[m:-m]
+        s_m = float(savgol_coeffs(f.window, f.order, use="dot")[m])
+        out.append(np.sqrt(np.mean(r**2, axis=0) / (1.0 - s_m)))
+    return out
+
+
+def input_noise(traj: Trajectories, predict: Callable[[Trajectories], FloatArray]) -> InputNoise:
+    """``sigma_in`` of the prediction ``predict(traj)`` (``(N, n)`` output) on ``traj`` from
+    the noise of its estimated derivatives (module docstring): central differences of
+    ``predict`` on copies of ``traj`` with one input column moved by its noise std."""
+    n = traj.n_joints
+    pos = position_noise(traj)
+    var = np.zeros((traj.n_samples, n))
+    dvar = np.zeros((traj.n_samples, n))
+    if all(p is None for p in pos):
+        return InputNoise(np.zeros(n), np.zeros(n), pos)
+    # per-row steps of every input group: the noise std that group carries there
+    steps = {g: np.zeros((traj.n_samples, n)) for g in ("q", "qd", "qdd")}
+    parts: list[tuple[slice, tuple[str, ...], FloatArray, FloatArray, FloatArray]] = []
+    for a, b in traj.segments:
+        s = int(traj.segment[a])
+        if pos[s] is None:
+            continue
+        groups, rows = _filter_rows(traj.estimated[s])
+        padded = np.pad(rows, ((0, 0), (1, 1)))
+        drows = np.diff(padded, axis=1)
+        for g, row in zip(groups, rows, strict=True):
+            steps[g][a:b] = np.linalg.norm(row) * pos[s]
+        parts.append((slice(a, b), groups, rows @ rows.T, drows @ drows.T, pos[s]))
+    grads: dict[str, FloatArray] = {}  # d y_j / d x_k per row: (N, n_out, n_in)
+    for g, h in steps.items():
+        if not h.any():
+            continue
+        grad = np.zeros((traj.n_samples, n, n))
+        for k in range(n):
+            hk = h[:, k]
+            if not hk.any():
+                continue
+            col = getattr(traj, g)
+            up, down = col.copy(), col.copy()
+            up[:, k] += hk
+            down[:, k] -= hk
+            y_up = predict(dataclasses.replace(traj, **{g: up}))
+            y_down = predict(dataclasses.replace(traj, **{g: down}))
+            safe = np.where(hk > 0, hk, 1.0)[:, None]
+            grad[:, :, k] = np.where(hk[:, None] > 0, (y_up - y_down) / (2.0 * safe), 0.0)
+        grads[g] = grad
+    for span, groups, gram, dgram, sigma in parts:
+        # w: (rows, n_out, n_in, groups); var = sum_k sigma_k^2 w^T G w
+        w = np.stack(
+            [
+                grads[g][span] if g in grads else np.zeros((span.stop - span.start, n, n))
+                for g in groups
+            ],
+            axis=-1,
+        )
+        var[span] = np.einsum("tjkg,gh,tjkh,k->tj", w, gram, w, sigma**2)
+        dvar[span] = 0.5 * np.einsum("tjkg,gh,tjkh,k->tj", w, dgram, w, sigma**2)
+    return InputNoise(np.sqrt(var.mean(axis=0)), np.sqrt(dvar.mean(axis=0)), pos)
+
+
+EXPLAINED_FRACTION = 0.05
+"""Share of the residual variance that a state variable's bin means must explain to be named."""
+WHITE_FRACTION = 0.15
+"""Largest share of autocorrelation lags outside the whiteness band of a residual called white."""
 
 STATE_UNITS = {"q": ("rad", "m"), "qd": ("rad/s", "m/s"), "qdd": ("rad/s²", "m/s²")}
 
@@ -86,7 +241,35 @@ class JointResiduals:
     acf: FloatArray = field(default_factory=lambda: np.zeros(0))
     whiteness_band: float = 0.0
     outside_fraction: float = 0.0
+    explained: dict[str, float] = field(default_factory=dict)
     findings: list[tuple[float, str]] = field(default_factory=list)
+
+    def structure(self) -> str:
+        """The residual's structure in words: the state variables whose bins explain at least
+        :data:`EXPLAINED_FRACTION` of its variance, its whiteness, and its worst finding."""
+        j = self.joint
+        deps = sorted(
+            ((f, name) for name, f in self.explained.items() if f >= EXPLAINED_FRACTION),
+            reverse=True,
+        )
+        if deps:
+            words = ", ".join(f"{name}{j} {100 * f:.0f}%" for f, name in deps[1:])
+            f0, name0 = deps[0]
+            parts = [f"bins of {name0}{j} explain {100 * f0:.0f}% of its variance"]
+            if words:
+                parts[0] += f" ({words})"
+        else:
+            parts = [f"no dependence on q{j}, qd{j} or qdd{j} in equal-count bins"]
+        if self.outside_fraction > WHITE_FRACTION:
+            parts.append(
+                f"not white ({100 * self.outside_fraction:.0f}% of autocorrelation lags outside "
+                "+-1.96/sqrt(N))"
+            )
+        else:
+            parts.append("white")
+        if self.findings:
+            parts.append("largest: " + max(self.findings)[1])
+        return "; ".join(parts)
 
 
 @dataclass
@@ -187,6 +370,9 @@ def residual_report(
             x = getattr(traj, name)[:, j]
             b = _bins(x, e, n_bins)
             jr.bins[name] = b
+            total = float(np.sum((e - e.mean()) ** 2))
+            between = float(np.sum(b["count"] * (b["mean"] - e.mean()) ** 2))
+            jr.explained[name] = between / total if total > 0 else 0.0
             score = np.abs(b["mean"]) / sigma
             significant = np.abs(b["mean"]) > b["ci95"]
             if np.any(significant):

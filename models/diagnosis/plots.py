@@ -5,7 +5,7 @@
 * :func:`plot_residuals`: per joint, the residual binned against ``qd``, ``q``, ``qdd``
   (95% intervals), around velocity reversals, and its autocorrelation with the whiteness
   band.
-* :func:`plot_waterfall`: held-out RMSE per version and joint (bars), noise std (dashes).
+* :func:`plot_waterfall`: held-out RMSE per version and joint (bars) over the noise floor.
 * :func:`write_rerun`: ``.rrd`` with ``/joint/j{k}/tau/{measured, v0, v1, ...}`` and
   ``/joint/j{k}/residual/{v0, v1, ...}``, and a blueprint with one time-series view per joint.
 """
@@ -116,7 +116,11 @@ def plot_waterfall(
     path: str | Path,
     labels: Sequence[str] | None = None,
 ) -> Path:
-    """Held-out RMSE ``(n_versions, n)`` as grouped bars per joint, relative to the noise."""
+    """Held-out RMSE ``(n_versions, n)`` as grouped bars per joint, relative to the noise
+    floor ``noise_std`` (:func:`~.search.heldout_floor`), with the "at the floor" limit
+    :data:`~.search.FLOOR_FACTOR`."""
+    from mcpilco.models.diagnosis.search import FLOOR_FACTOR
+
     plt = _plt()
     rmse = np.asarray(rmse)
     k, n = rmse.shape
@@ -129,11 +133,11 @@ def plot_waterfall(
             width,
             label=labels[v] if labels else versions[v],
         )
-    ax.axhline(1.0, color="k", ls="--", lw=0.8, label="noise std")
-    ax.axhline(1.5, color="r", ls=":", lw=0.8, label="1.5x noise")
+    ax.axhline(1.0, color="k", ls="--", lw=0.8, label="noise floor")
+    ax.axhline(FLOOR_FACTOR, color="r", ls=":", lw=0.8, label=f"{FLOOR_FACTOR:g}x floor")
     ax.set_yscale("log")
     ax.set_xticks(np.arange(n), [f"joint {j + 1}" for j in range(n)])
-    ax.set_ylabel("held-out RMSE / noise std")
+    ax.set_ylabel("held-out RMSE / noise floor")
     ax.legend(fontsize=7)
     ax.set_title("held-out error per model version")
     fig.tight_layout()

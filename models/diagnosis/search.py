@@ -29,6 +29,16 @@ Groups (what the data cannot tell apart)
     on the training rows correlate with ``|rho| > group_correlation`` (default 0.9); the
     table then names them together, and when their evidences differ by less than
     ``indistinct_nats`` (default 2 nats, Bayes factor < e^2) the verdict says so.
+Verdict against the noise floor
+    A verdict the data cannot support is not given. The held-out RMSE of the diagnosed model,
+    and of that model with the lead (the missing effect, else the refinement) added, is
+    compared per joint with the noise floor ``sqrt(sigma_meas^2 + sigma_in^2)`` (measurement
+    noise plus the noise of estimated ``qd``/``qdd``, :mod:`.analysis`; :func:`floor_check`).
+    "No significant missing effect" needs every joint within :data:`FLOOR_FACTOR` floors;
+    otherwise the verdict says "unexplained", names the joint, its RMSE in floors and the
+    residual's structure in words (binned against ``q``, ``qd``, ``qdd``; whiteness). A missing
+    effect that leaves a joint above the floor is said to explain part of the residual. With
+    fewer than :data:`MIN_VERDICT_ROWS` held-out rows the verdict is "not enough data".
 """
 
 from __future__ import annotations
@@ -42,6 +52,7 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.special import logsumexp
 
+from mcpilco.models.diagnosis.analysis import input_noise, noise_floor, residual_report
 from mcpilco.models.diagnosis.data import (
     MIN_HELDOUT_ROWS,
     Trajectories,
@@ -57,9 +68,12 @@ FloatArray = NDArray[np.float64]
 __all__ = [
     "Candidate",
     "Diagnosis",
+    "FloorCheck",
     "auto_improve",
     "diagnose",
+    "floor_check",
     "heldout_change_pct",
+    "heldout_floor",
     "heldout_rmse",
     "score_candidates",
     "score_effect",
@@ -69,6 +83,11 @@ EVIDENCE_THRESHOLD = 5.0
 MIN_HELDOUT_GAIN = 1.0
 GROUP_CORRELATION = 0.9
 INDISTINCT_NATS = 2.0
+FLOOR_FACTOR = 1.2
+"""Held-out RMSE within this many noise floors counts as explained (at the floor)."""
+MIN_VERDICT_ROWS = 200
+"""Fewest held-out rows for a verdict: the RMSE of ``N`` noise rows scatters by about
+``1 / sqrt(2 N)`` (5% at 200), well inside :data:`FLOOR_FACTOR`."""
 
 
 @dataclass
@@ -212,6 +231,89 @@ def heldout_rmse(model: DiagnosisModel, heldout: Trajectories) -> FloatArray:
     return np.sqrt(np.mean((heldout.y - mean) ** 2, axis=0))
 
 
+def heldout_floor(
+    model: DiagnosisModel, heldout: Trajectories, mean: FloatArray | None = None
+) -> FloatArray:
+    """``(n,)`` noise floor of ``model`` on held-out trajectories: measurement noise plus the
+    noise its prediction inherits from estimated ``qd``/``qdd`` (:func:`.analysis.noise_floor`
+    with :func:`.analysis.input_noise`); ``mean``: the model's prediction, if at hand."""
+    if mean is None:
+        mean, _ = model.predict(heldout, with_var=False)
+    inputs = input_noise(heldout, lambda tr: model.predict(tr, with_var=False)[0])
+    return noise_floor(heldout, mean, inputs)
+
+
+@dataclass
+class FloorCheck:
+    """Held-out RMSE of one model against its noise floor, with the residual's structure in
+    words on every joint above :data:`FLOOR_FACTOR` floors (``structure``, 1-based keys)."""
+
+    model: str
+    rmse: FloatArray
+    floor: FloatArray
+    rows: int
+    structure: dict[int, str] = field(default_factory=dict)
+
+    @property
+    def ratio(self) -> FloatArray:
+        """``(n,)`` held-out RMSE / noise floor (``inf`` where the floor is 0 and the RMSE not)."""
+        with np.errstate(divide="ignore", invalid="ignore"):
+            r = self.rmse / self.floor
+        return np.where(self.rmse == 0, 0.0, np.where(self.floor > 0, r, np.inf))
+
+    @property
+    def failing(self) -> list[int]:
+        """Joints (1-based) whose held-out RMSE exceeds :data:`FLOOR_FACTOR` floors."""
+        return [j + 1 for j in np.flatnonzero(self.ratio > FLOOR_FACTOR)]
+
+    def failing_text(self, verb: str = "") -> str:
+        """``"joint 2{verb} at 1.43x the noise floor (held-out RMSE 0.0712, floor 0.0498;
+        residual: ...)"`` for every failing joint."""
+        out = []
+        for j in self.failing:
+            text = (
+                f"joint {j}{verb} at {self.ratio[j - 1]:.2f}x the noise floor (held-out RMSE "
+                f"{self.rmse[j - 1]:.3g}, floor {self.floor[j - 1]:.3g}"
+            )
+            if j in self.structure:
+                text += f"; residual: {self.structure[j]}"
+            out.append(text + ")")
+        return "; ".join(out)
+
+    def to_dict(self) -> dict[str, Any]:
+        return {
+            "model": self.model,
+            "heldout_rmse": self.rmse.tolist(),
+            "noise_floor": self.floor.tolist(),
+            "rmse_over_floor": self.ratio.tolist(),
+            "rows": self.rows,
+            "unexplained_joints": self.failing,
+            "structure": {str(k): v for k, v in self.structure.items()},
+        }
+
+
+def floor_check(
+    model: DiagnosisModel, heldout: Trajectories, name: str | None = None
+) -> FloorCheck:
+    """Held-out RMSE and noise floor of ``model`` (:class:`FloorCheck`), the residual's
+    structure on the joints above the floor (:func:`.analysis.residual_report`)."""
+    mean, _ = model.predict(heldout, with_var=False)
+    rmse = np.sqrt(np.mean((heldout.y - mean) ** 2, axis=0))
+    floor = heldout_floor(model, heldout, mean)
+    check = FloorCheck(name or model.name, rmse, floor, heldout.n_samples)
+    if check.failing:
+        rep = residual_report(
+            heldout,
+            mean,
+            floor,
+            model.start.joint_types,
+            model_name=check.model,
+            unit="A" if heldout.output == "i" else None,
+        )
+        check.structure = {j: rep.joints[j - 1].structure() for j in check.failing}
+    return check
+
+
 def heldout_change_pct(
     before: FloatArray, after: FloatArray, noise_std: FloatArray, outputs: FloatArray
 ) -> float:
@@ -257,6 +359,8 @@ class Diagnosis:
     threshold: float
     min_heldout_gain: float
     indistinct_nats: float
+    base: FloorCheck | None = None
+    after: FloorCheck | None = None
 
     @property
     def significant(self) -> list[Candidate]:
@@ -280,20 +384,44 @@ class Diagnosis:
         return self.best if self.best is not None else self.refinement
 
     def verdict(self) -> str:
+        """The verdict in words (module docstring): the missing effect, "no significant
+        missing effect" only at the noise floor, else "unexplained" or "not enough data".
+        A hand-made :class:`Diagnosis` without floor checks speaks of the candidates only."""
+        if self.base is not None and self.base.rows < MIN_VERDICT_ROWS:
+            text = (
+                f"{self.model_name}: not enough data: {self.base.rows} held-out rows, a verdict "
+                f"needs at least {MIN_VERDICT_ROWS} to tell a model error from noise"
+            )
+            lead = self.lead
+            if lead is not None:
+                text += (
+                    f"; the leading candidate, {lead.effect.variant_label} (+{lead.delta:.1f} "
+                    "nats), is not confirmed"
+                )
+            return text
         best = self.best
         if best is None:
-            text = (
-                f"{self.model_name}: no significant missing effect (no candidate outside the "
-                f"start model's span gains more than {self.threshold:g} nats of evidence with a "
-                f"physical sign and a held-out improvement above {self.min_heldout_gain:g}%)"
-            )
             ref = self.refinement
+            check = self.after if ref is not None and self.after is not None else self.base
+            rule = (
+                f"no candidate outside the start model's span gains more than "
+                f"{self.threshold:g} nats of evidence with a physical sign and a held-out "
+                f"improvement above {self.min_heldout_gain:g}%"
+            )
+            if check is not None and check.failing:
+                text = f"{self.model_name}: unexplained: {check.failing_text()}; {rule}"
+                if ref is not None:
+                    text += f", and the refinement {ref.effect.variant_label} leaves it there"
+                return text
+            text = f"{self.model_name}: no significant missing effect ({rule})"
             if ref is not None:
                 text += (
                     f"; {ref.effect.variant_label} is in the start model's span, so it is not "
                     f"missing, but its own block refines the learned model (+{ref.delta:.1f} "
                     f"nats, held-out RMSE {ref.heldout_delta_pct:+.1f}%)"
                 )
+            if check is not None:
+                text += self._at_floor_text(check)
             return text
         alike = [
             c
@@ -311,7 +439,26 @@ class Diagnosis:
         if alike:
             names = ", ".join(c.effect.variant_label for c in alike)
             text += f"; the data cannot tell it apart from {names}"
+        if self.base is not None and not self.base.failing:
+            text += (
+                f"; the model was already at the noise floor on every joint (at most "
+                f"{float(np.max(self.base.ratio)):.2f}x), so the effect is small against the noise"
+            )
+        if self.after is not None:
+            if self.after.failing:
+                text += "; it explains part of the residual: with it, " + self.after.failing_text(
+                    " remains unexplained"
+                )
+            else:
+                text += self._at_floor_text(self.after, " with it")
         return text
+
+    @staticmethod
+    def _at_floor_text(check: FloorCheck, where: str = "") -> str:
+        return (
+            f";{where} the held-out RMSE is at the noise floor on every joint (at most "
+            f"{float(np.max(check.ratio)):.2f}x, limit {FLOOR_FACTOR:g}x)"
+        )
 
     def table(self, top: int = 12) -> str:
         """The ranked table as fixed-width text."""
@@ -347,6 +494,8 @@ class Diagnosis:
             "model": self.model_name,
             "threshold_nats": self.threshold,
             "verdict": self.verdict(),
+            "heldout": None if self.base is None else self.base.to_dict(),
+            "heldout_with_lead": None if self.after is None else self.after.to_dict(),
             "candidates": [
                 {
                     "effect": c.effect.variant_label,
@@ -394,6 +543,7 @@ def diagnose(
     base_rmse = None
     noise = model.noise_std_
     confirmed = 0
+    tried: dict[int, DiagnosisModel] = {}
     for c in cands:
         if confirmed >= n_confirm or c.delta <= threshold:
             break
@@ -402,12 +552,20 @@ def diagnose(
         if base_rmse is None:
             base_rmse = heldout_rmse(model, held)
         new = model.with_effect(c.effect)
+        tried[id(c)] = new
         rmse = heldout_rmse(new, held)
         c.heldout_delta_pct = heldout_change_pct(base_rmse, rmse, noise, np.array(c.outputs) - 1)
         c.significant = c.heldout_delta_pct < -min_heldout_gain
         confirmed += 1
     cands.sort(key=lambda c: (not c.significant, -c.delta))
-    return Diagnosis(model.name, cands, threshold, min_heldout_gain, indistinct_nats)
+    d = Diagnosis(model.name, cands, threshold, min_heldout_gain, indistinct_nats)
+    d.base = floor_check(model, held)
+    lead = d.lead
+    if lead is not None:
+        d.after = floor_check(
+            tried[id(lead)], held, name=f"{model.name} + {lead.effect.variant_label}"
+        )
+    return d
 
 
 def auto_improve(

@@ -11,6 +11,12 @@ automatically, best first (missing effects before refinements inside a learned s
 span), while one is significant. Every version is saved as ``<out>/models/model_v<k>.json``
 (never overwritten).
 
+Every held-out error is read against the noise floor of :func:`~.search.heldout_floor`
+(measurement noise plus the noise that estimated ``qd``/``qdd`` carry into the prediction);
+the final verdict (:meth:`~.search.Diagnosis.verdict` of the last version) says "no
+significant missing effect" only when every joint is at that floor, and otherwise
+"unexplained" with the joint, its error in floors and the residual's structure.
+
 Outputs under ``out``: ``compare_v<k>.png`` (measured vs predicted +-2 sigma),
 ``residuals_v<k>.png``, ``waterfall.png``, ``diagnosis.rrd`` (Rerun), ``summary.json``.
 """
@@ -62,8 +68,9 @@ def run_diagnosis(
 
     Returns:
         The summary written to ``out/summary.json``: ``versions``, ``heldout_rmse`` (one row
-        per version), ``noise_floor``, ``diagnoses``, ``saved``, ``artefacts``,
-        ``data_warnings``, ``seconds``.
+        per version), ``noise_floor`` (of the last version), ``rmse_over_floor`` (one row per
+        version, each over its own floor), ``verdict`` (the last version's), ``diagnoses``,
+        ``saved``, ``artefacts``, ``data_warnings``, ``seconds``.
 
     Raises:
         ValueError: bad input (no start model, unreadable or too short files, a joint count
@@ -75,9 +82,9 @@ def run_diagnosis(
         NominalStart,
         diagnose,
         fit_metrics,
+        heldout_floor,
         load_trajectories,
         metrics_table,
-        noise_floor,
         parse_effect,
         residual_report,
     )
@@ -131,9 +138,16 @@ def run_diagnosis(
         ]
         return {"rows": rows, "mean": mean_te, "var": var_te}
 
+    floors: dict[str, np.ndarray] = {}
+
+    def floor(m: DiagnosisModel) -> np.ndarray:
+        if m.name not in floors:
+            floors[m.name] = heldout_floor(m, test, res[m.name]["mean"])
+        return floors[m.name]
+
     def where(m: DiagnosisModel, res: dict) -> None:
         rep = residual_report(
-            test, res["mean"], None, start.joint_types, model_name=m.name, unit=unit
+            test, res["mean"], floor(m), start.joint_types, model_name=m.name, unit=unit
         )
         log(f"\n== 2. {rep.text()}")
         if plots:
@@ -183,13 +197,20 @@ def run_diagnosis(
     for v in versions[1:]:
         res[v.name] = compare(v)
     held = np.array([res[v.name]["rows"][1][2]["rmse"] for v in versions])
-    noise = noise_floor(test, res[versions[-1].name]["mean"])
+    noise = floor(versions[-1])
+    ratios = np.array([r / floor(v) for v, r in zip(versions, held, strict=True)])
     head = f"{'version':<8}" + "".join(f"{'RMSE j' + str(j + 1):>12}" for j in range(n))
     log(head + "   effects")
     for v, r in zip(versions, held, strict=True):
         added = ", ".join(e.variant_label for e in v.effects) or "-"
         log(f"{v.name:<8}" + "".join(f"{x:>12.4g}" for x in r) + f"   {added}")
-    log(f"{'noise':<8}" + "".join(f"{x:>12.4g}" for x in noise) + "   (noise floor)")
+    log(
+        f"{'floor':<8}"
+        + "".join(f"{x:>12.4g}" for x in noise)
+        + "   (noise floor: measurement + estimated qd/qdd)"
+    )
+    for v, r in zip(versions, ratios, strict=True):
+        log(f"{v.name:<8}" + "".join(f"{x:>11.2f}x" for x in r) + "   (RMSE / floor)")
     if len(versions) > 1:
         log(metrics_table([res[v.name]["rows"][1] for v in versions], n))
     artefacts = {}
@@ -200,7 +221,7 @@ def run_diagnosis(
             plot_waterfall(
                 [v.name for v in versions],
                 held,
-                versions[-1].noise_std_,
+                noise,
                 out / "waterfall.png",
                 labels=[
                     v.describe().split(": ", 1)[0]
@@ -226,12 +247,14 @@ def run_diagnosis(
         if last.name not in diag_obj:
             diag_obj[last.name] = diagnose(last, test, threshold=threshold)
             log(diag_obj[last.name].table(6))
-        else:
-            log(diag_obj[last.name].verdict())
+    final = diag_obj[versions[-1].name].verdict()
+    log(f"\nverdict: {final}")
     summary = {
         "versions": [v.describe() for v in versions],
         "heldout_rmse": held.tolist(),
         "noise_floor": noise.tolist(),
+        "rmse_over_floor": ratios.tolist(),
+        "verdict": final,
         "diagnoses": {k: d.to_dict() for k, d in diag_obj.items()},
         "saved": saved,
         "artefacts": artefacts,
