@@ -10,6 +10,13 @@ so a GP can score it by adding a linear kernel ``lambda phi phi'^T`` on its bloc
 :mod:`mcpilco.models.gp.linear_gp`). Shape parameters that enter non-linearly (the
 cogging order, the Stribeck velocity, the dead-zone width, the delay) are found by a *scan*:
 one variant per value, marginalised with a uniform prior over the scan (``logsumexp - log G``).
+Continuous ones (smoothing ``eps``, Stribeck velocity ``v_s``, dead-zone width ``c``;
+:attr:`Effect.shape_grid`) are then refined around the best scan value by a bounded
+maximisation of the profile log-evidence (:func:`~.search.refine_shape`).
+
+Effects of one physical *family* on one joint (:attr:`Effect.family`: Coulomb and Stribeck
+are both dry friction) describe the same torque in two forms; a model holds at most one of
+them, the other being its alternative (:func:`~.search.auto_improve`).
 
 ============  =================  ==========================================  ================
 key           class              block ``phi`` (row of joint ``j``)          sign constraint
@@ -142,6 +149,9 @@ class Effect:
     needs_base: ClassVar[bool] = False
     is_shift: ClassVar[bool] = False
     all_joints: ClassVar[bool] = False
+    family: ClassVar[str] = ""  # physical family shared by alternative forms ("": the key)
+    shape_grid: ClassVar[dict[str, tuple[float, ...]]] = {}  # continuous shape fields: scan
+    shape_bounds: ClassVar[dict[str, tuple[float, float]]] = {}  # their outer limits
 
     def __post_init__(self) -> None:
         if self.all_joints:
@@ -170,6 +180,27 @@ class Effect:
     def same_slot(self, other: Effect) -> bool:
         """Same effect type on the same joint (the model holds at most one of each)."""
         return type(self) is type(other) and self.joint == other.joint
+
+    def same_family(self, other: Effect) -> bool:
+        """Same physical family (:attr:`family`, else the key) on the same joint: two forms
+        of one torque, of which a model holds one."""
+        return (self.family or self.key) == (other.family or other.key) and (
+            self.joint == other.joint
+        )
+
+    def shape_bracket(self, name: str) -> tuple[float, float]:
+        """Interval in which the continuous shape field ``name`` is refined: between the scan
+        values next to its current value (beyond the scan's ends: one scan step further,
+        within :attr:`shape_bounds`)."""
+        grid = sorted(self.shape_grid[name])
+        lo_b, hi_b = self.shape_bounds[name]
+        x = float(getattr(self, name))
+        below = [g for g in grid if g < x * (1 - 1e-9)]
+        above = [g for g in grid if g > x * (1 + 1e-9)]
+        step = grid[1] / grid[0] if len(grid) > 1 else 2.0
+        lo = below[-1] if below else x / step
+        hi = above[0] if above else x * step
+        return max(lo, lo_b), min(hi, hi_b)
 
     def spec(self) -> dict[str, Any]:
         """JSON-serialisable description (see :func:`effect_from_spec`)."""
@@ -247,6 +278,7 @@ class ViscousFriction(Effect):
 EPS_SCAN: tuple[float, ...] = tuple(round(0.003 * 2 ** (k / 2), 5) for k in range(7))
 """Smoothing velocities ``eps`` of ``tanh(qd / eps)`` scanned [rad/s or m/s]: 0.003 to 0.024 in
 steps of sqrt(2), fine enough that a true Coulomb between two values does not lose to Stribeck."""
+EPS_BOUNDS = (0.001, 0.1)  # limits of a refined ``eps`` [rad/s or m/s]
 
 
 @dataclass(frozen=True)
@@ -257,10 +289,13 @@ class CoulombFriction(Effect):
     eps: float | None = None
     key: ClassVar[str] = "coulomb"
     title: ClassVar[str] = "Coulomb friction"
+    family: ClassVar[str] = "dry friction"
+    shape_grid: ClassVar[dict[str, tuple[float, ...]]] = {"eps": EPS_SCAN}
+    shape_bounds: ClassVar[dict[str, tuple[float, float]]] = {"eps": EPS_BOUNDS}
     params: ClassVar[tuple[Param, ...]] = (Param("F_c", "{F}", +1),)
 
     def shape_text(self) -> str:
-        return "" if self.eps is None else f"eps={self.eps:g}"
+        return "" if self.eps is None else f"eps={self.eps:.3g}"
 
     def is_complete(self) -> bool:
         return self.eps is not None
@@ -276,6 +311,7 @@ class CoulombFriction(Effect):
 
 STRIBECK_SCAN: tuple[float, ...] = (0.02, 0.05, 0.1, 0.2)
 """Stribeck velocities ``v_s`` scanned [rad/s or m/s]."""
+STRIBECK_BOUNDS = (0.005, 0.5)  # limits of a refined ``v_s`` [rad/s or m/s]
 
 
 @dataclass(frozen=True)
@@ -286,12 +322,21 @@ class StribeckFriction(Effect):
     eps: float | None = None
     key: ClassVar[str] = "stribeck"
     title: ClassVar[str] = "Stribeck friction / stiction"
+    family: ClassVar[str] = "dry friction"
+    shape_grid: ClassVar[dict[str, tuple[float, ...]]] = {
+        "velocity": STRIBECK_SCAN,
+        "eps": EPS_SCAN,
+    }
+    shape_bounds: ClassVar[dict[str, tuple[float, float]]] = {
+        "velocity": STRIBECK_BOUNDS,
+        "eps": EPS_BOUNDS,
+    }
     params: ClassVar[tuple[Param, ...]] = (Param("F_c", "{F}", +1), Param("F_s-F_c", "{F}", +1))
 
     def shape_text(self) -> str:
         if self.velocity is None or self.eps is None:
             return ""
-        return f"v_s={self.velocity:g}, eps={self.eps:g}"
+        return f"v_s={self.velocity:.3g}, eps={self.eps:.3g}"
 
     def is_complete(self) -> bool:
         return self.velocity is not None and self.eps is not None
@@ -448,10 +493,12 @@ class DeadZone(Effect):
     key: ClassVar[str] = "deadzone"
     title: ClassVar[str] = "backlash / dead-zone"
     needs_base: ClassVar[bool] = True
+    shape_grid: ClassVar[dict[str, tuple[float, ...]]] = {"width": DEADZONE_SCAN}
+    shape_bounds: ClassVar[dict[str, tuple[float, float]]] = {"width": (0.003, 0.3)}
     params: ClassVar[tuple[Param, ...]] = (Param("delta", "{F}", +1),)
 
     def shape_text(self) -> str:
-        return "" if self.width is None else f"c={self.width:g}"
+        return "" if self.width is None else f"c={self.width:.3g}"
 
     def is_complete(self) -> bool:
         return self.width is not None

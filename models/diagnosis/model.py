@@ -407,17 +407,48 @@ class DiagnosisModel:
             new.fit(self.train_, refit_start=False, _warm=warm, backfit=backfit)
         return new
 
+    def replacing(self, label: str, effect: Effect, backfit: bool = False) -> DiagnosisModel:
+        """The next version with the effect labelled ``label`` (e.g. ``coulomb:2``) replaced
+        by ``effect`` (complete) in its place, fitted if ``self`` is (``backfit``: see
+        :meth:`fit`).
+
+        Raises:
+            ValueError: no effect ``label`` in the model, or ``effect``'s slot taken by another.
+        """
+        labels = [e.label for e in self.effects]
+        if label not in labels:
+            raise ValueError(f"model {self.name} holds no {label}; it holds {labels or 'none'}")
+        k = labels.index(label)
+        for i, e in enumerate(self.effects):
+            if i != k and e.same_slot(effect):
+                raise ValueError(f"{effect.label} is already in model {self.name}")
+        effects = (*self.effects[:k], effect, *self.effects[k + 1 :])
+        new = DiagnosisModel(
+            self.start,
+            effects,
+            version=self.version + 1,
+            max_points=self.max_points,
+            max_delay_samples=self.max_delay_samples,
+            history=(*self.history, f"{self.name}: {label} -> {effect.variant_label}"),
+        )
+        if self.train_ is not None:
+            same = effect.is_shift == self.effects[k].is_shift
+            warm = dict(enumerate(self.theta_)) if same else None
+            new.fit(self.train_, refit_start=False, _warm=warm, backfit=backfit)
+        return new
+
     def add(self, effect: Effect) -> DiagnosisModel:
         """``model.add(CoulombFriction(joint=2))``: the next version with the effect added and
         refitted (a learned start model is backfitted once); unscanned shape values (cogging
         order, delay, ...) are picked by the evidence scan of
-        :func:`~mcpilco.models.diagnosis.search.score_effect`."""
+        :func:`~mcpilco.models.diagnosis.search.score_effect`, continuous ones then refined
+        (:func:`~mcpilco.models.diagnosis.search.refine_shape`)."""
         effect.outputs(self.n_joints)
         if not effect.is_complete():
             self._check_fitted()
             from mcpilco.models.diagnosis.search import score_effect
 
-            effect = score_effect(self, effect).effect
+            effect = score_effect(self, effect, refine=True).effect
         return self.with_effect(effect, backfit=True)
 
     # ------------------------------------------------------------------ parameters

@@ -29,6 +29,22 @@ Groups (what the data cannot tell apart)
     on the training rows correlate with ``|rho| > group_correlation`` (default 0.9); the
     table then names them together, and when their evidences differ by less than
     ``indistinct_nats`` (default 2 nats, Bayes factor < e^2) the verdict says so.
+Continuous shape values
+    The scan picks the best grid value of a continuous shape field (smoothing ``eps``,
+    Stribeck velocity ``v_s``, dead-zone width ``c``); :func:`refine_shape` then maximises
+    ``Delta_v`` over it, one field at a time, by bounded Brent search on ``log x`` between
+    the neighbouring grid values (the profile log-evidence: the noise and the block's prior
+    variance re-optimised at every ``x``). The refined variant is the one reported, added
+    and confirmed; the ranking evidence ``Delta`` stays the scan's marginal.
+Alternatives (one effect per group)
+    A candidate of the same physical family on the same joint as an effect in the model
+    (:meth:`.Effect.same_family`: Coulomb and Stribeck are both dry friction), or one that
+    was indistinct from it (same group, within ``indistinct_nats``) when it was added, is
+    its *alternative*: it is never added beside it. It *replaces* it only when clearly
+    better: the model with it instead gains more than ``threshold`` nats of log-evidence
+    on its joints and lowers their held-out RMSE by more than ``min_heldout_gain`` percent.
+    (It is tried only when it gains more than ``threshold`` nats on top of the model: the
+    model with both nests the one with it alone.)
 Verdict against the noise floor
     A verdict the data cannot support is not given. The held-out RMSE of the diagnosed model,
     and of that model with the lead (the missing effect, else the refinement) added, is
@@ -43,13 +59,15 @@ Verdict against the noise floor
 
 from __future__ import annotations
 
+import dataclasses
 import math
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
+from scipy.optimize import minimize_scalar
 from scipy.special import logsumexp
 
 from mcpilco.models.diagnosis.analysis import input_noise, noise_floor, residual_report
@@ -75,6 +93,8 @@ __all__ = [
     "heldout_change_pct",
     "heldout_floor",
     "heldout_rmse",
+    "next_version",
+    "refine_shape",
     "score_candidates",
     "score_effect",
 ]
@@ -105,10 +125,13 @@ class Candidate:
     group: int = 0
     significant: bool = False
     in_start_span: bool = False
+    alternative_to: str | None = None
+    replace_delta: float | None = None
 
     @property
     def missing(self) -> bool:
-        """Significant and outside the start model's span: a missing physical effect."""
+        """Significant and outside the start model's span: a missing physical effect (or a
+        clearly better form of one in the model, :attr:`alternative_to`)."""
         return self.significant and not self.in_start_span
 
     @property
@@ -158,8 +181,13 @@ def _score_variant(
     return ev - base, e.estimates(mean[sl], cov[sl, sl], model.ctx_, output), contribution
 
 
-def score_effect(model: DiagnosisModel, effect: Effect, **scan: Any) -> Candidate:
+def score_effect(
+    model: DiagnosisModel, effect: Effect, refine: bool = False, **scan: Any
+) -> Candidate:
     """Score one candidate (all its scan variants) against the current model.
+
+    Args:
+        refine: refine the best variant's continuous shape values (:func:`refine_shape`).
 
     Returns:
         the :class:`Candidate` with its best variant.
@@ -194,7 +222,7 @@ def score_effect(model: DiagnosisModel, effect: Effect, **scan: Any) -> Candidat
     v = variants[k]
     if v.is_shift and getattr(v, "sample_time", None) is None:
         v = type(v)(joint=v.joint, samples=v.samples, sample_time=model.train_.sample_time)
-    return Candidate(
+    cand = Candidate(
         effect=v,
         delta=delta,
         best_delta=float(finite[k]),
@@ -204,6 +232,54 @@ def score_effect(model: DiagnosisModel, effect: Effect, **scan: Any) -> Candidat
         contributions=contribs[k],
         in_start_span=model.start.spans(v),
     )
+    return refine_shape(model, cand) if refine else cand
+
+
+REFINE_XTOL = 0.01
+"""Tolerance of the shape refinement on ``log x`` (1% of the value)."""
+
+
+def refine_shape(model: DiagnosisModel, cand: Candidate) -> Candidate:
+    """Refine ``cand``'s continuous shape values (:attr:`.Effect.shape_grid`) in place:
+    maximise ``Delta_v`` over each field in turn (bounded Brent search on ``log x`` within
+    :meth:`.Effect.shape_bracket`) and keep the result where it beats the scan's best.
+
+    Returns:
+        ``cand`` (updated: effect, ``best_delta``, estimates, contributions).
+    """
+    effect = cand.effect
+    if not effect.shape_grid or effect.joint is None or not effect.is_complete():
+        return cand
+    output = effect.joint - 1
+    best = (cand.best_delta, effect, cand.estimates, cand.contributions.get(output))
+    for name in effect.shape_grid:
+        current = best[1]
+
+        def loss(log_x: float, current: Effect = current, name: str = name) -> float:
+            d, _, _ = _score_variant(
+                model, dataclasses.replace(current, **{name: float(np.exp(log_x))}), output
+            )
+            return -d if math.isfinite(d) else math.inf
+
+        lo, hi = current.shape_bracket(name)
+        if not hi > lo:
+            continue
+        with single_thread():
+            res = minimize_scalar(
+                loss,
+                bounds=(math.log(lo), math.log(hi)),
+                method="bounded",
+                options={"xatol": REFINE_XTOL},
+            )
+        if math.isfinite(res.fun) and -res.fun > best[0]:
+            trial = dataclasses.replace(current, **{name: round(float(np.exp(res.x)), 6)})
+            d, est, con = _score_variant(model, trial, output)
+            if math.isfinite(d) and d > best[0]:
+                best = (d, trial, est, con)
+    cand.best_delta, cand.effect, cand.estimates = best[0], best[1], best[2]
+    if best[3] is not None:
+        cand.contributions = {output: best[3]}
+    return cand
 
 
 def score_candidates(
@@ -328,6 +404,17 @@ def heldout_change_pct(
     return 100.0 * (e_after / e_before - 1.0)
 
 
+def _estimates_in(model: DiagnosisModel, effect: Effect, output: int) -> list[ParamEstimate]:
+    """Posterior estimates of ``effect``'s parameters in fitted ``model`` on ``output``."""
+    effs = model.block_effects(output)
+    k = next((i for i, e in enumerate(effs) if e.same_slot(effect)), None)
+    if k is None:
+        return []
+    sl = model.gps_[output].block_slices()[k]
+    mean, cov = model.gps_[output].weights(model.theta_[output])
+    return effs[k].estimates(mean[sl], cov[sl, sl], model.ctx_, output)
+
+
 def _group(cands: Sequence[Candidate], threshold: float) -> None:
     """Single-linkage groups by correlation of the fitted contributions on a shared joint."""
     parent = list(range(len(cands)))
@@ -431,14 +518,36 @@ class Diagnosis:
             and best.delta - c.delta < self.indistinct_nats
             and not c.wrong_sign
         ]
-        text = (
-            f"{self.model_name}: missing effect: {best.effect.title} on joint {best.joint_text} "
-            f"({best.effect.variant_label}, +{best.delta:.1f} nats, held-out RMSE "
-            f"{best.heldout_delta_pct:+.1f}%; {best.estimate_text()})"
-        )
+        forms = [
+            c
+            for c in self.candidates
+            if c is not best
+            and c not in alike
+            and c.effect.same_family(best.effect)
+            and c.delta > self.threshold
+            and not c.wrong_sign
+        ]
+        if best.alternative_to is not None:
+            text = (
+                f"{self.model_name}: {best.alternative_to} is better described as "
+                f"{best.effect.title} on joint {best.joint_text} ({best.effect.variant_label} "
+                f"in its place: +{best.replace_delta or math.nan:.1f} nats, held-out RMSE "
+                f"{best.heldout_delta_pct:+.1f}%; {best.estimate_text()})"
+            )
+        else:
+            text = (
+                f"{self.model_name}: missing effect: {best.effect.title} on joint "
+                f"{best.joint_text} ({best.effect.variant_label}, +{best.delta:.1f} nats, "
+                f"held-out RMSE {best.heldout_delta_pct:+.1f}%; {best.estimate_text()})"
+            )
         if alike:
             names = ", ".join(c.effect.variant_label for c in alike)
             text += f"; the data cannot tell it apart from {names}"
+        if forms:
+            names = ", ".join(f"{c.effect.variant_label} (+{c.delta:.1f} nats)" for c in forms)
+            text += (
+                f"; alternative form of the same {best.effect.family or best.effect.key}: {names}"
+            )
         if self.base is not None and not self.base.failing:
             text += (
                 f"; the model was already at the noise floor on every joint (at most "
@@ -452,6 +561,24 @@ class Diagnosis:
             else:
                 text += self._at_floor_text(self.after, " with it")
         return text
+
+    def alternatives(self, cand: Candidate) -> list[Candidate]:
+        """Candidates the data cannot tell apart from ``cand``: in its group, sharing a joint,
+        within ``indistinct_nats`` of its evidence, with a physical sign; and every candidate
+        of its physical family on its joint (:meth:`.Effect.same_family`). Adding ``cand``
+        makes them its alternatives (module docstring)."""
+        out = []
+        for c in self.candidates:
+            if c is cand or c.wrong_sign:
+                continue
+            indistinct = (
+                c.group == cand.group
+                and bool(set(c.outputs) & set(cand.outputs))
+                and abs(cand.delta - c.delta) < self.indistinct_nats
+            )
+            if indistinct or c.effect.same_family(cand.effect):
+                out.append(c)
+        return out
 
     @staticmethod
     def _at_floor_text(check: FloorCheck, where: str = "") -> str:
@@ -469,12 +596,16 @@ class Diagnosis:
         lines = [head, "-" * len(head)]
         for i, c in enumerate(self.candidates[:top], 1):
             held = "" if c.heldout_delta_pct is None else f"{c.heldout_delta_pct:+.1f} %"
-            if c.missing:
+            if c.missing and c.alternative_to is not None:
+                verdict = f"REPLACES {c.alternative_to}"
+            elif c.missing:
                 verdict = "SIGNIFICANT"
             elif c.significant:
                 verdict = "in start span"
             elif c.wrong_sign:
                 verdict = "wrong sign"
+            elif c.alternative_to is not None:
+                verdict = f"alternative to {c.alternative_to}"
             elif c.delta <= self.threshold:
                 verdict = "weak"
             elif c.heldout_delta_pct is None:
@@ -506,6 +637,8 @@ class Diagnosis:
                     "group": c.group,
                     "significant": c.significant,
                     "in_start_span": c.in_start_span,
+                    "alternative_to": c.alternative_to,
+                    "replace_delta_log_evidence": c.replace_delta,
                     "wrong_sign": c.wrong_sign,
                     "estimates": [p.__dict__ for p in c.estimates],
                 }
@@ -524,14 +657,20 @@ def diagnose(
     min_heldout_gain: float = MIN_HELDOUT_GAIN,
     group_correlation: float = GROUP_CORRELATION,
     indistinct_nats: float = INDISTINCT_NATS,
+    alternatives: Mapping[str, str] | None = None,
     progress: bool = False,
 ) -> Diagnosis:
-    """Score all candidates, confirm the top ``n_confirm`` on held-out trajectories, group.
+    """Score all candidates, refine and confirm the top ``n_confirm`` on held-out
+    trajectories, group.
 
     Args:
         model: a fitted :class:`DiagnosisModel`.
         heldout: held-out trajectories (files never used in the fit).
         library: candidates (default: :func:`default_library`).
+        alternatives: candidate label -> label of the effect in ``model`` it is an
+            alternative to (kept by :func:`next_version`); effects of the same family are
+            alternatives without it. An alternative is confirmed as a replacement (module
+            docstring).
 
     Returns:
         a :class:`Diagnosis` (``.table()``, ``.verdict()``, ``.best``).
@@ -539,7 +678,14 @@ def diagnose(
     held = as_trajectories(heldout, model.n_joints)
     require_rows(held, MIN_HELDOUT_ROWS, "confirming effects on held-out data")
     cands = score_candidates(model, library, progress=progress)
-    _group(cands[:12], group_correlation)
+    in_model = {e.label: e for e in model.effects}
+    for c in cands:
+        family = [e.label for e in model.effects if e.same_family(c.effect)]
+        other = (alternatives or {}).get(c.label)
+        if family:
+            c.alternative_to = family[0]
+        elif other in in_model:
+            c.alternative_to = other
     base_rmse = None
     noise = model.noise_std_
     confirmed = 0
@@ -549,14 +695,26 @@ def diagnose(
             break
         if c.wrong_sign:
             continue
+        refine_shape(model, c)
+        if c.wrong_sign:
+            continue
         if base_rmse is None:
             base_rmse = heldout_rmse(model, held)
-        new = model.with_effect(c.effect)
+        if c.alternative_to is None:
+            new = model.with_effect(c.effect)
+        else:
+            new = model.replacing(c.alternative_to, c.effect)
+            outs = [j - 1 for j in c.outputs]
+            c.replace_delta = float(sum(new.evidence_[j] - model.evidence_[j] for j in outs))
+            c.estimates = _estimates_in(new, c.effect, outs[0]) or c.estimates
         tried[id(c)] = new
         rmse = heldout_rmse(new, held)
         c.heldout_delta_pct = heldout_change_pct(base_rmse, rmse, noise, np.array(c.outputs) - 1)
-        c.significant = c.heldout_delta_pct < -min_heldout_gain
+        c.significant = c.heldout_delta_pct < -min_heldout_gain and (
+            c.replace_delta is None or c.replace_delta > threshold
+        )
         confirmed += 1
+    _group(cands[:12], group_correlation)
     cands.sort(key=lambda c: (not c.significant, -c.delta))
     d = Diagnosis(model.name, cands, threshold, min_heldout_gain, indistinct_nats)
     d.base = floor_check(model, held)
@@ -579,10 +737,38 @@ def auto_improve(
         (the last one says what remains).
     """
     versions, diags = [model], []
+    alternatives: dict[str, str] = {}
     for _ in range(max_steps + 1):
-        d = diagnose(versions[-1], heldout, **kwargs)
+        d = diagnose(versions[-1], heldout, alternatives=alternatives, **kwargs)
         diags.append(d)
         if d.lead is None or len(versions) > max_steps:
             break
-        versions.append(versions[-1].with_effect(d.lead.effect, backfit=True))
+        versions.append(next_version(versions[-1], d, alternatives))
     return versions, diags
+
+
+def next_version(
+    model: DiagnosisModel, diagnosis: Diagnosis, alternatives: dict[str, str]
+) -> DiagnosisModel:
+    """The next version of ``model``: its diagnosis's lead added, or put in place of the
+    effect it is an alternative to (refitted, backfitted); ``alternatives`` (candidate label
+    -> label of the effect in the model) gains the lead's alternatives
+    (:meth:`Diagnosis.alternatives`), so that they are never added beside it."""
+    lead = diagnosis.lead
+    if lead is None:
+        raise ValueError(f"the diagnosis of {model.name} has nothing to add")
+    new_label = lead.effect.label
+    if lead.alternative_to is not None:
+        old = lead.alternative_to
+        new = model.replacing(old, lead.effect, backfit=True)
+        for k, v in list(alternatives.items()):
+            if v == old:
+                alternatives[k] = new_label
+        alternatives[old] = new_label
+    else:
+        new = model.with_effect(lead.effect, backfit=True)
+    alternatives.pop(new_label, None)
+    for c in diagnosis.alternatives(lead):
+        if c.label != new_label and not any(c.effect.same_slot(e) for e in new.effects):
+            alternatives[c.label] = new_label
+    return new

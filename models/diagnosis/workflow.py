@@ -8,7 +8,9 @@ file (MJCF or URDF, rigid-body physics), or a GIP / RBF GP learned on the traini
 gives the payload candidate its regressor). Without held-out files the last training file
 (or, with one file, its last 30%) is held out. Effects are added by name (``coulomb:2``) or
 automatically, best first (missing effects before refinements inside a learned start's
-span), while one is significant. Every version is saved as ``<out>/models/model_v<k>.json``
+span), while one is significant; what the data cannot tell apart from an added effect is
+reported as its alternative and only ever put in its place
+(:func:`~.search.next_version`). Every version is saved as ``<out>/models/model_v<k>.json``
 (never overwritten).
 
 Every held-out error is read against the noise floor of :func:`~.search.heldout_floor`
@@ -85,6 +87,7 @@ def run_diagnosis(
         heldout_floor,
         load_trajectories,
         metrics_table,
+        next_version,
         parse_effect,
         residual_report,
     )
@@ -177,14 +180,16 @@ def run_diagnosis(
         model = model.add(e)
         versions.append(model)
         log(f"   {model.describe()}")
+    alternatives: dict[str, str] = {}  # never added beside the effect they stand for
     for _ in range(auto):
         if model.name not in diag_obj:
-            diag_obj[model.name] = diagnose(model, test, threshold=threshold)
+            diag_obj[model.name] = diagnose(
+                model, test, threshold=threshold, alternatives=alternatives
+            )
             log(diag_obj[model.name].table(6))
-        lead = diag_obj[model.name].lead  # the missing effect, else an in-span refinement
-        if lead is None:
+        if diag_obj[model.name].lead is None:  # no missing effect nor in-span refinement
             break
-        model = model.with_effect(lead.effect, backfit=True)
+        model = next_version(model, diag_obj[model.name], alternatives)
         versions.append(model)
         log(f"   {model.describe()}")
     saved = [str(v.save(out / "models")) for v in versions]
@@ -245,7 +250,9 @@ def run_diagnosis(
         last = versions[-1]
         where(last, res[last.name])
         if last.name not in diag_obj:
-            diag_obj[last.name] = diagnose(last, test, threshold=threshold)
+            diag_obj[last.name] = diagnose(
+                last, test, threshold=threshold, alternatives=alternatives
+            )
             log(diag_obj[last.name].table(6))
     final = diag_obj[versions[-1].name].verdict()
     log(f"\nverdict: {final}")

@@ -1,0 +1,107 @@
+"""One effect per group, and continuous shape values fitted by a bounded optimiser.
+
+Independent truth: MuJoCo's dry friction (``frictionloss``) in logs of
+:func:`mcpilco.envs.robot_logs.simulate_log`, and the Stribeck friction drawn by
+:func:`mcpilco.experiments.hidden_effects.make_case` (its Stribeck velocity and smoothing are
+known).
+"""
+
+from __future__ import annotations
+
+import warnings
+
+import pytest
+
+from mcpilco.envs.arm_builder import arm_to_xml
+from mcpilco.envs.arms import random_arm
+from mcpilco.envs.robot_logs import HiddenEffect, simulate_log, write_log
+from mcpilco.experiments.hidden_effects import make_case
+from mcpilco.models.diagnosis import (
+    DiagnosisModel,
+    NominalStart,
+    StribeckFriction,
+    as_trajectories,
+    auto_improve,
+    load_trajectories,
+)
+from mcpilco.models.diagnosis.effects import EPS_SCAN, STRIBECK_SCAN, CoulombFriction
+
+LEVEL = 0.4  # MuJoCo frictionloss on joint 2 [N m]
+
+
+@pytest.fixture(scope="module")
+def friction_logs(tmp_path_factory):
+    """Training and held-out logs (seeds 0, 1) of a rigid 3-joint arm with dry friction."""
+    arm = random_arm(3, seed=1, joint_types="RRR").rigid()
+    tmp = tmp_path_factory.mktemp("frictionloss")
+    effect = [HiddenEffect("frictionloss", 2, LEVEL)]
+    logs = [simulate_log(arm, effect, duration=4.0, seed=s) for s in (0, 1)]
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)
+        train, test = (
+            load_trajectories([write_log(tmp / f"log{s}.csv", log)]) for s, log in enumerate(logs)
+        )
+    v0 = DiagnosisModel(NominalStart(arm_to_xml(arm, friction=False))).fit(train)
+    return v0, test
+
+
+def _dry_friction(model):
+    return [e for e in model.effects if e.family == "dry friction" and e.joint == 2]
+
+
+def _level(model, effect):
+    return next(p for p in model.parameters() if p["effect"] == effect.variant_label)
+
+
+def test_dry_friction_is_added_once_with_its_level(friction_logs):
+    v0, test = friction_logs
+    versions, diags = auto_improve(v0, test, max_steps=3)
+    (added,) = _dry_friction(versions[-1])  # one dry-friction form on joint 2, never two
+    assert isinstance(added, CoulombFriction | StribeckFriction)
+    p = _level(versions[-1], added)
+    assert p["name"] == "F_c"
+    assert abs(p["value"] - LEVEL) <= max(p["ci95"], 0.15 * LEVEL), p
+    for d in diags[1:]:  # the other form is reported as its alternative, never added
+        for c in d.candidates:
+            if c.effect.family == "dry friction" and c.effect.joint == 2:
+                assert c.alternative_to == added.label, d.table()
+
+
+def test_a_poor_form_is_replaced_not_doubled(friction_logs):
+    """A model that already holds a badly shaped Stribeck term: the loop does not add a
+    Coulomb term beside it (the two would fit opposite levels); the Coulomb form replaces
+    it, as it gains more than the threshold in its place, and carries the true level."""
+    v0, test = friction_logs
+    v1 = v0.with_effect(StribeckFriction(joint=2, velocity=0.05, eps=0.003))
+    versions, diags = auto_improve(v1, test, max_steps=2)
+    (added,) = _dry_friction(versions[-1])
+    assert added.key == "coulomb", diags[0].table()
+    lead = diags[0].lead
+    assert lead.alternative_to == "stribeck:2" and lead.replace_delta > diags[0].threshold
+    assert "stribeck:2 is better described as Coulomb friction" in diags[0].verdict()
+    p = _level(versions[-1], added)
+    assert abs(p["value"] - LEVEL) <= max(p["ci95"], 0.15 * LEVEL), p
+    assert versions[-1].history[-1].endswith(f"stribeck:2 -> {added.variant_label}")
+
+
+def test_stribeck_velocity_is_fitted_not_picked_from_the_grid():
+    """Stribeck friction with v_s = 0.161 and eps = 0.0127 (seed 4): the scan's nearest
+    values are 0.2 and 0.012; the refined values lie within 10% of the truth, closer than
+    the grid, and the loop adds the Stribeck term alone (no viscous term to make up for a
+    grid velocity)."""
+    case = make_case("scara", ["stribeck:2"], seed=4, duration=12.0)
+    truth = case.effects[0]
+    test = as_trajectories(case.datasets("test"))
+    v0 = DiagnosisModel(NominalStart(case.nominal_xml)).fit(case.datasets("train"))
+    versions, diags = auto_improve(v0, test, max_steps=2)
+    best = diags[0].best
+    assert best is not None and best.label == "stribeck:2", diags[0].table()
+    for name, grid, true in (
+        ("velocity", STRIBECK_SCAN, truth["v_s"]),
+        ("eps", EPS_SCAN, truth["eps"]),
+    ):
+        value = getattr(best.effect, name)
+        nearest = min(grid, key=lambda g: abs(g - true))
+        assert abs(value - true) <= abs(nearest - true), (name, value, nearest, true)
+        assert abs(value / true - 1) < 0.1, (name, value, true)
+    assert [e.label for e in versions[-1].effects] == ["stribeck:2"], diags[-1].table()
