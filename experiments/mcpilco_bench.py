@@ -269,7 +269,8 @@ def bench_configs(
     }
     device = options.get("device") or "cpu"
     if options.get("compile_rollout"):
-        check_compile_toolchain(resolve_device(device))
+        for config in configs.values():
+            check_compile_toolchain(resolve_device(device), config.rollout_backend)
     resolve_device(device)
     return configs
 

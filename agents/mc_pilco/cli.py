@@ -78,7 +78,7 @@ def check_config(config: MCPilcoConfig, build_env: bool = True) -> None:
         make_env(config.env_id, task.horizon, task).close()
     device = resolve_device(config.device)
     if config.compile_rollout:
-        check_compile_toolchain(device)
+        check_compile_toolchain(device, config.rollout_backend)
 
 
 def train(

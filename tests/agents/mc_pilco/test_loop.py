@@ -135,6 +135,12 @@ def test_compile_rollout_without_a_cpp_compiler_fails_before_any_trial(tmp_path,
     monkeypatch.setenv("CXX", "no-such-c++")
     with pytest.raises(ValueError, match="no-such-c\\+\\+ not found"):
         run_mcpilco(config, tmp_path / "run", progress=False, log=None)
+    # the torch backend needs no compiler: the run goes on with the chained PyTorch rollout
+    torch_config = dataclasses.replace(config, rollout_backend="torch")
+    summary = run_mcpilco(torch_config, tmp_path / "torch", progress=False, log=None)
+    policy = [r for r in summary.records if r["kind"] == "policy"]
+    assert policy and all(r["compile_backend"] == "torch" for r in policy)
+    assert all(r["compile_check"]["grad_rel"] < 1e-3 for r in policy)
 
 
 def test_bad_arguments_give_clear_errors():
@@ -148,6 +154,8 @@ def test_bad_arguments_give_clear_errors():
         MCPilcoConfig(kernel="linear")
     with pytest.raises(ValueError, match="rollout_dtype must be one of"):
         MCPilcoConfig(rollout_dtype="float16")
+    with pytest.raises(ValueError, match="rollout_backend must be one of"):
+        MCPilcoConfig(rollout_backend="inductor")
 
 
 def test_fused_predictor_matches_gp_cached_predictor():
