@@ -507,9 +507,14 @@ def section_table(env_id: str, section: dict) -> str:
         f"{section['jobs']} parallel "
         f"jobs x 1 thread; mean wall-clock per run {section['wall_s_per_run']:.0f} s."
     )
+    # sections measured before trials recorded time in goal keep their time upright
+    goal_key, goal_name = "time_in_goal_s", "time in goal"
+    if not any(goal_key in r for r in section["per_trial"]):
+        if any("time_upright_s" in r for r in section["per_trial"]):
+            goal_key, goal_name = "time_upright_s", "time upright"
     lines += [
         "",
-        "| experience | policy trained on | success rate | time in goal [s] "
+        f"| experience | policy trained on | success rate | {goal_name} [s] "
         "| wall per trial [s] | opt steps | s / opt step (wall) | s / opt step (CPU) |",
         "|---|---|---|---|---|---|---|---|",
     ]
@@ -525,7 +530,7 @@ def section_table(env_id: str, section: dict) -> str:
         lines.append(
             f"| {r['experience_s']:.0f} s ({kind}) | {trained} "
             f"| {100 * r['success_rate']:.0f}% "
-            f"| {_fmt(r.get('time_in_goal_s'))} | {r['wall_s_per_trial']:.1f} "
+            f"| {_fmt(r.get(goal_key))} | {r['wall_s_per_trial']:.1f} "
             f"| {r.get('opt_steps', 0):.0f} | {r.get('s_per_opt_step', float('nan')):.3f} "
             f"| {r.get('cpu_s_per_opt_step', float('nan')):.3f} |"
         )

@@ -264,6 +264,14 @@ def _mcpilco_native(data: dict[str, Any]) -> str:
     return f"rollout compiled (`native`): success {_pct(s[12.0])} after 12 s of experience"
 
 
+def _mcpilco_fresh(data: dict[str, Any]) -> str:
+    s = _success_at(_run_section(data, "fresh100"))
+    return (
+        f"on seeds no setting was chosen on (`native` rollout): success {_pct(s[9.0])} / "
+        f"{_pct(s[12.0])} / {_pct(s[15.0])} after 9 / 12 / 15 s of experience"
+    )
+
+
 def _mcpilco_step(data: dict[str, Any]) -> str:
     row = next(
         t
@@ -496,6 +504,14 @@ REGISTRY: tuple[Headline, ...] = (
         "mcpilco_cartpole.md",
         key="runs (native)",
         seeds=lambda d: seed_ranges(_run_section(d, "native")["seeds"]),
+    ),
+    Headline(
+        "MC-PILCO, fresh seeds",
+        "mcpilco_cartpole.json",
+        _mcpilco_fresh,
+        "mcpilco_cartpole.md",
+        key="runs (fresh100)",
+        seeds=lambda d: seed_ranges(_run_section(d, "fresh100")["seeds"]),
     ),
     Headline(
         "MC-PILCO, speed (CPU)",
