@@ -341,21 +341,31 @@ def check_units(arrays: dict[str, FloatArray], t: FloatArray, source: str) -> No
             )
 
 
-def sampling_warnings(derivative: FloatArray, g: str, of: str, source: str) -> list[str]:
-    """Warnings for joints whose computed ``g`` (derivative of ``of``) reverses sign in fewer
-    than :data:`MIN_SAMPLES_PER_SWING` samples on average: sampled too coarsely for it."""
+def sampling_warnings(
+    derivative: FloatArray,
+    g: str,
+    of: str,
+    source: str,
+    min_samples: int = MIN_SAMPLES_PER_SWING,
+    how: str = "computed",
+    limit: str | None = None,
+) -> list[str]:
+    """Warnings for joints whose ``g`` (derivative of ``of``, obtained ``how``) reverses sign
+    (beyond 10 % of its peak) in fewer than ``min_samples`` samples on average (default
+    :data:`MIN_SAMPLES_PER_SWING`): sampled too coarsely for it. ``limit`` names the bound in
+    the message (default: what the finite difference needs)."""
+    limit = f"the {min_samples} the derivative needs" if limit is None else limit
     out = []
     for j in range(derivative.shape[1]):
         d = derivative[:, j]
         big = np.abs(d) > 0.1 * float(np.max(np.abs(d)) or 1.0)
         signs = np.sign(d[big])
         reversals = int(np.count_nonzero(signs[1:] != signs[:-1]))
-        if reversals and d.size / (reversals + 1) < MIN_SAMPLES_PER_SWING:
+        if reversals and d.size / (reversals + 1) < min_samples:
             out.append(
-                f"{source}: {g}{j + 1} computed from {of}{j + 1} changes sign every "
-                f"{d.size / (reversals + 1):.1f} samples on average, fewer than the "
-                f"{MIN_SAMPLES_PER_SWING} the derivative needs: sample faster or give "
-                f"{g}{j + 1}; results that use {g} are unreliable"
+                f"{source}: {g}{j + 1} {how} from {of}{j + 1} changes sign every "
+                f"{d.size / (reversals + 1):.1f} samples on average, fewer than {limit}: "
+                f"sample faster or give {g}{j + 1}; results that use {g} are unreliable"
             )
     return out
 

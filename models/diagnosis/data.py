@@ -54,7 +54,7 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.signal import savgol_coeffs, savgol_filter
 
-from mcpilco.models.robot_data import RobotDataset, load_dataset
+from mcpilco.models.robot_data import RobotDataset, load_dataset, sampling_warnings
 
 FloatArray = NDArray[np.float64]
 
@@ -396,22 +396,11 @@ def _data_warnings(
 
 
 def _swing_warnings(values: FloatArray, g: str, of: str, window: int, source: str) -> list[str]:
-    """Joints whose estimated ``g`` reverses sign (beyond 10 % of its peak) in fewer samples
-    on average than the filter's ``window``: the window spans a whole swing and flattens it."""
-    out = []
-    for j in range(values.shape[1]):
-        d = values[:, j]
-        big = np.abs(d) > 0.1 * float(np.max(np.abs(d)) or 1.0)
-        signs = np.sign(d[big])
-        reversals = int(np.count_nonzero(signs[1:] != signs[:-1]))
-        if reversals and d.size / (reversals + 1) < window:
-            out.append(
-                f"{source}: {g}{j + 1} estimated from {of}{j + 1} changes sign every "
-                f"{d.size / (reversals + 1):.1f} samples on average, fewer than the {window} "
-                f"of the derivative filter: sample faster or give {g}{j + 1}; results that use "
-                f"{g} are unreliable"
-            )
-    return out
+    """Joints whose estimated ``g`` reverses sign in fewer samples on average than the
+    filter's ``window``: the window spans a whole swing and flattens it."""
+    return sampling_warnings(
+        values, g, of, source, window, "estimated", f"the {window} of the derivative filter"
+    )
 
 
 def _derivatives(ds: RobotDataset) -> tuple[FloatArray, FloatArray, Estimate | None]:
