@@ -33,7 +33,7 @@ import dataclasses
 import json
 import math
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -81,6 +81,8 @@ _RESUME_FIXED = (
     "num_basis",
     "num_candidates",
     "explore_hold",
+    "explore_steps",
+    "env_kwargs",
 )
 ROLLOUT_DTYPES = ("float32", "float64")
 """Choices of :attr:`MCPilcoConfig.rollout_dtype`."""
@@ -125,6 +127,11 @@ class MCPilcoConfig:
             (length ``K``); None: ``policy_weight_scale`` for all.
         explore_hold: control steps each random action of the exploration trial is held
             (``u ~ U(low, high)`` drawn once per ``explore_hold`` steps; 1: i.i.d.).
+        explore_steps: steps of the exploration trial (None: the horizon). A task whose
+            policy trials need a longer horizon than the data a first model needs can start
+            with a shorter random trial.
+        env_kwargs: keyword arguments of ``gym.make`` besides the episode length (for
+            example an env's own episode-length argument when the horizon changes).
         init_std: ``sigma_0`` of the initial particles (None: the task's).
         sim_obs_noise_std: measurement noise simulated on the policy input in rollouts.
         opt: policy optimisation schedule (:class:`PolicyOptConfig`).
@@ -167,6 +174,8 @@ class MCPilcoConfig:
     num_candidates: int = 1
     candidate_weight_scales: list[float] | None = None
     explore_hold: int = 1
+    explore_steps: int | None = None
+    env_kwargs: dict[str, Any] | None = None
     init_std: float | None = None
     sim_obs_noise_std: float = 0.01
     opt: PolicyOptConfig = field(default_factory=PolicyOptConfig)
@@ -188,8 +197,12 @@ class MCPilcoConfig:
                 raise ValueError(f"{name} must be a positive integer, got {v!r}")
         if int(self.num_trials) != self.num_trials or self.num_trials < 0:
             raise ValueError(f"num_trials must be an integer >= 0, got {self.num_trials!r}")
-        if self.horizon is not None and (int(self.horizon) != self.horizon or self.horizon < 1):
-            raise ValueError(f"horizon must be a positive integer, got {self.horizon!r}")
+        for name in ("horizon", "explore_steps"):
+            v = getattr(self, name)
+            if v is not None and (isinstance(v, bool) or int(v) != v or v < 1):
+                raise ValueError(f"{name} must be a positive integer, got {v!r}")
+        if self.env_kwargs is not None and not isinstance(self.env_kwargs, dict):
+            raise ValueError(f"env_kwargs must be a mapping, got {self.env_kwargs!r}")
         if self.candidate_weight_scales is not None:
             scales = [float(v) for v in self.candidate_weight_scales]
             if len(scales) != self.num_candidates or not all(v > 0 for v in scales):
@@ -389,11 +402,16 @@ def registered_ids(prefix: str = "mcpilco/") -> list[str]:
     return sorted(k for k in gym.registry if k.startswith(prefix))
 
 
-def make_env(env_id: str, horizon: int, task: TaskSpec | None = None):
-    """``gym.make(env_id)`` with episodes of ``horizon`` steps, clear errors for an unknown id,
-    for spaces that do not fit ``task`` (:meth:`TaskSpec.check_env`), and for a horizon that
-    differs from the env's own episode length when the task's success is the env's
-    ``info`` flag (defined at the env's own last step)."""
+def make_env(
+    env_id: str,
+    horizon: int,
+    task: TaskSpec | None = None,
+    env_kwargs: Mapping[str, Any] | None = None,
+):
+    """``gym.make(env_id, **env_kwargs)`` with episodes of ``horizon`` steps, clear errors for
+    an unknown id, for spaces that do not fit ``task`` (:meth:`TaskSpec.check_env`), and for a
+    horizon that differs from the env's own episode length when the task's success is the
+    env's ``info`` flag (defined at the env's own last step)."""
     import gymnasium as gym
 
     import mcpilco.envs  # noqa: F401  (registers the ids)
@@ -408,7 +426,7 @@ def make_env(env_id: str, horizon: int, task: TaskSpec | None = None):
             f"horizon mismatch: the config's horizon is {horizon} steps but {env_id} episodes "
             f"last {steps} steps (its success flag is set at its last step); set horizon={steps}"
         )
-    env = gym.make(env_id, max_episode_steps=int(horizon))
+    env = gym.make(env_id, max_episode_steps=int(horizon), **dict(env_kwargs or {}))
     if task is not None:
         try:
             task.check_env(env)
@@ -635,7 +653,11 @@ def run_mcpilco(
         elif config.horizon is not None and config.horizon != task.horizon:
             task = task.replace(horizon=int(config.horizon))
         horizon = task.horizon
-        env = make_env(config.env_id, horizon, task)
+        if config.explore_steps is not None and config.explore_steps > horizon:
+            raise ValueError(
+                f"explore_steps ({config.explore_steps}) exceeds the horizon ({horizon} steps)"
+            )
+        env = make_env(config.env_id, horizon, task, config.env_kwargs)
         dt = task.dt
         layout = StateLayout.from_task(task)
 
@@ -716,7 +738,12 @@ def run_mcpilco(
             if k == 0:
                 rec["kind"] = "exploration"
                 ep = exploration_episode(
-                    env, np_rng, config.seed, horizon, task, config.explore_hold
+                    env,
+                    np_rng,
+                    config.seed,
+                    config.explore_steps or horizon,
+                    task,
+                    config.explore_hold,
                 )
             else:
                 rec["kind"] = "policy"
