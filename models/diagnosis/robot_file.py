@@ -70,6 +70,7 @@ __all__ = [
     "FoundEffect",
     "found_effects",
     "joint_handles",
+    "joint_label",
     "write_corrected_mjcf",
 ]
 
@@ -253,7 +254,9 @@ def joint_handles(spec: mujoco.MjSpec) -> list[mujoco.MjsJoint]:
     return [j for j in spec.joints if j.type in kinds]
 
 
-def _joint_name(spec: mujoco.MjSpec, k: int) -> str:
+def joint_label(spec: mujoco.MjSpec, k: int) -> str:
+    """``joint <name>`` of the ``k``-th (0-based) hinge/slide joint, ``joint #<k+1>`` when it
+    has no name (the ``element`` of a :class:`Change`)."""
     jnt = joint_handles(spec)[k]
     return f"joint {jnt.name}" if jnt.name else f"joint #{k + 1}"
 
@@ -267,8 +270,7 @@ class _Target:
 
     def joint(self, effect: Effect) -> tuple[mujoco.MjsJoint, str]:
         k = effect.joint - 1
-        jnt = self.joints[k]
-        return jnt, (f"joint {jnt.name}" if jnt.name else f"joint #{k + 1}")
+        return self.joints[k], joint_label(self.spec, k)
 
 
 WriteResult = tuple[list[Change], str | None]
@@ -432,13 +434,18 @@ def write_corrected_mjcf(
         the corrected file and its side record.
 
     Raises:
-        ValueError: a start model that is not a nominal MJCF, or a file whose hinge and slide
-            joints do not match the model's joints.
+        ValueError: a start model that is not a nominal MJCF, a model fitted on currents, or
+            a file whose hinge and slide joints do not match the model's joints.
     """
     start = model.start
     if not isinstance(start, NominalStart):
         raise ValueError(
             f"a corrected robot file needs a nominal MJCF start model, got {start.describe()}"
+        )
+    if model.train_ is not None and model.train_.output != "tau":
+        raise ValueError(
+            "the model was fitted on motor currents: its effects are in A, not in the joint "
+            "torque units an MJCF needs"
         )
     text = start.robot.text
     if "<mujoco" not in text:
@@ -482,7 +489,7 @@ def write_corrected_mjcf(
             value = float(value[0]) if isinstance(value, np.ndarray) else float(value)
             if value != 0.0 and (k, attr) not in touched:
                 result.notes.append(
-                    f"{_joint_name(spec, k)}: {attr} = {value:.4g} in the file is kept; the "
+                    f"{joint_label(spec, k)}: {attr} = {value:.4g} in the file is kept; the "
                     "diagnosis compared the data with a start model without it (pinocchio's "
                     "RNEA: rigid bodies and armature)"
                 )

@@ -64,6 +64,7 @@ from mcpilco.models.diagnosis.robot_file import (
     Change,
     CorrectedFile,
     joint_handles,
+    joint_label,
     write_corrected_mjcf,
 )
 from mcpilco.models.diagnosis.start_models import NominalStart
@@ -330,9 +331,10 @@ def _setter(change: Change, k: int | None) -> Callable[[mujoco.MjSpec, float], N
     return set_mass
 
 
-def _refinable(corrected: CorrectedFile, spec: mujoco.MjSpec) -> list[tuple[Change, Any]]:
+def _refinable(corrected: CorrectedFile) -> list[tuple[Change, Any]]:
     """``(change, setter)`` of every refinable written value."""
-    names = [f"joint {j.name}" for j in joint_handles(spec)]
+    spec = mujoco.MjSpec.from_string(corrected.xml)
+    names = [joint_label(spec, k) for k in range(len(joint_handles(spec)))]
     out = []
     for c in corrected.changes:
         if c.attribute in REFINABLE and c.element in names:
@@ -387,7 +389,7 @@ def refine_with_sysid(
         )
     t0 = time.perf_counter()
     spec = torque_driven_spec(corrected.xml)
-    items = _refinable(corrected, spec)
+    items = _refinable(corrected)
     result = Refinement(xml=corrected.xml)
     if not items:
         log("   sysid: nothing to refine (no value written that MuJoCo simulates)")
@@ -534,12 +536,23 @@ def robot_file_step(
     torque error (module docstring).
 
     Writes ``out/corrected.xml``, ``out/corrected_effects.json`` and ``out/refined.xml``.
+    What cannot be done is logged and returned, not raised: a start model that is not a
+    nominal MJCF or logs of motor currents (``skipped``: no file), logs too short for a
+    replay window (no refinement / no free-run figures, with the reason).
 
     Returns:
-        ``files`` (paths), ``written``, ``not_expressed``, ``notes``, ``free_run`` and
-        ``torque_rmse`` (per file: per joint), ``window_s``, ``n_windows``, ``sysid``
-        (the refinement, or why it was skipped).
+        ``files`` (paths), ``written``, ``not_expressed``, ``notes``, ``free_run``,
+        ``free_run_final`` and ``torque_rmse`` (per file: per joint), ``window_s``,
+        ``n_windows``, ``sysid`` (the refinement, or why it was skipped); or ``skipped``.
     """
+    reason = None
+    if not has_robot_file(model):
+        reason = f"the start model is not a nominal MJCF ({model.start.describe()})"
+    elif train.output != "tau" or test.output != "tau":
+        reason = "the logs hold motor currents: the effects are not in torque units"
+    if reason is not None:
+        log(f"   no corrected robot file: {reason}")
+        return {"skipped": reason}
     out = Path(out)
     corrected = write_corrected_mjcf(model)
     xml_path, side_path = corrected.write(out / "corrected.xml", out / "corrected_effects.json")
@@ -553,13 +566,14 @@ def robot_file_step(
         "not_expressed": corrected.not_expressed,
         "notes": corrected.notes,
     }
-    if sysid and not _refinable(corrected, torque_driven_spec(corrected.xml)):
+    if not sysid:
+        summary["sysid"] = {"skipped": "sysid refinement switched off"}
+    elif not _refinable(corrected):
         summary["sysid"] = {"skipped": "no written value to refine"}
-    elif sysid:
+    else:
         try:
             ref = refine_with_sysid(corrected, train, window=window, log=log)
-        except ImportError as err:
-            log(f"   sysid skipped: {err}")
+        except (ImportError, ValueError) as err:
             summary["sysid"] = {"skipped": str(err)}
         else:
             refined_path = out / "refined.xml"
@@ -579,9 +593,14 @@ def robot_file_step(
             record = corrected.side_record()
             record["sysid"] = ref.to_dict()
             side_path.write_text(json.dumps(record, indent=1, default=float))
-    else:
-        summary["sysid"] = {"skipped": "sysid refinement switched off"}
-    starts = replay_windows(test, window)
+    if "skipped" in summary["sysid"]:
+        log(f"   sysid refinement skipped: {summary['sysid']['skipped']}")
+    try:
+        starts = replay_windows(test, window)
+    except ValueError as err:
+        log(f"   no free-run figures: {err}")
+        summary["free_run"] = {"skipped": str(err)}
+        return summary
     free = {k: free_run_error(x, test, window, starts) for k, x in files.items()}
     torque = {k: inverse_dynamics_error(x, test) for k, x in files.items()}
     n = test.n_joints

@@ -19,11 +19,11 @@ the final verdict (:meth:`~.search.Diagnosis.verdict` of the last version) says 
 significant missing effect" only when every joint is at that floor, and otherwise
 "unexplained" with the joint, its error in floors and the residual's structure.
 
-With a nominal MJCF start and torque logs, the last version's effects are written back as
+With a nominal MJCF start, the last version's effects are written back as
 ``corrected.xml`` with the side record ``corrected_effects.json``, refined by
 ``mujoco.sysid`` into ``refined.xml`` (unless ``sysid`` is false), and the free-run
 simulation error of the nominal, corrected and refined files on the held-out logs is reported
-next to their one-step torque error (:func:`~.sysid_refine.robot_file_step`).
+next to their one-step torque error (:func:`~.sysid_refine.robot_file_step`; torque logs).
 
 Outputs under ``out``: ``compare_v<k>.png`` (measured vs predicted +-2 sigma),
 ``residuals_v<k>.png``, ``waterfall.png``, ``diagnosis.rrd`` (Rerun), ``summary.json``.
@@ -264,9 +264,9 @@ def run_diagnosis(
             )
             log(diag_obj[last.name].table(6))
     robot_file = None
-    from mcpilco.models.diagnosis.sysid_refine import has_robot_file, robot_file_step
+    if isinstance(start, NominalStart):
+        from mcpilco.models.diagnosis.sysid_refine import robot_file_step
 
-    if has_robot_file(versions[-1]) and train.output == "tau":
         log("\n== 6. the corrected robot file")
         robot_file = robot_file_step(versions[-1], train, test, out, sysid=sysid, log=log)
     final = diag_obj[versions[-1].name].verdict()

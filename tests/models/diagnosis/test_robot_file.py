@@ -265,3 +265,24 @@ def test_run_diagnosis_writes_the_corrected_file_and_reports_free_run(damped, tm
     assert free["corrected"][1] < free["nominal"][1] and free["corrected"][2] < free["nominal"][2]
     assert any("== 6. the corrected robot file" in line for line in lines)
     assert any(line.strip().startswith("corrected") and "e" in line for line in lines)
+
+
+def test_robot_file_step_says_what_it_cannot_do(damped, tmp_path):
+    """Held-out logs shorter than a replay window: the file is written, the free run is
+    reported as skipped with the reason; current logs: no file (the effects are in A)."""
+    import dataclasses
+
+    from mcpilco.models.diagnosis.sysid_refine import robot_file_step
+
+    test = damped["test"]
+    short, _ = test.split_time(0.1)  # 0.3 s
+    lines: list[str] = []
+    out = robot_file_step(
+        damped["model"], damped["train"], short, tmp_path, sysid=False, log=lines.append
+    )
+    assert (tmp_path / "corrected.xml").is_file()
+    assert "long enough" in out["free_run"]["skipped"]
+    assert any("no free-run figures" in line for line in lines)
+    currents = dataclasses.replace(test, output="i")
+    out = robot_file_step(damped["model"], currents, currents, tmp_path / "i", log=lines.append)
+    assert "currents" in out["skipped"] and not (tmp_path / "i").exists()
