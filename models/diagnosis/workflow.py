@@ -1,7 +1,7 @@
 """The diagnosis loop on files: compare a robot model with measurements, see where it fails,
 find the missing physical effect, add it, watch the error fall (``mcpilco-diagnose``).
 
-:func:`run_diagnosis` runs the five steps of :mod:`mcpilco.models.diagnosis` on training and
+:func:`run_diagnosis` runs the steps of :mod:`mcpilco.models.diagnosis` on training and
 held-out files and reports each step as text lines (``log``). Start model: a nominal robot
 file (MJCF or URDF, rigid-body physics), or a GIP / RBF GP learned on the training files
 (the joint types set the joint count and which joints are angles; a robot file then only
