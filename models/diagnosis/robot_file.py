@@ -21,6 +21,10 @@ payload       a body ``payload`` on the last link           ``m``, centre of mas
                                                             inertia about ``c`` (module text)
 ============  ============================================  ===================================
 
+A change of a link's 10 inertial parameters (a per-link inertial candidate) is written by
+:func:`write_link_inertial`: the link's compiled parameters plus the change, as explicit
+``mass``, ``ipos`` and principal ``inertia``/``iquat``; register it for the candidate's key.
+
 The writer is the table :data:`WRITERS` (effect key -> function); an effect type without an
 entry (cogging, dead-zone, torque offset, delay, ...) has no MuJoCo element and is listed in
 the side record instead, with its parameters and 95 % intervals
@@ -72,6 +76,7 @@ __all__ = [
     "joint_handles",
     "joint_label",
     "write_corrected_mjcf",
+    "write_link_inertial",
 ]
 
 PAYLOAD_FALLBACK_RADIUS = 0.03  # m: solid sphere used when the fitted inertia is inconsistent
@@ -362,17 +367,52 @@ def _consistent(inertia: FloatArray) -> bool:
     return bool(ev.min() >= -tol and (ev.sum() - 2 * ev).min() >= -tol)
 
 
+def _split_inertial(pi: FloatArray) -> tuple[float, FloatArray, FloatArray]:
+    """``(m, c, I_c)`` of 10 inertial parameters ``[m, m c, I_o]`` (pinocchio's order,
+    inertia ``I_o`` about the frame's origin): ``I_c = I_o - m (|c|^2 1 - c c^T)``."""
+    m = float(pi[0])
+    c = np.asarray(pi[1:4], dtype=np.float64) / m
+    ixx, ixy, iyy, ixz, iyz, izz = pi[4:10]
+    i_o = np.array([[ixx, ixy, ixz], [ixy, iyy, iyz], [ixz, iyz, izz]])
+    return m, c, i_o - m * (float(c @ c) * np.eye(3) - np.outer(c, c))
+
+
+def _full(i_c: FloatArray) -> list[float]:
+    """MJCF ``fullinertia`` order: ``Ixx, Iyy, Izz, Ixy, Ixz, Iyz``."""
+    return [float(v) for v in (i_c[0, 0], i_c[1, 1], i_c[2, 2], i_c[0, 1], i_c[0, 2], i_c[1, 2])]
+
+
+def _principal(i_c: FloatArray) -> tuple[list[float], list[float]]:
+    """``(iquat, diaginertia)`` of an inertia tensor: its principal axes (a right-handed
+    rotation as a quaternion) and moments."""
+    moments, axes = np.linalg.eigh(0.5 * (i_c + i_c.T))
+    if np.linalg.det(axes) < 0:
+        axes[:, 0] = -axes[:, 0]
+    quat = np.zeros(4)
+    mujoco.mju_mat2Quat(quat, np.ascontiguousarray(axes).ravel())
+    return quat.tolist(), moments.tolist()
+
+
+def _joint_frame_parameters(model: mujoco.MjModel, body: int, offset: FloatArray) -> FloatArray:
+    """The compiled body's 10 inertial parameters about the joint frame (the body frame
+    shifted by ``offset``, the joint's ``pos``), in pinocchio's order."""
+    m = float(model.body_mass[body])
+    c = np.asarray(model.body_ipos[body]) - offset
+    rot = np.zeros(9)
+    mujoco.mju_quat2Mat(rot, np.asarray(model.body_iquat[body], dtype=np.float64))
+    rot = rot.reshape(3, 3)
+    i_o = rot @ np.diag(model.body_inertia[body]) @ rot.T
+    i_o = i_o + m * (float(c @ c) * np.eye(3) - np.outer(c, c))
+    return np.array([m, *(m * c), i_o[0, 0], i_o[0, 1], i_o[1, 1], i_o[0, 2], i_o[1, 2], i_o[2, 2]])
+
+
 def write_payload(target: _Target, found: FoundEffect) -> WriteResult:
     """A body ``payload`` on the last joint's body: mass, centre of mass and inertia from the
     fused 10 inertial parameters (module docstring)."""
     if found.inertial is None:
         raise NotWritten("no inertial parameters were fitted")
-    pi = np.asarray(found.inertial, dtype=np.float64)
-    m = _positive(found, "m").value
-    c = pi[1:4] / m
-    ixx, ixy, iyy, ixz, iyz, izz = pi[4:10]
-    i_o = np.array([[ixx, ixy, ixz], [ixy, iyy, iyz], [ixz, iyz, izz]])
-    i_c = i_o - m * (float(c @ c) * np.eye(3) - np.outer(c, c))
+    _positive(found, "m")
+    m, c, i_c = _split_inertial(np.asarray(found.inertial, dtype=np.float64))
     note = None
     if not _consistent(i_c):
         i_c = 0.4 * m * PAYLOAD_FALLBACK_RADIUS**2 * np.eye(3)
@@ -390,23 +430,59 @@ def write_payload(target: _Target, found: FoundEffect) -> WriteResult:
     body.mass = m
     body.ipos = [0.0, 0.0, 0.0]
     body.iquat = [1.0, 0.0, 0.0, 0.0]
-    body.fullinertia = [i_c[0, 0], i_c[1, 1], i_c[2, 2], i_c[0, 1], i_c[0, 2], i_c[1, 2]]
+    body.fullinertia = _full(i_c)
     where = f"body {PAYLOAD_BODY} (on {parent.name or 'the last link'})"
     label = found.effect.variant_label
     mtext = found.value("m").text()
     changes = [
         Change(where, "mass", None, m, label, mtext, found.value("m").ci95),
         Change(where, "pos", None, pos, label, "centre of mass c = (m c) / m in the link frame"),
-        Change(
-            where,
-            "fullinertia",
-            None,
-            [float(v) for v in body.fullinertia],
-            label,
-            "inertia about c",
-        ),
+        Change(where, "fullinertia", None, _full(i_c), label, "inertia about c"),
     ]
     return changes, note
+
+
+def write_link_inertial(target: _Target, found: FoundEffect) -> WriteResult:
+    """Change of the 10 inertial parameters of joint ``found.effect.joint``'s body
+    (``found.inertial``: ``[dm, d(m c), dI_o]`` about the joint frame, pinocchio's order):
+    the body's compiled parameters plus the change, written back as explicit ``mass``,
+    ``ipos`` and ``fullinertia``. A result with ``m <= 0`` or an inertia that is not
+    physically consistent is not written. For a per-link inertial candidate: register it
+    as ``WRITERS[key] = write_link_inertial``."""
+    if found.inertial is None:
+        raise NotWritten("no inertial parameters were fitted")
+    k = found.effect.joint - 1
+    jnt = target.joints[k]
+    body = jnt.parent
+    model = target.spec.compile()
+    bid = int(model.jnt_bodyid[_joint_id(model, k)])
+    offset = np.asarray(jnt.pos, dtype=np.float64)
+    before = _joint_frame_parameters(model, bid, offset)
+    after = before + np.asarray(found.inertial, dtype=np.float64)
+    if not after[0] > 0:
+        raise NotWritten(f"the link's mass would be {after[0]:.3g} kg")
+    m, c, i_c = _split_inertial(after)
+    if not _consistent(i_c):
+        raise NotWritten("the link's inertia tensor would not be physically consistent")
+    body.explicitinertial = True
+    body.mass = m
+    body.ipos = (c + offset).tolist()
+    body.iquat, body.inertia = _principal(i_c)  # the file may give diaginertia
+    where = f"body {body.name or '#' + str(bid)}"
+    label = found.effect.variant_label
+    src = "link parameters + the fitted change"
+    changes = [
+        Change(where, "mass", float(before[0]), m, label, src),
+        Change(where, "ipos", None, body.ipos.tolist(), label, src),
+        Change(where, "inertia (about ipos)", None, _full(i_c), label, src),
+    ]
+    return changes, None
+
+
+def _joint_id(model: mujoco.MjModel, k: int) -> int:
+    """Id of the ``k``-th (0-based) hinge/slide joint of a compiled model."""
+    kinds = (int(mujoco.mjtJoint.mjJNT_HINGE), int(mujoco.mjtJoint.mjJNT_SLIDE))
+    return [j for j in range(model.njnt) if int(model.jnt_type[j]) in kinds][k]
 
 
 Writer = Callable[[_Target, FoundEffect], WriteResult]

@@ -27,6 +27,7 @@ from mcpilco.models.diagnosis import (
     Payload,
     Spring,
     StribeckFriction,
+    TorqueOffset,
     ViscousFriction,
     free_run_error,
     load_trajectories,
@@ -148,6 +149,40 @@ def test_payload_body_reproduces_the_regressor_torque():
     )
     expected = start.last_link_regressor(q, qd, qdd) @ pi
     np.testing.assert_allclose(diff, expected, atol=1e-8)
+
+
+def test_link_inertial_change_reproduces_the_regressor_torque(monkeypatch):
+    """A link 40 % heavier (its 10 parameters times 1.4), written by write_link_inertial
+    plugged into the writer table: in MuJoCo the torque changes by pinocchio's regressor
+    columns of that link times the change."""
+    import pinocchio
+
+    from mcpilco.models.diagnosis.robot_file import WRITERS, write_link_inertial
+
+    xml = arm_to_xml(random_arm(3, seed=1, joint_types="RRR").rigid(), friction=False)
+    start = NominalStart(xml)
+    pin_model = start.robot.model
+    delta = 0.4 * np.asarray(pin_model.inertias[2].toDynamicParameters())
+    monkeypatch.setitem(WRITERS, "offset", write_link_inertial)  # a stand-in key on joint 2
+    found = FoundEffect(TorqueOffset(joint=2), (_est("m", float(delta[0])),), delta)
+    result = write_corrected_mjcf(DiagnosisModel(start), [found])
+    corrected, nominal = (mujoco.MjModel.from_xml_string(x) for x in (result.xml, xml))
+    assert corrected.body("link2").mass[0] == pytest.approx(1.4 * nominal.body("link2").mass[0])
+    first = result.changes[0]
+    assert (first.element, first.attribute) == ("body link2", "mass")
+    assert first.before == pytest.approx(nominal.body("link2").mass[0])
+    q, qd, qdd = _states(3)
+    diff = _inverse(corrected, q, qd, qdd) - _inverse(nominal, q, qd, qdd)
+    data = pin_model.createData()
+    expected = np.stack(
+        [
+            pinocchio.computeJointTorqueRegressor(pin_model, data, q[k], qd[k], qdd[k])[:, 10:20]
+            @ delta
+            for k in range(q.shape[0])
+        ]
+    )
+    # the principal axes and moments pass through the MJCF text (about 6 significant digits)
+    np.testing.assert_allclose(diff, expected, rtol=1e-4, atol=1e-8)
 
 
 def test_inconsistent_payload_inertia_is_replaced_and_listed():
