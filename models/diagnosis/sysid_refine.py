@@ -22,14 +22,19 @@ Free-run simulation error (:func:`free_run_error`)
 
 One-step torque error (:func:`inverse_dynamics_error`)
     MuJoCo's inverse dynamics (``mj_inverse``) of the file at the logged ``q`` and the
-    estimated ``qd``, ``qdd``, against the logged torque: RMSE per joint.
+    estimated ``qd``, ``qdd``, against the logged torque: RMSE per joint. On a joint with
+    ``frictionloss`` this is MuJoCo's soft dry-friction constraint at the estimated
+    acceleration, which is not the ``tanh`` Coulomb torque the diagnosis fitted: the file's
+    one-step error there stays above the diagnosis model's.
 
 Refinement (:func:`refine_with_sysid`)
     The values a :class:`~.robot_file.CorrectedFile` wrote (damping, frictionloss,
     armature, stiffness, springref, payload mass) become :class:`mujoco.sysid.Parameter` s,
     starting at the diagnosis values, bounded to ``[0, max(3 v, v + 10 ci)]`` (``v``: the
-    value, ``ci``: its 95 % half-width; ``springref``: ``v +- 0.5``). The windows of the
-    training logs become :class:`mujoco.sysid.ModelSequences`; :func:`mujoco.sysid.optimize`
+    value, ``ci``: its 95 % half-width; ``springref``: ``v +- 0.5``). The replay windows of
+    the training logs (at most :data:`SYSID_MAX_WINDOWS`, evenly spread) become
+    :class:`mujoco.sysid.ModelSequences`, rolled out in one batch per parameter vector
+    (:func:`mujoco.sysid.model_residual`); :func:`mujoco.sysid.optimize`
     minimises ``sum (q_log - q_sim)^2`` over the windows (MuJoCo's least-squares with
     finite-difference Jacobians), and :func:`mujoco.sysid.calculate_intervals` gives 95 %
     intervals from the Jacobian at the optimum (simulation errors are correlated in time,
