@@ -38,7 +38,10 @@ Refinement (:func:`refine_with_sysid`)
     minimises ``sum (q_log - q_sim)^2`` over the windows (MuJoCo's least-squares with
     finite-difference Jacobians), and :func:`mujoco.sysid.calculate_intervals` gives 95 %
     intervals from the Jacobian at the optimum (simulation errors are correlated in time,
-    so these intervals are optimistic). Needs the ``mujoco[sysid]`` extra
+    so these intervals are optimistic). A value that ends at a bound (within
+    :data:`BOUND_FRACTION` of the range) is one the free run does not pin down (a poorly
+    excited armature can run to its bound to absorb other errors): it keeps its diagnosis
+    value and is reported as such. Needs the ``mujoco[sysid]`` extra
     (``pip install mcpilco[sysid]``).
 
 :func:`robot_file_step` runs the three for :func:`~.workflow.run_diagnosis`: it writes
@@ -92,6 +95,7 @@ FREE_RUN_WINDOW = 0.5  # s: open-loop replay window, re-initialised from the log
 SYSID_MAX_WINDOWS = 12  # most training windows a sysid refinement rolls out per evaluation
 SYSID_MAX_ITERS = 25  # iterations of MuJoCo's least-squares in a refinement
 SYSID_XTOL = 1e-4  # relative step at which the least-squares refinement stops
+BOUND_FRACTION = 1e-3  # a refined value this close to a bound (of the range) is not kept
 SPRINGREF_SPAN = 0.5  # rad or m: half-width of the springref bounds of a refinement
 REFINABLE = ("damping", "frictionloss", "armature", "stiffness", "springref")  # joint values
 
@@ -285,8 +289,10 @@ class Refinement:
 
     Attributes:
         xml: the refined MJCF.
-        parameters: per refined value: ``name``, ``element``, ``attribute``, ``start``
-            (diagnosis value), ``value`` (refined), ``ci95`` (sysid's interval), bounds.
+        parameters: per refined value: ``element``, ``attribute``, ``effect``, ``start``
+            (diagnosis value), ``value`` (written: refined, or the start when ``at_bound``),
+            ``ci95`` (sysid's interval), ``bounds``, ``sysid_value`` (the optimiser's),
+            ``at_bound``.
         cost_start, cost_end: ``sum (q_log - q_sim)^2`` over the training windows.
         iterations: least-squares iterations; ``seconds``: wall time.
     """
@@ -475,19 +481,26 @@ def refine_with_sysid(
     x = opt.as_vector()
     r = residual_fn(x, opt)[0]
     _, ci = sysid.calculate_intervals(r, np.atleast_2d(res.jac))
+    lo, hi = params.get_bounds()
+    at_bound = np.minimum(x - lo, hi - x) <= BOUND_FRACTION * (hi - lo)
+    kept = np.where(at_bound, x0, x)  # a value the free run pushed to a bound: not refined
+    if at_bound.any():
+        opt.update_from_vector(kept)
+        r = residual_fn(kept, opt)[0]
     final = mujoco.MjSpec.from_string(corrected.xml)
     for i, (c, setter) in enumerate(items):
-        setter(final, float(x[i]))
-        lo, hi = _bounds(c)
+        setter(final, float(kept[i]))
         result.parameters.append(
             {
                 "element": c.element,
                 "attribute": c.attribute,
                 "effect": c.effect,
                 "start": float(c.after),
-                "value": float(x[i]),
-                "ci95": float(ci[i]) if i < len(ci) else float("nan"),
-                "bounds": [lo, hi],
+                "value": float(kept[i]),
+                "ci95": float("nan") if at_bound[i] else float(ci[i]),
+                "bounds": [float(lo[i]), float(hi[i])],
+                "sysid_value": float(x[i]),
+                "at_bound": bool(at_bound[i]),
             }
         )
     final.compile()
@@ -587,10 +600,17 @@ def robot_file_step(
             summary["files"]["refined"] = str(refined_path)
             summary["sysid"] = ref.to_dict()
             for p in ref.parameters:
-                log(
-                    f"   sysid {p['element']} {p['attribute']}: {p['start']:.4g} -> "
-                    f"{p['value']:.4g} ± {p['ci95']:.2g}"
-                )
+                if p["at_bound"]:
+                    log(
+                        f"   sysid {p['element']} {p['attribute']}: {p['start']:.4g} kept; the "
+                        f"free run pushed it to its bound {p['sysid_value']:.4g} (not pinned "
+                        "down by the logs)"
+                    )
+                else:
+                    log(
+                        f"   sysid {p['element']} {p['attribute']}: {p['start']:.4g} -> "
+                        f"{p['value']:.4g} ± {p['ci95']:.2g}"
+                    )
             log(
                 f"   sysid: cost {ref.cost_start:.4g} -> {ref.cost_end:.4g} in "
                 f"{ref.iterations} iterations ({ref.seconds:.1f} s); {refined_path}"

@@ -270,6 +270,7 @@ def test_sysid_moves_a_perturbed_value_toward_the_truth(damped):
     assert values["damping"] == pytest.approx(DAMPING, rel=0.1), refined.parameters
     assert values["frictionloss"] == pytest.approx(FRICTION, rel=0.1), refined.parameters
     assert refined.cost_end < refined.cost_start
+    assert not any(p["at_bound"] for p in refined.parameters)
     m = mujoco.MjModel.from_xml_string(refined.xml)
     assert m.dof_damping[1] == pytest.approx(values["damping"])
     assert any("iter" in line for line in lines)  # progress reached the log
