@@ -41,8 +41,9 @@ Payload
     significant). The body gets ``m``, ``c = m c / m`` and
     ``I_c = I_o - m (|c|^2 1 - c c^T)`` when ``I_c`` is physically consistent (principal
     moments ``>= 0`` obeying the triangle inequality); otherwise a solid sphere of radius
-    :data:`PAYLOAD_FALLBACK_RADIUS` about ``c`` (noted). The joint frame is the body frame
-    shifted by the joint's ``pos`` (pinocchio's MJCF import).
+    :data:`PAYLOAD_FALLBACK_RADIUS` about ``c`` (the fitted tensor goes to the side record).
+    The joint frame is the body frame shifted by the joint's ``pos`` (pinocchio's MJCF
+    import).
 
 Files the start model read differently: a joint whose file value of ``damping``,
 ``frictionloss`` or ``stiffness`` is not zero but for which no effect was found keeps it,
