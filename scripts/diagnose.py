@@ -18,7 +18,11 @@ armature, deadzone, delay); ``--auto N`` adds up to N significant effects, best 
 Every version is saved as ``<out>/models/model_v<k>.json`` (never overwritten).
 
 Outputs under ``--out``: ``compare_v<k>.png`` (measured vs predicted ±2σ),
-``residuals_v<k>.png``, ``waterfall.png``, ``diagnosis.rrd`` (Rerun), ``summary.json``.
+``residuals_v<k>.png``, ``waterfall.png``, ``diagnosis.rrd`` (Rerun), ``summary.json``;
+with an MJCF ``--model`` and torque logs also ``corrected.xml`` (the effects found written
+back as MuJoCo physics), ``corrected_effects.json`` (what was written, and the effects MuJoCo
+cannot express, with their 95% intervals) and ``refined.xml`` (refined by ``mujoco.sysid``;
+``--no-sysid`` skips it), with the free-run error of each file on the held-out files.
 The loop is :func:`mcpilco.models.diagnosis.run_diagnosis`.
 """
 
@@ -54,6 +58,11 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--out", default="results/diagnosis_run")
     p.add_argument("--no-plots", action="store_true")
     p.add_argument("--no-rerun", action="store_true")
+    p.add_argument(
+        "--no-sysid",
+        action="store_true",
+        help="write corrected.xml but skip its mujoco.sysid refinement (refined.xml)",
+    )
     return p
 
 
@@ -79,6 +88,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         out=args.out,
         plots=not args.no_plots,
         rerun=not args.no_rerun,
+        sysid=not args.no_sysid,
     )
     return 0
 

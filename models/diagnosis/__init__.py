@@ -10,7 +10,9 @@ The loop (:func:`run_diagnosis` runs it on files; console script ``mcpilco-diagn
    every joint by the log-evidence it adds (:mod:`mcpilco.models.gp.linear_gp`), confirms
    the best on held-out trajectories, groups look-alikes;
 4. add it: ``model = model.add(CoulombFriction(joint=2))`` (a new version);
-5. watch the error fall: :func:`~.plots.plot_waterfall`, :func:`~.plots.write_rerun`.
+5. watch the error fall: :func:`~.plots.plot_waterfall`, :func:`~.plots.write_rerun`;
+6. the corrected robot file: :func:`write_corrected_mjcf` (the effects as MuJoCo physics),
+   :func:`refine_with_sysid` (``mujoco.sysid``), :func:`free_run_error` (open-loop replay).
 """
 
 from mcpilco.models.diagnosis.analysis import (
@@ -41,6 +43,7 @@ from mcpilco.models.diagnosis.effects import (
     parse_effect,
 )
 from mcpilco.models.diagnosis.model import DiagnosisModel
+from mcpilco.models.diagnosis.robot_file import CorrectedFile, write_corrected_mjcf
 from mcpilco.models.diagnosis.search import (
     Candidate,
     Diagnosis,
@@ -62,6 +65,12 @@ from mcpilco.models.diagnosis.start_models import (
     NominalStart,
     RBFStart,
 )
+from mcpilco.models.diagnosis.sysid_refine import (
+    FreeRunError,
+    free_run_error,
+    inverse_dynamics_error,
+    refine_with_sysid,
+)
 from mcpilco.models.diagnosis.workflow import run_diagnosis
 from mcpilco.models.gp.linear_gp import JointGP
 
@@ -71,6 +80,7 @@ __all__ = [
     "Armature",
     "Candidate",
     "Cogging",
+    "CorrectedFile",
     "CoulombFriction",
     "DeadZone",
     "Delay",
@@ -78,6 +88,7 @@ __all__ = [
     "DiagnosisModel",
     "Effect",
     "FloorCheck",
+    "FreeRunError",
     "GIPStart",
     "InputNoise",
     "JointGP",
@@ -97,9 +108,11 @@ __all__ = [
     "diagnose",
     "fit_metrics",
     "floor_check",
+    "free_run_error",
     "heldout_floor",
     "heldout_rmse",
     "input_noise",
+    "inverse_dynamics_error",
     "load_trajectories",
     "metrics_table",
     "next_version",
@@ -107,8 +120,10 @@ __all__ = [
     "parse_effect",
     "position_noise",
     "refine_shape",
+    "refine_with_sysid",
     "residual_report",
     "run_diagnosis",
     "score_candidates",
     "score_effect",
+    "write_corrected_mjcf",
 ]

@@ -1,7 +1,7 @@
 """The diagnosis loop on files: compare a robot model with measurements, see where it fails,
 find the missing physical effect, add it, watch the error fall (``mcpilco-diagnose``).
 
-:func:`run_diagnosis` runs the five steps of :mod:`mcpilco.models.diagnosis` on training and
+:func:`run_diagnosis` runs the steps of :mod:`mcpilco.models.diagnosis` on training and
 held-out files and reports each step as text lines (``log``). Start model: a nominal robot
 file (MJCF or URDF, rigid-body physics), or a GIP / RBF GP learned on the training files
 (the joint types set the joint count and which joints are angles; a robot file then only
@@ -18,6 +18,12 @@ Every held-out error is read against the noise floor of :func:`~.search.heldout_
 the final verdict (:meth:`~.search.Diagnosis.verdict` of the last version) says "no
 significant missing effect" only when every joint is at that floor, and otherwise
 "unexplained" with the joint, its error in floors and the residual's structure.
+
+With a nominal MJCF start, the last version's effects are written back as
+``corrected.xml`` with the side record ``corrected_effects.json``, refined by
+``mujoco.sysid`` into ``refined.xml`` (unless ``sysid`` is false), and the free-run
+simulation error of the nominal, corrected and refined files on the held-out logs is reported
+next to their one-step torque error (:func:`~.sysid_refine.robot_file_step`; torque logs).
 
 Outputs under ``out``: ``compare_v<k>.png`` (measured vs predicted +-2 sigma),
 ``residuals_v<k>.png``, ``waterfall.png``, ``diagnosis.rrd`` (Rerun), ``summary.json``.
@@ -48,6 +54,7 @@ def run_diagnosis(
     out: str | Path = "results/diagnosis_run",
     plots: bool = True,
     rerun: bool = True,
+    sysid: bool = True,
     log: Callable[[str], None] = print,
 ) -> dict[str, Any]:
     """Run the diagnosis loop on files and write its outputs (module docstring).
@@ -66,13 +73,15 @@ def run_diagnosis(
         gip_iters: Adam iterations of a learned start's fit.
         out: output folder (created).
         plots, rerun: write the PNG figures / the Rerun recording.
+        sysid: refine the corrected robot file with ``mujoco.sysid`` (nominal MJCF start).
         log: receives the report, one block of text at a time.
 
     Returns:
         The summary written to ``out/summary.json``: ``versions``, ``heldout_rmse`` (one row
         per version), ``noise_floor`` (of the last version), ``rmse_over_floor`` (one row per
         version, each over its own floor), ``verdict`` (the last version's), ``diagnoses``,
-        ``saved``, ``artefacts``, ``data_warnings``, ``seconds``.
+        ``saved``, ``artefacts``, ``data_warnings``, ``robot_file`` (the corrected robot
+        file's record, or ``None``), ``seconds``.
 
     Raises:
         ValueError: bad input (no start model, unreadable or too short files, a joint count
@@ -254,6 +263,12 @@ def run_diagnosis(
                 last, test, threshold=threshold, alternatives=alternatives
             )
             log(diag_obj[last.name].table(6))
+    robot_file = None
+    if isinstance(start, NominalStart):
+        from mcpilco.models.diagnosis.sysid_refine import robot_file_step
+
+        log("\n== 6. the corrected robot file")
+        robot_file = robot_file_step(versions[-1], train, test, out, sysid=sysid, log=log)
     final = diag_obj[versions[-1].name].verdict()
     log(f"\nverdict: {final}")
     summary = {
@@ -266,6 +281,7 @@ def run_diagnosis(
         "saved": saved,
         "artefacts": artefacts,
         "data_warnings": data_warnings,
+        "robot_file": robot_file,
         "seconds": time.perf_counter() - t_start,
     }
     (out / "summary.json").write_text(json.dumps(summary, indent=1, default=float))

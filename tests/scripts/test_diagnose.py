@@ -42,6 +42,9 @@ def test_cli_loop_writes_versions_plots_and_recording(case_dir, tmp_path, capsys
         "diagnosis.rrd",
         "models/model_v0.json",
         "models/model_v1.json",
+        "corrected.xml",
+        "corrected_effects.json",
+        "refined.xml",
     ):
         assert (out / name).exists(), name
     summary = json.loads((out / "summary.json").read_text())
