@@ -18,7 +18,8 @@ armature, deadzone, delay); ``--auto N`` adds up to N significant effects, best 
 Every version is saved as ``<out>/models/model_v<k>.json`` (never overwritten).
 
 Outputs under ``--out``: ``compare_v<k>.png`` (measured vs predicted ±2σ),
-``residuals_v<k>.png``, ``waterfall.png``, ``diagnosis.rrd`` (Rerun), ``summary.json``.
+``residuals_v<k>.png``, ``waterfall.png``, ``diagnosis.rrd`` (Rerun), ``summary.json``, and
+``report.html`` (one self-contained file: tables, figures, verdict, residual structure).
 The loop is :func:`mcpilco.models.diagnosis.run_diagnosis`.
 """
 

@@ -20,7 +20,9 @@ significant missing effect" only when every joint is at that floor, and otherwis
 "unexplained" with the joint, its error in floors and the residual's structure.
 
 Outputs under ``out``: ``compare_v<k>.png`` (measured vs predicted +-2 sigma),
-``residuals_v<k>.png``, ``waterfall.png``, ``diagnosis.rrd`` (Rerun), ``summary.json``.
+``residuals_v<k>.png``, ``waterfall.png``, ``diagnosis.rrd`` (Rerun), ``summary.json``, and
+``report.html`` (:class:`~.html_report.DiagnosisReport`: one self-contained file with the
+tables, the figures, the verdict and the residual's structure).
 """
 
 from __future__ import annotations
@@ -72,7 +74,8 @@ def run_diagnosis(
         The summary written to ``out/summary.json``: ``versions``, ``heldout_rmse`` (one row
         per version), ``noise_floor`` (of the last version), ``rmse_over_floor`` (one row per
         version, each over its own floor), ``verdict`` (the last version's), ``diagnoses``,
-        ``saved``, ``artefacts``, ``data_warnings``, ``seconds``.
+        ``saved``, ``artefacts``, ``data_warnings``, ``seconds``, ``report`` (the path of
+        ``report.html``).
 
     Raises:
         ValueError: bad input (no start model, unreadable or too short files, a joint count
@@ -92,6 +95,7 @@ def run_diagnosis(
         residual_report,
     )
     from mcpilco.models.diagnosis.data import MIN_FIT_ROWS, MIN_HELDOUT_ROWS, require_rows
+    from mcpilco.models.diagnosis.html_report import DiagnosisReport, weight_correlations
 
     t_start = time.perf_counter()
     if model is None and learned is None:
@@ -142,6 +146,8 @@ def run_diagnosis(
         return {"rows": rows, "mean": mean_te, "var": var_te}
 
     floors: dict[str, np.ndarray] = {}
+    reports: dict[str, Any] = {}  # version name -> its held-out ResidualReport
+    figures: list[tuple[str, Path]] = []  # (caption, PNG) for the HTML report
 
     def floor(m: DiagnosisModel) -> np.ndarray:
         if m.name not in floors:
@@ -152,6 +158,7 @@ def run_diagnosis(
         rep = residual_report(
             test, res["mean"], floor(m), start.joint_types, model_name=m.name, unit=unit
         )
+        reports[m.name] = rep
         log(f"\n== 2. {rep.text()}")
         if plots:
             from mcpilco.models.diagnosis.plots import plot_residuals, plot_time
@@ -165,6 +172,7 @@ def run_diagnosis(
                 title=m.describe(),
             )
             p2 = plot_residuals(rep, out / f"residuals_{m.name}.png")
+            figures.extend([(f"held-out, {m.describe()}", p1), (f"residuals of {m.name}", p2)])
             log(f"   plots: {p1}  {p2}")
 
     res = {model.name: compare(model)}
@@ -246,6 +254,10 @@ def run_diagnosis(
         )
     for k, p in artefacts.items():
         log(f"   {k}: {p}")
+    if "waterfall" in artefacts:
+        figures.append(
+            ("held-out RMSE per version over the noise floor", Path(artefacts["waterfall"]))
+        )
     if len(versions) > 1:
         last = versions[-1]
         where(last, res[last.name])
@@ -268,8 +280,37 @@ def run_diagnosis(
         "data_warnings": data_warnings,
         "seconds": time.perf_counter() - t_start,
     }
+    report = DiagnosisReport(
+        title=f"Model diagnosis: {versions[-1].start.describe()}",
+        verdict=final,
+        versions=summary["versions"],
+        heldout_rmse=held,
+        floors=np.array([floor(v) for v in versions]),
+        metrics=[row for v in versions for row in res[v.name]["rows"]],
+        diagnoses=diag_obj,
+        parameters=versions[-1].parameters(),
+        correlations=weight_correlations(versions[-1]),
+        alternatives=alternatives,
+        residuals=reports[versions[-1].name],
+        final_check=diag_obj[versions[-1].name].base,
+        figures=figures,
+        data={
+            "training files": train.names,
+            "held-out files": test.names,
+            "rows (training, held-out)": f"{train.n_samples}, {test.n_samples}",
+            "sample time": f"{train.sample_time:g} s",
+            "output": "motor current i [A]" if train.output == "i" else "joint torque tau",
+        },
+        warnings=data_warnings,
+        seconds=time.perf_counter() - t_start,
+        joint_types=start.joint_types,
+    )
+    summary["report"] = str(report.write(out / "report.html"))
     (out / "summary.json").write_text(json.dumps(summary, indent=1, default=float))
     for text in data_warnings:  # repeated where the report ends
         log(f"warning: {text}")
-    log(f"\nsummary: {out / 'summary.json'} ({summary['seconds']:.1f} s)")
+    log(
+        f"\nsummary: {out / 'summary.json'} ({summary['seconds']:.1f} s); "
+        f"report: {summary['report']}"
+    )
     return summary
