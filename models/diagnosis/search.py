@@ -197,10 +197,11 @@ def _judged_estimates(model: DiagnosisModel, cand: Candidate) -> list[ParamEstim
     if cand.effect.is_shift:
         return cand.estimates
     best: tuple[float, list[ParamEstimate]] | None = None
-    for j in cand.outputs:
-        d, est, _ = _score_variant(model, cand.effect, j - 1, judge=True)
-        if math.isfinite(d) and (best is None or d > best[0]):
-            best = (d, est)
+    with single_thread():
+        for j in cand.outputs:
+            d, est, _ = _score_variant(model, cand.effect, j - 1, judge=True)
+            if math.isfinite(d) and (best is None or d > best[0]):
+                best = (d, est)
     return cand.estimates if best is None else best[1]
 
 
