@@ -8,6 +8,7 @@ construction (a spring's constant column is the offset's column).
 
 from __future__ import annotations
 
+import re
 import warnings
 
 import numpy as np
@@ -18,6 +19,7 @@ from mcpilco.envs.arm_builder import arm_to_xml
 from mcpilco.envs.arms import random_arm
 from mcpilco.envs.robot_logs import HiddenEffect, simulate_log, write_log
 from mcpilco.models.diagnosis import (
+    CoulombFriction,
     DiagnosisModel,
     NominalStart,
     Spring,
@@ -27,7 +29,11 @@ from mcpilco.models.diagnosis import (
 )
 from mcpilco.models.diagnosis.analysis import cross_correlation_test, whiteness_test
 from mcpilco.models.diagnosis.effects import FeatureContext, ParamEstimate
-from mcpilco.models.diagnosis.identifiability import judge_estimates, weight_names
+from mcpilco.models.diagnosis.identifiability import (
+    IDENTIFIABLE_CORRELATION,
+    judge_estimates,
+    weight_names,
+)
 from mcpilco.models.gp.linear_gp import JointGP
 
 N = 2000
@@ -152,3 +158,29 @@ def test_collinear_effects_are_reported_as_not_identifiable(damping_logs):
 def test_parameter_estimates_keep_their_number_when_identifiable():
     est = ParamEstimate("F_v", 0.5, 0.01, "N·m·s/rad")
     assert est.text() == "F_v = 0.5 ± 0.01 N·m·s/rad"
+
+
+def test_nearly_collinear_effects_are_reported_by_their_posterior_correlation():
+    """Viscous friction and a Coulomb term whose smoothing is wider than the velocities
+    (``tanh(qd / eps)`` bends little below ``|qd| = eps``): their columns are nearly
+    proportional, not exactly, so the likelihood is not flat, but the posterior ties the two
+    weights (correlation near -1) and neither is pinned down alone."""
+    rng = np.random.default_rng(7)
+    n = 400
+    qd = np.zeros((n, 1))
+    qd[:, 0] = 0.3 * np.sin(np.linspace(0, 12, n))
+    ctx = FeatureContext(
+        q=np.zeros((n, 1)), qd=qd, qdd=np.zeros((n, 1)), base=np.zeros((n, 1)), joint_types="R"
+    )
+    visc, coul = ViscousFriction(joint=1), CoulombFriction(joint=1, eps=0.5)
+    r = 0.5 * qd[:, 0] + 0.01 * rng.standard_normal(n)
+    gp = JointGP(r, [visc.columns(ctx, 0), coul.columns(ctx, 0)])
+    theta = gp.default_theta(noise=1e-4)  # both blocks keep their prior variance
+    mean, cov = gp.weights(theta)
+    names = weight_names([visc, coul], gp.sizes)
+    (fv,) = judge_estimates(
+        visc, visc.estimates(mean[:1], cov[:1, :1], ctx, 0), gp, theta, 0, names, ctx, 0
+    )
+    (rho,) = re.findall(r"posterior correlation ([-+][0-9.]+) with", fv.unidentified)
+    assert float(rho) <= -IDENTIFIABLE_CORRELATION and "flat" not in fv.unidentified
+    assert "coulomb:1 (eps=0.5) F_c" in fv.unidentified
