@@ -91,12 +91,12 @@ __all__ = [
     "InputNoise",
     "JointResiduals",
     "ResidualReport",
+    "cross_correlation_test",
     "fit_metrics",
     "input_noise",
     "metrics_table",
     "noise_floor",
     "position_noise",
-    "cross_correlation_test",
     "residual_report",
     "whiteness_test",
 ]
@@ -271,7 +271,8 @@ class CorrelationTest:
         lags: lags in samples (``1..L`` for the autocorrelation, ``-L..L`` for the
             cross-correlation; ``tau > 0``: the input leads the residual).
         r: the correlation at each lag.
-        band: the 99% band of one lag, ``z_0.995 / sqrt(N)`` (drawn as MATLAB's ``resid`` does).
+        band: the 99% band of one lag, ``z_0.995 sqrt(v)``: MATLAB's ``z_0.995 / sqrt(N)``
+            for the autocorrelation, widened to Bartlett's ``v`` for the cross-correlation.
         threshold: the band for all lags at once (Sidak), which a null residual crosses with
             probability ``level``.
         level: the test's level.

@@ -196,7 +196,6 @@ class DiagnosisReport:
         data: facts about the data, ``{label: value}`` (files, rows, sample time, ...).
         warnings: data warnings of the loader.
         seconds: the run's wall time.
-        joint_types: e.g. ``"RRP"`` (for units; ``None``: revolute).
     """
 
     title: str
@@ -216,7 +215,6 @@ class DiagnosisReport:
     data: Mapping[str, Any] = field(default_factory=dict)
     warnings: list[str] = field(default_factory=list)
     seconds: float | None = None
-    joint_types: str | None = None
 
     def __post_init__(self) -> None:
         self.heldout_rmse = np.atleast_2d(np.asarray(self.heldout_rmse, dtype=np.float64))

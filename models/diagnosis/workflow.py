@@ -303,7 +303,6 @@ def run_diagnosis(
         },
         warnings=data_warnings,
         seconds=time.perf_counter() - t_start,
-        joint_types=start.joint_types,
     )
     summary["report"] = str(report.write(out / "report.html"))
     (out / "summary.json").write_text(json.dumps(summary, indent=1, default=float))
