@@ -18,7 +18,8 @@ armature, deadzone, delay); ``--auto N`` adds up to N significant effects, best 
 Every version is saved as ``<out>/models/model_v<k>.json`` (never overwritten).
 
 Outputs under ``--out``: ``compare_v<k>.png`` (measured vs predicted ±2σ),
-``residuals_v<k>.png``, ``waterfall.png``, ``diagnosis.rrd`` (Rerun), ``summary.json``;
+``residuals_v<k>.png``, ``waterfall.png``, ``diagnosis.rrd`` (Rerun), ``summary.json``,
+``report.html`` (one self-contained file: tables, figures, verdict, residual structure);
 with an MJCF ``--model`` and torque logs also ``corrected.xml`` (the effects found written
 back as MuJoCo physics), ``corrected_effects.json`` (what was written, and the effects MuJoCo
 cannot express, with their 95% intervals) and ``refined.xml`` (refined by ``mujoco.sysid``;

@@ -4,26 +4,33 @@ The loop (:func:`run_diagnosis` runs it on files; console script ``mcpilco-diagn
 
 1. compare: :func:`fit_metrics` (nMSE, RMSE, NRMSE fit %), :func:`~.plots.plot_time`;
 2. where it fails: :func:`residual_report` (binned residuals, velocity reversals,
-   autocorrelation, worst windows and regions in words) against the noise floor
-   (:func:`heldout_floor`: measurement noise plus the noise of estimated ``qd``/``qdd``);
+   whiteness and cross-correlation with the inputs as MATLAB's ``resid`` tests them
+   (:func:`whiteness_test`, :func:`cross_correlation_test`), worst windows and regions in
+   words) against the noise floor (:func:`heldout_floor`: measurement noise plus the noise of
+   estimated ``qd``/``qdd``);
 3. which effect is missing: :func:`diagnose` scores every candidate of :mod:`.effects` on
    every joint by the log-evidence it adds (:mod:`mcpilco.models.gp.linear_gp`), confirms
    the best on held-out trajectories, groups look-alikes;
 4. add it: ``model = model.add(CoulombFriction(joint=2))`` (a new version);
 5. watch the error fall: :func:`~.plots.plot_waterfall`, :func:`~.plots.write_rerun`;
+   the run's :class:`DiagnosisReport` (``report.html``, one self-contained file). Parameters
+   the data cannot pin down are reported as not identifiable (:mod:`.identifiability`);
 6. the corrected robot file: :func:`write_corrected_mjcf` (the effects as MuJoCo physics),
    :func:`refine_with_sysid` (``mujoco.sysid``), :func:`free_run_error` (open-loop replay).
 """
 
 from mcpilco.models.diagnosis.analysis import (
+    CorrelationTest,
     InputNoise,
     ResidualReport,
+    cross_correlation_test,
     fit_metrics,
     input_noise,
     metrics_table,
     noise_floor,
     position_noise,
     residual_report,
+    whiteness_test,
 )
 from mcpilco.models.diagnosis.data import Trajectories, as_trajectories, load_trajectories
 from mcpilco.models.diagnosis.effects import (
@@ -42,6 +49,7 @@ from mcpilco.models.diagnosis.effects import (
     default_library,
     parse_effect,
 )
+from mcpilco.models.diagnosis.html_report import DiagnosisReport
 from mcpilco.models.diagnosis.model import DiagnosisModel
 from mcpilco.models.diagnosis.robot_file import CorrectedFile, write_corrected_mjcf
 from mcpilco.models.diagnosis.search import (
@@ -81,11 +89,13 @@ __all__ = [
     "Candidate",
     "Cogging",
     "CorrectedFile",
+    "CorrelationTest",
     "CoulombFriction",
     "DeadZone",
     "Delay",
     "Diagnosis",
     "DiagnosisModel",
+    "DiagnosisReport",
     "Effect",
     "FloorCheck",
     "FreeRunError",
@@ -104,6 +114,7 @@ __all__ = [
     "ViscousFriction",
     "as_trajectories",
     "auto_improve",
+    "cross_correlation_test",
     "default_library",
     "diagnose",
     "fit_metrics",
@@ -126,4 +137,5 @@ __all__ = [
     "score_candidates",
     "score_effect",
     "write_corrected_mjcf",
+    "whiteness_test",
 ]

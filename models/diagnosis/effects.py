@@ -94,15 +94,19 @@ class Param:
 
 @dataclass(frozen=True)
 class ParamEstimate:
-    """Posterior estimate ``value +- ci95`` of one parameter, with its unit."""
+    """Posterior estimate ``value +- ci95`` of one parameter, with its unit; ``unidentified``:
+    why the data cannot pin it down (:mod:`.identifiability`), empty when they can."""
 
     name: str
     value: float
     ci95: float
     unit: str
     wrong_sign: bool = False
+    unidentified: str = ""
 
     def text(self) -> str:
+        if self.unidentified:
+            return f"{self.name}: not identifiable from these data ({self.unidentified})"
         return f"{self.name} = {_fmt(self.value)} ± {_fmt(self.ci95)} {self.unit}"
 
 

@@ -46,7 +46,14 @@ from mcpilco.models.diagnosis.data import (
     as_trajectories,
     require_rows,
 )
-from mcpilco.models.diagnosis.effects import Delay, Effect, FeatureContext, effect_from_spec
+from mcpilco.models.diagnosis.effects import (
+    Delay,
+    Effect,
+    FeatureContext,
+    ParamEstimate,
+    effect_from_spec,
+)
+from mcpilco.models.diagnosis.identifiability import judge_estimates, weight_names
 from mcpilco.models.diagnosis.start_models import (
     LEARNED_STARTS,
     LearnedStart,
@@ -452,8 +459,25 @@ class DiagnosisModel:
         return self.with_effect(effect, backfit=True)
 
     # ------------------------------------------------------------------ parameters
+    def estimates(self, effect: Effect, output: int) -> list[ParamEstimate]:
+        """Posterior estimates of ``effect``'s parameters on ``output`` (0-based), each marked
+        where the data cannot pin it down (:func:`.identifiability.judge_estimates`); ``[]``
+        when ``effect`` has no block there."""
+        self._check_fitted()
+        effs = self.block_effects(output)
+        k = next((i for i, e in enumerate(effs) if e.same_slot(effect)), None)
+        if k is None:
+            return []
+        gp, theta = self.gps_[output], self.theta_[output]
+        sl = gp.block_slices()[k]
+        mean, cov = gp.weights(theta)
+        ests = effs[k].estimates(mean[sl], cov[sl, sl], self.ctx_, output)
+        names = weight_names(effs, gp.sizes)
+        return judge_estimates(effs[k], ests, gp, theta, k, names, self.ctx_, output)
+
     def parameters(self) -> list[dict[str, Any]]:
-        """Posterior estimates of every added effect's physical parameters (95% intervals)."""
+        """Posterior estimates of every added effect's physical parameters (95% intervals),
+        or why the data cannot pin one down (``unidentified``, :meth:`estimates`)."""
         self._check_fitted()
         rows = []
         for e in self.effects:
@@ -461,13 +485,9 @@ class DiagnosisModel:
                 if e.is_shift:
                     ests = e.estimates(np.zeros(1), np.zeros((1, 1)), self.ctx_, j)
                 else:
-                    effs = self.block_effects(j)
-                    if e not in effs:
+                    if e not in self.block_effects(j):
                         continue
-                    k = effs.index(e)
-                    sl = self.gps_[j].block_slices()[k]
-                    mean, cov = self.gps_[j].weights(self.theta_[j])
-                    ests = e.estimates(mean[sl], cov[sl, sl], self.ctx_, j)
+                    ests = self.estimates(e, j)
                 for p in ests:
                     rows.append(
                         dict(effect=e.variant_label, output=j + 1, **p.__dict__, text=p.text())

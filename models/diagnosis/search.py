@@ -55,6 +55,10 @@ Verdict against the noise floor
     residual's structure in words (binned against ``q``, ``qd``, ``qdd``; whiteness). A missing
     effect that leaves a joint above the floor is said to explain part of the residual. With
     fewer than :data:`MIN_VERDICT_ROWS` held-out rows the verdict is "not enough data".
+Identifiability
+    The estimates of every confirmed candidate (and of every effect in a model,
+    :meth:`.DiagnosisModel.estimates`) say "not identifiable from these data" with the reason
+    instead of a number where the data cannot pin a parameter down (:mod:`.identifiability`).
 """
 
 from __future__ import annotations
@@ -78,6 +82,7 @@ from mcpilco.models.diagnosis.data import (
     require_rows,
 )
 from mcpilco.models.diagnosis.effects import Effect, ParamEstimate, default_library
+from mcpilco.models.diagnosis.identifiability import judge_estimates, weight_names
 from mcpilco.models.diagnosis.model import DiagnosisModel
 from mcpilco.models.gp.linear_gp import single_thread
 
@@ -151,9 +156,10 @@ class Candidate:
 
 
 def _score_variant(
-    model: DiagnosisModel, effect: Effect, output: int
+    model: DiagnosisModel, effect: Effect, output: int, judge: bool = False
 ) -> tuple[float, list[ParamEstimate], FloatArray | None]:
-    """``(Delta_v, estimates, contribution)`` of one complete variant on one output joint."""
+    """``(Delta_v, estimates, contribution)`` of one complete variant on one output joint;
+    ``judge``: mark the estimates the data cannot pin down (:mod:`.identifiability`)."""
     gp, theta = model.gps_[output], model.theta_[output]
     base = model.evidence_[output]
     e = effect.calibrate(model.ctx_)
@@ -178,7 +184,25 @@ def _score_variant(
     mean, cov = g.weights(th)
     sl = g.block_slices()[-1]
     contribution = cols @ mean[sl]
-    return ev - base, e.estimates(mean[sl], cov[sl, sl], model.ctx_, output), contribution
+    ests = e.estimates(mean[sl], cov[sl, sl], model.ctx_, output)
+    if judge:
+        names = weight_names([*model.block_effects(output), e], g.sizes)
+        ests = judge_estimates(e, ests, g, th, len(g.sizes) - 1, names, model.ctx_, output)
+    return ev - base, ests, contribution
+
+
+def _judged_estimates(model: DiagnosisModel, cand: Candidate) -> list[ParamEstimate]:
+    """``cand``'s estimates on the output joint that gains most, marked where the data cannot
+    pin them down (:mod:`.identifiability`)."""
+    if cand.effect.is_shift:
+        return cand.estimates
+    best: tuple[float, list[ParamEstimate]] | None = None
+    with single_thread():
+        for j in cand.outputs:
+            d, est, _ = _score_variant(model, cand.effect, j - 1, judge=True)
+            if math.isfinite(d) and (best is None or d > best[0]):
+                best = (d, est)
+    return cand.estimates if best is None else best[1]
 
 
 def score_effect(
@@ -404,17 +428,6 @@ def heldout_change_pct(
     return 100.0 * (e_after / e_before - 1.0)
 
 
-def _estimates_in(model: DiagnosisModel, effect: Effect, output: int) -> list[ParamEstimate]:
-    """Posterior estimates of ``effect``'s parameters in fitted ``model`` on ``output``."""
-    effs = model.block_effects(output)
-    k = next((i for i, e in enumerate(effs) if e.same_slot(effect)), None)
-    if k is None:
-        return []
-    sl = model.gps_[output].block_slices()[k]
-    mean, cov = model.gps_[output].weights(model.theta_[output])
-    return effs[k].estimates(mean[sl], cov[sl, sl], model.ctx_, output)
-
-
 def _group(cands: Sequence[Candidate], threshold: float) -> None:
     """Single-linkage groups by correlation of the fitted contributions on a shared joint."""
     parent = list(range(len(cands)))
@@ -587,6 +600,25 @@ class Diagnosis:
             f"{float(np.max(check.ratio)):.2f}x, limit {FLOOR_FACTOR:g}x)"
         )
 
+    def status(self, c: Candidate) -> str:
+        """The table's verdict on candidate ``c`` in a word or two (``"SIGNIFICANT"``,
+        ``"weak"``, ``"alternative to coulomb:2"``, ...)."""
+        if c.missing and c.alternative_to is not None:
+            return f"REPLACES {c.alternative_to}"
+        if c.missing:
+            return "SIGNIFICANT"
+        if c.significant:
+            return "in start span"
+        if c.wrong_sign:
+            return "wrong sign"
+        if c.alternative_to is not None:
+            return f"alternative to {c.alternative_to}"
+        if c.delta <= self.threshold:
+            return "weak"
+        if c.heldout_delta_pct is None:
+            return "untested"
+        return "no held-out gain"
+
     def table(self, top: int = 12) -> str:
         """The ranked table as fixed-width text."""
         head = (
@@ -596,22 +628,7 @@ class Diagnosis:
         lines = [head, "-" * len(head)]
         for i, c in enumerate(self.candidates[:top], 1):
             held = "" if c.heldout_delta_pct is None else f"{c.heldout_delta_pct:+.1f} %"
-            if c.missing and c.alternative_to is not None:
-                verdict = f"REPLACES {c.alternative_to}"
-            elif c.missing:
-                verdict = "SIGNIFICANT"
-            elif c.significant:
-                verdict = "in start span"
-            elif c.wrong_sign:
-                verdict = "wrong sign"
-            elif c.alternative_to is not None:
-                verdict = f"alternative to {c.alternative_to}"
-            elif c.delta <= self.threshold:
-                verdict = "weak"
-            elif c.heldout_delta_pct is None:
-                verdict = "untested"
-            else:
-                verdict = "no held-out gain"
+            verdict = self.status(c)
             lines.append(
                 f"{i:>2}  {c.effect.variant_label:<34} {c.joint_text:>5} {c.delta:>9.1f} "
                 f"{held:>15} {c.group:>3}  {c.estimate_text():<40} {verdict}"
@@ -698,6 +715,7 @@ def diagnose(
         refine_shape(model, c)
         if c.wrong_sign:
             continue
+        c.estimates = _judged_estimates(model, c)
         if base_rmse is None:
             base_rmse = heldout_rmse(model, held)
         if c.alternative_to is None:
@@ -706,7 +724,7 @@ def diagnose(
             new = model.replacing(c.alternative_to, c.effect)
             outs = [j - 1 for j in c.outputs]
             c.replace_delta = float(sum(new.evidence_[j] - model.evidence_[j] for j in outs))
-            c.estimates = _estimates_in(new, c.effect, outs[0]) or c.estimates
+            c.estimates = new.estimates(c.effect, outs[0]) or c.estimates
         tried[id(c)] = new
         rmse = heldout_rmse(new, held)
         c.heldout_delta_pct = heldout_change_pct(base_rmse, rmse, noise, np.array(c.outputs) - 1)

@@ -26,7 +26,9 @@ simulation error of the nominal, corrected and refined files on the held-out log
 next to their one-step torque error (:func:`~.sysid_refine.robot_file_step`; torque logs).
 
 Outputs under ``out``: ``compare_v<k>.png`` (measured vs predicted +-2 sigma),
-``residuals_v<k>.png``, ``waterfall.png``, ``diagnosis.rrd`` (Rerun), ``summary.json``.
+``residuals_v<k>.png``, ``waterfall.png``, ``diagnosis.rrd`` (Rerun), ``summary.json``, and
+``report.html`` (:class:`~.html_report.DiagnosisReport`: one self-contained file with the
+tables, the figures, the verdict and the residual's structure).
 """
 
 from __future__ import annotations
@@ -81,7 +83,7 @@ def run_diagnosis(
         per version), ``noise_floor`` (of the last version), ``rmse_over_floor`` (one row per
         version, each over its own floor), ``verdict`` (the last version's), ``diagnoses``,
         ``saved``, ``artefacts``, ``data_warnings``, ``robot_file`` (the corrected robot
-        file's record, or ``None``), ``seconds``.
+        file's record, or ``None``), ``seconds``, ``report`` (the path of ``report.html``).
 
     Raises:
         ValueError: bad input (no start model, unreadable or too short files, a joint count
@@ -101,6 +103,7 @@ def run_diagnosis(
         residual_report,
     )
     from mcpilco.models.diagnosis.data import MIN_FIT_ROWS, MIN_HELDOUT_ROWS, require_rows
+    from mcpilco.models.diagnosis.html_report import DiagnosisReport, weight_correlations
 
     t_start = time.perf_counter()
     if model is None and learned is None:
@@ -151,6 +154,8 @@ def run_diagnosis(
         return {"rows": rows, "mean": mean_te, "var": var_te}
 
     floors: dict[str, np.ndarray] = {}
+    reports: dict[str, Any] = {}  # version name -> its held-out ResidualReport
+    figures: list[tuple[str, Path]] = []  # (caption, PNG) for the HTML report
 
     def floor(m: DiagnosisModel) -> np.ndarray:
         if m.name not in floors:
@@ -161,6 +166,7 @@ def run_diagnosis(
         rep = residual_report(
             test, res["mean"], floor(m), start.joint_types, model_name=m.name, unit=unit
         )
+        reports[m.name] = rep
         log(f"\n== 2. {rep.text()}")
         if plots:
             from mcpilco.models.diagnosis.plots import plot_residuals, plot_time
@@ -174,6 +180,7 @@ def run_diagnosis(
                 title=m.describe(),
             )
             p2 = plot_residuals(rep, out / f"residuals_{m.name}.png")
+            figures.extend([(f"held-out, {m.describe()}", p1), (f"residuals of {m.name}", p2)])
             log(f"   plots: {p1}  {p2}")
 
     res = {model.name: compare(model)}
@@ -255,6 +262,10 @@ def run_diagnosis(
         )
     for k, p in artefacts.items():
         log(f"   {k}: {p}")
+    if "waterfall" in artefacts:
+        figures.append(
+            ("held-out RMSE per version over the noise floor", Path(artefacts["waterfall"]))
+        )
     if len(versions) > 1:
         last = versions[-1]
         where(last, res[last.name])
@@ -284,8 +295,65 @@ def run_diagnosis(
         "robot_file": robot_file,
         "seconds": time.perf_counter() - t_start,
     }
+    report = DiagnosisReport(
+        title=f"Model diagnosis: {versions[-1].start.describe()}",
+        verdict=final,
+        versions=summary["versions"],
+        heldout_rmse=held,
+        floors=np.array([floor(v) for v in versions]),
+        metrics=[row for v in versions for row in res[v.name]["rows"]],
+        diagnoses=diag_obj,
+        parameters=versions[-1].parameters(),
+        correlations=weight_correlations(versions[-1]),
+        alternatives=alternatives,
+        residuals=reports[versions[-1].name],
+        final_check=diag_obj[versions[-1].name].base,
+        figures=figures,
+        data={
+            "training files": train.names,
+            "held-out files": test.names,
+            "rows (training, held-out)": f"{train.n_samples}, {test.n_samples}",
+            "sample time": f"{train.sample_time:g} s",
+            "output": "motor current i [A]" if train.output == "i" else "joint torque tau",
+        },
+        warnings=data_warnings,
+        seconds=time.perf_counter() - t_start,
+        corrected=_corrected_parameters(robot_file),
+    )
+    summary["report"] = str(report.write(out / "report.html"))
     (out / "summary.json").write_text(json.dumps(summary, indent=1, default=float))
     for text in data_warnings:  # repeated where the report ends
         log(f"warning: {text}")
-    log(f"\nsummary: {out / 'summary.json'} ({summary['seconds']:.1f} s)")
+    log(
+        f"\nsummary: {out / 'summary.json'} ({summary['seconds']:.1f} s); "
+        f"report: {summary['report']}"
+    )
     return summary
+
+
+def _corrected_parameters(record: dict | None) -> dict | None:
+    """The report's corrected-parameter rows from :func:`~.sysid_refine.robot_file_step`'s
+    record: each written MJCF attribute with the file's value, the diagnosis value and its
+    95 % interval, the ``mujoco.sysid`` value where refined, and the free-run error of the
+    three files (None: no corrected file in this run)."""
+    if record is None or "skipped" in record:
+        return None
+    refined = {
+        (p["element"], p["attribute"]): p["value"]
+        for p in record.get("sysid", {}).get("parameters", [])
+    }
+    rows: dict = {}
+    for c in record["written"]:
+        rows[f"{c['element']} {c['attribute']}"] = {
+            "file": c["before"],
+            "diagnosis": c["after"],
+            "ci95": c["ci95"],
+            "mujoco.sysid": refined.get((c["element"], c["attribute"]), "-"),
+            "effect": c["effect"],
+        }
+    for name, rmse in record.get("free_run", {}).items():
+        if isinstance(rmse, list):
+            rows[f"free-run q RMSE, {name} file [rad]"] = {
+                "diagnosis": ", ".join(f"{x:.3g}" for x in rmse)
+            }
+    return rows
