@@ -2,6 +2,8 @@
 
 The loop (:func:`run_diagnosis` runs it on files; console script ``mcpilco-diagnose``):
 
+0. units: motor currents put into torque units with estimated or given torque constants
+   (:func:`currents_to_torque`);
 1. compare: :func:`fit_metrics` (nMSE, RMSE, NRMSE fit %), :func:`~.plots.plot_time`;
 2. where it fails: :func:`residual_report` (binned residuals, velocity reversals,
    autocorrelation, worst windows and regions in words) against the noise floor
@@ -62,6 +64,12 @@ from mcpilco.models.diagnosis.start_models import (
     NominalStart,
     RBFStart,
 )
+from mcpilco.models.diagnosis.units import (
+    TorqueConstants,
+    currents_to_torque,
+    estimate_torque_constants,
+    given_torque_constants,
+)
 from mcpilco.models.diagnosis.workflow import run_diagnosis
 from mcpilco.models.gp.linear_gp import JointGP
 
@@ -88,15 +96,19 @@ __all__ = [
     "ResidualReport",
     "Spring",
     "StribeckFriction",
+    "TorqueConstants",
     "TorqueOffset",
     "Trajectories",
     "ViscousFriction",
     "as_trajectories",
     "auto_improve",
+    "currents_to_torque",
     "default_library",
     "diagnose",
+    "estimate_torque_constants",
     "fit_metrics",
     "floor_check",
+    "given_torque_constants",
     "heldout_floor",
     "heldout_rmse",
     "input_noise",

@@ -13,6 +13,12 @@ reported as its alternative and only ever put in its place
 (:func:`~.search.next_version`). Every version is saved as ``<out>/models/model_v<k>.json``
 (never overwritten).
 
+Motor-current files (columns ``i1..in``) are put into torque units first, ``y = k_t i``: with
+the given ``torque_constants``, else with constants estimated per joint on the training files
+against the robot file (:mod:`~.units`; a joint the data cannot pin down stops the run with
+its name); ``k_t`` and its interval are reported and its uncertainty widens the noise floor.
+A learned start without a robot file has no torque units, so its loop stays in amperes.
+
 Every held-out error is read against the noise floor of :func:`~.search.heldout_floor`
 (measurement noise plus the noise that estimated ``qd``/``qdd`` carry into the prediction);
 the final verdict (:meth:`~.search.Diagnosis.verdict` of the last version) says "no
@@ -45,6 +51,7 @@ def run_diagnosis(
     threshold: float = 5.0,
     max_points: int = 600,
     gip_iters: int = 100,
+    torque_constants: Sequence[float] | None = None,
     out: str | Path = "results/diagnosis_run",
     plots: bool = True,
     rerun: bool = True,
@@ -64,6 +71,8 @@ def run_diagnosis(
         threshold: log-evidence threshold of a significant effect [nats].
         max_points: GP rows of a learned start.
         gip_iters: Adam iterations of a learned start's fit.
+        torque_constants: joint-side torque constants ``k_t`` [N m/A or N/A], one per joint,
+            for current files (default: estimated, :mod:`~.units`).
         out: output folder (created).
         plots, rerun: write the PNG figures / the Rerun recording.
         log: receives the report, one block of text at a time.
@@ -72,11 +81,14 @@ def run_diagnosis(
         The summary written to ``out/summary.json``: ``versions``, ``heldout_rmse`` (one row
         per version), ``noise_floor`` (of the last version), ``rmse_over_floor`` (one row per
         version, each over its own floor), ``verdict`` (the last version's), ``diagnoses``,
-        ``saved``, ``artefacts``, ``data_warnings``, ``seconds``.
+        ``saved``, ``artefacts``, ``data_warnings``, ``torque_constants`` (current files
+        in torque units: ``k_t`` per joint with its 95% interval; else ``None``),
+        ``seconds``.
 
     Raises:
         ValueError: bad input (no start model, unreadable or too short files, a joint count
-            that differs from the model's, ``out`` a file), with a message naming it.
+            that differs from the model's, ``out`` a file, bad torque constants or ones the
+            data cannot pin down), with a message naming it.
     """
     from mcpilco.models.diagnosis import (
         LEARNED_STARTS,
@@ -92,6 +104,7 @@ def run_diagnosis(
         residual_report,
     )
     from mcpilco.models.diagnosis.data import MIN_FIT_ROWS, MIN_HELDOUT_ROWS, require_rows
+    from mcpilco.models.diagnosis.units import currents_to_torque
 
     t_start = time.perf_counter()
     if model is None and learned is None:
@@ -122,6 +135,11 @@ def run_diagnosis(
     data_warnings = list(dict.fromkeys(train.warnings + test.warnings))
     for text in data_warnings:
         log(f"warning: {text}")
+    train, test, constants = currents_to_torque(train, test, start, torque_constants)
+    if constants is not None:
+        log(f"\n== 0. units: {constants.text()}")
+    elif train.output == "i":
+        log("\n== 0. units: currents without torque constants; the loop works in A")
     out = Path(out)
     if out.exists() and not out.is_dir():
         raise ValueError(f"--out {out} is a file; give a folder")
@@ -266,6 +284,7 @@ def run_diagnosis(
         "saved": saved,
         "artefacts": artefacts,
         "data_warnings": data_warnings,
+        "torque_constants": None if constants is None else constants.to_dict(),
         "seconds": time.perf_counter() - t_start,
     }
     (out / "summary.json").write_text(json.dumps(summary, indent=1, default=float))

@@ -1,0 +1,406 @@
+"""Motor-current logs against a model in torque units: the per-joint torque constants.
+
+A drive that logs motor currents ``i_j`` [A] rather than joint torques gives the torque as
+``tau_j = k_j i_j`` with a joint-side torque constant ``k_j`` (the motor's constant times the
+gear ratio, ``K_tau K_r``; negative for a motor mounted reversed) that the robot file does not
+hold. Read in amperes against a model in N m, every joint's residual
+``i_j - tau_hat_j = (1 / k_j - 1) tau_j`` is a scaled copy of its torque (gravity, inertia),
+which the candidate library would name as springs, offsets, cogging or a payload. So, before
+any effect is scored, the constants are estimated (or taken from the user) and the loop works
+on ``k_j i_j`` in torque units.
+
+Estimation (:func:`estimate_torque_constants`, on the training rows)
+    ``k_j i_j = tau_hat_j(q, qd, qdd) + F_v qd_j + F_c tanh(qd_j / eps) + tau_0`` with
+    ``tau_hat`` the model's torque and a small baseline that a real joint always has
+    (viscous and Coulomb friction, an offset; ``eps`` = :data:`BASELINE_EPS`, the forms of
+    :class:`~.effects.ViscousFriction`, :class:`~.effects.CoulombFriction` and
+    :class:`~.effects.TorqueOffset`). Divided by ``k_j`` it is linear in
+    ``beta = (1 / k_j, F_v / k_j, F_c / k_j, tau_0 / k_j)``:
+
+    .. math::
+
+        i_j = X \\beta + e_j, \\qquad X = [\\hat\\tau_j, \\dot q_j,
+        \\tanh(\\dot q_j / \\epsilon), 1],
+
+    with the measured current as the response, so that the current's own noise biases
+    nothing. The model torque ``tau_hat_j`` is computed from estimated ``qd``/``qdd`` and
+    carries their noise ``u`` (variance ``sigma_in,j^2``, :func:`~.analysis.input_noise`);
+    plain least squares would shrink ``1 / k_j`` by ``1 - sigma_in^2 / var(tau_hat_j)``, which
+    is not small on a joint with little torque. So the normal equations are corrected for it
+    (errors in variables with a known noise variance):
+
+    .. math::
+
+        \\hat\beta = (X^T X - N \\Sigma_u)^{-1} X^T i_j, \\qquad
+        \\Sigma_u = \\mathrm{diag}(\\sigma_{in,j}^2, 0, 0, 0)
+
+    (the noise of the ``qd`` columns is neglected: it barely moves the friction terms).
+    Covariance: with ``A = X^T X - N Sigma_u`` and the per-row scores
+    ``psi_t = x_t e_t + Sigma_u beta`` (mean zero), the Newey-West sandwich
+    ``A^{-1} S A^{-1}``, ``S = sum_{|l| <= L} (1 - |l| / (L + 1)) sum_t psi_t psi_{t-l}^T``
+    inside each file, with ``L`` the larger of ``floor(4 (N / 100)^{2/9})`` and the derivative
+    filter's window (the residual is not white: filtered input noise, unmodelled effects); if
+    the white-noise posterior ``s^2 A^{-1} X^T X A^{-1}`` gives ``1 / k_j`` a larger variance,
+    that one. Then ``k_j = 1 / beta_0`` with the delta-method standard deviation
+    ``sd(beta_0) / beta_0^2``, and the baseline ``F = beta_m / beta_0`` the same way
+    (reported, not added: the loop scores friction itself).
+Identifiability
+    A joint whose 95% interval of ``k_j`` is wider than :data:`MAX_RELATIVE_CI` of ``|k_j|``
+    (no torque excitation beyond friction and offset: a joint at rest, a current that carries
+    only noise), or whose corrected normal matrix ``A`` is not positive definite (the model
+    torque is a combination of the baseline, or drowned in its own noise), raises
+    ``ValueError`` naming the joint: the scale is not guessed.
+Noise floor
+    A perfect model in torque units still misses ``y - tau = (k_hat - k) i`` on the data, of
+    expected square ``sd(k)^2 mean(i^2)`` per joint; :func:`~.analysis.noise_floor` adds it
+    (:meth:`TorqueConstants.output_variance`), so an uncertain constant widens the floor
+    rather than showing up as an effect.
+Given constants (:func:`given_torque_constants`)
+    used as they are, with zero uncertainty.
+
+The effects found afterwards are fitted on ``k_hat i``: their parameters are in torque units,
+and their intervals do not include the relative uncertainty of ``k_t`` (reported beside
+them, ``ci95 / |k_t|``), which scales every torque of that joint alike.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from mcpilco.models.diagnosis.analysis import input_noise
+from mcpilco.models.diagnosis.data import MIN_FIT_ROWS, Trajectories, require_rows
+from mcpilco.models.diagnosis.effects import (
+    CoulombFriction,
+    FeatureContext,
+    ParamEstimate,
+    TorqueOffset,
+    ViscousFriction,
+)
+
+FloatArray = NDArray[np.float64]
+
+__all__ = [
+    "BASELINE_EPS",
+    "MAX_RELATIVE_CI",
+    "TorqueConstants",
+    "currents_to_torque",
+    "estimate_torque_constants",
+    "given_torque_constants",
+]
+
+BASELINE_EPS = 0.01
+"""Smoothing velocity ``eps`` [rad/s or m/s] of the baseline's Coulomb term ``tanh(qd / eps)``."""
+MAX_RELATIVE_CI = 0.25
+"""Widest 95% interval of an estimated ``k_t``, relative to ``|k_t|``, that counts as identified
+(narrower ones are used; the noise floor carries their uncertainty)."""
+
+
+@dataclass(frozen=True)
+class TorqueConstants:
+    """Joint-side torque constants ``k_t`` with their 95% intervals (module docstring).
+
+    Attributes:
+        value: ``(n,)`` ``k_t`` [N m/A or N/A].
+        ci95: ``(n,)`` half-width of the 95% interval (0 for given constants).
+        source: ``"estimated"`` or ``"given"``.
+        joint_types: e.g. ``"RRPR"`` (units: ``P`` joints in N/A).
+        baseline: per joint, the baseline fitted with ``k_t`` (``F_v``, ``F_c``, ``tau_0`` in
+            torque units), empty for given constants.
+        rows: training rows of the estimate (0 for given constants).
+    """
+
+    value: FloatArray
+    ci95: FloatArray
+    source: str
+    joint_types: str
+    baseline: tuple[tuple[ParamEstimate, ...], ...] = ()
+    rows: int = 0
+
+    @property
+    def n_joints(self) -> int:
+        return int(self.value.size)
+
+    @property
+    def std(self) -> FloatArray:
+        """``(n,)`` standard deviation of ``k_t``."""
+        return self.ci95 / 1.96
+
+    def unit(self, joint: int) -> str:
+        """Unit of ``k_t`` of joint ``joint`` (1-based)."""
+        return "N/A" if self.joint_types[joint - 1] == "P" else "N·m/A"
+
+    def to_torque(self, traj: Trajectories) -> Trajectories:
+        """``traj`` with ``y = k_t i`` in torque units (``output = "tau"``), remembering the
+        constants (:attr:`Trajectories.torque_constants`).
+
+        Raises:
+            ValueError: ``traj`` holds torques already, or another joint count.
+        """
+        if traj.output != "i":
+            raise ValueError(
+                "torque constants apply to motor-current logs (columns i1..in); these files "
+                f"give {traj.output!r}: leave torque_constants out"
+            )
+        if traj.n_joints != self.n_joints:
+            raise ValueError(
+                f"torque_constants has {self.n_joints} values but the data has "
+                f"{traj.n_joints} joints"
+            )
+        return dataclasses.replace(traj, y=traj.y * self.value, output="tau", torque_constants=self)
+
+    def output_variance(self, y: FloatArray) -> FloatArray:
+        """``(n,)`` ``sd(k)^2 mean(i^2)`` with ``i = y / k``: the mean square that the
+        uncertainty of ``k_t`` puts between a perfect model and ``y = k_hat i`` (torque units)."""
+        current = np.asarray(y, dtype=np.float64) / self.value
+        return self.std**2 * np.mean(current**2, axis=0)
+
+    def text(self) -> str:
+        """One line per joint: ``k_t`` with its interval (and the baseline fitted with it)."""
+        how = (
+            f"estimated with a friction + offset baseline on {self.rows} training rows "
+            "(95% intervals)"
+            if self.source == "estimated"
+            else "given (used as they are)"
+        )
+        lines = [f"torque constants k_t, {how}:"]
+        for j in range(self.n_joints):
+            line = f"   joint {j + 1}: k_t = {self.value[j]:.5g}"
+            if self.source == "estimated":
+                line += f" ± {self.ci95[j]:.2g}"
+            line += f" {self.unit(j + 1)}"
+            if self.baseline:
+                line += "   (with " + "; ".join(p.text() for p in self.baseline[j]) + ")"
+            lines.append(line)
+        return "\n".join(lines)
+
+    def to_dict(self) -> dict[str, Any]:
+        return {
+            "source": self.source,
+            "rows": self.rows,
+            "joints": [
+                {
+                    "joint": j + 1,
+                    "k_t": float(self.value[j]),
+                    "ci95": float(self.ci95[j]),
+                    "unit": self.unit(j + 1),
+                    "baseline": [p.__dict__ for p in self.baseline[j]] if self.baseline else [],
+                }
+                for j in range(self.n_joints)
+            ],
+        }
+
+
+def given_torque_constants(values: ArrayLike, joint_types: str) -> TorqueConstants:
+    """User-given ``k_t``: one finite, nonzero value per joint of ``joint_types``.
+
+    Raises:
+        ValueError: a wrong count, or a zero or non-finite value (the joint named).
+    """
+    n_joints = len(joint_types)
+    arr = np.atleast_1d(np.asarray(values, dtype=np.float64))
+    if arr.ndim != 1 or arr.size != n_joints:
+        raise ValueError(
+            f"torque_constants needs {n_joints} values (one per joint), got {arr.size}: "
+            f"{np.asarray(values).tolist()}"
+        )
+    bad = np.flatnonzero(~np.isfinite(arr) | (arr == 0))
+    if bad.size:
+        j = int(bad[0])
+        raise ValueError(
+            f"torque_constants: joint {j + 1} has k_t = {arr[j]}; a torque constant must be "
+            "finite and nonzero (negative for a motor mounted reversed)"
+        )
+    return TorqueConstants(arr, np.zeros(n_joints), "given", joint_types)
+
+
+def _fit_rows(traj: Trajectories) -> tuple[NDArray[np.int64], list[tuple[int, int]], int]:
+    """Rows of the estimate (each file without the derivative filter's edge rows, where the
+    estimate is less accurate), their per-file ranges in the stacked rows, and the longest
+    filter window (0 when nothing was estimated)."""
+    rows, ranges, window = [], [], 0
+    for s, (a, b) in enumerate(traj.segments):
+        est = traj.estimated[s] if s < len(traj.estimated) else None
+        m = 0 if est is None else est.filter.window // 2
+        window = max(window, 0 if est is None else est.filter.window)
+        r = np.arange(a + m, b - m)
+        start = sum(len(x) for x in rows)
+        rows.append(r)
+        ranges.append((start, start + r.size))
+    return np.concatenate(rows), ranges, window
+
+
+def _sandwich(u: FloatArray, ranges: Sequence[tuple[int, int]], lags: int) -> FloatArray:
+    """Newey-West ``S = sum_{|l| <= L} (1 - |l| / (L + 1)) sum_t u_t u_{t-l}^T`` of the
+    per-row scores ``u (N, p)``, lags taken inside each range only."""
+    meat = u.T @ u
+    for lag in range(1, lags + 1):
+        g = np.zeros_like(meat)
+        for a, b in ranges:
+            if b - a > lag:
+                g += u[a + lag : b].T @ u[a : b - lag]
+        meat += (1.0 - lag / (lags + 1.0)) * (g + g.T)
+    return meat
+
+
+def _corrected_least_squares(
+    x: FloatArray,
+    y: FloatArray,
+    noise_var: float,
+    ranges: Sequence[tuple[int, int]],
+    lags: int,
+) -> tuple[FloatArray | None, FloatArray | None]:
+    """``(beta, cov)`` of ``y = x beta`` with white-noise variance ``noise_var`` on the first
+    column of ``x`` removed from the normal equations (module docstring); ``(None, None)``
+    when the corrected normal matrix is not positive definite (``beta`` not identifiable)."""
+    n_rows, p = x.shape
+    scale = np.sqrt(np.mean(x**2, axis=0))
+    scale[scale == 0] = 1.0
+    xs = x / scale
+    sigma = np.zeros((p, p))
+    sigma[0, 0] = noise_var / scale[0] ** 2
+    normal = xs.T @ xs - n_rows * sigma
+    eig = np.linalg.eigvalsh(normal)
+    if not eig[0] > 1e-10 * eig[-1]:
+        return None, None
+    bread = np.linalg.inv(normal)
+    beta = bread @ (xs.T @ y)
+    e = y - xs @ beta
+    dof = max(n_rows - p, 1)
+    posterior = (bread @ (xs.T @ xs) @ bread) * float(e @ e) / dof
+    scores = xs * e[:, None] + (sigma @ beta)[None, :]
+    sandwich = bread @ _sandwich(scores, ranges, lags) @ bread * (n_rows / dof)
+    cov = sandwich if sandwich[0, 0] >= posterior[0, 0] else posterior
+    return beta / scale, cov / np.outer(scale, scale)
+
+
+def _ratio(num: float, den: float, cov: FloatArray, i: int, k: int) -> tuple[float, float]:
+    """``num / den`` and its delta-method standard deviation (``cov`` of ``(beta_i, beta_k)``
+    with ``num = beta_i``, ``den = beta_k``)."""
+    g = np.array([1.0 / den, -num / den**2])
+    sub = cov[np.ix_([i, k], [i, k])]
+    return num / den, math.sqrt(max(float(g @ sub @ g), 0.0))
+
+
+def estimate_torque_constants(
+    traj: Trajectories,
+    torque: Callable[[FloatArray, FloatArray, FloatArray], FloatArray],
+    joint_types: str,
+) -> TorqueConstants:
+    """Estimate ``k_t`` per joint from a current log and the model torque (module docstring).
+
+    Args:
+        traj: training trajectories with ``output == "i"`` (currents in A).
+        torque: ``tau_hat(q, qd, qdd) -> (N, n)``, the model's torque (N m or N).
+        joint_types: e.g. ``"RRPR"``.
+
+    Raises:
+        ValueError: ``traj`` holds torques, too few rows, or a joint whose ``k_t`` the data
+            cannot pin down (the joint and its interval named).
+    """
+    if traj.output != "i":
+        raise ValueError(
+            f"torque constants are estimated from motor currents (i1..in); the data give "
+            f"{traj.output!r}"
+        )
+    require_rows(traj, MIN_FIT_ROWS, "estimating torque constants")
+    rows, ranges, window = _fit_rows(traj)
+    q, qd, qdd = traj.q[rows], traj.qd[rows], traj.qdd[rows]
+    tau_hat = np.asarray(torque(q, qd, qdd), dtype=np.float64)
+    ctx = FeatureContext(q=q, qd=qd, qdd=qdd, base=tau_hat, joint_types=joint_types)
+    sigma_in = input_noise(traj, lambda tr: torque(tr.q, tr.qd, tr.qdd)).std
+    n_rows = rows.size
+    lags = max(int(4.0 * (n_rows / 100.0) ** (2.0 / 9.0)), window)
+    value, ci95, baseline = [], [], []
+    names = ("F_v", "F_c", "tau_0")
+    for j in range(traj.n_joints):
+        joint = j + 1
+        x = np.concatenate(
+            [
+                tau_hat[:, [j]],
+                ViscousFriction(joint).columns(ctx, j),
+                CoulombFriction(joint, eps=BASELINE_EPS).columns(ctx, j),
+                TorqueOffset(joint).columns(ctx, j),
+            ],
+            axis=1,
+        )
+        beta, cov = _corrected_least_squares(x, traj.y[rows, j], sigma_in[j] ** 2, ranges, lags)
+        unit = "N/A" if joint_types[j] == "P" else "N·m/A"
+        if beta is None:
+            raise ValueError(
+                f"joint {joint}: the torque constant is not identifiable: in the training "
+                "data the model torque is a combination of friction and offset, or is "
+                "drowned in the noise of the estimated qd/qdd (a joint at rest?); excite the "
+                "joint or give the constants (torque_constants=, --torque-constants)"
+            )
+        inv_k, sd_inv = float(beta[0]), float(math.sqrt(cov[0, 0]))
+        k = 1.0 / inv_k if inv_k != 0 else math.inf
+        sd_k = sd_inv * k**2
+        if not (math.isfinite(k) and 1.96 * sd_inv < MAX_RELATIVE_CI * abs(inv_k)):
+            raise ValueError(
+                f"joint {joint}: the torque constant is not identifiable from the training "
+                f"data (k_t = {k:.3g} ± {1.96 * sd_k:.2g} {unit}, a 95% interval wider than "
+                f"{MAX_RELATIVE_CI:.0%} of k_t): its current shows too little of the model "
+                "torque beyond friction and offset; excite the joint more or give the "
+                "constants (torque_constants=, --torque-constants)"
+            )
+        force = "N" if joint_types[j] == "P" else "N·m"
+        units = (f"{force}·s/{'m' if joint_types[j] == 'P' else 'rad'}", force, force)
+        params = []
+        for m, (name, u) in enumerate(zip(names, units, strict=True), start=1):
+            f, sd_f = _ratio(float(beta[m]), inv_k, cov, m, 0)
+            params.append(ParamEstimate(name, f, 1.96 * sd_f, u))
+        value.append(k)
+        ci95.append(1.96 * sd_k)
+        baseline.append(tuple(params))
+    return TorqueConstants(
+        np.array(value), np.array(ci95), "estimated", joint_types, tuple(baseline), n_rows
+    )
+
+
+def currents_to_torque(
+    train: Trajectories,
+    test: Trajectories,
+    start: Any,
+    torque_constants: ArrayLike | None = None,
+) -> tuple[Trajectories, Trajectories, TorqueConstants | None]:
+    """Put current logs into torque units before the loop scores effects.
+
+    Torque files pass unchanged. Current files are multiplied by ``torque_constants`` when
+    given (:func:`given_torque_constants`), else by the constants estimated on ``train``
+    against the start model's robot file (:func:`estimate_torque_constants` with its
+    rigid-body torque); a learned start without a robot file has no torque units, so the
+    loop then stays in amperes.
+
+    Args:
+        train, test: training and held-out trajectories (same output group).
+        start: the start model (its ``robot``, ``n_joints`` and ``joint_types`` are read).
+        torque_constants: user-given ``k_t`` per joint [N m/A or N/A], or ``None``.
+
+    Returns:
+        ``(train, test, constants)``; ``constants`` is ``None`` when nothing was converted.
+
+    Raises:
+        ValueError: constants given for torque files, bad constants, or a joint whose
+            constant the data cannot pin down.
+    """
+    if train.output != "i":
+        if torque_constants is not None:
+            raise ValueError(
+                "torque_constants apply to motor-current logs (columns i1..in); the files "
+                "give torques (tau1..): leave them out"
+            )
+        return train, test, None
+    if torque_constants is not None:
+        constants = given_torque_constants(torque_constants, start.joint_types)
+    elif start.robot is None:
+        return train, test, None
+    else:
+        constants = estimate_torque_constants(train, start.robot.rnea, start.joint_types)
+    return constants.to_torque(train), constants.to_torque(test), constants
