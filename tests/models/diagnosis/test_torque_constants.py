@@ -155,16 +155,20 @@ def test_a_current_without_torque_is_not_identifiable(start, no_effect):
         estimate_torque_constants(train, start.robot.rnea, "RRR")
 
 
-def test_diagnose_command_takes_the_constants(arm, no_effect, tmp_path, command):
+def test_diagnose_command_estimates_or_takes_the_constants(arm, no_effect, tmp_path, command):
+    """Without ``--torque-constants`` the command estimates them (reported in the summary,
+    covering the truth) and ends at the floor; bad given constants exit 2."""
     xml = tmp_path / "robot.xml"
     xml.write_text(arm_to_xml(arm, friction=False))
     files = [name for t in no_effect for name in t.names]
     argv = ["--model", str(xml), "--train", files[0], "--test", files[1]]
-    argv += ["--no-plots", "--no-rerun", "--out", str(tmp_path / "run"), "--torque-constants"]
-    assert command("mcpilco-diagnose", [*argv, *map(str, K_T)]) == 0
+    argv += ["--no-plots", "--no-rerun", "--out", str(tmp_path / "run")]
+    assert command("mcpilco-diagnose", argv) == 0
     summary = json.loads((tmp_path / "run" / "summary.json").read_text())
-    given = summary["torque_constants"]
-    assert given["source"] == "given"
-    assert [j["k_t"] for j in given["joints"]] == K_T.tolist()
+    found = summary["torque_constants"]
+    assert found["source"] == "estimated" and found["rows"] > 0
+    for joint, k_t in zip(found["joints"], K_T, strict=True):
+        assert abs(joint["k_t"] - k_t) <= joint["ci95"] and joint["unit"] == "N·m/A", joint
     assert "no significant missing effect" in summary["verdict"]
-    assert command("mcpilco-diagnose", [*argv, "0.1", "0", "1.5"]) == 2
+    assert command("mcpilco-diagnose", [*argv, "--torque-constants", "0.1", "0", "1.5"]) == 2
+    assert command("mcpilco-diagnose", [*argv, "--torque-constants", "0.1", "-2"]) == 2
