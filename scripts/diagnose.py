@@ -16,8 +16,9 @@ effect (repeatable; keys: viscous, coulomb, stribeck, offset, spring, cogging, p
 armature, deadzone, delay); ``--auto N`` adds up to N significant effects, best first
 (missing effects before refinements inside a learned start's span).
 Files of motor currents (``i1..in`` instead of ``tau1..taun``) are put into torque units
-with ``--torque-constants K1 K2 ...`` (N m/A per joint, negative for a reversed motor), or,
-without it, with constants estimated per joint against ``--model``.
+with ``--torque-constants K1 K2 ...`` (N m/A per joint, negative for a reversed motor;
+``nan`` for a joint whose constant is to be estimated), or, without it, with constants
+estimated per joint against ``--model``.
 Every version is saved as ``<out>/models/model_v<k>.json`` (never overwritten).
 
 Outputs under ``--out``: ``compare_v<k>.png`` (measured vs predicted ±2σ),
@@ -60,7 +61,7 @@ def build_parser() -> argparse.ArgumentParser:
         type=float,
         default=None,
         metavar="K",
-        help="k_t per joint [N m/A] for current files (default: estimated)",
+        help="k_t per joint [N m/A] for current files; nan: estimate it (default: all)",
     )
     p.add_argument("--out", default="results/diagnosis_run")
     p.add_argument("--no-plots", action="store_true")

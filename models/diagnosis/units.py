@@ -56,7 +56,8 @@ Noise floor
     (:meth:`TorqueConstants.output_variance`), so an uncertain constant widens the floor
     rather than showing up as an effect.
 Given constants (:func:`given_torque_constants`)
-    used as they are, with zero uncertainty.
+    used as they are, with zero uncertainty; the user may give some joints' constants and
+    have the others estimated (a wrist whose inertial torque is too small to pin it down).
 
 The effects found afterwards are fitted on ``k_hat i``: their parameters are in torque units,
 and their intervals do not include the relative uncertainty of ``k_t`` (reported beside
@@ -109,16 +110,16 @@ class TorqueConstants:
     Attributes:
         value: ``(n,)`` ``k_t`` [N m/A or N/A].
         ci95: ``(n,)`` half-width of the 95% interval (0 for given constants).
-        source: ``"estimated"`` or ``"given"``.
+        given: ``(n,)`` which joints' constants the user gave (the others were estimated).
         joint_types: e.g. ``"RRPR"`` (units: ``P`` joints in N/A).
         baseline: per joint, the baseline fitted with ``k_t`` (``F_v``, ``F_c``, ``tau_0`` in
-            torque units), empty for given constants.
-        rows: training rows of the estimate (0 for given constants).
+            torque units), empty for a given constant.
+        rows: training rows of the estimate (0 when every constant was given).
     """
 
     value: FloatArray
     ci95: FloatArray
-    source: str
+    given: NDArray[np.bool_]
     joint_types: str
     baseline: tuple[tuple[ParamEstimate, ...], ...] = ()
     rows: int = 0
@@ -126,6 +127,13 @@ class TorqueConstants:
     @property
     def n_joints(self) -> int:
         return int(self.value.size)
+
+    @property
+    def source(self) -> str:
+        """``"given"``, ``"estimated"`` or ``"given and estimated"``."""
+        if self.given.all():
+            return "given"
+        return "given and estimated" if self.given.any() else "estimated"
 
     @property
     def std(self) -> FloatArray:
@@ -162,22 +170,19 @@ class TorqueConstants:
         return self.std**2 * np.mean(current**2, axis=0)
 
     def text(self) -> str:
-        """One line per joint: ``k_t`` with its interval (and the baseline fitted with it)."""
-        how = (
-            f"estimated with a friction + offset baseline on {self.rows} training rows "
-            "(95% intervals)"
-            if self.source == "estimated"
-            else "given (used as they are)"
-        )
-        lines = [f"torque constants k_t, {how}:"]
+        """One line per joint: ``k_t`` given, or estimated with its interval (and the
+        baseline fitted with it)."""
+        lines = ["torque constants k_t (tau = k_t i):"]
         for j in range(self.n_joints):
-            line = f"   joint {j + 1}: k_t = {self.value[j]:.5g}"
-            if self.source == "estimated":
-                line += f" ± {self.ci95[j]:.2g}"
-            line += f" {self.unit(j + 1)}"
-            if self.baseline:
-                line += "   (with " + "; ".join(p.text() for p in self.baseline[j]) + ")"
-            lines.append(line)
+            k, ci, unit = self.value[j], self.ci95[j], self.unit(j + 1)
+            if self.given[j]:
+                lines.append(f"   joint {j + 1}: k_t = {k:.5g} {unit}   given, used as it is")
+                continue
+            fitted = "; ".join(p.text() for p in self.baseline[j])
+            lines.append(
+                f"   joint {j + 1}: k_t = {k:.5g} ± {ci:.2g} {unit} ({100 * ci / abs(k):.2g} %)"
+                f"   estimated on {self.rows} training rows with {fitted}"
+            )
         return "\n".join(lines)
 
     def to_dict(self) -> dict[str, Any]:
@@ -190,34 +195,55 @@ class TorqueConstants:
                     "k_t": float(self.value[j]),
                     "ci95": float(self.ci95[j]),
                     "unit": self.unit(j + 1),
-                    "baseline": [p.__dict__ for p in self.baseline[j]] if self.baseline else [],
+                    "given": bool(self.given[j]),
+                    "baseline": [p.__dict__ for p in self.baseline[j]],
                 }
                 for j in range(self.n_joints)
             ],
         }
 
 
-def given_torque_constants(values: ArrayLike, joint_types: str) -> TorqueConstants:
-    """User-given ``k_t``: one finite, nonzero value per joint of ``joint_types``.
-
-    Raises:
-        ValueError: a wrong count, or a zero or non-finite value (the joint named).
-    """
+def _given_values(values: Any, joint_types: str) -> FloatArray:
+    """``(n,)`` user-given ``k_t``, ``nan`` where an entry is ``None`` or ``nan`` (to be
+    estimated); ValueError for a wrong count or a zero or infinite value (the joint named)."""
     n_joints = len(joint_types)
-    arr = np.atleast_1d(np.asarray(values, dtype=np.float64))
-    if arr.ndim != 1 or arr.size != n_joints:
+    items = list(np.atleast_1d(np.asarray(values, dtype=object)).reshape(-1))
+    if np.ndim(values) > 1 or len(items) != n_joints:
         raise ValueError(
-            f"torque_constants needs {n_joints} values (one per joint), got {arr.size}: "
-            f"{np.asarray(values).tolist()}"
+            f"torque_constants needs {n_joints} values (one per joint), got {len(items)}: "
+            f"{values!r}"
         )
-    bad = np.flatnonzero(~np.isfinite(arr) | (arr == 0))
+    try:
+        arr = np.array([np.nan if v is None else float(v) for v in items])
+    except (TypeError, ValueError) as err:
+        raise ValueError(f"torque_constants must be numbers, got {values!r}") from err
+    bad = np.flatnonzero(np.isinf(arr) | (arr == 0))
     if bad.size:
         j = int(bad[0])
         raise ValueError(
             f"torque_constants: joint {j + 1} has k_t = {arr[j]}; a torque constant must be "
-            "finite and nonzero (negative for a motor mounted reversed)"
+            "finite and nonzero (negative for a motor mounted reversed; None or nan: "
+            "estimate it)"
         )
-    return TorqueConstants(arr, np.zeros(n_joints), "given", joint_types)
+    return arr
+
+
+def given_torque_constants(values: Any, joint_types: str) -> TorqueConstants:
+    """User-given ``k_t``: one finite, nonzero value per joint of ``joint_types``, used as
+    they are.
+
+    Raises:
+        ValueError: a wrong count, or a zero, infinite or missing value (the joint named).
+    """
+    arr = _given_values(values, joint_types)
+    missing = np.flatnonzero(np.isnan(arr))
+    if missing.size:
+        raise ValueError(
+            f"torque_constants: joint {missing[0] + 1} has no value; give every joint's "
+            "constant, or estimate the missing ones (currents_to_torque)"
+        )
+    n = arr.size
+    return TorqueConstants(arr, np.zeros(n), np.ones(n, bool), joint_types, ((),) * n)
 
 
 def _fit_rows(traj: Trajectories) -> tuple[NDArray[np.int64], list[tuple[int, int]], int]:
@@ -292,6 +318,7 @@ def estimate_torque_constants(
     traj: Trajectories,
     torque: Callable[[FloatArray, FloatArray, FloatArray], FloatArray],
     joint_types: str,
+    given: Any = None,
 ) -> TorqueConstants:
     """Estimate ``k_t`` per joint from a current log and the model torque (module docstring).
 
@@ -299,10 +326,12 @@ def estimate_torque_constants(
         traj: training trajectories with ``output == "i"`` (currents in A).
         torque: ``tau_hat(q, qd, qdd) -> (N, n)``, the model's torque (N m or N).
         joint_types: e.g. ``"RRPR"``.
+        given: optional per-joint ``k_t`` the user knows, ``None``/``nan`` for the joints to
+            estimate (e.g. a wrist whose torque is too small to pin its constant down).
 
     Raises:
-        ValueError: ``traj`` holds torques, too few rows, or a joint whose ``k_t`` the data
-            cannot pin down (the joint and its interval named).
+        ValueError: ``traj`` holds torques, too few rows, bad given values, or joints whose
+            ``k_t`` the data cannot pin down (every such joint named with its interval).
     """
     if traj.output != "i":
         raise ValueError(
@@ -317,10 +346,16 @@ def estimate_torque_constants(
     sigma_in = input_noise(traj, lambda tr: torque(tr.q, tr.qd, tr.qdd)).std
     n_rows = rows.size
     lags = max(int(4.0 * (n_rows / 100.0) ** (2.0 / 9.0)), window)
-    value, ci95, baseline = [], [], []
+    known = np.full(traj.n_joints, np.nan) if given is None else _given_values(given, joint_types)
+    value, ci95, baseline, failed = [], [], [], []
     names = ("F_v", "F_c", "tau_0")
     for j in range(traj.n_joints):
         joint = j + 1
+        if np.isfinite(known[j]):
+            value.append(float(known[j]))
+            ci95.append(0.0)
+            baseline.append(())
+            continue
         x = np.concatenate(
             [
                 tau_hat[:, [j]],
@@ -333,23 +368,22 @@ def estimate_torque_constants(
         beta, cov = _corrected_least_squares(x, traj.y[rows, j], sigma_in[j] ** 2, ranges, lags)
         unit = "N/A" if joint_types[j] == "P" else "N·m/A"
         if beta is None:
-            raise ValueError(
-                f"joint {joint}: the torque constant is not identifiable: in the training "
-                "data the model torque is a combination of friction and offset, or is "
-                "drowned in the noise of the estimated qd/qdd (a joint at rest?); excite the "
-                "joint or give the constants (torque_constants=, --torque-constants)"
+            failed.append(
+                f"joint {joint}: the torque constant is not identifiable from the training "
+                "data (its model torque is a combination of friction and offset, or drowned "
+                "in the noise of the estimated qd/qdd)"
             )
+            continue
         inv_k, sd_inv = float(beta[0]), float(math.sqrt(cov[0, 0]))
         k = 1.0 / inv_k if inv_k != 0 else math.inf
         sd_k = sd_inv * k**2
         if not (math.isfinite(k) and 1.96 * sd_inv < MAX_RELATIVE_CI * abs(inv_k)):
-            raise ValueError(
+            failed.append(
                 f"joint {joint}: the torque constant is not identifiable from the training "
                 f"data (k_t = {k:.3g} ± {1.96 * sd_k:.2g} {unit}, a 95% interval wider than "
-                f"{MAX_RELATIVE_CI:.0%} of k_t): its current shows too little of the model "
-                "torque beyond friction and offset; excite the joint more or give the "
-                "constants (torque_constants=, --torque-constants)"
+                f"{MAX_RELATIVE_CI:.0%} of k_t)"
             )
+            continue
         force = "N" if joint_types[j] == "P" else "N·m"
         units = (f"{force}·s/{'m' if joint_types[j] == 'P' else 'rad'}", force, force)
         params = []
@@ -359,8 +393,15 @@ def estimate_torque_constants(
         value.append(k)
         ci95.append(1.96 * sd_k)
         baseline.append(tuple(params))
+    if failed:
+        raise ValueError(
+            "; ".join(failed) + ": the current shows too little of the model torque beyond "
+            "friction and offset. Excite the joint more, or give its constant and let the "
+            "others be estimated (torque_constants=[..., None, ...]; --torque-constants with "
+            "nan for each joint to estimate)"
+        )
     return TorqueConstants(
-        np.array(value), np.array(ci95), "estimated", joint_types, tuple(baseline), n_rows
+        np.array(value), np.array(ci95), np.isfinite(known), joint_types, tuple(baseline), n_rows
     )
 
 
@@ -372,16 +413,18 @@ def currents_to_torque(
 ) -> tuple[Trajectories, Trajectories, TorqueConstants | None]:
     """Put current logs into torque units before the loop scores effects.
 
-    Torque files pass unchanged. Current files are multiplied by ``torque_constants`` when
-    given (:func:`given_torque_constants`), else by the constants estimated on ``train``
-    against the start model's robot file (:func:`estimate_torque_constants` with its
-    rigid-body torque); a learned start without a robot file has no torque units, so the
-    loop then stays in amperes.
+    Torque files pass unchanged. Current files are multiplied by ``k_t``: the
+    ``torque_constants`` given, and for the joints without one (``None``/``nan`` entries, or
+    every joint when none are given) the constants estimated on ``train`` against the start
+    model's robot file (:func:`estimate_torque_constants` with its rigid-body torque). A
+    learned start without a robot file has no torque units: without given constants the loop
+    stays in amperes.
 
     Args:
         train, test: training and held-out trajectories (same output group).
         start: the start model (its ``robot``, ``n_joints`` and ``joint_types`` are read).
-        torque_constants: user-given ``k_t`` per joint [N m/A or N/A], or ``None``.
+        torque_constants: user-given ``k_t`` per joint [N m/A or N/A] (``None``/``nan``
+            entries: estimate that joint), or ``None`` (estimate every joint).
 
     Returns:
         ``(train, test, constants)``; ``constants`` is ``None`` when nothing was converted.
@@ -397,10 +440,21 @@ def currents_to_torque(
                 "give torques (tau1..): leave them out"
             )
         return train, test, None
-    if torque_constants is not None:
-        constants = given_torque_constants(torque_constants, start.joint_types)
-    elif start.robot is None:
+    known = (
+        np.full(start.n_joints, np.nan)
+        if torque_constants is None
+        else _given_values(torque_constants, start.joint_types)
+    )
+    if np.isfinite(known).all():
+        constants = given_torque_constants(known, start.joint_types)
+    elif start.robot is not None:
+        constants = estimate_torque_constants(train, start.robot.rnea, start.joint_types, known)
+    elif torque_constants is None:
         return train, test, None
     else:
-        constants = estimate_torque_constants(train, start.robot.rnea, start.joint_types)
+        missing = [j + 1 for j in np.flatnonzero(np.isnan(known))]
+        raise ValueError(
+            f"torque_constants: joints {missing} have no value and there is no robot file to "
+            "estimate them against; give every joint's constant or a robot file (--model)"
+        )
     return constants.to_torque(train), constants.to_torque(test), constants

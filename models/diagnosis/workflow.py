@@ -14,10 +14,11 @@ reported as its alternative and only ever put in its place
 (never overwritten).
 
 Motor-current files (columns ``i1..in``) are put into torque units first, ``y = k_t i``: with
-the given ``torque_constants``, else with constants estimated per joint on the training files
-against the robot file (:mod:`~.units`; a joint the data cannot pin down stops the run with
-its name); ``k_t`` and its interval are reported and its uncertainty widens the noise floor.
-A learned start without a robot file has no torque units, so its loop stays in amperes.
+the given ``torque_constants``, and for the joints without one with constants estimated on the
+training files against the robot file (:mod:`~.units`; joints the data cannot pin down stop
+the run with their names); ``k_t`` and its interval are reported and its uncertainty widens
+the noise floor. A learned start without a robot file has no torque units: without given
+constants its loop stays in amperes.
 
 Every held-out error is read against the noise floor of :func:`~.search.heldout_floor`
 (measurement noise plus the noise that estimated ``qd``/``qdd`` carry into the prediction);
@@ -72,7 +73,8 @@ def run_diagnosis(
         max_points: GP rows of a learned start.
         gip_iters: Adam iterations of a learned start's fit.
         torque_constants: joint-side torque constants ``k_t`` [N m/A or N/A], one per joint,
-            for current files (default: estimated, :mod:`~.units`).
+            for current files; ``None``/``nan`` entries, or all when not given, are
+            estimated (:mod:`~.units`).
         out: output folder (created).
         plots, rerun: write the PNG figures / the Rerun recording.
         log: receives the report, one block of text at a time.

@@ -129,6 +129,7 @@ def test_given_constants_are_used_as_they_are(start, no_effect):
     [
         ([0.1, 0.0, 1.5], "joint 2 has k_t = 0.0"),
         ([0.1, float("inf"), 1.5], "joint 2 has k_t = inf"),
+        ([0.1, None, 1.5], "joint 2 has no value"),
         ([0.1, 2.0], "needs 3 values"),
         ([0.1, 2.0, 1.5, 1.0], "needs 3 values"),
     ],
@@ -136,6 +137,17 @@ def test_given_constants_are_used_as_they_are(start, no_effect):
 def test_bad_given_constants_are_refused(k_t, match):
     with pytest.raises(ValueError, match=match):
         given_torque_constants(k_t, "RRR")
+
+
+def test_some_constants_given_the_others_estimated(start, no_effect):
+    train, test = no_effect
+    train_t, _, constants = currents_to_torque(train, test, start, [None, -2.5, float("nan")])
+    np.testing.assert_array_equal(constants.given, [False, True, False])
+    assert constants.value[1] == -2.5 and constants.ci95[1] == 0.0
+    np.testing.assert_array_equal(train_t.y[:, 1], train.y[:, 1] * -2.5)
+    estimated = [0, 2]
+    assert (np.abs(constants.value - K_T)[estimated] <= constants.ci95[estimated]).all()
+    assert "given, used as it is" in constants.text().splitlines()[2]
 
 
 def test_constants_for_torque_files_are_refused(start, no_effect):
@@ -153,6 +165,8 @@ def test_a_current_without_torque_is_not_identifiable(start, no_effect):
     train = dataclasses.replace(no_effect[0], y=y)
     with pytest.raises(ValueError, match="joint 3: the torque constant is not identifiable"):
         estimate_torque_constants(train, start.robot.rnea, "RRR")
+    given = estimate_torque_constants(train, start.robot.rnea, "RRR", given=[None, None, 1.5])
+    assert given.value[2] == 1.5 and given.source == "given and estimated"
 
 
 def test_diagnose_command_estimates_or_takes_the_constants(arm, no_effect, tmp_path, command):
