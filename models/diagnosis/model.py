@@ -53,6 +53,7 @@ from mcpilco.models.diagnosis.start_models import (
     NominalStart,
     StartModel,
 )
+from mcpilco.models.diagnosis.units import widen_estimates
 from mcpilco.models.gp.linear_gp import JointGP, single_thread
 from mcpilco.models.robot_data import RobotDataset
 
@@ -467,7 +468,11 @@ class DiagnosisModel:
                     k = effs.index(e)
                     sl = self.gps_[j].block_slices()[k]
                     mean, cov = self.gps_[j].weights(self.theta_[j])
-                    ests = e.estimates(mean[sl], cov[sl, sl], self.ctx_, j)
+                    ests = widen_estimates(
+                        e.estimates(mean[sl], cov[sl, sl], self.ctx_, j),
+                        self.train_.torque_constants,
+                        j,
+                    )
                 for p in ests:
                     rows.append(
                         dict(effect=e.variant_label, output=j + 1, **p.__dict__, text=p.text())

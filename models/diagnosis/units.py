@@ -51,17 +51,36 @@ Identifiability
     torque is a combination of the baseline, or drowned in its own noise), raises
     ``ValueError`` naming the joint: the scale is not guessed.
 Noise floor
-    A perfect model in torque units still misses ``y - tau = (k_hat - k) i`` on the data, of
-    expected square ``sd(k)^2 mean(i^2)`` per joint; :func:`~.analysis.noise_floor` adds it
-    (:meth:`TorqueConstants.output_variance`), so an uncertain constant widens the floor
-    rather than showing up as an effect.
+    A perfect model in torque units with ``k`` taken as ``k_hat`` still misses
+    ``y - tau = (k_hat - k) i`` on the data, of expected square ``sd(k)^2 mean(i^2)`` per
+    joint; :func:`~.analysis.noise_floor` adds it (:meth:`TorqueConstants.output_variance`),
+    so an uncertain constant widens the floor rather than showing up as an effect.
 Given constants (:func:`given_torque_constants`)
     used as they are, with zero uncertainty; the user may give some joints' constants and
     have the others estimated (a wrist whose inertial torque is too small to pin it down).
 
-The effects found afterwards are fitted on ``k_hat i``: their parameters are in torque units,
-and their intervals do not include the relative uncertainty of ``k_t`` (reported beside
-them, ``ci95 / |k_t|``), which scales every torque of that joint alike.
+The loop on the converted data
+    Conditioned on ``k_hat``, the training residual ``k_hat i - tau_hat`` holds the fitted
+    baseline exactly, offset included, with an interval far narrower than the one the joint
+    estimate gives it (``k`` and ``tau_0`` trade off where the torque has a large mean, e.g.
+    gravity): scored as candidates, offsets, springs and cogging would look significant.
+    So the loop's first version holds a free scale of the model torque,
+    ``alpha tau_hat_j`` (:meth:`TorqueConstants.effects`, :class:`~.effects.TorqueScale`), on
+    the joints whose constant was estimated and where that pays: candidates are scored
+    against a model in which ``k`` is still free. The block's column ``tau_hat_j`` carries the
+    input noise ``sigma_in,j`` itself, which biases ``alpha`` by about
+    ``-sigma_in^2 / mean(tau_hat^2)`` (a prediction error of ``sigma_in^2 / rms(tau_hat)``);
+    so a joint gets the block only when the error it removes, ``sd(k) rms(i)``, is larger
+    (:attr:`TorqueConstants.free_scale`; a joint with little torque keeps ``k_hat`` fixed and
+    the floor term below). A model with the block carries the uncertainty of ``k`` in its
+    prediction, and its floor leaves the ``sd(k)^2 mean(i^2)`` term out on those joints
+    (:func:`without_fitted_scales`).
+Effect parameters
+    The effects found afterwards are fitted on ``k_hat i``: their parameters are in torque
+    units, and every linear one (friction levels, offset, stiffness, amplitude, mass,
+    inertia) is off by the factor ``k / k_hat`` of its joint. :func:`widen_estimates` adds
+    that relative uncertainty to their intervals,
+    ``ci^2 + (1.96 |value| sd(k) / |k_hat|)^2``; a delay is not scaled.
 """
 
 from __future__ import annotations
@@ -79,9 +98,11 @@ from mcpilco.models.diagnosis.analysis import input_noise
 from mcpilco.models.diagnosis.data import MIN_FIT_ROWS, Trajectories, require_rows
 from mcpilco.models.diagnosis.effects import (
     CoulombFriction,
+    Effect,
     FeatureContext,
     ParamEstimate,
     TorqueOffset,
+    TorqueScale,
     ViscousFriction,
 )
 
@@ -94,6 +115,8 @@ __all__ = [
     "currents_to_torque",
     "estimate_torque_constants",
     "given_torque_constants",
+    "widen_estimates",
+    "without_fitted_scales",
 ]
 
 BASELINE_EPS = 0.01
@@ -115,6 +138,8 @@ class TorqueConstants:
         baseline: per joint, the baseline fitted with ``k_t`` (``F_v``, ``F_c``, ``tau_0`` in
             torque units), empty for a given constant.
         rows: training rows of the estimate (0 when every constant was given).
+        free_scale: ``(n,)`` joints whose model holds a free scale (module docstring); none
+            by default.
     """
 
     value: FloatArray
@@ -123,6 +148,7 @@ class TorqueConstants:
     joint_types: str
     baseline: tuple[tuple[ParamEstimate, ...], ...] = ()
     rows: int = 0
+    free_scale: NDArray[np.bool_] | None = None
 
     @property
     def n_joints(self) -> int:
@@ -163,6 +189,13 @@ class TorqueConstants:
             )
         return dataclasses.replace(traj, y=traj.y * self.value, output="tau", torque_constants=self)
 
+    def effects(self) -> list[TorqueScale]:
+        """The blocks the loop's first version holds: a free scale of the model torque
+        (:class:`~.effects.TorqueScale`) on the joints of :attr:`free_scale`."""
+        if self.free_scale is None:
+            return []
+        return [TorqueScale(int(j) + 1) for j in np.flatnonzero(self.free_scale)]
+
     def output_variance(self, y: FloatArray) -> FloatArray:
         """``(n,)`` ``sd(k)^2 mean(i^2)`` with ``i = y / k``: the mean square that the
         uncertainty of ``k_t`` puts between a perfect model and ``y = k_hat i`` (torque units)."""
@@ -179,8 +212,10 @@ class TorqueConstants:
                 lines.append(f"   joint {j + 1}: k_t = {k:.5g} {unit}   given, used as it is")
                 continue
             fitted = "; ".join(p.text() for p in self.baseline[j])
+            free = self.free_scale is not None and self.free_scale[j]
             lines.append(
                 f"   joint {j + 1}: k_t = {k:.5g} ± {ci:.2g} {unit} ({100 * ci / abs(k):.2g} %)"
+                f"{', scale left free in the model (scale:' + str(j + 1) + ')' if free else ''}"
                 f"   estimated on {self.rows} training rows with {fitted}"
             )
         return "\n".join(lines)
@@ -196,6 +231,7 @@ class TorqueConstants:
                     "ci95": float(self.ci95[j]),
                     "unit": self.unit(j + 1),
                     "given": bool(self.given[j]),
+                    "free_scale": bool(self.free_scale is not None and self.free_scale[j]),
                     "baseline": [p.__dict__ for p in self.baseline[j]],
                 }
                 for j in range(self.n_joints)
@@ -347,7 +383,7 @@ def estimate_torque_constants(
     n_rows = rows.size
     lags = max(int(4.0 * (n_rows / 100.0) ** (2.0 / 9.0)), window)
     known = np.full(traj.n_joints, np.nan) if given is None else _given_values(given, joint_types)
-    value, ci95, baseline, failed = [], [], [], []
+    value, ci95, baseline, failed, free = [], [], [], [], []
     names = ("F_v", "F_c", "tau_0")
     for j in range(traj.n_joints):
         joint = j + 1
@@ -355,6 +391,7 @@ def estimate_torque_constants(
             value.append(float(known[j]))
             ci95.append(0.0)
             baseline.append(())
+            free.append(False)
             continue
         x = np.concatenate(
             [
@@ -393,6 +430,9 @@ def estimate_torque_constants(
         value.append(k)
         ci95.append(1.96 * sd_k)
         baseline.append(tuple(params))
+        removed = sd_k * math.sqrt(float(np.mean(traj.y[rows, j] ** 2)))
+        brought = sigma_in[j] ** 2 / max(math.sqrt(float(np.mean(tau_hat[:, j] ** 2))), 1e-300)
+        free.append(removed > brought)
     if failed:
         raise ValueError(
             "; ".join(failed) + ": the current shows too little of the model torque beyond "
@@ -401,7 +441,13 @@ def estimate_torque_constants(
             "nan for each joint to estimate)"
         )
     return TorqueConstants(
-        np.array(value), np.array(ci95), np.isfinite(known), joint_types, tuple(baseline), n_rows
+        np.array(value),
+        np.array(ci95),
+        np.isfinite(known),
+        joint_types,
+        tuple(baseline),
+        n_rows,
+        np.array(free, dtype=bool),
     )
 
 
@@ -458,3 +504,31 @@ def currents_to_torque(
             "estimate them against; give every joint's constant or a robot file (--model)"
         )
     return constants.to_torque(train), constants.to_torque(test), constants
+
+
+def widen_estimates(
+    estimates: Sequence[ParamEstimate], constants: TorqueConstants | None, output: int
+) -> list[ParamEstimate]:
+    """``estimates`` of a linear effect block fitted on output ``output`` (0-based) of data
+    put into torque units with ``constants``, their intervals widened by the relative
+    uncertainty of that joint's ``k_t`` (module docstring); unchanged without constants."""
+    if constants is None:
+        return list(estimates)
+    rel = 1.96 * float(constants.std[output]) / abs(float(constants.value[output]))
+    if rel == 0:
+        return list(estimates)
+    return [dataclasses.replace(p, ci95=math.hypot(p.ci95, rel * p.value)) for p in estimates]
+
+
+def without_fitted_scales(traj: Trajectories, effects: Sequence[Effect]) -> Trajectories:
+    """``traj`` whose ``k_t`` uncertainty is cleared on the joints where ``effects`` hold a
+    :class:`~.effects.TorqueScale` block: a model with that block fits the scale itself, so
+    its prediction already carries the uncertainty (module docstring) and the noise floor
+    must not count it again."""
+    constants = traj.torque_constants
+    free = [e.joint - 1 for e in effects if isinstance(e, TorqueScale)]
+    if constants is None or not free:
+        return traj
+    ci95 = constants.ci95.copy()
+    ci95[free] = 0.0
+    return dataclasses.replace(traj, torque_constants=dataclasses.replace(constants, ci95=ci95))

@@ -148,7 +148,8 @@ def run_diagnosis(
     out.mkdir(parents=True, exist_ok=True)
     unit = "A" if train.output == "i" else None
 
-    model = DiagnosisModel(start, max_points=max_points).fit(train)
+    scales = [] if constants is None else constants.effects()  # k_t still free (.units)
+    model = DiagnosisModel(start, scales, max_points=max_points).fit(train)
     log(f"\n== 1. compare: {model.describe()}")
     versions = [model]
 

@@ -20,6 +20,7 @@ from mcpilco.envs.robot_logs import HiddenEffect, simulate_log, write_log
 from mcpilco.models.diagnosis import (
     DiagnosisModel,
     NominalStart,
+    TorqueScale,
     currents_to_torque,
     diagnose,
     estimate_torque_constants,
@@ -82,23 +83,30 @@ def test_no_effect_constants_recovered_and_nothing_named(arm, start, no_effect):
     assert (np.abs(constants.value - K_T) <= constants.ci95).all(), constants.text()
     assert (constants.ci95 < 0.25 * np.abs(K_T)).all()
     np.testing.assert_allclose(train_t.y, train.y * constants.value)
-    d = diagnose(DiagnosisModel(start).fit(train_t), test_t)
+    d = diagnose(DiagnosisModel(start, constants.effects()).fit(train_t), test_t)
     assert d.best is None and _unit_effects(d) == [], d.table()
     assert "no significant missing effect" in d.verdict(), d.verdict()
     assert (d.base.ratio <= FLOOR_FACTOR).all(), d.base.ratio
 
 
 def test_floor_counts_the_constants_uncertainty(start, no_effect):
-    """The floor adds ``sd(k)^2 mean(i^2)`` per joint to the one without the constants."""
+    """A model that takes ``k_hat`` as exact gets ``sd(k)^2 mean(i^2)`` per joint added to its
+    floor; one with a free scale on every joint (the loop's first version) fits it itself."""
     train, test, constants = currents_to_torque(*no_effect, start)
-    model = DiagnosisModel(start).fit(train)
-    mean, _ = model.predict(test, with_var=False)
-    with_k = heldout_floor(model, test, mean)
-    without = heldout_floor(model, dataclasses.replace(test, torque_constants=None), mean)
+    unknown = dataclasses.replace(test, torque_constants=None)
+    fixed = DiagnosisModel(start).fit(train)
+    mean, _ = fixed.predict(test, with_var=False)
+    with_k = heldout_floor(fixed, test, mean)
+    without = heldout_floor(fixed, unknown, mean)
     current = test.y / constants.value
     extra = constants.std**2 * np.mean(current**2, axis=0)
     np.testing.assert_allclose(with_k**2 - without**2, extra, rtol=1e-9)
     assert (extra > 0).all()
+    free = DiagnosisModel(start, [TorqueScale(j) for j in (1, 2, 3)]).fit(train)
+    mean, _ = free.predict(test, with_var=False)
+    np.testing.assert_array_equal(
+        heldout_floor(free, test, mean), heldout_floor(free, unknown, mean)
+    )
 
 
 def test_damping_found_in_torque_units(arm, start, tmp_path):
@@ -106,10 +114,12 @@ def test_damping_found_in_torque_units(arm, start, tmp_path):
     train, test = current_logs(arm, tmp_path, [HiddenEffect("damping", 2, 0.5)])
     train, test, constants = currents_to_torque(train, test, start)
     assert (np.abs(constants.value - K_T) <= constants.ci95).all(), constants.text()
-    d = diagnose(DiagnosisModel(start).fit(train), test, n_confirm=1)
+    d = diagnose(DiagnosisModel(start, constants.effects()).fit(train), test, n_confirm=1)
     assert d.best is not None and d.best.label == "viscous:2", d.table()
     (f_v,) = d.best.estimates
     assert f_v.unit == "N·m·s/rad" and abs(f_v.value - 0.5) <= f_v.ci95, f_v.text()
+    # the interval carries the relative uncertainty of k_t on joint 2 (F_v scales with it)
+    assert f_v.ci95 >= f_v.value * constants.ci95[1] / abs(constants.value[1])
     assert _unit_effects(d) == [], d.table()
 
 
