@@ -31,7 +31,7 @@ Estimation (:func:`estimate_torque_constants`, on the training rows)
 
     .. math::
 
-        \\hat\beta = (X^T X - N \\Sigma_u)^{-1} X^T i_j, \\qquad
+        \\hat\\beta = (X^T X - N \\Sigma_u)^{-1} X^T i_j, \\qquad
         \\Sigma_u = \\mathrm{diag}(\\sigma_{in,j}^2, 0, 0, 0)
 
     (the noise of the ``qd`` columns is neglected: it barely moves the friction terms).
@@ -72,7 +72,7 @@ The loop on the converted data
     ``-sigma_in^2 / mean(tau_hat^2)`` (a prediction error of ``sigma_in^2 / rms(tau_hat)``);
     so a joint gets the block only when the error it removes, ``sd(k) rms(i)``, is larger
     (:attr:`TorqueConstants.free_scale`; a joint with little torque keeps ``k_hat`` fixed and
-    the floor term below). A model with the block carries the uncertainty of ``k`` in its
+    the floor term above). A model with the block carries the uncertainty of ``k`` in its
     prediction, and its floor leaves the ``sd(k)^2 mean(i^2)`` term out on those joints
     (:func:`without_fitted_scales`).
 Effect parameters

@@ -16,9 +16,10 @@ reported as its alternative and only ever put in its place
 Motor-current files (columns ``i1..in``) are put into torque units first, ``y = k_t i``: with
 the given ``torque_constants``, and for the joints without one with constants estimated on the
 training files against the robot file (:mod:`~.units`; joints the data cannot pin down stop
-the run with their names); ``k_t`` and its interval are reported and its uncertainty widens
-the noise floor. A learned start without a robot file has no torque units: without given
-constants its loop stays in amperes.
+the run with their names); ``k_t`` and its interval are reported, and its uncertainty is
+kept either in the model (a free scale of the model torque, ``scale:j``, so that it is never
+named as an offset, spring or cogging) or in the noise floor. A learned start without a robot
+file has no torque units: without given constants its loop stays in amperes.
 
 Every held-out error is read against the noise floor of :func:`~.search.heldout_floor`
 (measurement noise plus the noise that estimated ``qd``/``qdd`` carry into the prediction);
@@ -52,7 +53,7 @@ def run_diagnosis(
     threshold: float = 5.0,
     max_points: int = 600,
     gip_iters: int = 100,
-    torque_constants: Sequence[float] | None = None,
+    torque_constants: Sequence[float | None] | None = None,
     out: str | Path = "results/diagnosis_run",
     plots: bool = True,
     rerun: bool = True,
