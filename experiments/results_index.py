@@ -450,6 +450,16 @@ def _diagnosis(data: dict[str, Any]) -> str:
     )
 
 
+def _torque_constants(data: dict[str, Any]) -> str:
+    s = data["summary"]
+    covered = round(s["ci95_coverage"] * s["estimated_joints"])
+    return (
+        f"k_t 95% intervals hold the truth on {covered}/{s['estimated_joints']} joints; "
+        f"{s['controls_missing_effect_named']}/{s['controls']} controls name an effect; "
+        f"damping named in {s['damping_named']}/{s['damping_cases']}"
+    )
+
+
 def _sweep(data: dict[str, Any]) -> str:
     by = {}
     for s in data["summary"]:
@@ -618,6 +628,12 @@ REGISTRY: tuple[Headline, ...] = (
         "diagnosis_robot_logs.json",
         _diagnosis,
         "diagnosis_robot_logs.md",
+    ),
+    Headline(
+        "Diagnosis of motor-current logs (torque constants)",
+        "torque_constants.json",
+        _torque_constants,
+        "torque_constants.md",
     ),
     Headline(
         "Sweeps",

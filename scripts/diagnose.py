@@ -15,6 +15,10 @@ training file (or, with one file, its last 30%) is held out. ``--add coulomb:2``
 effect (repeatable; keys: viscous, coulomb, stribeck, offset, spring, cogging, payload,
 armature, deadzone, delay); ``--auto N`` adds up to N significant effects, best first
 (missing effects before refinements inside a learned start's span).
+Files of motor currents (``i1..in`` instead of ``tau1..taun``) are put into torque units
+with ``--torque-constants K1 K2 ...`` (N m/A per joint, negative for a reversed motor;
+``nan`` for a joint whose constant is to be estimated), or, without it, with constants
+estimated per joint against ``--model``.
 Every version is saved as ``<out>/models/model_v<k>.json`` (never overwritten).
 
 Outputs under ``--out``: ``compare_v<k>.png`` (measured vs predicted ±2σ),
@@ -56,6 +60,14 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument(
         "--gip-iters", type=int, default=100, help="Adam iterations of a learned start's fit"
     )
+    p.add_argument(
+        "--torque-constants",
+        nargs="+",
+        type=float,
+        default=None,
+        metavar="K",
+        help="k_t per joint [N m/A] for current files; nan: estimate it (default: all)",
+    )
     p.add_argument("--out", default="results/diagnosis_run")
     p.add_argument("--no-plots", action="store_true")
     p.add_argument("--no-rerun", action="store_true")
@@ -86,6 +98,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         threshold=args.threshold,
         max_points=args.max_points,
         gip_iters=args.gip_iters,
+        torque_constants=args.torque_constants,
         out=args.out,
         plots=not args.no_plots,
         rerun=not args.no_rerun,

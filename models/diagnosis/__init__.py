@@ -2,6 +2,8 @@
 
 The loop (:func:`run_diagnosis` runs it on files; console script ``mcpilco-diagnose``):
 
+0. units: motor currents put into torque units with estimated or given torque constants
+   (:func:`currents_to_torque`);
 1. compare: :func:`fit_metrics` (nMSE, RMSE, NRMSE fit %), :func:`~.plots.plot_time`;
 2. where it fails: :func:`residual_report` (binned residuals, velocity reversals,
    whiteness and cross-correlation with the inputs as MATLAB's ``resid`` tests them
@@ -45,6 +47,7 @@ from mcpilco.models.diagnosis.effects import (
     Spring,
     StribeckFriction,
     TorqueOffset,
+    TorqueScale,
     ViscousFriction,
     default_library,
     parse_effect,
@@ -79,6 +82,12 @@ from mcpilco.models.diagnosis.sysid_refine import (
     inverse_dynamics_error,
     refine_with_sysid,
 )
+from mcpilco.models.diagnosis.units import (
+    TorqueConstants,
+    currents_to_torque,
+    estimate_torque_constants,
+    given_torque_constants,
+)
 from mcpilco.models.diagnosis.workflow import run_diagnosis
 from mcpilco.models.gp.linear_gp import JointGP
 
@@ -109,17 +118,22 @@ __all__ = [
     "ResidualReport",
     "Spring",
     "StribeckFriction",
+    "TorqueConstants",
     "TorqueOffset",
+    "TorqueScale",
     "Trajectories",
     "ViscousFriction",
     "as_trajectories",
     "auto_improve",
     "cross_correlation_test",
+    "currents_to_torque",
     "default_library",
     "diagnose",
+    "estimate_torque_constants",
     "fit_metrics",
     "floor_check",
     "free_run_error",
+    "given_torque_constants",
     "heldout_floor",
     "heldout_rmse",
     "input_noise",

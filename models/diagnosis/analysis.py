@@ -20,12 +20,12 @@ Residual ``e = y - y_hat`` analysis
       noise"``.
 
 Noise floor (the error a perfect model still has on held-out data)
-    ``floor_j = sqrt(sigma_meas,j^2 + sigma_in,j^2)``. ``sigma_meas`` is the output's own
-    measurement noise (:func:`noise_floor`, first differences of the residual). ``sigma_in``
-    is the noise the *prediction* inherits when ``qd``/``qdd`` were estimated from measured
-    positions (:attr:`Trajectories.estimated`, :func:`input_noise`): with white noise of std
-    ``sigma_x,k`` on the differentiated signal ``x_k`` (``q_k``; ``qd_k`` when only ``qdd``
-    was estimated) and the filter's coefficient rows ``B = [delta, c_1, c_2]`` (the sample
+    ``floor_j = sqrt(sigma_meas,j^2 + sigma_in,j^2 + sigma_k,j^2)``. ``sigma_meas`` is the
+    output's own measurement noise (:func:`noise_floor`, first differences of the residual).
+    ``sigma_in`` is the noise the *prediction* inherits when ``qd``/``qdd`` were estimated from
+    measured positions (:attr:`Trajectories.estimated`, :func:`input_noise`): with white noise
+    of std ``sigma_x,k`` on the differentiated signal ``x_k`` (``q_k``; ``qd_k`` when only
+    ``qdd`` was estimated) and the filter's coefficient rows ``B = [delta, c_1, c_2]`` (the sample
     itself and the first/second derivative coefficients),
     ``sigma_in,j^2 = mean_t sum_k sigma_x,k^2 w_jk(t)^T B B^T w_jk(t)`` with
     ``w_jk = (d tau_j / d q_k, d tau_j / d qd_k, d tau_j / d qdd_k)`` (central differences of
@@ -34,7 +34,9 @@ Noise floor (the error a perfect model still has on held-out data)
     estimated derivatives off it. The filtered noise is not white, but the filter's edges make
     part of it visible to the first differences that estimate ``sigma_meas``: that part,
     ``sigma_x^2 w^T (Delta B)(Delta B)^T w / 2``, is taken out of ``sigma_meas^2`` so it is not
-    counted twice.
+    counted twice. ``sigma_k`` is 0 except for motor currents put into torque units with
+    estimated constants, ``y = k_hat i``: a perfect model still misses ``(k_hat - k) i``, of
+    mean square ``sd(k)^2 mean(i^2)`` (:mod:`~mcpilco.models.diagnosis.units`).
 Whiteness and cross-correlation tests
     Under the null hypothesis (a white residual; a residual independent of the input) every
     lag's sample correlation is ``N(0, 1/N)`` (Bartlett), hence the per-lag 99% band
@@ -114,7 +116,9 @@ def noise_floor(
 
     With ``inputs`` (:func:`input_noise` of the same model on ``traj``): the floor a perfect
     model sits at, ``sqrt(sigma_meas^2 + sigma_in^2)`` with the input noise's share of the
-    first differences removed from ``sigma_meas^2`` (module docstring)."""
+    first differences removed from ``sigma_meas^2`` (module docstring), and, for currents put
+    into torque units with estimated constants, the mean square that their uncertainty adds
+    (:meth:`~mcpilco.models.diagnosis.units.TorqueConstants.output_variance`)."""
     e = traj.y if y_hat is None else traj.y - y_hat
     d = np.concatenate([np.diff(e[a:b], axis=0) for a, b in traj.segments if b - a > 2])
     mad = np.median(np.abs(d - np.median(d, axis=0)), axis=0)
@@ -122,7 +126,8 @@ def noise_floor(
     if inputs is None:
         return sigma
     meas2 = np.maximum(sigma**2 - inputs.diff_std**2, 0.0)
-    return np.sqrt(meas2 + inputs.std**2)
+    scale2 = 0.0 if traj.torque_constants is None else traj.torque_constants.output_variance(traj.y)
+    return np.sqrt(meas2 + inputs.std**2 + scale2)
 
 
 @dataclass

@@ -72,6 +72,7 @@ __all__ = [
     "Spring",
     "StribeckFriction",
     "TorqueOffset",
+    "TorqueScale",
     "ViscousFriction",
     "default_library",
     "effect_from_spec",
@@ -591,6 +592,32 @@ _SHAPE_FIELD = {
 }
 
 
+@dataclass(frozen=True)
+class TorqueScale(Effect):
+    """A free scale of the start model's torque, ``alpha tau_hat_j``; not a candidate.
+
+    Motor currents put into torque units with an estimated constant (:mod:`.units`),
+    ``y = k_hat i``, miss the true torque by ``(k_hat / k - 1) tau``: a scaled copy of the
+    joint's torque, gravity included, whose mean looks like an offset and whose shape like a
+    spring, cogging or a payload. The loop's first version holds this block on every joint
+    whose constant was estimated, so candidates are scored against a model whose scale is
+    still free (their evidence and intervals then include the ``k_t`` uncertainty);
+    ``alpha ~ k_hat / k - 1``.
+    """
+
+    key: ClassVar[str] = "scale"
+    title: ClassVar[str] = "torque-constant error"
+    needs_base: ClassVar[bool] = True
+    params: ClassVar[tuple[Param, ...]] = (Param("alpha", "", 0),)
+
+    def columns(self, ctx: FeatureContext, output: int) -> FloatArray:
+        return _col(ctx.base[:, self.joint - 1])
+
+
+MODEL_ONLY_EFFECTS: dict[str, type[Effect]] = {TorqueScale.key: TorqueScale}
+"""Blocks the loop puts in a model itself (never candidates), by key."""
+
+
 def parse_effect(text: str) -> Effect:
     """``"coulomb:2"`` -> ``CoulombFriction(joint=2)``; ``"payload"``; an optional third field
     fixes the scanned shape value: ``"cogging:2:8"`` (order 8), ``"delay:1:3"`` (3 samples).
@@ -623,9 +650,10 @@ def effect_from_spec(spec: dict[str, Any]) -> Effect:
     """Inverse of :meth:`Effect.spec`."""
     spec = dict(spec)
     key = spec.pop("key")
-    if key not in EFFECTS:
-        raise ValueError(f"unknown effect {key!r}; known effects: {', '.join(EFFECTS)}")
-    return EFFECTS[key](**spec)
+    known = {**EFFECTS, **MODEL_ONLY_EFFECTS}
+    if key not in known:
+        raise ValueError(f"unknown effect {key!r}; known effects: {', '.join(known)}")
+    return known[key](**spec)
 
 
 def default_library(n_joints: int, with_payload: bool = True) -> list[Effect]:

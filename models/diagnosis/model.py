@@ -60,6 +60,7 @@ from mcpilco.models.diagnosis.start_models import (
     NominalStart,
     StartModel,
 )
+from mcpilco.models.diagnosis.units import widen_estimates
 from mcpilco.models.gp.linear_gp import JointGP, single_thread
 from mcpilco.models.robot_data import RobotDataset
 
@@ -471,7 +472,11 @@ class DiagnosisModel:
         gp, theta = self.gps_[output], self.theta_[output]
         sl = gp.block_slices()[k]
         mean, cov = gp.weights(theta)
-        ests = effs[k].estimates(mean[sl], cov[sl, sl], self.ctx_, output)
+        ests = widen_estimates(  # current logs: k_t's uncertainty carried into the interval
+            effs[k].estimates(mean[sl], cov[sl, sl], self.ctx_, output),
+            self.train_.torque_constants,
+            output,
+        )
         names = weight_names(effs, gp.sizes)
         return judge_estimates(effs[k], ests, gp, theta, k, names, self.ctx_, output)
 

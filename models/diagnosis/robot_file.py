@@ -62,7 +62,12 @@ import mujoco
 import numpy as np
 from numpy.typing import NDArray
 
-from mcpilco.models.diagnosis.effects import PAYLOAD_PARAMS, Effect, ParamEstimate
+from mcpilco.models.diagnosis.effects import (
+    MODEL_ONLY_EFFECTS,
+    PAYLOAD_PARAMS,
+    Effect,
+    ParamEstimate,
+)
 from mcpilco.models.diagnosis.model import DiagnosisModel
 from mcpilco.models.diagnosis.start_models import NominalStart
 
@@ -214,6 +219,8 @@ def found_effects(model: DiagnosisModel) -> list[FoundEffect]:
     model._check_fitted()
     out = []
     for e in model.effects:
+        if e.key in MODEL_ONLY_EFFECTS:  # a unit conversion (torque scale), not physics
+            continue
         if e.is_shift:
             ests = e.estimates(
                 np.zeros(1), np.zeros((1, 1)), model.ctx_, e.outputs(model.n_joints)[0]

@@ -84,6 +84,7 @@ from mcpilco.models.diagnosis.data import (
 from mcpilco.models.diagnosis.effects import Effect, ParamEstimate, default_library
 from mcpilco.models.diagnosis.identifiability import judge_estimates, weight_names
 from mcpilco.models.diagnosis.model import DiagnosisModel
+from mcpilco.models.diagnosis.units import widen_estimates, without_fitted_scales
 from mcpilco.models.gp.linear_gp import single_thread
 
 FloatArray = NDArray[np.float64]
@@ -184,7 +185,11 @@ def _score_variant(
     mean, cov = g.weights(th)
     sl = g.block_slices()[-1]
     contribution = cols @ mean[sl]
-    ests = e.estimates(mean[sl], cov[sl, sl], model.ctx_, output)
+    ests = widen_estimates(
+        e.estimates(mean[sl], cov[sl, sl], model.ctx_, output),
+        model.train_.torque_constants,
+        output,
+    )
     if judge:
         names = weight_names([*model.block_effects(output), e], g.sizes)
         ests = judge_estimates(e, ests, g, th, len(g.sizes) - 1, names, model.ctx_, output)
@@ -336,11 +341,13 @@ def heldout_floor(
 ) -> FloatArray:
     """``(n,)`` noise floor of ``model`` on held-out trajectories: measurement noise plus the
     noise its prediction inherits from estimated ``qd``/``qdd`` (:func:`.analysis.noise_floor`
-    with :func:`.analysis.input_noise`); ``mean``: the model's prediction, if at hand."""
+    with :func:`.analysis.input_noise`), plus, for currents in torque units, the uncertainty
+    of ``k_t`` on the joints whose scale the model does not fit itself
+    (:func:`.units.without_fitted_scales`); ``mean``: the model's prediction, if at hand."""
     if mean is None:
         mean, _ = model.predict(heldout, with_var=False)
     inputs = input_noise(heldout, lambda tr: model.predict(tr, with_var=False)[0])
-    return noise_floor(heldout, mean, inputs)
+    return noise_floor(without_fitted_scales(heldout, model.effects), mean, inputs)
 
 
 @dataclass

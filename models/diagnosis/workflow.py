@@ -13,6 +13,14 @@ reported as its alternative and only ever put in its place
 (:func:`~.search.next_version`). Every version is saved as ``<out>/models/model_v<k>.json``
 (never overwritten).
 
+Motor-current files (columns ``i1..in``) are put into torque units first, ``y = k_t i``: with
+the given ``torque_constants``, and for the joints without one with constants estimated on the
+training files against the robot file (:mod:`~.units`; joints the data cannot pin down stop
+the run with their names); ``k_t`` and its interval are reported, and its uncertainty is
+kept either in the model (a free scale of the model torque, ``scale:j``, so that it is never
+named as an offset, spring or cogging) or in the noise floor. A learned start without a robot
+file has no torque units: without given constants its loop stays in amperes.
+
 Every held-out error is read against the noise floor of :func:`~.search.heldout_floor`
 (measurement noise plus the noise that estimated ``qd``/``qdd`` carry into the prediction);
 the final verdict (:meth:`~.search.Diagnosis.verdict` of the last version) says "no
@@ -53,6 +61,7 @@ def run_diagnosis(
     threshold: float = 5.0,
     max_points: int = 600,
     gip_iters: int = 100,
+    torque_constants: Sequence[float | None] | None = None,
     out: str | Path = "results/diagnosis_run",
     plots: bool = True,
     rerun: bool = True,
@@ -73,6 +82,9 @@ def run_diagnosis(
         threshold: log-evidence threshold of a significant effect [nats].
         max_points: GP rows of a learned start.
         gip_iters: Adam iterations of a learned start's fit.
+        torque_constants: joint-side torque constants ``k_t`` [N m/A or N/A], one per joint,
+            for current files; ``None``/``nan`` entries, or all when not given, are
+            estimated (:mod:`~.units`).
         out: output folder (created).
         plots, rerun: write the PNG figures / the Rerun recording.
         sysid: refine the corrected robot file with ``mujoco.sysid`` (nominal MJCF start).
@@ -82,12 +94,15 @@ def run_diagnosis(
         The summary written to ``out/summary.json``: ``versions``, ``heldout_rmse`` (one row
         per version), ``noise_floor`` (of the last version), ``rmse_over_floor`` (one row per
         version, each over its own floor), ``verdict`` (the last version's), ``diagnoses``,
-        ``saved``, ``artefacts``, ``data_warnings``, ``robot_file`` (the corrected robot
-        file's record, or ``None``), ``seconds``, ``report`` (the path of ``report.html``).
+        ``saved``, ``artefacts``, ``data_warnings``, ``torque_constants`` (current files
+        in torque units: ``k_t`` per joint with its 95% interval; else ``None``),
+        ``robot_file`` (the corrected robot file's record, or ``None``), ``seconds``,
+        ``report`` (the path of ``report.html``).
 
     Raises:
         ValueError: bad input (no start model, unreadable or too short files, a joint count
-            that differs from the model's, ``out`` a file), with a message naming it.
+            that differs from the model's, ``out`` a file, bad torque constants or ones the
+            data cannot pin down), with a message naming it.
     """
     from mcpilco.models.diagnosis import (
         LEARNED_STARTS,
@@ -104,6 +119,7 @@ def run_diagnosis(
     )
     from mcpilco.models.diagnosis.data import MIN_FIT_ROWS, MIN_HELDOUT_ROWS, require_rows
     from mcpilco.models.diagnosis.html_report import DiagnosisReport, weight_correlations
+    from mcpilco.models.diagnosis.units import currents_to_torque
 
     t_start = time.perf_counter()
     if model is None and learned is None:
@@ -134,13 +150,19 @@ def run_diagnosis(
     data_warnings = list(dict.fromkeys(train.warnings + test.warnings))
     for text in data_warnings:
         log(f"warning: {text}")
+    train, test, constants = currents_to_torque(train, test, start, torque_constants)
+    if constants is not None:
+        log(f"\n== 0. units: {constants.text()}")
+    elif train.output == "i":
+        log("\n== 0. units: currents without torque constants; the loop works in A")
     out = Path(out)
     if out.exists() and not out.is_dir():
         raise ValueError(f"--out {out} is a file; give a folder")
     out.mkdir(parents=True, exist_ok=True)
     unit = "A" if train.output == "i" else None
 
-    model = DiagnosisModel(start, max_points=max_points).fit(train)
+    scales = [] if constants is None else constants.effects()  # k_t still free (.units)
+    model = DiagnosisModel(start, scales, max_points=max_points).fit(train)
     log(f"\n== 1. compare: {model.describe()}")
     versions = [model]
 
@@ -293,6 +315,7 @@ def run_diagnosis(
         "artefacts": artefacts,
         "data_warnings": data_warnings,
         "robot_file": robot_file,
+        "torque_constants": None if constants is None else constants.to_dict(),
         "seconds": time.perf_counter() - t_start,
     }
     report = DiagnosisReport(
@@ -315,6 +338,7 @@ def run_diagnosis(
             "rows (training, held-out)": f"{train.n_samples}, {test.n_samples}",
             "sample time": f"{train.sample_time:g} s",
             "output": "motor current i [A]" if train.output == "i" else "joint torque tau",
+            **({} if constants is None else {"torque constants": constants.text()}),
         },
         warnings=data_warnings,
         seconds=time.perf_counter() - t_start,
