@@ -105,7 +105,11 @@ class MCPilcoConfig:
         num_trials: policy trials after the exploration trial.
         horizon: ``H``, steps per trial and of the particle rollout (None: the task's).
         num_particles: ``M``.
-        kernel: ``"rbf+mpk"`` or ``"rbf"``.
+        kernel: ``"rbf+mpk"``, ``"rbf"`` or ``"rigid_body"`` (an arm task's structured
+            kernel on ``[q, qd, tau, w]``; :mod:`.dynamics`). The chained rollouts (native,
+            torch) have no backward for the rigid-body posterior: with it,
+            ``rollout_backend="auto"`` runs the eager rollout (one line says so) and
+            ``"native"`` / ``"torch"`` are refused here.
         max_points: GP subset-of-data size.
         gp_adam_iters, gp_lbfgs_iters: marginal-likelihood budget per fit.
         num_basis: policy basis functions.
@@ -207,6 +211,11 @@ class MCPilcoConfig:
         if self.rollout_backend not in BACKENDS:
             raise ValueError(
                 f"rollout_backend must be one of {BACKENDS}, got {self.rollout_backend!r}"
+            )
+        if self.kernel == "rigid_body" and self.rollout_backend in ("native", "torch"):
+            raise ValueError(
+                f"rollout_backend={self.rollout_backend!r} cannot run kernel='rigid_body' (no "
+                "chained backward for its posterior); use 'auto' (eager rollout) or 'dynamo'"
             )
         if self.cost_angle_mode is not None and self.cost_angle_mode not in ANGLE_MODES:
             raise ValueError(
@@ -439,7 +448,7 @@ def run_episode(
     their sum ``cost``, ``success`` (the task's test) and ``time_in_goal`` [s] (steps within
     the task's success bounds times ``T_s``).
     """
-    obs, info = env.reset(seed=seed)
+    obs, info = env.reset(seed=seed, options=task.reset_options())
     observed = [task.state_from_obs(obs)]
     states = [task.true_state(obs, info)]
     actions = []
