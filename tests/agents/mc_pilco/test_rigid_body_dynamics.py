@@ -133,6 +133,31 @@ def test_rigid_body_rollout_runs_eagerly_and_auto_says_so():
         MCPilcoConfig(env_id=ENV_ID, task=TASK, kernel="rigid_body", rollout_backend="native")
 
 
+@pytest.mark.usefixtures("one_torch_thread")
+def test_torch_backend_runs_tracking_costs_and_native_says_why_not():
+    """The tracking task with an RBF + MPK GP: the torch backend's chained rollout (its
+    cost backward with reference terms) agrees with the eager rollout in J^ and dJ^/dtheta;
+    the native rollout names the tracking terms as the reason it cannot run."""
+    from mcpilco.agents.mc_pilco.native_rollout import native_unsupported_reason
+
+    task, eps = tracking_data(0)
+    model = GPDynamicsModel(task, "rbf+mpk", adam_iters=20, lbfgs_iters=5)
+    model.fit(*transitions(eps))
+    policy = SquashedRBFPolicy(
+        StateLayout.from_task(task), task.action_low, task.action_high, num_basis=10, seed=0
+    )
+    module = make_policy_module(policy)
+    loss = MCPilcoLoss(
+        module, model.particle_dynamics(), SaturatingCost.from_task(task),
+        horizon=task.horizon, num_particles=8, init_mean=task.init_mean, init_std=0.002,
+    )  # fmt: skip
+    fast = use_fast_rollout(loss, "torch")
+    assert fast.backend == "torch"
+    assert fast.check["J_rel"] < 1e-4 and fast.check["grad_rel"] < 1e-3, fast.check
+    reason = native_unsupported_reason(policy, loss.dynamics, loss.cost, torch.device("cpu"))
+    assert "track another state" in reason
+
+
 def test_tracking_cost_term_and_its_gradient():
     """A cost term with a reference state is ``1 - exp(-((q - r) / l)^2)`` in torch and numpy;
     its gradient is opposite on the joint and on its reference."""
