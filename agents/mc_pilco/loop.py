@@ -399,7 +399,8 @@ def registered_ids(prefix: str = "mcpilco/") -> list[str]:
 
 
 def make_env(env_id: str, horizon: int, task: TaskSpec | None = None):
-    """``gym.make(env_id)`` with episodes of ``horizon`` steps, clear errors for an unknown id,
+    """``gym.make(env_id)`` with episodes of ``horizon`` control steps (``horizon`` times the
+    task's ``action_repeat`` env steps), clear errors for an unknown id,
     for spaces that do not fit ``task`` (:meth:`TaskSpec.check_env`), and for a horizon that
     differs from the env's own episode length when the task's success is the env's
     ``info`` flag (defined at the env's own last step)."""
@@ -412,6 +413,7 @@ def make_env(env_id: str, horizon: int, task: TaskSpec | None = None):
             f"unknown env id {env_id!r}; registered mcpilco ids: {', '.join(registered_ids())}"
         )
     steps = gym.spec(env_id).max_episode_steps
+    horizon = int(horizon) * (task.action_repeat if task is not None else 1)
     if steps is not None and steps != horizon and task is not None and task.success.info_key:
         raise ValueError(
             f"horizon mismatch: the config's horizon is {horizon} steps but {env_id} episodes "
@@ -441,7 +443,9 @@ def run_episode(
     horizon: int,
     task: TaskSpec,
 ) -> dict[str, Any]:
-    """One episode of at most ``horizon`` steps under ``act(state)``.
+    """One episode of at most ``horizon`` control steps under ``act(state)``, each action held
+    for the task's ``action_repeat`` env steps (the observation after the last is the next
+    state).
 
     Returns the observed states ``obs`` (T+1, n) (read from the observations by the task),
     the true states ``states`` (T+1, n), ``actions`` (T, A), per-step evaluation ``costs``,
@@ -455,7 +459,10 @@ def run_episode(
     low, high = np.asarray(task.action_low), np.asarray(task.action_high)
     for _ in range(horizon):
         a = np.clip(np.asarray(act(observed[-1]), dtype=np.float64).reshape(-1), low, high)
-        obs, _, terminated, truncated, info = env.step(a.astype(np.float32))
+        for _ in range(task.action_repeat):
+            obs, _, terminated, truncated, info = env.step(a.astype(np.float32))
+            if terminated or truncated:
+                break
         observed.append(task.state_from_obs(obs))
         states.append(task.true_state(obs, info))
         actions.append(a)

@@ -118,6 +118,8 @@ class TaskSpec:
         pairs: ``(position, velocity)`` name pairs for speed integration.
         action_low, action_high: action bounds (the policy's output range).
         dt: control period [s]. horizon: steps per episode and of the particle rollout.
+        action_repeat: env steps each action is held for; then ``dt`` is that many env
+            steps (a control period coarser than the env's sampling).
         init_mean, init_std: ``x_0 ~ N(mu_0, diag(sigma_0^2))`` of the particles.
         cost_terms: terms of the saturating cost (the evaluation cost; an agent config may
             change the length scales and angle modes of the optimised cost).
@@ -151,6 +153,7 @@ class TaskSpec:
     joint_types: str | None = None
     affine_inputs: tuple[str, ...] = ()
     reference: Mapping[str, Any] | None = None
+    action_repeat: int = 1
 
     def __post_init__(self) -> None:
         names = tuple(str(n) for n in self.state_names)
@@ -209,6 +212,9 @@ class TaskSpec:
         if int(self.horizon) != self.horizon or self.horizon < 1:
             raise _fail("horizon", f"needs a positive integer, got {self.horizon!r}")
         object.__setattr__(self, "horizon", int(self.horizon))
+        rep = self.action_repeat
+        if isinstance(rep, bool) or not isinstance(rep, int) or rep < 1:
+            raise _fail("action_repeat", f"needs a positive integer, got {rep!r}")
         mean = (0.0,) * n if self.init_mean is None else tuple(float(v) for v in self.init_mean)
         if len(mean) != n:
             raise _fail("init_mean", f"needs {n} entries (one per state), got {len(mean)}")
@@ -415,6 +421,14 @@ class TaskSpec:
         for i, j in enumerate(self.obs_indices or ()):
             if j >= n_obs:
                 raise _fail(f"obs_indices[{i}]", f"index {j} out of range for {n_obs} observations")
+        env_dt = getattr(getattr(env, "unwrapped", env), "dt", None)
+        if self.action_repeat > 1 and env_dt is not None:
+            if abs(float(env_dt) * self.action_repeat - self.dt) > 1e-9:
+                raise _fail(
+                    "dt",
+                    f"{self.dt} s is not action_repeat ({self.action_repeat}) x the env's "
+                    f"step ({env_dt} s)",
+                )
         n_joints = getattr(getattr(env, "unwrapped", env), "n_joints", None)
         if self.joints and n_joints is not None and int(n_joints) != len(self.joints):
             raise _fail(

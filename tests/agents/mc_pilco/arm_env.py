@@ -97,6 +97,7 @@ class TwoLinkTracking(gym.Env):
     """The env of the module docstring."""
 
     n_joints = 2
+    dt = DT
 
     def __init__(self) -> None:
         self.action_space = gym.spaces.Box(-1.0, 1.0, (2,), np.float32)

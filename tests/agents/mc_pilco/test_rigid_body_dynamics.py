@@ -201,6 +201,27 @@ def test_arm_spec_errors_name_the_field():
         GPDynamicsModel(bare, "rigid_body")
 
 
+def test_action_repeat_holds_each_action_for_several_env_steps():
+    """``action_repeat = 2`` with ``dt = 2 T``: the episode's states are every second state of
+    the episode that applies each action twice at ``dt = T``; a ``dt`` that is not the
+    repeat times the env's step is an error naming ``task.dt``."""
+    held = TaskSpec.from_dict(dict(TASK, dt=2 * TASK["dt"], action_repeat=2, horizon=20))
+    plain = TaskSpec.from_dict(TASK)
+    actions = np.random.default_rng(0).uniform(-1, 1, (20, 2))
+    env = make_env(ENV_ID, held.horizon, held)
+    it = iter(actions)
+    ep_held = run_episode(env, lambda _x: next(it), 3, held.horizon, held)
+    it = iter(np.repeat(actions, 2, axis=0))
+    ep_plain = run_episode(env, lambda _x: next(it), 3, plain.horizon, plain)
+    assert ep_held["steps"] == 20 and ep_plain["steps"] == 40
+    np.testing.assert_allclose(ep_held["states"], ep_plain["states"][::2], rtol=0, atol=1e-12)
+    bad = TaskSpec.from_dict(dict(TASK, action_repeat=2))
+    with pytest.raises(TaskSpecError, match=r"task\.dt: 0.05 s is not action_repeat \(2\)"):
+        bad.check_env(env)
+    with pytest.raises(TaskSpecError, match=r"task\.action_repeat"):
+        TaskSpec.from_dict(dict(TASK, action_repeat=0))
+
+
 def tracking_rms(states: np.ndarray) -> np.ndarray:
     """RMS over an episode of ``q - q_r`` per joint."""
     return np.sqrt(np.mean((states[1:, :2] - states[1:, 4:6]) ** 2, axis=0))
