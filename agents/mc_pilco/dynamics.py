@@ -46,7 +46,10 @@ Glossary
     A PD controller in the loop, ``tau_c = K_p (q_r - q) + K_d (qd_r - qd) + g^(q) + u``,
     keeps the structure with ``u`` in the place of ``tau`` and the reference
     ``w = [q_r, qd_r]`` as affine inputs. Every GP output (also the reference's own
-    velocity change, affine in ``w`` for a sinusoidal reference) gets this kernel.
+    velocity change, affine in ``w`` for a sinusoidal reference) gets this kernel. The
+    structure is that of the accelerations: where the control period is long against the
+    closed loop's time constants (a stiff PD loop moving the state within one period) the
+    velocity change departs from it, and RBF + MPK may predict such data better.
 """
 
 from __future__ import annotations
