@@ -107,7 +107,11 @@ class MCPilcoConfig:
         num_trials: policy trials after the exploration trial.
         horizon: ``H``, steps per trial and of the particle rollout (None: the task's).
         num_particles: ``M``.
-        kernel: ``"rbf+mpk"`` or ``"rbf"``.
+        kernel: ``"rbf+mpk"``, ``"rbf"`` or ``"rigid_body"`` (an arm task's structured
+            kernel on ``[q, qd, tau, w]``; :mod:`.dynamics`). The chained rollouts (native,
+            torch) have no backward for the rigid-body posterior: with it,
+            ``rollout_backend="auto"`` runs the eager rollout (one line says so) and
+            ``"native"`` / ``"torch"`` are refused here.
         max_points: GP subset-of-data size.
         gp_adam_iters, gp_lbfgs_iters: marginal-likelihood budget per fit.
         num_basis: policy basis functions.
@@ -220,6 +224,11 @@ class MCPilcoConfig:
         if self.rollout_backend not in BACKENDS:
             raise ValueError(
                 f"rollout_backend must be one of {BACKENDS}, got {self.rollout_backend!r}"
+            )
+        if self.kernel == "rigid_body" and self.rollout_backend in ("native", "torch"):
+            raise ValueError(
+                f"rollout_backend={self.rollout_backend!r} cannot run kernel='rigid_body' (no "
+                "chained backward for its posterior); use 'auto' (eager rollout) or 'dynamo'"
             )
         if self.cost_angle_mode is not None and self.cost_angle_mode not in ANGLE_MODES:
             raise ValueError(
@@ -408,10 +417,11 @@ def make_env(
     task: TaskSpec | None = None,
     env_kwargs: Mapping[str, Any] | None = None,
 ):
-    """``gym.make(env_id, **env_kwargs)`` with episodes of ``horizon`` steps, clear errors for
-    an unknown id, for spaces that do not fit ``task`` (:meth:`TaskSpec.check_env`), and for a
-    horizon that differs from the env's own episode length when the task's success is the
-    env's ``info`` flag (defined at the env's own last step)."""
+    """``gym.make(env_id, **env_kwargs)`` with episodes of ``horizon`` control steps
+    (``horizon`` times the task's ``action_repeat`` env steps), clear errors for an unknown
+    id, for spaces that do not fit ``task`` (:meth:`TaskSpec.check_env`), and for a horizon
+    that differs from the env's own episode length when the task's success is the env's
+    ``info`` flag (defined at the env's own last step)."""
     import gymnasium as gym
 
     import mcpilco.envs  # noqa: F401  (registers the ids)
@@ -421,6 +431,7 @@ def make_env(
             f"unknown env id {env_id!r}; registered mcpilco ids: {', '.join(registered_ids())}"
         )
     steps = gym.spec(env_id).max_episode_steps
+    horizon = int(horizon) * (task.action_repeat if task is not None else 1)
     if steps is not None and steps != horizon and task is not None and task.success.info_key:
         raise ValueError(
             f"horizon mismatch: the config's horizon is {horizon} steps but {env_id} episodes "
@@ -450,21 +461,26 @@ def run_episode(
     horizon: int,
     task: TaskSpec,
 ) -> dict[str, Any]:
-    """One episode of at most ``horizon`` steps under ``act(state)``.
+    """One episode of at most ``horizon`` control steps under ``act(state)``, each action held
+    for the task's ``action_repeat`` env steps (the observation after the last is the next
+    state).
 
     Returns the observed states ``obs`` (T+1, n) (read from the observations by the task),
     the true states ``states`` (T+1, n), ``actions`` (T, A), per-step evaluation ``costs``,
     their sum ``cost``, ``success`` (the task's test) and ``time_in_goal`` [s] (steps within
     the task's success bounds times ``T_s``).
     """
-    obs, info = env.reset(seed=seed)
+    obs, info = env.reset(seed=seed, options=task.reset_options())
     observed = [task.state_from_obs(obs)]
     states = [task.true_state(obs, info)]
     actions = []
     low, high = np.asarray(task.action_low), np.asarray(task.action_high)
     for _ in range(horizon):
         a = np.clip(np.asarray(act(observed[-1]), dtype=np.float64).reshape(-1), low, high)
-        obs, _, terminated, truncated, info = env.step(a.astype(np.float32))
+        for _ in range(task.action_repeat):
+            obs, _, terminated, truncated, info = env.step(a.astype(np.float32))
+            if terminated or truncated:
+                break
         observed.append(task.state_from_obs(obs))
         states.append(task.true_state(obs, info))
         actions.append(a)
