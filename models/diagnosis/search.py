@@ -79,6 +79,7 @@ from mcpilco.models.diagnosis.data import (
 )
 from mcpilco.models.diagnosis.effects import Effect, ParamEstimate, default_library
 from mcpilco.models.diagnosis.model import DiagnosisModel
+from mcpilco.models.diagnosis.shared import score_shared
 from mcpilco.models.gp.linear_gp import single_thread
 
 FloatArray = NDArray[np.float64]
@@ -181,6 +182,25 @@ def _score_variant(
     return ev - base, e.estimates(mean[sl], cov[sl, sl], model.ctx_, output), contribution
 
 
+def _score_shared(
+    model: DiagnosisModel, effect: Effect
+) -> tuple[float, list[ParamEstimate], dict[int, FloatArray]]:
+    """``(Delta, estimates, contributions)`` of a complete shared (rigid-body) variant: one
+    weight vector for all the joints it moves (:func:`~.shared.score_shared`)."""
+    joints = effect.outputs(model.n_joints)
+    cols = [effect.columns(model.joint_context(j), j) for j in joints]
+    if any(c is None for c in cols):
+        return float("nan"), [], {}
+    delta, fit = score_shared(
+        [model.gps_[j] for j in joints],
+        [model.theta_[j] for j in joints],
+        [model.evidence_[j] for j in joints],
+        cols,
+    )
+    ests = effect.estimates(fit.mean, fit.cov, model.ctx_, joints[0])
+    return delta, ests, {j: c @ fit.mean for j, c in zip(joints, cols, strict=True)}
+
+
 def score_effect(
     model: DiagnosisModel, effect: Effect, refine: bool = False, **scan: Any
 ) -> Candidate:
@@ -198,6 +218,12 @@ def score_effect(
     variants = [v.calibrate(model.ctx_) for v in variants]
     deltas, ests, contribs = [], [], []
     for v in variants:
+        if v.shared:  # one weight vector for all its joints
+            total, best_est, con = _score_shared(model, v)
+            deltas.append(total)
+            ests.append(best_est)
+            contribs.append(con)
+            continue
         total, best_est, con = 0.0, [], {}
         best_d = -math.inf
         for j in outputs:
@@ -288,7 +314,7 @@ def score_candidates(
     """Score every candidate not already in the model, best first."""
     model._check_fitted()
     if library is None:
-        library = default_library(model.n_joints, with_payload=model.start.robot is not None)
+        library = default_library(model.n_joints, rigid_body=model.start.robot is not None)
     todo = [e for e in library if not any(e.same_slot(m) for m in model.effects)]
     if progress:
         from tqdm import tqdm
@@ -530,14 +556,14 @@ class Diagnosis:
         if best.alternative_to is not None:
             text = (
                 f"{self.model_name}: {best.alternative_to} is better described as "
-                f"{best.effect.title} on joint {best.joint_text} ({best.effect.variant_label} "
+                f"{best.effect.title} {best.effect.place} ({best.effect.variant_label} "
                 f"in its place: +{best.replace_delta or math.nan:.1f} nats, held-out RMSE "
                 f"{best.heldout_delta_pct:+.1f}%; {best.estimate_text()})"
             )
         else:
             text = (
-                f"{self.model_name}: missing effect: {best.effect.title} on joint "
-                f"{best.joint_text} ({best.effect.variant_label}, +{best.delta:.1f} nats, "
+                f"{self.model_name}: missing effect: {best.effect.title} {best.effect.place} "
+                f"({best.effect.variant_label}, +{best.delta:.1f} nats, "
                 f"held-out RMSE {best.heldout_delta_pct:+.1f}%; {best.estimate_text()})"
             )
         if alike:
