@@ -14,6 +14,12 @@ Continuous ones (smoothing ``eps``, Stribeck velocity ``v_s``, dead-zone width `
 :attr:`Effect.shape_grid`) are then refined around the best scan value by a bounded
 maximisation of the profile log-evidence (:func:`~.search.refine_shape`).
 
+Rigid-body effects (:attr:`Effect.shared`: a link's inertial parameters, a payload) move
+several joints with *one* weight vector: ``tau_j += Y_{b,j} w`` for every joint ``j`` the
+body moves, ``Y_b`` the body's columns of the joint-torque regressor of the robot file
+(:meth:`FeatureContext.body_columns`). They are scored and fitted on the stacked joints
+(:mod:`.shared`), so their estimates describe one body.
+
 Effects of one physical *family* on one joint (:attr:`Effect.family`: Coulomb and Stribeck
 are both dry friction) describe the same torque in two forms; a model holds at most one of
 them, the other being its alternative (:func:`~.search.auto_improve`).
@@ -617,20 +623,25 @@ class LinkInertia(Effect):
         if d0 == 0:
             return 0.0
         tril = np.tril_indices(4)
+        # phi = T vec(J): the parameters are linear in the pseudo-inertia J = L L^T
+        T = np.stack([_phi_of_j(np.eye(16)[k].reshape(4, 4)) for k in range(16)], axis=1)
+        unit = np.zeros((len(tril[0]), 4, 4))
+        unit[np.arange(len(tril[0])), tril[0], tril[1]] = 1.0
+        proj = whiten @ e.T
 
-        def body(params: FloatArray) -> FloatArray:
-            low = np.zeros((4, 4))
-            low[tril] = params
-            jm = low @ low.T
-            sigma = jm[:3, :3]
-            inertia = np.trace(sigma) * np.eye(3) - sigma
-            return np.array(
-                [jm[3, 3], *jm[:3, 3], inertia[0, 0], inertia[0, 1], inertia[1, 1],
-                 inertia[0, 2], inertia[1, 2], inertia[2, 2]]
-            )  # fmt: skip
+        def low(params: FloatArray) -> FloatArray:
+            out = np.zeros((4, 4))
+            out[tril] = params
+            return out
 
         def resid(params: FloatArray) -> FloatArray:
-            return whiten @ (e.T @ (body(params) - phi) - mean)
+            m = low(params)
+            return proj @ (T @ (m @ m.T).ravel() - phi) - whiten @ mean
+
+        def jac(params: FloatArray) -> FloatArray:
+            m = low(params)
+            d = unit @ m.T + np.transpose(unit @ m.T, (0, 2, 1))  # dJ / dparams
+            return proj @ T @ d.reshape(len(d), 16).T
 
         if np.linalg.eigvalsh(pseudo_inertia(phi + self.change(mean)))[0] >= 0:
             return 0.0
@@ -640,7 +651,7 @@ class LinkInertia(Effect):
         for factor in {1.0, max(1.0 + s, 1e-3)}:
             jm = pseudo_inertia(phi) * factor
             start = np.linalg.cholesky(jm + 1e-12 * np.trace(jm) * np.eye(4))[tril]
-            res = least_squares(resid, start, method="trf", max_nfev=400)
+            res = least_squares(resid, start, jac=jac, method="trf", max_nfev=200)
             best = min(best, float(np.sum(res.fun**2)))
         return best / d0
 
@@ -663,6 +674,18 @@ class LinkInertia(Effect):
             ParamEstimate("nonphysical", rho, 0.0, "", wrong_sign=bool(rho > MAX_NONPHYSICAL))
         )
         return out
+
+
+def _phi_of_j(jm: FloatArray) -> FloatArray:
+    """The 10 parameters of a pseudo-inertia ``J`` (inverse of ``pseudo_inertia``; linear):
+    ``m = J_33``, ``h = J_{:3,3}``, ``I = tr(Sigma) 1 - Sigma``."""
+    sigma = 0.5 * (jm[:3, :3] + jm[:3, :3].T)
+    inertia = np.trace(sigma) * np.eye(3) - sigma
+    h = 0.5 * (jm[:3, 3] + jm[3, :3])
+    return np.array(
+        [jm[3, 3], *h, inertia[0, 0], inertia[0, 1], inertia[1, 1],
+         inertia[0, 2], inertia[1, 2], inertia[2, 2]]
+    )  # fmt: skip
 
 
 def _linear_estimate(

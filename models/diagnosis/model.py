@@ -15,6 +15,12 @@ Refitting re-optimises, per joint, the start kernel's scale ``alpha``, the noise
 hyperparameters stay at their version-0 values (a learned start is backfitted by
 :meth:`DiagnosisModel.add`).
 
+Rigid-body effects (a link's inertia, a payload: :attr:`.Effect.shared`) have one weight
+vector ``w`` for all the joints they move, so they are not blocks of one joint's GP: the fit
+alternates (:data:`SHARED_ROUNDS` times) the posterior of ``w`` given every joint's GP
+(:func:`~.shared.fit_shared`) with each joint's own fit on ``r_j - Y_j E[w]``; predictions
+add ``Y_j E[w]`` and the variance ``Y_j Cov[w] Y_j^T``.
+
 Delays: ``y_j(t) = f_j(x(t - d))``. The targets always stay the measured ``y_j`` at the
 training rows ``t``; a delay of ``k`` samples on joint ``j`` moves that joint's *inputs* to
 the states ``k`` samples earlier (its effect blocks, its start-kernel Gram matrix and its

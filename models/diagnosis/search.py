@@ -7,8 +7,10 @@ Score (Bayesian model comparison, thesis eq. 1.9 for the evidence)
     prior variance and the noise re-optimised; a delay re-optimises them all, its inputs
     ``k`` samples earlier and its targets the same measured samples), and with a uniform
     prior over the scan
-    ``Delta = log( (1/G) sum_v exp(Delta_v) )``. An effect acting on every joint (payload)
-    sums ``Delta`` over the joints (independent GPs).
+    ``Delta = log( (1/G) sum_v exp(Delta_v) )``. A rigid-body effect (a link's inertia, a
+    payload; :attr:`.Effect.shared`) has one weight vector for all the joints it moves:
+    ``Delta`` is the gain of the stacked joints, its prior scale and every moved joint's
+    noise re-optimised (:func:`~.shared.score_shared`).
 Significance
     ``Delta > evidence_threshold`` (default 5 nats: a Bayes factor above e^5 ~ 150, "very
     strong" on Kass & Raftery's scale ``2 Delta > 10``), the physical sign respected, and the
