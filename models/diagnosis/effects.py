@@ -227,10 +227,17 @@ class Effect:
 
     def same_family(self, other: Effect) -> bool:
         """Same physical family (:attr:`family`, else the key) on the same joint: two forms
-        of one torque, of which a model holds one."""
+        of one torque, of which a model holds one. The last link's inertia and the payload
+        are both the last body's inertia (:meth:`last_body`)."""
+        if self.last_body() and other.last_body():
+            return True
         return (self.family or self.key) == (other.family or other.key) and (
             self.joint == other.joint
         )
+
+    def last_body(self) -> bool:
+        """Whether the effect changes the last body's inertial parameters."""
+        return False
 
     def shape_bracket(self, name: str) -> tuple[float, float]:
         """Interval in which the continuous shape field ``name`` is refined: between the scan
@@ -545,8 +552,10 @@ class LinkInertia(Effect):
     basis: tuple[tuple[float, ...], ...] | None = None
     scale: tuple[float, ...] | None = None
     singular: tuple[float, ...] | None = None
+    last: bool | None = None
     key: ClassVar[str] = "inertia"
     title: ClassVar[str] = "inertial parameters"
+    family: ClassVar[str] = "body inertia"
     shared: ClassVar[bool] = True
     needs_robot: ClassVar[bool] = True
     params: ClassVar[tuple[Param, ...]] = (Param("s", "", 0), Param("dm", "kg", 0))
@@ -584,7 +593,11 @@ class LinkInertia(Effect):
         d = np.where(d > 0, d, 1.0)
         _, sv, vt = np.linalg.svd(y / d, full_matrices=False)
         keep = sv > RANK_TOL * sv[0] if sv.size and sv[0] > 0 else np.zeros(sv.size, bool)
-        return dataclasses.replace(self, basis=vt[keep], scale=d, singular=sv[keep])
+        last = ctx.rigid is not None and self.joint == ctx.rigid.parameters.shape[0]
+        return dataclasses.replace(self, basis=vt[keep], scale=d, singular=sv[keep], last=last)
+
+    def last_body(self) -> bool:
+        return bool(self.last)
 
     def _bases(self) -> tuple[FloatArray, FloatArray, FloatArray]:
         """``(B (10, r), E (10, r), S (r,))``: ``dphi = B z``, ``z = E^T dphi``."""
@@ -721,12 +734,13 @@ class Payload(Effect):
     body's parameters changed by ``G [m, m p]`` (:func:`flange_map`, first order in ``p``),
     acting on every joint's torque through the last body's regressor columns with one
     weight vector ``[m, m p]`` for all joints (:attr:`Effect.shared`). Its torques lie in
-    those of :class:`LinkInertia` of the last link (4 of its 10 directions): the data
-    prefer it when the change looks like a point mass, and the two form one group when
-    they cannot tell."""
+    those of :class:`LinkInertia` of the last link (4 of its 10 directions): the two are one
+    physical family (:meth:`Effect.same_family`), alternatives of each other, and the data
+    prefer the payload when the change looks like a point mass."""
 
     key: ClassVar[str] = "payload"
     title: ClassVar[str] = "payload"
+    family: ClassVar[str] = "body inertia"
     all_joints: ClassVar[bool] = True
     shared: ClassVar[bool] = True
     needs_robot: ClassVar[bool] = True
@@ -735,6 +749,9 @@ class Payload(Effect):
     @property
     def place(self) -> str:
         return "at the flange"
+
+    def last_body(self) -> bool:
+        return True
 
     def columns(self, ctx: FeatureContext, output: int) -> FloatArray | None:
         if ctx.rigid is None:

@@ -9,6 +9,7 @@ a heavier link or a payload (the generator's known truth).
 
 from __future__ import annotations
 
+import json
 import warnings
 
 import mujoco
@@ -26,7 +27,7 @@ from mcpilco.models.diagnosis import (
     diagnose,
     load_trajectories,
 )
-from mcpilco.models.diagnosis.effects import FeatureContext, flange_map
+from mcpilco.models.diagnosis.effects import FeatureContext, effect_from_spec, flange_map
 from mcpilco.models.diagnosis.start_models import _Robot
 from mcpilco.models.inverse_dynamics import JointStates, RigidBodyFeatures, pseudo_inertia
 
@@ -118,6 +119,11 @@ def test_link_block_spans_its_torques_and_flags_an_unphysical_fit():
     ctx, robot = _context(arm_to_xml(arm, friction=False), 3)
     link = LinkInertia(joint=2).calibrate(ctx)
     assert link.outputs(3) == [0, 1] and link.variant_label == "link 2 inertia"
+    assert effect_from_spec(json.loads(json.dumps(link.spec()))) == link  # saved models
+    # the last link's inertia and the payload are forms of one body's change; link 2 is not
+    last = LinkInertia(joint=3).calibrate(ctx)
+    assert last.same_family(Payload()) and Payload().same_family(last)
+    assert not link.same_family(Payload()) and not link.same_family(last)
     phi = ctx.rigid.parameters[1]
     z = np.asarray(link.basis) @ (np.asarray(link.scale) * 0.4 * phi)  # z = E^T dphi
     # the identifiable block reproduces the torque of a 40 % heavier link on joints 1, 2
