@@ -622,8 +622,10 @@ class LinkInertia(Effect):
         a smooth least-squares problem in the 10 entries of ``L``, started from the nominal
         body and from the nominal body scaled by ``1 + s``), over
         ``d_0^2 = mean^T cov^-1 mean`` (the nominal body itself, ``z = 0``): ``0 <= rho <= 1``,
-        ``0`` when the estimate is a physical body."""
+        ``0`` when the estimate is a physical body or the nominal body lies within the 95 %
+        ellipsoid (``d_0^2 <= chi^2_r``)."""
         from scipy.optimize import least_squares
+        from scipy.stats import chi2
 
         from mcpilco.models.inverse_dynamics.rigid_body import pseudo_inertia
 
@@ -633,8 +635,8 @@ class LinkInertia(Effect):
         whiten = (v[:, keep] / np.sqrt(w[keep])).T  # x = whiten z: cov^-1 = whiten^T whiten
         phi = np.asarray(phi, dtype=np.float64)
         d0 = float(np.sum((whiten @ mean) ** 2))
-        if d0 == 0:
-            return 0.0
+        if d0 <= chi2.ppf(0.95, max(int(keep.sum()), 1)):
+            return 0.0  # the nominal body itself lies within the 95 % ellipsoid
         tril = np.tril_indices(4)
         # phi = T vec(J): the parameters are linear in the pseudo-inertia J = L L^T
         T = np.stack([_phi_of_j(np.eye(16)[k].reshape(4, 4)) for k in range(16)], axis=1)
