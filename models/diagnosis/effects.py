@@ -239,6 +239,11 @@ class Effect:
         """Whether the effect changes the last body's inertial parameters."""
         return False
 
+    def relinearised(self, mean: FloatArray) -> Effect | None:
+        """For a block linearised about a shape value: the effect re-expanded about the one
+        its fitted weights ``mean`` imply (``None``: nothing to re-expand)."""
+        return None
+
     def shape_bracket(self, name: str) -> tuple[float, float]:
         """Interval in which the continuous shape field ``name`` is refined: between the scan
         values next to its current value (beyond the scan's ends: one scan step further,
@@ -730,16 +735,27 @@ def flange_map(pos: FloatArray, rot: FloatArray) -> FloatArray:
     return np.array(cols).T
 
 
+RELINEARISE_STEPS = 3
+"""Most re-expansions of the payload's point mass about its fitted offset."""
+
+
 @dataclass(frozen=True)
 class Payload(Effect):
-    """A payload at the flange: a point mass ``m`` at offset ``p`` (flange frame), the last
-    body's parameters changed by ``G [m, m p]`` (:func:`flange_map`, first order in ``p``),
-    acting on every joint's torque through the last body's regressor columns with one
-    weight vector ``[m, m p]`` for all joints (:attr:`Effect.shared`). Its torques lie in
-    those of :class:`LinkInertia` of the last link (4 of its 10 directions): the two are one
-    physical family (:meth:`Effect.same_family`), alternatives of each other, and the data
-    prefer the payload when the change looks like a point mass."""
+    """A payload at the flange: a mass ``m`` at offset ``p`` (flange frame) with its own
+    isotropic inertia ``I_p`` about its centre (a sphere, a cube), the last body's
+    parameters changed by ``G [m, m d] + I_p [0, 0, 0, 0, 1, 0, 1, 0, 0, 1]``
+    (:func:`flange_map` about ``p = p_0 + d``, first order in ``d``), acting on every joint's
+    torque through the last body's regressor columns with one weight vector
+    ``[m, m d, I_p]`` for all joints (:attr:`Effect.shared`). Only ``m >= 0`` is enforced:
+    the small ``I_p`` is the direction in which a bias of estimated ``qdd`` shows first.
+    Scoring re-expands about the fitted offset (``p_0 <- p_0 + (m d) / m``, at most
+    :data:`RELINEARISE_STEPS` times while the evidence rises), so the dropped ``m |d|^2``
+    terms vanish for a point mass away from the flange. Its torques lie in those of
+    :class:`LinkInertia` of the last link: the two are one physical family
+    (:meth:`Effect.same_family`), alternatives of each other, and the data prefer the
+    payload when the change looks like a point mass."""
 
+    offset: tuple[float, ...] | None = None
     key: ClassVar[str] = "payload"
     title: ClassVar[str] = "payload"
     family: ClassVar[str] = "body inertia"
@@ -748,12 +764,31 @@ class Payload(Effect):
     needs_robot: ClassVar[bool] = True
     params: ClassVar[tuple[Param, ...]] = (Param("m", "kg", +1),)
 
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        object.__setattr__(self, "offset", _tuple1(self.offset))
+
     @property
     def place(self) -> str:
         return "at the flange"
 
     def last_body(self) -> bool:
         return True
+
+    def shape_text(self) -> str:
+        if self.offset is None:
+            return ""
+        return "p0=(" + ", ".join(f"{v:.3g}" for v in self.offset) + ") m"
+
+    def _p0(self) -> FloatArray:
+        return np.zeros(3) if self.offset is None else np.asarray(self.offset, dtype=np.float64)
+
+    def relinearised(self, mean: FloatArray) -> Payload | None:
+        """The payload expanded about the fitted offset ``p_0 + (m d) / m`` (``None`` when
+        the fitted mass is not positive)."""
+        if not mean[0] > 0:
+            return None
+        return dataclasses.replace(self, offset=self._p0() + np.asarray(mean[1:4]) / mean[0])
 
     def columns(self, ctx: FeatureContext, output: int) -> FloatArray | None:
         if ctx.rigid is None:
@@ -762,7 +797,11 @@ class Payload(Effect):
         cols = ctx.body_columns(last)
         if cols is None:
             return None
-        return cols[:, output, :] @ flange_map(ctx.rigid.flange_pos, ctx.rigid.flange_rot)
+        rot = np.asarray(ctx.rigid.flange_rot, dtype=np.float64)
+        pos = np.asarray(ctx.rigid.flange_pos, dtype=np.float64) + rot @ self._p0()
+        own = np.zeros((10, 1))
+        own[[4, 6, 9], 0] = 1.0  # I_p added to I_xx, I_yy, I_zz: an isotropic body
+        return cols[:, output, :] @ np.concatenate([flange_map(pos, rot), own], axis=1)
 
     def in_gip_span(self, joint_types: str) -> bool:
         return True  # rigid-body torques: the GIP kernel is built to span them (thesis 3.3)
@@ -770,14 +809,17 @@ class Payload(Effect):
     def estimates(
         self, mean: FloatArray, cov: FloatArray, ctx: FeatureContext, output: int
     ) -> list[ParamEstimate]:
-        out = [_linear_estimate("m", np.eye(4)[0], mean, cov, "kg", sign=+1)]
+        out = [_linear_estimate("m", np.eye(len(mean))[0], mean, cov, "kg", sign=+1)]
         m, sd_m = float(mean[0]), math.sqrt(max(float(cov[0, 0]), 0.0))
         if m > 2.0 * 1.96 * sd_m:  # the offset p = (m p) / m, delta method, when m is clear
+            p0 = self._p0()
             for i, axis in enumerate("xyz", start=1):
                 g = np.zeros(len(mean))
                 g[0], g[i] = -mean[i] / m**2, 1.0 / m
                 est = _linear_estimate(f"p_{axis}", g, mean, cov, "m")
-                out.append(dataclasses.replace(est, value=float(mean[i] / m)))
+                out.append(dataclasses.replace(est, value=float(p0[i - 1] + mean[i] / m)))
+        # I_p's sign is not enforced: the bias of an estimated qdd shows first in it
+        out.append(_linear_estimate("I_p", np.eye(len(mean))[4], mean, cov, "kg·m²"))
         return out
 
 

@@ -79,7 +79,12 @@ from mcpilco.models.diagnosis.data import (
     as_trajectories,
     require_rows,
 )
-from mcpilco.models.diagnosis.effects import Effect, ParamEstimate, default_library
+from mcpilco.models.diagnosis.effects import (
+    RELINEARISE_STEPS,
+    Effect,
+    ParamEstimate,
+    default_library,
+)
 from mcpilco.models.diagnosis.model import DiagnosisModel
 from mcpilco.models.diagnosis.shared import score_shared
 from mcpilco.models.gp.linear_gp import single_thread
@@ -186,21 +191,35 @@ def _score_variant(
 
 def _score_shared(
     model: DiagnosisModel, effect: Effect
-) -> tuple[float, list[ParamEstimate], dict[int, FloatArray]]:
-    """``(Delta, estimates, contributions)`` of a complete shared (rigid-body) variant: one
-    weight vector for all the joints it moves (:func:`~.shared.score_shared`)."""
+) -> tuple[float, list[ParamEstimate], dict[int, FloatArray], Effect]:
+    """``(Delta, estimates, contributions, effect)`` of a complete shared (rigid-body)
+    variant: one weight vector for all the joints it moves (:func:`~.shared.score_shared`);
+    a linearised block is re-expanded about its fit while that gains
+    (:meth:`.Effect.relinearised`, :data:`~.effects.RELINEARISE_STEPS`)."""
     joints = effect.outputs(model.n_joints)
-    cols = [effect.columns(model.joint_context(j), j) for j in joints]
-    if any(c is None for c in cols):
-        return float("nan"), [], {}
-    delta, fit = score_shared(
-        [model.gps_[j] for j in joints],
-        [model.theta_[j] for j in joints],
-        [model.evidence_[j] for j in joints],
-        cols,
-    )
+
+    def score(e: Effect) -> tuple[float, Any, list[FloatArray] | None]:
+        cols = [e.columns(model.joint_context(j), j) for j in joints]
+        if any(c is None for c in cols):
+            return float("nan"), None, None
+        gps = [model.gps_[j] for j in joints]
+        thetas = [model.theta_[j] for j in joints]
+        delta, fit = score_shared(gps, thetas, [model.evidence_[j] for j in joints], cols)
+        return delta, fit, cols
+
+    delta, fit, cols = score(effect)
+    if cols is None:
+        return float("nan"), [], {}, effect
+    for _ in range(RELINEARISE_STEPS):
+        nxt = effect.relinearised(fit.mean)
+        if nxt is None:
+            break
+        d2, fit2, cols2 = score(nxt)
+        if not d2 > delta:
+            break
+        effect, delta, fit, cols = nxt, d2, fit2, cols2
     ests = effect.estimates(fit.mean, fit.cov, model.ctx_, joints[0])
-    return delta, ests, {j: c @ fit.mean for j, c in zip(joints, cols, strict=True)}
+    return delta, ests, {j: c @ fit.mean for j, c in zip(joints, cols, strict=True)}, effect
 
 
 def score_effect(
@@ -219,9 +238,9 @@ def score_effect(
     variants = effect.variants(max_delay_samples=model.max_delay_samples, **scan)
     variants = [v.calibrate(model.ctx_) for v in variants]
     deltas, ests, contribs = [], [], []
-    for v in variants:
+    for i, v in enumerate(variants):
         if v.shared:  # one weight vector for all its joints
-            total, best_est, con = _score_shared(model, v)
+            total, best_est, con, variants[i] = _score_shared(model, v)
             deltas.append(total)
             ests.append(best_est)
             contribs.append(con)
