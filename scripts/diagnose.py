@@ -10,11 +10,12 @@ Example (data from ``python -m mcpilco.scripts.make_hidden_effect_data``)::
 Start model: ``--model robot.xml`` (MJCF or URDF, nominal rigid-body physics), or
 ``--gip RRPR`` (a GIP GP learned on the training files) or ``--rbf RRPR`` (a black-box RBF GP;
 the joint types set the joint count and which joints are angles); with a learned start
-``--model`` only gives the payload candidate its regressor. Without ``--test`` the last
+``--model`` only gives the inertial candidates their regressor. Without ``--test`` the last
 training file (or, with one file, its last 30%) is held out. ``--add coulomb:2`` adds an
 effect (repeatable; keys: viscous, coulomb, stribeck, offset, spring, cogging, payload,
-armature, deadzone, delay); ``--auto N`` adds up to N significant effects, best first
-(missing effects before refinements inside a learned start's span).
+inertia (``inertia:2``: link 2), armature, deadzone, delay); ``--auto N`` adds up to N
+significant effects, best first (missing effects before refinements inside a learned
+start's span).
 Files of motor currents (``i1..in`` instead of ``tau1..taun``) are put into torque units
 with ``--torque-constants K1 K2 ...`` (N m/A per joint, negative for a reversed motor;
 ``nan`` for a joint whose constant is to be estimated), or, without it, with constants

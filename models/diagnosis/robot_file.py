@@ -19,11 +19,13 @@ spring        ``joint/@stiffness``, ``joint/@springref``    ``k``, ``q_0 = q_ref
 armature      ``joint/@armature``                           file value ``+ I_a``
 payload       a body ``payload`` on the last link           ``m``, centre of mass ``c = mc / m``,
                                                             inertia about ``c`` (module text)
+inertia       the link's ``inertial`` (mass, ipos,          the link's parameters plus the
+              principal inertia)                            fitted change
 ============  ============================================  ===================================
 
-A change of a link's 10 inertial parameters (a per-link inertial candidate) is written by
-:func:`write_link_inertial`: the link's compiled parameters plus the change, as explicit
-``mass``, ``ipos`` and principal ``inertia``/``iquat``; register it for the candidate's key.
+A change of a link's 10 inertial parameters is written by :func:`write_link_inertial`: the
+link's compiled parameters plus the change, as explicit ``mass``, ``ipos`` and principal
+``inertia``/``iquat``.
 
 The writer is the table :data:`WRITERS` (effect key -> function); an effect type without an
 entry (cogging, dead-zone, torque offset, delay, ...) has no MuJoCo element and is listed in
@@ -33,9 +35,11 @@ damping, friction, stiffness, armature or mass) is not written either; it is lis
 reason.
 
 Payload
-    The payload block holds the change of the last body's 10 inertial parameters
-    ``pi = [m, m c, I_o]`` (pinocchio's order, inertia about the joint frame), one posterior
-    per output joint. They are fused by their information,
+    The payload's weights ``[m, m d, I_p]`` (one vector for all joints) are mapped to the
+    change of the last body's 10 inertial parameters ``pi = [m, m c, I_o]`` (pinocchio's
+    order, inertia about the joint frame) by :meth:`~.effects.Payload.change`. A block with
+    one posterior per output joint (an effect with ``all_joints`` that is not shared) is
+    fused by its information,
     ``Sigma^-1 = sum_j Sigma_j^-1``, ``mu = Sigma sum_j Sigma_j^-1 mu_j`` (each ``Sigma_j``
     includes the same weak prior: a slight over-regularisation, negligible when the block is
     significant). The body gets ``m``, ``c = m c / m`` and
@@ -63,10 +67,11 @@ import numpy as np
 from numpy.typing import NDArray
 
 from mcpilco.models.diagnosis.effects import (
+    INERTIAL_PARAMS,
     MODEL_ONLY_EFFECTS,
-    PAYLOAD_PARAMS,
     Effect,
     ParamEstimate,
+    Payload,
 )
 from mcpilco.models.diagnosis.model import DiagnosisModel
 from mcpilco.models.diagnosis.start_models import NominalStart
@@ -95,7 +100,7 @@ class FoundEffect:
     """An effect of a fitted model with its parameter estimates (95 % intervals).
 
     ``inertial`` / ``inertial_cov``: for the payload, the fused change of the last body's 10
-    inertial parameters (:data:`~.effects.PAYLOAD_PARAMS`) and its covariance.
+    inertial parameters (:data:`~.effects.INERTIAL_PARAMS`) and its covariance.
     """
 
     effect: Effect
@@ -206,6 +211,21 @@ def block_posterior(
     return mean[sl], cov[sl, sl]
 
 
+def shared_posterior(model: DiagnosisModel, effect: Effect) -> tuple[FloatArray, FloatArray]:
+    """Posterior mean and covariance of a shared (rigid-body) effect's weights."""
+    shared = model.shared_effects
+    k = shared.index(effect)
+    sizes = model._shared_sizes()
+    sl = slice(sum(sizes[:k]), sum(sizes[: k + 1]))
+    return model.shared_.mean[sl], model.shared_.cov[sl, sl]
+
+
+def model_estimates(model: DiagnosisModel, effect: Effect) -> list[ParamEstimate]:
+    """A shared effect's estimates as the model reports them (:meth:`DiagnosisModel.parameters`)."""
+    mean, cov = shared_posterior(model, effect)
+    return effect.estimates(mean, cov, model.ctx_, 0)
+
+
 def _fuse(posteriors: Sequence[tuple[FloatArray, FloatArray]]) -> tuple[FloatArray, FloatArray]:
     """Information fusion of Gaussian posteriors of one vector (module docstring)."""
     info = sum(np.linalg.pinv(c, hermitian=True) for _, c in posteriors)
@@ -227,6 +247,12 @@ def found_effects(model: DiagnosisModel) -> list[FoundEffect]:
             )
             out.append(FoundEffect(e, tuple(ests)))
             continue
+        if e in model.shared_effects:  # one weight vector for all joints (a body's inertia)
+            mean, cov = shared_posterior(model, e)
+            ests = tuple(model_estimates(model, e))
+            change = e.change(mean, model.ctx_) if isinstance(e, Payload) else e.change(mean)
+            out.append(FoundEffect(e, ests, change))
+            continue
         posts = [
             (j, p)
             for j in e.outputs(model.n_joints)
@@ -245,7 +271,7 @@ def found_effects(model: DiagnosisModel) -> list[FoundEffect]:
                     _payload_unit(name),
                     bool(name == "m" and mean[k] < -1.96 * sd[k]),
                 )
-                for k, name in enumerate(PAYLOAD_PARAMS)
+                for k, name in enumerate(INERTIAL_PARAMS)
             )
             out.append(FoundEffect(e, ests, mean, cov))
         else:
@@ -501,6 +527,7 @@ WRITERS: dict[str, Writer] = {
     "spring": write_spring,
     "armature": write_armature,
     "payload": write_payload,
+    "inertia": write_link_inertial,
 }
 """Effect key -> the function that writes it into the MJCF (keys without one: side file)."""
 

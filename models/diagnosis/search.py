@@ -7,8 +7,10 @@ Score (Bayesian model comparison, thesis eq. 1.9 for the evidence)
     prior variance and the noise re-optimised; a delay re-optimises them all, its inputs
     ``k`` samples earlier and its targets the same measured samples), and with a uniform
     prior over the scan
-    ``Delta = log( (1/G) sum_v exp(Delta_v) )``. An effect acting on every joint (payload)
-    sums ``Delta`` over the joints (independent GPs).
+    ``Delta = log( (1/G) sum_v exp(Delta_v) )``. A rigid-body effect (a link's inertia, a
+    payload; :attr:`.Effect.shared`) has one weight vector for all the joints it moves:
+    ``Delta`` is the gain of the stacked joints, its prior scale and every moved joint's
+    noise re-optimised (:func:`~.shared.score_shared`).
 Significance
     ``Delta > evidence_threshold`` (default 5 nats: a Bayes factor above e^5 ~ 150, "very
     strong" on Kass & Raftery's scale ``2 Delta > 10``), the physical sign respected, and the
@@ -81,9 +83,15 @@ from mcpilco.models.diagnosis.data import (
     as_trajectories,
     require_rows,
 )
-from mcpilco.models.diagnosis.effects import Effect, ParamEstimate, default_library
+from mcpilco.models.diagnosis.effects import (
+    RELINEARISE_STEPS,
+    Effect,
+    ParamEstimate,
+    default_library,
+)
 from mcpilco.models.diagnosis.identifiability import judge_estimates, weight_names
 from mcpilco.models.diagnosis.model import DiagnosisModel
+from mcpilco.models.diagnosis.shared import score_shared
 from mcpilco.models.diagnosis.units import widen_estimates, without_fitted_scales
 from mcpilco.models.gp.linear_gp import single_thread
 
@@ -133,6 +141,7 @@ class Candidate:
     in_start_span: bool = False
     alternative_to: str | None = None
     replace_delta: float | None = None
+    confounded: str | None = None
 
     @property
     def missing(self) -> bool:
@@ -210,6 +219,39 @@ def _judged_estimates(model: DiagnosisModel, cand: Candidate) -> list[ParamEstim
     return cand.estimates if best is None else best[1]
 
 
+def _score_shared(
+    model: DiagnosisModel, effect: Effect
+) -> tuple[float, list[ParamEstimate], dict[int, FloatArray], Effect]:
+    """``(Delta, estimates, contributions, effect)`` of a complete shared (rigid-body)
+    variant: one weight vector for all the joints it moves (:func:`~.shared.score_shared`);
+    a linearised block is re-expanded about its fit while that gains
+    (:meth:`.Effect.relinearised`, :data:`~.effects.RELINEARISE_STEPS`)."""
+    joints = effect.outputs(model.n_joints)
+
+    def score(e: Effect) -> tuple[float, Any, list[FloatArray] | None]:
+        cols = [e.columns(model.joint_context(j), j) for j in joints]
+        if any(c is None for c in cols):
+            return float("nan"), None, None
+        gps = [model.gps_[j] for j in joints]
+        thetas = [model.theta_[j] for j in joints]
+        delta, fit = score_shared(gps, thetas, [model.evidence_[j] for j in joints], cols)
+        return delta, fit, cols
+
+    delta, fit, cols = score(effect)
+    if cols is None:
+        return float("nan"), [], {}, effect
+    for _ in range(RELINEARISE_STEPS):
+        nxt = effect.relinearised(fit.mean)
+        if nxt is None:
+            break
+        d2, fit2, cols2 = score(nxt)
+        if not d2 > delta:
+            break
+        effect, delta, fit, cols = nxt, d2, fit2, cols2
+    ests = effect.estimates(fit.mean, fit.cov, model.ctx_, joints[0])
+    return delta, ests, {j: c @ fit.mean for j, c in zip(joints, cols, strict=True)}, effect
+
+
 def score_effect(
     model: DiagnosisModel, effect: Effect, refine: bool = False, **scan: Any
 ) -> Candidate:
@@ -226,7 +268,13 @@ def score_effect(
     variants = effect.variants(max_delay_samples=model.max_delay_samples, **scan)
     variants = [v.calibrate(model.ctx_) for v in variants]
     deltas, ests, contribs = [], [], []
-    for v in variants:
+    for i, v in enumerate(variants):
+        if v.shared:  # one weight vector for all its joints
+            total, best_est, con, variants[i] = _score_shared(model, v)
+            deltas.append(total)
+            ests.append(best_est)
+            contribs.append(con)
+            continue
         total, best_est, con = 0.0, [], {}
         best_d = -math.inf
         for j in outputs:
@@ -317,7 +365,7 @@ def score_candidates(
     """Score every candidate not already in the model, best first."""
     model._check_fitted()
     if library is None:
-        library = default_library(model.n_joints, with_payload=model.start.robot is not None)
+        library = default_library(model.n_joints, rigid_body=model.start.robot is not None)
     todo = [e for e in library if not any(e.same_slot(m) for m in model.effects)]
     if progress:
         from tqdm import tqdm
@@ -435,6 +483,23 @@ def heldout_change_pct(
     return 100.0 * (e_after / e_before - 1.0)
 
 
+def _confounded_with_constants(model: DiagnosisModel, cand: Candidate) -> str | None:
+    """Why ``cand`` cannot be told apart from an estimated torque constant, or ``None``.
+
+    A change of a body's inertia scales the rigid-body torque of the joints that move it, as
+    an error of their torque constants ``k_t`` does (``k_hat i = k/k_hat tau``): with ``k_t``
+    estimated from the same logs the two trade off, so an inertial candidate on such a joint
+    is reported as not identifiable (give the constants to score it)."""
+    tc = getattr(model.train_, "torque_constants", None)
+    if tc is None or cand.effect.family != "body inertia":
+        return None
+    estimated = [j for j in cand.outputs if not bool(tc.given[j - 1])]
+    if not estimated:
+        return None
+    joints = ", ".join(str(j) for j in estimated)
+    return f"confounded with the estimated torque constant of joint {joints}"
+
+
 def _group(cands: Sequence[Candidate], threshold: float) -> None:
     """Single-linkage groups by correlation of the fitted contributions on a shared joint."""
     parent = list(range(len(cands)))
@@ -550,14 +615,14 @@ class Diagnosis:
         if best.alternative_to is not None:
             text = (
                 f"{self.model_name}: {best.alternative_to} is better described as "
-                f"{best.effect.title} on joint {best.joint_text} ({best.effect.variant_label} "
+                f"{best.effect.title} {best.effect.place} ({best.effect.variant_label} "
                 f"in its place: +{best.replace_delta or math.nan:.1f} nats, held-out RMSE "
                 f"{best.heldout_delta_pct:+.1f}%; {best.estimate_text()})"
             )
         else:
             text = (
-                f"{self.model_name}: missing effect: {best.effect.title} on joint "
-                f"{best.joint_text} ({best.effect.variant_label}, +{best.delta:.1f} nats, "
+                f"{self.model_name}: missing effect: {best.effect.title} {best.effect.place} "
+                f"({best.effect.variant_label}, +{best.delta:.1f} nats, "
                 f"held-out RMSE {best.heldout_delta_pct:+.1f}%; {best.estimate_text()})"
             )
         if alike:
@@ -618,6 +683,8 @@ class Diagnosis:
             return "in start span"
         if c.wrong_sign:
             return "wrong sign"
+        if c.confounded is not None:
+            return "not identifiable"
         if c.alternative_to is not None:
             return f"alternative to {c.alternative_to}"
         if c.delta <= self.threshold:
@@ -664,6 +731,7 @@ class Diagnosis:
                     "alternative_to": c.alternative_to,
                     "replace_delta_log_evidence": c.replace_delta,
                     "wrong_sign": c.wrong_sign,
+                    "confounded": c.confounded,
                     "estimates": [p.__dict__ for p in c.estimates],
                 }
                 for c in self.candidates
@@ -723,6 +791,9 @@ def diagnose(
         if c.wrong_sign:
             continue
         c.estimates = _judged_estimates(model, c)
+        c.confounded = _confounded_with_constants(model, c)
+        if c.confounded is not None:
+            continue
         if base_rmse is None:
             base_rmse = heldout_rmse(model, held)
         if c.alternative_to is None:

@@ -5,13 +5,13 @@ find the missing physical effect, add it, watch the error fall (``mcpilco-diagno
 held-out files and reports each step as text lines (``log``). Start model: a nominal robot
 file (MJCF or URDF, rigid-body physics), or a GIP / RBF GP learned on the training files
 (the joint types set the joint count and which joints are angles; a robot file then only
-gives the payload candidate its regressor). Without held-out files the last training file
-(or, with one file, its last 30%) is held out. Effects are added by name (``coulomb:2``) or
-automatically, best first (missing effects before refinements inside a learned start's
-span), while one is significant; what the data cannot tell apart from an added effect is
-reported as its alternative and only ever put in its place
-(:func:`~.search.next_version`). Every version is saved as ``<out>/models/model_v<k>.json``
-(never overwritten).
+gives the inertial candidates, every link and the payload, their regressor). Without
+held-out files the last training file (or, with one file, its last 30%) is held out.
+Effects are added by name (``coulomb:2``) or automatically, best first (missing effects
+before refinements inside a learned start's span), while one is significant; what the data
+cannot tell apart from an added effect is reported as its alternative and only ever put in
+its place (:func:`~.search.next_version`). Every version is saved as
+``<out>/models/model_v<k>.json`` (never overwritten).
 
 Motor-current files (columns ``i1..in``) are put into torque units first, ``y = k_t i``: with
 the given ``torque_constants``, and for the joints without one with constants estimated on the

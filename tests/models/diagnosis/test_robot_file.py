@@ -34,7 +34,7 @@ from mcpilco.models.diagnosis import (
     run_diagnosis,
     write_corrected_mjcf,
 )
-from mcpilco.models.diagnosis.effects import PAYLOAD_PARAMS, FeatureContext, ParamEstimate
+from mcpilco.models.diagnosis.effects import INERTIAL_PARAMS, FeatureContext, ParamEstimate
 from mcpilco.models.diagnosis.robot_file import PAYLOAD_FALLBACK_RADIUS, FoundEffect
 from mcpilco.models.diagnosis.sysid_refine import (
     inverse_dynamics_error,
@@ -137,7 +137,7 @@ def test_payload_body_reproduces_the_regressor_torque():
     xml = arm_to_xml(scara().rigid(), friction=False)
     start = NominalStart(xml)
     pi = _payload(0.8, np.array([0.01, -0.02, 0.05]), np.diag([1e-3, 2e-3, 1.5e-3]))
-    ests = tuple(_est(n, float(v)) for n, v in zip(PAYLOAD_PARAMS, pi, strict=True))
+    ests = tuple(_est(n, float(v)) for n, v in zip(INERTIAL_PARAMS, pi, strict=True))
     corrected = write_corrected_mjcf(
         DiagnosisModel(start), [FoundEffect(Payload(), ests, pi, np.eye(10) * 1e-6)]
     )
@@ -147,7 +147,7 @@ def test_payload_body_reproduces_the_regressor_torque():
     diff = _inverse(mujoco.MjModel.from_xml_string(corrected.xml), q, qd, qdd) - _inverse(
         mujoco.MjModel.from_xml_string(xml), q, qd, qdd
     )
-    expected = start.last_link_regressor(q, qd, qdd) @ pi
+    expected = start.robot.regressor(q, qd, qdd)[:, :, -10:] @ pi  # the last body's columns
     np.testing.assert_allclose(diff, expected, atol=1e-8)
 
 
@@ -188,7 +188,7 @@ def test_link_inertial_change_reproduces_the_regressor_torque(monkeypatch):
 def test_inconsistent_payload_inertia_is_replaced_and_listed():
     xml = arm_to_xml(scara().rigid(), friction=False)
     pi = _payload(0.5, np.zeros(3), np.diag([1e-3, 1e-3, -1e-3]))
-    ests = tuple(_est(n, float(v)) for n, v in zip(PAYLOAD_PARAMS, pi, strict=True))
+    ests = tuple(_est(n, float(v)) for n, v in zip(INERTIAL_PARAMS, pi, strict=True))
     corrected = write_corrected_mjcf(
         DiagnosisModel(NominalStart(xml)), [FoundEffect(Payload(), ests, pi)]
     )
