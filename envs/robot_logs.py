@@ -55,8 +55,9 @@ Hidden effects (``HiddenEffect(kind, joint, value, ref)``; ``joint`` counts from
 ``position_friction`` (N m or N; ``ref`` in 1/rad or 1/m)
     applied ``-value (1 + 0.5 sin(ref q_j)) tanh(qd_j / FRICTION_VELOCITY)``: a dry friction
     whose level varies with position (no diagnosis candidate has this form).
-``cogging`` (N m or N; ``ref`` in 1/rad or 1/m)
-    applied ``value sin(ref q_j)``.
+``cogging`` (N m or N; ``ref`` in 1/rad or 1/m; ``phase`` in rad)
+    applied ``value sin(ref q_j + phase)`` (the actuator then supplies the opposite torque:
+    ``value sin(ref q_j + phase + pi)``).
 
 The applied forces (``qfrc_applied``) are evaluated from the state at the start of every
 physics step (explicit in time).
@@ -68,12 +69,15 @@ Measurement model (sample time ``T = substeps dt``; defaults ``dt = 1`` ms, ``T 
   rad (``1 / counts_per_metre`` m for prismatic joints) read with electrical noise
   ``e_k ~ N(0, (encoder_noise s)^2)`` (``encoder_noise`` in counts); ``q_k`` lies on the
   encoder grid ``s Z``. The quantisation alone has a standard deviation ``s / sqrt(12)``.
-* ``tau_k = tau(t_k) + n_k``, ``n_k ~ N(0, tau_noise^2)`` [N m or N]: the actuator torque
-  applied over the physics step that starts at ``t_k``, measured with noise.
+* ``tau_k = tau(t_k - d) + n_k``, ``n_k ~ N(0, tau_noise^2)`` [N m or N]: the actuator torque
+  applied over the physics step that starts at ``t_k - d``, measured with noise. ``d``
+  (``tau_delay``, per joint, default 0) is a measurement delay: the torque column lags the
+  positions (a time-stamp offset between two buses); between physics steps ``tau`` is
+  interpolated linearly, before the first step it is the first step's.
 
 Ground truth (:class:`LogTruth`) per sample: the exact ``q, qd`` and ``qdd`` (MuJoCo's
 ``qacc`` of the true model at that state and torque: the equation-of-motion acceleration),
-the noise-free ``tau``, and the reference. Without hidden effects and noise,
+the noise-free ``tau``, and the reference. Without hidden effects, delay and noise,
 ``tau_k`` equals the nominal model's inverse dynamics (``mj_inverse``) at
 ``(q, qd, qdd)(t_k)``; with effects, ``tau_k - ID_nom`` is the effects' torque.
 
@@ -143,12 +147,14 @@ class HiddenEffect:
         value: size of the effect (units per kind in the module docstring).
         ref: second parameter: ``springref`` of ``stiffness``, spatial frequency of
             ``position_friction``/``cogging``, offset of ``payload``.
+        phase: phase of ``cogging`` at ``q_j = 0`` [rad].
     """
 
     kind: str
     joint: int
     value: float
     ref: float = 0.0
+    phase: float = 0.0
 
     def __post_init__(self) -> None:
         if self.kind not in EFFECT_KINDS:
@@ -166,7 +172,8 @@ class LogTruth:
     Attributes:
         q, qd, qdd: exact ``(N, n)`` joint positions, velocities and equation-of-motion
             accelerations of the true model at the logged instants.
-        tau: ``(N, n)`` applied torque before the measurement noise.
+        tau: ``(N, n)`` torque applied at the logged instants (before the measurement delay
+            and noise).
         q_ref, qd_ref: ``(N, n)`` the controller's reference.
         effects: the hidden effects.
         settings: controller gains, encoder steps, noise levels, timestep, sample time.
@@ -263,7 +270,7 @@ def _applied_force(effects: Sequence[HiddenEffect], q: FloatArray, qd: FloatArra
             level = e.value * (1.0 + 0.5 * math.sin(e.ref * q[j]))
             out[j] -= level * math.tanh(qd[j] / FRICTION_VELOCITY)
         elif e.kind == "cogging":
-            out[j] += e.value * math.sin(e.ref * q[j])
+            out[j] += e.value * math.sin(e.ref * q[j] + e.phase)
     return out
 
 
@@ -312,6 +319,7 @@ def simulate_log(
     counts_per_metre: float = 1e6,
     encoder_noise: float = 0.3,
     tau_noise: ArrayLike = 0.05,
+    tau_delay: ArrayLike = 0.0,
     reference: SumOfSinusoids | None = None,
 ) -> RobotLog:
     """Simulate ``duration`` s of the true arm tracking a reference; measure it (module
@@ -331,6 +339,8 @@ def simulate_log(
             quantisation (0: quantisation only).
         tau_noise: standard deviation of the torque measurement noise [N m or N], one value
             or one per joint.
+        tau_delay: measurement delay ``d`` of the torque columns [s] (>= 0), one value or one
+            per joint.
         reference: the joint reference; default a random one from ``seed``.
 
     Returns:
@@ -363,7 +373,9 @@ def simulate_log(
     applied = any(e.kind in APPLIED_KINDS for e in effects)
 
     n_samples = int(math.floor(duration / (timestep * substeps))) + 1
+    delay = _per_joint(tau_delay, n, "tau_delay")
     rec = {k: np.zeros((n_samples, n)) for k in ("q", "qd", "qdd", "tau", "q_ref", "qd_ref")}
+    tau_steps = np.zeros((n_samples * substeps, n))  # the torque of every physics step
     data.qpos[:] = q0
     data.qvel[:] = qd0
     for k in range(n_samples):
@@ -377,6 +389,7 @@ def simulate_log(
             if applied:
                 data.qfrc_applied[:] = _applied_force(effects, q, qd)
             mujoco.mj_step(true, data)  # qacc: acceleration at the state before the step
+            tau_steps[k * substeps + s] = tau
             if s == 0:
                 rec["q"][k], rec["qd"][k], rec["qdd"][k] = q, qd, data.qacc
                 rec["tau"][k], rec["q_ref"][k], rec["qd_ref"][k] = tau, q_ref, qd_ref
@@ -390,8 +403,16 @@ def simulate_log(
     reading = rec["q"] + rng.normal(0.0, 1.0, rec["q"].shape) * encoder_noise * step
     q_meas = np.round(reading / step) * step
     sigma_tau = _per_joint(tau_noise, n, "tau_noise")
-    tau_meas = rec["tau"] + rng.normal(0.0, 1.0, rec["tau"].shape) * sigma_tau
     t = np.arange(n_samples) * (timestep * substeps)
+    t_steps = np.arange(n_samples * substeps) * timestep
+    logged = np.stack(
+        [
+            np.interp(t - delay[j], t_steps, tau_steps[:, j]) if delay[j] > 0 else rec["tau"][:, j]
+            for j in range(n)
+        ],
+        axis=1,
+    )
+    tau_meas = logged + rng.normal(0.0, 1.0, rec["tau"].shape) * sigma_tau
     cols: dict[str, FloatArray] = {"t": t}
     cols.update({f"q{j + 1}": q_meas[:, j] for j in range(n)})
     cols.update({f"tau{j + 1}": tau_meas[:, j] for j in range(n)})
@@ -406,6 +427,7 @@ def simulate_log(
         "encoder_step": step.tolist(),
         "encoder_noise": encoder_noise,
         "tau_noise": sigma_tau.tolist(),
+        "tau_delay": delay.tolist(),
     }
     truth = LogTruth(
         q=rec["q"],
