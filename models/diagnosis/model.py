@@ -16,9 +16,10 @@ hyperparameters stay at their version-0 values (a learned start is backfitted by
 :meth:`DiagnosisModel.add`).
 
 Delays: ``y_j(t) = f_j(x(t - d))``. The targets always stay the measured ``y_j`` at the
-training rows ``t``; a delay of ``k`` samples on joint ``j`` moves that joint's *inputs* to
-the states ``k`` samples earlier (its effect blocks, its start-kernel Gram matrix and its
-prior mean are evaluated at ``x(t - d)``), and its predictions are ``mean_j(t - d)``. So
+training rows ``t``; a delay of ``k`` samples on joint ``j`` (any real ``k >= 0``; between two
+samples the states are interpolated linearly, :meth:`.Trajectories.at`) moves that joint's
+*inputs* to the states ``k`` samples earlier (its effect blocks, its start-kernel Gram matrix
+and its prior mean are evaluated at ``x(t - d)``), and its predictions are ``mean_j(t - d)``. So
 every delay of the scan is scored on the same measured samples, i.e. on the same noise
 realisation: shifting the targets instead would compare different noise samples whenever
 the rows are a subset (with a start kernel), whose log-likelihoods differ by
@@ -32,8 +33,9 @@ in time (the exact GP costs ``O(N^3)``).
 
 from __future__ import annotations
 
+import dataclasses
 import json
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -137,48 +139,79 @@ class DiagnosisModel:
     def context(self, traj: Trajectories, rows: NDArray[np.int64] | None = None) -> FeatureContext:
         """Feature context of ``traj`` (all rows, or ``rows``)."""
         sel = slice(None) if rows is None else rows
-        q, qd, qdd = traj.q[sel], traj.qd[sel], traj.qdd[sel]
+        return self._context_at((traj.q[sel], traj.qd[sel], traj.qdd[sel]), traj.output)
+
+    def _context_at(
+        self,
+        states: tuple[FloatArray, ...],
+        output: str,
+        base: FloatArray | None = None,
+        regressor: Callable[[], FloatArray | None] | None = None,
+    ) -> FeatureContext:
+        """Feature context at ``states = (q, qd, qdd)``; ``base``: the start model's torque
+        there, ``regressor``: its payload columns, if at hand."""
+        q, qd, qdd = states
+        if regressor is None and self.start.robot is not None:
+
+            def regressor() -> FloatArray | None:
+                return self.start.last_link_regressor(q, qd, qdd)
+
         return FeatureContext(
             q=q,
             qd=qd,
             qdd=qdd,
-            base=self.start.torque(q, qd, qdd),
+            base=self.start.torque(q, qd, qdd) if base is None else base,
             joint_types=self.start.joint_types,
-            output=traj.output,
-            last_link_regressor=(
-                (lambda: self.start.last_link_regressor(q, qd, qdd))
-                if self.start.robot is not None
-                else None
-            ),
+            output=output,
+            last_link_regressor=regressor,
         )
 
-    def _delay_samples(self, output: int) -> int:
+    def _delay_samples(self, output: int) -> float:
         for e in self.effects:
             if isinstance(e, Delay) and e.joint - 1 == output:
-                return int(e.samples)
-        return 0
+                return float(e.samples)
+        return 0.0
 
-    def _shifted(self, shift: int) -> tuple[FeatureContext, FloatArray, tuple[FloatArray, ...]]:
-        """``(context, prior mean (N, n), (q, qd, qdd))`` at the input rows ``rows - shift``
-        (cached until the next :meth:`fit`)."""
+    def _shifted(self, shift: float) -> tuple[FeatureContext, FloatArray, tuple[FloatArray, ...]]:
+        """``(context, prior mean (N, n), (q, qd, qdd))`` at the inputs ``x(rows - shift)``
+        (``shift`` in samples, interpolated between samples; cached until the next
+        :meth:`fit`)."""
+        shift = float(shift)
         if shift not in self._shift_cache:
             traj = self.train_
-            rows = traj.shift_index(self.rows_, -shift)
-            states = (traj.q[rows], traj.qd[rows], traj.qdd[rows])
+            if shift.is_integer():
+                # whole samples: the start model's values on the whole files (kept by the
+                # start model for every shift and version), then the rows picked
+                idx = traj.shift_index(self.rows_, -int(shift))
+                full = (traj.q, traj.qd, traj.qdd)
+                states = tuple(x[idx] for x in full)
+                prior = self.start.prior_mean(*full)[idx]
+                base = prior if self.start.torque_is_prior_mean else self.start.torque(*full)[idx]
+                regressor = None
+                if self.start.robot is not None:
+
+                    def regressor() -> FloatArray | None:
+                        return self.start.last_link_regressor(*full)[idx]
+
+            else:
+                states = tuple(traj.at(x, self.rows_, -shift) for x in (traj.q, traj.qd, traj.qdd))
+                prior = self.start.prior_mean(*states)
+                base = prior if self.start.torque_is_prior_mean else None
+                regressor = None
             self._shift_cache[shift] = (
-                self.context(traj, rows),
-                self.start.prior_mean(*states),
+                self._context_at(states, traj.output, base, regressor),
+                prior,
                 states,
             )
         return self._shift_cache[shift]
 
-    def joint_context(self, output: int, shift: int | None = None) -> FeatureContext:
+    def joint_context(self, output: int, shift: float | None = None) -> FeatureContext:
         """Feature context of output ``output``'s inputs, ``x(rows - k)`` (``k``: ``shift``,
         default the joint's delay in samples)."""
         k = self._delay_samples(output) if shift is None else shift
         return self._shifted(k)[0]
 
-    def target(self, output: int, shift: int | None = None) -> FloatArray:
+    def target(self, output: int, shift: float | None = None) -> FloatArray:
         """Residual target ``r = y_j(rows) - m_j(x(rows - k))`` of output ``output``
         (0-based; ``k``: ``shift``, default the joint's delay in samples)."""
         k = self._delay_samples(output) if shift is None else shift
@@ -197,7 +230,7 @@ class DiagnosisModel:
             out[j] = (U, S)
         return out
 
-    def joint_gp(self, output: int, shift: int) -> JointGP:
+    def joint_gp(self, output: int, shift: float) -> JointGP:
         """Output ``output``'s GP with the current blocks, its inputs at ``x(rows - shift)``
         and the same target samples ``y_j(rows)`` and scale as the fitted one (the delay
         scan: evidences of different ``shift`` compare models of the same data)."""
@@ -221,8 +254,7 @@ class DiagnosisModel:
         ``y_j(rows + k_j)`` for a joint delayed by ``k_j`` samples."""
         traj = self.train_
         cols = [
-            traj.y[traj.shift_index(self.rows_, self._delay_samples(j)), j]
-            for j in range(self.n_joints)
+            traj.at(traj.y[:, j], self.rows_, self._delay_samples(j)) for j in range(self.n_joints)
         ]
         return np.stack(cols, axis=1)
 
@@ -253,6 +285,7 @@ class DiagnosisModel:
         refit_start: bool | None = None,
         _warm: dict[int, FloatArray] | None = None,
         backfit: bool = False,
+        _parent: DiagnosisModel | None = None,
     ) -> DiagnosisModel:
         """Fit on training trajectories (whole files).
 
@@ -277,25 +310,37 @@ class DiagnosisModel:
         fitted = getattr(self.start, "estimator_", True) is not None
         if refit_start or (refit_start is None and not fitted):
             self.start.fit(q, qd, qdd, self._start_targets())
+            _parent = None
         self.ctx_ = self._shifted(0)[0]
         dt = traj.sample_time
         effects = []
         for e in self.effects:
             e = e.calibrate(self.ctx_)
             if isinstance(e, Delay) and e.sample_time is None:
-                e = type(e)(joint=e.joint, samples=e.samples, sample_time=dt)
+                e = dataclasses.replace(e, sample_time=dt)
             effects.append(e)
         self.effects = tuple(effects)
         shifts = [self._delay_samples(j) for j in range(self.n_joints)]
+        reused = [j for j in range(self.n_joints) if self._same_joint(_parent, j)]
         eigs: dict[int, tuple[FloatArray, FloatArray]] = {}
         if self.start.has_kernel:
             for k in sorted(set(shifts)):  # the Gram matrix at each joint's inputs
-                joints = [j for j in range(self.n_joints) if shifts[j] == k]
-                eigs.update(self._start_eig(self._shifted(k)[2], joints))
+                joints = [j for j in range(self.n_joints) if shifts[j] == k and j not in reused]
+                if joints:
+                    eigs.update(self._start_eig(self._shifted(k)[2], joints))
         noise0 = self.start.noise_variance()
         self.gps_, self.theta_, self.evidence_ = [], [], []
         self.eig_: list[tuple[FloatArray, FloatArray] | None] = []
+        self.scores_: list[dict[Effect, tuple]] = []
         for j in range(self.n_joints):
+            if j in reused:  # the parent's fit of this joint, and its candidate scores
+                self.eig_.append(_parent.eig_[j])
+                self.gps_.append(_parent.gps_[j])
+                self.theta_.append(_parent.theta_[j])
+                self.evidence_.append(_parent.evidence_[j])
+                self.scores_.append(_parent.scores_[j])
+                continue
+            self.scores_.append({})
             eig = eigs.get(j)
             self.eig_.append(eig)
             base_r = self.target(j, shift=0)
@@ -325,6 +370,25 @@ class DiagnosisModel:
             self.start = self.start.refit(q, qd, qdd, y_adj)
             return self.fit(traj, refit_start=False, _warm=dict(enumerate(self.theta_)))
         return self
+
+    def _same_joint(self, parent: DiagnosisModel | None, output: int) -> bool:
+        """Whether ``parent`` (the version this one derives from) fitted output ``output``'s
+        GP on the same data with the same start model and the same effects on it: its fit
+        is then this one's (:meth:`fit` reuses it and its candidate scores)."""
+        if parent is None or parent.train_ is not self.train_ or parent.start is not self.start:
+            return False
+        if not np.array_equal(parent.rows_, self.rows_):
+            return False
+        mine = [e for e in self.effects if output in e.outputs(self.n_joints)]
+        theirs = [e for e in parent.effects if output in e.outputs(parent.n_joints)]
+        return mine == theirs
+
+    def score_cache(self, output: int) -> dict[Effect, tuple]:
+        """Scores of candidate variants on output ``output`` (0-based) against this fit,
+        kept by :func:`~.search.score_effect` and shared with a later version whose fit of
+        that joint is this one's."""
+        self._check_fitted()
+        return self.scores_[output]
 
     def _effect_part(self, output: int, ctx: FeatureContext) -> FloatArray:
         """Fitted torque of the added blocks on ``output`` at the states of ``ctx``."""
@@ -404,7 +468,7 @@ class DiagnosisModel:
         )
         if self.train_ is not None:
             warm = {j: np.append(th, 0.0) for j, th in enumerate(self.theta_)}
-            new.fit(self.train_, refit_start=False, _warm=warm, backfit=backfit)
+            new.fit(self.train_, refit_start=False, _warm=warm, backfit=backfit, _parent=self)
         return new
 
     def replacing(self, label: str, effect: Effect, backfit: bool = False) -> DiagnosisModel:
@@ -434,7 +498,7 @@ class DiagnosisModel:
         if self.train_ is not None:
             same = effect.is_shift == self.effects[k].is_shift
             warm = dict(enumerate(self.theta_)) if same else None
-            new.fit(self.train_, refit_start=False, _warm=warm, backfit=backfit)
+            new.fit(self.train_, refit_start=False, _warm=warm, backfit=backfit, _parent=self)
         return new
 
     def add(self, effect: Effect) -> DiagnosisModel:
@@ -468,7 +532,7 @@ class DiagnosisModel:
                     sl = self.gps_[j].block_slices()[k]
                     mean, cov = self.gps_[j].weights(self.theta_[j])
                     ests = e.estimates(mean[sl], cov[sl, sl], self.ctx_, j)
-                for p in ests:
+                for p in e.with_profile(ests):
                     rows.append(
                         dict(effect=e.variant_label, output=j + 1, **p.__dict__, text=p.text())
                     )
@@ -528,6 +592,7 @@ class DiagnosisModel:
                 lbfgs_iters=start_spec.get("lbfgs_iters", 30),
                 converge_nats=start_spec.get("converge_nats", 0.5),
                 max_rounds=start_spec.get("max_rounds", 10),
+                hyper_points=start_spec.get("hyper_points"),
             )
         else:
             raise ValueError(f"unknown start model kind {start_spec['kind']!r}")

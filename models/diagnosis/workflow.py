@@ -33,7 +33,10 @@ from typing import Any
 
 import numpy as np
 
+from mcpilco.models.gp.linear_gp import single_thread
 
+
+@single_thread()  # the matrices are small: BLAS threads only wait for each other
 def run_diagnosis(
     train: Sequence[str | Path],
     test: Sequence[str | Path] | None = None,
