@@ -142,17 +142,28 @@ def _fmt(x: float) -> str:
 @dataclass
 class FeatureContext:
     """What a feature block may read, per sample: ``q, qd, qdd (N, n)``, the start model's
-    torque ``base (N, n)``, ``joint_types``, the output group (``tau``/``i``), and a
-    callable returning the last link's regressor columns ``(N, n, 10)`` (or ``None``)."""
+    torque ``base (N, n)`` (read it through :meth:`start_torque`: ``None`` until first used
+    when ``base_fn`` computes it, as a learned start's prediction is costly and only a
+    dead-zone reads it), ``joint_types``, the output group (``tau``/``i``), and a callable
+    returning the last link's regressor columns ``(N, n, 10)`` (or ``None``)."""
 
     q: FloatArray
     qd: FloatArray
     qdd: FloatArray
-    base: FloatArray
+    base: FloatArray | None
     joint_types: str
     output: str = "tau"
     last_link_regressor: Callable[[], FloatArray | None] | None = None
     _payload: FloatArray | None = dataclasses.field(default=None, repr=False)
+    base_fn: Callable[[], FloatArray] | None = dataclasses.field(default=None, repr=False)
+
+    def start_torque(self) -> FloatArray:
+        """``tau_hat (N, n)``, the start model's torque (computed once, on first use)."""
+        if self.base is None:
+            if self.base_fn is None:
+                raise ValueError("this feature context has no start-model torque")
+            self.base = self.base_fn()
+        return self.base
 
     def payload_columns(self) -> FloatArray | None:
         if self._payload is None and self.last_link_regressor is not None:
@@ -245,13 +256,15 @@ class Effect:
             p.name, value, lo, hi, ctx.unit(p.unit, self.joint) if p.unit else "", limited
         )
 
-    def with_profile(self, estimates: list[ParamEstimate]) -> list[ParamEstimate]:
+    def with_profile(
+        self, estimates: list[ParamEstimate], shape: bool = True
+    ) -> list[ParamEstimate]:
         """``estimates`` with the :attr:`profile` entries in place of those of the same name
-        (a profile interval replaces an estimate conditional on the shape values), the other
-        profile entries appended."""
+        (a profile interval replaces an estimate conditional on the shape values), and with
+        ``shape`` the other profile entries (the shape values themselves) appended."""
         prof = {p.name: p for p in self.profile}
         out = [prof.pop(e.name, e) for e in estimates]
-        return out + list(prof.values())
+        return out + list(prof.values()) if shape else out
 
     def spec(self) -> dict[str, Any]:
         """JSON-serialisable description (see :func:`effect_from_spec`)."""
@@ -592,11 +605,11 @@ class DeadZone(Effect):
     def calibrate(self, ctx: FeatureContext) -> Effect:
         if self.torque_scale is not None:
             return self
-        tau = ctx.base[:, self.joint - 1]
+        tau = ctx.start_torque()[:, self.joint - 1]
         return dataclasses.replace(self, torque_scale=float(np.sqrt(np.mean(tau**2))) or 1.0)
 
     def columns(self, ctx: FeatureContext, output: int) -> FloatArray:
-        tau = ctx.base[:, self.joint - 1]
+        tau = ctx.start_torque()[:, self.joint - 1]
         return _col(np.tanh(tau / (self.width * self.torque_scale)))
 
 

@@ -160,10 +160,11 @@ class DiagnosisModel:
             q=q,
             qd=qd,
             qdd=qdd,
-            base=self.start.torque(q, qd, qdd) if base is None else base,
+            base=base,
             joint_types=self.start.joint_types,
             output=output,
             last_link_regressor=regressor,
+            base_fn=lambda: self.start.torque(q, qd, qdd),
         )
 
     def _delay_samples(self, output: int) -> float:
@@ -186,7 +187,7 @@ class DiagnosisModel:
                 full = (traj.q, traj.qd, traj.qdd)
                 states = tuple(x[idx] for x in full)
                 prior = self.start.prior_mean(*full)[idx]
-                base = prior if self.start.torque_is_prior_mean else self.start.torque(*full)[idx]
+                base = prior if self.start.torque_is_prior_mean else None
                 regressor = None
                 if self.start.robot is not None:
 
@@ -305,7 +306,8 @@ class DiagnosisModel:
             self.start.robot.check(traj.n_joints)
         self.train_ = traj
         self.rows_ = self._training_rows(traj)
-        self._shift_cache: dict[int, tuple] = {}
+        self._shift_cache: dict[float, tuple] = {}
+        self.floors_: dict[int, tuple] = {}  # held-out noise floors (search.heldout_floor)
         q, qd, qdd = traj.q[self.rows_], traj.qd[self.rows_], traj.qdd[self.rows_]
         fitted = getattr(self.start, "estimator_", True) is not None
         if refit_start or (refit_start is None and not fitted):
@@ -516,8 +518,10 @@ class DiagnosisModel:
         return self.with_effect(effect, backfit=True)
 
     # ------------------------------------------------------------------ parameters
-    def parameters(self) -> list[dict[str, Any]]:
-        """Posterior estimates of every added effect's physical parameters (95% intervals)."""
+    def parameters(self, shape: bool = False) -> list[dict[str, Any]]:
+        """Posterior estimates of every added effect's physical parameters (95% intervals);
+        with ``shape`` also its refined shape values (cogging order, smoothing, delay, ...)
+        with their likelihood-ratio intervals (:attr:`.Effect.profile`)."""
         self._check_fitted()
         rows = []
         for e in self.effects:
@@ -532,7 +536,7 @@ class DiagnosisModel:
                     sl = self.gps_[j].block_slices()[k]
                     mean, cov = self.gps_[j].weights(self.theta_[j])
                     ests = e.estimates(mean[sl], cov[sl, sl], self.ctx_, j)
-                for p in e.with_profile(ests):
+                for p in e.with_profile(ests, shape):
                     rows.append(
                         dict(effect=e.variant_label, output=j + 1, **p.__dict__, text=p.text())
                     )
@@ -572,7 +576,7 @@ class DiagnosisModel:
                 "log_evidence": [float(v) for v in self.evidence_],
                 "noise_std": self.noise_std_.tolist(),
                 "parameters": [
-                    {k: v for k, v in p.items() if k != "text"} for p in self.parameters()
+                    {k: v for k, v in p.items() if k != "text"} for p in self.parameters(shape=True)
                 ],
             }
         path.write_text(json.dumps(payload, indent=1))

@@ -406,11 +406,19 @@ def heldout_floor(
 ) -> FloatArray:
     """``(n,)`` noise floor of ``model`` on held-out trajectories: measurement noise plus the
     noise its prediction inherits from estimated ``qd``/``qdd`` (:func:`.analysis.noise_floor`
-    with :func:`.analysis.input_noise`); ``mean``: the model's prediction, if at hand."""
+    with :func:`.analysis.input_noise`); ``mean``: the model's prediction, if at hand. Kept
+    in the model (``floors_``) for the same held-out object: the loop asks for it again."""
+    model._check_fitted()
+    key = id(heldout)
+    kept = model.floors_.get(key)
+    if kept is not None and kept[0] is heldout:  # the same held-out object, this fit
+        return kept[1].copy()
     if mean is None:
         mean, _ = model.predict(heldout, with_var=False)
     inputs = input_noise(heldout, lambda tr: model.predict(tr, with_var=False)[0])
-    return noise_floor(heldout, mean, inputs)
+    floor = noise_floor(heldout, mean, inputs)
+    model.floors_[key] = (heldout, floor)
+    return floor.copy()
 
 
 @dataclass

@@ -406,8 +406,9 @@ class LearnedStart(StartModel):
         return np.broadcast_to(mean, q.shape).copy()
 
     def torque(self, q: FloatArray, qd: FloatArray, qdd: FloatArray) -> FloatArray:
-        def compute() -> FloatArray:
-            return self.estimator_.predict(np.concatenate([q, qd, qdd], axis=1))[0]
+        def compute() -> FloatArray:  # the posterior mean only (no variance products)
+            X = self.estimator_.gp_inputs(JointStates(q, qd, qdd))
+            return self._gp().predict_mean(X).numpy()
 
         return _memo(self._memo, "torque", (q, qd, qdd), compute)
 

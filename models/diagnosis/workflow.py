@@ -198,7 +198,7 @@ def run_diagnosis(
     saved = [str(v.save(out / "models")) for v in versions]
     log(f"   saved: {', '.join(saved)}")
     for v in versions:
-        for p in v.parameters() if v is versions[-1] else []:
+        for p in v.parameters(shape=True) if v is versions[-1] else []:
             log(f"   {v.name} {p['effect']} (joint {p['output']}): {p['text']}")
 
     log("\n== 5. watch the error fall (held-out)")

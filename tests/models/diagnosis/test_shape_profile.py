@@ -88,8 +88,9 @@ def test_cogging_order_and_phase_lie_in_their_intervals(arm, tmp_path):
     assert abs(amp.value - value) <= amp.ci95, amp
     # the intervals travel with the effect: into the model's parameters and its saved spec
     v1 = model.with_effect(cand.effect)
-    params = {p["name"]: p for p in v1.parameters()}
+    params = {p["name"]: p for p in v1.parameters(shape=True)}
     assert params["n"]["interval"] == n.interval and params["phi"]["interval"] == phi.interval
+    assert [p["name"] for p in v1.parameters()] == ["A", "phi"]  # the physical parameters
     assert effect_from_spec(cand.effect.spec()).profile == cand.effect.profile
     assert "95% LR interval" in cand.estimate_text()
 
