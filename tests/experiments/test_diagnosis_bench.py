@@ -1,6 +1,8 @@
 """The diagnosis benchmark's summary on hand-made records (counts worked out by hand)."""
 
-from mcpilco.experiments.diagnosis_bench import case_effects, summarise
+import json
+
+from mcpilco.experiments.diagnosis_bench import case_effects, run_speed, summarise
 
 
 def _effect(seed, truth, before, after, top1, verdict_ok):
@@ -50,3 +52,16 @@ def test_case_effects_mark_controls_and_two_effect_cases():
     assert case_effects(6, 5, 0) == [0, 1, 1, 1, 1, 0]
     assert case_effects(6, 5, 3) == [0, 1, 2, 1, 1, 0]
     assert case_effects(3, 0, 0) == [1, 1, 1]
+
+
+def test_speed_part_times_the_loop_and_writes_its_report(tmp_path):
+    """A small speed case (one 2 s training log, 501 rows) with the nominal start: the
+    report holds its times and verdict, and the damping the generator hid is found."""
+    out = run_speed(tmp_path / "speed", starts=("nominal",), auto=1, train_files=1, duration=2.0)
+    (rec,) = out["records"]
+    assert out["case"]["training_rows"] == 501
+    assert rec["cpu_s"] > 0 and rec["wall_s"] > 0
+    assert "viscous:2" in rec["versions"][-1], rec["versions"]
+    data = json.loads((tmp_path / "speed.json").read_text())
+    assert data["records"][0]["verdict"] == rec["verdict"]
+    assert "| nominal |" in (tmp_path / "speed.md").read_text()
