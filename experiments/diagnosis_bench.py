@@ -19,6 +19,7 @@ Markdown report.
 
 from __future__ import annotations
 
+import datetime
 import json
 import os
 import time
@@ -369,20 +370,40 @@ def run_speed(
     info = {
         "seed": seed,
         "effect": list(SPEED_EFFECT),
+        "joints": len(case["joint_types"]),
         "training_rows": case["rows"],
         "auto": auto,
         "cpu_count": os.cpu_count(),
         "load_average_1min": os.getloadavg()[0] if hasattr(os, "getloadavg") else None,
         "machine": platform.processor() or platform.machine(),
     }
+    text = speed_markdown(info, records)
+    out = Path(out)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    payload = {
+        "command": "mcpilco-bench-diagnosis --speed",
+        "seeds": [seed],
+        "measured": datetime.date.today().isoformat(),
+        "case": info,
+        "records": records,
+    }
+    out.with_suffix(".json").write_text(json.dumps(payload, indent=1, default=float))
+    out.with_suffix(".md").write_text(text)
+    return {"case": info, "records": records, "markdown": text}
+
+
+def speed_markdown(info: dict[str, Any], records: list[dict[str, Any]]) -> str:
+    """The speed report of :func:`run_speed` (``info``: its case, ``records``: one per
+    start) as Markdown."""
+    load = info["load_average_1min"]
     lines = [
-        f"# Diagnosis speed ({len(case['joint_types'])} joints, {case['rows']} training rows, "
-        f"seed {seed})",
+        f"# Diagnosis speed ({info['joints']} joints, {info['training_rows']} training rows, "
+        f"seed {info['seed']})",
         "",
-        f"Hidden effect: {SPEED_EFFECT[0]} {SPEED_EFFECT[2]} on joint {SPEED_EFFECT[1]}; "
-        f"`run_diagnosis(..., auto={auto}, plots=False)`; {info['cpu_count']} cores, "
-        f"load average {info['load_average_1min']} when it ended (wall time depends on "
-        "the other jobs; CPU time less so).",
+        f"Hidden effect: {info['effect'][0]} {info['effect'][2]} on joint {info['effect'][1]}; "
+        f"`run_diagnosis(..., auto={info['auto']}, plots=False)`; {info['cpu_count']} cores, "
+        f"load average {'n/a' if load is None else f'{load:.1f}'} when it ended (wall time "
+        "depends on the other jobs; CPU time less so).",
         "",
         "| start | wall [s] | CPU [s] | versions | RMSE / floor (last) | verdict |",
         "|---|---|---|---|---|---|",
@@ -392,12 +413,6 @@ def run_speed(
         ratio = ", ".join(f"{x:.2f}" for x in r["rmse_over_floor"])
         lines.append(
             f"| {r['start']} | {r['wall_s']:.1f} | {r['cpu_s']:.1f} | {len(r['versions'])} "
-            f"({added}) | {ratio} | {r['verdict'].split(':', 1)[-1].strip()[:80]} |"
+            f"({added}) | {ratio} | {r['verdict'].split(':', 1)[-1].split(' (')[0].strip()} |"
         )
-    text = "\n".join(lines) + "\n"
-    out = Path(out)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    payload = {"case": info, "records": records}
-    out.with_suffix(".json").write_text(json.dumps(payload, indent=1, default=float))
-    out.with_suffix(".md").write_text(text)
-    return {"case": info, "records": records, "markdown": text}
+    return "\n".join(lines) + "\n"
