@@ -14,9 +14,9 @@ models are built from the same table with :func:`~mcpilco.envs.arm_builder.build
   physics where MuJoCo has it, otherwise as an applied generalised force.
 
 The log holds only what a robot controller records: time, measured joint positions and
-measured joint torques. The ground truth (true states, true accelerations, noise-free torques,
-the effects, the settings and the true model's MJCF) comes back separately
-(:class:`LogTruth`).
+measured joint torques, or motor currents (``torque_constants``). The ground truth (true
+states, true accelerations, noise-free torques, the effects, the settings and the true model's
+MJCF) comes back separately (:class:`LogTruth`).
 
 Controller (inner loop at the physics rate, exact state)
 --------------------------------------------------------
@@ -74,6 +74,11 @@ Measurement model (sample time ``T = substeps dt``; defaults ``dt = 1`` ms, ``T 
   (``tau_delay``, per joint, default 0) is a measurement delay: the torque column lags the
   positions (a time-stamp offset between two buses); between physics steps ``tau`` is
   interpolated linearly, before the first step it is the first step's.
+* or, with ``torque_constants`` ``k_t`` (one per joint, joint side: ``k_t = K_tau K_r``, the
+  motor's torque constant times the gear ratio, negative for a motor mounted reversed), the
+  motor currents ``i_k = tau(t_k - d) / k_t + m_k``, ``m_k ~ N(0, current_noise^2)`` [A]: what a
+  drive that reports currents logs, in place of ``tau_k`` (the table's values are
+  ``arm.joint_array("torque_constant") * arm.joint_array("gear")``).
 
 Ground truth (:class:`LogTruth`) per sample: the exact ``q, qd`` and ``qdd`` (MuJoCo's
 ``qacc`` of the true model at that state and torque: the equation-of-motion acceleration),
@@ -81,9 +86,10 @@ the noise-free ``tau``, and the reference. Without hidden effects, delay and noi
 ``tau_k`` equals the nominal model's inverse dynamics (``mj_inverse``) at
 ``(q, qd, qdd)(t_k)``; with effects, ``tau_k - ID_nom`` is the effects' torque.
 
-Files (:func:`write_log`): columns ``t, q1..qn, tau1..taun`` (the schema of
-``mcpilco.models.robot_data``; no ``qd``/``qdd``), CSV or Parquet by suffix; the ground truth
-optionally in a separate JSON file.
+Files (:func:`write_log`): columns ``t, q1..qn, tau1..taun``, or ``t, q1..qn, i1..in`` for a
+current log (the schema of ``mcpilco.models.robot_data``; no ``qd``/``qdd``), CSV or Parquet by
+suffix; the ground truth (with the torque constants in ``settings``) optionally in a separate
+JSON file.
 """
 
 from __future__ import annotations
@@ -176,8 +182,11 @@ class LogTruth:
             and noise).
         q_ref, qd_ref: ``(N, n)`` the controller's reference.
         effects: the hidden effects.
-        settings: controller gains, encoder steps, noise levels, timestep, sample time.
+        settings: controller gains, encoder steps, noise levels, timestep, sample time, and
+            for a current log ``torque_constants`` (``k_t`` per joint) and ``current_noise``.
         true_xml: MJCF of the true model (the "corrected" model the diagnosis aims at).
+        torque_constants: ``(n,)`` the ``k_t`` the currents were written with [N m/A or N/A]
+            (``i = tau / k_t``), or ``None`` for a torque log.
     """
 
     q: FloatArray
@@ -189,6 +198,7 @@ class LogTruth:
     effects: tuple[HiddenEffect, ...]
     settings: dict[str, Any]
     true_xml: str
+    torque_constants: FloatArray | None = None
 
     def to_json(self) -> dict[str, Any]:
         """Effects and settings as JSON-serialisable data (no arrays)."""
@@ -200,7 +210,8 @@ class LogTruth:
 
 @dataclass
 class RobotLog:
-    """A simulated log: ``table`` (columns ``t, q1..qn, tau1..taun``) and its ``truth``."""
+    """A simulated log: ``table`` (columns ``t, q1..qn`` and ``tau1..taun`` or, for a current
+    log, ``i1..in``) and its ``truth``."""
 
     table: pd.DataFrame
     truth: LogTruth
@@ -297,9 +308,29 @@ def _reference(arm: ArmSpec, rng: np.random.Generator, duration: float) -> SumOf
 
 
 def _per_joint(value: ArrayLike, n: int, name: str) -> FloatArray:
-    arr = np.broadcast_to(np.asarray(value, dtype=np.float64), (n,)).copy()
+    try:
+        arr = np.broadcast_to(np.asarray(value, dtype=np.float64), (n,)).copy()
+    except ValueError as err:
+        raise ValueError(f"{name} needs one value or {n} (one per joint), got {value!r}") from err
     if (arr < 0).any():
         raise ValueError(f"{name} must be >= 0, got {arr}")
+    return arr
+
+
+def _torque_constants(value: ArrayLike, n: int) -> FloatArray:
+    """``k_t (n,)``: finite and nonzero, one value or one per joint."""
+    arr = np.asarray(value, dtype=np.float64)
+    if arr.ndim > 1 or arr.size not in (1, n):
+        raise ValueError(
+            f"torque_constants needs one value or {n} (one per joint), got {arr.size}: {value!r}"
+        )
+    arr = np.broadcast_to(arr.reshape(-1), (n,)).copy()
+    bad = np.flatnonzero(~np.isfinite(arr) | (arr == 0))
+    if bad.size:
+        raise ValueError(
+            f"torque_constants: joint {bad[0] + 1} has k_t = {arr[bad[0]]}; a torque constant "
+            "must be finite and nonzero (negative for a motor mounted reversed)"
+        )
     return arr
 
 
@@ -321,6 +352,8 @@ def simulate_log(
     tau_noise: ArrayLike = 0.05,
     tau_delay: ArrayLike = 0.0,
     reference: SumOfSinusoids | None = None,
+    torque_constants: ArrayLike | None = None,
+    current_noise: ArrayLike = 0.01,
 ) -> RobotLog:
     """Simulate ``duration`` s of the true arm tracking a reference; measure it (module
     docstring).
@@ -342,6 +375,11 @@ def simulate_log(
         tau_delay: measurement delay ``d`` of the torque columns [s] (>= 0), one value or one
             per joint.
         reference: the joint reference; default a random one from ``seed``.
+        torque_constants: joint-side torque constants ``k_t`` [N m/A or N/A], one value or one
+            per joint (finite, nonzero): the log then holds motor currents ``i = tau / k_t``
+            plus noise (columns ``i1..in``) instead of torques, and ``tau_noise`` is unused.
+        current_noise: standard deviation of the current measurement noise [A], one value or
+            one per joint (current logs only).
 
     Returns:
         the log and its ground truth.
@@ -355,6 +393,9 @@ def simulate_log(
         )
     effects = tuple(effects)
     n = arm.n_joints
+    k_t = None if torque_constants is None else _torque_constants(torque_constants, n)
+    sigma_i = _per_joint(current_noise, n, "current_noise")
+    sigma_tau = _per_joint(tau_noise, n, "tau_noise")
     rng = np.random.default_rng(seed)
     ref = reference if reference is not None else _reference(arm, rng, duration)
     nominal, true, true_xml = build_models(arm, effects, timestep)
@@ -402,7 +443,6 @@ def simulate_log(
     )
     reading = rec["q"] + rng.normal(0.0, 1.0, rec["q"].shape) * encoder_noise * step
     q_meas = np.round(reading / step) * step
-    sigma_tau = _per_joint(tau_noise, n, "tau_noise")
     t = np.arange(n_samples) * (timestep * substeps)
     t_steps = np.arange(n_samples * substeps) * timestep
     logged = np.stack(
@@ -412,10 +452,14 @@ def simulate_log(
         ],
         axis=1,
     )
-    tau_meas = logged + rng.normal(0.0, 1.0, rec["tau"].shape) * sigma_tau
+    white = rng.normal(0.0, 1.0, rec["tau"].shape)
+    if k_t is None:
+        out, y_meas = "tau", logged + white * sigma_tau
+    else:
+        out, y_meas = "i", logged / k_t + white * sigma_i
     cols: dict[str, FloatArray] = {"t": t}
     cols.update({f"q{j + 1}": q_meas[:, j] for j in range(n)})
-    cols.update({f"tau{j + 1}": tau_meas[:, j] for j in range(n)})
+    cols.update({f"{out}{j + 1}": y_meas[:, j] for j in range(n)})
     settings = {
         "arm": arm.name,
         "seed": seed,
@@ -426,9 +470,13 @@ def simulate_log(
         "kd": kd.tolist(),
         "encoder_step": step.tolist(),
         "encoder_noise": encoder_noise,
-        "tau_noise": sigma_tau.tolist(),
         "tau_delay": delay.tolist(),
     }
+    if k_t is None:
+        settings["tau_noise"] = sigma_tau.tolist()
+    else:
+        settings["torque_constants"] = k_t.tolist()
+        settings["current_noise"] = sigma_i.tolist()
     truth = LogTruth(
         q=rec["q"],
         qd=rec["qd"],
@@ -439,6 +487,7 @@ def simulate_log(
         effects=effects,
         settings=settings,
         true_xml=true_xml,
+        torque_constants=k_t,
     )
     return RobotLog(table=pd.DataFrame(cols), truth=truth)
 

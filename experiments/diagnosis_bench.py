@@ -1,262 +1,466 @@
-"""The diagnosis benchmark: top-1 / top-3 accuracy on many random hidden-effect cases.
+"""The diagnosis benchmark on simulated robot logs: random arms, random hidden effects.
 
-Each case (:func:`mcpilco.experiments.hidden_effects.make_case`, SCARA or UR10, seed ``s``):
-one random effect on a random joint with a random magnitude (every ``control_every``-th
-case: no effect; every ``multi_every``-th: two effects at once). A start model (nominal
-physics, or a GIP / RBF GP learned on the training files; :func:`make_start`) is fitted and
-:func:`~mcpilco.models.diagnosis.diagnose` ranks the candidates; a case counts for top-k
-when the true ``key:joint`` is among the first k candidates of the ranking (significant
-first, then by evidence). Then the ranked effects are added one by one
-(:func:`~mcpilco.models.diagnosis.auto_improve`: add the best, refit, re-diagnose) until none
-is significant. Recorded (:func:`run_case`): whether the first verdict names a true effect
-(the missing effect, else, on a learned start, the refinement inside the start kernel's
-span that the loop adds first), the held-out RMSE / noise of the affected joints before and
-after, false alarms on the control cases (a *missing* effect named) and, apart, controls
-where an in-span refinement was suggested, seconds per case. :func:`summarise` aggregates
-the records; :func:`run_benchmark` runs the cases as sweep jobs and writes the JSON and
-Markdown report.
+Each case (:func:`run_case`, seed ``s``) is made the way a real robot's logs are
+(:func:`mcpilco.envs.robot_logs.simulate_log`): a random arm (:func:`~mcpilco.envs.arms.
+random_arm`, 2-3 joints by default, each prismatic with probability 1/4, random geometry and
+masses; its rigid-body table is the nominal robot file), forward-simulated in MuJoCo under PD
++ gravity compensation with the hidden effects as MuJoCo physics or applied forces, an encoder
+of :data:`ENCODER_COUNTS` counts per revolution (drawn), torque noise of std drawn
+log-uniformly in :data:`TAU_NOISE_RANGE`, files holding only ``t, q, tau`` (``qd``, ``qdd``
+estimated by the loader's filter). ``train_files`` logs to fit on and one held-out log, each
+``duration`` seconds, every log its own random reference.
+
+Hidden effects (:data:`EFFECT_KINDS`, joint or link drawn uniformly):
+
+==================  ===========================================================================
+damping, frictionloss, armature, stiffness, cogging, position_friction
+                    scaled so that the rms of the effect's torque along an effect-free probe
+                    log of the same arm is ``snr`` times the torque noise, ``snr`` log-uniform
+                    in :data:`SNR_RANGE`; ``stiffness``: ``springref`` uniform in the probe's
+                    range of ``q_j``; ``cogging``: spatial frequency an integer in 3..24;
+                    ``position_friction``: level varies by +-50 % with ``sin(w q_j)``, ``w``
+                    uniform in 1..4 /rad (10..40 /m on prismatic joints)
+mass                link ``k`` heavier by a factor uniform in :data:`MASS_FACTOR_RANGE`
+payload             a sphere of mass uniform in :data:`PAYLOAD_RANGE` kg on the flange, 0-10 cm
+                    along its z axis
+==================  ===========================================================================
+
+``mass`` and ``payload`` (physical sizes) are redrawn, on another link or joint if need be,
+until their torque along the probe log reaches :data:`MIN_SIZE` noise stds on some joint (after
+20 draws the last is kept: an arm may barely load any link).
+The realised size of each case's effects (``size_over_noise``: rms over the simulated logs of
+the applied torque minus the nominal model's inverse dynamics at the true states, per joint,
+in torque-noise stds) is recorded.
+
+Roles (:func:`case_plan`): ``control`` (no hidden effect), ``single`` (one effect of the
+library, each kind in turn), ``multi`` (two effects of the library, different kinds),
+``off_library`` (position-dependent friction, which no candidate represents: the correct
+answer is an "unexplained" verdict). A start model (nominal physics from the arm's table, or
+a learned GIP / RBF GP) is fitted and the loop runs
+(:func:`~mcpilco.models.diagnosis.auto_improve`: diagnose, add the lead, refit, until nothing
+is significant); :mod:`mcpilco.experiments.diagnosis_scoring` scores the answer against the
+truth. :func:`run_benchmark` runs the cases as sweep jobs and writes JSON, Markdown and a PNG
+(confusion of the hidden effect against the effect named first).
+
+Seeds: :data:`DEVELOPMENT_SEEDS` may be looked at while developing the loop; results are
+reported on evaluation seeds from :data:`EVALUATION_FIRST_SEED`, on which no setting is chosen.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import datetime
 import json
+import math
 import os
 import time
+import warnings
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from mcpilco.experiments.hidden_effects import make_case
+from mcpilco.experiments.diagnosis_scoring import (
+    CORRECT_CANDIDATES,
+    markdown,
+    plot_confusion,
+    score_case,
+    summarise,
+)
 from mcpilco.experiments.sweep import Job, SweepRunner
 
+DEVELOPMENT_SEEDS = range(0, 100)
+"""Case seeds that may be looked at while developing the loop."""
+EVALUATION_FIRST_SEED = 1000
+"""First case seed of the reported evaluation (no setting is chosen on seeds >= this)."""
+LIBRARY_KINDS = ("damping", "frictionloss", "armature", "stiffness", "mass", "payload", "cogging")
+"""Hidden-effect kinds some candidate names (single cases take them in this order)."""
+OFF_LIBRARY_KINDS = ("position_friction",)
+"""Hidden-effect kinds no candidate represents."""
+EFFECT_KINDS = LIBRARY_KINDS + OFF_LIBRARY_KINDS
+"""Every kind a case may hide."""
+SCALED_KINDS = ("damping", "frictionloss", "armature", "stiffness", "cogging", "position_friction")
+"""Kinds whose value is set from ``snr`` (module docstring)."""
+SNR_RANGE = (3.0, 30.0)
+"""Range of the log-uniform ``snr`` of the scaled kinds [torque-noise stds]."""
+MASS_FACTOR_RANGE = (1.2, 1.6)
+"""Range of the uniform mass factor of a heavier link."""
+PAYLOAD_RANGE = (0.2, 2.0)
+"""Range of the uniform payload mass [kg]."""
+MIN_SIZE = 2.0
+"""Smallest probe-log torque [noise stds, some joint] of a mass or payload effect."""
+ENCODER_COUNTS = (2**15, 2**17, 2**19)
+"""Encoder counts per revolution a case draws from (prismatic joints: 1e6 counts/m)."""
+TAU_NOISE_RANGE = (0.02, 0.1)
+"""Range of the log-uniform torque-noise std [N m or N]."""
+RANKING_KEPT = 10
+"""Candidates of the first diagnosis's ranking kept in a record."""
 
-def _affected_joints(effect: dict[str, Any]) -> list[int]:
-    """0-based joints an injected effect changes by at least one noise std."""
-    if effect["joint"] is None:
-        return [j for j, size in enumerate(effect["size_over_noise"]) if size >= 1.0]
-    return [effect["joint"] - 1]
+
+# ----------------------------------------------------------------------------- the plan
+def case_plan(
+    per_kind: int = 3, controls: int = 5, multi: int = 5, off_library: int = 5
+) -> list[tuple[str, list[str]]]:
+    """``(role, kinds)`` of every case: ``per_kind`` single cases of each of
+    :data:`LIBRARY_KINDS`, ``controls`` without an effect, ``multi`` with two kinds
+    (:data:`LIBRARY_KINDS` ``i`` and ``i + 3``, cyclically), ``off_library`` with
+    position-dependent friction. The roles are interleaved in proportion (case ``i`` of a
+    role with ``n`` cases sits at ``i / n`` of the plan; on ties: control, single, multi,
+    off-library), so that the first cases of the plan already mix every role."""
+    if min(per_kind, controls, multi, off_library) < 0:
+        raise ValueError(
+            f"case counts must be >= 0, got per_kind={per_kind}, controls={controls}, "
+            f"multi={multi}, off_library={off_library}"
+        )
+    k = len(LIBRARY_KINDS)
+    queues: list[list[tuple[str, list[str]]]] = [
+        [("control", [])] * controls,
+        [("single", [LIBRARY_KINDS[i % k]]) for i in range(per_kind * k)],
+        [("multi", [LIBRARY_KINDS[i % k], LIBRARY_KINDS[(i + 3) % k]]) for i in range(multi)],
+        [
+            ("off_library", [OFF_LIBRARY_KINDS[i % len(OFF_LIBRARY_KINDS)]])
+            for i in range(off_library)
+        ],
+    ]
+    keyed = [(i / len(q), r, case) for r, q in enumerate(queues) for i, case in enumerate(q)]
+    return [case for _, _, case in sorted(keyed, key=lambda x: (x[0], x[1]))]
 
 
-def make_start(kind: str, case: Any, iters: int) -> Any:
-    """The start model of a case: nominal physics from the case's robot file, or a GIP/RBF
-    GP learned on the training files (the robot file then only serves the payload columns)."""
+# ----------------------------------------------------------------------------- effects
+def _log_uniform(rng: np.random.Generator, lo: float, hi: float) -> float:
+    return float(math.exp(rng.uniform(math.log(lo), math.log(hi))))
+
+
+def _rms(x: np.ndarray) -> float:
+    return float(np.sqrt(np.mean(np.square(x))))
+
+
+def effect_torque(arm: Any, effects: Sequence[Any], log: Any) -> np.ndarray:
+    """``(N, n)`` the torque of ``effects`` along ``log``: its noise-free applied torque minus
+    the nominal model's inverse dynamics (``mj_inverse``) at its true states (a log simulated
+    with ``effects``), or the true model's minus the nominal one's inverse dynamics (a log
+    simulated without them; MuJoCo-body effects only)."""
+    import mujoco
+
+    from mcpilco.envs.robot_logs import build_models
+
+    nominal, true, _ = build_models(arm, effects)
+    truth = log.truth
+    simulated = tuple(truth.effects) == tuple(effects)
+
+    def inverse(model: Any) -> np.ndarray:
+        data = mujoco.MjData(model)
+        out = np.zeros_like(truth.q)
+        for k in range(truth.q.shape[0]):
+            data.qpos[:], data.qvel[:], data.qacc[:] = truth.q[k], truth.qd[k], truth.qdd[k]
+            mujoco.mj_inverse(model, data)
+            out[k] = data.qfrc_inverse
+        return out
+
+    if simulated:
+        return truth.tau - inverse(nominal)
+    return inverse(true) - inverse(nominal)
+
+
+def draw_effect(kind: str, arm: Any, probe: Any, rng: np.random.Generator, tau_noise: float) -> Any:
+    """A :class:`~mcpilco.envs.robot_logs.HiddenEffect` of ``kind`` on a random joint (link),
+    its size drawn as in the module docstring from the effect-free ``probe`` log's true
+    states."""
+    from mcpilco.envs.robot_logs import FRICTION_VELOCITY, HiddenEffect
+
+    n = arm.n_joints
+    truth = probe.truth
+    if kind in SCALED_KINDS:
+        j = int(rng.integers(1, n + 1))
+        q, qd, qdd = truth.q[:, j - 1], truth.qd[:, j - 1], truth.qdd[:, j - 1]
+        prismatic = arm.joint_types[j - 1] == "P"
+        ref = 0.0
+        if kind == "damping":
+            shape = qd
+        elif kind == "frictionloss":
+            shape = np.tanh(qd / FRICTION_VELOCITY)
+        elif kind == "armature":
+            shape = qdd
+        elif kind == "stiffness":
+            ref = float(rng.uniform(q.min(), q.max()))
+            shape = q - ref
+        elif kind == "cogging":
+            ref = float(rng.integers(3, 25))
+            shape = np.sin(ref * q)
+        else:  # position_friction
+            ref = float(rng.uniform(10.0, 40.0) if prismatic else rng.uniform(1.0, 4.0))
+            shape = (1.0 + 0.5 * np.sin(ref * q)) * np.tanh(qd / FRICTION_VELOCITY)
+        snr = _log_uniform(rng, *SNR_RANGE)
+        return HiddenEffect(kind, j, snr * tau_noise / max(_rms(shape), 1e-12), ref)
+    if kind not in ("mass", "payload"):
+        raise ValueError(f"unknown hidden-effect kind {kind!r}; use one of {EFFECT_KINDS}")
+    effect = None
+    for _ in range(20):
+        if kind == "mass":
+            effect = HiddenEffect(
+                "mass", int(rng.integers(1, n + 1)), float(rng.uniform(*MASS_FACTOR_RANGE))
+            )
+        else:
+            effect = HiddenEffect(
+                "payload", n, float(rng.uniform(*PAYLOAD_RANGE)), float(rng.uniform(0.0, 0.1))
+            )
+        size = np.sqrt(np.mean(effect_torque(arm, [effect], probe) ** 2, axis=0)) / tau_noise
+        if size.max() >= MIN_SIZE:
+            break
+    return effect
+
+
+# ----------------------------------------------------------------------------- one case
+def make_start(kind: str, nominal_xml: str, joint_types: str, iters: int) -> Any:
+    """The start model of a case: nominal physics from the arm's table (``"nominal"``), or a
+    GIP / RBF GP learned on the training files (the table then only serves the payload)."""
     from mcpilco.models.diagnosis import LEARNED_STARTS, NominalStart
 
     if kind == "nominal":
-        return NominalStart(case.nominal_xml)
+        return NominalStart(nominal_xml)
     if kind not in LEARNED_STARTS:
         raise ValueError(f"start must be nominal or one of {sorted(LEARNED_STARTS)}, got {kind!r}")
     return LEARNED_STARTS[kind](
-        case.joint_types, robot=case.nominal_xml, adam_iters=iters, lbfgs_iters=max(iters // 3, 1)
+        joint_types, robot=nominal_xml, adam_iters=iters, lbfgs_iters=max(iters // 3, 1)
     )
+
+
+def _trajectories(logs: Sequence[Any], names: Sequence[str]) -> Any:
+    """The logs' tables (``t, q, tau``) as the loader reads them: ``qd``/``qdd`` estimated."""
+    from mcpilco.models.diagnosis import as_trajectories
+    from mcpilco.models.robot_data import from_frame
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)  # the loader keeps its warnings
+        return as_trajectories(
+            [from_frame(log.table, source=name) for log, name in zip(logs, names, strict=True)]
+        )
 
 
 def run_case(
-    robot: str,
     seed: int,
-    n_effects: int,
-    duration: float,
+    role: str,
+    kinds: Sequence[str],
+    duration: float = 5.0,
+    train_files: int = 2,
+    min_joints: int = 2,
+    max_joints: int = 3,
     start: str = "nominal",
     max_points: int = 600,
     iters: int = 100,
-    train_files: int = 2,
     max_steps: int = 4,
 ) -> dict[str, Any]:
-    """Generate a case, diagnose it, add the ranked effects until none is significant.
+    """Simulate one case (module docstring), run the loop on it and score it.
 
-    ``n_effects = 0`` is a control case. Top-k counts, for each injected effect, whether it is
-    among the first k candidates of the first diagnosis (single-effect cases: the usual top-k;
-    with several effects each must be in the first ``k + n_effects - 1``). After
-    :func:`auto_improve` the held-out RMSE of the affected joints is divided by the noise std.
+    Args:
+        seed: seeds everything (arm, effects, references, noise).
+        role: ``control``, ``single``, ``multi`` or ``off_library`` (recorded).
+        kinds: the hidden effects' kinds (:data:`EFFECT_KINDS`); ``[]``: a control.
+        duration: seconds per log.
+        train_files: logs to fit on (one more is held out).
+        min_joints, max_joints: range of the arm's joint count.
+        start: ``nominal``, ``gip`` or ``rbf``.
+        max_points, iters: GP rows and Adam iterations of a learned start.
+        max_steps: most effects the loop adds.
+
+    Returns:
+        the record: the case (arm, noise, effects and their realised size), the loop's
+        answer (first ranking, named effect, added effects and their parameters, verdicts,
+        held-out RMSE over the noise floor before and after) and seconds; scored by
+        :func:`score_record`.
     """
-    from mcpilco.models.diagnosis import DiagnosisModel, as_trajectories, auto_improve, heldout_rmse
+    from mcpilco.envs.arm_builder import arm_to_xml
+    from mcpilco.envs.arms import random_arm
+    from mcpilco.envs.robot_logs import simulate_log
+    from mcpilco.models.diagnosis import DiagnosisModel, auto_improve
 
+    for k in kinds:
+        if k not in EFFECT_KINDS:
+            raise ValueError(f"unknown hidden-effect kind {k!r}; use one of {EFFECT_KINDS}")
+    if not 1 <= min_joints <= max_joints:
+        raise ValueError(f"need 1 <= min_joints <= max_joints, got {min_joints}, {max_joints}")
     t0 = time.perf_counter()
-    case = make_case(
-        robot,
-        [] if n_effects == 0 else None,
-        n_effects=max(n_effects, 1),
-        seed=seed,
-        n_train=train_files,
-        duration=duration,
+    rng = np.random.default_rng(seed)
+    n = int(rng.integers(min_joints, max_joints + 1))
+    arm = random_arm(n, seed=int(rng.integers(2**31))).rigid()
+    counts = int(rng.choice(ENCODER_COUNTS))
+    tau_noise = _log_uniform(rng, *TAU_NOISE_RANGE)
+    log_seeds = [int(s) for s in rng.integers(2**31, size=train_files + 1)]
+    sim = dict(duration=duration, counts_per_rev=counts, tau_noise=tau_noise)
+    effects = []
+    if kinds:
+        probe = simulate_log(arm, [], seed=log_seeds[0], **sim)
+        for k in kinds:
+            e = draw_effect(k, arm, probe, rng, tau_noise)
+            while any(e.kind == o.kind and e.joint == o.joint for o in effects):
+                e = draw_effect(k, arm, probe, rng, tau_noise)
+            effects.append(e)
+    logs = [simulate_log(arm, effects, seed=s, **sim) for s in log_seeds]
+    size = np.sqrt(
+        np.mean(np.concatenate([effect_torque(arm, effects, log) for log in logs]) ** 2, axis=0)
     )
-    test = as_trajectories(case.datasets("test"))
-    model = DiagnosisModel(make_start(start, case, iters), max_points=max_points)
-    model.fit(case.datasets("train"))
+    names = [f"seed{seed}_train{k + 1}" for k in range(train_files)] + [f"seed{seed}_test"]
+    train = _trajectories(logs[:-1], names[:-1])
+    test = _trajectories(logs[-1:], names[-1:])
+    t_sim = time.perf_counter() - t0
+
+    xml = arm_to_xml(arm, friction=False)
+    model = DiagnosisModel(make_start(start, xml, arm.joint_types, iters), max_points=max_points)
+    model.fit(train)
     versions, diags = auto_improve(model, test, max_steps=max_steps)
-    first = diags[0]
-    ranking = [c.label for c in first.candidates]
-    truth = case.truth()
-    added = [e.label for e in versions[-1].effects]
+    first, last = diags[0], diags[-1]
+    final = versions[-1]
+    by_label = {e.variant_label: e for e in final.effects}
+    parameters = [
+        {
+            "key": by_label[p["effect"]].key,
+            "joint": by_label[p["effect"]].joint,
+            "name": p["name"],
+            "value": p["value"],
+            "ci95": p["ci95"],
+            "output": p["output"],
+        }
+        for p in final.parameters()
+        if p["effect"] in by_label
+    ]
+    truth = []
+    for e in effects:
+        d = dataclasses.asdict(e)
+        if e.kind == "mass":
+            d["nominal_link_mass"] = arm.links[e.joint - 1].mass
+        truth.append(d)
+    ranking = [[c.effect.key, c.effect.joint] for c in first.candidates[:RANKING_KEPT]]
+    named = None if first.best is None else [first.best.effect.key, first.best.effect.joint]
+    added = [[e.key, e.joint] for e in final.effects]
+    verdict = last.verdict()
     rec: dict[str, Any] = {
-        "robot": robot,
-        "start": start,
         "seed": seed,
-        "truth": truth,
-        "effect": case.effects,
-        "verdict": None if first.best is None else first.best.label,
-        "refinement": None if first.refinement is None else first.refinement.label,
-        "ranking": ranking[:5],
-        "deltas": [round(c.delta, 1) for c in first.candidates[:5]],
+        "role": role,
+        "arm": arm.joint_types,
+        "n_joints": n,
+        "encoder_counts_per_rev": counts,
+        "tau_noise": tau_noise,
+        "rows": {"train": int(train.n_samples), "test": int(test.n_samples)},
+        "start": start,
+        "effects": truth,
+        "size_over_noise": (size / tau_noise).round(2).tolist(),
+        "ranking": ranking,
+        "ranking_delta": [round(c.delta, 1) for c in first.candidates[:RANKING_KEPT]],
+        "named": named,
+        "first_verdict": first.verdict(),
         "added": added,
-        "start_rounds": getattr(model.start, "rounds_", None),
+        "added_variants": [e.variant_label for e in final.effects],
+        "parameters": parameters,
+        "verdict": verdict,
+        "ratio_before": first.base.ratio.tolist(),
+        "ratio_after": last.base.ratio.tolist(),
+        "floor_after": last.base.floor.tolist(),
+        "data_warnings": list(dict.fromkeys(train.warnings + test.warnings)),
+        "simulate_seconds": t_sim,
     }
-    if truth:
-        ranks = [ranking.index(t) + 1 if t in ranking else None for t in truth]
-        extra = len(truth) - 1
-        rec.update(
-            rank=ranks[0] if len(ranks) == 1 else ranks,
-            top1=all(r is not None and r <= 1 + extra for r in ranks),
-            top3=all(r is not None and r <= 3 + extra for r in ranks),
-            verdict_correct=(first.lead is not None and first.lead.label in truth),
-            all_found=set(truth) <= set(added),
-        )
-        rmse0 = heldout_rmse(versions[0], test) / case.noise_std
-        rmse = heldout_rmse(versions[-1], test) / case.noise_std
-        joints = sorted({j for e in case.effects for j in _affected_joints(e)})
-        rec["rmse_over_noise_before"] = float(np.max(rmse0[joints]))
-        rec["rmse_over_noise_after"] = float(np.max(rmse[joints]))
-    else:
-        rec["false_alarm"] = first.best is not None  # a *missing* effect named
-        rec["refined"] = first.refinement is not None  # an in-span refinement suggested
     rec["seconds"] = time.perf_counter() - t0
     return rec
 
 
-ABSORBED = 1.5
-"""An injected effect is *absorbed* by the start model when the start model's held-out RMSE
-on the affected joints is already within this many noise stds (a learned GIP start spans
-e.g. armature and payload torques): nothing is missing, so such cases are left out of the
-top-k accuracy and counted apart."""
+def score_record(rec: dict[str, Any]) -> dict[str, Any]:
+    """:func:`~.diagnosis_scoring.score_case` of a :func:`run_case` record (scored when the
+    report is written, so a kept record is rescored by the current tables)."""
+    return score_case(
+        rec["effects"],
+        rec["n_joints"],
+        rec["ranking"],
+        rec["named"],
+        rec["added"],
+        rec["verdict"],
+        rec["parameters"],
+        rec["size_over_noise"],
+    )
 
 
-def summarise(records: list[dict[str, Any]]) -> dict[str, Any]:
-    """Top-k over visible single-effect cases; all-found over visible multi-effect cases;
-    RMSE after the loop over every effect case; false alarms over the control cases."""
-    visible = [r for r in records if r["truth"] and r["rmse_over_noise_before"] > ABSORBED]
-    absorbed = [r for r in records if r["truth"] and r["rmse_over_noise_before"] <= ABSORBED]
-    eff = [r for r in visible if len(r["truth"]) == 1]
-    multi = [r for r in visible if len(r["truth"]) > 1]
-    ctl = [r for r in records if not r["truth"]]
-    after = [r["rmse_over_noise_after"] for r in records if r["truth"]]
-    by_key: dict[str, list[bool]] = {}
-    for r in eff:
-        by_key.setdefault(r["truth"][0].split(":")[0], []).append(bool(r["top1"]))
-    return {
-        "n_absorbed_by_start_model": len(absorbed),
-        "absorbed": [", ".join(r["truth"]) for r in absorbed],
-        "n_effect_cases": len(eff),
-        "n_multi_effect_cases": len(multi),
-        "n_control_cases": len(ctl),
-        "top1": float(np.mean([r["top1"] for r in eff])) if eff else None,
-        "top3": float(np.mean([r["top3"] for r in eff])) if eff else None,
-        "verdict_correct": float(np.mean([r["verdict_correct"] for r in eff])) if eff else None,
-        "multi_all_found": float(np.mean([r["all_found"] for r in multi])) if multi else None,
-        "within_1p5_noise_after_add": float(np.mean(np.array(after) <= 1.5)) if after else None,
-        "false_alarm_rate": float(np.mean([r["false_alarm"] for r in ctl])) if ctl else None,
-        "controls_with_in_span_refinement": (
-            f"{sum(bool(r.get('refined')) for r in ctl)}/{len(ctl)}" if ctl else None
-        ),
-        "top1_by_effect": {k: f"{sum(v)}/{len(v)}" for k, v in sorted(by_key.items())},
-        "seconds_per_case": float(np.mean([r["seconds"] for r in records])),
-    }
-
-
-def case_effects(cases: int, control_every: int, multi_every: int) -> list[int]:
-    """Number of injected effects of each case: 0 for every ``control_every``-th case (from
-    the first), 2 for every ``multi_every``-th other case, else 1 (0 turns either off)."""
-    n_effects = []
-    for k in range(cases):
-        if control_every > 0 and k % control_every == 0:
-            n_effects.append(0)
-        elif multi_every > 0 and k % multi_every == multi_every - 1:
-            n_effects.append(2)
-        else:
-            n_effects.append(1)
-    return n_effects
-
-
-def markdown(records: list[dict[str, Any]], summary: dict[str, Any], title: str) -> str:
-    """The report: the summary table, then one row per case."""
-    lines = [f"# {title}", "", "| metric | value |", "|---|---|"]
-    for k, v in summary.items():
-        lines.append(f"| {k} | {v if not isinstance(v, float) else round(v, 3)} |")
-    lines += [
-        "",
-        "| seed | truth | missing effect | in-span refinement | rank | added "
-        "| RMSE/noise before | after |",
-        "|---|---|---|---|---|---|---|---|",
-    ]
-
-    def num(r: dict[str, Any], k: str) -> str:
-        return f"{r[k]:.2f}" if k in r else ""
-
-    for r in records:
-        lines.append(
-            f"| {r['seed']} | {', '.join(r['truth']) or 'none'} | {r['verdict']} | "
-            f"{r.get('refinement') or ''} | {r.get('rank', '')} | {', '.join(r['added']) or '-'} | "
-            f"{num(r, 'rmse_over_noise_before')} | {num(r, 'rmse_over_noise_after')} |"
-        )
-    return "\n".join(lines) + "\n"
-
-
+# ----------------------------------------------------------------------------- the run
 def run_benchmark(
     runner: SweepRunner,
     *,
-    cases: int = 30,
-    robot: str = "scara",
-    first_seed: int = 1000,
-    control_every: int = 5,
-    multi_every: int = 0,
+    per_kind: int = 3,
+    controls: int = 5,
+    multi: int = 5,
+    off_library: int = 5,
+    cases: int | None = None,
+    first_seed: int = EVALUATION_FIRST_SEED,
+    duration: float = 5.0,
+    train_files: int = 2,
+    min_joints: int = 2,
+    max_joints: int = 3,
     start: str = "nominal",
     max_points: int = 600,
     iters: int = 100,
-    duration: float = 12.0,
-    train_files: int = 2,
     out: str | Path = "results/diagnosis",
     runs_dir: str | Path = "runs/bench_diagnosis",
+    command: str | None = None,
     config: dict[str, Any] | None = None,
 ) -> dict[str, Any] | None:
-    """Run ``cases`` cases (seeds ``first_seed ...``; :func:`case_effects`) as sweep jobs of
-    ``runner``, each record kept in ``runs_dir/<robot>/<start>/seed<s>.json`` (a rerun
-    computes only the cases without one), and write ``out`` + ``.json`` (``config``, the
-    summary, every record, the failed cases) and ``.md``.
+    """Run the cases of :func:`case_plan` (the first ``cases`` of it when given; seeds
+    ``first_seed, first_seed + 1, ...`` in plan order) as sweep jobs of ``runner``, each
+    record kept in ``runs_dir/random/<start>/seed<s>.json`` (a rerun computes only the cases
+    without one), and write ``out`` + ``.json`` (``command``, ``measured`` date, ``config``,
+    ``seeds``, the summary, every record, the failed cases), ``.md`` and ``_confusion.png``.
 
     Returns ``{"summary", "records", "markdown", "sweep"}``, or None when no case finished.
     """
-    seeds = [first_seed + k for k in range(cases)]
-    n_effects = case_effects(cases, control_every, multi_every)
-    case = {
-        "robot": robot,
+    plan = case_plan(per_kind, controls, multi, off_library)
+    if cases is not None:
+        plan = plan[:cases]
+    if not plan:
+        raise ValueError("the plan has no case: give --per-kind, --controls, --multi or --cases")
+    seeds = [first_seed + k for k in range(len(plan))]
+    common = {
         "duration": duration,
+        "train_files": train_files,
+        "min_joints": min_joints,
+        "max_joints": max_joints,
         "start": start,
         "max_points": max_points,
         "iters": iters,
-        "train_files": train_files,
     }
     jobs = [
-        Job(f"seed{s}", run_case, {**case, "seed": s, "n_effects": n})
-        for s, n in zip(seeds, n_effects, strict=True)
+        Job(f"seed{s}", run_case, {**common, "seed": s, "role": role, "kinds": list(kinds)})
+        for s, (role, kinds) in zip(seeds, plan, strict=True)
     ]
-    sweep = runner.run(jobs, Path(runs_dir) / robot / start, desc="cases")
+    sweep = runner.run(jobs, Path(runs_dir) / "random" / start, desc="cases")
     print(sweep.summary())
-    records = list(sweep.results.values())
+    records = [{**r, "score": score_record(r)} for r in sweep.results.values()]
     if not records:
         return None
     summary = summarise(records)
     out = Path(out)
     out.parent.mkdir(parents=True, exist_ok=True)
-    payload = {"config": config, "summary": summary, "cases": records}
+    title = (
+        f"Diagnosis on simulated robot logs ({len(records)} cases, seeds "
+        f"{seeds[0]}..{seeds[-1]}, {start} start)"
+    )
+    png = plot_confusion(records, out.with_name(out.name + "_confusion.png"), title)
+    payload: dict[str, Any] = {
+        "command": command,
+        "measured": datetime.datetime.now(datetime.UTC).date().isoformat(),
+        "config": config,
+        "seeds": seeds,
+        "correct_candidates": {k: [list(m) for m in v] for k, v in CORRECT_CANDIDATES.items()},
+        "summary": summary,
+        "cases": records,
+    }
     if sweep.failed:
         payload["failed"] = [f.key for f in sweep.failed]
     out.with_suffix(".json").write_text(json.dumps(payload, indent=1, default=str))
-    title = (
-        f"Diagnosis benchmark ({robot}, {len(records)} cases, seeds "
-        f"{seeds[0]}..{seeds[-1]}, {start} start)"
+    intro = (
+        f"Random arms ({min_joints}-{max_joints} joints) simulated in MuJoCo under PD + gravity "
+        f"compensation; {train_files} training logs and 1 held-out log of {duration:g} s each, "
+        "t, q and tau only. Roles: control (no effect), single, multi (two effects), "
+        'off_library (position-dependent friction: correct verdict "unexplained"). '
+        f"Confusion of hidden effect against the effect named first: ![confusion]({png.name})."
+        + (f" Failed cases: {', '.join(payload['failed'])}." if sweep.failed else "")
     )
-    text = markdown(records, summary, title)
+    text = markdown(records, summary, title, intro)
     out.with_suffix(".md").write_text(text)
     return {"summary": summary, "records": records, "markdown": text, "sweep": sweep}
 

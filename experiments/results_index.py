@@ -443,18 +443,21 @@ def _markers(data: dict[str, Any]) -> str:
 
 def _diagnosis(data: dict[str, Any]) -> str:
     s = data["summary"]
-    n = s["n_effect_cases"]  # single-effect cases, those absorbed by the start model apart
-    top1 = round(s["top1"] * n)
     return (
-        f"missing effect ranked first in {top1}/{n} single-effect cases; held-out error "
-        f"within 1.5x noise after adding it: {_pct(s['within_1p5_noise_after_add'])}; "
-        f"false alarms {_pct(s['false_alarm_rate'])}"
+        f"effect ranked first in {s['top1_counts']} single-effect cases (top-3: "
+        f"{s['top3_counts']}); position-dependent friction said unexplained in "
+        f"{s['off_library_unexplained_counts']}; false alarms {s['false_alarm_counts']} controls"
     )
 
 
-def _diagnosis_seeds(data: dict[str, Any]) -> str:
-    c = data["config"]
-    return f"{c['first_seed']}-{c['first_seed'] + c['cases'] - 1}"
+def _torque_constants(data: dict[str, Any]) -> str:
+    s = data["summary"]
+    covered = round(s["ci95_coverage"] * s["estimated_joints"])
+    return (
+        f"k_t 95% intervals hold the truth on {covered}/{s['estimated_joints']} joints; "
+        f"{s['controls_missing_effect_named']}/{s['controls']} controls name an effect; "
+        f"damping named in {s['damping_named']}/{s['damping_cases']}"
+    )
 
 
 def _sweep(data: dict[str, Any]) -> str:
@@ -621,32 +624,16 @@ REGISTRY: tuple[Headline, ...] = (
         seeds=_seed_field,
     ),
     Headline(
-        "Diagnosis, SCARA, nominal start",
-        "diagnosis_scara_fresh.json",
+        "Diagnosis on simulated robot logs, nominal start",
+        "diagnosis_robot_logs.json",
         _diagnosis,
-        "diagnosis_scara_fresh.md",
-        seeds=_diagnosis_seeds,
+        "diagnosis_robot_logs.md",
     ),
     Headline(
-        "Diagnosis, UR10, nominal start",
-        "diagnosis_ur10_fresh.json",
-        _diagnosis,
-        "diagnosis_ur10_fresh.md",
-        seeds=_diagnosis_seeds,
-    ),
-    Headline(
-        "Diagnosis, SCARA, learned GIP start",
-        "diagnosis_scara_gip_fresh.json",
-        _diagnosis,
-        "diagnosis_scara_gip_fresh.md",
-        seeds=_diagnosis_seeds,
-    ),
-    Headline(
-        "Diagnosis, SCARA, learned GIP start",
-        "diagnosis_scara_gip_fresh2.json",
-        _diagnosis,
-        "diagnosis_scara_gip_fresh2.md",
-        seeds=_diagnosis_seeds,
+        "Diagnosis of motor-current logs (torque constants)",
+        "torque_constants.json",
+        _torque_constants,
+        "torque_constants.md",
     ),
     Headline(
         "Sweeps",

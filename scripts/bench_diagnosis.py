@@ -1,16 +1,21 @@
-"""Benchmark the diagnosis loop on many random hidden-effect cases: top-1 / top-3 accuracy.
+"""Benchmark the diagnosis loop on simulated robot logs: random arms, random hidden effects.
 
-Each case is a generated SCARA or UR10 data set with one random hidden effect (every
-``--control-every``-th case: none; every ``--multi-every``-th: two); the start model
-(``--start``) is fitted, the candidates are ranked and the ranked effects added until none
-is significant (:mod:`mcpilco.experiments.diagnosis_bench`).
+Each case is a random arm forward-simulated in MuJoCo under PD + gravity compensation with
+hidden effects as MuJoCo physics or applied forces, logged as ``t, q, tau`` only
+(:mod:`mcpilco.experiments.diagnosis_bench`): ``--per-kind`` cases of each effect kind of
+the library, ``--controls`` without an effect, ``--multi`` with two effects and
+``--off-library`` with position-dependent friction (correct verdict: "unexplained"). The loop
+adds the ranked effects until none is significant; scored by
+:mod:`mcpilco.experiments.diagnosis_scoring` (top-1 / top-3, parameters, error against the
+noise floor, false alarms, verdicts).
 
 Each case is a sweep job (one thread) in ``--jobs`` local processes or on Ray
-(``--ray [ADDRESS]``), its record kept in ``RUNS_DIR/<robot>/<start>/seed<s>.json``: a rerun
-computes only the cases without one. Writes ``results/diagnosis.json`` and
-``results/diagnosis.md``. Example (about 10-20 s per case on one core)::
+(``--ray [ADDRESS]``), its record kept in ``RUNS_DIR/random/<start>/seed<s>.json``: a rerun
+computes only the cases without one. Writes ``OUT.json``, ``OUT.md`` and
+``OUT_confusion.png``. Seeds from 1000 are the evaluation range (0-99: development).
+Example (about 20-30 s per case on one core)::
 
-    mcpilco-bench-diagnosis --cases 30 --robot scara --jobs 2
+    mcpilco-bench-diagnosis --per-kind 3 --controls 5 --multi 5 --off-library 5 --jobs 2
 
 ``--speed`` times the loop instead on one 3-joint case of 7,503 training rows with a nominal
 and a GIP start (:func:`~mcpilco.experiments.diagnosis_bench.run_speed`) and writes
@@ -20,29 +25,33 @@ and a GIP start (:func:`~mcpilco.experiments.diagnosis_bench.run_speed`) and wri
 from __future__ import annotations
 
 import argparse
+import shlex
 from collections.abc import Sequence
 from pathlib import Path
 
 from mcpilco.agents.common.cli import console_main
-from mcpilco.experiments.diagnosis_bench import run_benchmark, run_speed
+from mcpilco.experiments.diagnosis_bench import EVALUATION_FIRST_SEED, run_benchmark, run_speed
 from mcpilco.experiments.sweep import SweepError, add_sweep_arguments, runner_from_args
 
 
 @console_main("mcpilco-bench-diagnosis")
 def main(argv: Sequence[str] | None = None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    p.add_argument("--cases", type=int, default=30)
-    p.add_argument("--robot", choices=("scara", "ur10"), default="scara")
-    p.add_argument("--first-seed", type=int, default=1000)
-    p.add_argument("--control-every", type=int, default=5, help="every k-th case: no effect")
+    p.add_argument("--per-kind", type=int, default=3, help="single-effect cases per kind")
+    p.add_argument("--controls", type=int, default=5, help="cases without a hidden effect")
+    p.add_argument("--multi", type=int, default=5, help="cases with two hidden effects")
     p.add_argument(
-        "--multi-every", type=int, default=0, help="every k-th case (not a control): 2 effects"
+        "--off-library", type=int, default=5, help="cases with position-dependent friction"
     )
+    p.add_argument("--cases", type=int, default=None, help="run only the first N of the plan")
+    p.add_argument("--first-seed", type=int, default=EVALUATION_FIRST_SEED)
+    p.add_argument("--duration", type=float, default=5.0, help="seconds per log")
+    p.add_argument("--train-files", type=int, default=2, help="training logs per case")
+    p.add_argument("--min-joints", type=int, default=2)
+    p.add_argument("--max-joints", type=int, default=3)
     p.add_argument("--start", choices=("nominal", "gip", "rbf"), default="nominal")
     p.add_argument("--max-points", type=int, default=600, help="GP rows with a learned start")
     p.add_argument("--iters", type=int, default=100, help="Adam iterations of a learned start")
-    p.add_argument("--duration", type=float, default=12.0, help="seconds per file")
-    p.add_argument("--train-files", type=int, default=2, help="training files per case")
     p.add_argument("--out", default="results/diagnosis")
     p.add_argument(
         "--runs-dir", type=Path, default=Path("runs/bench_diagnosis"), help="per-case records"
@@ -62,23 +71,27 @@ def main(argv: Sequence[str] | None = None) -> int:
         p.error(str(err))
     out = run_benchmark(
         runner,
+        per_kind=args.per_kind,
+        controls=args.controls,
+        multi=args.multi,
+        off_library=args.off_library,
         cases=args.cases,
-        robot=args.robot,
         first_seed=args.first_seed,
-        control_every=args.control_every,
-        multi_every=args.multi_every,
+        duration=args.duration,
+        train_files=args.train_files,
+        min_joints=args.min_joints,
+        max_joints=args.max_joints,
         start=args.start,
         max_points=args.max_points,
         iters=args.iters,
-        duration=args.duration,
-        train_files=args.train_files,
         out=args.out,
         runs_dir=args.runs_dir,
-        config=vars(args),
+        command=shlex.join(["mcpilco-bench-diagnosis", *(argv or [])]),
+        config={k: str(v) if isinstance(v, Path) else v for k, v in vars(args).items()},
     )
     if out is None:
         return 1
-    print("\n".join(out["markdown"].splitlines()[:12]))
+    print("\n".join(out["markdown"].splitlines()[:30]))
     return out["sweep"].exit_code
 
 

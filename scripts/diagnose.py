@@ -10,15 +10,25 @@ Example (data from ``python -m mcpilco.scripts.make_hidden_effect_data``)::
 Start model: ``--model robot.xml`` (MJCF or URDF, nominal rigid-body physics), or
 ``--gip RRPR`` (a GIP GP learned on the training files) or ``--rbf RRPR`` (a black-box RBF GP;
 the joint types set the joint count and which joints are angles); with a learned start
-``--model`` only gives the payload candidate its regressor. Without ``--test`` the last
+``--model`` only gives the inertial candidates their regressor. Without ``--test`` the last
 training file (or, with one file, its last 30%) is held out. ``--add coulomb:2`` adds an
 effect (repeatable; keys: viscous, coulomb, stribeck, offset, spring, cogging, payload,
-armature, deadzone, delay); ``--auto N`` adds up to N significant effects, best first
-(missing effects before refinements inside a learned start's span).
+inertia (``inertia:2``: link 2), armature, deadzone, delay); ``--auto N`` adds up to N
+significant effects, best first (missing effects before refinements inside a learned
+start's span).
+Files of motor currents (``i1..in`` instead of ``tau1..taun``) are put into torque units
+with ``--torque-constants K1 K2 ...`` (N m/A per joint, negative for a reversed motor;
+``nan`` for a joint whose constant is to be estimated), or, without it, with constants
+estimated per joint against ``--model``.
 Every version is saved as ``<out>/models/model_v<k>.json`` (never overwritten).
 
 Outputs under ``--out``: ``compare_v<k>.png`` (measured vs predicted ±2σ),
-``residuals_v<k>.png``, ``waterfall.png``, ``diagnosis.rrd`` (Rerun), ``summary.json``.
+``residuals_v<k>.png``, ``waterfall.png``, ``diagnosis.rrd`` (Rerun), ``summary.json``,
+``report.html`` (one self-contained file: tables, figures, verdict, residual structure);
+with an MJCF ``--model`` and torque logs also ``corrected.xml`` (the effects found written
+back as MuJoCo physics), ``corrected_effects.json`` (what was written, and the effects MuJoCo
+cannot express, with their 95% intervals) and ``refined.xml`` (refined by ``mujoco.sysid``;
+``--no-sysid`` skips it), with the free-run error of each file on the held-out files.
 The loop is :func:`mcpilco.models.diagnosis.run_diagnosis`.
 """
 
@@ -51,9 +61,22 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument(
         "--gip-iters", type=int, default=100, help="Adam iterations of a learned start's fit"
     )
+    p.add_argument(
+        "--torque-constants",
+        nargs="+",
+        type=float,
+        default=None,
+        metavar="K",
+        help="k_t per joint [N m/A] for current files; nan: estimate it (default: all)",
+    )
     p.add_argument("--out", default="results/diagnosis_run")
     p.add_argument("--no-plots", action="store_true")
     p.add_argument("--no-rerun", action="store_true")
+    p.add_argument(
+        "--no-sysid",
+        action="store_true",
+        help="write corrected.xml but skip its mujoco.sysid refinement (refined.xml)",
+    )
     return p
 
 
@@ -76,9 +99,11 @@ def main(argv: Sequence[str] | None = None) -> int:
         threshold=args.threshold,
         max_points=args.max_points,
         gip_iters=args.gip_iters,
+        torque_constants=args.torque_constants,
         out=args.out,
         plots=not args.no_plots,
         rerun=not args.no_rerun,
+        sysid=not args.no_sysid,
     )
     return 0
 

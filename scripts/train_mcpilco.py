@@ -93,10 +93,10 @@ def build_parser() -> argparse.ArgumentParser:
         "--compile-rollout",
         action="store_true",
         default=None,
-        help="compile the rollout (on the CPU the package's C++ rollout, split over the "
-        "threads by particles, where it applies, else hand-chained backward passes compiled "
-        "by inductor, else torch.compile; needs a C++ compiler); each trial checks it "
-        "against the eager step and falls back to the eager step, with a warning, if they "
+        help="use a fast rollout (config rollout_backend: auto = the package's C++ rollout, "
+        "split over the threads by particles, where it applies, else torch.compile of the "
+        "time step; both need a C++ compiler; --set rollout_backend=torch needs none); each "
+        "trial checks it against the eager rollout and runs eagerly, with a warning, if they "
         "disagree",
     )
     p.add_argument("--seed", type=_non_negative_int)

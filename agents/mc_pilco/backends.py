@@ -21,7 +21,9 @@ Backends
 ``"dynamo"``
     ``torch.compile`` of the loss's per-step function (any device; public API).
 ``"auto"``
-    ``"native"`` where it applies, else ``"dynamo"``.
+    ``"native"`` where it applies, else ``"dynamo"``; for the rigid-body GP kernel
+    (:mod:`~mcpilco.agents.mc_pilco.dynamics`), whose posterior has no hand-written backward
+    to chain, the eager rollout, with a one-line warning (``"dynamo"`` can be named).
 
 The chained time step
 ---------------------
@@ -115,6 +117,8 @@ def unsupported_reason(policy: Any, dynamics: Any, cost: Any, device: torch.devi
         return f"unsupported policy {type(policy).__name__}"
     if type(dynamics) is not SpeedIntegrationDynamics:
         return f"unsupported dynamics {type(dynamics).__name__}"
+    if dynamics.joint_inputs is not None:
+        return "the rigid-body GP kernel has no hand-written posterior backward to chain"
     if not isinstance(dynamics.delta_model, FusedRBFMPKPredictor):
         return f"the GP posterior is not fused ({type(dynamics.delta_model).__name__})"
     if type(cost) is not SaturatingCost:
@@ -456,6 +460,19 @@ def use_fast_rollout(
         )
     loss.set_fast_rollout(None)
     torch.compiler.reset()
+    if getattr(loss.dynamics, "joint_inputs", None) is not None and backend != "dynamo":
+        if backend != "auto":
+            raise ValueError(
+                f"the {backend} backend cannot run this rollout: the rigid-body GP kernel has "
+                "no chained backward ('auto' runs it eagerly, 'dynamo' compiles its step)"
+            )
+        warnings.warn(
+            "rollout backend 'auto': the rigid-body GP kernel has no native or torch rollout; "
+            "using the eager rollout",
+            RuntimeWarning,
+            stacklevel=2,
+        )
+        return FastRollout()
     parts = (loss._policy_fn, loss.dynamics, loss.cost, loss.init_mean.device)
     if backend == "torch" and (reason := unsupported_reason(*parts)) is not None:
         raise ValueError(f"the torch backend cannot run this rollout: {reason}")

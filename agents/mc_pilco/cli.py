@@ -75,7 +75,7 @@ def check_config(config: MCPilcoConfig, build_env: bool = True) -> None:
 
     task = config.task_spec()
     if build_env:
-        make_env(config.env_id, task.horizon, task).close()
+        make_env(config.env_id, task.horizon, task, config.env_kwargs).close()
     device = resolve_device(config.device)
     if config.compile_rollout:
         check_compile_toolchain(device, config.rollout_backend)

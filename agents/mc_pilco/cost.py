@@ -10,6 +10,9 @@ Glossary
 ``d_j = wrap(x_j - x*_j)``
     for an angle in mode ``"wrap"`` (the angle mapped to ``[-pi, pi)``; derivative 1 almost
     everywhere);
+``d_j = x_j - x_r - x*_j``
+    for a term that tracks another state ``x_r`` (``refs``; wrapped for an angle in mode
+    ``"wrap"``), e.g. a joint and its reference;
 ``d_j = |x_j| - |x*_j|``
     for an angle in mode ``"abs"``: MC-PILCO's unwrapped cart-pole cost (Amadio et al. 2022,
     sec. V-A), where every full rotation increases ``|x_j|``, so spinning the pole through
@@ -47,6 +50,8 @@ class SaturatingCost(nn.Module):
         targets: ``x*_j``.
         length_scales: ``l_j`` (> 0).
         modes: per term, 0 plain, 1 wrapped angle, 2 ``|x| - |x*|`` (see the constants).
+        refs: per term, the index of the state it tracks (``d_j = x_j - x_r - x*_j``), or -1;
+            None: no term tracks a state.
 
     Shapes:
         ``forward(state (..., n)) -> cost (...)``.
@@ -59,6 +64,7 @@ class SaturatingCost(nn.Module):
         targets: Sequence[float],
         length_scales: Sequence[float],
         modes: Sequence[int],
+        refs: Sequence[int] | None = None,
     ) -> None:
         super().__init__()
         if not (len(idx) == len(targets) == len(length_scales) == len(modes)) or not idx:
@@ -72,6 +78,16 @@ class SaturatingCost(nn.Module):
         self.targets = tuple(float(t) for t in targets)
         self.length_scales = tuple(float(v) for v in length_scales)
         self.modes = tuple(int(m) for m in modes)
+        self.refs = tuple(-1 for _ in idx) if refs is None else tuple(int(r) for r in refs)
+        if len(self.refs) != len(self.idx) or not all(-1 <= r < state_dim for r in self.refs):
+            raise ValueError(f"refs needs one index in -1..{state_dim - 1} per term, got {refs}")
+        if any(r >= 0 and m == MODE_ABS for r, m in zip(self.refs, self.modes, strict=True)):
+            raise ValueError("a term with a reference state takes mode plain or wrap, not abs")
+
+    @property
+    def tracks(self) -> bool:
+        """Whether a term tracks another state (``refs``)."""
+        return any(r >= 0 for r in self.refs)
 
     @classmethod
     def from_task(
@@ -97,13 +113,14 @@ class SaturatingCost(nn.Module):
                 modes.append(MODE_PLAIN)
             else:
                 mode = angle_mode or t.angle_mode
-                modes.append(MODE_WRAP if mode == "wrap" else MODE_ABS)
+                modes.append(MODE_WRAP if mode == "wrap" or t.reference else MODE_ABS)
         return cls(
             task.state_dim,
             [task.index(t.state) for t in task.cost_terms],
             [t.target for t in task.cost_terms],
             [float(length_scales.get(t.state, t.length_scale)) for t in task.cost_terms],
             modes,
+            [-1 if t.reference is None else task.index(t.reference) for t in task.cost_terms],
         )
 
     def forward(self, state: Tensor) -> Tensor:
@@ -116,7 +133,7 @@ class SaturatingCost(nn.Module):
     def extra_repr(self) -> str:
         return (
             f"idx={self.idx}, targets={self.targets}, length_scales={self.length_scales}, "
-            f"modes={self.modes}"
+            f"modes={self.modes}" + (f", refs={self.refs}" if self.tracks else "")
         )
 
 
@@ -132,16 +149,18 @@ def _distance(v: Tensor, target: float, mode: int) -> tuple[Tensor, Tensor | Non
 class _SaturatingCostFn(torch.autograd.Function):
     """``c = 1 - E``, ``E = exp(-sum_j (d_j / l_j)^2)``; one autograd node. Backward:
     ``dc/dx_j = 2 E d_j d'_j / l_j^2`` with ``d'_j = 1`` (plain, wrap) or ``sign(x_j)``
-    (``abs``; ``sign(0) = 0``, the subgradient of ``abs`` in torch)."""
+    (``abs``; ``sign(0) = 0``, the subgradient of ``abs`` in torch), and the same with the
+    opposite sign on the tracked state ``x_r`` of a term that has one."""
 
     @staticmethod
     def forward(ctx, state: Tensor, cost: SaturatingCost) -> Tensor:  # noqa: D102
         s = None
         ds, slopes = [], []
-        for i, target, ls, mode in zip(
-            cost.idx, cost.targets, cost.length_scales, cost.modes, strict=True
+        for i, target, ls, mode, r in zip(
+            cost.idx, cost.targets, cost.length_scales, cost.modes, cost.refs, strict=True
         ):
-            d, slope = _distance(state[..., i], target, mode)
+            v = state[..., i] if r < 0 else state[..., i] - state[..., r]
+            d, slope = _distance(v, target, mode)
             term = (d / ls) ** 2
             s = term if s is None else s + term
             ds.append(d)
@@ -161,10 +180,12 @@ class _SaturatingCostFn(torch.autograd.Function):
         ds, slopes = rest[:k], iter(rest[k:])
         gE2 = 2.0 * g * E
         cols = [None] * cost.state_dim
-        for j, (i, ls) in enumerate(zip(cost.idx, cost.length_scales, strict=True)):
+        for j, (i, ls, r) in enumerate(zip(cost.idx, cost.length_scales, cost.refs, strict=True)):
             gj = gE2 * ds[j] / (ls * ls)
             if ctx.has_slope[j]:
                 gj = gj * next(slopes)
-            cols[i] = gj
+            cols[i] = gj if cols[i] is None else cols[i] + gj
+            if r >= 0:
+                cols[r] = -gj if cols[r] is None else cols[r] - gj
         zero = torch.zeros_like(E)
         return torch.stack([zero if c is None else c for c in cols], dim=-1), None

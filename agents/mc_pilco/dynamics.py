@@ -32,6 +32,24 @@ Glossary
     ``o_{t+1} = o_t + Delta_t`` for an unpaired coordinate.
 ``k = k_RBF + k_MP^(2)``
     kernel of each GP, eq. (5.10) (``kernel="rbf"``: RBF only, the ablation of Fig. 5.5).
+``k = k_q(q, q') (sigma^2 + v^T Sigma v')``, ``kernel="rigid_body"``
+    the structured kernel of an arm task (:class:`~mcpilco.models.kernels.RigidBodyDynamicsKernel`)
+    on the raw joint-space input ``x~ = [q, qd, tau, w]`` (:class:`JointSpaceInputs`; the
+    task's ``joints``, their velocities, the actions as torques, its ``affine_inputs``)
+    instead of ``[f(x), u]``. Why this structure: for a rigid arm
+    ``qdd = M(q)^-1 (tau - C(q) [qd_i qd_j] - g(q) - F_v qd)``, so at a fixed configuration
+    ``q`` the acceleration, and over one control period ``T_s`` with the action held the
+    velocity change ``Delta qd ~ T_s qdd``, is affine in ``tau``, in the products
+    ``qd_i qd_j`` and in ``qd``; the kernel's RKHS is exactly
+    ``{f_0(q) + sum_j f_j(q) v_j}`` with ``v = [tau, qd_i qd_j, qd, w]``, so only the smooth
+    coefficient functions of ``q`` are learned, not how the torques and velocities enter.
+    A PD controller in the loop, ``tau_c = K_p (q_r - q) + K_d (qd_r - qd) + g^(q) + u``,
+    keeps the structure with ``u`` in the place of ``tau`` and the reference
+    ``w = [q_r, qd_r]`` as affine inputs. Every GP output (also the reference's own
+    velocity change, affine in ``w`` for a sinusoidal reference) gets this kernel. The
+    structure is that of the accelerations: where the control period is long against the
+    closed loop's time constants (a stiff PD loop moving the state within one period) the
+    velocity change departs from it, and RBF + MPK may predict such data better.
 """
 
 from __future__ import annotations
@@ -45,8 +63,8 @@ from torch import Tensor, nn
 
 from mcpilco.agents.mc_pilco.features import StateLayout, gp_inputs
 
-KernelName = Literal["rbf+mpk", "rbf"]
-KERNEL_CHOICES: tuple[str, ...] = ("rbf+mpk", "rbf")
+KernelName = Literal["rbf+mpk", "rbf", "rigid_body"]
+KERNEL_CHOICES: tuple[str, ...] = ("rbf+mpk", "rbf", "rigid_body")  # GPDynamicsModel's kernels
 
 
 def speed_integration(state: Tensor, delta: Tensor, dt: float, layout: StateLayout) -> Tensor:
@@ -91,16 +109,56 @@ def _integration_matrices(
     return _INTEGRATION_CACHE[key]
 
 
+class JointSpaceInputs:
+    """GP input ``x~ = [q, qd, tau, w]`` of the rigid-body kernel (module glossary): the
+    task's joint positions, their velocities, the actions (one torque per joint) and the
+    task's affine inputs, raw (no angle features, no standardisation: the kernel takes the
+    cosine and sine of a revolute ``q`` itself). Differentiable (index and concatenation).
+
+    Args:
+        task: a :class:`~mcpilco.agents.mc_pilco.task.TaskSpec` with ``joints``.
+    """
+
+    def __init__(self, task: Any) -> None:
+        if not task.joints:
+            raise ValueError(
+                "task.joints: the rigid_body kernel needs the arm's joint positions (the "
+                "task has none); use kernel 'rbf+mpk' or 'rbf' for other tasks"
+            )
+        self.q_idx = tuple(task.index(j) for j in task.joints)
+        self.qd_idx = tuple(task.index(v) for v in task.joint_velocities)
+        self.w_idx = tuple(task.index(a) for a in task.affine_inputs)
+        self.joint_types = task.joint_type_string
+        self.names = (
+            list(task.joints)
+            + list(task.joint_velocities)
+            + [f"u{j}" for j in range(task.action_dim)]
+            + list(task.affine_inputs)
+        )
+
+    @property
+    def dim(self) -> int:
+        return len(self.names)
+
+    def __call__(self, state: Tensor, action: Tensor) -> Tensor:
+        parts = [state[..., list(self.q_idx)], state[..., list(self.qd_idx)], action]
+        if self.w_idx:
+            parts.append(state[..., list(self.w_idx)])
+        return torch.cat(parts, dim=-1)
+
+
 def transitions_to_dataset(
     states: np.ndarray | Tensor,
     actions: np.ndarray | Tensor,
     next_states: np.ndarray | Tensor,
     layout: StateLayout,
+    inputs: Callable[[Tensor, Tensor], Tensor] | None = None,
 ) -> tuple[Tensor, Tensor]:
     """GP training set from transitions ``(x_t, u_t, x_{t+1})``.
 
-    Returns ``X = x~_t`` (N, F + A) and ``Y = x_{t+1} - x_t`` on ``layout.output_idx``
-    (N, m), float64.
+    Returns ``X = x~_t`` (N, d) (``[f(x), u]``, or ``inputs(x, u)`` when given, e.g.
+    :class:`JointSpaceInputs`) and ``Y = x_{t+1} - x_t`` on ``layout.output_idx`` (N, m),
+    float64.
     """
     s = torch.as_tensor(np.asarray(states), dtype=torch.float64)
     a = torch.as_tensor(np.asarray(actions), dtype=torch.float64)
@@ -114,7 +172,8 @@ def transitions_to_dataset(
             f"{tuple(s.shape)}, {tuple(a.shape)}, {tuple(s1.shape)}"
         )
     out = list(layout.output_idx)
-    return gp_inputs(s, a, layout), s1[:, out] - s[:, out]
+    X = gp_inputs(s, a, layout) if inputs is None else inputs(s, a)
+    return X, s1[:, out] - s[:, out]
 
 
 class SpeedIntegrationDynamics(nn.Module):
@@ -129,6 +188,8 @@ class SpeedIntegrationDynamics(nn.Module):
         sample_noise: add ``noise_variance`` to the sampling variance (default False, see
             the glossary).
         delta_bound: (m,) bound ``b`` on ``|Delta|`` (None: no clipping).
+        joint_inputs: the GP input map of the rigid-body kernel (:class:`JointSpaceInputs`);
+            None: ``x~ = [f(x), u]``.
 
     Shapes:
         ``forward(state (..., n), action (..., A), eps (..., m)) -> next_state (..., n)``;
@@ -143,6 +204,7 @@ class SpeedIntegrationDynamics(nn.Module):
         noise_variance: Tensor | None = None,
         sample_noise: bool = False,
         delta_bound: Tensor | None = None,
+        joint_inputs: JointSpaceInputs | None = None,
     ) -> None:
         super().__init__()
         if not dt > 0:
@@ -150,6 +212,7 @@ class SpeedIntegrationDynamics(nn.Module):
         self.delta_model = delta_model
         self.dt = float(dt)
         self.layout = layout
+        self.joint_inputs = joint_inputs
         self.sample_noise = bool(sample_noise)
         if sample_noise and noise_variance is None:
             raise ValueError("sample_noise=True needs noise_variance")
@@ -162,7 +225,11 @@ class SpeedIntegrationDynamics(nn.Module):
 
     def delta_distribution(self, state: Tensor, action: Tensor) -> tuple[Tensor, Tensor]:
         """``E[Delta]`` and ``var[Delta]`` (..., m) at ``(state, action)``."""
-        mean, var = self.delta_model(gp_inputs(state, action, self.layout))
+        if self.joint_inputs is None:
+            x = gp_inputs(state, action, self.layout)
+        else:
+            x = self.joint_inputs(state, action)
+        mean, var = self.delta_model(x)
         if self.sample_noise:
             var = var + self.noise_variance.to(var.dtype)
         return mean, var
@@ -217,14 +284,32 @@ class _SampleClipIntegrate(torch.autograd.Function):
         return g_state, g_delta, g_var, None, None, None, None
 
 
-def make_kernel_factory(kernel: str, input_dim: int) -> Callable[[torch.Size], nn.Module]:
-    """Kernel factory for ``GPRegressor``: ``k = k_RBF (+ k_MP^(2))``, eq. (5.10).
+def make_kernel_factory(
+    kernel: str, input_dim: int, joint_inputs: JointSpaceInputs | None = None
+) -> Callable[[torch.Size], nn.Module]:
+    """Kernel factory for ``GPRegressor``: ``k = k_RBF (+ k_MP^(2))``, eq. (5.10), or the
+    rigid-body kernel (module glossary).
 
-    ``kernel`` is ``"rbf+mpk"`` (RBF with ARD and output scale, plus a degree-2 MPK) or
-    ``"rbf"`` (RBF only).
+    ``kernel`` is ``"rbf+mpk"`` (RBF with ARD and output scale, plus a degree-2 MPK),
+    ``"rbf"`` (RBF only) or ``"rigid_body"`` (needs ``joint_inputs``, whose columns it
+    reads; ``input_dim`` must be its ``dim``).
     """
     if kernel not in KERNEL_CHOICES:
         raise ValueError(f"kernel must be one of {KERNEL_CHOICES}, got {kernel!r}")
+    if kernel == "rigid_body":
+        if joint_inputs is None or joint_inputs.dim != input_dim:
+            raise ValueError("the rigid_body kernel needs the task's JointSpaceInputs")
+
+        def rigid_factory(batch_shape: torch.Size) -> nn.Module:
+            from mcpilco.models.kernels import RigidBodyDynamicsKernel
+
+            return RigidBodyDynamicsKernel(
+                joint_inputs.joint_types,
+                num_affine=len(joint_inputs.w_idx),
+                batch_shape=batch_shape,
+            )
+
+        return rigid_factory
 
     def factory(batch_shape: torch.Size) -> nn.Module:
         import gpytorch
@@ -248,7 +333,8 @@ class GPDynamicsModel:
     Args:
         task: the :class:`~mcpilco.agents.mc_pilco.task.TaskSpec` (state layout, action size,
             control period ``T_s``).
-        kernel: ``"rbf+mpk"`` or ``"rbf"``.
+        kernel: one of :data:`KERNEL_CHOICES` (``"rigid_body"`` needs the task's ``joints``,
+            with one action per joint).
         max_points: subset-of-data size (greedy, by posterior variance) when more
             transitions are available.
         adam_iters, adam_lr, lbfgs_iters: marginal-likelihood optimisation budget per fit.
@@ -275,9 +361,15 @@ class GPDynamicsModel:
     ) -> None:
         self.task = task
         self.layout = StateLayout.from_task(task)
+        if kernel not in KERNEL_CHOICES:
+            raise ValueError(f"kernel must be one of {KERNEL_CHOICES}, got {kernel!r}")
         self.kernel = kernel
         self.delta_clip_factor = delta_clip_factor
-        self.kernel_factory = make_kernel_factory(kernel, task.feature_dim + task.action_dim)
+        self.joint_inputs = JointSpaceInputs(task) if kernel == "rigid_body" else None
+        self.input_names = (
+            task.gp_input_names() if self.joint_inputs is None else self.joint_inputs.names
+        )
+        self.kernel_factory = make_kernel_factory(kernel, len(self.input_names), self.joint_inputs)
         self.dt = float(task.dt)
         self.max_points = max_points
         self.adam_iters = int(adam_iters)
@@ -293,14 +385,15 @@ class GPDynamicsModel:
 
         return GPRegressor(
             self.kernel_factory,
-            input_names=self.task.gp_input_names(),
+            standardize_x=self.joint_inputs is None,  # the rigid-body kernel takes raw q
+            input_names=self.input_names,
             output_names=self.task.gp_output_names(),
         )
 
     def fit(self, states, actions, next_states) -> GPDynamicsModel:
         """Fit the GPs on all transitions (hyperparameters from their initial values, or
         from the previous fit with ``warm_start``)."""
-        X, Y = transitions_to_dataset(states, actions, next_states, self.layout)
+        X, Y = transitions_to_dataset(states, actions, next_states, self.layout, self.joint_inputs)
         self.delta_max_ = Y.abs().amax(dim=0)
         if self.gp_ is None or not self.warm_start:
             self.gp_ = self._new_gp()
@@ -346,13 +439,14 @@ class GPDynamicsModel:
             noise_variance=pred.noise_variance,
             sample_noise=self.sample_noise,
             delta_bound=bound,
+            joint_inputs=self.joint_inputs,
         )
 
     @torch.no_grad()
     def one_step_rmse(self, states, actions, next_states) -> np.ndarray:
         """RMSE of the posterior mean of ``Delta`` on the given transitions, per output (m,)."""
         self._check_fitted()
-        X, Y = transitions_to_dataset(states, actions, next_states, self.layout)
+        X, Y = transitions_to_dataset(states, actions, next_states, self.layout, self.joint_inputs)
         mean, _ = self.gp_.predict(X)
         return torch.sqrt(((mean - Y) ** 2).mean(0)).cpu().numpy()
 

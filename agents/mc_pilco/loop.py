@@ -33,7 +33,7 @@ import dataclasses
 import json
 import math
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -81,6 +81,8 @@ _RESUME_FIXED = (
     "num_basis",
     "num_candidates",
     "explore_hold",
+    "explore_steps",
+    "env_kwargs",
 )
 ROLLOUT_DTYPES = ("float32", "float64")
 """Choices of :attr:`MCPilcoConfig.rollout_dtype`."""
@@ -105,7 +107,11 @@ class MCPilcoConfig:
         num_trials: policy trials after the exploration trial.
         horizon: ``H``, steps per trial and of the particle rollout (None: the task's).
         num_particles: ``M``.
-        kernel: ``"rbf+mpk"`` or ``"rbf"``.
+        kernel: ``"rbf+mpk"``, ``"rbf"`` or ``"rigid_body"`` (an arm task's structured
+            kernel on ``[q, qd, tau, w]``; :mod:`.dynamics`). The chained rollouts (native,
+            torch) have no backward for the rigid-body posterior: with it,
+            ``rollout_backend="auto"`` runs the eager rollout (one line says so) and
+            ``"native"`` / ``"torch"`` are refused here.
         max_points: GP subset-of-data size.
         gp_adam_iters, gp_lbfgs_iters: marginal-likelihood budget per fit.
         num_basis: policy basis functions.
@@ -125,6 +131,11 @@ class MCPilcoConfig:
             (length ``K``); None: ``policy_weight_scale`` for all.
         explore_hold: control steps each random action of the exploration trial is held
             (``u ~ U(low, high)`` drawn once per ``explore_hold`` steps; 1: i.i.d.).
+        explore_steps: steps of the exploration trial (None: the horizon). A task whose
+            policy trials need a longer horizon than the data a first model needs can start
+            with a shorter random trial.
+        env_kwargs: keyword arguments of ``gym.make`` besides the episode length (for
+            example an env's own episode-length argument when the horizon changes).
         init_std: ``sigma_0`` of the initial particles (None: the task's).
         sim_obs_noise_std: measurement noise simulated on the policy input in rollouts.
         opt: policy optimisation schedule (:class:`PolicyOptConfig`).
@@ -167,6 +178,8 @@ class MCPilcoConfig:
     num_candidates: int = 1
     candidate_weight_scales: list[float] | None = None
     explore_hold: int = 1
+    explore_steps: int | None = None
+    env_kwargs: dict[str, Any] | None = None
     init_std: float | None = None
     sim_obs_noise_std: float = 0.01
     opt: PolicyOptConfig = field(default_factory=PolicyOptConfig)
@@ -188,8 +201,12 @@ class MCPilcoConfig:
                 raise ValueError(f"{name} must be a positive integer, got {v!r}")
         if int(self.num_trials) != self.num_trials or self.num_trials < 0:
             raise ValueError(f"num_trials must be an integer >= 0, got {self.num_trials!r}")
-        if self.horizon is not None and (int(self.horizon) != self.horizon or self.horizon < 1):
-            raise ValueError(f"horizon must be a positive integer, got {self.horizon!r}")
+        for name in ("horizon", "explore_steps"):
+            v = getattr(self, name)
+            if v is not None and (isinstance(v, bool) or int(v) != v or v < 1):
+                raise ValueError(f"{name} must be a positive integer, got {v!r}")
+        if self.env_kwargs is not None and not isinstance(self.env_kwargs, dict):
+            raise ValueError(f"env_kwargs must be a mapping, got {self.env_kwargs!r}")
         if self.candidate_weight_scales is not None:
             scales = [float(v) for v in self.candidate_weight_scales]
             if len(scales) != self.num_candidates or not all(v > 0 for v in scales):
@@ -207,6 +224,11 @@ class MCPilcoConfig:
         if self.rollout_backend not in BACKENDS:
             raise ValueError(
                 f"rollout_backend must be one of {BACKENDS}, got {self.rollout_backend!r}"
+            )
+        if self.kernel == "rigid_body" and self.rollout_backend in ("native", "torch"):
+            raise ValueError(
+                f"rollout_backend={self.rollout_backend!r} cannot run kernel='rigid_body' (no "
+                "chained backward for its posterior); use 'auto' (eager rollout) or 'dynamo'"
             )
         if self.cost_angle_mode is not None and self.cost_angle_mode not in ANGLE_MODES:
             raise ValueError(
@@ -389,10 +411,16 @@ def registered_ids(prefix: str = "mcpilco/") -> list[str]:
     return sorted(k for k in gym.registry if k.startswith(prefix))
 
 
-def make_env(env_id: str, horizon: int, task: TaskSpec | None = None):
-    """``gym.make(env_id)`` with episodes of ``horizon`` steps, clear errors for an unknown id,
-    for spaces that do not fit ``task`` (:meth:`TaskSpec.check_env`), and for a horizon that
-    differs from the env's own episode length when the task's success is the env's
+def make_env(
+    env_id: str,
+    horizon: int,
+    task: TaskSpec | None = None,
+    env_kwargs: Mapping[str, Any] | None = None,
+):
+    """``gym.make(env_id, **env_kwargs)`` with episodes of ``horizon`` control steps
+    (``horizon`` times the task's ``action_repeat`` env steps), clear errors for an unknown
+    id, for spaces that do not fit ``task`` (:meth:`TaskSpec.check_env`), and for a horizon
+    that differs from the env's own episode length when the task's success is the env's
     ``info`` flag (defined at the env's own last step)."""
     import gymnasium as gym
 
@@ -403,12 +431,13 @@ def make_env(env_id: str, horizon: int, task: TaskSpec | None = None):
             f"unknown env id {env_id!r}; registered mcpilco ids: {', '.join(registered_ids())}"
         )
     steps = gym.spec(env_id).max_episode_steps
+    horizon = int(horizon) * (task.action_repeat if task is not None else 1)
     if steps is not None and steps != horizon and task is not None and task.success.info_key:
         raise ValueError(
             f"horizon mismatch: the config's horizon is {horizon} steps but {env_id} episodes "
             f"last {steps} steps (its success flag is set at its last step); set horizon={steps}"
         )
-    env = gym.make(env_id, max_episode_steps=int(horizon))
+    env = gym.make(env_id, max_episode_steps=int(horizon), **dict(env_kwargs or {}))
     if task is not None:
         try:
             task.check_env(env)
@@ -432,21 +461,26 @@ def run_episode(
     horizon: int,
     task: TaskSpec,
 ) -> dict[str, Any]:
-    """One episode of at most ``horizon`` steps under ``act(state)``.
+    """One episode of at most ``horizon`` control steps under ``act(state)``, each action held
+    for the task's ``action_repeat`` env steps (the observation after the last is the next
+    state).
 
     Returns the observed states ``obs`` (T+1, n) (read from the observations by the task),
     the true states ``states`` (T+1, n), ``actions`` (T, A), per-step evaluation ``costs``,
     their sum ``cost``, ``success`` (the task's test) and ``time_in_goal`` [s] (steps within
     the task's success bounds times ``T_s``).
     """
-    obs, info = env.reset(seed=seed)
+    obs, info = env.reset(seed=seed, options=task.reset_options())
     observed = [task.state_from_obs(obs)]
     states = [task.true_state(obs, info)]
     actions = []
     low, high = np.asarray(task.action_low), np.asarray(task.action_high)
     for _ in range(horizon):
         a = np.clip(np.asarray(act(observed[-1]), dtype=np.float64).reshape(-1), low, high)
-        obs, _, terminated, truncated, info = env.step(a.astype(np.float32))
+        for _ in range(task.action_repeat):
+            obs, _, terminated, truncated, info = env.step(a.astype(np.float32))
+            if terminated or truncated:
+                break
         observed.append(task.state_from_obs(obs))
         states.append(task.true_state(obs, info))
         actions.append(a)
@@ -635,7 +669,11 @@ def run_mcpilco(
         elif config.horizon is not None and config.horizon != task.horizon:
             task = task.replace(horizon=int(config.horizon))
         horizon = task.horizon
-        env = make_env(config.env_id, horizon, task)
+        if config.explore_steps is not None and config.explore_steps > horizon:
+            raise ValueError(
+                f"explore_steps ({config.explore_steps}) exceeds the horizon ({horizon} steps)"
+            )
+        env = make_env(config.env_id, horizon, task, config.env_kwargs)
         dt = task.dt
         layout = StateLayout.from_task(task)
 
@@ -716,7 +754,12 @@ def run_mcpilco(
             if k == 0:
                 rec["kind"] = "exploration"
                 ep = exploration_episode(
-                    env, np_rng, config.seed, horizon, task, config.explore_hold
+                    env,
+                    np_rng,
+                    config.seed,
+                    config.explore_steps or horizon,
+                    task,
+                    config.explore_hold,
                 )
             else:
                 rec["kind"] = "policy"

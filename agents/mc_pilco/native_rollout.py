@@ -197,6 +197,8 @@ def native_unsupported_reason(
         return "it runs in float32 only"
     if pred.p not in (0, 2):
         return f"it takes RBF or RBF + degree-2 MPK kernels, not MPK degree {pred.p}"
+    if cost.tracks:
+        return "it takes no cost terms that track another state (the torch backend does)"
     layout = dynamics.layout
     if policy.layout != layout or cost.state_dim != layout.n:
         return "the policy, dynamics and cost have different state layouts"

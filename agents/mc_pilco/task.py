@@ -22,7 +22,21 @@ angles
     the saturating cost on named state terms with targets ``x*_j`` and length scales ``l_j``;
     ``d_j = x_j - x*_j`` for a plain coordinate, ``wrap(x_j - x*_j)`` for an angle (mode
     ``"wrap"``), or ``|x_j| - |x*_j|`` (mode ``"abs"``, MC-PILCO's unwrapped cart-pole cost,
-    which does not reward spinning through the target).
+    which does not reward spinning through the target). A term with a ``reference`` state
+    ``r`` measures the tracking error instead: ``x_j - x_r - x*_j`` (wrapped for an angle).
+joints (an arm)
+    ``joints`` names the joint positions ``q_b`` (each the position of a pair, so its
+    velocity ``qd_b`` is known), ``joint_types`` says ``R`` (revolute) or ``P`` (prismatic)
+    per joint, and the actions are the joint torques (or torque corrections) ``tau_b``, one
+    per joint. ``affine_inputs`` names further states in which the accelerations are affine
+    at a fixed configuration (the reference of a PD controller in the loop). The rigid-body
+    GP kernel (:mod:`.dynamics`) works on the raw ``[q, qd, tau, w]`` this declares.
+reference
+    a joint reference the env tracks, passed at every reset as ``options["reference"]``: a
+    sum of sinusoids ``q_r,b(t) = c_b + sum_k A_bk sin(w_bk t + phi_bk)`` with a
+    ``duration`` of at least the horizon. The particle rollout predicts the reference
+    states with the GP like the others, so a reference that is a Markov state on its own
+    (one sinusoid per joint: ``(q_r, qd_r)`` is a harmonic oscillator) is learned exactly.
 success
     the env's ``info[info_key]`` at the last step, else every state of the last ``window``
     steps within ``tol`` of its target (angles by wrapped distance), and with
@@ -69,6 +83,7 @@ class CostTerm:
     target: float = 0.0
     length_scale: float = 1.0
     angle_mode: str = "wrap"  # used only when ``state`` is an angle
+    reference: str | None = None  # a state tracked by ``state``: d = x - x_ref - target
 
 
 @dataclass(frozen=True)
@@ -103,6 +118,8 @@ class TaskSpec:
         pairs: ``(position, velocity)`` name pairs for speed integration.
         action_low, action_high: action bounds (the policy's output range).
         dt: control period [s]. horizon: steps per episode and of the particle rollout.
+        action_repeat: env steps each action is held for; then ``dt`` is that many env
+            steps (a control period coarser than the env's sampling).
         init_mean, init_std: ``x_0 ~ N(mu_0, diag(sigma_0^2))`` of the particles.
         cost_terms: terms of the saturating cost (the evaluation cost; an agent config may
             change the length scales and angle modes of the optimised cost).
@@ -110,6 +127,11 @@ class TaskSpec:
             of ``cost_terms`` in the optimisation (the evaluation still uses ``cost_terms``
             when given, else ``cost_fn`` on numpy input through torch).
         success: the success test (:class:`SuccessSpec`).
+        joints: names of an arm's joint positions (module glossary); () for no arm.
+        joint_types: ``R`` or ``P`` per joint (None: all revolute).
+        affine_inputs: states the accelerations are affine in at a fixed configuration.
+        reference: the sum-of-sinusoids joint reference passed to the env at reset
+            (keys ``centre``, ``amplitudes``, ``omegas``, ``phases``, ``duration``), or None.
     """
 
     env_id: str
@@ -127,6 +149,11 @@ class TaskSpec:
     cost_terms: tuple[CostTerm, ...] = ()
     cost_fn: Callable[..., Any] | None = None
     success: SuccessSpec = field(default_factory=SuccessSpec)
+    joints: tuple[str, ...] = ()
+    joint_types: str | None = None
+    affine_inputs: tuple[str, ...] = ()
+    reference: Mapping[str, Any] | None = None
+    action_repeat: int = 1
 
     def __post_init__(self) -> None:
         names = tuple(str(n) for n in self.state_names)
@@ -185,6 +212,9 @@ class TaskSpec:
         if int(self.horizon) != self.horizon or self.horizon < 1:
             raise _fail("horizon", f"needs a positive integer, got {self.horizon!r}")
         object.__setattr__(self, "horizon", int(self.horizon))
+        rep = self.action_repeat
+        if isinstance(rep, bool) or not isinstance(rep, int) or rep < 1:
+            raise _fail("action_repeat", f"needs a positive integer, got {rep!r}")
         mean = (0.0,) * n if self.init_mean is None else tuple(float(v) for v in self.init_mean)
         if len(mean) != n:
             raise _fail("init_mean", f"needs {n} entries (one per state), got {len(mean)}")
@@ -212,6 +242,13 @@ class TaskSpec:
                 raise _fail(f"cost.terms[{i}].angle_mode", f"one of {ANGLE_MODES}")
             if any(t.state == o.state for o in terms):
                 raise _fail(f"cost.terms[{i}].state", f"{t.state!r} has two cost terms")
+            if t.reference is not None and t.angle_mode == "abs":
+                raise _fail(f"cost.terms[{i}].angle_mode", "a tracking term takes 'wrap'")
+            if t.reference is not None and (t.reference not in names or t.reference == t.state):
+                raise _fail(
+                    f"cost.terms[{i}].reference",
+                    f"needs another state name, got {t.reference!r} (states: {names})",
+                )
             terms.append(t)
         object.__setattr__(self, "cost_terms", tuple(terms))
         if not terms and self.cost_fn is None:
@@ -228,6 +265,59 @@ class TaskSpec:
             raise _fail("success.window", f"needs 1..horizon ({self.horizon}), got {s.window}")
         if s.info_key is None and not s.bounds and not s.full_horizon:
             raise _fail("success", "needs an info_key, bounds, or full_horizon")
+        self._check_arm()
+
+    def _check_arm(self) -> None:
+        """The arm fields (module glossary); errors name the field."""
+        names = self.state_names
+        joints = tuple(str(j) for j in self.joints)
+        positions = dict(self.pairs)
+        for i, j in enumerate(joints):
+            if j not in positions:
+                raise _fail(
+                    f"joints[{i}]",
+                    f"{j!r} is not the position of a pair (pairs: {list(self.pairs)})",
+                )
+            if joints.index(j) != i:
+                raise _fail(f"joints[{i}]", f"{j!r} listed twice")
+        object.__setattr__(self, "joints", joints)
+        if self.joint_types is not None:
+            jt = str(self.joint_types).upper()
+            if len(jt) != len(joints) or set(jt) - {"R", "P"}:
+                raise _fail(
+                    "joint_types",
+                    f"needs one letter R or P per joint ({len(joints)}), got {self.joint_types!r}",
+                )
+            object.__setattr__(self, "joint_types", jt)
+        if joints and self.action_dim != len(joints):
+            raise _fail(
+                "joints",
+                f"{len(joints)} joints but {self.action_dim} actions (one torque per joint)",
+            )
+        affine = tuple(str(a) for a in self.affine_inputs)
+        arm = {positions[j] for j in joints}
+        for i, a in enumerate(affine):
+            if a not in names or a in arm or affine.index(a) != i:
+                raise _fail(
+                    f"affine_inputs[{i}]",
+                    f"needs a state name listed once and no joint velocity, got {a!r}",
+                )
+        if affine and not joints:
+            raise _fail("affine_inputs", "needs joints")
+        object.__setattr__(self, "affine_inputs", affine)
+        if self.reference is not None:
+            object.__setattr__(self, "reference", _check_reference(self))
+
+    @property
+    def joint_velocities(self) -> tuple[str, ...]:
+        """The velocity paired with each joint position."""
+        positions = dict(self.pairs)
+        return tuple(positions[j] for j in self.joints)
+
+    @property
+    def joint_type_string(self) -> str:
+        """``joint_types``, or ``R`` per joint when not given."""
+        return self.joint_types if self.joint_types is not None else "R" * len(self.joints)
 
     # ------------------------------------------------------------------ derived layout
     @property
@@ -331,6 +421,20 @@ class TaskSpec:
         for i, j in enumerate(self.obs_indices or ()):
             if j >= n_obs:
                 raise _fail(f"obs_indices[{i}]", f"index {j} out of range for {n_obs} observations")
+        env_dt = getattr(getattr(env, "unwrapped", env), "dt", None)
+        if self.action_repeat > 1 and env_dt is not None:
+            if abs(float(env_dt) * self.action_repeat - self.dt) > 1e-9:
+                raise _fail(
+                    "dt",
+                    f"{self.dt} s is not action_repeat ({self.action_repeat}) x the env's "
+                    f"step ({env_dt} s)",
+                )
+        n_joints = getattr(getattr(env, "unwrapped", env), "n_joints", None)
+        if self.joints and n_joints is not None and int(n_joints) != len(self.joints):
+            raise _fail(
+                "joints",
+                f"{len(self.joints)} joints {list(self.joints)} but {self.env_id} has {n_joints}",
+            )
         if act_shape[0] != self.action_dim:
             raise _fail(
                 "action_low",
@@ -346,6 +450,17 @@ class TaskSpec:
                 f"{low.tolist()}..{high.tolist()}",
             )
 
+    def reset_options(self) -> dict[str, Any] | None:
+        """``options`` of ``env.reset``: ``{"reference": SumOfSinusoids}`` for a task with a
+        reference (:class:`mcpilco.envs.arm_env.SumOfSinusoids`), else None."""
+        if self.reference is None:
+            return None
+        from mcpilco.envs.arm_env import SumOfSinusoids
+
+        ref = self.reference
+        arrays = (np.asarray(ref[k], dtype=np.float64) for k in REFERENCE_KEYS[:4])
+        return {"reference": SumOfSinusoids(*arrays, duration=float(ref["duration"]))}
+
     # ------------------------------------------------------------------ evaluation
     def cost(self, x: np.ndarray) -> np.ndarray:
         """The evaluation cost ``c(x)`` (module glossary) in numpy, ``(..., n) -> (...)``."""
@@ -357,8 +472,10 @@ class TaskSpec:
                 return self.cost_fn(torch.as_tensor(x)).numpy()
         s = np.zeros(x.shape[:-1])
         for t in self.cost_terms:
-            s = s + (self.distance(t.state, x[..., self.index(t.state)], t.target, t.angle_mode)
-                     / t.length_scale) ** 2  # fmt: skip
+            v = x[..., self.index(t.state)]
+            if t.reference is not None:
+                v = v - x[..., self.index(t.reference)]
+            s = s + (self.distance(t.state, v, t.target, t.angle_mode) / t.length_scale) ** 2
         return 1.0 - np.exp(-s)
 
     def distance(self, name: str, v: np.ndarray, target: float, mode: str = "wrap") -> np.ndarray:
@@ -472,6 +589,10 @@ def _check_types(d: Mapping[str, Any]) -> None:
 
     seq("state_names", lambda e: isinstance(e, str) and e != "", "non-empty names")
     seq("angles", lambda e: isinstance(e, str), "state names")
+    seq("joints", lambda e: isinstance(e, str), "state names")
+    seq("affine_inputs", lambda e: isinstance(e, str), "state names")
+    if d.get("reference") is not None and not isinstance(d["reference"], Mapping):
+        raise _fail("reference", f"expected a mapping, got {d['reference']!r}")
     seq("action_low", _is_number, "numbers")
     seq("action_high", _is_number, "numbers")
     seq("init_mean", _is_number, "numbers", allow_none=True)
@@ -495,7 +616,7 @@ def _check_types(d: Mapping[str, Any]) -> None:
 def _parse_term(t: Any, path: str) -> CostTerm:
     if not isinstance(t, Mapping) or "state" not in t:
         raise _fail(path, f"needs {{state, target, length_scale}}, got {t!r}")
-    extra = set(t) - {"state", "target", "length_scale", "angle_mode"}
+    extra = set(t) - {"state", "target", "length_scale", "angle_mode", "reference"}
     if extra:
         raise _fail(path, f"unknown keys {sorted(extra)}")
     try:
@@ -504,6 +625,53 @@ def _parse_term(t: Any, path: str) -> CostTerm:
             target=float(t.get("target", 0.0)),
             length_scale=float(t.get("length_scale", 1.0)),
             angle_mode=str(t.get("angle_mode", "wrap")),
+            reference=None if t.get("reference") is None else str(t["reference"]),
         )
     except (TypeError, ValueError) as err:
         raise _fail(path, str(err)) from None
+
+
+REFERENCE_KEYS = ("centre", "amplitudes", "omegas", "phases", "duration")
+"""Fields of a task's sum-of-sinusoids joint reference (module glossary)."""
+
+
+def _check_reference(task: TaskSpec) -> dict[str, Any]:
+    """The task's reference as plain data: ``centre`` (n,), ``amplitudes``, ``omegas``,
+    ``phases`` (n, K) and ``duration`` [s] of at least the horizon ``H T_s``."""
+    ref = task.reference
+    if not isinstance(ref, Mapping):
+        raise _fail("reference", f"expected a mapping, got {ref!r}")
+    unknown = set(ref) - set(REFERENCE_KEYS)
+    if unknown:
+        raise _fail(f"reference.{sorted(unknown)[0]}", f"unknown key (keys: {REFERENCE_KEYS})")
+    n = len(task.joints)
+    if not n:
+        raise _fail("reference", "needs joints (the reference has one entry per joint)")
+    out: dict[str, Any] = {}
+    for key in REFERENCE_KEYS:
+        if key not in ref:
+            raise _fail(f"reference.{key}", "is required")
+        try:
+            v = np.asarray(ref[key], dtype=np.float64)
+        except (TypeError, ValueError):
+            raise _fail(f"reference.{key}", f"expected numbers, got {ref[key]!r}") from None
+        if not np.all(np.isfinite(v)):
+            raise _fail(f"reference.{key}", f"needs finite values, got {ref[key]!r}")
+        out[key] = v
+    if out["centre"].shape != (n,):
+        raise _fail("reference.centre", f"needs {n} values (one per joint)")
+    shape = out["amplitudes"].reshape(n, -1).shape if out["amplitudes"].size % n == 0 else None
+    for key in ("amplitudes", "omegas", "phases"):
+        if shape is None or out[key].size != shape[0] * shape[1]:
+            raise _fail(f"reference.{key}", f"needs {n} rows (one per joint) of K sinusoids")
+        out[key] = out[key].reshape(shape).tolist()
+    out["centre"] = out["centre"].tolist()
+    duration = float(out["duration"])
+    if duration < task.horizon * task.dt - 1e-9:
+        raise _fail(
+            "reference.duration",
+            f"{duration} s is shorter than the horizon ({task.horizon} steps x {task.dt} s = "
+            f"{task.horizon * task.dt:g} s)",
+        )
+    out["duration"] = duration
+    return out

@@ -9,20 +9,23 @@ Residual ``e = y - y_hat`` analysis
       ``sd / sqrt(count)`` (95% interval of the bin mean);
     * averaged around velocity reversals of joint ``j`` (sign changes of ``qd_j``), ``+-W``
       samples, separately for ``+ -> -`` and ``- -> +`` reversals;
-    * autocorrelation ``rho_k`` up to lag ``L`` with the whiteness band ``+-1.96 / sqrt(N)``
-      (a white residual stays inside for ~95% of the lags);
+    * whiteness and correlation with the inputs, as MATLAB's ``resid`` tests them
+      (:func:`whiteness_test`, :func:`cross_correlation_test`, :class:`CorrelationTest`): the
+      autocorrelation ``rho_k``, ``k = 1..L``, and the cross-correlation with ``q_j``,
+      ``qd_j`` and the predicted torque ``tau_hat_j``, ``tau = -L..L``, each with the 99%
+      band ``+-2.576 / sqrt(N)`` of one lag;
     * in words: the state region (bin) whose mean residual is largest relative to the noise
       std ``sigma_j`` of the model, and the worst time windows (rms of ``e`` over ``window``
       seconds), e.g. ``"joint 2, qd in [-0.05, 0.04] rad/s: mean residual 2.9 N·m, 14x
       noise"``.
 
 Noise floor (the error a perfect model still has on held-out data)
-    ``floor_j = sqrt(sigma_meas,j^2 + sigma_in,j^2)``. ``sigma_meas`` is the output's own
-    measurement noise (:func:`noise_floor`, first differences of the residual). ``sigma_in``
-    is the noise the *prediction* inherits when ``qd``/``qdd`` were estimated from measured
-    positions (:attr:`Trajectories.estimated`, :func:`input_noise`): with white noise of std
-    ``sigma_x,k`` on the differentiated signal ``x_k`` (``q_k``; ``qd_k`` when only ``qdd``
-    was estimated) and the filter's coefficient rows ``B = [delta, c_1, c_2]`` (the sample
+    ``floor_j = sqrt(sigma_meas,j^2 + sigma_in,j^2 + sigma_k,j^2)``. ``sigma_meas`` is the
+    output's own measurement noise (:func:`noise_floor`, first differences of the residual).
+    ``sigma_in`` is the noise the *prediction* inherits when ``qd``/``qdd`` were estimated from
+    measured positions (:attr:`Trajectories.estimated`, :func:`input_noise`): with white noise
+    of std ``sigma_x,k`` on the differentiated signal ``x_k`` (``q_k``; ``qd_k`` when only
+    ``qdd`` was estimated) and the filter's coefficient rows ``B = [delta, c_1, c_2]`` (the sample
     itself and the first/second derivative coefficients),
     ``sigma_in,j^2 = mean_t sum_k sigma_x,k^2 w_jk(t)^T B B^T w_jk(t)`` with
     ``w_jk = (d tau_j / d q_k, d tau_j / d qd_k, d tau_j / d qdd_k)`` (central differences of
@@ -31,7 +34,32 @@ Noise floor (the error a perfect model still has on held-out data)
     estimated derivatives off it. The filtered noise is not white, but the filter's edges make
     part of it visible to the first differences that estimate ``sigma_meas``: that part,
     ``sigma_x^2 w^T (Delta B)(Delta B)^T w / 2``, is taken out of ``sigma_meas^2`` so it is not
-    counted twice.
+    counted twice. ``sigma_k`` is 0 except for motor currents put into torque units with
+    estimated constants, ``y = k_hat i``: a perfect model still misses ``(k_hat - k) i``, of
+    mean square ``sd(k)^2 mean(i^2)`` (:mod:`~mcpilco.models.diagnosis.units`).
+Whiteness and cross-correlation tests
+    Under the null hypothesis (a white residual; a residual independent of the input) every
+    lag's sample correlation is ``N(0, 1/N)`` (Bartlett), hence the per-lag 99% band
+    ``z_0.995 / sqrt(N)`` that MATLAB's ``resid`` draws. A verdict reads all ``m`` lags at once,
+    so it compares the largest ``|r|`` with the band widened for ``m`` lags (Sidak:
+    ``z`` at ``1 - (1 - (1 - alpha)^(1/m)) / 2``), which a null residual crosses at any lag with
+    probability ``alpha = 1%`` (at most: correlated lags make it conservative).
+    Bartlett's variance of a cross-correlation of two independent series is
+    ``v = (1/N) sum_k rho_ee(k) rho_uu(k)``: the plain ``1/N`` of MATLAB's band holds only
+    when one of them is white. Robot inputs (``q``, ``qd``) are smooth and a failing model's
+    residual is not white; two independent smooth series correlate strongly by chance, and
+    the ``1/N`` band would flag almost any pair. The band is therefore widened to ``v``:
+    ``rho_uu`` is the input's sample autocorrelation, ``rho_ee`` that of an AR(``p``) model of
+    the residual (least squares, ``p <= AR_MAX_ORDER`` by AIC; a model's autocorrelation has no
+    estimation noise in its tail); ``v`` is never taken below ``1/N``. A white residual keeps
+    MATLAB's band. (Prewhitening the input instead fails here: a smooth trajectory is almost
+    perfectly predictable, its innovations are encoder noise, and a residual that is a smooth
+    function of ``q`` is uncorrelated with them.) Lag ``tau > 0``: the input leads. The
+    torque input is the *predicted* torque ``tau_hat_j``: the measured torque holds the
+    residual's own noise, which correlates with it at lag 0 (by ``sigma / std(tau)``) even for a
+    perfect model. Estimated ``qd``/``qdd`` colour even a perfect model's residual (the
+    filter's noise, ``sigma_in`` below): the whiteness test speaks of the residual, not only
+    of model error.
 ``sigma_x`` (:func:`position_noise`)
     estimated from ``x`` itself: ``r = x - S x`` with ``S`` the Savitzky-Golay *smoother* of
     the same window and order (a projection, so white noise of std ``sigma`` gives
@@ -45,28 +73,34 @@ Noise floor (the error a perfect model still has on held-out data)
 from __future__ import annotations
 
 import dataclasses
-from collections.abc import Callable
+import math
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
-from scipy.signal import savgol_coeffs, savgol_filter
+from scipy.signal import lfilter, savgol_coeffs, savgol_filter
+from scipy.stats import norm
 
 from mcpilco.models.diagnosis.data import Trajectories
+from mcpilco.models.gp.linear_gp import single_thread
 
 FloatArray = NDArray[np.float64]
 
 __all__ = [
+    "CorrelationTest",
     "InputNoise",
     "JointResiduals",
     "ResidualReport",
+    "cross_correlation_test",
     "fit_metrics",
     "input_noise",
     "metrics_table",
     "noise_floor",
     "position_noise",
     "residual_report",
+    "whiteness_test",
 ]
 
 
@@ -82,7 +116,9 @@ def noise_floor(
 
     With ``inputs`` (:func:`input_noise` of the same model on ``traj``): the floor a perfect
     model sits at, ``sqrt(sigma_meas^2 + sigma_in^2)`` with the input noise's share of the
-    first differences removed from ``sigma_meas^2`` (module docstring)."""
+    first differences removed from ``sigma_meas^2`` (module docstring), and, for currents put
+    into torque units with estimated constants, the mean square that their uncertainty adds
+    (:meth:`~mcpilco.models.diagnosis.units.TorqueConstants.output_variance`)."""
     e = traj.y if y_hat is None else traj.y - y_hat
     d = np.concatenate([np.diff(e[a:b], axis=0) for a, b in traj.segments if b - a > 2])
     mad = np.median(np.abs(d - np.median(d, axis=0)), axis=0)
@@ -90,7 +126,8 @@ def noise_floor(
     if inputs is None:
         return sigma
     meas2 = np.maximum(sigma**2 - inputs.diff_std**2, 0.0)
-    return np.sqrt(meas2 + inputs.std**2)
+    scale2 = 0.0 if traj.torque_constants is None else traj.torque_constants.output_variance(traj.y)
+    return np.sqrt(meas2 + inputs.std**2 + scale2)
 
 
 @dataclass
@@ -202,8 +239,12 @@ def input_noise(traj: Trajectories, predict: Callable[[Trajectories], FloatArray
 
 EXPLAINED_FRACTION = 0.05
 """Share of the residual variance that a state variable's bin means must explain to be named."""
-WHITE_FRACTION = 0.15
-"""Largest share of autocorrelation lags outside the whiteness band of a residual called white."""
+CORRELATION_LEVEL = 0.01
+"""Level of the whiteness and cross-correlation tests (the 99% band of MATLAB's ``resid``)."""
+CORRELATION_LAGS = 25
+"""Lags ``L`` of the whiteness (``1..L``) and cross-correlation (``-L..L``) tests (``resid``'s)."""
+AR_MAX_ORDER = 20
+"""Highest order of the residual's AR model behind Bartlett's band (chosen by AIC)."""
 
 STATE_UNITS = {"q": ("rad", "m"), "qd": ("rad/s", "m/s"), "qdd": ("rad/s²", "m/s²")}
 
@@ -228,6 +269,196 @@ def fit_metrics(y: FloatArray, y_hat: FloatArray) -> dict[str, FloatArray]:
 
 
 @dataclass
+class CorrelationTest:
+    """A whiteness or cross-correlation test of a residual (module docstring).
+
+    Attributes:
+        lags: lags in samples (``1..L`` for the autocorrelation, ``-L..L`` for the
+            cross-correlation; ``tau > 0``: the input leads the residual).
+        r: the correlation at each lag.
+        band: the 99% band of one lag, ``z_0.995 sqrt(v)``: MATLAB's ``z_0.995 / sqrt(N)``
+            for the autocorrelation, widened to Bartlett's ``v`` for the cross-correlation.
+        threshold: the band for all lags at once (Sidak), which a null residual crosses with
+            probability ``level``.
+        level: the test's level.
+        n: samples behind each correlation.
+        ar_order: order of the AR model of the residual behind Bartlett's variance (``0``:
+            white, MATLAB's band).
+        inflation: ``N`` times the variance of one lag's correlation under the null
+            hypothesis (``1`` for a white residual; bands scale with its root).
+    """
+
+    lags: NDArray[np.int64]
+    r: FloatArray
+    band: float
+    threshold: float
+    level: float
+    n: int
+    ar_order: int = 0
+    inflation: float = 1.0
+
+    @property
+    def peak_index(self) -> int:
+        return int(np.argmax(np.abs(self.r))) if self.r.size else 0
+
+    @property
+    def peak_lag(self) -> int:
+        """The lag of the largest ``|r|``."""
+        return int(self.lags[self.peak_index]) if self.r.size else 0
+
+    @property
+    def peak(self) -> float:
+        """The largest correlation (signed)."""
+        return float(self.r[self.peak_index]) if self.r.size else 0.0
+
+    @property
+    def passed(self) -> bool:
+        """No lag outside :attr:`threshold`: white, or uncorrelated with the input."""
+        return bool(abs(self.peak) <= self.threshold)
+
+    @property
+    def outside(self) -> int:
+        """Lags outside the per-lag 99% :attr:`band`."""
+        return int(np.sum(np.abs(self.r) > self.band))
+
+    def to_dict(self) -> dict[str, Any]:
+        return {
+            "lags": self.lags.tolist(),
+            "r": self.r.tolist(),
+            "band": self.band,
+            "threshold": self.threshold,
+            "level": self.level,
+            "n": self.n,
+            "ar_order": self.ar_order,
+            "inflation": self.inflation,
+            "peak_lag": self.peak_lag,
+            "peak": self.peak,
+            "passed": self.passed,
+        }
+
+
+def _bands(n: int, m: int, level: float) -> tuple[float, float]:
+    """``(per-lag band, band for m lags at once)`` of correlations over ``n`` samples."""
+    sidak = 1.0 - (1.0 - level) ** (1.0 / max(m, 1))
+    root = math.sqrt(max(n, 1))
+    return float(norm.ppf(1 - level / 2) / root), float(norm.ppf(1 - sidak / 2) / root)
+
+
+def _segments_of(
+    x: FloatArray, segments: Sequence[tuple[int, int]] | None
+) -> list[tuple[int, int]]:
+    return [(0, x.shape[0])] if segments is None else [(int(a), int(b)) for a, b in segments]
+
+
+def _check_series(name: str, x: FloatArray, segments: list[tuple[int, int]]) -> FloatArray:
+    x = np.asarray(x, dtype=np.float64)
+    if x.ndim != 1:
+        raise ValueError(f"{name} must be one series (1-D), got shape {x.shape}")
+    if not np.all(np.isfinite(x)):
+        raise ValueError(f"{name} has NaN/inf values")
+    if any(a < 0 or b > x.size or b < a for a, b in segments):
+        raise ValueError(f"segments must lie inside {name} (0..{x.size}), got {segments}")
+    return x
+
+
+def whiteness_test(
+    e: FloatArray,
+    segments: Sequence[tuple[int, int]] | None = None,
+    *,
+    max_lag: int = CORRELATION_LAGS,
+    level: float = CORRELATION_LEVEL,
+) -> CorrelationTest:
+    """Autocorrelation of ``e`` at lags ``1..max_lag`` (pooled over ``segments``, each
+    ``(start, stop)``; default one) against the 99% band; ``passed``: white at ``level``."""
+    segs = _segments_of(np.asarray(e), segments)
+    e = _check_series("e", e, segs)
+    rho = _acf(e, segs, max_lag)[1:]
+    n = sum(b - a for a, b in segs)
+    band, threshold = _bands(n, rho.size, level)
+    return CorrelationTest(np.arange(1, rho.size + 1), rho, band, threshold, level, n)
+
+
+def _ar_filter(u: FloatArray, segments: list[tuple[int, int]], max_order: int) -> FloatArray:
+    """``[1, -a_1, .., -a_p]``: the AR(``p``) model ``A(z) u = w`` of ``u`` (least squares over
+    the segments, mean removed per segment, ``p`` by AIC over ``0..max_order``)."""
+    rows, targets = [], []
+    p_max = max(0, min(max_order, min(b - a for a, b in segments) // 4))
+    for a, b in segments:
+        x = u[a:b] - u[a:b].mean()
+        targets.append(x[p_max:])
+        rows.append(np.stack([x[p_max - k : b - a - k] for k in range(1, p_max + 1)], axis=1))
+    if p_max == 0:
+        return np.ones(1)
+    X, y = np.concatenate(rows), np.concatenate(targets)
+    Q, R = np.linalg.qr(X)
+    c = Q.T @ y
+    # residual sums of squares of the nested fits AR(0..p_max), all from one QR
+    rss = np.maximum(float(y @ y) - np.concatenate([[0.0], np.cumsum(c**2)]), 1e-300)
+    aic = y.size * np.log(rss / y.size) + 2.0 * np.arange(p_max + 1)
+    p = int(np.argmin(aic))
+    if p == 0:
+        return np.ones(1)
+    return np.concatenate([[1.0], -np.linalg.solve(R[:p, :p], c[:p])])
+
+
+def _ar_acf(f: FloatArray, max_lag: int) -> FloatArray:
+    """Autocorrelation ``rho(0..max_lag)`` of the AR process ``f(z) x = w`` (white ``w``),
+    from its impulse response."""
+    if f.size == 1:
+        out = np.zeros(max_lag + 1)
+        out[0] = 1.0
+        return out
+    n = max_lag + 1
+    h = lfilter([1.0], f, np.eye(1, 4 * n, 0)[0])
+    return _acf(h, [(0, h.size)], max_lag, centre=False)
+
+
+def cross_correlation_test(
+    e: FloatArray,
+    u: FloatArray,
+    segments: Sequence[tuple[int, int]] | None = None,
+    *,
+    max_lag: int = CORRELATION_LAGS,
+    level: float = CORRELATION_LEVEL,
+    max_order: int = AR_MAX_ORDER,
+) -> CorrelationTest:
+    """Cross-correlation ``r(tau) = corr(e(t), u(t - tau))``, ``tau = -max_lag..max_lag``, of
+    residual ``e`` and input ``u`` (pooled over ``segments``), with the band of Bartlett's
+    variance ``(1/N) sum_k rho_ee(k) rho_uu(k)`` (``rho_ee`` of an AR fit of ``e``; module
+    docstring); ``passed``: no correlation at ``level``."""
+    segs = _segments_of(np.asarray(e), segments)
+    e = _check_series("e", e, segs)
+    u = _check_series("u", u, segs)
+    if e.shape != u.shape:
+        raise ValueError(f"e and u differ in length: {e.size} and {u.size}")
+    n = sum(b - a for a, b in segs)
+    lags = np.arange(-max_lag, max_lag + 1)
+    num = np.zeros(lags.size)
+    for a, b in segs:
+        x, w = e[a:b] - e[a:b].mean(), u[a:b] - u[a:b].mean()
+        for i, k in enumerate(lags):
+            if abs(k) < x.size:
+                # sum_t x(t) w(t - k)
+                num[i] += float(x[k:] @ w[: x.size - k]) if k >= 0 else float(x[:k] @ w[-k:])
+    den = math.sqrt(
+        sum(float(np.sum((e[a:b] - e[a:b].mean()) ** 2)) for a, b in segs)
+        * sum(float(np.sum((u[a:b] - u[a:b].mean()) ** 2)) for a, b in segs)
+    )
+    r = num / den if den > 0 else np.zeros(lags.size)
+    k_max = max(b - a for a, b in segs) - 1
+    with single_thread():  # small matrices: BLAS threads would only contend
+        f = _ar_filter(e, segs, max_order)
+        rho_e = _ar_acf(f, k_max)
+        rho_u = _acf(u, segs, k_max)
+    inflation = max(float(rho_e[0] * rho_u[0] + 2.0 * np.sum(rho_e[1:] * rho_u[1:])), 1.0)
+    band, threshold = _bands(n, lags.size, level)
+    root = math.sqrt(inflation)
+    return CorrelationTest(
+        lags, r, band * root, threshold * root, level, n, ar_order=f.size - 1, inflation=inflation
+    )
+
+
+@dataclass
 class JointResiduals:
     """Residual analysis of one joint (arrays for plotting, module docstring)."""
 
@@ -241,12 +472,46 @@ class JointResiduals:
     acf: FloatArray = field(default_factory=lambda: np.zeros(0))
     whiteness_band: float = 0.0
     outside_fraction: float = 0.0
+    whiteness: CorrelationTest | None = None
+    xcorr: dict[str, CorrelationTest] = field(default_factory=dict)
+    sample_time: float = 0.0
     explained: dict[str, float] = field(default_factory=dict)
     findings: list[tuple[float, str]] = field(default_factory=list)
 
+    def _lag_text(self, lag: int) -> str:
+        ms = f" = {1e3 * lag * self.sample_time:+.0f} ms" if self.sample_time > 0 and lag else ""
+        return f"lag {lag:+d}{ms}" if lag else "lag 0"
+
+    def correlation_text(self) -> str:
+        """Whiteness and correlation with the inputs in words, e.g. ``"correlated with q2
+        (peak +0.41 at lag 0); not white (autocorrelation +0.62 at lag +1)"``."""
+        j = self.joint
+        parts = []
+        hits = [
+            f"{name}{j} (peak {t.peak:+.2f} at {self._lag_text(t.peak_lag)})"
+            for name, t in self.xcorr.items()
+            if not t.passed
+        ]
+        quiet = [f"{name}{j}" for name, t in self.xcorr.items() if t.passed]
+        if hits:
+            parts.append("correlated with " + ", ".join(hits))
+        if quiet:
+            parts.append(("not with " if hits else "uncorrelated with ") + ", ".join(quiet))
+        w = self.whiteness
+        if w is not None:
+            if w.passed:
+                parts.append("white")
+            else:
+                parts.append(
+                    f"not white (autocorrelation {w.peak:+.2f} at {self._lag_text(w.peak_lag)}; "
+                    f"{w.outside} of {w.r.size} lags outside the 99% band +-{w.band:.3f})"
+                )
+        return "; ".join(parts)
+
     def structure(self) -> str:
         """The residual's structure in words: the state variables whose bins explain at least
-        :data:`EXPLAINED_FRACTION` of its variance, its whiteness, and its worst finding."""
+        :data:`EXPLAINED_FRACTION` of its variance, its correlation with the inputs, its
+        whiteness (:meth:`correlation_text`), and its worst finding."""
         j = self.joint
         deps = sorted(
             ((f, name) for name, f in self.explained.items() if f >= EXPLAINED_FRACTION),
@@ -260,13 +525,9 @@ class JointResiduals:
                 parts[0] += f" ({words})"
         else:
             parts = [f"no dependence on q{j}, qd{j} or qdd{j} in equal-count bins"]
-        if self.outside_fraction > WHITE_FRACTION:
-            parts.append(
-                f"not white ({100 * self.outside_fraction:.0f}% of autocorrelation lags outside "
-                "+-1.96/sqrt(N))"
-            )
-        else:
-            parts.append("white")
+        corr = self.correlation_text()
+        if corr:
+            parts.append(corr)
         if self.findings:
             parts.append("largest: " + max(self.findings)[1])
         return "; ".join(parts)
@@ -289,11 +550,8 @@ class ResidualReport:
     def text(self, top: int = 5) -> str:
         lines = [f"where {self.model_name} fails (worst first):"]
         lines += [f"  - {t}" for t in self.findings(top)]
-        lines.append("  residual whiteness (fraction of lags 1..L outside +-1.96/sqrt(N)):")
-        lines.append(
-            "    "
-            + ", ".join(f"joint {jr.joint}: {100 * jr.outside_fraction:.0f}%" for jr in self.joints)
-        )
+        lines.append("  whiteness and correlation with the inputs (99% bands):")
+        lines += [f"    joint {jr.joint}: {jr.correlation_text()}" for jr in self.joints]
         return "\n".join(lines)
 
 
@@ -321,14 +579,23 @@ def _bins(x: FloatArray, e: FloatArray, n_bins: int) -> dict[str, FloatArray]:
     }
 
 
-def _acf(e: FloatArray, segments: list[tuple[int, int]], max_lag: int) -> FloatArray:
+def _acf(
+    e: FloatArray, segments: Sequence[tuple[int, int]], max_lag: int, centre: bool = True
+) -> FloatArray:
+    """Autocorrelation ``rho(0..max_lag)`` pooled over segments (biased estimator: sums of
+    lagged products over the total sum of squares; FFT per segment)."""
     num = np.zeros(max_lag + 1)
     den = 0.0
     for a, b in segments:
-        x = e[a:b] - e[a:b].mean()
+        x = e[a:b] - e[a:b].mean() if centre else e[a:b]
+        if x.size == 0:
+            continue
+        size = 1 << int(2 * x.size - 1).bit_length()
+        spec = np.fft.rfft(x, size)
+        full = np.fft.irfft(spec * np.conj(spec), size)
+        k = min(max_lag, x.size - 1) + 1
+        num[:k] += full[:k]
         den += float(x @ x)
-        for k in range(min(max_lag, b - a - 1) + 1):
-            num[k] += float(x[: b - a - k] @ x[k:])
     return num / den if den > 0 else num
 
 
@@ -341,7 +608,7 @@ def residual_report(
     model_name: str = "model",
     n_bins: int = 10,
     reversal_window: int = 30,
-    max_lag: int = 50,
+    max_lag: int = CORRELATION_LAGS,
     window_s: float = 0.5,
     unit: str | None = None,
 ) -> ResidualReport:
@@ -412,10 +679,18 @@ def residual_report(
                         f"{jump / sigma:.1f}x noise (friction-like)",
                     )
                 )
-        # whiteness
-        jr.acf = _acf(e, segs, max_lag)
-        jr.whiteness_band = 1.96 / np.sqrt(max(traj.n_samples, 1))
-        jr.outside_fraction = float(np.mean(np.abs(jr.acf[1:]) > jr.whiteness_band))
+        # whiteness and correlation with the inputs (MATLAB's resid, module docstring)
+        jr.sample_time = float(dt)
+        jr.whiteness = whiteness_test(e, segs, max_lag=max_lag)
+        jr.acf = np.concatenate([[1.0], jr.whiteness.r])
+        jr.whiteness_band = jr.whiteness.band
+        jr.outside_fraction = jr.whiteness.outside / max(jr.whiteness.r.size, 1)
+        inputs = {"q": traj.q[:, j], "qd": traj.qd[:, j], "tau_hat": y_hat[:, j]}
+        jr.xcorr = {
+            name: cross_correlation_test(e, u, segs, max_lag=max_lag)
+            for name, u in inputs.items()
+            if np.ptp(u) > 0
+        }
         # worst time windows
         w = max(int(round(window_s / dt)), 1)
         best: list[tuple[float, int, int]] = []

@@ -9,7 +9,9 @@ Glossary
 --------
 ``y``
     the measured joint output, ``(N, n)``: the ``tau`` group (N m / N) or, when a file has no
-    torques, the motor currents ``i`` (A). All files of one set must give the same group.
+    torques, the motor currents ``i`` (A, columns ``i1..in``). All files of one set must give
+    the same group. Currents are put into torque units by
+    :mod:`~mcpilco.models.diagnosis.units` (``y = k_t i``) before the loop scores effects.
 ``segment``
     ``(N,)`` index of the file each sample came from; ``segments`` are the ``(start, stop)``
     row ranges.
@@ -50,12 +52,16 @@ import warnings
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 from numpy.typing import NDArray
 from scipy.signal import savgol_coeffs, savgol_filter
 
 from mcpilco.models.robot_data import RobotDataset, load_dataset, sampling_warnings
+
+if TYPE_CHECKING:
+    from mcpilco.models.diagnosis.units import TorqueConstants
 
 FloatArray = NDArray[np.float64]
 
@@ -213,6 +219,8 @@ class Trajectories:
         warnings: data warnings of the loader.
         estimated: per segment (aligned with ``names``), the :class:`Estimate` of the
             ``qd``/``qdd`` groups computed from ``q``, or ``None`` when the file gave them.
+        torque_constants: the :class:`~mcpilco.models.diagnosis.units.TorqueConstants` that
+            put motor currents into torque units (``y = k_t i``), or ``None``.
     """
 
     t: FloatArray
@@ -225,6 +233,7 @@ class Trajectories:
     names: list[str] = field(default_factory=list)
     warnings: list[str] = field(default_factory=list)
     estimated: list[Estimate | None] = field(default_factory=list)
+    torque_constants: TorqueConstants | None = None
 
     @property
     def n_joints(self) -> int:
@@ -268,6 +277,7 @@ class Trajectories:
             names=[self.names[s] for s in sorted(remap)],
             warnings=list(self.warnings),
             estimated=[self.estimated[s] for s in sorted(remap)] if self.estimated else [],
+            torque_constants=self.torque_constants,
         )
 
     def split_time(self, fraction: float) -> tuple[Trajectories, Trajectories]:
@@ -292,6 +302,7 @@ class Trajectories:
             names=list(self.names),
             warnings=list(self.warnings),
             estimated=list(self.estimated),
+            torque_constants=self.torque_constants,
         )
 
     def shift_index(self, rows: NDArray[np.int64], k: int) -> NDArray[np.int64]:

@@ -17,6 +17,12 @@ maximisation of the profile log-evidence, and reported with its likelihood-ratio
 (:func:`~.search.refine_shape`, :mod:`.profile`); the cogging phase gets its interval from
 the same profile.
 
+Rigid-body effects (:attr:`Effect.shared`: a link's inertial parameters, a payload) move
+several joints with *one* weight vector: ``tau_j += Y_{b,j} w`` for every joint ``j`` the
+body moves, ``Y_b`` the body's columns of the joint-torque regressor of the robot file
+(:meth:`FeatureContext.body_columns`). They are scored and fitted on the stacked joints
+(:mod:`.shared`), so their estimates describe one body.
+
 Effects of one physical *family* on one joint (:attr:`Effect.family`: Coulomb and Stribeck
 are both dry friction) describe the same torque in two forms; a model holds at most one of
 them, the other being its alternative (:func:`~.search.auto_improve`).
@@ -32,8 +38,12 @@ offset        TorqueOffset       ``1`` (asymmetric friction / sensor bias)    no
 spring        Spring             ``[q_j - q_ref, 1]``: ``k (q_j - q_0)``      ``k >= 0``
 cogging       Cogging            ``[sin(n q_j), cos(n q_j)]`` (scan ``n``)    none (amplitude)
                                  ``= A sin(n q_j + phi)``
-payload       Payload            last link's columns of the joint-torque      ``m >= 0``
-                                 regressor (pinocchio), on every joint
+payload       Payload            point mass at the flange: the last body's   ``m >= 0``
+                                 regressor columns times ``G`` (``[m, m p]``;
+                                 one weight vector for every joint)
+inertia       LinkInertia        link ``b``'s regressor columns on joints    pseudo-inertia
+                                 ``1..b``, identifiable part (one weight      positive
+                                 vector for every joint)                      definite
 armature      Armature           ``qdd_j``                                    ``I_a >= 0``
 deadzone      DeadZone           ``tanh(tau_hat_j / (c rms(tau_hat_j)))``     ``delta >= 0``
                                  (backlash: the load is lost while the
@@ -71,15 +81,20 @@ __all__ = [
     "Delay",
     "Effect",
     "FeatureContext",
+    "INERTIAL_PARAMS",
+    "LinkInertia",
     "Param",
     "ParamEstimate",
     "Payload",
+    "RigidBody",
     "Spring",
     "StribeckFriction",
     "TorqueOffset",
+    "TorqueScale",
     "ViscousFriction",
     "default_library",
     "effect_from_spec",
+    "flange_map",
     "parse_effect",
 ]
 
@@ -105,7 +120,8 @@ class ParamEstimate:
     shape value fitted by profile log-evidence (:mod:`.profile`) carries its 95%
     likelihood-ratio ``interval`` ``(lo, hi)`` (not symmetric; ``ci95`` is then the larger
     distance from ``value`` to an end), ``limited`` when an end is the search limit rather
-    than a crossing (the data do not pin that side down).
+    than a crossing (the data do not pin that side down). ``unidentified``: why the data
+    cannot pin it down (:mod:`.identifiability`), empty when they can.
     """
 
     name: str
@@ -113,10 +129,13 @@ class ParamEstimate:
     ci95: float
     unit: str
     wrong_sign: bool = False
+    unidentified: str = ""
     interval: tuple[float, float] | None = None
     limited: bool = False
 
     def text(self) -> str:
+        if self.unidentified:
+            return f"{self.name}: not identifiable from these data ({self.unidentified})"
         unit = f" {self.unit}" if self.unit else ""
         if self.interval is None:
             return f"{self.name} = {_fmt(self.value)} ± {_fmt(self.ci95)}{unit}"
@@ -132,11 +151,35 @@ class ParamEstimate:
     ) -> ParamEstimate:
         """An estimate with its likelihood-ratio interval ``(lo, hi)``."""
         ci = max(value - lo, hi - value, 0.0)
-        return cls(name, float(value), float(ci), unit, False, (float(lo), float(hi)), limited)
+        return cls(
+            name,
+            float(value),
+            float(ci),
+            unit,
+            False,
+            interval=(float(lo), float(hi)),
+            limited=limited,
+        )
 
 
 def _fmt(x: float) -> str:
     return f"{x:.3g}"
+
+
+@dataclass(frozen=True)
+class RigidBody:
+    """What the inertial candidates read of the nominal robot file.
+
+    Attributes:
+        parameters: ``(n_b, 10)`` inertial parameters of every body (pinocchio's order
+            :data:`INERTIAL_PARAMS`, about the body's joint frame origin, in that frame).
+        flange_pos, flange_rot: pose of the flange frame in the last body's frame:
+            position ``(3,)`` [m] and rotation ``(3, 3)``.
+    """
+
+    parameters: FloatArray
+    flange_pos: FloatArray
+    flange_rot: FloatArray
 
 
 @dataclass
@@ -144,8 +187,10 @@ class FeatureContext:
     """What a feature block may read, per sample: ``q, qd, qdd (N, n)``, the start model's
     torque ``base (N, n)`` (read it through :meth:`start_torque`: ``None`` until first used
     when ``base_fn`` computes it, as a learned start's prediction is costly and only a
-    dead-zone reads it), ``joint_types``, the output group (``tau``/``i``), and a callable
-    returning the last link's regressor columns ``(N, n, 10)`` (or ``None``)."""
+    dead-zone reads it), ``joint_types``, the output group (``tau``/``i``), and, when a
+    robot file is known, a callable returning the joint-torque regressor of every body
+    ``(N, n, 10 n_b)`` (``regressor``; evaluated once, on first use) and the nominal body
+    data (``rigid``)."""
 
     q: FloatArray
     qd: FloatArray
@@ -153,8 +198,9 @@ class FeatureContext:
     base: FloatArray | None
     joint_types: str
     output: str = "tau"
-    last_link_regressor: Callable[[], FloatArray | None] | None = None
-    _payload: FloatArray | None = dataclasses.field(default=None, repr=False)
+    regressor: Callable[[], FloatArray] | None = None
+    rigid: RigidBody | None = None
+    _regressor: FloatArray | None = dataclasses.field(default=None, repr=False)
     base_fn: Callable[[], FloatArray] | None = dataclasses.field(default=None, repr=False)
 
     def start_torque(self) -> FloatArray:
@@ -165,10 +211,14 @@ class FeatureContext:
             self.base = self.base_fn()
         return self.base
 
-    def payload_columns(self) -> FloatArray | None:
-        if self._payload is None and self.last_link_regressor is not None:
-            self._payload = self.last_link_regressor()
-        return self._payload
+    def body_columns(self, body: int) -> FloatArray | None:
+        """``(N, n, 10)``: body ``body``'s (1-based) columns of the joint-torque regressor, or
+        ``None`` without a robot file."""
+        if self.regressor is None:
+            return None
+        if self._regressor is None:
+            self._regressor = self.regressor()
+        return self._regressor[:, :, 10 * (body - 1) : 10 * body]
 
     def unit(self, template: str, joint: int | None) -> str:
         """Fill ``{F}``/``{x}`` for joint ``joint`` (1-based; ``None``: revolute units)."""
@@ -195,6 +245,8 @@ class Effect:
     family: ClassVar[str] = ""  # physical family shared by alternative forms ("": the key)
     shape_grid: ClassVar[dict[str, tuple[float, ...]]] = {}  # continuous shape fields: scan
     shape_bounds: ClassVar[dict[str, tuple[float, float]]] = {}  # their outer limits
+    shared: ClassVar[bool] = False  # one weight vector for all its output joints
+    needs_robot: ClassVar[bool] = False  # its columns come from the robot file's regressor
     shape_params: ClassVar[dict[str, Param]] = {}  # how a shape field is reported
 
     def __post_init__(self) -> None:
@@ -221,16 +273,33 @@ class Effect:
     def shape_text(self) -> str:
         return ""
 
+    @property
+    def place(self) -> str:
+        """Where the effect sits, in words: ``"on joint 2"`` (``"on every joint"``)."""
+        return "on every joint" if self.joint is None else f"on joint {self.joint}"
+
     def same_slot(self, other: Effect) -> bool:
         """Same effect type on the same joint (the model holds at most one of each)."""
         return type(self) is type(other) and self.joint == other.joint
 
     def same_family(self, other: Effect) -> bool:
         """Same physical family (:attr:`family`, else the key) on the same joint: two forms
-        of one torque, of which a model holds one."""
+        of one torque, of which a model holds one. The last link's inertia and the payload
+        are both the last body's inertia (:meth:`last_body`)."""
+        if self.last_body() and other.last_body():
+            return True
         return (self.family or self.key) == (other.family or other.key) and (
             self.joint == other.joint
         )
+
+    def last_body(self) -> bool:
+        """Whether the effect changes the last body's inertial parameters."""
+        return False
+
+    def relinearised(self, mean: FloatArray) -> Effect | None:
+        """For a block linearised about a shape value: the effect re-expanded about the one
+        its fitted weights ``mean`` imply (``None``: nothing to re-expand)."""
+        return None
 
     def shape_bracket(self, name: str) -> tuple[float, float]:
         """Interval in which the continuous shape field ``name`` is refined: between the scan
@@ -541,34 +610,335 @@ class Armature(Effect):
         return True  # 1 * qdd_j
 
 
-PAYLOAD_PARAMS = ("m", "mc_x", "mc_y", "mc_z", "I_xx", "I_xy", "I_yy", "I_xz", "I_yz", "I_zz")
-"""Order of the 10 inertial parameters of a body in pinocchio's regressor."""
+INERTIAL_PARAMS = ("m", "mc_x", "mc_y", "mc_z", "I_xx", "I_xy", "I_yy", "I_xz", "I_yz", "I_zz")
+"""Order of a body's 10 inertial parameters ``phi_b`` (pinocchio's regressor; inertia about
+the body's joint frame origin)."""
+MAX_NONPHYSICAL = 0.1
+"""Largest fraction of a link's fitted change that may be given up to make it physical."""
+RANK_TOL = 1e-7
+"""Singular values of a link's scaled regressor below this fraction of the largest are
+directions the data cannot see (structural rank deficiency)."""
+
+
+def _tuple2(x: Any) -> tuple[tuple[float, ...], ...] | None:
+    return None if x is None else tuple(tuple(float(v) for v in row) for row in x)
+
+
+def _tuple1(x: Any) -> tuple[float, ...] | None:
+    return None if x is None else tuple(float(v) for v in x)
 
 
 @dataclass(frozen=True)
-class Payload(Effect):
-    """A payload on the last link: change of its 10 inertial parameters (pinocchio's order
-    :data:`PAYLOAD_PARAMS`, inertia about the joint frame), acting on every joint's torque.
-    One weight vector per output joint (independent GPs); the reported mass is the
-    estimate on the joint whose evidence gains most."""
+class LinkInertia(Effect):
+    """Changed inertial parameters of link ``joint`` (the body moved by that joint):
+    ``tau += Y_b(q, qd, qdd) dphi_b`` on joints ``1..b``, ``Y_b`` the body's ``(n, 10)``
+    columns of the joint-torque regressor (pinocchio's ``computeJointTorqueRegressor``).
 
-    key: ClassVar[str] = "payload"
-    title: ClassVar[str] = "payload on the last link"
-    all_joints: ClassVar[bool] = True
-    params: ClassVar[tuple[Param, ...]] = (Param("m", "kg", +1),)
+    Identifiable part (calibrated on the training rows)
+        The stacked columns ``Y_b`` (all rows, all joints) are rank-deficient: some
+        combinations of the 10 parameters move no joint. With ``D`` their column rms and
+        ``Y_b D^-1 = U S V^T`` (singular values above :data:`RANK_TOL` of the largest kept,
+        ``V_r``), the block is ``Y_b B`` with ``B = D^-1 V_r`` and weights ``z``; the fitted
+        change is ``dphi = B z`` (the directions the data cannot see stay at their nominal
+        values) and any ``dphi`` with the same torques has ``z = V_r^T D dphi``.
 
-    def columns(self, ctx: FeatureContext, output: int) -> FloatArray | None:
-        cols = ctx.payload_columns()
-        return None if cols is None else cols[:, output, :]
+    One weight vector ``z`` for every joint it moves (:attr:`Effect.shared`), so the
+    estimates describe one body:
+
+    * ``s``: the change along the nominal parameters, ``dphi ~ s phi_b`` in the data's
+      metric, ``s = z_0^T S^2 z / z_0^T S^2 z_0`` with ``z_0 = V_r^T D phi_b`` (a link 40 %
+      heavier, centre of mass unchanged, has ``s = 0.4``);
+    * ``dm``: the mass change, when identifiable: ``e_m = V_r^T D``-row space holds the mass
+      direction, ``e_m = D V_r a``, then ``dm = a^T z``; otherwise not reported;
+    * ``nonphysical``: the fraction of the fitted change (in the posterior's metric) that
+      must be given up before the corrected body ``phi_b + dphi`` (unseen directions free)
+      has a positive semi-definite pseudo-inertia
+      :func:`~mcpilco.models.inverse_dynamics.pseudo_inertia` (:meth:`consistency`); ``0``:
+      the estimate is a physical body. Above :data:`MAX_NONPHYSICAL` no physical body has
+      these torques: the fit is flagged (shown, never recommended). A small fraction is
+      tolerated because thin links have pseudo-inertias with eigenvalues near zero that a
+      slight bias of the estimated ``qdd`` pushes below it.
+    """
+
+    basis: tuple[tuple[float, ...], ...] | None = None
+    scale: tuple[float, ...] | None = None
+    singular: tuple[float, ...] | None = None
+    last: bool | None = None
+    key: ClassVar[str] = "inertia"
+    title: ClassVar[str] = "inertial parameters"
+    family: ClassVar[str] = "body inertia"
+    shared: ClassVar[bool] = True
+    needs_robot: ClassVar[bool] = True
+    params: ClassVar[tuple[Param, ...]] = (Param("s", "", 0), Param("dm", "kg", 0))
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        object.__setattr__(self, "basis", _tuple2(self.basis))
+        object.__setattr__(self, "scale", _tuple1(self.scale))
+        object.__setattr__(self, "singular", _tuple1(self.singular))
+
+    @property
+    def variant_label(self) -> str:
+        return f"link {self.joint} inertia"
+
+    @property
+    def place(self) -> str:
+        return f"of link {self.joint}"
+
+    def outputs(self, n_joints: int) -> list[int]:
+        if self.joint > n_joints:
+            raise ValueError(f"{self.label}: link {self.joint} but the model has {n_joints}")
+        return list(range(self.joint))
 
     def in_gip_span(self, joint_types: str) -> bool:
         return True  # rigid-body torques: the GIP kernel is built to span them (thesis 3.3)
 
+    def calibrate(self, ctx: FeatureContext) -> Effect:
+        if self.basis is not None:
+            return self
+        cols = ctx.body_columns(self.joint)
+        if cols is None:
+            return self
+        y = cols[:, : self.joint, :].reshape(-1, 10)
+        d = np.sqrt(np.mean(y**2, axis=0))
+        d = np.where(d > 0, d, 1.0)
+        _, sv, vt = np.linalg.svd(y / d, full_matrices=False)
+        keep = sv > RANK_TOL * sv[0] if sv.size and sv[0] > 0 else np.zeros(sv.size, bool)
+        last = ctx.rigid is not None and self.joint == ctx.rigid.parameters.shape[0]
+        return dataclasses.replace(self, basis=vt[keep], scale=d, singular=sv[keep], last=last)
+
+    def last_body(self) -> bool:
+        return bool(self.last)
+
+    def _bases(self) -> tuple[FloatArray, FloatArray, FloatArray]:
+        """``(B (10, r), E (10, r), S (r,))``: ``dphi = B z``, ``z = E^T dphi``."""
+        v = np.asarray(self.basis, dtype=np.float64).reshape(-1, 10).T
+        d = np.asarray(self.scale, dtype=np.float64)
+        return v / d[:, None], v * d[:, None], np.asarray(self.singular, dtype=np.float64)
+
+    def columns(self, ctx: FeatureContext, output: int) -> FloatArray | None:
+        cols = ctx.body_columns(self.joint)
+        if cols is None or self.basis is None:
+            return None
+        return cols[:, output, :] @ self._bases()[0]
+
+    def change(self, z: FloatArray) -> FloatArray:
+        """``dphi = B z`` (10 values, :data:`INERTIAL_PARAMS`) of block weights ``z``."""
+        return self._bases()[0] @ np.asarray(z, dtype=np.float64)
+
+    def consistency(self, phi: FloatArray, mean: FloatArray, cov: FloatArray) -> float:
+        """Fraction ``rho`` of the fitted change that must be given up for a physical body:
+        the smallest ``d^2 = (z - mean)^T cov^-1 (z - mean)`` with ``z = E^T (phi' - phi)``
+        over physical bodies ``phi'`` (pseudo-inertia ``J = L L^T``, ``L`` lower triangular:
+        a smooth least-squares problem in the 10 entries of ``L``, started from the nominal
+        body and from the nominal body scaled by ``1 + s``), over
+        ``d_0^2 = mean^T cov^-1 mean`` (the nominal body itself, ``z = 0``): ``0 <= rho <= 1``,
+        ``0`` when the estimate is a physical body or the nominal body lies within the 95 %
+        ellipsoid (``d_0^2 <= chi^2_r``)."""
+        from scipy.optimize import least_squares
+        from scipy.stats import chi2
+
+        from mcpilco.models.inverse_dynamics.rigid_body import pseudo_inertia
+
+        _, e, sv = self._bases()
+        w, v = np.linalg.eigh(0.5 * (cov + cov.T))
+        keep = w > w.max(initial=0.0) * 1e-12
+        whiten = (v[:, keep] / np.sqrt(w[keep])).T  # x = whiten z: cov^-1 = whiten^T whiten
+        phi = np.asarray(phi, dtype=np.float64)
+        d0 = float(np.sum((whiten @ mean) ** 2))
+        if d0 <= chi2.ppf(0.95, max(int(keep.sum()), 1)):
+            return 0.0  # the nominal body itself lies within the 95 % ellipsoid
+        tril = np.tril_indices(4)
+        # phi = T vec(J): the parameters are linear in the pseudo-inertia J = L L^T
+        T = np.stack([_phi_of_j(np.eye(16)[k].reshape(4, 4)) for k in range(16)], axis=1)
+        unit = np.zeros((len(tril[0]), 4, 4))
+        unit[np.arange(len(tril[0])), tril[0], tril[1]] = 1.0
+        proj = whiten @ e.T
+
+        def low(params: FloatArray) -> FloatArray:
+            out = np.zeros((4, 4))
+            out[tril] = params
+            return out
+
+        def resid(params: FloatArray) -> FloatArray:
+            m = low(params)
+            return proj @ (T @ (m @ m.T).ravel() - phi) - whiten @ mean
+
+        def jac(params: FloatArray) -> FloatArray:
+            m = low(params)
+            d = unit @ m.T + np.transpose(unit @ m.T, (0, 2, 1))  # dJ / dparams
+            return proj @ T @ d.reshape(len(d), 16).T
+
+        if np.linalg.eigvalsh(pseudo_inertia(phi + self.change(mean)))[0] >= 0:
+            return 0.0
+        z0 = e.T @ phi
+        s = float(z0 @ (sv**2 * mean)) / float(z0 @ (sv**2 * z0)) if np.any(z0) else 0.0
+        best = d0
+        for factor in {1.0, max(1.0 + s, 1e-3)}:
+            jm = pseudo_inertia(phi) * factor
+            start = np.linalg.cholesky(jm + 1e-12 * np.trace(jm) * np.eye(4))[tril]
+            res = least_squares(resid, start, jac=jac, method="trf", max_nfev=200)
+            best = min(best, float(np.sum(res.fun**2)))
+        return best / d0
+
     def estimates(
         self, mean: FloatArray, cov: FloatArray, ctx: FeatureContext, output: int
     ) -> list[ParamEstimate]:
-        sd = math.sqrt(max(float(cov[0, 0]), 0.0))
-        return [ParamEstimate("m", float(mean[0]), 1.96 * sd, "kg", bool(mean[0] < -1.96 * sd))]
+        if ctx.rigid is None or self.basis is None:
+            return []
+        b, e, sv = self._bases()
+        phi = np.asarray(ctx.rigid.parameters[self.joint - 1], dtype=np.float64)
+        z0 = e.T @ phi
+        g = (sv**2 * z0) / float(z0 @ (sv**2 * z0)) if np.any(z0) else np.zeros_like(z0)
+        out = [_linear_estimate("s", g, mean, cov, "× nominal")]
+        e_m = np.eye(10)[0]
+        a, *_ = np.linalg.lstsq(e, e_m, rcond=None)
+        if np.linalg.norm(e @ a - e_m) < 1e-6:
+            out.append(_linear_estimate("dm", a, mean, cov, "kg"))
+        rho = self.consistency(phi, mean, cov)
+        out.append(
+            ParamEstimate("nonphysical", rho, 0.0, "", wrong_sign=bool(rho > MAX_NONPHYSICAL))
+        )
+        return out
+
+
+def _phi_of_j(jm: FloatArray) -> FloatArray:
+    """The 10 parameters of a pseudo-inertia ``J`` (inverse of ``pseudo_inertia``; linear):
+    ``m = J_33``, ``h = J_{:3,3}``, ``I = tr(Sigma) 1 - Sigma``."""
+    sigma = 0.5 * (jm[:3, :3] + jm[:3, :3].T)
+    inertia = np.trace(sigma) * np.eye(3) - sigma
+    h = 0.5 * (jm[:3, 3] + jm[3, :3])
+    return np.array(
+        [jm[3, 3], *h, inertia[0, 0], inertia[0, 1], inertia[1, 1],
+         inertia[0, 2], inertia[1, 2], inertia[2, 2]]
+    )  # fmt: skip
+
+
+def _linear_estimate(
+    name: str, g: FloatArray, mean: FloatArray, cov: FloatArray, unit: str, sign: int = 0
+) -> ParamEstimate:
+    """``g^T w`` of weights ``w ~ N(mean, cov)`` with its 95 % interval."""
+    value = float(g @ mean)
+    sd = math.sqrt(max(float(g @ cov @ g), 0.0))
+    return ParamEstimate(name, value, 1.96 * sd, unit, bool(sign > 0 and value < -1.96 * sd))
+
+
+def flange_map(pos: FloatArray, rot: FloatArray) -> FloatArray:
+    """``G (10, 4)``: the last body's parameter change ``dphi = G [m, m p]`` of a point mass
+    ``m`` at ``p`` in the flange frame (pose ``pos, rot`` in the body frame), to first order
+    in ``p``. With ``o = pos`` and ``u = rot p``: ``dphi = [m, m (o + u),
+    m (|o|^2 1 - o o^T) + m (2 o^T u 1 - o u^T - u o^T)]``, dropping the ``m |p|^2`` terms."""
+    o = np.asarray(pos, dtype=np.float64)
+
+    def vech(a: FloatArray) -> list[float]:
+        return [a[0, 0], a[0, 1], a[1, 1], a[0, 2], a[1, 2], a[2, 2]]
+
+    cols = [[1.0, *o, *vech(float(o @ o) * np.eye(3) - np.outer(o, o))]]
+    for i in range(3):
+        u = np.asarray(rot, dtype=np.float64)[:, i]
+        sym = 2.0 * float(o @ u) * np.eye(3) - np.outer(o, u) - np.outer(u, o)
+        cols.append([0.0, *u, *vech(sym)])
+    return np.array(cols).T
+
+
+RELINEARISE_STEPS = 3
+"""Most re-expansions of the payload's point mass about its fitted offset."""
+
+
+@dataclass(frozen=True)
+class Payload(Effect):
+    """A payload at the flange: a mass ``m`` at offset ``p`` (flange frame) with its own
+    isotropic inertia ``I_p`` about its centre (a sphere, a cube), the last body's
+    parameters changed by ``G [m, m d] + I_p [0, 0, 0, 0, 1, 0, 1, 0, 0, 1]``
+    (:func:`flange_map` about ``p = p_0 + d``, first order in ``d``), acting on every joint's
+    torque through the last body's regressor columns with one weight vector
+    ``[m, m d, I_p]`` for all joints (:attr:`Effect.shared`). Only ``m >= 0`` is enforced:
+    the small ``I_p`` is the direction in which a bias of estimated ``qdd`` shows first.
+    Scoring re-expands about the fitted offset (``p_0 <- p_0 + (m d) / m``, at most
+    :data:`RELINEARISE_STEPS` times while the evidence rises), so the dropped ``m |d|^2``
+    terms vanish for a point mass away from the flange. Its torques lie in those of
+    :class:`LinkInertia` of the last link: the two are one physical family
+    (:meth:`Effect.same_family`), alternatives of each other, and the data prefer the
+    payload when the change looks like a point mass."""
+
+    offset: tuple[float, ...] | None = None
+    key: ClassVar[str] = "payload"
+    title: ClassVar[str] = "payload"
+    family: ClassVar[str] = "body inertia"
+    all_joints: ClassVar[bool] = True
+    shared: ClassVar[bool] = True
+    needs_robot: ClassVar[bool] = True
+    params: ClassVar[tuple[Param, ...]] = (Param("m", "kg", +1),)
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        object.__setattr__(self, "offset", _tuple1(self.offset))
+
+    @property
+    def place(self) -> str:
+        return "at the flange"
+
+    def last_body(self) -> bool:
+        return True
+
+    def shape_text(self) -> str:
+        if self.offset is None:
+            return ""
+        return "p0=(" + ", ".join(f"{v:.3g}" for v in self.offset) + ") m"
+
+    def _p0(self) -> FloatArray:
+        return np.zeros(3) if self.offset is None else np.asarray(self.offset, dtype=np.float64)
+
+    def relinearised(self, mean: FloatArray) -> Payload | None:
+        """The payload expanded about the fitted offset ``p_0 + (m d) / m`` (``None`` when
+        the fitted mass is not positive)."""
+        if not mean[0] > 0:
+            return None
+        return dataclasses.replace(self, offset=self._p0() + np.asarray(mean[1:4]) / mean[0])
+
+    def columns(self, ctx: FeatureContext, output: int) -> FloatArray | None:
+        if ctx.rigid is None:
+            return None
+        last = ctx.rigid.parameters.shape[0]
+        cols = ctx.body_columns(last)
+        if cols is None:
+            return None
+        rot = np.asarray(ctx.rigid.flange_rot, dtype=np.float64)
+        pos = np.asarray(ctx.rigid.flange_pos, dtype=np.float64) + rot @ self._p0()
+        own = np.zeros((10, 1))
+        own[[4, 6, 9], 0] = 1.0  # I_p added to I_xx, I_yy, I_zz: an isotropic body
+        return cols[:, output, :] @ np.concatenate([flange_map(pos, rot), own], axis=1)
+
+    def in_gip_span(self, joint_types: str) -> bool:
+        return True  # rigid-body torques: the GIP kernel is built to span them (thesis 3.3)
+
+    def change(self, w: FloatArray, ctx: FeatureContext) -> FloatArray | None:
+        """The last body's 10 inertial parameters' change (:data:`INERTIAL_PARAMS`, about
+        its joint frame) of weights ``w = [m, m d, I_p]``; ``None`` without a robot."""
+        if ctx.rigid is None:
+            return None
+        rot = np.asarray(ctx.rigid.flange_rot, dtype=np.float64)
+        pos = np.asarray(ctx.rigid.flange_pos, dtype=np.float64) + rot @ self._p0()
+        w = np.asarray(w, dtype=np.float64)
+        own = np.zeros(10)
+        own[[4, 6, 9]] = w[4]
+        return flange_map(pos, rot) @ w[:4] + own
+
+    def estimates(
+        self, mean: FloatArray, cov: FloatArray, ctx: FeatureContext, output: int
+    ) -> list[ParamEstimate]:
+        out = [_linear_estimate("m", np.eye(len(mean))[0], mean, cov, "kg", sign=+1)]
+        m, sd_m = float(mean[0]), math.sqrt(max(float(cov[0, 0]), 0.0))
+        if m > 2.0 * 1.96 * sd_m:  # the offset p = (m p) / m, delta method, when m is clear
+            p0 = self._p0()
+            for i, axis in enumerate("xyz", start=1):
+                g = np.zeros(len(mean))
+                g[0], g[i] = -mean[i] / m**2, 1.0 / m
+                est = _linear_estimate(f"p_{axis}", g, mean, cov, "m")
+                out.append(dataclasses.replace(est, value=float(p0[i - 1] + mean[i] / m)))
+        # I_p's sign is not enforced: the bias of an estimated qdd shows first in it
+        out.append(_linear_estimate("I_p", np.eye(len(mean))[4], mean, cov, "kg·m²"))
+        return out
 
 
 DEADZONE_SCAN: tuple[float, ...] = (0.01, 0.03, 0.1)
@@ -683,6 +1053,7 @@ EFFECTS: dict[str, type[Effect]] = {
         Spring,
         Cogging,
         Payload,
+        LinkInertia,
         Armature,
         DeadZone,
         Delay,
@@ -697,6 +1068,32 @@ _SHAPE_FIELD = {
     "deadzone": "width",
     "delay": "samples",
 }
+
+
+@dataclass(frozen=True)
+class TorqueScale(Effect):
+    """A free scale of the start model's torque, ``alpha tau_hat_j``; not a candidate.
+
+    Motor currents put into torque units with an estimated constant (:mod:`.units`),
+    ``y = k_hat i``, miss the true torque by ``(k_hat / k - 1) tau``: a scaled copy of the
+    joint's torque, gravity included, whose mean looks like an offset and whose shape like a
+    spring, cogging or a payload. The loop's first version holds this block on every joint
+    whose constant was estimated, so candidates are scored against a model whose scale is
+    still free (their evidence and intervals then include the ``k_t`` uncertainty);
+    ``alpha ~ k_hat / k - 1``.
+    """
+
+    key: ClassVar[str] = "scale"
+    title: ClassVar[str] = "torque-constant error"
+    needs_base: ClassVar[bool] = True
+    params: ClassVar[tuple[Param, ...]] = (Param("alpha", "", 0),)
+
+    def columns(self, ctx: FeatureContext, output: int) -> FloatArray:
+        return _col(ctx.start_torque()[:, self.joint - 1])
+
+
+MODEL_ONLY_EFFECTS: dict[str, type[Effect]] = {TorqueScale.key: TorqueScale}
+"""Blocks the loop puts in a model itself (never candidates), by key."""
 
 
 def parse_effect(text: str) -> Effect:
@@ -743,24 +1140,27 @@ def effect_from_spec(spec: dict[str, Any]) -> Effect:
     """Inverse of :meth:`Effect.spec`."""
     spec = dict(spec)
     key = spec.pop("key")
-    if key not in EFFECTS:
-        raise ValueError(f"unknown effect {key!r}; known effects: {', '.join(EFFECTS)}")
+    known = {**EFFECTS, **MODEL_ONLY_EFFECTS}
+    if key not in known:
+        raise ValueError(f"unknown effect {key!r}; known effects: {', '.join(known)}")
     profile = []
     for p in spec.pop("profile", ()):
         p = dict(p)
         if p.get("interval") is not None:
             p["interval"] = tuple(p["interval"])
         profile.append(ParamEstimate(**p))
-    return EFFECTS[key](**spec, profile=tuple(profile))
+    return known[key](**spec, profile=tuple(profile))
 
 
-def default_library(n_joints: int, with_payload: bool = True) -> list[Effect]:
-    """Every effect on every joint (payload once, when a rigid-body model gives its columns)."""
+def default_library(n_joints: int, rigid_body: bool = True) -> list[Effect]:
+    """Every effect on every joint; ``rigid_body``: also the candidates that read the robot
+    file's regressor (every link's inertia, the payload once)."""
     out: list[Effect] = []
-    for key, cls in EFFECTS.items():
+    for cls in EFFECTS.values():
+        if cls.needs_robot and not rigid_body:
+            continue
         if cls.all_joints:
-            if with_payload and key == "payload":
-                out.append(cls())
+            out.append(cls())
             continue
         out += [cls(joint=j) for j in range(1, n_joints + 1)]
     return out

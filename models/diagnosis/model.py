@@ -15,6 +15,12 @@ Refitting re-optimises, per joint, the start kernel's scale ``alpha``, the noise
 hyperparameters stay at their version-0 values (a learned start is backfitted by
 :meth:`DiagnosisModel.add`).
 
+Rigid-body effects (a link's inertia, a payload: :attr:`.Effect.shared`) have one weight
+vector ``w`` for all the joints they move, so they are not blocks of one joint's GP: the fit
+alternates (:data:`SHARED_ROUNDS` times) the posterior of ``w`` given every joint's GP
+(:func:`~.shared.fit_shared`) with each joint's own fit on ``r_j - Y_j E[w]``; predictions
+add ``Y_j E[w]`` and the variance ``Y_j Cov[w] Y_j^T``.
+
 Delays: ``y_j(t) = f_j(x(t - d))``. The targets always stay the measured ``y_j`` at the
 training rows ``t``; a delay of ``k`` samples on joint ``j`` (any real ``k >= 0``; between two
 samples the states are interpolated linearly, :meth:`.Trajectories.at`) moves that joint's
@@ -48,19 +54,31 @@ from mcpilco.models.diagnosis.data import (
     as_trajectories,
     require_rows,
 )
-from mcpilco.models.diagnosis.effects import Delay, Effect, FeatureContext, effect_from_spec
+from mcpilco.models.diagnosis.effects import (
+    Delay,
+    Effect,
+    FeatureContext,
+    ParamEstimate,
+    effect_from_spec,
+)
+from mcpilco.models.diagnosis.identifiability import judge_estimates, weight_names
+from mcpilco.models.diagnosis.shared import SharedFit
 from mcpilco.models.diagnosis.start_models import (
     LEARNED_STARTS,
     LearnedStart,
     NominalStart,
     StartModel,
 )
+from mcpilco.models.diagnosis.units import widen_estimates
 from mcpilco.models.gp.linear_gp import JointGP, single_thread
 from mcpilco.models.robot_data import RobotDataset
 
 FloatArray = NDArray[np.float64]
 
 __all__ = ["DiagnosisModel"]
+
+SHARED_ROUNDS = 3
+"""Alternations of the shared (rigid-body) weights and the joints' own fits in a fit."""
 
 
 class DiagnosisModel:
@@ -149,12 +167,12 @@ class DiagnosisModel:
         regressor: Callable[[], FloatArray | None] | None = None,
     ) -> FeatureContext:
         """Feature context at ``states = (q, qd, qdd)``; ``base``: the start model's torque
-        there, ``regressor``: its payload columns, if at hand."""
+        there, ``regressor``: the joint-torque regressor of every body, if at hand."""
         q, qd, qdd = states
         if regressor is None and self.start.robot is not None:
 
             def regressor() -> FloatArray | None:
-                return self.start.last_link_regressor(q, qd, qdd)
+                return self.start.robot.regressor(q, qd, qdd)
 
         return FeatureContext(
             q=q,
@@ -163,9 +181,15 @@ class DiagnosisModel:
             base=base,
             joint_types=self.start.joint_types,
             output=output,
-            last_link_regressor=regressor,
+            regressor=regressor,
+            rigid=None if self.start.robot is None else self._rigid_body(),
             base_fn=lambda: self.start.torque(q, qd, qdd),
         )
+
+    def _rigid_body(self) -> Any:
+        if getattr(self, "_rigid", None) is None:
+            self._rigid = self.start.robot.rigid_body()
+        return self._rigid
 
     def _delay_samples(self, output: int) -> float:
         for e in self.effects:
@@ -192,7 +216,7 @@ class DiagnosisModel:
                 if self.start.robot is not None:
 
                     def regressor() -> FloatArray | None:
-                        return self.start.last_link_regressor(*full)[idx]
+                        return self.start.robot.regressor(*full)[idx]
 
             else:
                 states = tuple(traj.at(x, self.rows_, -shift) for x in (traj.q, traj.qd, traj.qdd))
@@ -217,7 +241,54 @@ class DiagnosisModel:
         (0-based; ``k``: ``shift``, default the joint's delay in samples)."""
         k = self._delay_samples(output) if shift is None else shift
         mean = self._shifted(k)[1]
-        return self.train_.y[self.rows_, output] - mean[:, output]
+        r = self.train_.y[self.rows_, output] - mean[:, output]
+        return r - self._shared_part(self.joint_context(output, k), output)
+
+    # ------------------------------------------------------------------ shared effects
+    @property
+    def shared_effects(self) -> list[Effect]:
+        """The added effects with one weight vector for several joints (rigid-body ones)."""
+        return [e for e in self.effects if e.shared and self._has_columns(e)]
+
+    def _shared_columns(self, ctx: FeatureContext, output: int) -> FloatArray | None:
+        """``(N, P)``: the shared effects' columns on ``output`` (zeros where one does not
+        act), in :attr:`shared_effects` order; ``None`` without shared effects."""
+        parts = []
+        for e in self.shared_effects:
+            cols = e.columns(ctx, output) if output in e.outputs(self.n_joints) else None
+            width = self._shared_sizes()[len(parts)]
+            parts.append(np.zeros((ctx.q.shape[0], width)) if cols is None else cols)
+        return np.concatenate(parts, axis=1) if parts else None
+
+    def _shared_sizes(self) -> list[int]:
+        if getattr(self, "_sizes", None) is None:
+            self._sizes = [e.columns(self.ctx_, 0).shape[1] for e in self.shared_effects]
+        return self._sizes
+
+    def _shared_part(self, ctx: FeatureContext, output: int) -> FloatArray:
+        """Fitted torque of the shared effects on ``output`` at the states of ``ctx``."""
+        fit = getattr(self, "shared_", None)
+        if fit is None:
+            return np.zeros(ctx.q.shape[0])
+        return self._shared_columns(ctx, output) @ fit.mean
+
+    def _fit_shared(self) -> None:
+        """Posterior of the shared weights given every joint's current GP
+        (:func:`~.shared.fit_shared`)."""
+        from mcpilco.models.diagnosis.shared import fit_shared
+
+        joints = sorted({j for e in self.shared_effects for j in e.outputs(self.n_joints)})
+        old = self.shared_
+        self.shared_ = None  # the joints' targets without the shared part
+        gps = [self.joint_gp(j, self._delay_samples(j)) for j in joints]
+        cols = [self._shared_columns(self.joint_context(j), j) for j in joints]
+        self.shared_ = fit_shared(
+            gps,
+            [self.theta_[j] for j in joints],
+            cols,
+            self._shared_sizes(),
+            None if old is None else old.log_lambda,
+        )
 
     def _start_eig(
         self, states: tuple[FloatArray, ...], joints: Sequence[int] | None = None
@@ -263,7 +334,7 @@ class DiagnosisModel:
         """The effect blocks acting on ``output`` (0-based), in effect order."""
         out = []
         for e in self.effects:
-            if output in e.outputs(self.n_joints):
+            if output in e.outputs(self.n_joints) and not e.shared:
                 cols = e.columns(ctx, output)
                 if cols is not None:
                     out.append(cols)
@@ -274,11 +345,14 @@ class DiagnosisModel:
         return [
             e
             for e in self.effects
-            if output in e.outputs(self.n_joints) and not e.is_shift and self._has_columns(e)
+            if output in e.outputs(self.n_joints)
+            and not e.is_shift
+            and not e.shared
+            and self._has_columns(e)
         ]
 
     def _has_columns(self, e: Effect) -> bool:
-        return not (e.key == "payload" and self.start.robot is None)
+        return not (e.needs_robot and self.start.robot is None)
 
     def fit(
         self,
@@ -330,39 +404,16 @@ class DiagnosisModel:
                 joints = [j for j in range(self.n_joints) if shifts[j] == k and j not in reused]
                 if joints:
                     eigs.update(self._start_eig(self._shifted(k)[2], joints))
-        noise0 = self.start.noise_variance()
-        self.gps_, self.theta_, self.evidence_ = [], [], []
-        self.eig_: list[tuple[FloatArray, FloatArray] | None] = []
-        self.scores_: list[dict[Effect, tuple]] = []
-        for j in range(self.n_joints):
-            if j in reused:  # the parent's fit of this joint, and its candidate scores
-                self.eig_.append(_parent.eig_[j])
-                self.gps_.append(_parent.gps_[j])
-                self.theta_.append(_parent.theta_[j])
-                self.evidence_.append(_parent.evidence_[j])
-                self.scores_.append(_parent.scores_[j])
-                continue
-            self.scores_.append({})
-            eig = eigs.get(j)
-            self.eig_.append(eig)
-            base_r = self.target(j, shift=0)
-            scale = float(np.sqrt(np.mean(base_r**2)) or 1.0)
-            gp = JointGP(
-                self.target(j), self.blocks(self.joint_context(j), j), eig=eig, scale=scale
-            )
-            theta0 = gp.default_theta(None if noise0 is None else float(noise0[j]))
-            starts = []
-            if _warm and j in _warm and _warm[j].shape == theta0.shape:
-                starts.append(_warm[j])
-            if gp.sizes:
-                low = theta0.copy()
-                low[-len(gp.sizes) :] = -6.0
-                starts.append(low)
-            with single_thread():
-                theta, ev = gp.optimise(theta0, starts=starts)
-            self.gps_.append(gp)
-            self.theta_.append(theta)
-            self.evidence_.append(ev)
+        self.eig_: list[tuple[FloatArray, FloatArray] | None] = [
+            _parent.eig_[j] if j in reused else eigs.get(j) for j in range(self.n_joints)
+        ]
+        self.shared_: SharedFit | None = None
+        self._sizes: list[int] | None = None
+        self._fit_joints(_warm, reused, _parent)
+        if self.shared_effects:  # alternate the shared weights and the joints' own fits
+            for _ in range(SHARED_ROUNDS):
+                self._fit_shared()
+                self._fit_joints(dict(enumerate(self.theta_)))
         if backfit and isinstance(self.start, LearnedStart) and self.effects:
             # backfitting: the learned start model refitted on the output minus the effects,
             # both at the states x(rows) it reads
@@ -376,8 +427,11 @@ class DiagnosisModel:
     def _same_joint(self, parent: DiagnosisModel | None, output: int) -> bool:
         """Whether ``parent`` (the version this one derives from) fitted output ``output``'s
         GP on the same data with the same start model and the same effects on it: its fit
-        is then this one's (:meth:`fit` reuses it and its candidate scores)."""
+        is then this one's (:meth:`fit` reuses it and its candidate scores). Never with a
+        shared (rigid-body) effect in either: its weights couple every joint's target."""
         if parent is None or parent.train_ is not self.train_ or parent.start is not self.start:
+            return False
+        if any(e.shared for e in (*self.effects, *parent.effects)):
             return False
         if not np.array_equal(parent.rows_, self.rows_):
             return False
@@ -392,13 +446,52 @@ class DiagnosisModel:
         self._check_fitted()
         return self.scores_[output]
 
+    def _fit_joints(
+        self,
+        warm: dict[int, FloatArray] | None,
+        reused: Sequence[int] = (),
+        parent: DiagnosisModel | None = None,
+    ) -> None:
+        """Type-II ML fit of every joint's GP on its target (``warm``: starting values);
+        the joints in ``reused`` take ``parent``'s fit and candidate scores."""
+        noise0 = self.start.noise_variance()
+        self.gps_, self.theta_, self.evidence_ = [], [], []
+        self.scores_: list[dict[Effect, tuple]] = []
+        for j in range(self.n_joints):
+            if j in reused:  # the parent's fit of this joint, and its candidate scores
+                self.gps_.append(parent.gps_[j])
+                self.theta_.append(parent.theta_[j])
+                self.evidence_.append(parent.evidence_[j])
+                self.scores_.append(parent.scores_[j])
+                continue
+            self.scores_.append({})
+            base_r = self.target(j, shift=0)
+            scale = float(np.sqrt(np.mean(base_r**2)) or 1.0)
+            gp = JointGP(
+                self.target(j), self.blocks(self.joint_context(j), j), eig=self.eig_[j], scale=scale
+            )
+            theta0 = gp.default_theta(None if noise0 is None else float(noise0[j]))
+            starts = []
+            if warm and j in warm and warm[j].shape == theta0.shape:
+                starts.append(warm[j])
+            if gp.sizes:
+                low = theta0.copy()
+                low[-len(gp.sizes) :] = -6.0
+                starts.append(low)
+            with single_thread():
+                theta, ev = gp.optimise(theta0, starts=starts)
+            self.gps_.append(gp)
+            self.theta_.append(theta)
+            self.evidence_.append(ev)
+
     def _effect_part(self, output: int, ctx: FeatureContext) -> FloatArray:
         """Fitted torque of the added blocks on ``output`` at the states of ``ctx``."""
         blocks = self.blocks(ctx, output)
+        shared = self._shared_part(ctx, output)
         if not blocks:
-            return np.zeros(self.rows_.size)
+            return shared
         mean, _ = self.gps_[output].weights(self.theta_[output])
-        return np.concatenate(blocks, axis=1) @ mean
+        return np.concatenate(blocks, axis=1) @ mean + shared
 
     def _check_fitted(self) -> None:
         if self.train_ is None:
@@ -444,6 +537,11 @@ class DiagnosisModel:
                 with_var=with_var,
                 n_test=traj.n_samples,
             )
+            if self.shared_ is not None:
+                cols = self._shared_columns(ctx, j)
+                m = m + cols @ self.shared_.mean
+                if with_var:
+                    v = v + np.einsum("ij,jk,ik->i", cols, self.shared_.cov, cols)
             k = self._delay_samples(j)
             if k:
                 d = k * self.train_.sample_time
@@ -518,24 +616,52 @@ class DiagnosisModel:
         return self.with_effect(effect, backfit=True)
 
     # ------------------------------------------------------------------ parameters
+    def estimates(self, effect: Effect, output: int) -> list[ParamEstimate]:
+        """Posterior estimates of ``effect``'s parameters on ``output`` (0-based), each marked
+        where the data cannot pin it down (:func:`.identifiability.judge_estimates`); ``[]``
+        when ``effect`` has no block there."""
+        self._check_fitted()
+        effs = self.block_effects(output)
+        k = next((i for i, e in enumerate(effs) if e.same_slot(effect)), None)
+        if k is None:
+            return []
+        gp, theta = self.gps_[output], self.theta_[output]
+        sl = gp.block_slices()[k]
+        mean, cov = gp.weights(theta)
+        ests = widen_estimates(  # current logs: k_t's uncertainty carried into the interval
+            effs[k].estimates(mean[sl], cov[sl, sl], self.ctx_, output),
+            self.train_.torque_constants,
+            output,
+        )
+        names = weight_names(effs, gp.sizes)
+        return judge_estimates(effs[k], ests, gp, theta, k, names, self.ctx_, output)
+
     def parameters(self, shape: bool = False) -> list[dict[str, Any]]:
-        """Posterior estimates of every added effect's physical parameters (95% intervals);
-        with ``shape`` also its refined shape values (cogging order, smoothing, delay, ...)
-        with their likelihood-ratio intervals (:attr:`.Effect.profile`)."""
+        """Posterior estimates of every added effect's physical parameters (95% intervals),
+        or why the data cannot pin one down (``unidentified``, :meth:`estimates`); with
+        ``shape`` also its refined shape values (cogging order, smoothing, delay, ...) with
+        their likelihood-ratio intervals (:attr:`.Effect.profile`)."""
         self._check_fitted()
         rows = []
+        shared = self.shared_effects
         for e in self.effects:
+            if e in shared:
+                k = shared.index(e)
+                off = sum(self._shared_sizes()[:k])
+                sl = slice(off, off + self._shared_sizes()[k])
+                mean, cov = self.shared_.mean[sl], self.shared_.cov[sl, sl]
+                for p in e.estimates(mean, cov, self.ctx_, 0):
+                    rows.append(
+                        dict(effect=e.variant_label, output="all", **p.__dict__, text=p.text())
+                    )
+                continue
             for j in e.outputs(self.n_joints):
                 if e.is_shift:
                     ests = e.estimates(np.zeros(1), np.zeros((1, 1)), self.ctx_, j)
                 else:
-                    effs = self.block_effects(j)
-                    if e not in effs:
+                    if e not in self.block_effects(j):
                         continue
-                    k = effs.index(e)
-                    sl = self.gps_[j].block_slices()[k]
-                    mean, cov = self.gps_[j].weights(self.theta_[j])
-                    ests = e.estimates(mean[sl], cov[sl, sl], self.ctx_, j)
+                    ests = self.estimates(e, j)
                 for p in e.with_profile(ests, shape):
                     rows.append(
                         dict(effect=e.variant_label, output=j + 1, **p.__dict__, text=p.text())

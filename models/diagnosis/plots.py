@@ -3,8 +3,9 @@
 * :func:`plot_time`: measured vs predicted output per joint with the GP ``+-2 sigma`` band
   (``sigma^2`` = latent variance + noise variance: where a new measurement should fall).
 * :func:`plot_residuals`: per joint, the residual binned against ``qd``, ``q``, ``qdd``
-  (95% intervals), around velocity reversals, and its autocorrelation with the whiteness
-  band.
+  (95% intervals), around velocity reversals, its autocorrelation with the 99% whiteness
+  band, and its cross-correlation with ``q``, ``qd`` and the predicted torque with their 99%
+  bands (:mod:`.analysis`).
 * :func:`plot_waterfall`: held-out RMSE per version and joint (bars) over the noise floor.
 * :func:`write_rerun`: ``.rrd`` with ``/joint/j{k}/tau/{measured, v0, v1, ...}`` and
   ``/joint/j{k}/residual/{v0, v1, ...}``, and a blueprint with one time-series view per joint.
@@ -77,10 +78,11 @@ def plot_time(
 
 
 def plot_residuals(report: ResidualReport, path: str | Path) -> Path:
-    """Binned residuals, reversal averages and autocorrelation, one row per joint."""
+    """Binned residuals, reversal averages, autocorrelation and cross-correlation with the
+    inputs, one row per joint."""
     plt = _plt()
     n = len(report.joints)
-    fig, axes = plt.subplots(n, 5, figsize=(16, 2.2 * n + 0.6), squeeze=False)
+    fig, axes = plt.subplots(n, 6, figsize=(19, 2.2 * n + 0.6), squeeze=False)
     for r, jr in enumerate(report.joints):
         for c, name in enumerate(("qd", "q", "qdd")):
             ax = axes[r, c]
@@ -104,6 +106,16 @@ def plot_residuals(report: ResidualReport, path: str | Path) -> Path:
         ax.axhline(-jr.whiteness_band, color="r", ls="--", lw=0.8)
         ax.set_xlabel("lag [samples]", fontsize=8)
         ax.set_ylim(-1, 1)
+        ax = axes[r, 5]
+        for k, (name, test) in enumerate(jr.xcorr.items()):
+            ax.plot(test.lags, test.r, color=f"C{k}", lw=1, label=f"{name}{jr.joint}")
+            ax.axhline(test.band, color=f"C{k}", ls="--", lw=0.6)
+            ax.axhline(-test.band, color=f"C{k}", ls="--", lw=0.6)
+        ax.axvline(0, color="k", lw=0.5)
+        ax.set_xlabel("lag [samples] (input leads >0)", fontsize=8)
+        ax.set_ylim(-1, 1)
+        if jr.xcorr:
+            ax.legend(fontsize=7)
     fig.suptitle(f"residuals of {report.model_name}", fontsize=10)
     fig.tight_layout()
     return _save(fig, path, dpi=80)

@@ -7,8 +7,10 @@ Score (Bayesian model comparison, thesis eq. 1.9 for the evidence)
     prior variance and the noise re-optimised; a delay re-optimises them all, its inputs
     ``k`` samples earlier and its targets the same measured samples), and with a uniform
     prior over the scan
-    ``Delta = log( (1/G) sum_v exp(Delta_v) )``. An effect acting on every joint (payload)
-    sums ``Delta`` over the joints (independent GPs).
+    ``Delta = log( (1/G) sum_v exp(Delta_v) )``. A rigid-body effect (a link's inertia, a
+    payload; :attr:`.Effect.shared`) has one weight vector for all the joints it moves:
+    ``Delta`` is the gain of the stacked joints, its prior scale and every moved joint's
+    noise re-optimised (:func:`~.shared.score_shared`).
 Significance
     ``Delta > evidence_threshold`` (default 5 nats: a Bayes factor above e^5 ~ 150, "very
     strong" on Kass & Raftery's scale ``2 Delta > 10``), the physical sign respected, and the
@@ -57,6 +59,10 @@ Verdict against the noise floor
     residual's structure in words (binned against ``q``, ``qd``, ``qdd``; whiteness). A missing
     effect that leaves a joint above the floor is said to explain part of the residual. With
     fewer than :data:`MIN_VERDICT_ROWS` held-out rows the verdict is "not enough data".
+Identifiability
+    The estimates of every confirmed candidate (and of every effect in a model,
+    :meth:`.DiagnosisModel.estimates`) say "not identifiable from these data" with the reason
+    instead of a number where the data cannot pin a parameter down (:mod:`.identifiability`).
 """
 
 from __future__ import annotations
@@ -79,9 +85,17 @@ from mcpilco.models.diagnosis.data import (
     as_trajectories,
     require_rows,
 )
-from mcpilco.models.diagnosis.effects import Effect, ParamEstimate, default_library
+from mcpilco.models.diagnosis.effects import (
+    RELINEARISE_STEPS,
+    Effect,
+    ParamEstimate,
+    default_library,
+)
+from mcpilco.models.diagnosis.identifiability import judge_estimates, weight_names
 from mcpilco.models.diagnosis.model import DiagnosisModel
 from mcpilco.models.diagnosis.profile import likelihood_interval, phase_interval
+from mcpilco.models.diagnosis.shared import score_shared
+from mcpilco.models.diagnosis.units import widen_estimates, without_fitted_scales
 from mcpilco.models.gp.linear_gp import single_thread
 
 FloatArray = NDArray[np.float64]
@@ -130,6 +144,7 @@ class Candidate:
     in_start_span: bool = False
     alternative_to: str | None = None
     replace_delta: float | None = None
+    confounded: str | None = None
 
     @property
     def missing(self) -> bool:
@@ -154,11 +169,12 @@ class Candidate:
 
 
 def _score_variant(
-    model: DiagnosisModel, effect: Effect, output: int
+    model: DiagnosisModel, effect: Effect, output: int, judge: bool = False
 ) -> tuple[float, list[ParamEstimate], FloatArray | None]:
     """``(Delta_v, estimates, contribution)`` of one complete variant on one output joint
-    (``contribution``: its fitted torque on the training rows; ``None`` for a delay)."""
-    d, est, post = _fit_variant(model, effect, output)
+    (``contribution``: its fitted torque on the training rows; ``None`` for a delay);
+    ``judge``: mark the estimates the data cannot pin down (:mod:`.identifiability`)."""
+    d, est, post = _fit_variant(model, effect, output, judge)
     return d, est, _contribution(model, effect, output, post)
 
 
@@ -175,7 +191,7 @@ def _contribution(
 
 
 def _fit_variant(
-    model: DiagnosisModel, effect: Effect, output: int
+    model: DiagnosisModel, effect: Effect, output: int, judge: bool = False
 ) -> tuple[float, list[ParamEstimate], tuple[FloatArray, FloatArray] | None]:
     """``(Delta_v, estimates, (mean, cov))``: the evidence gain of one complete variant on
     one output joint, its estimates and the posterior of its block's weights (``None`` for
@@ -183,8 +199,8 @@ def _fit_variant(
     fit of the joint scores the same)."""
     e = effect.calibrate(model.ctx_)
     cache = model.score_cache(output)
-    if e in cache:
-        return cache[e]
+    if (e, judge) in cache:
+        return cache[(e, judge)]
     gp, theta = model.gps_[output], model.theta_[output]
     base = model.evidence_[output]
     n_head = int(gp.has_kernel)
@@ -210,10 +226,64 @@ def _fit_variant(
             th, ev = g.optimise(theta0, free=free)
             mean, cov = g.weights(th)
             sl = g.block_slices()[-1]
-            ests = e.estimates(mean[sl], cov[sl, sl], model.ctx_, output)
+            ests = widen_estimates(
+                e.estimates(mean[sl], cov[sl, sl], model.ctx_, output),
+                model.train_.torque_constants,
+                output,
+            )
+            if judge:
+                names = weight_names([*model.block_effects(output), e], g.sizes)
+                ests = judge_estimates(e, ests, g, th, len(g.sizes) - 1, names, model.ctx_, output)
             out = (ev - base, ests, (mean[sl], cov[sl, sl]))
-    cache[effect.calibrate(model.ctx_)] = out
+    cache[(effect.calibrate(model.ctx_), judge)] = out
     return out
+
+
+def _judged_estimates(model: DiagnosisModel, cand: Candidate) -> list[ParamEstimate]:
+    """``cand``'s estimates on the output joint that gains most, marked where the data cannot
+    pin them down (:mod:`.identifiability`)."""
+    if cand.effect.is_shift:
+        return cand.estimates
+    best: tuple[float, list[ParamEstimate]] | None = None
+    with single_thread():
+        for j in cand.outputs:
+            d, est, _ = _score_variant(model, cand.effect, j - 1, judge=True)
+            if math.isfinite(d) and (best is None or d > best[0]):
+                best = (d, est)
+    return cand.estimates if best is None else best[1]
+
+
+def _score_shared(
+    model: DiagnosisModel, effect: Effect
+) -> tuple[float, list[ParamEstimate], dict[int, FloatArray], Effect]:
+    """``(Delta, estimates, contributions, effect)`` of a complete shared (rigid-body)
+    variant: one weight vector for all the joints it moves (:func:`~.shared.score_shared`);
+    a linearised block is re-expanded about its fit while that gains
+    (:meth:`.Effect.relinearised`, :data:`~.effects.RELINEARISE_STEPS`)."""
+    joints = effect.outputs(model.n_joints)
+
+    def score(e: Effect) -> tuple[float, Any, list[FloatArray] | None]:
+        cols = [e.columns(model.joint_context(j), j) for j in joints]
+        if any(c is None for c in cols):
+            return float("nan"), None, None
+        gps = [model.gps_[j] for j in joints]
+        thetas = [model.theta_[j] for j in joints]
+        delta, fit = score_shared(gps, thetas, [model.evidence_[j] for j in joints], cols)
+        return delta, fit, cols
+
+    delta, fit, cols = score(effect)
+    if cols is None:
+        return float("nan"), [], {}, effect
+    for _ in range(RELINEARISE_STEPS):
+        nxt = effect.relinearised(fit.mean)
+        if nxt is None:
+            break
+        d2, fit2, cols2 = score(nxt)
+        if not d2 > delta:
+            break
+        effect, delta, fit, cols = nxt, d2, fit2, cols2
+    ests = effect.estimates(fit.mean, fit.cov, model.ctx_, joints[0])
+    return delta, ests, {j: c @ fit.mean for j, c in zip(joints, cols, strict=True)}, effect
 
 
 @single_thread()
@@ -233,7 +303,15 @@ def score_effect(
     variants = effect.variants(max_delay_samples=model.max_delay_samples, **scan)
     variants = [v.calibrate(model.ctx_) for v in variants]
     deltas, ests, posts = [], [], []
-    for v in variants:
+    shared_contribs: dict[int, dict[int, FloatArray]] = {}
+    for i, v in enumerate(variants):
+        if v.shared:  # one weight vector for all its joints
+            total, best_est, con, variants[i] = _score_shared(model, v)
+            deltas.append(total)
+            ests.append(best_est)
+            posts.append({})
+            shared_contribs[i] = con
+            continue
         total, best_est, post = 0.0, [], {}
         best_d = -math.inf
         for j in outputs:
@@ -264,7 +342,9 @@ def score_effect(
         n_variants=len(variants),
         estimates=ests[k],
         outputs=[j + 1 for j in outputs],
-        contributions={
+        contributions=shared_contribs[k]
+        if k in shared_contribs
+        else {
             j: c
             for j, p in posts[k].items()
             if (c := _contribution(model, variants[k], j, p)) is not None
@@ -382,7 +462,7 @@ def score_candidates(
     """Score every candidate not already in the model, best first."""
     model._check_fitted()
     if library is None:
-        library = default_library(model.n_joints, with_payload=model.start.robot is not None)
+        library = default_library(model.n_joints, rigid_body=model.start.robot is not None)
     todo = [e for e in library if not any(e.same_slot(m) for m in model.effects)]
     if progress:
         from tqdm import tqdm
@@ -406,7 +486,9 @@ def heldout_floor(
 ) -> FloatArray:
     """``(n,)`` noise floor of ``model`` on held-out trajectories: measurement noise plus the
     noise its prediction inherits from estimated ``qd``/``qdd`` (:func:`.analysis.noise_floor`
-    with :func:`.analysis.input_noise`); ``mean``: the model's prediction, if at hand. Kept
+    with :func:`.analysis.input_noise`), plus, for currents in torque units, the uncertainty
+    of ``k_t`` on the joints whose scale the model does not fit itself
+    (:func:`.units.without_fitted_scales`); ``mean``: the model's prediction, if at hand. Kept
     in the model (``floors_``) for the same held-out object: the loop asks for it again."""
     model._check_fitted()
     key = id(heldout)
@@ -416,7 +498,7 @@ def heldout_floor(
     if mean is None:
         mean, _ = model.predict(heldout, with_var=False)
     inputs = input_noise(heldout, lambda tr: model.predict(tr, with_var=False)[0])
-    floor = noise_floor(heldout, mean, inputs)
+    floor = noise_floor(without_fitted_scales(heldout, model.effects), mean, inputs)
     model.floors_[key] = (heldout, floor)
     return floor.copy()
 
@@ -506,15 +588,21 @@ def heldout_change_pct(
     return 100.0 * (e_after / e_before - 1.0)
 
 
-def _estimates_in(model: DiagnosisModel, effect: Effect, output: int) -> list[ParamEstimate]:
-    """Posterior estimates of ``effect``'s parameters in fitted ``model`` on ``output``."""
-    effs = model.block_effects(output)
-    k = next((i for i, e in enumerate(effs) if e.same_slot(effect)), None)
-    if k is None:
-        return []
-    sl = model.gps_[output].block_slices()[k]
-    mean, cov = model.gps_[output].weights(model.theta_[output])
-    return effs[k].with_profile(effs[k].estimates(mean[sl], cov[sl, sl], model.ctx_, output))
+def _confounded_with_constants(model: DiagnosisModel, cand: Candidate) -> str | None:
+    """Why ``cand`` cannot be told apart from an estimated torque constant, or ``None``.
+
+    A change of a body's inertia scales the rigid-body torque of the joints that move it, as
+    an error of their torque constants ``k_t`` does (``k_hat i = k/k_hat tau``): with ``k_t``
+    estimated from the same logs the two trade off, so an inertial candidate on such a joint
+    is reported as not identifiable (give the constants to score it)."""
+    tc = getattr(model.train_, "torque_constants", None)
+    if tc is None or cand.effect.family != "body inertia":
+        return None
+    estimated = [j for j in cand.outputs if not bool(tc.given[j - 1])]
+    if not estimated:
+        return None
+    joints = ", ".join(str(j) for j in estimated)
+    return f"confounded with the estimated torque constant of joint {joints}"
 
 
 def _group(cands: Sequence[Candidate], threshold: float) -> None:
@@ -632,14 +720,14 @@ class Diagnosis:
         if best.alternative_to is not None:
             text = (
                 f"{self.model_name}: {best.alternative_to} is better described as "
-                f"{best.effect.title} on joint {best.joint_text} ({best.effect.variant_label} "
+                f"{best.effect.title} {best.effect.place} ({best.effect.variant_label} "
                 f"in its place: +{best.replace_delta or math.nan:.1f} nats, held-out RMSE "
                 f"{best.heldout_delta_pct:+.1f}%; {best.estimate_text()})"
             )
         else:
             text = (
-                f"{self.model_name}: missing effect: {best.effect.title} on joint "
-                f"{best.joint_text} ({best.effect.variant_label}, +{best.delta:.1f} nats, "
+                f"{self.model_name}: missing effect: {best.effect.title} {best.effect.place} "
+                f"({best.effect.variant_label}, +{best.delta:.1f} nats, "
                 f"held-out RMSE {best.heldout_delta_pct:+.1f}%; {best.estimate_text()})"
             )
         if alike:
@@ -689,6 +777,27 @@ class Diagnosis:
             f"{float(np.max(check.ratio)):.2f}x, limit {FLOOR_FACTOR:g}x)"
         )
 
+    def status(self, c: Candidate) -> str:
+        """The table's verdict on candidate ``c`` in a word or two (``"SIGNIFICANT"``,
+        ``"weak"``, ``"alternative to coulomb:2"``, ...)."""
+        if c.missing and c.alternative_to is not None:
+            return f"REPLACES {c.alternative_to}"
+        if c.missing:
+            return "SIGNIFICANT"
+        if c.significant:
+            return "in start span"
+        if c.wrong_sign:
+            return "wrong sign"
+        if c.confounded is not None:
+            return "not identifiable"
+        if c.alternative_to is not None:
+            return f"alternative to {c.alternative_to}"
+        if c.delta <= self.threshold:
+            return "weak"
+        if c.heldout_delta_pct is None:
+            return "untested"
+        return "no held-out gain"
+
     def table(self, top: int = 12) -> str:
         """The ranked table as fixed-width text."""
         head = (
@@ -698,22 +807,7 @@ class Diagnosis:
         lines = [head, "-" * len(head)]
         for i, c in enumerate(self.candidates[:top], 1):
             held = "" if c.heldout_delta_pct is None else f"{c.heldout_delta_pct:+.1f} %"
-            if c.missing and c.alternative_to is not None:
-                verdict = f"REPLACES {c.alternative_to}"
-            elif c.missing:
-                verdict = "SIGNIFICANT"
-            elif c.significant:
-                verdict = "in start span"
-            elif c.wrong_sign:
-                verdict = "wrong sign"
-            elif c.alternative_to is not None:
-                verdict = f"alternative to {c.alternative_to}"
-            elif c.delta <= self.threshold:
-                verdict = "weak"
-            elif c.heldout_delta_pct is None:
-                verdict = "untested"
-            else:
-                verdict = "no held-out gain"
+            verdict = self.status(c)
             lines.append(
                 f"{i:>2}  {c.effect.variant_label:<34} {c.joint_text:>5} {c.delta:>9.1f} "
                 f"{held:>15} {c.group:>3}  {c.estimate_text():<40} {verdict}"
@@ -742,6 +836,7 @@ class Diagnosis:
                     "alternative_to": c.alternative_to,
                     "replace_delta_log_evidence": c.replace_delta,
                     "wrong_sign": c.wrong_sign,
+                    "confounded": c.confounded,
                     "estimates": [p.__dict__ for p in c.estimates],
                 }
                 for c in self.candidates
@@ -801,6 +896,10 @@ def diagnose(
         refine_shape(model, c)
         if c.wrong_sign:
             continue
+        c.estimates = _judged_estimates(model, c)
+        c.confounded = _confounded_with_constants(model, c)
+        if c.confounded is not None:
+            continue
         if base_rmse is None:
             base_rmse = heldout_rmse(model, held)
         if c.alternative_to is None:
@@ -809,7 +908,7 @@ def diagnose(
             new = model.replacing(c.alternative_to, c.effect)
             outs = [j - 1 for j in c.outputs]
             c.replace_delta = float(sum(new.evidence_[j] - model.evidence_[j] for j in outs))
-            c.estimates = _estimates_in(new, c.effect, outs[0]) or c.estimates
+            c.estimates = new.estimates(c.effect, outs[0]) or c.estimates
         tried[id(c)] = new
         rmse = heldout_rmse(new, held)
         c.heldout_delta_pct = heldout_change_pct(base_rmse, rmse, noise, np.array(c.outputs) - 1)

@@ -13,8 +13,9 @@ rbf        as ``gip`` with an ARD RBF kernel on ``[q, qd, qdd]``  the RBF poster
            (:class:`~mcpilco.models.inverse_dynamics.RBFEstimator`)
 =========  ====================================================  ==========================
 
-Both can give the last link's columns of the joint-torque regressor (pinocchio's
-``computeJointTorqueRegressor``) for the payload candidate when a robot file is known.
+Both can give the joint-torque regressor of every body (pinocchio's
+``computeJointTorqueRegressor``) and the nominal body data for the inertial candidates (every
+link's inertia, the payload at the flange) when a robot file is known.
 """
 
 from __future__ import annotations
@@ -29,6 +30,7 @@ import numpy as np
 import torch
 from numpy.typing import NDArray
 
+from mcpilco.models.diagnosis.effects import RigidBody
 from mcpilco.models.inverse_dynamics import (
     GIPEstimator,
     GPInverseDynamics,
@@ -133,8 +135,13 @@ def _joint_types(model: Any) -> str:
     return "".join(out)
 
 
+FLANGE_NAMES = ("flange", "ee", "tool0", "attachment_site")
+"""Frame names taken as the flange, first match on the last body (else its last site, else
+the body's own frame)."""
+
+
 class _Robot:
-    """Pinocchio model of a robot file: RNEA and the last link's regressor columns."""
+    """Pinocchio model of a robot file: RNEA, the joint-torque regressor, the body data."""
 
     def __init__(self, text: str) -> None:
         import pinocchio
@@ -167,17 +174,41 @@ class _Robot:
 
         return _memo(self._memo, "rnea", (q, qd, qdd), compute)
 
-    def last_link_regressor(self, q: FloatArray, qd: FloatArray, qdd: FloatArray) -> FloatArray:
-        """``(N, n, 10)``: columns of the last body in the joint-torque regressor."""
+    def regressor(self, q: FloatArray, qd: FloatArray, qdd: FloatArray) -> FloatArray:
+        """``(N, n, 10 n_b)``: the joint-torque regressor of every body
+        (:meth:`~mcpilco.models.inverse_dynamics.RigidBodyFeatures.rigid_regressor`)."""
+        from mcpilco.models.inverse_dynamics import RigidBodyFeatures
 
-        def compute() -> FloatArray:
-            out = np.empty((q.shape[0], self.n_joints, 10))
-            reg = self._pin.computeJointTorqueRegressor
-            for k in range(q.shape[0]):
-                out[k] = reg(self.model, self.data, q[k], qd[k], qdd[k])[:, -10:]
-            return out
+        if not hasattr(self, "_features"):
+            self._features = RigidBodyFeatures(self.model, blocks=("rigid",))
+        return _memo(
+            self._memo,
+            "regressor",
+            (q, qd, qdd),
+            lambda: self._features.rigid_regressor(JointStates(q, qd, qdd)),
+        )
 
-        return _memo(self._memo, "regressor", (q, qd, qdd), compute)
+    def rigid_body(self) -> RigidBody:
+        """Every body's nominal inertial parameters and the flange pose in the last body
+        (the frame named as in :data:`FLANGE_NAMES`, else the last body's last site, else
+        the body frame itself)."""
+        model = self.model
+        last = model.njoints - 1
+        params = np.stack(
+            [model.inertias[b].toDynamicParameters() for b in range(1, model.njoints)]
+        )
+        frames = [
+            f
+            for f in model.frames
+            if f.parentJoint == last and f.type == self._pin.FrameType.OP_FRAME
+        ]
+        named = [f for name in FLANGE_NAMES for f in frames if f.name == name]
+        pose = (named or frames[-1:] or [None])[0]
+        if pose is None:
+            return RigidBody(params, np.zeros(3), np.eye(3))
+        return RigidBody(
+            params, np.array(pose.placement.translation), np.array(pose.placement.rotation)
+        )
 
 
 class StartModel:
@@ -217,11 +248,6 @@ class StartModel:
         """Whether the start kernel ``K_0`` already spans every torque of ``effect`` (then the
         effect cannot be missing, only under-learned). Default: no kernel, nothing spanned."""
         return False
-
-    def last_link_regressor(self, q: FloatArray, qd: FloatArray, qdd: FloatArray) -> Any:
-        if self.robot is None:
-            return None
-        return self.robot.last_link_regressor(q, qd, qdd)
 
     def spec(self) -> dict[str, Any]:
         raise NotImplementedError
@@ -278,7 +304,7 @@ class LearnedStart(StartModel):
 
     Args:
         joint_types: e.g. ``"RRPR"`` (one letter per joint).
-        robot: optional MJCF/URDF (path or text) for the payload candidate's columns.
+        robot: optional MJCF/URDF (path or text) for the inertial candidates (links, payload).
         adam_iters, lbfgs_iters: optimisation of the start kernel's hyperparameters.
         converge_nats: stop the extra L-BFGS rounds when one gains less than this (nats).
         max_rounds: most extra rounds (0: the fixed budget only).

@@ -1,17 +1,25 @@
 """The diagnosis loop on files: compare a robot model with measurements, see where it fails,
 find the missing physical effect, add it, watch the error fall (``mcpilco-diagnose``).
 
-:func:`run_diagnosis` runs the five steps of :mod:`mcpilco.models.diagnosis` on training and
+:func:`run_diagnosis` runs the steps of :mod:`mcpilco.models.diagnosis` on training and
 held-out files and reports each step as text lines (``log``). Start model: a nominal robot
 file (MJCF or URDF, rigid-body physics), or a GIP / RBF GP learned on the training files
 (the joint types set the joint count and which joints are angles; a robot file then only
-gives the payload candidate its regressor). Without held-out files the last training file
-(or, with one file, its last 30%) is held out. Effects are added by name (``coulomb:2``) or
-automatically, best first (missing effects before refinements inside a learned start's
-span), while one is significant; what the data cannot tell apart from an added effect is
-reported as its alternative and only ever put in its place
-(:func:`~.search.next_version`). Every version is saved as ``<out>/models/model_v<k>.json``
-(never overwritten).
+gives the inertial candidates, every link and the payload, their regressor). Without
+held-out files the last training file (or, with one file, its last 30%) is held out.
+Effects are added by name (``coulomb:2``) or automatically, best first (missing effects
+before refinements inside a learned start's span), while one is significant; what the data
+cannot tell apart from an added effect is reported as its alternative and only ever put in
+its place (:func:`~.search.next_version`). Every version is saved as
+``<out>/models/model_v<k>.json`` (never overwritten).
+
+Motor-current files (columns ``i1..in``) are put into torque units first, ``y = k_t i``: with
+the given ``torque_constants``, and for the joints without one with constants estimated on the
+training files against the robot file (:mod:`~.units`; joints the data cannot pin down stop
+the run with their names); ``k_t`` and its interval are reported, and its uncertainty is
+kept either in the model (a free scale of the model torque, ``scale:j``, so that it is never
+named as an offset, spring or cogging) or in the noise floor. A learned start without a robot
+file has no torque units: without given constants its loop stays in amperes.
 
 Every held-out error is read against the noise floor of :func:`~.search.heldout_floor`
 (measurement noise plus the noise that estimated ``qd``/``qdd`` carry into the prediction);
@@ -19,8 +27,16 @@ the final verdict (:meth:`~.search.Diagnosis.verdict` of the last version) says 
 significant missing effect" only when every joint is at that floor, and otherwise
 "unexplained" with the joint, its error in floors and the residual's structure.
 
+With a nominal MJCF start, the last version's effects are written back as
+``corrected.xml`` with the side record ``corrected_effects.json``, refined by
+``mujoco.sysid`` into ``refined.xml`` (unless ``sysid`` is false), and the free-run
+simulation error of the nominal, corrected and refined files on the held-out logs is reported
+next to their one-step torque error (:func:`~.sysid_refine.robot_file_step`; torque logs).
+
 Outputs under ``out``: ``compare_v<k>.png`` (measured vs predicted +-2 sigma),
-``residuals_v<k>.png``, ``waterfall.png``, ``diagnosis.rrd`` (Rerun), ``summary.json``.
+``residuals_v<k>.png``, ``waterfall.png``, ``diagnosis.rrd`` (Rerun), ``summary.json``, and
+``report.html`` (:class:`~.html_report.DiagnosisReport`: one self-contained file with the
+tables, the figures, the verdict and the residual's structure).
 """
 
 from __future__ import annotations
@@ -48,9 +64,11 @@ def run_diagnosis(
     threshold: float = 5.0,
     max_points: int = 600,
     gip_iters: int = 100,
+    torque_constants: Sequence[float | None] | None = None,
     out: str | Path = "results/diagnosis_run",
     plots: bool = True,
     rerun: bool = True,
+    sysid: bool = True,
     log: Callable[[str], None] = print,
 ) -> dict[str, Any]:
     """Run the diagnosis loop on files and write its outputs (module docstring).
@@ -67,19 +85,27 @@ def run_diagnosis(
         threshold: log-evidence threshold of a significant effect [nats].
         max_points: GP rows of a learned start.
         gip_iters: Adam iterations of a learned start's fit.
+        torque_constants: joint-side torque constants ``k_t`` [N m/A or N/A], one per joint,
+            for current files; ``None``/``nan`` entries, or all when not given, are
+            estimated (:mod:`~.units`).
         out: output folder (created).
         plots, rerun: write the PNG figures / the Rerun recording.
+        sysid: refine the corrected robot file with ``mujoco.sysid`` (nominal MJCF start).
         log: receives the report, one block of text at a time.
 
     Returns:
         The summary written to ``out/summary.json``: ``versions``, ``heldout_rmse`` (one row
         per version), ``noise_floor`` (of the last version), ``rmse_over_floor`` (one row per
         version, each over its own floor), ``verdict`` (the last version's), ``diagnoses``,
-        ``saved``, ``artefacts``, ``data_warnings``, ``seconds``.
+        ``saved``, ``artefacts``, ``data_warnings``, ``torque_constants`` (current files
+        in torque units: ``k_t`` per joint with its 95% interval; else ``None``),
+        ``robot_file`` (the corrected robot file's record, or ``None``), ``seconds``,
+        ``report`` (the path of ``report.html``).
 
     Raises:
         ValueError: bad input (no start model, unreadable or too short files, a joint count
-            that differs from the model's, ``out`` a file), with a message naming it.
+            that differs from the model's, ``out`` a file, bad torque constants or ones the
+            data cannot pin down), with a message naming it.
     """
     from mcpilco.models.diagnosis import (
         LEARNED_STARTS,
@@ -95,6 +121,8 @@ def run_diagnosis(
         residual_report,
     )
     from mcpilco.models.diagnosis.data import MIN_FIT_ROWS, MIN_HELDOUT_ROWS, require_rows
+    from mcpilco.models.diagnosis.html_report import DiagnosisReport, weight_correlations
+    from mcpilco.models.diagnosis.units import currents_to_torque
 
     t_start = time.perf_counter()
     if model is None and learned is None:
@@ -125,13 +153,19 @@ def run_diagnosis(
     data_warnings = list(dict.fromkeys(train.warnings + test.warnings))
     for text in data_warnings:
         log(f"warning: {text}")
+    train, test, constants = currents_to_torque(train, test, start, torque_constants)
+    if constants is not None:
+        log(f"\n== 0. units: {constants.text()}")
+    elif train.output == "i":
+        log("\n== 0. units: currents without torque constants; the loop works in A")
     out = Path(out)
     if out.exists() and not out.is_dir():
         raise ValueError(f"--out {out} is a file; give a folder")
     out.mkdir(parents=True, exist_ok=True)
     unit = "A" if train.output == "i" else None
 
-    model = DiagnosisModel(start, max_points=max_points).fit(train)
+    scales = [] if constants is None else constants.effects()  # k_t still free (.units)
+    model = DiagnosisModel(start, scales, max_points=max_points).fit(train)
     log(f"\n== 1. compare: {model.describe()}")
     versions = [model]
 
@@ -145,6 +179,8 @@ def run_diagnosis(
         return {"rows": rows, "mean": mean_te, "var": var_te}
 
     floors: dict[str, np.ndarray] = {}
+    reports: dict[str, Any] = {}  # version name -> its held-out ResidualReport
+    figures: list[tuple[str, Path]] = []  # (caption, PNG) for the HTML report
 
     def floor(m: DiagnosisModel) -> np.ndarray:
         if m.name not in floors:
@@ -155,6 +191,7 @@ def run_diagnosis(
         rep = residual_report(
             test, res["mean"], floor(m), start.joint_types, model_name=m.name, unit=unit
         )
+        reports[m.name] = rep
         log(f"\n== 2. {rep.text()}")
         if plots:
             from mcpilco.models.diagnosis.plots import plot_residuals, plot_time
@@ -168,6 +205,7 @@ def run_diagnosis(
                 title=m.describe(),
             )
             p2 = plot_residuals(rep, out / f"residuals_{m.name}.png")
+            figures.extend([(f"held-out, {m.describe()}", p1), (f"residuals of {m.name}", p2)])
             log(f"   plots: {p1}  {p2}")
 
     res = {model.name: compare(model)}
@@ -249,6 +287,10 @@ def run_diagnosis(
         )
     for k, p in artefacts.items():
         log(f"   {k}: {p}")
+    if "waterfall" in artefacts:
+        figures.append(
+            ("held-out RMSE per version over the noise floor", Path(artefacts["waterfall"]))
+        )
     if len(versions) > 1:
         last = versions[-1]
         where(last, res[last.name])
@@ -257,6 +299,12 @@ def run_diagnosis(
                 last, test, threshold=threshold, alternatives=alternatives
             )
             log(diag_obj[last.name].table(6))
+    robot_file = None
+    if isinstance(start, NominalStart):
+        from mcpilco.models.diagnosis.sysid_refine import robot_file_step
+
+        log("\n== 6. the corrected robot file")
+        robot_file = robot_file_step(versions[-1], train, test, out, sysid=sysid, log=log)
     final = diag_obj[versions[-1].name].verdict()
     log(f"\nverdict: {final}")
     summary = {
@@ -269,10 +317,70 @@ def run_diagnosis(
         "saved": saved,
         "artefacts": artefacts,
         "data_warnings": data_warnings,
+        "robot_file": robot_file,
+        "torque_constants": None if constants is None else constants.to_dict(),
         "seconds": time.perf_counter() - t_start,
     }
+    report = DiagnosisReport(
+        title=f"Model diagnosis: {versions[-1].start.describe()}",
+        verdict=final,
+        versions=summary["versions"],
+        heldout_rmse=held,
+        floors=np.array([floor(v) for v in versions]),
+        metrics=[row for v in versions for row in res[v.name]["rows"]],
+        diagnoses=diag_obj,
+        parameters=versions[-1].parameters(),
+        correlations=weight_correlations(versions[-1]),
+        alternatives=alternatives,
+        residuals=reports[versions[-1].name],
+        final_check=diag_obj[versions[-1].name].base,
+        figures=figures,
+        data={
+            "training files": train.names,
+            "held-out files": test.names,
+            "rows (training, held-out)": f"{train.n_samples}, {test.n_samples}",
+            "sample time": f"{train.sample_time:g} s",
+            "output": "motor current i [A]" if train.output == "i" else "joint torque tau",
+            **({} if constants is None else {"torque constants": constants.text()}),
+        },
+        warnings=data_warnings,
+        seconds=time.perf_counter() - t_start,
+        corrected=_corrected_parameters(robot_file),
+    )
+    summary["report"] = str(report.write(out / "report.html"))
     (out / "summary.json").write_text(json.dumps(summary, indent=1, default=float))
     for text in data_warnings:  # repeated where the report ends
         log(f"warning: {text}")
-    log(f"\nsummary: {out / 'summary.json'} ({summary['seconds']:.1f} s)")
+    log(
+        f"\nsummary: {out / 'summary.json'} ({summary['seconds']:.1f} s); "
+        f"report: {summary['report']}"
+    )
     return summary
+
+
+def _corrected_parameters(record: dict | None) -> dict | None:
+    """The report's corrected-parameter rows from :func:`~.sysid_refine.robot_file_step`'s
+    record: each written MJCF attribute with the file's value, the diagnosis value and its
+    95 % interval, the ``mujoco.sysid`` value where refined, and the free-run error of the
+    three files (None: no corrected file in this run)."""
+    if record is None or "skipped" in record:
+        return None
+    refined = {
+        (p["element"], p["attribute"]): p["value"]
+        for p in record.get("sysid", {}).get("parameters", [])
+    }
+    rows: dict = {}
+    for c in record["written"]:
+        rows[f"{c['element']} {c['attribute']}"] = {
+            "file": c["before"],
+            "diagnosis": c["after"],
+            "ci95": c["ci95"],
+            "mujoco.sysid": refined.get((c["element"], c["attribute"]), "-"),
+            "effect": c["effect"],
+        }
+    for name, rmse in record.get("free_run", {}).items():
+        if isinstance(rmse, list):
+            rows[f"free-run q RMSE, {name} file [rad]"] = {
+                "diagnosis": ", ".join(f"{x:.3g}" for x in rmse)
+            }
+    return rows

@@ -451,6 +451,30 @@ class JointGP:
         f = self.scale / self.col_scale
         return mean * f, cov * f[:, None] * f[None, :]
 
+    def prior_variance(self, theta: FloatArray) -> FloatArray:
+        """``(P,)`` prior variance ``lambda_b`` of every block weight, original units."""
+        _, _, lam = self._unpack(np.asarray(theta, dtype=np.float64))
+        f = self.scale / self.col_scale
+        return lam * f**2
+
+    def information(self, theta: FloatArray) -> FloatArray:
+        """``(P, P)`` the data's information on the block weights, original units:
+        ``Phi^T (alpha K_0 + sigma^2 I)^-1 Phi``, the curvature of the log-likelihood of the
+        weights with the start function marginalised (the posterior precision without the
+        prior's ``Lambda^-1``). A direction it does not curve is one the data do not fix."""
+        theta = np.asarray(theta, dtype=np.float64)
+        if not self.sizes:
+            return np.zeros((0, 0))
+        alpha, s2, _ = self._unpack(theta)
+        if self.has_kernel:
+            D = alpha * self.S + s2
+            A = (self.Psi / D[:, None]).T @ self.Psi
+        else:
+            R = self._least_squares()[0]
+            A = R.T @ R / s2
+        f = self.scale / self.col_scale
+        return A / f[:, None] / f[None, :]
+
     def block_slices(self) -> list[slice]:
         out, k = [], 0
         for p in self.sizes:

@@ -47,6 +47,7 @@ from mcpilco.models.inverse_dynamics.rigid_body import (
     FisherianEstimator,
     RigidBodyFeatures,
     load_pinocchio_model,
+    pseudo_inertia,
 )
 
 __all__ = [
@@ -69,6 +70,7 @@ __all__ = [
     "gmse",
     "input_names",
     "load_pinocchio_model",
+    "pseudo_inertia",
     "nmse",
     "rbf_kernel",
     "stack_states",

@@ -54,6 +54,7 @@ __all__ = [
     "FisherianEstimator",
     "RigidBodyFeatures",
     "load_pinocchio_model",
+    "pseudo_inertia",
 ]
 
 FEATURE_BLOCKS: tuple[str, ...] = ("rigid", "armature", "viscous", "coulomb")
@@ -125,6 +126,36 @@ def load_pinocchio_model(source: Any) -> Any:
     raise TypeError(
         f"give a pinocchio.Model, an MJCF/URDF path or text, got {type(source).__name__}"
     )
+
+
+def pseudo_inertia(phi: FloatArray) -> FloatArray:
+    """The ``4 x 4`` pseudo-inertia matrix of one body's parameters ``phi`` (pinocchio's
+    order ``[m, h_x, h_y, h_z, I_xx, I_xy, I_yy, I_xz, I_yz, I_zz]``, ``h = m c``, ``I``
+    about the frame origin):
+
+    .. math::
+
+        J = \\begin{bmatrix} \\Sigma & h \\\\ h^\\top & m \\end{bmatrix},\\qquad
+        \\Sigma = \\int r r^\\top dm = \\tfrac12 \\operatorname{tr}(I) 1_3 - I .
+
+    ``phi`` belongs to a physical body (positive mass, an inertia about the centre of mass
+    that is positive definite and obeys the triangle inequalities) exactly when ``J`` is
+    positive definite (Wensing, Kim & Slotine 2017).
+
+    Raises:
+        ValueError: ``phi`` is not 10 values.
+    """
+    phi = np.asarray(phi, dtype=np.float64)
+    if phi.shape != (10,):
+        raise ValueError(f"phi must hold the 10 inertial parameters of one body, got {phi.shape}")
+    m, h = phi[0], phi[1:4]
+    ixx, ixy, iyy, ixz, iyz, izz = phi[4:]
+    inertia = np.array([[ixx, ixy, ixz], [ixy, iyy, iyz], [ixz, iyz, izz]])
+    out = np.empty((4, 4))
+    out[:3, :3] = 0.5 * np.trace(inertia) * np.eye(3) - inertia
+    out[:3, 3] = out[3, :3] = h
+    out[3, 3] = m
+    return out
 
 
 class RigidBodyFeatures:

@@ -11,7 +11,10 @@ symbol          meaning
 ``z(q)``        configuration features: ``[cos q_b, sin q_b]`` for a revolute joint,
                 ``q_b`` for a prismatic one
 ``qd_v``        all products ``qd_i * qd_j`` with ``i <= j`` (row-major), ``n(n+1)/2``
-``v``           ``[tau, qd_v, qd, tanh(qd / eps)]`` (the last block only with a Coulomb
+``w``           ``k`` further inputs in which the accelerations are affine at a fixed
+                configuration (``num_affine``; e.g. the reference ``[q_ref, qd_ref]`` of
+                a PD controller in the loop); the input is then ``[q, qd, tau, w]``
+``v``           ``[tau, qd_v, qd, tanh(qd / eps), w]`` (the Coulomb block only with an
                 ``eps``), see :func:`rigid_body_feature_names`
 ==============  =====================================================================
 """
@@ -34,21 +37,25 @@ __all__ = [
 ]
 
 
-def rigid_body_feature_dim(joint_types: str, coulomb: bool = False) -> int:
-    """Dimension of :math:`\\mathbf v`: ``n + n(n+1)/2 + n`` (``+ n`` with Coulomb)."""
+def rigid_body_feature_dim(joint_types: str, coulomb: bool = False, num_affine: int = 0) -> int:
+    """Dimension of :math:`\\mathbf v`: ``n + n(n+1)/2 + n`` (``+ n`` with Coulomb,
+    ``+ num_affine``)."""
     n = len(check_joint_types(joint_types))
-    return n + n * (n + 1) // 2 + n + (n if coulomb else 0)
+    return n + n * (n + 1) // 2 + n + (n if coulomb else 0) + int(num_affine)
 
 
-def rigid_body_feature_names(joint_types: str, coulomb: bool = False) -> list[str]:
-    """Names of the columns of :func:`rigid_body_features` (1-based joint numbers)."""
+def rigid_body_feature_names(
+    joint_types: str, coulomb: bool = False, num_affine: int = 0
+) -> list[str]:
+    """Names of the columns of :func:`rigid_body_features` (1-based joint numbers), then
+    ``w1 .. wk`` for the ``num_affine`` further affine inputs."""
     n = len(check_joint_types(joint_types))
     names = [f"tau{i + 1}" for i in range(n)]
     names += [f"qd{i + 1}*qd{j + 1}" for i in range(n) for j in range(i, n)]
     names += [f"qd{i + 1}" for i in range(n)]
     if coulomb:
         names += [f"tanh(qd{i + 1}/eps)" for i in range(n)]
-    return names
+    return names + [f"w{i + 1}" for i in range(int(num_affine))]
 
 
 def rigid_body_features(qd: Tensor, tau: Tensor, coulomb_eps: float | None = None) -> Tensor:
@@ -132,6 +139,15 @@ class RigidBodyDynamicsKernel(DenseKernel):
     :math:`\Sigma`; an outputscale on :math:`k_q` would be an exactly redundant direction of
     the marginal likelihood and is left out.
 
+    Further inputs :math:`\mathbf w` (``num_affine``) in which the accelerations are affine
+    at a fixed configuration join :math:`\mathbf v`. A joint controller in the loop is the
+    case in point: with :math:`\boldsymbol\tau = K_p(\mathbf q_r - \mathbf q) + K_d(\dot{
+    \mathbf q}_r - \dot{\mathbf q}) + \hat{\mathbf g}(\mathbf q) + \mathbf u` the terms in
+    :math:`\mathbf q` and :math:`\dot{\mathbf q}` are already in the span, and the
+    reference :math:`\mathbf w = [\mathbf q_r, \dot{\mathbf q}_r]` enters linearly, so the
+    input ``[q, qd, u, q_r, qd_r]`` keeps the structure with the correction :math:`\mathbf u`
+    in the place of :math:`\boldsymbol\tau`.
+
     The features are built inside the kernel, so the GP input is the plain
     :math:`[\mathbf q, \dot{\mathbf q}, \boldsymbol\tau]` (a state and an action, as a
     dynamics model sees them) and gradients with respect to it flow through the feature map;
@@ -149,8 +165,9 @@ class RigidBodyDynamicsKernel(DenseKernel):
         coulomb_eps: width :math:`\epsilon > 0` of the smooth sign
             :math:`\tanh(\dot q_i / \epsilon)` (Coulomb friction features); ``None``
             (default) leaves them out (viscous friction only).
+        num_affine: number ``k`` of further inputs ``w`` after ``[q, qd, tau]`` (default 0).
         batch_shape, active_dims: as for every GPyTorch kernel; ``active_dims`` selects the
-            ``3n`` columns ``[q, qd, tau]`` out of a wider input.
+            ``3n + k`` columns ``[q, qd, tau, w]`` out of a wider input.
         lengthscale_constraint: constraint on :math:`\ell_b` (default ``Positive()``).
 
     Attributes:
@@ -169,6 +186,7 @@ class RigidBodyDynamicsKernel(DenseKernel):
         self,
         joint_types: str,
         coulomb_eps: float | None = None,
+        num_affine: int = 0,
         batch_shape: torch.Size = NO_BATCH,
         active_dims: tuple[int, ...] | None = None,
         lengthscale_constraint: Interval | None = None,
@@ -182,10 +200,15 @@ class RigidBodyDynamicsKernel(DenseKernel):
             if not coulomb_eps > 0 or coulomb_eps == float("inf"):
                 raise ValueError(f"coulomb_eps must be a finite float > 0, got {coulomb_eps}")
             coulomb_eps = float(coulomb_eps)
+        if isinstance(num_affine, bool) or not isinstance(num_affine, int) or num_affine < 0:
+            raise ValueError(f"num_affine must be an integer >= 0, got {num_affine!r}")
         n = len(jt)
-        super().__init__(ard_num_dims=3 * n, batch_shape=batch_shape, active_dims=active_dims)
+        super().__init__(
+            ard_num_dims=3 * n + num_affine, batch_shape=batch_shape, active_dims=active_dims
+        )
         self.joint_types = jt
         self.num_joints = n
+        self.num_affine = num_affine
         self.coulomb_eps = coulomb_eps
         # joint of each column of z(q): two columns (cos, sin) per revolute joint, one per prismatic
         self._z_joint = [b for b, c in enumerate(jt) for _ in range(2 if c == "R" else 1)]
@@ -194,7 +217,7 @@ class RigidBodyDynamicsKernel(DenseKernel):
         )
         self.register_constraint("raw_lengthscale", lengthscale_constraint or Positive())
         self.lengthscale = 1.0
-        d_v = rigid_body_feature_dim(jt, coulomb=coulomb_eps is not None)
+        d_v = rigid_body_feature_dim(jt, coulomb=coulomb_eps is not None, num_affine=num_affine)
         self.velocity_kernel = LinearKernel(d_v, batch_shape=self.batch_shape)
         self.velocity_kernel.Sigma_diag = 1.0 / d_v
 
@@ -239,9 +262,11 @@ class RigidBodyDynamicsKernel(DenseKernel):
     ) -> Tensor:
         self._check_inputs(x1, x2, last_dim_is_batch, self.ard_num_dims)
         n = self.num_joints
-        q1, qd1, tau1 = x1.split(n, dim=-1)
-        q2, qd2, tau2 = x2.split(n, dim=-1)
-        v1, v2 = self.velocity_features(qd1, tau1), self.velocity_features(qd2, tau2)
+        sizes = (n, n, n, self.num_affine)
+        q1, qd1, tau1, w1 = x1.split(sizes, dim=-1)
+        q2, qd2, tau2, w2 = x2.split(sizes, dim=-1)
+        v1 = torch.cat([self.velocity_features(qd1, tau1), w1], dim=-1)
+        v2 = torch.cat([self.velocity_features(qd2, tau2), w2], dim=-1)
         k_v = self.velocity_kernel.forward(v1, v2, diag=diag)
         if diag:  # k_q(q, q) = 1
             return k_v

@@ -166,3 +166,35 @@ def test_bad_effects_are_refused(arm):
         HiddenEffect("magic", 1, 1.0)
     with pytest.raises(ValueError, match="joint 5 but the arm has 3"):
         simulate_log(arm, [HiddenEffect("damping", 5, 1.0)], duration=0.1)
+
+
+def test_current_log_is_the_torque_over_the_torque_constant(arm):
+    """``torque_constants``: the file holds ``i = tau / k_t`` plus noise of ``current_noise``
+    amperes instead of torques; the motion is that of the torque log of the same seed."""
+    k_t = [0.1, -2.0, 1.5]
+    log = simulate_log(arm, duration=DURATION, seed=0, torque_constants=k_t, current_noise=0.02)
+    torque = simulate_log(arm, duration=DURATION, seed=0)
+    assert list(log.table.columns) == ["t", "q1", "q2", "q3", "i1", "i2", "i3"]
+    np.testing.assert_array_equal(log.truth.torque_constants, k_t)
+    assert log.truth.settings["torque_constants"] == k_t
+    assert "tau_noise" not in log.truth.settings
+    assert torque.truth.torque_constants is None
+    q_cols = ["q1", "q2", "q3"]
+    assert log.table[q_cols].equals(torque.table[q_cols])
+    current = log.table[["i1", "i2", "i3"]].to_numpy()
+    noise = current - log.truth.tau / np.array(k_t)
+    np.testing.assert_allclose(noise.std(axis=0), 0.02, rtol=0.15)
+    assert abs(noise.mean()) < 0.005
+
+
+@pytest.mark.parametrize(
+    "k_t, match",
+    [
+        ([1.0, 0.0, 1.0], "joint 2 has k_t = 0.0"),
+        ([1.0, float("nan"), 1.0], "joint 2 has k_t = nan"),
+        ([1.0, 2.0], "one value or 3"),
+    ],
+)
+def test_bad_torque_constants_are_refused(arm, k_t, match):
+    with pytest.raises(ValueError, match=match):
+        simulate_log(arm, duration=0.1, torque_constants=k_t)

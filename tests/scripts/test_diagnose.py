@@ -1,6 +1,8 @@
 """mcpilco-diagnose end to end on a tiny generated case, and its bad-input errors."""
 
+import base64
 import json
+import re
 
 import numpy as np
 import pandas as pd
@@ -42,11 +44,20 @@ def test_cli_loop_writes_versions_plots_and_recording(case_dir, tmp_path, capsys
         "diagnosis.rrd",
         "models/model_v0.json",
         "models/model_v1.json",
+        "corrected.xml",
+        "corrected_effects.json",
+        "refined.xml",
     ):
         assert (out / name).exists(), name
     summary = json.loads((out / "summary.json").read_text())
     rmse = np.array(summary["heldout_rmse"])
     assert rmse[1, 0] < 0.5 * rmse[0, 0]
+    # the report carries every figure of the run inside itself, byte for byte
+    report = (out / "report.html").read_text(encoding="utf-8")
+    embedded = {
+        base64.b64decode(b) for b in re.findall(r'src="data:image/png;base64,([^"]*)"', report)
+    }
+    assert {p.read_bytes() for p in out.glob("*.png")} == embedded
 
 
 def _bad(case_dir, tmp_path, edit):

@@ -31,6 +31,7 @@ from mcpilco.agents.mc_pilco import (
 )
 from mcpilco.agents.mc_pilco.backends import check_against_eager, use_fast_rollout
 from mcpilco.agents.mc_pilco.checkpoint import load_checkpoint
+from mcpilco.agents.mc_pilco.loop import make_env, run_episode
 from tests.agents.mc_pilco.toy_env import ENV_ID, TASK
 
 ROOT = Path(__file__).resolve().parents[3]
@@ -287,3 +288,28 @@ def test_resume_after_kill_on_toy_task(tmp_path):
     straight = run_mcpilco(cfg, tmp_path / "straight", progress=False, log=None, write_rrd=False)
     assert resumed.resumed_from_trial == 1
     assert [r["cost"] for r in resumed.records] == [r["cost"] for r in straight.records]
+
+
+def test_exploration_trial_length_and_bad_values(tmp_path):
+    """``explore_steps`` shortens the random trial only; the policy trials keep the horizon."""
+    cfg = toy_config(num_trials=1, explore_steps=12, opt=PolicyOptConfig(max_steps=5, min_steps=1))
+    summary = run_mcpilco(cfg, tmp_path, progress=False, log=None, write_rrd=False)
+    assert [r["steps"] for r in summary.records] == [12, TASK["horizon"]]
+    with pytest.raises(ValueError, match="explore_steps"):
+        toy_config(explore_steps=0)
+    with pytest.raises(ValueError, match=r"explore_steps \(31\) exceeds the horizon"):
+        run_mcpilco(toy_config(explore_steps=31), tmp_path / "b", progress=False, log=None)
+    with pytest.raises(ValueError, match="env_kwargs must be a mapping"):
+        toy_config(env_kwargs=[1])
+
+
+def test_env_kwargs_reach_gym_make():
+    """The dm-control adapter's own episode length follows ``env_kwargs``: with
+    ``episode_steps=80`` an 80-step horizon runs 80 steps (it stops at 60 by default)."""
+    task = TaskSpec.for_env("mcpilco/DMCCartpoleSwingUp-v0").replace(horizon=80)
+    env = make_env(task.env_id, 80, task, {"episode_steps": 80})
+    try:
+        ep = run_episode(env, lambda _s: np.zeros(1), 0, 80, task)
+    finally:
+        env.close()
+    assert ep["steps"] == 80

@@ -45,7 +45,7 @@ def test_joint_checks():
 
 
 def test_library_and_sign_flag():
-    lib = default_library(3, with_payload=False)
+    lib = default_library(3, rigid_body=False)
     assert len(lib) == 9 * 3 and not any(isinstance(e, Payload) for e in lib)
     ctx = FeatureContext(
         q=np.zeros((5, 2)),
@@ -125,7 +125,8 @@ def test_in_gip_span_matches_the_explicit_gip_feature_space():
         qdd=qdd,
         base=np.zeros_like(q),
         joint_types=jt,
-        last_link_regressor=lambda: robot.last_link_regressor(q, qd, qdd),
+        regressor=lambda: robot.regressor(q, qd, qdd),
+        rigid=robot.rigid_body(),
     )
     feats = _gip_features(jt, q, qd, qdd)
     effects = [

@@ -107,3 +107,22 @@ def test_evidence_is_exact_at_low_noise_with_a_dependent_column():
     assert np.sqrt(gp.noise_variance(theta)) == pytest.approx(noise, rel=0.1)
     w, _ = gp.weights(theta)
     assert np.sqrt(np.mean((r - block @ w) ** 2)) == pytest.approx(noise, rel=0.1)
+
+
+@pytest.mark.parametrize("with_kernel", [False, True])
+def test_information_and_prior_variance_match_dense(with_kernel):
+    """``information`` is ``Phi^T (alpha K_0 + sigma^2 I)^-1 Phi`` and, with the prior
+    precision ``Lambda^-1``, the inverse of the posterior covariance of the weights."""
+    gp, theta, K, r, X, blocks, alpha, lam = _problem(with_kernel)
+    Phi = np.concatenate(blocks, axis=1)
+    s2 = gp.noise_variance(theta)
+    K0 = (X @ X.T + 1.0) ** 2
+    noise_k = (alpha * K0 if with_kernel else 0.0) + s2 * np.eye(r.size)
+    info_ref = Phi.T @ np.linalg.solve(noise_k, Phi)
+    np.testing.assert_allclose(gp.information(theta), info_ref, rtol=1e-8)
+    prior = gp.prior_variance(theta)
+    np.testing.assert_allclose(prior, lam * gp.scale**2 / gp.col_scale**2, rtol=1e-12)
+    _, cov = gp.weights(theta)
+    np.testing.assert_allclose(
+        np.linalg.inv(cov), info_ref + np.diag(1.0 / prior), rtol=1e-6, atol=1e-8
+    )

@@ -89,6 +89,30 @@ def test_kernel_is_periodic_rbf_times_linear_kernel_on_features():
     assert not torch.allclose(k(x1 + shift_p, x2).to_dense(), expected)
 
 
+def test_affine_inputs_join_the_linear_factor():
+    """With ``num_affine = k`` the input is [q, qd, tau, w] and the kernel is
+    k_q(q, q') (sigma^2 + [v, w]^T Sigma [v', w']), written out here; its feature names end
+    with w1..wk."""
+    k = RigidBodyDynamicsKernel("RR", num_affine=3).double()
+    with torch.no_grad():
+        for p in k.parameters():
+            p.normal_(generator=torch.Generator().manual_seed(5))
+    g = torch.Generator().manual_seed(6)
+    x1 = torch.randn(4, 9, generator=g, dtype=torch.float64)
+    x2 = torch.randn(3, 9, generator=g, dtype=torch.float64)
+    d2 = 4 * torch.sin((x1[:, None, :2] - x2[None, :, :2]) / 2) ** 2
+    k_q = torch.exp(-0.5 * (d2 / k.lengthscale.detach()[0] ** 2).sum(-1))
+    v1 = torch.cat([rigid_body_features(x1[:, 2:4], x1[:, 4:6]), x1[:, 6:]], -1)
+    v2 = torch.cat([rigid_body_features(x2[:, 2:4], x2[:, 4:6]), x2[:, 6:]], -1)
+    sigma = k.velocity_kernel.Sigma_diag.detach()
+    expected = k_q * (k.velocity_kernel.sigma2.detach() + (v1 * sigma) @ v2.T)
+    torch.testing.assert_close(k(x1, x2).to_dense(), expected, rtol=1e-12, atol=1e-12)
+    assert rigid_body_feature_names("RR", num_affine=3)[-3:] == ["w1", "w2", "w3"]
+    assert rigid_body_feature_dim("RR", num_affine=3) == v1.shape[1]
+    with pytest.raises(ValueError, match="num_affine"):
+        RigidBodyDynamicsKernel("RR", num_affine=-1)
+
+
 # --- validation ----------------------------------------------------------------------------
 
 
