@@ -55,8 +55,9 @@ Hidden effects (``HiddenEffect(kind, joint, value, ref)``; ``joint`` counts from
 ``position_friction`` (N m or N; ``ref`` in 1/rad or 1/m)
     applied ``-value (1 + 0.5 sin(ref q_j)) tanh(qd_j / FRICTION_VELOCITY)``: a dry friction
     whose level varies with position (no diagnosis candidate has this form).
-``cogging`` (N m or N; ``ref`` in 1/rad or 1/m)
-    applied ``value sin(ref q_j)``.
+``cogging`` (N m or N; ``ref`` in 1/rad or 1/m; ``phase`` in rad)
+    applied ``value sin(ref q_j + phase)`` (the actuator then supplies the opposite torque:
+    ``value sin(ref q_j + phase + pi)``).
 
 The applied forces (``qfrc_applied``) are evaluated from the state at the start of every
 physics step (explicit in time).
@@ -68,17 +69,20 @@ Measurement model (sample time ``T = substeps dt``; defaults ``dt = 1`` ms, ``T 
   rad (``1 / counts_per_metre`` m for prismatic joints) read with electrical noise
   ``e_k ~ N(0, (encoder_noise s)^2)`` (``encoder_noise`` in counts); ``q_k`` lies on the
   encoder grid ``s Z``. The quantisation alone has a standard deviation ``s / sqrt(12)``.
-* ``tau_k = tau(t_k) + n_k``, ``n_k ~ N(0, tau_noise^2)`` [N m or N]: the actuator torque
-  applied over the physics step that starts at ``t_k``, measured with noise.
+* ``tau_k = tau(t_k - d) + n_k``, ``n_k ~ N(0, tau_noise^2)`` [N m or N]: the actuator torque
+  applied over the physics step that starts at ``t_k - d``, measured with noise. ``d``
+  (``tau_delay``, per joint, default 0) is a measurement delay: the torque column lags the
+  positions (a time-stamp offset between two buses); between physics steps ``tau`` is
+  interpolated linearly, before the first step it is the first step's.
 * or, with ``torque_constants`` ``k_t`` (one per joint, joint side: ``k_t = K_tau K_r``, the
   motor's torque constant times the gear ratio, negative for a motor mounted reversed), the
-  motor currents ``i_k = tau(t_k) / k_t + m_k``, ``m_k ~ N(0, current_noise^2)`` [A]: what a
+  motor currents ``i_k = tau(t_k - d) / k_t + m_k``, ``m_k ~ N(0, current_noise^2)`` [A]: what a
   drive that reports currents logs, in place of ``tau_k`` (the table's values are
   ``arm.joint_array("torque_constant") * arm.joint_array("gear")``).
 
 Ground truth (:class:`LogTruth`) per sample: the exact ``q, qd`` and ``qdd`` (MuJoCo's
 ``qacc`` of the true model at that state and torque: the equation-of-motion acceleration),
-the noise-free ``tau``, and the reference. Without hidden effects and noise,
+the noise-free ``tau``, and the reference. Without hidden effects, delay and noise,
 ``tau_k`` equals the nominal model's inverse dynamics (``mj_inverse``) at
 ``(q, qd, qdd)(t_k)``; with effects, ``tau_k - ID_nom`` is the effects' torque.
 
@@ -149,12 +153,14 @@ class HiddenEffect:
         value: size of the effect (units per kind in the module docstring).
         ref: second parameter: ``springref`` of ``stiffness``, spatial frequency of
             ``position_friction``/``cogging``, offset of ``payload``.
+        phase: phase of ``cogging`` at ``q_j = 0`` [rad].
     """
 
     kind: str
     joint: int
     value: float
     ref: float = 0.0
+    phase: float = 0.0
 
     def __post_init__(self) -> None:
         if self.kind not in EFFECT_KINDS:
@@ -172,7 +178,8 @@ class LogTruth:
     Attributes:
         q, qd, qdd: exact ``(N, n)`` joint positions, velocities and equation-of-motion
             accelerations of the true model at the logged instants.
-        tau: ``(N, n)`` applied torque before the measurement noise.
+        tau: ``(N, n)`` torque applied at the logged instants (before the measurement delay
+            and noise).
         q_ref, qd_ref: ``(N, n)`` the controller's reference.
         effects: the hidden effects.
         settings: controller gains, encoder steps, noise levels, timestep, sample time, and
@@ -274,7 +281,7 @@ def _applied_force(effects: Sequence[HiddenEffect], q: FloatArray, qd: FloatArra
             level = e.value * (1.0 + 0.5 * math.sin(e.ref * q[j]))
             out[j] -= level * math.tanh(qd[j] / FRICTION_VELOCITY)
         elif e.kind == "cogging":
-            out[j] += e.value * math.sin(e.ref * q[j])
+            out[j] += e.value * math.sin(e.ref * q[j] + e.phase)
     return out
 
 
@@ -343,6 +350,7 @@ def simulate_log(
     counts_per_metre: float = 1e6,
     encoder_noise: float = 0.3,
     tau_noise: ArrayLike = 0.05,
+    tau_delay: ArrayLike = 0.0,
     reference: SumOfSinusoids | None = None,
     torque_constants: ArrayLike | None = None,
     current_noise: ArrayLike = 0.01,
@@ -364,6 +372,8 @@ def simulate_log(
             quantisation (0: quantisation only).
         tau_noise: standard deviation of the torque measurement noise [N m or N], one value
             or one per joint.
+        tau_delay: measurement delay ``d`` of the torque columns [s] (>= 0), one value or one
+            per joint.
         reference: the joint reference; default a random one from ``seed``.
         torque_constants: joint-side torque constants ``k_t`` [N m/A or N/A], one value or one
             per joint (finite, nonzero): the log then holds motor currents ``i = tau / k_t``
@@ -404,7 +414,9 @@ def simulate_log(
     applied = any(e.kind in APPLIED_KINDS for e in effects)
 
     n_samples = int(math.floor(duration / (timestep * substeps))) + 1
+    delay = _per_joint(tau_delay, n, "tau_delay")
     rec = {k: np.zeros((n_samples, n)) for k in ("q", "qd", "qdd", "tau", "q_ref", "qd_ref")}
+    tau_steps = np.zeros((n_samples * substeps, n))  # the torque of every physics step
     data.qpos[:] = q0
     data.qvel[:] = qd0
     for k in range(n_samples):
@@ -418,6 +430,7 @@ def simulate_log(
             if applied:
                 data.qfrc_applied[:] = _applied_force(effects, q, qd)
             mujoco.mj_step(true, data)  # qacc: acceleration at the state before the step
+            tau_steps[k * substeps + s] = tau
             if s == 0:
                 rec["q"][k], rec["qd"][k], rec["qdd"][k] = q, qd, data.qacc
                 rec["tau"][k], rec["q_ref"][k], rec["qd_ref"][k] = tau, q_ref, qd_ref
@@ -430,12 +443,20 @@ def simulate_log(
     )
     reading = rec["q"] + rng.normal(0.0, 1.0, rec["q"].shape) * encoder_noise * step
     q_meas = np.round(reading / step) * step
+    t = np.arange(n_samples) * (timestep * substeps)
+    t_steps = np.arange(n_samples * substeps) * timestep
+    logged = np.stack(
+        [
+            np.interp(t - delay[j], t_steps, tau_steps[:, j]) if delay[j] > 0 else rec["tau"][:, j]
+            for j in range(n)
+        ],
+        axis=1,
+    )
     white = rng.normal(0.0, 1.0, rec["tau"].shape)
     if k_t is None:
-        out, y_meas = "tau", rec["tau"] + white * sigma_tau
+        out, y_meas = "tau", logged + white * sigma_tau
     else:
-        out, y_meas = "i", rec["tau"] / k_t + white * sigma_i
-    t = np.arange(n_samples) * (timestep * substeps)
+        out, y_meas = "i", logged / k_t + white * sigma_i
     cols: dict[str, FloatArray] = {"t": t}
     cols.update({f"q{j + 1}": q_meas[:, j] for j in range(n)})
     cols.update({f"{out}{j + 1}": y_meas[:, j] for j in range(n)})
@@ -449,6 +470,7 @@ def simulate_log(
         "kd": kd.tolist(),
         "encoder_step": step.tolist(),
         "encoder_noise": encoder_noise,
+        "tau_delay": delay.tolist(),
     }
     if k_t is None:
         settings["tau_noise"] = sigma_tau.tolist()

@@ -52,6 +52,7 @@ import dataclasses
 import datetime
 import json
 import math
+import os
 import time
 import warnings
 from collections.abc import Sequence
@@ -462,3 +463,160 @@ def run_benchmark(
     text = markdown(records, summary, title, intro)
     out.with_suffix(".md").write_text(text)
     return {"summary": summary, "records": records, "markdown": text, "sweep": sweep}
+
+
+# ----------------------------------------------------------------------------- speed
+
+SPEED_EFFECT = ("damping", 2, 0.5)
+"""Hidden effect of the speed case: viscous damping 0.5 N m s/rad on joint 2."""
+
+
+def speed_case(
+    directory: str | Path,
+    seed: int = 0,
+    n_joints: int = 3,
+    train_files: int = 3,
+    duration: float = 10.0,
+) -> dict[str, Any]:
+    """Write the speed case: a rigid random arm (``n_joints`` revolute joints, arm seed
+    ``seed``) with :data:`SPEED_EFFECT`, simulated by
+    :func:`~mcpilco.envs.robot_logs.simulate_log` (position-only files: ``t, q, tau``);
+    ``train_files`` training logs of ``duration`` s (seeds ``seed..``; 3 x 10 s at 4 ms:
+    7,503 rows) and one held-out log, and the nominal MJCF (no friction).
+
+    Returns:
+        ``{"train": [paths], "test": [path], "model": path, "joint_types", "rows"}``
+        (``rows``: training rows).
+    """
+    from mcpilco.envs.arm_builder import arm_to_xml
+    from mcpilco.envs.arms import random_arm
+    from mcpilco.envs.robot_logs import HiddenEffect, simulate_log, write_log
+
+    directory = Path(directory)
+    directory.mkdir(parents=True, exist_ok=True)
+    arm = random_arm(n_joints, seed=seed, joint_types="R" * n_joints).rigid()
+    xml = directory / "arm.xml"
+    xml.write_text(arm_to_xml(arm, friction=False))
+    effect = [HiddenEffect(*SPEED_EFFECT)]
+    paths, rows = [], 0
+    for k in range(train_files + 1):
+        log = simulate_log(arm, effect, duration=duration, seed=seed + k)
+        paths.append(str(write_log(directory / f"log{k}.csv", log)))
+        rows += len(log.table) if k < train_files else 0
+    return {
+        "train": paths[:-1],
+        "test": paths[-1:],
+        "model": str(xml),
+        "joint_types": "R" * n_joints,
+        "rows": rows,
+    }
+
+
+def time_diagnosis(case: dict[str, Any], start: str, auto: int = 3) -> dict[str, Any]:
+    """Run :func:`~mcpilco.models.diagnosis.run_diagnosis` on ``case`` (:func:`speed_case`)
+    with a nominal or a GIP start and ``--auto auto``, without plots; its wall and CPU
+    seconds (``time.process_time``: every thread of this process), verdict and versions."""
+    import tempfile
+    import warnings
+
+    from mcpilco.models.diagnosis import run_diagnosis
+
+    learned = None if start == "nominal" else (start, case["joint_types"])
+    with tempfile.TemporaryDirectory() as out, warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)  # position-only files: estimated qd
+        t0, c0 = time.perf_counter(), time.process_time()
+        summary = run_diagnosis(
+            case["train"],
+            case["test"],
+            model=case["model"],
+            learned=learned,
+            auto=auto,
+            out=out,
+            plots=False,
+            rerun=False,
+            log=lambda text: None,
+        )
+        wall, cpu = time.perf_counter() - t0, time.process_time() - c0
+    robot = Path(case["model"])
+    return {
+        "start": start,
+        "wall_s": wall,
+        "cpu_s": cpu,
+        "versions": [v.replace(str(robot), robot.name) for v in summary["versions"]],
+        "rmse_over_floor": summary["rmse_over_floor"][-1],
+        "verdict": summary["verdict"],
+    }
+
+
+def run_speed(
+    out: str | Path = "results/diagnosis_speed",
+    seed: int = 0,
+    starts: tuple[str, ...] = ("nominal", "gip"),
+    auto: int = 3,
+    workdir: str | Path | None = None,
+    train_files: int = 3,
+    duration: float = 10.0,
+) -> dict[str, Any]:
+    """Time the diagnosis loop on the speed case (:func:`speed_case`: 3 joints, 7,503
+    training rows) with each start in ``starts`` (:func:`time_diagnosis`) and write ``out``
+    ``.json`` and ``.md``. The targets: nominal start under 10 s, GIP start under 60 s
+    (``train_files``, ``duration``: a smaller case, :func:`speed_case`).
+
+    Returns:
+        ``{"case", "records", "markdown"}``.
+    """
+    import platform
+    import tempfile
+
+    with tempfile.TemporaryDirectory() as tmp:
+        case = speed_case(workdir or tmp, seed=seed, train_files=train_files, duration=duration)
+        records = [time_diagnosis(case, s, auto=auto) for s in starts]
+    info = {
+        "seed": seed,
+        "effect": list(SPEED_EFFECT),
+        "joints": len(case["joint_types"]),
+        "training_rows": case["rows"],
+        "auto": auto,
+        "cpu_count": os.cpu_count(),
+        "load_average_1min": os.getloadavg()[0] if hasattr(os, "getloadavg") else None,
+        "machine": platform.processor() or platform.machine(),
+    }
+    text = speed_markdown(info, records)
+    out = Path(out)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    payload = {
+        "command": "mcpilco-bench-diagnosis --speed",
+        "seeds": [seed],
+        "measured": datetime.date.today().isoformat(),
+        "case": info,
+        "records": records,
+    }
+    out.with_suffix(".json").write_text(json.dumps(payload, indent=1, default=float))
+    out.with_suffix(".md").write_text(text)
+    return {"case": info, "records": records, "markdown": text}
+
+
+def speed_markdown(info: dict[str, Any], records: list[dict[str, Any]]) -> str:
+    """The speed report of :func:`run_speed` (``info``: its case, ``records``: one per
+    start) as Markdown."""
+    load = info["load_average_1min"]
+    lines = [
+        f"# Diagnosis speed ({info['joints']} joints, {info['training_rows']} training rows, "
+        f"seed {info['seed']})",
+        "",
+        f"Hidden effect: {info['effect'][0]} {info['effect'][2]} on joint {info['effect'][1]}; "
+        f"`run_diagnosis(..., auto={info['auto']}, plots=False)`; {info['cpu_count']} cores, "
+        f"load average {'n/a' if load is None else f'{load:.1f}'} when it ended (wall time "
+        "depends on the other jobs; CPU time less so).",
+        "",
+        "| start | wall [s] | CPU [s] | versions | RMSE / floor (last) | verdict |",
+        "|---|---|---|---|---|---|",
+    ]
+    for r in records:
+        added = r["versions"][-1].split(" + ", 1)[-1]
+        ratio = ", ".join(f"{x:.2f}" for x in r["rmse_over_floor"])
+        lines.append(
+            f"| {r['start']} | {r['wall_s']:.1f} | {r['cpu_s']:.1f} | {len(r['versions'])} "
+            f"({added}) | {ratio} | {r['verdict'].split(':', 1)[-1].split(' (')[0].strip()} |"
+        )
+    return "\n".join(lines) + "\n"

@@ -16,6 +16,10 @@ computes only the cases without one. Writes ``OUT.json``, ``OUT.md`` and
 Example (about 20-30 s per case on one core)::
 
     mcpilco-bench-diagnosis --per-kind 3 --controls 5 --multi 5 --off-library 5 --jobs 2
+
+``--speed`` times the loop instead on one 3-joint case of 7,503 training rows with a nominal
+and a GIP start (:func:`~mcpilco.experiments.diagnosis_bench.run_speed`) and writes
+``results/diagnosis_speed.json`` and ``.md``.
 """
 
 from __future__ import annotations
@@ -26,7 +30,7 @@ from collections.abc import Sequence
 from pathlib import Path
 
 from mcpilco.agents.common.cli import console_main
-from mcpilco.experiments.diagnosis_bench import EVALUATION_FIRST_SEED, run_benchmark
+from mcpilco.experiments.diagnosis_bench import EVALUATION_FIRST_SEED, run_benchmark, run_speed
 from mcpilco.experiments.sweep import SweepError, add_sweep_arguments, runner_from_args
 
 
@@ -52,8 +56,15 @@ def main(argv: Sequence[str] | None = None) -> int:
     p.add_argument(
         "--runs-dir", type=Path, default=Path("runs/bench_diagnosis"), help="per-case records"
     )
+    p.add_argument("--speed", action="store_true", help="time the 3-joint speed case instead")
     add_sweep_arguments(p)  # --jobs N (local processes, 1 thread each), --ray [ADDRESS]
     args = p.parse_args(argv)
+    if args.speed:
+        speed = run_speed(
+            "results/diagnosis_speed" if args.out == "results/diagnosis" else args.out
+        )
+        print(speed["markdown"])
+        return 0
     try:
         runner = runner_from_args(args)
     except SweepError as err:

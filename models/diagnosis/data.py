@@ -46,6 +46,7 @@ the noise they carry.
 
 from __future__ import annotations
 
+import math
 import re
 import warnings
 from collections.abc import Sequence
@@ -311,6 +312,18 @@ class Trajectories:
             inside = (rows >= a) & (rows < b)
             out[inside] = np.clip(out[inside], a, b - 1)
         return out
+
+    def at(self, values: FloatArray, rows: NDArray[np.int64], shift: float) -> FloatArray:
+        """``values`` at the rows ``rows + shift`` (``shift`` in samples, any real number):
+        linear interpolation between the two samples around each, both clipped to the row's
+        own segment (:meth:`shift_index`); a whole ``shift`` reads the samples themselves."""
+        k0 = math.floor(shift)
+        frac = float(shift) - k0
+        lower = values[self.shift_index(rows, k0)]
+        if frac == 0.0:
+            return lower
+        upper = values[self.shift_index(rows, k0 + 1)]
+        return (1.0 - frac) * lower + frac * upper
 
     def delayed(self, values: FloatArray, delay: float) -> FloatArray:
         """``values(t - delay)`` per segment by linear interpolation (clamped at the start).

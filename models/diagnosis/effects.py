@@ -10,9 +10,12 @@ so a GP can score it by adding a linear kernel ``lambda phi phi'^T`` on its bloc
 :mod:`mcpilco.models.gp.linear_gp`). Shape parameters that enter non-linearly (the
 cogging order, the Stribeck velocity, the dead-zone width, the delay) are found by a *scan*:
 one variant per value, marginalised with a uniform prior over the scan (``logsumexp - log G``).
-Continuous ones (smoothing ``eps``, Stribeck velocity ``v_s``, dead-zone width ``c``;
-:attr:`Effect.shape_grid`) are then refined around the best scan value by a bounded
-maximisation of the profile log-evidence (:func:`~.search.refine_shape`).
+Every one of them is continuous (smoothing ``eps``, Stribeck velocity ``v_s``, dead-zone
+width ``c``, cogging order ``n``, delay ``d`` in fractions of a sample;
+:attr:`Effect.shape_grid`): it is then refined around the best scan value by a bounded
+maximisation of the profile log-evidence, and reported with its likelihood-ratio interval
+(:func:`~.search.refine_shape`, :mod:`.profile`); the cogging phase gets its interval from
+the same profile.
 
 Rigid-body effects (:attr:`Effect.shared`: a link's inertial parameters, a payload) move
 several joints with *one* weight vector: ``tau_j += Y_{b,j} w`` for every joint ``j`` the
@@ -34,6 +37,7 @@ stribeck      StribeckFriction   ``[tanh(qd_j/eps), tanh(qd_j/eps)            ``
 offset        TorqueOffset       ``1`` (asymmetric friction / sensor bias)    none
 spring        Spring             ``[q_j - q_ref, 1]``: ``k (q_j - q_0)``      ``k >= 0``
 cogging       Cogging            ``[sin(n q_j), cos(n q_j)]`` (scan ``n``)    none (amplitude)
+                                 ``= A sin(n q_j + phi)``
 payload       Payload            point mass at the flange: the last body's   ``m >= 0``
                                  regressor columns times ``G`` (``[m, m p]``;
                                  one weight vector for every joint)
@@ -44,8 +48,9 @@ armature      Armature           ``qdd_j``                                    ``
 deadzone      DeadZone           ``tanh(tau_hat_j / (c rms(tau_hat_j)))``     ``delta >= 0``
                                  (backlash: the load is lost while the
                                  transmitted torque crosses zero; scan ``c``)
-delay         Delay              target shift ``tau_j(t + k dt)`` (scan       ``d >= 0``
-                                 ``k = 1..K``): measured output lags states
+delay         Delay              inputs read ``d = k dt`` earlier (scan       ``d >= 0``
+                                 ``k = 1..K``, then continuous ``k``):
+                                 measured output lags states
 ============  =================  ==========================================  ================
 
 ``tau_hat`` is the torque predicted by the start model (nominal physics or the learned
@@ -109,8 +114,15 @@ class Param:
 
 @dataclass(frozen=True)
 class ParamEstimate:
-    """Posterior estimate ``value +- ci95`` of one parameter, with its unit; ``unidentified``:
-    why the data cannot pin it down (:mod:`.identifiability`), empty when they can."""
+    """Estimate ``value +- ci95`` of one parameter, with its unit.
+
+    A weight's estimate is its posterior mean and 1.96 posterior standard deviations. A
+    shape value fitted by profile log-evidence (:mod:`.profile`) carries its 95%
+    likelihood-ratio ``interval`` ``(lo, hi)`` (not symmetric; ``ci95`` is then the larger
+    distance from ``value`` to an end), ``limited`` when an end is the search limit rather
+    than a crossing (the data do not pin that side down). ``unidentified``: why the data
+    cannot pin it down (:mod:`.identifiability`), empty when they can.
+    """
 
     name: str
     value: float
@@ -118,11 +130,36 @@ class ParamEstimate:
     unit: str
     wrong_sign: bool = False
     unidentified: str = ""
+    interval: tuple[float, float] | None = None
+    limited: bool = False
 
     def text(self) -> str:
         if self.unidentified:
             return f"{self.name}: not identifiable from these data ({self.unidentified})"
-        return f"{self.name} = {_fmt(self.value)} ± {_fmt(self.ci95)} {self.unit}"
+        unit = f" {self.unit}" if self.unit else ""
+        if self.interval is None:
+            return f"{self.name} = {_fmt(self.value)} ± {_fmt(self.ci95)}{unit}"
+        lo, hi = self.interval
+        text = f"{self.name} = {_fmt(self.value)}{unit} (95% LR interval {_fmt(lo)} to {_fmt(hi)})"
+        return text + (
+            " (not pinned down: the interval reaches the search limit)" if self.limited else ""
+        )
+
+    @classmethod
+    def from_interval(
+        cls, name: str, value: float, lo: float, hi: float, unit: str, limited: bool = False
+    ) -> ParamEstimate:
+        """An estimate with its likelihood-ratio interval ``(lo, hi)``."""
+        ci = max(value - lo, hi - value, 0.0)
+        return cls(
+            name,
+            float(value),
+            float(ci),
+            unit,
+            False,
+            interval=(float(lo), float(hi)),
+            limited=limited,
+        )
 
 
 def _fmt(x: float) -> str:
@@ -148,7 +185,9 @@ class RigidBody:
 @dataclass
 class FeatureContext:
     """What a feature block may read, per sample: ``q, qd, qdd (N, n)``, the start model's
-    torque ``base (N, n)``, ``joint_types``, the output group (``tau``/``i``), and, when a
+    torque ``base (N, n)`` (read it through :meth:`start_torque`: ``None`` until first used
+    when ``base_fn`` computes it, as a learned start's prediction is costly and only a
+    dead-zone reads it), ``joint_types``, the output group (``tau``/``i``), and, when a
     robot file is known, a callable returning the joint-torque regressor of every body
     ``(N, n, 10 n_b)`` (``regressor``; evaluated once, on first use) and the nominal body
     data (``rigid``)."""
@@ -156,12 +195,21 @@ class FeatureContext:
     q: FloatArray
     qd: FloatArray
     qdd: FloatArray
-    base: FloatArray
+    base: FloatArray | None
     joint_types: str
     output: str = "tau"
     regressor: Callable[[], FloatArray] | None = None
     rigid: RigidBody | None = None
     _regressor: FloatArray | None = dataclasses.field(default=None, repr=False)
+    base_fn: Callable[[], FloatArray] | None = dataclasses.field(default=None, repr=False)
+
+    def start_torque(self) -> FloatArray:
+        """``tau_hat (N, n)``, the start model's torque (computed once, on first use)."""
+        if self.base is None:
+            if self.base_fn is None:
+                raise ValueError("this feature context has no start-model torque")
+            self.base = self.base_fn()
+        return self.base
 
     def body_columns(self, body: int) -> FloatArray | None:
         """``(N, n, 10)``: body ``body``'s (1-based) columns of the joint-torque regressor, or
@@ -184,6 +232,9 @@ class Effect:
     """Base class. ``joint`` is 1-based; ``None`` only for effects acting on every joint."""
 
     joint: int | None = None
+    profile: tuple[ParamEstimate, ...] = dataclasses.field(
+        default=(), compare=False, repr=False, kw_only=True
+    )  # shape values with their likelihood-ratio intervals (set by the refinement)
 
     key: ClassVar[str] = ""
     title: ClassVar[str] = ""
@@ -196,6 +247,7 @@ class Effect:
     shape_bounds: ClassVar[dict[str, tuple[float, float]]] = {}  # their outer limits
     shared: ClassVar[bool] = False  # one weight vector for all its output joints
     needs_robot: ClassVar[bool] = False  # its columns come from the robot file's regressor
+    shape_params: ClassVar[dict[str, Param]] = {}  # how a shape field is reported
 
     def __post_init__(self) -> None:
         if self.all_joints:
@@ -262,6 +314,26 @@ class Effect:
         lo = below[-1] if below else x / step
         hi = above[0] if above else x * step
         return max(lo, lo_b), min(hi, hi_b)
+
+    def shape_estimate(
+        self, name: str, value: float, lo: float, hi: float, ctx: FeatureContext, limited: bool
+    ) -> ParamEstimate:
+        """The reported estimate of shape field ``name`` at ``value`` with its interval
+        ``(lo, hi)`` (:attr:`shape_params` gives its symbol and unit)."""
+        p = self.shape_params.get(name, Param(name, ""))
+        return ParamEstimate.from_interval(
+            p.name, value, lo, hi, ctx.unit(p.unit, self.joint) if p.unit else "", limited
+        )
+
+    def with_profile(
+        self, estimates: list[ParamEstimate], shape: bool = True
+    ) -> list[ParamEstimate]:
+        """``estimates`` with the :attr:`profile` entries in place of those of the same name
+        (a profile interval replaces an estimate conditional on the shape values), and with
+        ``shape`` the other profile entries (the shape values themselves) appended."""
+        prof = {p.name: p for p in self.profile}
+        out = [prof.pop(e.name, e) for e in estimates]
+        return out + list(prof.values()) if shape else out
 
     def spec(self) -> dict[str, Any]:
         """JSON-serialisable description (see :func:`effect_from_spec`)."""
@@ -353,6 +425,7 @@ class CoulombFriction(Effect):
     family: ClassVar[str] = "dry friction"
     shape_grid: ClassVar[dict[str, tuple[float, ...]]] = {"eps": EPS_SCAN}
     shape_bounds: ClassVar[dict[str, tuple[float, float]]] = {"eps": EPS_BOUNDS}
+    shape_params: ClassVar[dict[str, Param]] = {"eps": Param("eps", "{x}/s")}
     params: ClassVar[tuple[Param, ...]] = (Param("F_c", "{F}", +1),)
 
     def shape_text(self) -> str:
@@ -391,6 +464,10 @@ class StribeckFriction(Effect):
     shape_bounds: ClassVar[dict[str, tuple[float, float]]] = {
         "velocity": STRIBECK_BOUNDS,
         "eps": EPS_BOUNDS,
+    }
+    shape_params: ClassVar[dict[str, Param]] = {
+        "velocity": Param("v_s", "{x}/s"),
+        "eps": Param("eps", "{x}/s"),
     }
     params: ClassVar[tuple[Param, ...]] = (Param("F_c", "{F}", +1), Param("F_s-F_c", "{F}", +1))
 
@@ -454,20 +531,27 @@ class Spring(Effect):
 
 
 COGGING_SCAN: tuple[int, ...] = tuple(range(3, 25))
-"""Cogging orders ``n`` scanned (cycles per joint revolution/metre)."""
+"""Cogging orders ``n`` scanned (cycles per joint revolution/metre); the best is then refined
+as a continuous value (a gear ratio makes the joint-side order any number)."""
+COGGING_BOUNDS = (1.0, 100.0)  # limits of a refined order ``n``
 
 
 @dataclass(frozen=True)
 class Cogging(Effect):
-    """Cogging / position ripple ``a sin(n q_j) + b cos(n q_j)``; amplitude ``A = |(a, b)|``."""
+    """Cogging / position ripple ``a sin(n q_j) + b cos(n q_j) = A sin(n q_j + phi)``:
+    amplitude ``A = |(a, b)|``, phase ``phi = atan2(b, a)`` at ``q_j = 0``, order ``n``
+    (scanned over :data:`COGGING_SCAN`, then refined as a continuous value)."""
 
-    order: int | None = None
+    order: float | None = None
     key: ClassVar[str] = "cogging"
     title: ClassVar[str] = "cogging / position ripple"
-    params: ClassVar[tuple[Param, ...]] = (Param("A", "{F}", +1),)
+    shape_grid: ClassVar[dict[str, tuple[float, ...]]] = {"order": COGGING_SCAN}
+    shape_bounds: ClassVar[dict[str, tuple[float, float]]] = {"order": COGGING_BOUNDS}
+    shape_params: ClassVar[dict[str, Param]] = {"order": Param("n", "1/{x}")}
+    params: ClassVar[tuple[Param, ...]] = (Param("A", "{F}", +1), Param("phi", "rad"))
 
     def shape_text(self) -> str:
-        return "" if self.order is None else f"n={self.order}"
+        return "" if self.order is None else f"n={self.order:.4g}"
 
     def is_complete(self) -> bool:
         return self.order is not None
@@ -477,21 +561,38 @@ class Cogging(Effect):
             return [self]
         return [dataclasses.replace(self, order=n) for n in COGGING_SCAN]
 
+    def shape_bracket(self, name: str) -> tuple[float, float]:
+        """``n +- 1`` (the scan's step), within :attr:`shape_bounds`."""
+        lo_b, hi_b = self.shape_bounds[name]
+        return max(self.order - 1.0, lo_b), min(self.order + 1.0, hi_b)
+
     def columns(self, ctx: FeatureContext, output: int) -> FloatArray:
         nq = self.order * ctx.q[:, self.joint - 1]
         return np.stack([np.sin(nq), np.cos(nq)], axis=1)
 
     def in_gip_span(self, joint_types: str) -> bool:
         # sin/cos(n q) of a revolute joint is a polynomial of degree n in (cos q, sin q)
-        return joint_types[self.joint - 1] == "R" and self.order is not None and self.order <= 2
+        return (
+            joint_types[self.joint - 1] == "R"
+            and self.order is not None
+            and float(self.order).is_integer()
+            and self.order <= 2
+        )
 
     def estimates(
         self, mean: FloatArray, cov: FloatArray, ctx: FeatureContext, output: int
     ) -> list[ParamEstimate]:
+        """``A`` and ``phi`` at this order (delta method); the refinement's profile gives
+        ``phi`` its interval over the order's uncertainty too (:meth:`with_profile`)."""
         amp = float(np.hypot(mean[0], mean[1]))
         g = mean[:2] / amp if amp > 0 else np.array([1.0, 0.0])
         sd = math.sqrt(max(float(g @ cov[:2, :2] @ g), 0.0))  # delta method
-        return [ParamEstimate("A", amp, 1.96 * sd, ctx.unit("{F}", self.joint))]
+        h = np.array([-g[1], g[0]]) / amp if amp > 0 else np.zeros(2)  # d phi / d (a, b)
+        sd_phi = math.sqrt(max(float(h @ cov[:2, :2] @ h), 0.0)) if amp > 0 else math.pi
+        return [
+            ParamEstimate("A", amp, 1.96 * sd, ctx.unit("{F}", self.joint)),
+            ParamEstimate("phi", float(math.atan2(mean[1], mean[0])), 1.96 * sd_phi, "rad"),
+        ]
 
 
 @dataclass(frozen=True)
@@ -857,6 +958,7 @@ class DeadZone(Effect):
     needs_base: ClassVar[bool] = True
     shape_grid: ClassVar[dict[str, tuple[float, ...]]] = {"width": DEADZONE_SCAN}
     shape_bounds: ClassVar[dict[str, tuple[float, float]]] = {"width": (0.003, 0.3)}
+    shape_params: ClassVar[dict[str, Param]] = {"width": Param("c", "")}  # of rms tau_hat
     params: ClassVar[tuple[Param, ...]] = (Param("delta", "{F}", +1),)
 
     def shape_text(self) -> str:
@@ -873,11 +975,11 @@ class DeadZone(Effect):
     def calibrate(self, ctx: FeatureContext) -> Effect:
         if self.torque_scale is not None:
             return self
-        tau = ctx.base[:, self.joint - 1]
+        tau = ctx.start_torque()[:, self.joint - 1]
         return dataclasses.replace(self, torque_scale=float(np.sqrt(np.mean(tau**2))) or 1.0)
 
     def columns(self, ctx: FeatureContext, output: int) -> FloatArray:
-        tau = ctx.base[:, self.joint - 1]
+        tau = ctx.start_torque()[:, self.joint - 1]
         return _col(np.tanh(tau / (self.width * self.torque_scale)))
 
 
@@ -885,18 +987,21 @@ class DeadZone(Effect):
 class Delay(Effect):
     """Measurement/input delay: the output lags the states, ``y_j(t) = tau_j(x(t - d))``,
     ``d = samples * dt``; found by a scan over ``samples = 1..max_delay_samples`` of the
-    training files (the measured targets stay, each joint's states are read ``k`` samples
-    earlier: every variant is scored on the same samples)."""
+    training files, then refined as a continuous number of samples (states between two
+    samples linearly interpolated). The measured targets stay, each joint's states are read
+    ``d`` earlier: every variant is scored on the same samples."""
 
-    samples: int | None = None
+    samples: float | None = None
     sample_time: float | None = None
     key: ClassVar[str] = "delay"
     title: ClassVar[str] = "input/measurement delay"
     is_shift: ClassVar[bool] = True
+    shape_grid: ClassVar[dict[str, tuple[float, ...]]] = {"samples": (1.0,)}  # scan: variants()
+    shape_bounds: ClassVar[dict[str, tuple[float, float]]] = {"samples": (0.05, 1000.0)}
     params: ClassVar[tuple[Param, ...]] = (Param("d", "s", +1),)
 
     def shape_text(self) -> str:
-        return "" if self.samples is None else f"{self.samples} samples"
+        return "" if self.samples is None else f"{self.samples:.3g} samples"
 
     def is_complete(self) -> bool:
         return self.samples is not None
@@ -905,6 +1010,12 @@ class Delay(Effect):
         if self.samples is not None:
             return [self]
         return [dataclasses.replace(self, samples=k) for k in range(1, max_delay_samples + 1)]
+
+    def shape_bracket(self, name: str) -> tuple[float, float]:
+        """``k +- 1`` samples (the scan's step), within :attr:`shape_bounds` (the model
+        caps it at its ``max_delay_samples``)."""
+        lo_b, hi_b = self.shape_bounds[name]
+        return max(self.samples - 1.0, lo_b), min(self.samples + 1.0, hi_b)
 
     @property
     def delay(self) -> float:
@@ -916,9 +1027,18 @@ class Delay(Effect):
     def columns(self, ctx: FeatureContext, output: int) -> FloatArray | None:
         return None
 
+    def shape_estimate(
+        self, name: str, value: float, lo: float, hi: float, ctx: FeatureContext, limited: bool
+    ) -> ParamEstimate:
+        """The delay ``d`` [s] with its interval (``samples`` times ``sample_time``)."""
+        dt = self.sample_time or float("nan")
+        return ParamEstimate.from_interval("d", value * dt, lo * dt, hi * dt, "s", limited)
+
     def estimates(
         self, mean: FloatArray, cov: FloatArray, ctx: FeatureContext, output: int
     ) -> list[ParamEstimate]:
+        """``d`` with half a sample as its resolution (a refined delay's profile interval
+        replaces it, :meth:`with_profile`)."""
         dt = self.sample_time or float("nan")
         return [ParamEstimate("d", (self.samples or 0) * dt, 0.5 * dt, "s")]
 
@@ -969,7 +1089,7 @@ class TorqueScale(Effect):
     params: ClassVar[tuple[Param, ...]] = (Param("alpha", "", 0),)
 
     def columns(self, ctx: FeatureContext, output: int) -> FloatArray:
-        return _col(ctx.base[:, self.joint - 1])
+        return _col(ctx.start_torque()[:, self.joint - 1])
 
 
 MODEL_ONLY_EFFECTS: dict[str, type[Effect]] = {TorqueScale.key: TorqueScale}
@@ -999,8 +1119,20 @@ def parse_effect(text: str) -> Effect:
     if len(parts) > 2:
         if key not in _SHAPE_FIELD:
             raise ValueError(f"{text!r}: {key} has no shape value to fix")
-        value = float(parts[2])
-        kwargs[_SHAPE_FIELD[key]] = int(value) if key in ("cogging", "delay") else value
+        try:
+            value = float(parts[2])
+        except ValueError as err:
+            raise ValueError(f"{text!r}: the shape value must be a number") from err
+        kwargs[_SHAPE_FIELD[key]] = (
+            int(value)
+            if value.is_integer()
+            and key
+            in (
+                "cogging",
+                "delay",
+            )
+            else value
+        )
     return cls(**kwargs)
 
 
@@ -1011,7 +1143,13 @@ def effect_from_spec(spec: dict[str, Any]) -> Effect:
     known = {**EFFECTS, **MODEL_ONLY_EFFECTS}
     if key not in known:
         raise ValueError(f"unknown effect {key!r}; known effects: {', '.join(known)}")
-    return known[key](**spec)
+    profile = []
+    for p in spec.pop("profile", ()):
+        p = dict(p)
+        if p.get("interval") is not None:
+            p["interval"] = tuple(p["interval"])
+        profile.append(ParamEstimate(**p))
+    return known[key](**spec, profile=tuple(profile))
 
 
 def default_library(n_joints: int, rigid_body: bool = True) -> list[Effect]:

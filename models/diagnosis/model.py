@@ -22,9 +22,10 @@ alternates (:data:`SHARED_ROUNDS` times) the posterior of ``w`` given every join
 add ``Y_j E[w]`` and the variance ``Y_j Cov[w] Y_j^T``.
 
 Delays: ``y_j(t) = f_j(x(t - d))``. The targets always stay the measured ``y_j`` at the
-training rows ``t``; a delay of ``k`` samples on joint ``j`` moves that joint's *inputs* to
-the states ``k`` samples earlier (its effect blocks, its start-kernel Gram matrix and its
-prior mean are evaluated at ``x(t - d)``), and its predictions are ``mean_j(t - d)``. So
+training rows ``t``; a delay of ``k`` samples on joint ``j`` (any real ``k >= 0``; between two
+samples the states are interpolated linearly, :meth:`.Trajectories.at`) moves that joint's
+*inputs* to the states ``k`` samples earlier (its effect blocks, its start-kernel Gram matrix
+and its prior mean are evaluated at ``x(t - d)``), and its predictions are ``mean_j(t - d)``. So
 every delay of the scan is scored on the same measured samples, i.e. on the same noise
 realisation: shifting the targets instead would compare different noise samples whenever
 the rows are a subset (with a start kernel), whose log-likelihoods differ by
@@ -38,8 +39,9 @@ in time (the exact GP costs ``O(N^3)``).
 
 from __future__ import annotations
 
+import dataclasses
 import json
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -155,20 +157,33 @@ class DiagnosisModel:
     def context(self, traj: Trajectories, rows: NDArray[np.int64] | None = None) -> FeatureContext:
         """Feature context of ``traj`` (all rows, or ``rows``)."""
         sel = slice(None) if rows is None else rows
-        q, qd, qdd = traj.q[sel], traj.qd[sel], traj.qdd[sel]
+        return self._context_at((traj.q[sel], traj.qd[sel], traj.qdd[sel]), traj.output)
+
+    def _context_at(
+        self,
+        states: tuple[FloatArray, ...],
+        output: str,
+        base: FloatArray | None = None,
+        regressor: Callable[[], FloatArray | None] | None = None,
+    ) -> FeatureContext:
+        """Feature context at ``states = (q, qd, qdd)``; ``base``: the start model's torque
+        there, ``regressor``: the joint-torque regressor of every body, if at hand."""
+        q, qd, qdd = states
+        if regressor is None and self.start.robot is not None:
+
+            def regressor() -> FloatArray | None:
+                return self.start.robot.regressor(q, qd, qdd)
+
         return FeatureContext(
             q=q,
             qd=qd,
             qdd=qdd,
-            base=self.start.torque(q, qd, qdd),
+            base=base,
             joint_types=self.start.joint_types,
-            output=traj.output,
-            regressor=(
-                (lambda: self.start.robot.regressor(q, qd, qdd))
-                if self.start.robot is not None
-                else None
-            ),
+            output=output,
+            regressor=regressor,
             rigid=None if self.start.robot is None else self._rigid_body(),
+            base_fn=lambda: self.start.torque(q, qd, qdd),
         )
 
     def _rigid_body(self) -> Any:
@@ -176,33 +191,52 @@ class DiagnosisModel:
             self._rigid = self.start.robot.rigid_body()
         return self._rigid
 
-    def _delay_samples(self, output: int) -> int:
+    def _delay_samples(self, output: int) -> float:
         for e in self.effects:
             if isinstance(e, Delay) and e.joint - 1 == output:
-                return int(e.samples)
-        return 0
+                return float(e.samples)
+        return 0.0
 
-    def _shifted(self, shift: int) -> tuple[FeatureContext, FloatArray, tuple[FloatArray, ...]]:
-        """``(context, prior mean (N, n), (q, qd, qdd))`` at the input rows ``rows - shift``
-        (cached until the next :meth:`fit`)."""
+    def _shifted(self, shift: float) -> tuple[FeatureContext, FloatArray, tuple[FloatArray, ...]]:
+        """``(context, prior mean (N, n), (q, qd, qdd))`` at the inputs ``x(rows - shift)``
+        (``shift`` in samples, interpolated between samples; cached until the next
+        :meth:`fit`)."""
+        shift = float(shift)
         if shift not in self._shift_cache:
             traj = self.train_
-            rows = traj.shift_index(self.rows_, -shift)
-            states = (traj.q[rows], traj.qd[rows], traj.qdd[rows])
+            if shift.is_integer():
+                # whole samples: the start model's values on the whole files (kept by the
+                # start model for every shift and version), then the rows picked
+                idx = traj.shift_index(self.rows_, -int(shift))
+                full = (traj.q, traj.qd, traj.qdd)
+                states = tuple(x[idx] for x in full)
+                prior = self.start.prior_mean(*full)[idx]
+                base = prior if self.start.torque_is_prior_mean else None
+                regressor = None
+                if self.start.robot is not None:
+
+                    def regressor() -> FloatArray | None:
+                        return self.start.robot.regressor(*full)[idx]
+
+            else:
+                states = tuple(traj.at(x, self.rows_, -shift) for x in (traj.q, traj.qd, traj.qdd))
+                prior = self.start.prior_mean(*states)
+                base = prior if self.start.torque_is_prior_mean else None
+                regressor = None
             self._shift_cache[shift] = (
-                self.context(traj, rows),
-                self.start.prior_mean(*states),
+                self._context_at(states, traj.output, base, regressor),
+                prior,
                 states,
             )
         return self._shift_cache[shift]
 
-    def joint_context(self, output: int, shift: int | None = None) -> FeatureContext:
+    def joint_context(self, output: int, shift: float | None = None) -> FeatureContext:
         """Feature context of output ``output``'s inputs, ``x(rows - k)`` (``k``: ``shift``,
         default the joint's delay in samples)."""
         k = self._delay_samples(output) if shift is None else shift
         return self._shifted(k)[0]
 
-    def target(self, output: int, shift: int | None = None) -> FloatArray:
+    def target(self, output: int, shift: float | None = None) -> FloatArray:
         """Residual target ``r = y_j(rows) - m_j(x(rows - k))`` of output ``output``
         (0-based; ``k``: ``shift``, default the joint's delay in samples)."""
         k = self._delay_samples(output) if shift is None else shift
@@ -268,7 +302,7 @@ class DiagnosisModel:
             out[j] = (U, S)
         return out
 
-    def joint_gp(self, output: int, shift: int) -> JointGP:
+    def joint_gp(self, output: int, shift: float) -> JointGP:
         """Output ``output``'s GP with the current blocks, its inputs at ``x(rows - shift)``
         and the same target samples ``y_j(rows)`` and scale as the fitted one (the delay
         scan: evidences of different ``shift`` compare models of the same data)."""
@@ -292,8 +326,7 @@ class DiagnosisModel:
         ``y_j(rows + k_j)`` for a joint delayed by ``k_j`` samples."""
         traj = self.train_
         cols = [
-            traj.y[traj.shift_index(self.rows_, self._delay_samples(j)), j]
-            for j in range(self.n_joints)
+            traj.at(traj.y[:, j], self.rows_, self._delay_samples(j)) for j in range(self.n_joints)
         ]
         return np.stack(cols, axis=1)
 
@@ -327,6 +360,7 @@ class DiagnosisModel:
         refit_start: bool | None = None,
         _warm: dict[int, FloatArray] | None = None,
         backfit: bool = False,
+        _parent: DiagnosisModel | None = None,
     ) -> DiagnosisModel:
         """Fit on training trajectories (whole files).
 
@@ -346,32 +380,36 @@ class DiagnosisModel:
             self.start.robot.check(traj.n_joints)
         self.train_ = traj
         self.rows_ = self._training_rows(traj)
-        self._shift_cache: dict[int, tuple] = {}
+        self._shift_cache: dict[float, tuple] = {}
+        self.floors_: dict[int, tuple] = {}  # held-out noise floors (search.heldout_floor)
         q, qd, qdd = traj.q[self.rows_], traj.qd[self.rows_], traj.qdd[self.rows_]
         fitted = getattr(self.start, "estimator_", True) is not None
         if refit_start or (refit_start is None and not fitted):
             self.start.fit(q, qd, qdd, self._start_targets())
+            _parent = None
         self.ctx_ = self._shifted(0)[0]
         dt = traj.sample_time
         effects = []
         for e in self.effects:
             e = e.calibrate(self.ctx_)
             if isinstance(e, Delay) and e.sample_time is None:
-                e = type(e)(joint=e.joint, samples=e.samples, sample_time=dt)
+                e = dataclasses.replace(e, sample_time=dt)
             effects.append(e)
         self.effects = tuple(effects)
         shifts = [self._delay_samples(j) for j in range(self.n_joints)]
+        reused = [j for j in range(self.n_joints) if self._same_joint(_parent, j)]
         eigs: dict[int, tuple[FloatArray, FloatArray]] = {}
         if self.start.has_kernel:
             for k in sorted(set(shifts)):  # the Gram matrix at each joint's inputs
-                joints = [j for j in range(self.n_joints) if shifts[j] == k]
-                eigs.update(self._start_eig(self._shifted(k)[2], joints))
+                joints = [j for j in range(self.n_joints) if shifts[j] == k and j not in reused]
+                if joints:
+                    eigs.update(self._start_eig(self._shifted(k)[2], joints))
         self.eig_: list[tuple[FloatArray, FloatArray] | None] = [
-            eigs.get(j) for j in range(self.n_joints)
+            _parent.eig_[j] if j in reused else eigs.get(j) for j in range(self.n_joints)
         ]
         self.shared_: SharedFit | None = None
         self._sizes: list[int] | None = None
-        self._fit_joints(_warm)
+        self._fit_joints(_warm, reused, _parent)
         if self.shared_effects:  # alternate the shared weights and the joints' own fits
             for _ in range(SHARED_ROUNDS):
                 self._fit_shared()
@@ -386,11 +424,47 @@ class DiagnosisModel:
             return self.fit(traj, refit_start=False, _warm=dict(enumerate(self.theta_)))
         return self
 
-    def _fit_joints(self, warm: dict[int, FloatArray] | None) -> None:
-        """Type-II ML fit of every joint's GP on its target (``warm``: starting values)."""
+    def _same_joint(self, parent: DiagnosisModel | None, output: int) -> bool:
+        """Whether ``parent`` (the version this one derives from) fitted output ``output``'s
+        GP on the same data with the same start model and the same effects on it: its fit
+        is then this one's (:meth:`fit` reuses it and its candidate scores). Never with a
+        shared (rigid-body) effect in either: its weights couple every joint's target."""
+        if parent is None or parent.train_ is not self.train_ or parent.start is not self.start:
+            return False
+        if any(e.shared for e in (*self.effects, *parent.effects)):
+            return False
+        if not np.array_equal(parent.rows_, self.rows_):
+            return False
+        mine = [e for e in self.effects if output in e.outputs(self.n_joints)]
+        theirs = [e for e in parent.effects if output in e.outputs(parent.n_joints)]
+        return mine == theirs
+
+    def score_cache(self, output: int) -> dict[Effect, tuple]:
+        """Scores of candidate variants on output ``output`` (0-based) against this fit,
+        kept by :func:`~.search.score_effect` and shared with a later version whose fit of
+        that joint is this one's."""
+        self._check_fitted()
+        return self.scores_[output]
+
+    def _fit_joints(
+        self,
+        warm: dict[int, FloatArray] | None,
+        reused: Sequence[int] = (),
+        parent: DiagnosisModel | None = None,
+    ) -> None:
+        """Type-II ML fit of every joint's GP on its target (``warm``: starting values);
+        the joints in ``reused`` take ``parent``'s fit and candidate scores."""
         noise0 = self.start.noise_variance()
         self.gps_, self.theta_, self.evidence_ = [], [], []
+        self.scores_: list[dict[Effect, tuple]] = []
         for j in range(self.n_joints):
+            if j in reused:  # the parent's fit of this joint, and its candidate scores
+                self.gps_.append(parent.gps_[j])
+                self.theta_.append(parent.theta_[j])
+                self.evidence_.append(parent.evidence_[j])
+                self.scores_.append(parent.scores_[j])
+                continue
+            self.scores_.append({})
             base_r = self.target(j, shift=0)
             scale = float(np.sqrt(np.mean(base_r**2)) or 1.0)
             gp = JointGP(
@@ -494,7 +568,7 @@ class DiagnosisModel:
         )
         if self.train_ is not None:
             warm = {j: np.append(th, 0.0) for j, th in enumerate(self.theta_)}
-            new.fit(self.train_, refit_start=False, _warm=warm, backfit=backfit)
+            new.fit(self.train_, refit_start=False, _warm=warm, backfit=backfit, _parent=self)
         return new
 
     def replacing(self, label: str, effect: Effect, backfit: bool = False) -> DiagnosisModel:
@@ -524,7 +598,7 @@ class DiagnosisModel:
         if self.train_ is not None:
             same = effect.is_shift == self.effects[k].is_shift
             warm = dict(enumerate(self.theta_)) if same else None
-            new.fit(self.train_, refit_start=False, _warm=warm, backfit=backfit)
+            new.fit(self.train_, refit_start=False, _warm=warm, backfit=backfit, _parent=self)
         return new
 
     def add(self, effect: Effect) -> DiagnosisModel:
@@ -562,9 +636,11 @@ class DiagnosisModel:
         names = weight_names(effs, gp.sizes)
         return judge_estimates(effs[k], ests, gp, theta, k, names, self.ctx_, output)
 
-    def parameters(self) -> list[dict[str, Any]]:
+    def parameters(self, shape: bool = False) -> list[dict[str, Any]]:
         """Posterior estimates of every added effect's physical parameters (95% intervals),
-        or why the data cannot pin one down (``unidentified``, :meth:`estimates`)."""
+        or why the data cannot pin one down (``unidentified``, :meth:`estimates`); with
+        ``shape`` also its refined shape values (cogging order, smoothing, delay, ...) with
+        their likelihood-ratio intervals (:attr:`.Effect.profile`)."""
         self._check_fitted()
         rows = []
         shared = self.shared_effects
@@ -586,7 +662,7 @@ class DiagnosisModel:
                     if e not in self.block_effects(j):
                         continue
                     ests = self.estimates(e, j)
-                for p in ests:
+                for p in e.with_profile(ests, shape):
                     rows.append(
                         dict(effect=e.variant_label, output=j + 1, **p.__dict__, text=p.text())
                     )
@@ -626,7 +702,7 @@ class DiagnosisModel:
                 "log_evidence": [float(v) for v in self.evidence_],
                 "noise_std": self.noise_std_.tolist(),
                 "parameters": [
-                    {k: v for k, v in p.items() if k != "text"} for p in self.parameters()
+                    {k: v for k, v in p.items() if k != "text"} for p in self.parameters(shape=True)
                 ],
             }
         path.write_text(json.dumps(payload, indent=1))
@@ -646,6 +722,7 @@ class DiagnosisModel:
                 lbfgs_iters=start_spec.get("lbfgs_iters", 30),
                 converge_nats=start_spec.get("converge_nats", 0.5),
                 max_rounds=start_spec.get("max_rounds", 10),
+                hyper_points=start_spec.get("hyper_points"),
             )
         else:
             raise ValueError(f"unknown start model kind {start_spec['kind']!r}")

@@ -33,11 +33,13 @@ Groups (what the data cannot tell apart)
     ``indistinct_nats`` (default 2 nats, Bayes factor < e^2) the verdict says so.
 Continuous shape values
     The scan picks the best grid value of a continuous shape field (smoothing ``eps``,
-    Stribeck velocity ``v_s``, dead-zone width ``c``); :func:`refine_shape` then maximises
-    ``Delta_v`` over it, one field at a time, by bounded Brent search on ``log x`` between
-    the neighbouring grid values (the profile log-evidence: the noise and the block's prior
-    variance re-optimised at every ``x``). The refined variant is the one reported, added
-    and confirmed; the ranking evidence ``Delta`` stays the scan's marginal.
+    Stribeck velocity ``v_s``, dead-zone width ``c``, cogging order ``n``, delay ``k`` in
+    samples); :func:`refine_shape` then maximises ``Delta_v`` over it, one field at a time,
+    by bounded Brent search on ``log x`` between the neighbouring grid values (the profile
+    log-evidence: the noise and the block's prior variance re-optimised at every ``x``), and
+    reports each value with its 95% likelihood-ratio interval from that profile (and the
+    cogging phase with its own; :mod:`.profile`). The refined variant is the one reported,
+    added and confirmed; the ranking evidence ``Delta`` stays the scan's marginal.
 Alternatives (one effect per group)
     A candidate of the same physical family on the same joint as an effect in the model
     (:meth:`.Effect.same_family`: Coulomb and Stribeck are both dry friction), or one that
@@ -91,6 +93,7 @@ from mcpilco.models.diagnosis.effects import (
 )
 from mcpilco.models.diagnosis.identifiability import judge_estimates, weight_names
 from mcpilco.models.diagnosis.model import DiagnosisModel
+from mcpilco.models.diagnosis.profile import likelihood_interval, phase_interval
 from mcpilco.models.diagnosis.shared import score_shared
 from mcpilco.models.diagnosis.units import widen_estimates, without_fitted_scales
 from mcpilco.models.gp.linear_gp import single_thread
@@ -168,41 +171,72 @@ class Candidate:
 def _score_variant(
     model: DiagnosisModel, effect: Effect, output: int, judge: bool = False
 ) -> tuple[float, list[ParamEstimate], FloatArray | None]:
-    """``(Delta_v, estimates, contribution)`` of one complete variant on one output joint;
+    """``(Delta_v, estimates, contribution)`` of one complete variant on one output joint
+    (``contribution``: its fitted torque on the training rows; ``None`` for a delay);
     ``judge``: mark the estimates the data cannot pin down (:mod:`.identifiability`)."""
+    d, est, post = _fit_variant(model, effect, output, judge)
+    return d, est, _contribution(model, effect, output, post)
+
+
+def _contribution(
+    model: DiagnosisModel,
+    effect: Effect,
+    output: int,
+    post: tuple[FloatArray, FloatArray] | None,
+) -> FloatArray | None:
+    """Fitted torque ``Phi w_mean`` of a scored variant on the training rows."""
+    if post is None:
+        return None
+    return effect.calibrate(model.ctx_).columns(model.joint_context(output), output) @ post[0]
+
+
+def _fit_variant(
+    model: DiagnosisModel, effect: Effect, output: int, judge: bool = False
+) -> tuple[float, list[ParamEstimate], tuple[FloatArray, FloatArray] | None]:
+    """``(Delta_v, estimates, (mean, cov))``: the evidence gain of one complete variant on
+    one output joint, its estimates and the posterior of its block's weights (``None`` for
+    a delay). Kept in :meth:`.DiagnosisModel.score_cache` (the same variant against the same
+    fit of the joint scores the same)."""
+    e = effect.calibrate(model.ctx_)
+    cache = model.score_cache(output)
+    if (e, judge) in cache:
+        return cache[(e, judge)]
     gp, theta = model.gps_[output], model.theta_[output]
     base = model.evidence_[output]
-    e = effect.calibrate(model.ctx_)
     n_head = int(gp.has_kernel)
     if e.is_shift:
         # the same measured samples y_j(rows), the inputs k samples earlier; every
         # hyperparameter re-optimised (as for the base evidence)
-        g = model.joint_gp(output, shift=int(e.samples))
+        g = model.joint_gp(output, shift=float(e.samples))
         th, ev = g.optimise(theta)
         if e.sample_time is None:
-            e = type(e)(joint=e.joint, samples=e.samples, sample_time=model.train_.sample_time)
-        return ev - base, e.estimates(np.zeros(1), np.zeros((1, 1)), model.ctx_, output), None
-    cols = e.columns(model.joint_context(output), output)
-    if cols is None:
-        return float("nan"), [], None
-    g = gp.with_block(cols)
-    theta0 = np.append(theta, 0.0)
-    free = np.zeros(g.n_theta, bool)
-    free[n_head] = True  # noise
-    free[-1] = True  # the new block's lambda
-    th, ev = g.optimise(theta0, free=free)
-    mean, cov = g.weights(th)
-    sl = g.block_slices()[-1]
-    contribution = cols @ mean[sl]
-    ests = widen_estimates(
-        e.estimates(mean[sl], cov[sl, sl], model.ctx_, output),
-        model.train_.torque_constants,
-        output,
-    )
-    if judge:
-        names = weight_names([*model.block_effects(output), e], g.sizes)
-        ests = judge_estimates(e, ests, g, th, len(g.sizes) - 1, names, model.ctx_, output)
-    return ev - base, ests, contribution
+            e = dataclasses.replace(e, sample_time=model.train_.sample_time)
+        ests = e.estimates(np.zeros(1), np.zeros((1, 1)), model.ctx_, output)
+        out: tuple = (ev - base, ests, None)
+    else:
+        cols = e.columns(model.joint_context(output), output)
+        if cols is None:
+            out = (float("nan"), [], None)
+        else:
+            g = gp.with_block(cols)
+            theta0 = np.append(theta, 0.0)
+            free = np.zeros(g.n_theta, bool)
+            free[n_head] = True  # noise
+            free[-1] = True  # the new block's lambda
+            th, ev = g.optimise(theta0, free=free)
+            mean, cov = g.weights(th)
+            sl = g.block_slices()[-1]
+            ests = widen_estimates(
+                e.estimates(mean[sl], cov[sl, sl], model.ctx_, output),
+                model.train_.torque_constants,
+                output,
+            )
+            if judge:
+                names = weight_names([*model.block_effects(output), e], g.sizes)
+                ests = judge_estimates(e, ests, g, th, len(g.sizes) - 1, names, model.ctx_, output)
+            out = (ev - base, ests, (mean[sl], cov[sl, sl]))
+    cache[(effect.calibrate(model.ctx_), judge)] = out
+    return out
 
 
 def _judged_estimates(model: DiagnosisModel, cand: Candidate) -> list[ParamEstimate]:
@@ -252,6 +286,7 @@ def _score_shared(
     return delta, ests, {j: c @ fit.mean for j, c in zip(joints, cols, strict=True)}, effect
 
 
+@single_thread()
 def score_effect(
     model: DiagnosisModel, effect: Effect, refine: bool = False, **scan: Any
 ) -> Candidate:
@@ -267,29 +302,30 @@ def score_effect(
     outputs = effect.outputs(model.n_joints)
     variants = effect.variants(max_delay_samples=model.max_delay_samples, **scan)
     variants = [v.calibrate(model.ctx_) for v in variants]
-    deltas, ests, contribs = [], [], []
+    deltas, ests, posts = [], [], []
+    shared_contribs: dict[int, dict[int, FloatArray]] = {}
     for i, v in enumerate(variants):
         if v.shared:  # one weight vector for all its joints
             total, best_est, con, variants[i] = _score_shared(model, v)
             deltas.append(total)
             ests.append(best_est)
-            contribs.append(con)
+            posts.append({})
+            shared_contribs[i] = con
             continue
-        total, best_est, con = 0.0, [], {}
+        total, best_est, post = 0.0, [], {}
         best_d = -math.inf
         for j in outputs:
-            d, est, c = _score_variant(model, v, j)
+            d, est, p = _fit_variant(model, v, j)
             if not math.isfinite(d):
                 total = float("nan")
                 break
             total += d
-            if c is not None:
-                con[j] = c
+            post[j] = p
             if d > best_d:  # estimates from the joint that gains most
                 best_est, best_d = est, d
         deltas.append(total)
         ests.append(best_est)
-        contribs.append(con)
+        posts.append(post)
     deltas_arr = np.array(deltas)
     if not np.any(np.isfinite(deltas_arr)):
         return Candidate(effect, float("nan"), float("nan"), len(variants), [], outputs)
@@ -298,7 +334,7 @@ def score_effect(
     delta = float(logsumexp(finite) - math.log(len(variants)))
     v = variants[k]
     if v.is_shift and getattr(v, "sample_time", None) is None:
-        v = type(v)(joint=v.joint, samples=v.samples, sample_time=model.train_.sample_time)
+        v = dataclasses.replace(v, sample_time=model.train_.sample_time)
     cand = Candidate(
         effect=v,
         delta=delta,
@@ -306,7 +342,13 @@ def score_effect(
         n_variants=len(variants),
         estimates=ests[k],
         outputs=[j + 1 for j in outputs],
-        contributions=contribs[k],
+        contributions=shared_contribs[k]
+        if k in shared_contribs
+        else {
+            j: c
+            for j, p in posts[k].items()
+            if (c := _contribution(model, variants[k], j, p)) is not None
+        },
         in_start_span=model.start.spans(v),
     )
     return refine_shape(model, cand) if refine else cand
@@ -314,12 +356,20 @@ def score_effect(
 
 REFINE_XTOL = 0.01
 """Tolerance of the shape refinement on ``log x`` (1% of the value)."""
+PHASE_ORDERS = 41
+"""Orders on which the cogging phase's profile is evaluated (across the order's interval)."""
 
 
 def refine_shape(model: DiagnosisModel, cand: Candidate) -> Candidate:
     """Refine ``cand``'s continuous shape values (:attr:`.Effect.shape_grid`) in place:
     maximise ``Delta_v`` over each field in turn (bounded Brent search on ``log x`` within
-    :meth:`.Effect.shape_bracket`) and keep the result where it beats the scan's best.
+    :meth:`.Effect.shape_bracket`; a delay at most the model's ``max_delay_samples``), keep
+    the result where it beats the scan's best, and give every field its 95%
+    likelihood-ratio interval from the profile ``Delta_v(x)``
+    (:func:`.profile.likelihood_interval`; with two fields, the other held at its refined
+    value), a cogging effect also its phase's (:func:`.profile.phase_interval`). The
+    intervals are kept in the effect's :attr:`~.Effect.profile` and reported with its
+    estimates.
 
     Returns:
         ``cand`` (updated: effect, ``best_delta``, estimates, contributions).
@@ -328,35 +378,82 @@ def refine_shape(model: DiagnosisModel, cand: Candidate) -> Candidate:
     if not effect.shape_grid or effect.joint is None or not effect.is_complete():
         return cand
     output = effect.joint - 1
+    cap = float(model.max_delay_samples) if effect.is_shift else math.inf
+    seen: dict[tuple, float] = {}
+
+    def delta(e: Effect) -> float:
+        key = tuple(float(getattr(e, n)) for n in e.shape_grid)
+        if key not in seen:
+            d = _score_variant(model, e, output)[0]
+            seen[key] = d if math.isfinite(d) else -math.inf
+        return seen[key]
+
     best = (cand.best_delta, effect, cand.estimates, cand.contributions.get(output))
-    for name in effect.shape_grid:
-        current = best[1]
+    with single_thread():
+        for name in effect.shape_grid:
+            current = best[1]
 
-        def loss(log_x: float, current: Effect = current, name: str = name) -> float:
-            d, _, _ = _score_variant(
-                model, dataclasses.replace(current, **{name: float(np.exp(log_x))}), output
-            )
-            return -d if math.isfinite(d) else math.inf
+            def loss(log_x: float, current: Effect = current, name: str = name) -> float:
+                d = delta(dataclasses.replace(current, **{name: float(np.exp(log_x))}))
+                return -d if math.isfinite(d) else math.inf
 
-        lo, hi = current.shape_bracket(name)
-        if not hi > lo:
-            continue
-        with single_thread():
+            lo, hi = current.shape_bracket(name)
+            hi = min(hi, cap)
+            if not hi > lo:
+                continue
             res = minimize_scalar(
                 loss,
                 bounds=(math.log(lo), math.log(hi)),
                 method="bounded",
                 options={"xatol": REFINE_XTOL},
             )
-        if math.isfinite(res.fun) and -res.fun > best[0]:
-            trial = dataclasses.replace(current, **{name: round(float(np.exp(res.x)), 6)})
-            d, est, con = _score_variant(model, trial, output)
-            if math.isfinite(d) and d > best[0]:
-                best = (d, trial, est, con)
-    cand.best_delta, cand.effect, cand.estimates = best[0], best[1], best[2]
+            if math.isfinite(res.fun) and -res.fun > best[0]:
+                trial = dataclasses.replace(current, **{name: round(float(np.exp(res.x)), 6)})
+                d, est, con = _score_variant(model, trial, output)
+                if math.isfinite(d) and d > best[0]:
+                    best = (d, trial, est, con)
+        effect = best[1]
+        profile = []
+        for name in effect.shape_grid:
+            x_hat = float(getattr(effect, name))
+            lo_b, hi_b = effect.shape_bounds[name]
+            hi_b = min(hi_b, cap)
+
+            def prof(log_x: float, name: str = name) -> float:
+                return delta(dataclasses.replace(effect, **{name: float(np.exp(log_x))}))
+
+            u_lo, u_hi, limited = likelihood_interval(
+                prof, math.log(x_hat), best[0], math.log(lo_b), math.log(max(hi_b, x_hat))
+            )
+            lo, hi = float(np.exp(u_lo)), float(np.exp(u_hi))
+            profile.append(effect.shape_estimate(name, x_hat, lo, hi, model.ctx_, limited))
+            if effect.key == "cogging":
+                profile.append(_phase_estimate(model, effect, output, lo, hi))
+    effect = dataclasses.replace(effect, profile=tuple(profile))
+    cand.best_delta, cand.effect = best[0], effect
+    cand.estimates = effect.with_profile(best[2])
     if best[3] is not None:
         cand.contributions = {output: best[3]}
     return cand
+
+
+def _phase_estimate(
+    model: DiagnosisModel, effect: Effect, output: int, lo: float, hi: float
+) -> ParamEstimate:
+    """The cogging phase at ``q = 0`` with its profile interval over amplitude and order
+    (:func:`.profile.phase_interval`), the orders spanning the order's interval
+    ``[lo, hi]``."""
+    orders = np.unique(np.append(np.linspace(lo, hi, PHASE_ORDERS), float(effect.order)))
+    deltas, means, covs = [], [], []
+    for n in orders:
+        d, _, post = _fit_variant(model, dataclasses.replace(effect, order=float(n)), output)
+        if post is None or not math.isfinite(d):
+            continue
+        deltas.append(d)
+        means.append(post[0])
+        covs.append(post[1])
+    phi, p_lo, p_hi, limited = phase_interval(np.array(deltas), np.array(means), np.array(covs))
+    return ParamEstimate.from_interval("phi", phi, p_lo, p_hi, "rad", limited)
 
 
 def score_candidates(
@@ -391,11 +488,19 @@ def heldout_floor(
     noise its prediction inherits from estimated ``qd``/``qdd`` (:func:`.analysis.noise_floor`
     with :func:`.analysis.input_noise`), plus, for currents in torque units, the uncertainty
     of ``k_t`` on the joints whose scale the model does not fit itself
-    (:func:`.units.without_fitted_scales`); ``mean``: the model's prediction, if at hand."""
+    (:func:`.units.without_fitted_scales`); ``mean``: the model's prediction, if at hand. Kept
+    in the model (``floors_``) for the same held-out object: the loop asks for it again."""
+    model._check_fitted()
+    key = id(heldout)
+    kept = model.floors_.get(key)
+    if kept is not None and kept[0] is heldout:  # the same held-out object, this fit
+        return kept[1].copy()
     if mean is None:
         mean, _ = model.predict(heldout, with_var=False)
     inputs = input_noise(heldout, lambda tr: model.predict(tr, with_var=False)[0])
-    return noise_floor(without_fitted_scales(heldout, model.effects), mean, inputs)
+    floor = noise_floor(without_fitted_scales(heldout, model.effects), mean, inputs)
+    model.floors_[key] = (heldout, floor)
+    return floor.copy()
 
 
 @dataclass
@@ -739,6 +844,7 @@ class Diagnosis:
         }
 
 
+@single_thread()
 def diagnose(
     model: DiagnosisModel,
     heldout: Any,

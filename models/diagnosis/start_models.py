@@ -20,6 +20,9 @@ link's inertia, the payload at the flange) when a robot file is known.
 
 from __future__ import annotations
 
+import hashlib
+from collections import OrderedDict
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -84,6 +87,39 @@ def check_robot_text(text: str, source: str) -> None:
         )
 
 
+HYPER_POINTS = 200
+"""Training rows on which a learned start fits its kernel's hyperparameters (of the 600 it
+is conditioned on by default; :class:`LearnedStart`)."""
+MEMO_SIZE = 8
+"""State arrays whose RNEA / regressor / learned torque a start model keeps (least recently
+used dropped): the loop evaluates the same training and held-out states for every version."""
+
+
+def _states_key(tag: str, arrays: tuple[FloatArray, ...]) -> tuple:
+    """Content key of state arrays (shape and a BLAKE2 digest of the bytes)."""
+    h = hashlib.blake2b(digest_size=16)
+    for a in arrays:
+        a = np.ascontiguousarray(a, dtype=np.float64)
+        h.update(str(a.shape).encode())
+        h.update(a.tobytes())
+    return tag, h.digest()
+
+
+def _memo(
+    cache: OrderedDict, tag: str, arrays: tuple[FloatArray, ...], compute: Callable[[], Any]
+) -> Any:
+    """``compute()`` of the states ``arrays``, kept in ``cache`` by content (a copy out, so
+    that a caller's change never reaches the cache)."""
+    key = _states_key(tag, arrays)
+    if key in cache:
+        cache.move_to_end(key)
+    else:
+        cache[key] = compute()
+        if len(cache) > MEMO_SIZE:
+            cache.popitem(last=False)
+    return cache[key].copy()
+
+
 def _joint_types(model: Any) -> str:
     """``"RRPR"`` from a pinocchio model's joints (revolute R, prismatic P)."""
     out = []
@@ -118,6 +154,7 @@ class _Robot:
         self.data = self.model.createData()
         self.n_joints = int(self.model.nv)
         self.joint_types = _joint_types(self.model)
+        self._memo: OrderedDict = OrderedDict()
 
     def check(self, n_joints: int) -> None:
         if n_joints != self.n_joints:
@@ -127,10 +164,15 @@ class _Robot:
             )
 
     def rnea(self, q: FloatArray, qd: FloatArray, qdd: FloatArray) -> FloatArray:
-        out = np.empty_like(q)
-        for k in range(q.shape[0]):
-            out[k] = self._pin.rnea(self.model, self.data, q[k], qd[k], qdd[k])
-        return out
+        """``(N, n)`` inverse dynamics, row by row (kept for repeated states, :func:`_memo`)."""
+
+        def compute() -> FloatArray:
+            out = np.empty((q.shape[0], self.n_joints))
+            for k in range(q.shape[0]):
+                out[k] = self._pin.rnea(self.model, self.data, q[k], qd[k], qdd[k])
+            return out
+
+        return _memo(self._memo, "rnea", (q, qd, qdd), compute)
 
     def regressor(self, q: FloatArray, qd: FloatArray, qdd: FloatArray) -> FloatArray:
         """``(N, n, 10 n_b)``: the joint-torque regressor of every body
@@ -139,7 +181,12 @@ class _Robot:
 
         if not hasattr(self, "_features"):
             self._features = RigidBodyFeatures(self.model, blocks=("rigid",))
-        return self._features.rigid_regressor(JointStates(q, qd, qdd))
+        return _memo(
+            self._memo,
+            "regressor",
+            (q, qd, qdd),
+            lambda: self._features.rigid_regressor(JointStates(q, qd, qdd)),
+        )
 
     def rigid_body(self) -> RigidBody:
         """Every body's nominal inertial parameters and the flange pose in the last body
@@ -168,6 +215,7 @@ class StartModel:
     """Interface: ``fit``, ``prior_mean``, ``torque``, optional kernel ``K_0``."""
 
     kind = "start"
+    torque_is_prior_mean: bool = False  # tau_hat = m (physics); a learned start's differ
     joint_types: str = ""
     n_joints: int = 0
     robot: _Robot | None = None
@@ -216,6 +264,7 @@ class NominalStart(StartModel):
     """
 
     kind = "nominal"
+    torque_is_prior_mean = True
 
     def __init__(self, robot: str | Path, name: str | None = None) -> None:
         self.name = name or (str(robot) if len(str(robot)) < 200 else "<text>")
@@ -259,6 +308,12 @@ class LearnedStart(StartModel):
         adam_iters, lbfgs_iters: optimisation of the start kernel's hyperparameters.
         converge_nats: stop the extra L-BFGS rounds when one gains less than this (nats).
         max_rounds: most extra rounds (0: the fixed budget only).
+        hyper_points: the kernel's hyperparameters are fitted (and backfitted) on a random
+            subset of this many training rows (seeded), then the GP is conditioned on all of
+            them (``None``: on all rows). Each marginal-likelihood step costs ``O(N^2 F)``
+            for the kernel's ``F`` factors and ``O(N^3)`` for its Cholesky factor, so 200 of
+            600 rows make the fit about ten times cheaper; the diagnosis GP re-optimises the
+            kernel's scale and the noise on every training row (:class:`.DiagnosisModel`).
     """
 
     def __init__(
@@ -269,7 +324,10 @@ class LearnedStart(StartModel):
         lbfgs_iters: int = 30,
         converge_nats: float = 0.5,
         max_rounds: int = 10,
+        hyper_points: int | None = HYPER_POINTS,
     ) -> None:
+        if hyper_points is not None and hyper_points < 2:
+            raise ValueError(f"hyper_points must be >= 2 or None, got {hyper_points}")
         if converge_nats <= 0 or max_rounds < 0 or lbfgs_iters < 0 or adam_iters < 0:
             raise ValueError(
                 "need converge_nats > 0 and max_rounds, adam_iters, lbfgs_iters >= 0; got "
@@ -281,6 +339,7 @@ class LearnedStart(StartModel):
         self.lbfgs_iters = lbfgs_iters
         self.converge_nats = converge_nats
         self.max_rounds = max_rounds
+        self.hyper_points = hyper_points
         self.rounds_: int = 0
         self.robot = None if robot is None else _Robot(read_robot_text(robot))
         if self.robot is not None and self.robot.joint_types != joint_types:
@@ -289,6 +348,7 @@ class LearnedStart(StartModel):
                 f"{self.robot.joint_types!r}"
             )
         self.estimator_: GPInverseDynamics | None = None
+        self._memo: OrderedDict = OrderedDict()
 
     def make_estimator(self) -> GPInverseDynamics:
         """The unfitted GP estimator whose kernel is ``K_0``."""
@@ -299,25 +359,44 @@ class LearnedStart(StartModel):
         est.fit(np.concatenate([q, qd, qdd], axis=1), y)
         self.estimator_ = est
         self._converge(q, qd, qdd, y)
+        self._memo = OrderedDict()  # torques of the previous fit
+
+    def _hyper_data(
+        self, q: FloatArray, qd: FloatArray, qdd: FloatArray, y: FloatArray
+    ) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray]:
+        """``(X, y, X_h, y_h)``: the GP inputs of all rows and of the hyperparameter rows."""
+        X = self.estimator_.gp_inputs(JointStates(q, qd, qdd))
+        rows = getattr(self.estimator_, "hyper_rows_", None)
+        if rows is None:
+            return X, y, X, y
+        return X, y, X[rows], y[rows]
 
     def _converge(self, q: FloatArray, qd: FloatArray, qdd: FloatArray, y: FloatArray) -> None:
-        """Extra L-BFGS rounds (warm start) until one gains ``< converge_nats`` in
-        :math:`\\sum_j \\log p(y_j)`; sets ``rounds_`` (see the class docstring)."""
+        """Extra L-BFGS rounds (warm start) on the hyperparameter rows until one gains
+        ``< converge_nats`` in :math:`\\sum_j \\log p(y_j)`, then conditioned on all rows;
+        sets ``rounds_`` (see the class docstring)."""
         import warnings
 
         gp = self._gp()
         self.rounds_ = 0
         if self.max_rounds == 0 or self.lbfgs_iters == 0:
             return
-        X = self.estimator_.gp_inputs(JointStates(q, qd, qdd))
-        lml = float(gp.log_marginal_likelihood().sum())
-        for _ in range(self.max_rounds):
-            gp.fit(X, y, adam_iters=0, lbfgs_iters=self.lbfgs_iters)
-            self.rounds_ += 1
-            new = float(gp.log_marginal_likelihood().sum())
-            gain, lml = new - lml, new
-            if gain < self.converge_nats:
-                return
+        X, y, Xh, yh = self._hyper_data(q, qd, qdd, y)
+        subset = Xh is not X
+        try:
+            if subset:
+                gp.fit(Xh, yh, adam_iters=0, lbfgs_iters=0)
+            lml = float(gp.log_marginal_likelihood().sum())
+            for _ in range(self.max_rounds):
+                gp.fit(Xh, yh, adam_iters=0, lbfgs_iters=self.lbfgs_iters)
+                self.rounds_ += 1
+                new = float(gp.log_marginal_likelihood().sum())
+                gain, lml = new - lml, new
+                if gain < self.converge_nats:
+                    return
+        finally:
+            if subset:  # conditioned on every row at the fitted hyperparameters
+                gp.fit(X, y, adam_iters=0, lbfgs_iters=0)
         warnings.warn(
             f"the {self.kind} start model still gained {gain:.2f} nats in its last L-BFGS round "
             f"after {self.max_rounds} rounds (converge_nats={self.converge_nats}); candidate "
@@ -335,8 +414,11 @@ class LearnedStart(StartModel):
 
         new = copy.copy(self)  # the robot (pinocchio) is shared; the estimator is copied
         new.estimator_ = copy.deepcopy(self.estimator_)
-        X = new.estimator_.gp_inputs(JointStates(q, qd, qdd))
-        new.estimator_.gp_.fit(X, y, adam_iters=self.adam_iters, lbfgs_iters=self.lbfgs_iters)
+        new._memo = OrderedDict()
+        X, y, Xh, yh = new._hyper_data(q, qd, qdd, y)
+        new.estimator_.gp_.fit(Xh, yh, adam_iters=self.adam_iters, lbfgs_iters=self.lbfgs_iters)
+        if Xh is not X:
+            new.estimator_.gp_.fit(X, y, adam_iters=0, lbfgs_iters=0)
         new._converge(q, qd, qdd, y)
         return new
 
@@ -350,7 +432,11 @@ class LearnedStart(StartModel):
         return np.broadcast_to(mean, q.shape).copy()
 
     def torque(self, q: FloatArray, qd: FloatArray, qdd: FloatArray) -> FloatArray:
-        return self.estimator_.predict(np.concatenate([q, qd, qdd], axis=1))[0]
+        def compute() -> FloatArray:  # the posterior mean only (no variance products)
+            X = self.estimator_.gp_inputs(JointStates(q, qd, qdd))
+            return self._gp().predict_mean(X).numpy()
+
+        return _memo(self._memo, "torque", (q, qd, qdd), compute)
 
     @property
     def has_kernel(self) -> bool:
@@ -393,6 +479,7 @@ class LearnedStart(StartModel):
             "lbfgs_iters": self.lbfgs_iters,
             "converge_nats": self.converge_nats,
             "max_rounds": self.max_rounds,
+            "hyper_points": self.hyper_points,
         }
 
 
@@ -404,7 +491,10 @@ class GIPStart(LearnedStart):
 
     def make_estimator(self) -> GPInverseDynamics:
         return GIPEstimator(
-            self.joint_types, adam_iters=self.adam_iters, lbfgs_iters=self.lbfgs_iters
+            self.joint_types,
+            adam_iters=self.adam_iters,
+            lbfgs_iters=self.lbfgs_iters,
+            hyper_points=self.hyper_points,
         )
 
     def spans(self, effect: Any) -> bool:
@@ -424,7 +514,12 @@ class RBFStart(LearnedStart):
     kind = "rbf"
 
     def make_estimator(self) -> GPInverseDynamics:
-        return RBFEstimator(self.n_joints, adam_iters=self.adam_iters, lbfgs_iters=self.lbfgs_iters)
+        return RBFEstimator(
+            self.n_joints,
+            adam_iters=self.adam_iters,
+            lbfgs_iters=self.lbfgs_iters,
+            hyper_points=self.hyper_points,
+        )
 
     def describe(self) -> str:
         return f"learned RBF GP ({self.n_joints} joints)"

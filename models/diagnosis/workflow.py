@@ -49,7 +49,10 @@ from typing import Any
 
 import numpy as np
 
+from mcpilco.models.gp.linear_gp import single_thread
 
+
+@single_thread()  # the matrices are small: BLAS threads only wait for each other
 def run_diagnosis(
     train: Sequence[str | Path],
     test: Sequence[str | Path] | None = None,
@@ -233,7 +236,7 @@ def run_diagnosis(
     saved = [str(v.save(out / "models")) for v in versions]
     log(f"   saved: {', '.join(saved)}")
     for v in versions:
-        for p in v.parameters() if v is versions[-1] else []:
+        for p in v.parameters(shape=True) if v is versions[-1] else []:
             log(f"   {v.name} {p['effect']} (joint {p['output']}): {p['text']}")
 
     log("\n== 5. watch the error fall (held-out)")

@@ -48,6 +48,7 @@ from __future__ import annotations
 
 import contextlib
 import math
+import sys
 from collections.abc import Iterator, Sequence
 
 import numpy as np
@@ -88,17 +89,29 @@ def _chol(B: FloatArray) -> FloatArray | None:
 
 @contextlib.contextmanager
 def single_thread() -> Iterator[None]:
-    """One BLAS thread (threadpoolctl, when installed): the matrices of the evidence are tiny
-    and BLAS thread start-up would dominate them."""
+    """One BLAS thread (threadpoolctl, when installed), and one torch thread when torch is
+    loaded: the matrices of the evidence are tiny and BLAS thread start-up would dominate
+    them (on a loaded machine, threads that wait for a core multiply the wall time). Also a
+    decorator: ``@single_thread()``."""
+    torch = sys.modules.get("torch")
+    threads = torch.get_num_threads() if torch is not None else None
     try:
         from threadpoolctl import ThreadpoolController
     except ImportError:  # pragma: no cover - optional
-        yield
-        return
-    if not _CONTROLLER:
-        _CONTROLLER.append(ThreadpoolController())
-    with _CONTROLLER[0].limit(limits=1, user_api="blas"):
-        yield
+        ThreadpoolController = None
+    try:
+        if torch is not None:
+            torch.set_num_threads(1)
+        if ThreadpoolController is None:  # pragma: no cover - optional
+            yield
+            return
+        if not _CONTROLLER:
+            _CONTROLLER.append(ThreadpoolController())
+        with _CONTROLLER[0].limit(limits=1, user_api="blas"):
+            yield
+    finally:
+        if torch is not None:
+            torch.set_num_threads(threads)
 
 
 class JointGP:
@@ -263,12 +276,17 @@ class JointGP:
         """
         R, c, rp2 = self._least_squares()
         P = sl.shape[0]
+        m = R.shape[0]
         sig = math.sqrt(s2)
-        M = np.vstack([R * sl[None, :] / sig, np.eye(P)])
-        Q2, R2 = np.linalg.qr(M)
-        rhs = Q2[: R.shape[0]].T @ (c / sig)
-        z = solve_triangular(R2, rhs)
-        R2inv = solve_triangular(R2, np.eye(P))
+        # one Householder QR of [M, [c / sigma; 0]]: its R holds R_2 and Q_2^T [c / sigma; 0]
+        A = np.zeros((m + P, P + 1))
+        A[:m, :P] = R * (sl / sig)[None, :]
+        A[m + np.arange(P), np.arange(P)] = 1.0
+        A[:m, P] = c / sig
+        Ra = np.linalg.qr(A, mode="r")
+        R2 = Ra[:P, :P]
+        sol = solve_triangular(R2, np.column_stack([Ra[:P, P], np.eye(P)]), check_finite=False)
+        z, R2inv = sol[:, 0], sol[:, 1:]
         Binv = R2inv @ R2inv.T
         logdet_b = 2.0 * float(np.sum(np.log(np.abs(np.diag(R2)))))
         e = c - R @ (sl * z)

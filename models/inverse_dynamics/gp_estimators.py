@@ -146,9 +146,11 @@ class GPInverseDynamics(InverseDynamicsEstimator):
             output_names=[f"tau{j}" for j in range(1, n + 1)],
         )
         opt = dict(adam_iters=self.adam_iters, adam_lr=self.adam_lr, lbfgs_iters=self.lbfgs_iters)
+        self.hyper_rows_ = None  # rows of the hyperparameter fit (None: all)
         if self.hyper_points is not None and X.shape[0] > self.hyper_points:
             rng = np.random.default_rng(self.seed)
             rows = np.sort(rng.choice(X.shape[0], self.hyper_points, replace=False))
+            self.hyper_rows_ = rows
             self.gp_.fit(X[rows], y[rows], progress=self.progress, **opt)
             opt = dict(adam_iters=0, lbfgs_iters=0)  # condition on all rows, keep theta
         self.gp_.fit(X, y, max_points=self.max_points, progress=self.progress, **opt)

@@ -107,6 +107,32 @@ def test_position_dependent_friction_is_applied_as_documented(arm):
     np.testing.assert_allclose(residual(arm, log)[:, 1], expected, atol=1e-9)
 
 
+def test_cogging_is_applied_with_its_order_and_phase(arm):
+    value, order, phase = 0.2, 7.3, 1.1
+    effect = HiddenEffect("cogging", 2, value, order, phase=phase)
+    log = simulate_log(arm, [effect], duration=DURATION, seed=0, **QUIET)
+    # an applied force value sin(n q + phase): the actuator supplies its opposite
+    expected = -value * np.sin(order * log.truth.q[:, 1] + phase)
+    np.testing.assert_allclose(residual(arm, log)[:, 1], expected, atol=1e-9)
+    np.testing.assert_allclose(residual(arm, log)[:, [0, 2]], 0.0, atol=1e-9)
+
+
+def test_the_torque_columns_lag_by_the_measurement_delay(arm):
+    log = simulate_log(arm, duration=DURATION, seed=0, tau_delay=[0.0, 0.008, 0.002], **QUIET)
+    tau = log.table[["tau1", "tau2", "tau3"]].to_numpy()
+    np.testing.assert_array_equal(tau[:, 0], log.truth.tau[:, 0])
+    # 8 ms = 2 samples: the applied torque two rows earlier (the first rows repeat row 0)
+    np.testing.assert_allclose(tau[2:, 1], log.truth.tau[:-2, 1], rtol=1e-12, atol=1e-12)
+    np.testing.assert_allclose(tau[:2, 1], log.truth.tau[0, 1], rtol=1e-12)
+    # 2 ms lies between two rows: the torque of the physics step two before each row's,
+    # read from the same simulation logged at every step
+    fine = simulate_log(arm, duration=DURATION, seed=0, substeps=1, **QUIET)
+    k = np.arange(1, tau.shape[0])
+    np.testing.assert_allclose(tau[1:, 2], fine.truth.tau[4 * k - 2, 2], rtol=1e-9, atol=1e-12)
+    assert np.abs(tau[1:, 2] - log.truth.tau[1:, 2]).max() > 1e-5  # not the same rows
+    assert log.truth.settings["tau_delay"] == [0.0, 0.008, 0.002]
+
+
 def test_stiffness_and_armature_residuals(arm):
     k, ref, ia = 3.0, 0.1, 0.2
     effects = [HiddenEffect("stiffness", 1, k, ref), HiddenEffect("armature", 3, ia)]

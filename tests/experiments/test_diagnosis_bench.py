@@ -3,6 +3,7 @@ scores worked out by hand), its case plan, and one tiny simulated case end to en
 
 from __future__ import annotations
 
+import json
 import math
 
 import numpy as np
@@ -12,6 +13,7 @@ from mcpilco.experiments.diagnosis_bench import (
     LIBRARY_KINDS,
     case_plan,
     run_case,
+    run_speed,
     score_record,
 )
 from mcpilco.experiments.diagnosis_scoring import (
@@ -241,3 +243,16 @@ def test_an_effect_below_the_noise_is_not_scored_as_missed():
     seen = score_case(truth, 2, [["viscous", 1]], None, [], AT_FLOOR, size_over_noise=[3.0, 0.0])
     assert seen["below_noise"] is False and seen["top3"] is False
     assert seen["missed_at_floor"] is True
+
+
+def test_speed_part_times_the_loop_and_writes_its_report(tmp_path):
+    """A small speed case (one 2 s training log, 501 rows) with the nominal start: the
+    report holds its times and verdict, and the damping the generator hid is found."""
+    out = run_speed(tmp_path / "speed", starts=("nominal",), auto=1, train_files=1, duration=2.0)
+    (rec,) = out["records"]
+    assert out["case"]["training_rows"] == 501
+    assert rec["cpu_s"] > 0 and rec["wall_s"] > 0
+    assert "viscous:2" in rec["versions"][-1], rec["versions"]
+    data = json.loads((tmp_path / "speed.json").read_text())
+    assert data["records"][0]["verdict"] == rec["verdict"]
+    assert "| nominal |" in (tmp_path / "speed.md").read_text()

@@ -3,6 +3,8 @@ closed-form implementation; the fit continues until converged (one more round ga
 than converge_nats, or a warning); save/load keeps the kind and budget; a bad start type is
 named."""
 
+import warnings
+
 import numpy as np
 import pytest
 
@@ -86,3 +88,31 @@ def test_learned_start_rejects_bad_convergence_settings():
 def test_start_of_wrong_type_is_named():
     with pytest.raises(TypeError, match="NominalStart, GIPStart or RBFStart"):
         DiagnosisModel("robot.xml")
+
+
+def test_hyperparameters_on_a_subset_then_the_posterior_of_every_row():
+    """``hyper_points``: the kernel is fitted on 30 of 80 rows, the torque is the GP
+    posterior mean conditioned on all 80 (closed form with the start's own kernel, noise
+    and prior mean), and convergence rounds keep to the subset."""
+    q, qd, qdd, y = _planar_data(80, 1)
+    start = GIPStart("RR", adam_iters=5, lbfgs_iters=2, max_rounds=1, hyper_points=30)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)  # one round of a tiny budget
+        start.fit(q, qd, qdd, y)
+    assert start.estimator_.hyper_rows_.size == 30 and start.rounds_ == 1
+    assert start.estimator_.gp_.train_x_.shape[0] == 80
+    test = _planar_data(7, 2)[:3]
+    K = start.kernel((q, qd, qdd), (q, qd, qdd))
+    Ks = start.kernel(test, (q, qd, qdd))
+    noise, mean = start.noise_variance(), start.prior_mean(q[:1], qd[:1], qdd[:1])[0]
+    expected = np.stack(
+        [
+            mean[j] + Ks[j] @ np.linalg.solve(K[j] + noise[j] * np.eye(80), y[:, j] - mean[j])
+            for j in range(2)
+        ],
+        axis=1,
+    )
+    np.testing.assert_allclose(start.torque(*test), expected, rtol=1e-6, atol=1e-8)
+    assert GIPStart("RR").hyper_points == 200
+    with pytest.raises(ValueError, match="hyper_points"):
+        GIPStart("RR", hyper_points=1)
