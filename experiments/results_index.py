@@ -460,6 +460,14 @@ def _torque_constants(data: dict[str, Any]) -> str:
     )
 
 
+def _diagnosis_speed(data: dict[str, Any]) -> str:
+    rows = data["case"].get("training_rows", "?")
+    times = ", ".join(
+        f"{r['start']} {r['wall_s']:.0f} s wall ({r['cpu_s']:.0f} s CPU)" for r in data["records"]
+    )
+    return f"3 joints, {rows} training rows: {times}"
+
+
 def _sweep(data: dict[str, Any]) -> str:
     by = {}
     for s in data["summary"]:
@@ -634,6 +642,12 @@ REGISTRY: tuple[Headline, ...] = (
         "torque_constants.json",
         _torque_constants,
         "torque_constants.md",
+    ),
+    Headline(
+        "Diagnosis speed",
+        "diagnosis_speed.json",
+        _diagnosis_speed,
+        "diagnosis_speed.md",
     ),
     Headline(
         "Sweeps",
