@@ -100,7 +100,7 @@ def load_pinocchio_model(source: Any) -> Any:
             if "<robot" in text:
                 return pin.buildModelFromUrdf(str(path))
             if "<mujoco" in text:
-                return pin.buildModelFromMJCF(str(path))
+                return with_mujoco_inertias(pin.buildModelFromMJCF(str(path)), path=path)
         except RuntimeError as err:
             raise ValueError(f"pinocchio cannot build the robot in {path}: {err}") from err
         raise ValueError(f"{path} is neither MJCF (<mujoco>) nor URDF (<robot>)")
@@ -116,7 +116,7 @@ def load_pinocchio_model(source: Any) -> Any:
             try:
                 with os.fdopen(fd, "w") as fh:
                     fh.write(source)
-                return pin.buildModelFromMJCF(name)
+                return with_mujoco_inertias(pin.buildModelFromMJCF(name), text=source)
             except RuntimeError as err:  # named after the text, not the temporary file
                 msg = " ".join(str(err).replace(name, "<MJCF text>").split())
                 raise ValueError(f"pinocchio cannot build the MJCF robot: {msg}") from err
@@ -126,6 +126,75 @@ def load_pinocchio_model(source: Any) -> Any:
     raise TypeError(
         f"give a pinocchio.Model, an MJCF/URDF path or text, got {type(source).__name__}"
     )
+
+
+MUJOCO_MATCH_RTOL = 1e-6
+"""Relative agreement with ``mj_inverse`` that an MJCF model read by pinocchio must reach."""
+
+
+def with_mujoco_inertias(model: Any, path: Path | None = None, text: str | None = None) -> Any:
+    """``model`` (read from an MJCF by pinocchio) with every link's inertia as MuJoCo compiles
+    it, where the two disagree.
+
+    Pinocchio's MJCF importer does not apply every rule of the format (a ``<default>``
+    class's geom ``mass``, for one, is read as the density's mass), while MuJoCo defines
+    what the file means. When each MuJoCo body but the world carries exactly one joint, in
+    the order of pinocchio's joints, link ``i`` gets MuJoCo's mass, centre of mass and
+    inertia of joint ``i``'s body (expressed in the joint frame, the body frame shifted by
+    the joint's ``pos``). The result is kept only if its inverse dynamics then equal MuJoCo's
+    ``mj_inverse`` (passive forces and constraints switched off) within
+    :data:`MUJOCO_MATCH_RTOL` on random states; otherwise ``model`` is returned as read."""
+    import mujoco
+
+    pin = _import_pinocchio()
+    try:
+        mj = (
+            mujoco.MjModel.from_xml_path(str(path))
+            if path is not None
+            else mujoco.MjModel.from_xml_string(text)
+        )
+    except (ValueError, TypeError):
+        return model
+    hinge_slide = (int(mujoco.mjtJoint.mjJNT_HINGE), int(mujoco.mjtJoint.mjJNT_SLIDE))
+    if (
+        mj.njnt != model.njoints - 1
+        or mj.nbody != mj.njnt + 1
+        or any(int(t) not in hinge_slide for t in mj.jnt_type)
+        or any(int(n) != 1 for n in mj.body_jntnum[1:])
+    ):
+        return model
+    aligned = model.copy()
+    for i in range(1, model.njoints):
+        j = i - 1
+        b = int(mj.jnt_bodyid[j])
+        rot = np.zeros(9)
+        mujoco.mju_quat2Mat(rot, mj.body_iquat[b])
+        rot = rot.reshape(3, 3)
+        inertia_c = rot @ np.diag(mj.body_inertia[b]) @ rot.T
+        com = np.asarray(mj.body_ipos[b]) - np.asarray(mj.jnt_pos[j])
+        aligned.inertias[i] = pin.Inertia(float(mj.body_mass[b]), com, inertia_c)
+    data = mujoco.MjData(mj)
+    mj.dof_damping[:] = 0.0
+    mj.jnt_stiffness[:] = 0.0
+    mj.opt.disableflags |= int(mujoco.mjtDisableBit.mjDSBL_CONSTRAINT)
+    rng = np.random.default_rng(0)
+    err_aligned, err_read, scale = 0.0, 0.0, 1e-9
+    for _ in range(5):
+        q, qd, qdd = (rng.uniform(-1.0, 1.0, mj.nv) for _ in range(3))
+        data.qpos[:], data.qvel[:], data.qacc[:] = q, qd, qdd
+        mujoco.mj_inverse(mj, data)
+        ref = np.array(data.qfrc_inverse)
+        scale = max(scale, float(np.abs(ref).max()))
+        for m, name in ((aligned, "a"), (model, "r")):
+            tau = pin.rnea(m, m.createData(), q, qd, qdd)
+            e = float(np.abs(tau - ref).max())
+            if name == "a":
+                err_aligned = max(err_aligned, e)
+            else:
+                err_read = max(err_read, e)
+    if err_aligned <= MUJOCO_MATCH_RTOL * scale and err_aligned < err_read:
+        return aligned
+    return model
 
 
 def pseudo_inertia(phi: FloatArray) -> FloatArray:

@@ -97,3 +97,41 @@ def test_fe_rejects_wrong_joint_count(two_link_xml) -> None:
     X3 = np.concatenate([X[:, :2], X[:, :1], X[:, 2:4], X[:, 2:3], X[:, 4:], X[:, 4:5]], 1)
     with pytest.raises(ValueError, match="2 joints"):
         FisherianEstimator(two_link_xml).fit(X3, np.zeros((10, 3)))
+
+
+MJCF_WITH_DEFAULT_MASS = """
+<mujoco model="two-link">
+  <default><joint damping="0.05"/><geom type="capsule" mass="1"/></default>
+  <option timestep="0.001"/>
+  <worldbody>
+    <body name="upper" pos="0 0 2">
+      <joint name="shoulder" type="hinge" axis="0 1 0"/>
+      <geom fromto="0 0 0 0 0 1" size="0.05"/>
+      <body name="lower" pos="0 0 1">
+        <joint name="elbow" type="hinge" axis="0 1 0"/>
+        <geom fromto="0 0 0 0 0 1" size="0.049"/>
+      </body>
+    </body>
+  </worldbody>
+</mujoco>
+"""
+
+
+def test_mjcf_default_class_mass_is_read_as_mujoco_compiles_it():
+    """A ``<default>`` geom mass (which pinocchio's importer reads as the density's mass, about
+    8 kg here): the model's inverse dynamics equal MuJoCo's ``mj_inverse`` of the same file."""
+    import mujoco
+    import pinocchio
+
+    model = load_pinocchio_model(MJCF_WITH_DEFAULT_MASS)
+    assert [model.inertias[i].mass for i in (1, 2)] == pytest.approx([1.0, 1.0])
+    mj = mujoco.MjModel.from_xml_string(MJCF_WITH_DEFAULT_MASS)
+    mj.dof_damping[:] = 0.0
+    data = mujoco.MjData(mj)
+    rng = np.random.default_rng(3)
+    for _ in range(4):
+        q, qd, qdd = (rng.uniform(-2.0, 2.0, 2) for _ in range(3))
+        data.qpos[:], data.qvel[:], data.qacc[:] = q, qd, qdd
+        mujoco.mj_inverse(mj, data)
+        tau = pinocchio.rnea(model, model.createData(), q, qd, qdd)
+        np.testing.assert_allclose(tau, data.qfrc_inverse, rtol=1e-9, atol=1e-9)
