@@ -31,6 +31,12 @@ realisation: shifting the targets instead would compare different noise samples 
 the rows are a subset (with a start kernel), whose log-likelihoods differ by
 ``~ sqrt(N / 2)`` nats by chance alone.
 
+Dry friction at rest is set-valued (:mod:`.effects`): on the rows where a joint with a
+Coulomb or Stribeck block is at rest (:func:`.analysis.at_rest`), its torque is any value in
+``[-F_s, F_s]``. The fit takes the point of that interval nearest to the residual of the rest
+of the model off the joint's target and refits (:data:`STICK_ROUNDS` times); held-out
+predictions are projected onto the interval the same way (:meth:`DiagnosisModel.set_valued`).
+
 Training rows: every sample except the first and last ``max_delay_samples`` of each file
 (so that any scanned delay reads states, and the start model's backfit reads outputs,
 inside the same file); with a start kernel, at most ``max_points`` of them, evenly spaced
