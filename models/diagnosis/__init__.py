@@ -25,6 +25,7 @@ from mcpilco.models.diagnosis.analysis import (
     CorrelationTest,
     InputNoise,
     ResidualReport,
+    at_rest,
     cross_correlation_test,
     fit_metrics,
     input_noise,
@@ -93,6 +94,7 @@ from mcpilco.models.diagnosis.workflow import run_diagnosis
 from mcpilco.models.gp.linear_gp import JointGP
 
 __all__ = [
+    "at_rest",
     "EFFECTS",
     "LEARNED_STARTS",
     "Armature",

@@ -79,6 +79,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
+from numpy.lib.stride_tricks import sliding_window_view
 from numpy.typing import NDArray
 from scipy.signal import lfilter, savgol_coeffs, savgol_filter
 from scipy.stats import norm
@@ -99,13 +100,17 @@ __all__ = [
     "metrics_table",
     "noise_floor",
     "position_noise",
+    "at_rest",
     "residual_report",
     "whiteness_test",
 ]
 
 
 def noise_floor(
-    traj: Trajectories, y_hat: FloatArray | None = None, inputs: InputNoise | None = None
+    traj: Trajectories,
+    y_hat: FloatArray | None = None,
+    inputs: InputNoise | None = None,
+    rest: NDArray[np.bool_] | None = None,
 ) -> FloatArray:
     """``(n,)`` noise floor per joint, independent of the model's fitted noise.
 
@@ -118,16 +123,28 @@ def noise_floor(
     model sits at, ``sqrt(sigma_meas^2 + sigma_in^2)`` with the input noise's share of the
     first differences removed from ``sigma_meas^2`` (module docstring), and, for currents put
     into torque units with estimated constants, the mean square that their uncertainty adds
-    (:meth:`~mcpilco.models.diagnosis.units.TorqueConstants.output_variance`)."""
+    (:meth:`~mcpilco.models.diagnosis.units.TorqueConstants.output_variance`).
+
+    ``rest`` ``(N, n)``: rows where a set-valued prediction absorbs the noise (a joint at rest
+    held by dry friction, :meth:`~.model.DiagnosisModel.set_valued`: its error there is the
+    residual's distance to an interval, about 0). The measurement noise is then taken from
+    the other rows' differences and the floor is the RMSE over all rows of a perfect model,
+    ``sqrt(1 - f)`` times theirs (``f`` the share of such rows)."""
     e = traj.y if y_hat is None else traj.y - y_hat
-    d = np.concatenate([np.diff(e[a:b], axis=0) for a, b in traj.segments if b - a > 2])
-    mad = np.median(np.abs(d - np.median(d, axis=0)), axis=0)
-    sigma = 1.4826 * mad / np.sqrt(2.0)
+    free = np.ones(e.shape, dtype=bool) if rest is None else ~np.asarray(rest, dtype=bool)
+    parts = [(a, b) for a, b in traj.segments if b - a > 2]
+    d = np.concatenate([np.diff(e[a:b], axis=0) for a, b in parts])
+    ok = np.concatenate([free[a + 1 : b] & free[a : b - 1] for a, b in parts])
+    sigma = np.zeros(e.shape[1])
+    for j in range(e.shape[1]):
+        dj = d[ok[:, j], j] if ok[:, j].sum() > 2 else d[:, j]
+        sigma[j] = 1.4826 * np.median(np.abs(dj - np.median(dj))) / np.sqrt(2.0)
     if inputs is None:
         return sigma
     meas2 = np.maximum(sigma**2 - inputs.diff_std**2, 0.0)
+    share = free.mean(axis=0)
     scale2 = 0.0 if traj.torque_constants is None else traj.torque_constants.output_variance(traj.y)
-    return np.sqrt(meas2 + inputs.std**2 + scale2)
+    return np.sqrt(share * (meas2 + inputs.std**2) + scale2)
 
 
 @dataclass
@@ -180,6 +197,32 @@ def position_noise(traj: Trajectories) -> list[FloatArray | None]:
         s_m = float(savgol_coeffs(f.window, f.order, use="dot")[m])
         out.append(np.sqrt(np.mean(r**2, axis=0) / (1.0 - s_m)))
     return out
+
+
+def at_rest(traj: Trajectories) -> NDArray[np.bool_]:
+    """``(N, n)``: rows where a joint is at rest as far as the data can tell, i.e. the sign
+    of its velocity is unknown (where dry friction is set-valued).
+
+    Where ``qd`` was estimated from ``q`` (noise std ``sigma_q``, :func:`position_noise`):
+    ``|qd| <= REST_FACTOR sigma_qd`` (``sigma_qd = ||c_1|| sigma_q``, the filter's noise gain,
+    :class:`.data.DerivativeFilter`), or ``q`` stays within a range
+    of ``REST_FACTOR sigma_q`` over :data:`REST_SPAN` around the row. The second test is the
+    local one: the derivative filter spreads a stop over its whole window, so that near a stick
+    phase its ``qd`` is small but not within the noise. Where ``qd`` was given: ``qd == 0``."""
+    rest = traj.qd == 0.0
+    pos = position_noise(traj)
+    for a, b in traj.segments:
+        s = int(traj.segment[a])
+        est = traj.estimated[s]
+        if est is None or pos[s] is None or "qd" not in est.groups:
+            continue
+        sigma_qd = est.filter.noise_gain_qd * pos[s]
+        half = max(int(round(0.5 * REST_SPAN / est.filter.sample_time)), 1)
+        q = np.pad(traj.q[a:b], ((half, half), (0, 0)), mode="edge")
+        win = sliding_window_view(q, 2 * half + 1, axis=0)
+        still = win.max(axis=-1) - win.min(axis=-1) <= REST_FACTOR * pos[s]
+        rest[a:b] = still | (np.abs(traj.qd[a:b]) <= REST_FACTOR * sigma_qd)
+    return rest
 
 
 def input_noise(traj: Trajectories, predict: Callable[[Trajectories], FloatArray]) -> InputNoise:
@@ -237,6 +280,10 @@ def input_noise(traj: Trajectories, predict: Callable[[Trajectories], FloatArray
     return InputNoise(np.sqrt(var.mean(axis=0)), np.sqrt(dvar.mean(axis=0)), pos)
 
 
+REST_FACTOR = 3.0
+"""Noise stds within which a joint's ``qd`` (or its ``q``'s range) counts as at rest."""
+REST_SPAN = 0.02
+"""Span [s] over which a joint at rest keeps ``q`` within its noise (:func:`at_rest`)."""
 EXPLAINED_FRACTION = 0.05
 """Share of the residual variance that a state variable's bin means must explain to be named."""
 CORRELATION_LEVEL = 0.01

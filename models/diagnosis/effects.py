@@ -53,6 +53,16 @@ delay         Delay              inputs read ``d = k dt`` earlier (scan       ``
                                  measured output lags states
 ============  =================  ==========================================  ================
 
+Dry friction at rest (Coulomb, Stribeck) is *set-valued*: a joint that sticks is held by any
+torque in ``[-F_s, F_s]`` (``F_s = F_c`` for Coulomb), whatever balances the others, so
+no function of the states predicts it. The block is ``0`` (the centre of the set) on the rows
+where the joint is at rest as far as the data can tell (:func:`.analysis.at_rest`: the
+sign of its velocity is not known), and the model's prediction
+there is the measurement projected onto ``[m - F_s, m + F_s]`` (``m`` the rest of the
+prediction): its error is the distance of the residual to the interval
+(:meth:`~.model.DiagnosisModel.set_valued`), in fitting, in held-out errors and in the noise
+floor alike.
+
 ``tau_hat`` is the torque predicted by the start model (nominal physics or the learned
 model of version 0). A fitted parameter has the *wrong sign* when its posterior mean lies
 more than 1.96 posterior standard deviations on the unphysical side; such candidates are
@@ -202,6 +212,14 @@ class FeatureContext:
     rigid: RigidBody | None = None
     _regressor: FloatArray | None = dataclasses.field(default=None, repr=False)
     base_fn: Callable[[], FloatArray] | None = dataclasses.field(default=None, repr=False)
+    at_rest: NDArray[np.bool_] | None = None  # (N, n) :func:`.analysis.at_rest` of the rows
+
+    def rest(self, joint: int) -> NDArray[np.bool_]:
+        """``(N,)`` rows where joint ``joint`` (1-based) is at rest as far as the data can tell
+        (:attr:`at_rest`; without it, where ``qd_j == 0``)."""
+        if self.at_rest is None:
+            return self.qd[:, joint - 1] == 0.0
+        return self.at_rest[:, joint - 1]
 
     def start_torque(self) -> FloatArray:
         """``tau_hat (N, n)``, the start model's torque (computed once, on first use)."""
@@ -299,6 +317,11 @@ class Effect:
     def relinearised(self, mean: FloatArray) -> Effect | None:
         """For a block linearised about a shape value: the effect re-expanded about the one
         its fitted weights ``mean`` imply (``None``: nothing to re-expand)."""
+        return None
+
+    def stick_bound(self, mean: FloatArray) -> float | None:
+        """Half-width ``F`` of the set-valued torque ``[-F, F]`` the effect holds a joint at
+        rest with, from its fitted weights ``mean`` (``None``: not set-valued)."""
         return None
 
     def shape_bracket(self, name: str) -> tuple[float, float]:
@@ -408,21 +431,41 @@ class ViscousFriction(Effect):
         return _col(ctx.qd[:, self.joint - 1])
 
 
-EPS_SCAN: tuple[float, ...] = tuple(round(0.003 * 2 ** (k / 2), 5) for k in range(7))
+EPS_SCAN: tuple[float, ...] = (0.0001, 0.0003, 0.001) + tuple(
+    round(0.003 * 2 ** (k / 2), 5) for k in range(7)
+)
 """Smoothing velocities ``eps`` of ``tanh(qd / eps)`` scanned [rad/s or m/s]: 0.003 to 0.024 in
-steps of sqrt(2), fine enough that a true Coulomb between two values does not lose to Stribeck."""
-EPS_BOUNDS = (0.001, 0.1)  # limits of a refined ``eps`` [rad/s or m/s]
+steps of sqrt(2), fine enough that a true Coulomb between two values does not lose to Stribeck,
+and below them 1e-4 to 1e-3 in steps of about 3 (a sharp sign: slow joints, fine encoders)."""
+EPS_BOUNDS = (1e-5, 0.1)  # limits of a refined ``eps`` [rad/s or m/s]
 
 
 @dataclass(frozen=True)
-class CoulombFriction(Effect):
-    """Coulomb friction ``F_c tanh(qd_j / eps)`` (``eps`` [rad/s or m/s] smooths the sign;
-    scanned over :data:`EPS_SCAN` when not given)."""
+class _DryFriction(Effect):
+    """Dry friction: a set-valued torque (module docstring, *dry friction at rest*)."""
+
+    family: ClassVar[str] = "dry friction"
+
+    def _sliding(self, ctx: FeatureContext) -> FloatArray:
+        """``tanh(qd_j / eps)`` while sliding, 0 (the centre of the set) at rest."""
+        qd = ctx.qd[:, self.joint - 1]
+        return np.where(ctx.rest(self.joint), 0.0, np.tanh(qd / self.eps))
+
+    def stick_bound(self, mean: FloatArray) -> float:
+        """``F_s``: the breakaway torque, the sum of the weights (``F_c``, plus ``F_s - F_c``
+        for Stribeck), never below 0."""
+        return max(float(np.sum(mean)), 0.0)
+
+
+@dataclass(frozen=True)
+class CoulombFriction(_DryFriction):
+    """Coulomb friction ``F_c tanh(qd_j / eps)`` while sliding (``eps`` [rad/s or m/s] smooths
+    the sign; scanned over :data:`EPS_SCAN` when not given), any torque in ``[-F_c, F_c]`` at
+    rest."""
 
     eps: float | None = None
     key: ClassVar[str] = "coulomb"
     title: ClassVar[str] = "Coulomb friction"
-    family: ClassVar[str] = "dry friction"
     shape_grid: ClassVar[dict[str, tuple[float, ...]]] = {"eps": EPS_SCAN}
     shape_bounds: ClassVar[dict[str, tuple[float, float]]] = {"eps": EPS_BOUNDS}
     shape_params: ClassVar[dict[str, Param]] = {"eps": Param("eps", "{x}/s")}
@@ -440,7 +483,7 @@ class CoulombFriction(Effect):
         return [dataclasses.replace(self, eps=e) for e in EPS_SCAN]
 
     def columns(self, ctx: FeatureContext, output: int) -> FloatArray:
-        return _col(np.tanh(ctx.qd[:, self.joint - 1] / self.eps))
+        return _col(self._sliding(ctx))
 
 
 STRIBECK_SCAN: tuple[float, ...] = (0.02, 0.05, 0.1, 0.2)
@@ -449,14 +492,14 @@ STRIBECK_BOUNDS = (0.005, 0.5)  # limits of a refined ``v_s`` [rad/s or m/s]
 
 
 @dataclass(frozen=True)
-class StribeckFriction(Effect):
-    """Stribeck friction ``(F_c + (F_s - F_c) exp(-(qd/v_s)^2)) tanh(qd / eps)`` (stiction)."""
+class StribeckFriction(_DryFriction):
+    """Stribeck friction ``(F_c + (F_s - F_c) exp(-(qd/v_s)^2)) tanh(qd / eps)`` while
+    sliding (stiction), any torque in ``[-F_s, F_s]`` at rest."""
 
     velocity: float | None = None
     eps: float | None = None
     key: ClassVar[str] = "stribeck"
     title: ClassVar[str] = "Stribeck friction / stiction"
-    family: ClassVar[str] = "dry friction"
     shape_grid: ClassVar[dict[str, tuple[float, ...]]] = {
         "velocity": STRIBECK_SCAN,
         "eps": EPS_SCAN,
@@ -486,7 +529,7 @@ class StribeckFriction(Effect):
 
     def columns(self, ctx: FeatureContext, output: int) -> FloatArray:
         qd = ctx.qd[:, self.joint - 1]
-        s = np.tanh(qd / self.eps)
+        s = self._sliding(ctx)
         return np.stack([s, s * np.exp(-((qd / self.velocity) ** 2))], axis=1)
 
 

@@ -31,6 +31,12 @@ realisation: shifting the targets instead would compare different noise samples 
 the rows are a subset (with a start kernel), whose log-likelihoods differ by
 ``~ sqrt(N / 2)`` nats by chance alone.
 
+Dry friction at rest is set-valued (:mod:`.effects`): on the rows where a joint with a
+Coulomb or Stribeck block is at rest (:func:`.analysis.at_rest`), its torque is any value in
+``[-F_s, F_s]``. The fit takes the point of that interval nearest to the residual of the rest
+of the model off the joint's target and refits (:data:`STICK_ROUNDS` times); held-out
+predictions are projected onto the interval the same way (:meth:`DiagnosisModel.set_valued`).
+
 Training rows: every sample except the first and last ``max_delay_samples`` of each file
 (so that any scanned delay reads states, and the start model's backfit reads outputs,
 inside the same file); with a start kernel, at most ``max_points`` of them, evenly spaced
@@ -48,6 +54,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from mcpilco.models.diagnosis.analysis import at_rest
 from mcpilco.models.diagnosis.data import (
     MIN_FIT_ROWS,
     Trajectories,
@@ -79,6 +86,8 @@ __all__ = ["DiagnosisModel"]
 
 SHARED_ROUNDS = 3
 """Alternations of the shared (rigid-body) weights and the joints' own fits in a fit."""
+STICK_ROUNDS = 2
+"""Refits of a joint with set-valued dry friction after re-estimating its torque at rest."""
 
 
 class DiagnosisModel:
@@ -157,7 +166,9 @@ class DiagnosisModel:
     def context(self, traj: Trajectories, rows: NDArray[np.int64] | None = None) -> FeatureContext:
         """Feature context of ``traj`` (all rows, or ``rows``)."""
         sel = slice(None) if rows is None else rows
-        return self._context_at((traj.q[sel], traj.qd[sel], traj.qdd[sel]), traj.output)
+        return self._context_at(
+            (traj.q[sel], traj.qd[sel], traj.qdd[sel]), traj.output, rest=at_rest(traj)[sel]
+        )
 
     def _context_at(
         self,
@@ -165,9 +176,11 @@ class DiagnosisModel:
         output: str,
         base: FloatArray | None = None,
         regressor: Callable[[], FloatArray | None] | None = None,
+        rest: NDArray[np.bool_] | None = None,
     ) -> FeatureContext:
         """Feature context at ``states = (q, qd, qdd)``; ``base``: the start model's torque
-        there, ``regressor``: the joint-torque regressor of every body, if at hand."""
+        there, ``regressor``: the joint-torque regressor of every body, if at hand,
+        ``rest``: where each joint is at rest (:func:`.analysis.at_rest`)."""
         q, qd, qdd = states
         if regressor is None and self.start.robot is not None:
 
@@ -184,6 +197,7 @@ class DiagnosisModel:
             regressor=regressor,
             rigid=None if self.start.robot is None else self._rigid_body(),
             base_fn=lambda: self.start.torque(q, qd, qdd),
+            at_rest=rest,
         )
 
     def _rigid_body(self) -> Any:
@@ -224,7 +238,13 @@ class DiagnosisModel:
                 base = prior if self.start.torque_is_prior_mean else None
                 regressor = None
             self._shift_cache[shift] = (
-                self._context_at(states, traj.output, base, regressor),
+                self._context_at(
+                    states,
+                    traj.output,
+                    base,
+                    regressor,
+                    self.rest_[traj.shift_index(self.rows_, -int(round(shift)))],
+                ),
                 prior,
                 states,
             )
@@ -241,7 +261,7 @@ class DiagnosisModel:
         (0-based; ``k``: ``shift``, default the joint's delay in samples)."""
         k = self._delay_samples(output) if shift is None else shift
         mean = self._shifted(k)[1]
-        r = self.train_.y[self.rows_, output] - mean[:, output]
+        r = self.train_.y[self.rows_, output] - mean[:, output] - self.stick_[:, output]
         return r - self._shared_part(self.joint_context(output, k), output)
 
     # ------------------------------------------------------------------ shared effects
@@ -382,6 +402,9 @@ class DiagnosisModel:
         self.rows_ = self._training_rows(traj)
         self._shift_cache: dict[float, tuple] = {}
         self.floors_: dict[int, tuple] = {}  # held-out noise floors (search.heldout_floor)
+        self.rest_ = at_rest(traj)  # (N, n) rows where a joint is at rest
+        # set-valued dry-friction torque of the rows at rest, taken off the targets
+        self.stick_ = np.zeros((self.rows_.size, self.n_joints))
         q, qd, qdd = traj.q[self.rows_], traj.qd[self.rows_], traj.qdd[self.rows_]
         fitted = getattr(self.start, "estimator_", True) is not None
         if refit_start or (refit_start is None and not fitted):
@@ -409,11 +432,14 @@ class DiagnosisModel:
         ]
         self.shared_: SharedFit | None = None
         self._sizes: list[int] | None = None
+        for j in reused:
+            self.stick_[:, j] = _parent.stick_[:, j]
         self._fit_joints(_warm, reused, _parent)
         if self.shared_effects:  # alternate the shared weights and the joints' own fits
             for _ in range(SHARED_ROUNDS):
                 self._fit_shared()
                 self._fit_joints(dict(enumerate(self.theta_)))
+        self._fit_stick([j for j in range(self.n_joints) if j not in reused])
         if backfit and isinstance(self.start, LearnedStart) and self.effects:
             # backfitting: the learned start model refitted on the output minus the effects,
             # both at the states x(rows) it reads
@@ -455,14 +481,15 @@ class DiagnosisModel:
         """Type-II ML fit of every joint's GP on its target (``warm``: starting values);
         the joints in ``reused`` take ``parent``'s fit and candidate scores."""
         noise0 = self.start.noise_variance()
+        kept = (parent.gps_, parent.theta_, parent.evidence_, parent.scores_) if reused else None
         self.gps_, self.theta_, self.evidence_ = [], [], []
         self.scores_: list[dict[Effect, tuple]] = []
         for j in range(self.n_joints):
             if j in reused:  # the parent's fit of this joint, and its candidate scores
-                self.gps_.append(parent.gps_[j])
-                self.theta_.append(parent.theta_[j])
-                self.evidence_.append(parent.evidence_[j])
-                self.scores_.append(parent.scores_[j])
+                for mine, theirs in zip(
+                    (self.gps_, self.theta_, self.evidence_, self.scores_), kept, strict=True
+                ):
+                    mine.append(theirs[j])
                 continue
             self.scores_.append({})
             base_r = self.target(j, shift=0)
@@ -483,6 +510,67 @@ class DiagnosisModel:
             self.gps_.append(gp)
             self.theta_.append(theta)
             self.evidence_.append(ev)
+
+    def _stick(self, output: int) -> tuple[Effect, float] | None:
+        """``(effect, F_s)``: the set-valued dry friction on ``output`` (0-based) and the
+        half-width of its torque at rest from the fitted weights, or ``None``."""
+        gp = self.gps_[output]
+        if not gp.sizes:
+            return None
+        mean, _ = gp.weights(self.theta_[output])
+        for e, sl in zip(self.block_effects(output), gp.block_slices(), strict=True):
+            bound = e.stick_bound(mean[sl])
+            if bound is not None:
+                return e, bound
+        return None
+
+    def _fit_stick(self, joints: Sequence[int]) -> None:
+        """Set-valued dry friction in the fit: on the training rows where a joint with one is
+        at rest, its torque is the residual of the rest of the model clipped to ``[-F_s,
+        F_s]`` (the set's point nearest to it); it is taken off the target and the joint
+        refitted, :data:`STICK_ROUNDS` times (``F_s`` moves with the refit)."""
+        for _ in range(STICK_ROUNDS):
+            changed = []
+            for j in joints:
+                hit = self._stick(j)
+                if hit is None:
+                    continue
+                effect, bound = hit
+                ctx = self.joint_context(j)
+                rest = ctx.rest(effect.joint)
+                mean, _ = self.gps_[j].weights(self.theta_[j])
+                fitted = np.concatenate(self.blocks(ctx, j), axis=1) @ mean
+                resid = self.target(j) + self.stick_[:, j] - fitted
+                self.stick_[:, j] = np.where(rest, np.clip(resid, -bound, bound), 0.0)
+                changed.append(j)
+            if not changed:
+                return
+            warm = dict(enumerate(self.theta_))
+            self._fit_joints(warm, [j for j in range(self.n_joints) if j not in changed], self)
+
+    def set_valued(
+        self, traj: Trajectories, mean: FloatArray
+    ) -> tuple[FloatArray, NDArray[np.bool_]]:
+        """The prediction ``mean (N, n)`` on ``traj`` with set-valued dry friction: where a
+        joint with one is at rest (:meth:`.FeatureContext.rest`), any torque in ``[-F_s,
+        F_s]`` is predicted, so the prediction is the measurement projected onto
+        ``[mean - F_s, mean + F_s]`` and its error the residual's distance to that interval.
+        Returns it and the ``(N, n)`` rows where that holds."""
+        self._check_fitted()
+        out = np.array(mean, dtype=np.float64, copy=True)
+        rest = np.zeros(out.shape, dtype=bool)
+        ctx = None
+        for j in range(self.n_joints):
+            hit = self._stick(j)
+            if hit is None:
+                continue
+            effect, bound = hit
+            if ctx is None:
+                ctx = self.context(traj)
+            r = ctx.rest(effect.joint)
+            out[r, j] += np.clip(traj.y[r, j] - out[r, j], -bound, bound)
+            rest[:, j] = r
+        return out, rest
 
     def _effect_part(self, output: int, ctx: FeatureContext) -> FloatArray:
         """Fitted torque of the added blocks on ``output`` at the states of ``ctx``."""

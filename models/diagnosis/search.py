@@ -476,8 +476,10 @@ def score_candidates(
 
 
 def heldout_rmse(model: DiagnosisModel, heldout: Trajectories) -> FloatArray:
-    """``(n,)`` RMSE of the posterior mean on held-out trajectories."""
+    """``(n,)`` RMSE of the posterior mean on held-out trajectories (set-valued where a joint
+    sticks, :meth:`.DiagnosisModel.set_valued`)."""
     mean, _ = model.predict(heldout, with_var=False)
+    mean, _ = model.set_valued(heldout, mean)
     return np.sqrt(np.mean((heldout.y - mean) ** 2, axis=0))
 
 
@@ -488,7 +490,9 @@ def heldout_floor(
     noise its prediction inherits from estimated ``qd``/``qdd`` (:func:`.analysis.noise_floor`
     with :func:`.analysis.input_noise`), plus, for currents in torque units, the uncertainty
     of ``k_t`` on the joints whose scale the model does not fit itself
-    (:func:`.units.without_fitted_scales`); ``mean``: the model's prediction, if at hand. Kept
+    (:func:`.units.without_fitted_scales`), over the rows where a set-valued prediction
+    absorbs it counted as 0 (:func:`.analysis.noise_floor`'s ``rest``); ``mean``: the model's
+    prediction (before :meth:`.DiagnosisModel.set_valued`), if at hand. Kept
     in the model (``floors_``) for the same held-out object: the loop asks for it again."""
     model._check_fitted()
     key = id(heldout)
@@ -498,7 +502,8 @@ def heldout_floor(
     if mean is None:
         mean, _ = model.predict(heldout, with_var=False)
     inputs = input_noise(heldout, lambda tr: model.predict(tr, with_var=False)[0])
-    floor = noise_floor(without_fitted_scales(heldout, model.effects), mean, inputs)
+    mean, rest = model.set_valued(heldout, mean)
+    floor = noise_floor(without_fitted_scales(heldout, model.effects), mean, inputs, rest)
     model.floors_[key] = (heldout, floor)
     return floor.copy()
 
@@ -557,9 +562,10 @@ def floor_check(
 ) -> FloorCheck:
     """Held-out RMSE and noise floor of ``model`` (:class:`FloorCheck`), the residual's
     structure on the joints above the floor (:func:`.analysis.residual_report`)."""
-    mean, _ = model.predict(heldout, with_var=False)
+    raw, _ = model.predict(heldout, with_var=False)
+    floor = heldout_floor(model, heldout, raw)
+    mean, _ = model.set_valued(heldout, raw)
     rmse = np.sqrt(np.mean((heldout.y - mean) ** 2, axis=0))
-    floor = heldout_floor(model, heldout, mean)
     check = FloorCheck(name or model.name, rmse, floor, heldout.n_samples)
     if check.failing:
         rep = residual_report(

@@ -1,15 +1,17 @@
 """One effect per group, and continuous shape values fitted by a bounded optimiser.
 
-Independent truth: MuJoCo's dry friction (``frictionloss``) in logs of
-:func:`mcpilco.envs.robot_logs.simulate_log`, and the Stribeck friction drawn by
-:func:`mcpilco.experiments.hidden_effects.make_case` (its Stribeck velocity and smoothing are
-known).
+Independent truth: MuJoCo's dry friction (``frictionloss``, a constraint that holds a joint
+at rest with any torque up to its level) in logs of
+:func:`mcpilco.envs.robot_logs.simulate_log` with their true velocities, and the Stribeck
+friction drawn by :func:`mcpilco.experiments.hidden_effects.make_case` (its Stribeck velocity
+and smoothing are known).
 """
 
 from __future__ import annotations
 
 import warnings
 
+import numpy as np
 import pytest
 
 from mcpilco.envs.arm_builder import arm_to_xml
@@ -21,10 +23,15 @@ from mcpilco.models.diagnosis import (
     NominalStart,
     StribeckFriction,
     as_trajectories,
+    at_rest,
     auto_improve,
+    floor_check,
     load_trajectories,
 )
+from mcpilco.models.diagnosis.analysis import REST_SPAN
 from mcpilco.models.diagnosis.effects import EPS_SCAN, STRIBECK_SCAN, CoulombFriction
+from mcpilco.models.diagnosis.search import FLOOR_FACTOR
+from mcpilco.models.robot_data import from_frame
 
 LEVEL = 0.4  # MuJoCo frictionloss on joint 2 [N m]
 
@@ -68,11 +75,12 @@ def test_dry_friction_is_added_once_with_its_level(friction_logs):
 
 
 def test_a_poor_form_is_replaced_not_doubled(friction_logs):
-    """A model that already holds a badly shaped Stribeck term: the loop does not add a
-    Coulomb term beside it (the two would fit opposite levels); the Coulomb form replaces
-    it, as it gains more than the threshold in its place, and carries the true level."""
+    """A model that already holds a badly shaped Stribeck term (a sign smoothed over
+    0.024 rad/s, where MuJoCo's is sharp): the loop does not add a Coulomb term beside it
+    (the two would fit opposite levels); the Coulomb form replaces it, as it gains more
+    than the threshold in its place, and carries the true level."""
     v0, test = friction_logs
-    v1 = v0.with_effect(StribeckFriction(joint=2, velocity=0.05, eps=0.003))
+    v1 = v0.with_effect(StribeckFriction(joint=2, velocity=0.05, eps=0.024))
     versions, diags = auto_improve(v1, test, max_steps=2)
     (added,) = _dry_friction(versions[-1])
     assert added.key == "coulomb", diags[0].table()
@@ -105,3 +113,41 @@ def test_stribeck_velocity_is_fitted_not_picked_from_the_grid():
         assert abs(value - true) <= abs(nearest - true), (name, value, nearest, true)
         assert abs(value / true - 1) < 0.1, (name, value, true)
     assert [e.label for e in versions[-1].effects] == ["stribeck:2"], diags[-1].table()
+
+
+def test_set_valued_dry_friction_reaches_the_floor(friction_logs):
+    """MuJoCo's frictionloss holds a joint at rest with any torque up to its level: with the
+    set-valued model (the projection onto ``[-F_c, F_c]`` where the joint is at rest) the
+    level's interval holds the truth and the held-out error is at the noise floor on joint 2,
+    where the smooth sign alone leaves the stick phases' torque unexplained."""
+    v0, test = friction_logs
+    v1 = v0.add(CoulombFriction(joint=2))
+    p = _level(v1, v1.effects[0])
+    assert abs(p["value"] - LEVEL) <= p["ci95"], p
+    check = floor_check(v1, test)
+    assert check.ratio[1] <= FLOOR_FACTOR, check.to_dict()
+    raw, _ = v1.predict(test, with_var=False)
+    projected, rest = v1.set_valued(test, raw)
+    assert rest[:, 1].any() and not rest[:, [0, 2]].any()
+    outside = ~rest[:, 1]
+    np.testing.assert_array_equal(projected[outside], raw[outside])
+    gap = np.abs(projected[rest[:, 1], 1] - raw[rest[:, 1], 1])  # moved by at most F_c
+    assert gap.max() <= p["value"] + 1e-12
+    smooth_only = np.sqrt(np.mean((test.y[:, 1] - raw[:, 1]) ** 2)) / check.floor[1]
+    assert smooth_only > FLOOR_FACTOR, smooth_only
+
+
+def test_rest_rows_are_the_stick_phases():
+    """:func:`at_rest` on a position-only log against MuJoCo's true velocity: it flags the
+    rows where the frictionloss joint is truly stuck, and only rows whose true speed is
+    within a few encoder steps per short window."""
+    arm = random_arm(3, seed=1, joint_types="RRR").rigid()
+    log = simulate_log(arm, [HiddenEffect("frictionloss", 2, LEVEL)], duration=4.0, seed=0)
+    traj = as_trajectories([from_frame(log.table, source="log")])
+    rest = at_rest(traj)[:, 1]
+    qd = np.abs(log.truth.qd[:, 1])
+    stuck = qd < 1e-4  # held by the constraint (it creeps at about 1e-5 rad/s)
+    assert stuck.sum() > 40  # the log has stick phases
+    assert rest[stuck].mean() > 0.95, rest[stuck].mean()
+    step = log.truth.settings["encoder_step"][1]
+    assert qd[rest].max() < 10 * step / REST_SPAN, qd[rest].max()
