@@ -28,7 +28,11 @@ derivatives of that polynomial at the window's centre (both from ``q``, not ``qd
 
 * zero lag: the coefficients are (anti)symmetric, so the phase is exactly ``-j w`` /
   ``-w^2`` times a real gain; no delay is introduced (offline, non-causal). The first and
-  last ``m`` samples use a fit over the edge window (``mode="interp"``), less accurate.
+  last ``m`` samples use a fit over the edge window (``mode="interp"``), evaluated ``m``
+  samples off its centre: its second derivative there errs by far more than the central
+  estimate (on a simulated arm, several N m of inverse-dynamics torque in the first rows,
+  where the central rows are at the torque noise). :meth:`Trajectories.interior` drops these
+  edge rows; the diagnosis fits and evaluates models on the interior rows only.
 * noise gain: white noise of standard deviation ``sigma_q`` on ``q`` (e.g. encoder
   quantisation, ``sigma_q = step / sqrt(12)``) becomes ``sigma_qd = ||c_1|| sigma_q`` and
   ``sigma_qdd = ||c_2|| sigma_q`` with ``c_k`` the filter's coefficients (units 1/s and
@@ -50,7 +54,7 @@ import math
 import re
 import warnings
 from collections.abc import Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -203,10 +207,23 @@ def estimate_derivatives(
 
 @dataclass(frozen=True)
 class Estimate:
-    """Which derivative groups of one segment were estimated, and by which filter."""
+    """Which derivative groups of one segment were estimated, and by which filter.
+
+    Attributes:
+        groups: the estimated groups (``("qd", "qdd")`` or ``("qdd",)``).
+        filter: the :class:`DerivativeFilter`.
+        interior: ``True`` once the segment's ``window // 2`` edge rows at each end (the
+            filter's edge fit) were dropped (:meth:`Trajectories.interior`).
+    """
 
     groups: tuple[str, ...]
     filter: DerivativeFilter
+    interior: bool = False
+
+    @property
+    def edge_rows(self) -> int:
+        """Rows at each end of the segment whose derivatives come from the edge fit."""
+        return 0 if self.interior else self.filter.window // 2
 
 
 @dataclass
@@ -304,6 +321,26 @@ class Trajectories:
             estimated=list(self.estimated),
             torque_constants=self.torque_constants,
         )
+
+    def edge_rows(self, segment: int) -> int:
+        """Rows at each end of ``segment`` whose ``qd``/``qdd`` come from the derivative
+        filter's edge fit (0 when the file gave them or they were dropped)."""
+        est = self.estimated[segment] if segment < len(self.estimated) else None
+        return 0 if est is None else est.edge_rows
+
+    def interior(self) -> Trajectories:
+        """These trajectories without the :meth:`edge_rows` of every segment (module
+        docstring); ``self`` when there are none. A segment keeps at least its middle row."""
+        keep = np.ones(self.n_samples, dtype=bool)
+        for a, b in self.segments:
+            m = min(self.edge_rows(int(self.segment[a])), (b - a - 1) // 2)
+            keep[a : a + m] = False
+            keep[b - m : b] = False
+        if keep.all():
+            return self
+        out = self._mask(keep)
+        out.estimated = [None if e is None else replace(e, interior=True) for e in self.estimated]
+        return out
 
     def shift_index(self, rows: NDArray[np.int64], k: int) -> NDArray[np.int64]:
         """Rows ``rows + k`` clipped to each row's own segment (targets ``k`` samples later)."""

@@ -129,3 +129,27 @@ def test_simulated_log_round_trip(tmp_path):
         m = traj.estimated[0].filter.window // 2
         scale = np.abs(log.truth.qd).max(axis=0)
         assert (np.abs(traj.qd - log.truth.qd)[m:-m].max(axis=0) < 0.01 * scale).all()
+
+
+def test_interior_drops_the_edge_rows_of_estimated_segments_only(tmp_path):
+    """The filter's edge fit errs far more than its central estimate (analytic truth); the
+    interior keeps exactly the central rows of an estimated file and every row of a file that
+    gave its derivatives, and is its own interior."""
+    rng = np.random.default_rng(4)
+    t, q, qd, qdd = analytic(rng)
+    tau = np.zeros_like(q)
+    only_q = write_csv(tmp_path / "q_only.csv", t, encoder(q, rng), tau)
+    full = write_csv(tmp_path / "full.csv", t, q, tau, qd=qd, qdd=qdd)
+    traj = load_trajectories([only_q, full])
+    m = traj.edge_rows(0)
+    assert m == traj.estimated[0].filter.window // 2 and traj.edge_rows(1) == 0
+    err = np.sqrt(np.mean((traj.qdd[:N] - qdd) ** 2, axis=1))
+    edges = np.concatenate([err[:m], err[-m:]])
+    assert np.sqrt(np.mean(edges**2)) > 3 * np.sqrt(np.mean(err[m:-m] ** 2))
+    inner = traj.interior()
+    assert inner.n_samples == 2 * N - 2 * m and inner.n_segments == 2
+    np.testing.assert_array_equal(inner.t[: N - 2 * m], t[m:-m])
+    np.testing.assert_array_equal(inner.qdd[: N - 2 * m], traj.qdd[m : N - m])
+    np.testing.assert_array_equal(inner.qdd[N - 2 * m :], qdd)
+    assert inner.edge_rows(0) == 0 and inner.estimated[0].filter == traj.estimated[0].filter
+    assert inner.interior() is inner
