@@ -61,8 +61,10 @@ Whiteness and cross-correlation tests
     filter's noise, ``sigma_in`` below): the whiteness test speaks of the residual, not only
     of model error.
 ``sigma_x`` (:func:`position_noise`)
-    estimated from ``x`` itself: ``r = x - S x`` with ``S`` the Savitzky-Golay *smoother* of
-    the same window and order (a projection, so white noise of std ``sigma`` gives
+    estimated from ``x`` itself (:func:`~.data.smoother_noise_std`): ``r = x - S x`` with
+    ``S`` the Savitzky-Golay *smoother* of the derivative filter's order and shortest span
+    (:data:`~.data.DERIVATIVE_WINDOW`, the least biased) (a projection, so white noise of std
+    ``sigma`` gives
     ``var(r) = sigma^2 (1 - s_m)``, ``s_m`` its centre coefficient; smooth motion passes
     ``S`` unchanged), ``sigma_x = rms(r) / sqrt(1 - s_m)`` over the interior rows. The rms and
     not a MAD: a uniform quantiser (step ``s``, std ``s / sqrt(12)``) is far from Gaussian, and
@@ -81,10 +83,10 @@ from typing import Any
 import numpy as np
 from numpy.lib.stride_tricks import sliding_window_view
 from numpy.typing import NDArray
-from scipy.signal import lfilter, savgol_coeffs, savgol_filter
+from scipy.signal import lfilter, savgol_coeffs
 from scipy.stats import norm
 
-from mcpilco.models.diagnosis.data import Trajectories
+from mcpilco.models.diagnosis.data import Trajectories, derivative_filter, smoother_noise_std
 from mcpilco.models.gp.linear_gp import single_thread
 
 FloatArray = NDArray[np.float64]
@@ -187,15 +189,12 @@ def position_noise(traj: Trajectories) -> list[FloatArray | None]:
             out.append(None)
             continue
         a, b = runs[s]
-        f = est.filter
-        m = f.window // 2
-        if b - a < f.window + 2 * m + 1:
+        f = derivative_filter(est.filter.sample_time)  # the shortest span: least bias
+        if b - a < 2 * f.window:
             out.append(None)
             continue
         x = traj.q[a:b] if "qd" in est.groups else traj.qd[a:b]
-        r = (x - savgol_filter(x, f.window, f.order, axis=0))[m:-m]
-        s_m = float(savgol_coeffs(f.window, f.order, use="dot")[m])
-        out.append(np.sqrt(np.mean(r**2, axis=0) / (1.0 - s_m)))
+        out.append(smoother_noise_std(x, f))
     return out
 
 

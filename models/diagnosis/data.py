@@ -21,14 +21,19 @@ Position-only files
 A file that gives ``t, q`` and ``tau`` (or ``i``) but no ``qd``/``qdd`` columns, as a real
 controller's log often does, gets them from :func:`estimate_derivatives`: a central
 Savitzky-Golay filter of :func:`derivative_filter` (a local least-squares polynomial of order
-``p = 4`` over ``L = 2 m + 1`` samples, ``m = round(W / (2 T))`` with ``W = 0.1`` s and ``T``
-the sample time, at least ``L = 7``). ``qd`` and ``qdd`` are the first and second
-derivatives of that polynomial at the window's centre (both from ``q``, not ``qdd`` from
-``qd``). Properties (all in :class:`DerivativeFilter`):
+``p = 4`` over ``L = 2 m + 1`` samples, ``m = round(W / (2 T))`` with ``T`` the sample time,
+at least ``L = 7``). ``qd`` and ``qdd`` are the first and second derivatives of that
+polynomial at the window's centre (both from ``q``, not ``qdd`` from ``qd``). The span ``W``
+is chosen per file (:func:`choose_derivative_filter`) from :data:`DERIVATIVE_WINDOWS`
+(0.1 to 0.4 s). Properties (all in :class:`DerivativeFilter`):
 
 * zero lag: the coefficients are (anti)symmetric, so the phase is exactly ``-j w`` /
   ``-w^2`` times a real gain; no delay is introduced (offline, non-causal). The first and
-  last ``m`` samples use a fit over the edge window (``mode="interp"``), less accurate.
+  last ``m`` samples use a fit over the edge window (``mode="interp"``), evaluated ``m``
+  samples off its centre: its second derivative there errs by far more than the central
+  estimate (on a simulated arm, several N m of inverse-dynamics torque in the first rows,
+  where the central rows are at the torque noise). :meth:`Trajectories.interior` drops these
+  edge rows; the diagnosis fits and evaluates models on the interior rows only.
 * noise gain: white noise of standard deviation ``sigma_q`` on ``q`` (e.g. encoder
   quantisation, ``sigma_q = step / sqrt(12)``) becomes ``sigma_qd = ||c_1|| sigma_q`` and
   ``sigma_qdd = ||c_2|| sigma_q`` with ``c_k`` the filter's coefficients (units 1/s and
@@ -36,6 +41,23 @@ derivatives of that polynomial at the window's centre (both from ``q``, not ``qd
 * bandwidth: the highest frequency at which the gain of the ``k``-th derivative stays within
   5 % of the exact ``w^k`` (about 7-8 Hz for ``W = 0.1`` s, whatever ``T``); faster content
   is attenuated, which the residuals see as a model error.
+
+Choice of the span (bias against noise). A longer window lowers the noise gain (``||c_2||``
+falls about as ``W^-2.5``) and attenuates faster motion. With a fine encoder the noise of
+``qdd`` is negligible at ``W = 0.1`` s; with a coarse one (``2^15`` counts per revolution,
+``T = 4`` ms) it is about 0.15 rad/s^2, enough to carry several noise stds of torque through
+the mass matrix: the noise floor rises, and a fit of an inertial effect on noisy ``qdd`` is
+biased towards zero (errors in variables) while a model that merely damps the noisy
+regressors looks better on held-out data. For every joint ``j`` and candidate span ``W``,
+:func:`choose_derivative_filter` estimates the mean square error of ``qdd_j`` as
+``bias^2 + ||c_2(W)||^2 sigma_j^2``: ``sigma_j`` is the noise std of ``q_j``
+(:func:`smoother_noise_std`), and ``bias^2`` is the mean square difference between the
+estimates at ``W`` and at the shortest span, less the part that their noise explains
+(``||c_2(W) - c_2(W_0)||^2 sigma_j^2``, coefficient rows centred and zero-padded), taken as
+0 when negative; the shortest span's own bias counts as 0. Each joint's best span is the one
+of least error; the file gets the shortest of these (no joint gets a span that biases it
+more than it gains in noise). Smooth, slow motion read by a coarse encoder gets a long
+window; sharp motion (stick-slip at a velocity reversal) keeps the short one.
 
 Files that already give ``qd`` and ``qdd`` are used as given. The estimate needs a uniform
 time grid: a segment whose sample intervals depart from their median by more than
@@ -50,7 +72,7 @@ import math
 import re
 import warnings
 from collections.abc import Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -68,6 +90,7 @@ FloatArray = NDArray[np.float64]
 __all__ = [
     "DERIVATIVE_ORDER",
     "DERIVATIVE_WINDOW",
+    "DERIVATIVE_WINDOWS",
     "MIN_FIT_ROWS",
     "SAMPLING_TOLERANCE",
     "DerivativeFilter",
@@ -77,8 +100,10 @@ __all__ = [
     "MIN_HELDOUT_ROWS",
     "Trajectories",
     "as_trajectories",
+    "choose_derivative_filter",
     "load_trajectories",
     "require_rows",
+    "smoother_noise_std",
     "uniform_sample_time",
 ]
 
@@ -90,7 +115,10 @@ MIN_HELDOUT_ROWS = 50
 must stand out from its sampling noise)."""
 
 DERIVATIVE_WINDOW = 0.1
-"""Time span ``W`` [s] of the Savitzky-Golay window that estimates ``qd``/``qdd`` from ``q``."""
+"""Shortest (and default) time span ``W`` [s] of the Savitzky-Golay window that estimates
+``qd``/``qdd`` from ``q``."""
+DERIVATIVE_WINDOWS = (0.1, 0.14, 0.2, 0.28, 0.4)
+"""Candidate spans ``W`` [s] of :func:`choose_derivative_filter` (ratio about ``sqrt 2``)."""
 DERIVATIVE_ORDER = 4
 """Polynomial order ``p`` of that filter."""
 SAMPLING_TOLERANCE = 1e-3
@@ -178,17 +206,73 @@ def uniform_sample_time(t: FloatArray, source: str = "<arrays>") -> float:
     return med
 
 
-def estimate_derivatives(
+def smoother_noise_std(x: FloatArray, filt: DerivativeFilter) -> FloatArray:
+    """``(n,)`` std of white noise on the columns of ``x (N, n)``: ``rms(x - S x) /
+    sqrt(1 - s_m)`` over the interior rows, ``S`` the Savitzky-Golay smoother of ``filt``'s
+    window and order (a projection: white noise of std ``sigma`` leaves ``x - S x`` with
+    variance ``sigma^2 (1 - s_m)``, ``s_m`` its centre coefficient; smooth motion passes ``S``
+    unchanged). The rms and not a MAD: a uniform quantiser is far from Gaussian, and the rms
+    is right for any white noise, quantisation and reading noise together."""
+    m = filt.window // 2
+    r = (x - savgol_filter(x, filt.window, filt.order, axis=0))[m:-m]
+    s_m = float(savgol_coeffs(filt.window, filt.order, use="dot")[m])
+    return np.sqrt(np.mean(r**2, axis=0) / (1.0 - s_m))
+
+
+def choose_derivative_filter(
     t: FloatArray, q: FloatArray, source: str = "<arrays>"
+) -> DerivativeFilter:
+    """The filter of the span in :data:`DERIVATIVE_WINDOWS` with the least estimated mean
+    square error of ``qdd`` (module docstring, "Choice of the span") for positions
+    ``q (N, n)`` at times ``t (N,)``; spans whose window exceeds a quarter of the rows are
+    not tried.
+
+    Raises:
+        ValueError: non-uniform sampling (:func:`uniform_sample_time`).
+    """
+    dt = uniform_sample_time(t, source)
+    q = np.asarray(q, dtype=np.float64)
+    base = derivative_filter(dt, DERIVATIVE_WINDOWS[0])
+    if q.shape[0] < 4 * base.window:
+        return base
+    sigma2 = smoother_noise_std(q, base) ** 2
+    kw = dict(polyorder=base.order, deriv=2, delta=dt, axis=0)
+    c0 = savgol_coeffs(base.window, base.order, deriv=2, delta=dt, use="dot")
+    qdd0 = savgol_filter(q, base.window, **kw)
+    filters, errors = [base], [c0 @ c0 * sigma2]
+    for span in DERIVATIVE_WINDOWS[1:]:
+        filt = derivative_filter(dt, span)
+        if filt.window <= filters[-1].window or q.shape[0] < 4 * filt.window:
+            continue
+        c = savgol_coeffs(filt.window, filt.order, deriv=2, delta=dt, use="dot")
+        dc = c - np.pad(c0, (filt.window - base.window) // 2)
+        m = filt.window // 2
+        diff2 = np.mean((savgol_filter(q, filt.window, **kw) - qdd0)[m:-m] ** 2, axis=0)
+        bias2 = np.maximum(diff2 - dc @ dc * sigma2, 0.0)
+        filters.append(filt)
+        errors.append(bias2 + c @ c * sigma2)
+    return filters[int(np.argmin(np.stack(errors), axis=0).min())]
+
+
+def estimate_derivatives(
+    t: FloatArray,
+    q: FloatArray,
+    source: str = "<arrays>",
+    window: float | None = DERIVATIVE_WINDOW,
 ) -> tuple[FloatArray, FloatArray, DerivativeFilter]:
     """``(qd, qdd, filter)`` estimated from positions ``q (N, n)`` sampled at times ``t (N,)``
-    with :func:`derivative_filter` (module docstring).
+    (module docstring): with the span ``window`` [s] (:func:`derivative_filter`), or, when
+    ``None`` (as the loader does), the span :func:`choose_derivative_filter` picks for these
+    positions.
 
     Raises:
         ValueError: non-uniform sampling (:func:`uniform_sample_time`) or fewer samples than
             the filter's window.
     """
-    filt = derivative_filter(uniform_sample_time(t, source))
+    if window is None:
+        filt = choose_derivative_filter(t, q, source)
+    else:
+        filt = derivative_filter(uniform_sample_time(t, source), window)
     q = np.asarray(q, dtype=np.float64)
     if q.shape[0] < filt.window:
         raise ValueError(
@@ -203,10 +287,23 @@ def estimate_derivatives(
 
 @dataclass(frozen=True)
 class Estimate:
-    """Which derivative groups of one segment were estimated, and by which filter."""
+    """Which derivative groups of one segment were estimated, and by which filter.
+
+    Attributes:
+        groups: the estimated groups (``("qd", "qdd")`` or ``("qdd",)``).
+        filter: the :class:`DerivativeFilter`.
+        interior: ``True`` once the segment's ``window // 2`` edge rows at each end (the
+            filter's edge fit) were dropped (:meth:`Trajectories.interior`).
+    """
 
     groups: tuple[str, ...]
     filter: DerivativeFilter
+    interior: bool = False
+
+    @property
+    def edge_rows(self) -> int:
+        """Rows at each end of the segment whose derivatives come from the edge fit."""
+        return 0 if self.interior else self.filter.window // 2
 
 
 @dataclass
@@ -305,6 +402,26 @@ class Trajectories:
             torque_constants=self.torque_constants,
         )
 
+    def edge_rows(self, segment: int) -> int:
+        """Rows at each end of ``segment`` whose ``qd``/``qdd`` come from the derivative
+        filter's edge fit (0 when the file gave them or they were dropped)."""
+        est = self.estimated[segment] if segment < len(self.estimated) else None
+        return 0 if est is None else est.edge_rows
+
+    def interior(self) -> Trajectories:
+        """These trajectories without the :meth:`edge_rows` of every segment (module
+        docstring); ``self`` when there are none. A segment keeps at least its middle row."""
+        keep = np.ones(self.n_samples, dtype=bool)
+        for a, b in self.segments:
+            m = min(self.edge_rows(int(self.segment[a])), (b - a - 1) // 2)
+            keep[a : a + m] = False
+            keep[b - m : b] = False
+        if keep.all():
+            return self
+        out = self._mask(keep)
+        out.estimated = [None if e is None else replace(e, interior=True) for e in self.estimated]
+        return out
+
     def shift_index(self, rows: NDArray[np.int64], k: int) -> NDArray[np.int64]:
         """Rows ``rows + k`` clipped to each row's own segment (targets ``k`` samples later)."""
         out = rows + k
@@ -341,9 +458,13 @@ class Trajectories:
 
 
 def as_trajectories(
-    data: Trajectories | RobotDataset | Sequence[RobotDataset], n_joints: int | None = None
+    data: Trajectories | RobotDataset | Sequence[RobotDataset],
+    n_joints: int | None = None,
+    derivative_window: float | None = None,
 ) -> Trajectories:
-    """Stack datasets into :class:`Trajectories` (one segment per dataset).
+    """Stack datasets into :class:`Trajectories` (one segment per dataset); ``qd``/``qdd`` that
+    a dataset lacks are estimated with the span ``derivative_window`` [s], or, when ``None``,
+    the span chosen per file (:func:`choose_derivative_filter`).
 
     Raises:
         ValueError: no dataset, joint counts that differ between files or from ``n_joints``
@@ -380,7 +501,7 @@ def as_trajectories(
     estimated: list[Estimate | None] = []
     notes: list[str] = []
     for s, ds in enumerate(datasets):
-        qd, qdd, est = _derivatives(ds)
+        qd, qdd, est = _derivatives(ds, derivative_window)
         estimated.append(est)
         notes += _data_warnings(ds, est, qd, qdd)
         parts["t"].append(ds.t)
@@ -427,15 +548,20 @@ def _swing_warnings(values: FloatArray, g: str, of: str, window: int, source: st
     )
 
 
-def _derivatives(ds: RobotDataset) -> tuple[FloatArray, FloatArray, Estimate | None]:
+def _derivatives(
+    ds: RobotDataset, window: float | None = None
+) -> tuple[FloatArray, FloatArray, Estimate | None]:
     """``qd, qdd`` of a dataset: as given, or estimated (module docstring) for the groups
-    that the file lacked (``ds.metadata["computed"]``); a given ``qd`` is differentiated
-    once for a missing ``qdd``."""
+    that the file lacked (``ds.metadata["computed"]``) with the span ``window`` (``None``:
+    chosen); a given ``qd`` is differentiated once for a missing ``qdd``."""
     computed = tuple(g for g in ("qd", "qdd") if g in ds.metadata.get("computed", []))
     if not computed:
         return ds.qd, ds.qdd, None
     source = str(ds.metadata.get("source", "<arrays>"))
-    qd, qdd, filt = estimate_derivatives(ds.t, ds.q, source)
+    # the span is chosen on q's second derivative; a given qd is differentiated at the default
+    if "qd" not in computed:
+        window = DERIVATIVE_WINDOW if window is None else window
+    qd, qdd, filt = estimate_derivatives(ds.t, ds.q, source, window=window)
     if "qd" not in computed:
         qd = ds.qd
         kw = dict(window_length=filt.window, polyorder=filt.order, delta=filt.sample_time)
@@ -443,14 +569,19 @@ def _derivatives(ds: RobotDataset) -> tuple[FloatArray, FloatArray, Estimate | N
     return qd, qdd, Estimate(groups=computed, filter=filt)
 
 
-def load_trajectories(paths: Sequence[str | Path], n_joints: int | None = None) -> Trajectories:
+def load_trajectories(
+    paths: Sequence[str | Path],
+    n_joints: int | None = None,
+    derivative_window: float | None = None,
+) -> Trajectories:
     """Load and validate measurement files (CSV/Parquet, schema of ``models.robot_data``);
-    ``qd``/``qdd`` that a file lacks are estimated (module docstring)."""
+    ``qd``/``qdd`` that a file lacks are estimated (module docstring) with the span
+    ``derivative_window`` [s] (``None``: chosen per file)."""
     with warnings.catch_warnings():
         # the loader's check of its own derivatives is redone on the estimates
         warnings.filterwarnings("ignore", r".* computed from .*", RuntimeWarning)
         datasets = [load_dataset(p, n_joints=n_joints) for p in paths]
-    return as_trajectories(datasets, n_joints)
+    return as_trajectories(datasets, n_joints, derivative_window)
 
 
 def require_rows(traj: Trajectories, needed: int, what: str) -> None:

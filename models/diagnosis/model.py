@@ -100,7 +100,8 @@ class DiagnosisModel:
         max_points: most training rows with a start kernel.
         max_delay_samples: longest delay scanned [samples].
 
-    Fitted attributes: ``train_`` (:class:`Trajectories`), ``rows_`` (training rows),
+    Fitted attributes: ``train_`` (:class:`Trajectories`, interior rows), ``rows_`` (training
+    rows),
     ``ctx_`` (:class:`FeatureContext` of the rows), ``gps_`` / ``theta_`` / ``evidence_`` per
     joint (each joint's GP reads its inputs at ``rows_ - delay``, :meth:`joint_context`),
     ``effects`` calibrated.
@@ -382,7 +383,9 @@ class DiagnosisModel:
         backfit: bool = False,
         _parent: DiagnosisModel | None = None,
     ) -> DiagnosisModel:
-        """Fit on training trajectories (whole files).
+        """Fit on training trajectories (whole files), without the rows at their ends whose
+        ``qd``/``qdd`` come from the derivative filter's edge fit
+        (:meth:`~.data.Trajectories.interior`).
 
         Args:
             train: datasets or :class:`Trajectories`.
@@ -394,7 +397,7 @@ class DiagnosisModel:
         Raises:
             ValueError: joint count of the data differs from the model's (both named).
         """
-        traj = as_trajectories(train, self.n_joints)
+        traj = as_trajectories(train, self.n_joints).interior()
         require_rows(traj, MIN_FIT_ROWS, "fitting a diagnosis model")
         if self.start.robot is not None:
             self.start.robot.check(traj.n_joints)

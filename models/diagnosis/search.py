@@ -869,7 +869,9 @@ def diagnose(
 
     Args:
         model: a fitted :class:`DiagnosisModel`.
-        heldout: held-out trajectories (files never used in the fit).
+        heldout: held-out trajectories (files never used in the fit); every held-out figure
+            is taken on their interior rows (:meth:`~.data.Trajectories.interior`: without the
+            rows whose ``qd``/``qdd`` come from the derivative filter's edge fit).
         library: candidates (default: :func:`default_library`).
         alternatives: candidate label -> label of the effect in ``model`` it is an
             alternative to (kept by :func:`next_version`); effects of the same family are
@@ -879,7 +881,7 @@ def diagnose(
     Returns:
         a :class:`Diagnosis` (``.table()``, ``.verdict()``, ``.best``).
     """
-    held = as_trajectories(heldout, model.n_joints)
+    held = as_trajectories(heldout, model.n_joints).interior()
     require_rows(held, MIN_HELDOUT_ROWS, "confirming effects on held-out data")
     cands = score_candidates(model, library, progress=progress)
     in_model = {e.label: e for e in model.effects}
@@ -946,8 +948,9 @@ def auto_improve(
     """
     versions, diags = [model], []
     alternatives: dict[str, str] = {}
+    held = as_trajectories(heldout, model.n_joints).interior()  # one object: floors are kept
     for _ in range(max_steps + 1):
-        d = diagnose(versions[-1], heldout, alternatives=alternatives, **kwargs)
+        d = diagnose(versions[-1], held, alternatives=alternatives, **kwargs)
         diags.append(d)
         if d.lead is None or len(versions) > max_steps:
             break

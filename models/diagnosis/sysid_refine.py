@@ -165,8 +165,7 @@ def replay_windows(traj: Trajectories, window: float = FREE_RUN_WINDOW) -> list[
         raise ValueError(f"window {window} s is shorter than the sample time")
     starts = []
     for s, (a, b) in enumerate(traj.segments):
-        est = traj.estimated[s] if traj.estimated else None
-        edge = est.filter.window // 2 if est is not None else 0
+        edge = traj.edge_rows(s)
         starts += list(range(a + edge, b - edge - m, m))
     if not starts:
         raise ValueError(

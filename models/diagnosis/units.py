@@ -289,7 +289,7 @@ def _fit_rows(traj: Trajectories) -> tuple[NDArray[np.int64], list[tuple[int, in
     rows, ranges, window = [], [], 0
     for s, (a, b) in enumerate(traj.segments):
         est = traj.estimated[s] if s < len(traj.estimated) else None
-        m = 0 if est is None else est.filter.window // 2
+        m = traj.edge_rows(s)
         window = max(window, 0 if est is None else est.filter.window)
         r = np.arange(a + m, b - m)
         start = sum(len(x) for x in rows)

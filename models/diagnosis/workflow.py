@@ -154,6 +154,7 @@ def run_diagnosis(
     for text in data_warnings:
         log(f"warning: {text}")
     train, test, constants = currents_to_torque(train, test, start, torque_constants)
+    train, test = train.interior(), test.interior()  # without the derivative filter's edges
     if constants is not None:
         log(f"\n== 0. units: {constants.text()}")
     elif train.output == "i":

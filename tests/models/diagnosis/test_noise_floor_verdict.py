@@ -29,6 +29,7 @@ from mcpilco.models.diagnosis import (
     position_noise,
     run_diagnosis,
 )
+from mcpilco.models.diagnosis.data import DERIVATIVE_WINDOW
 from mcpilco.models.diagnosis.search import (
     FLOOR_FACTOR,
     MIN_VERDICT_ROWS,
@@ -48,12 +49,15 @@ def arm():
 
 
 def make_logs(arm, tmp_path, effects=(), **kw):
-    """Training and held-out logs (seeds 0 and 1) as position-only files, and their truth."""
+    """Training and held-out logs (seeds 0 and 1) as position-only files, and their truth;
+    ``qd``/``qdd`` estimated with the shortest span, whose noise reaches the torque."""
     logs = [simulate_log(arm, effects, duration=DURATION, seed=s, **kw) for s in (0, 1)]
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", RuntimeWarning)  # coarse encoders warn about qdd
         trajs = [
-            load_trajectories([write_log(tmp_path / f"log{s}.csv", log)])
+            load_trajectories(
+                [write_log(tmp_path / f"log{s}.csv", log)], derivative_window=DERIVATIVE_WINDOW
+            )
             for s, log in enumerate(logs)
         ]
     return trajs[0], trajs[1], logs[1].truth

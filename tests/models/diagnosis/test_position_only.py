@@ -12,6 +12,8 @@ import pandas as pd
 import pytest
 
 from mcpilco.models.diagnosis.data import (
+    DERIVATIVE_WINDOW,
+    choose_derivative_filter,
     derivative_filter,
     estimate_derivatives,
     load_trajectories,
@@ -76,12 +78,13 @@ def test_position_only_file_loads_with_a_record_of_the_estimate(tmp_path):
     rng = np.random.default_rng(1)
     t, q, qd, qdd = analytic(rng)
     tau = np.cos(t)[:, None].repeat(2, axis=1)
-    only_q = write_csv(tmp_path / "q_only.csv", t, encoder(q, rng), tau)
+    q_meas = encoder(q, rng)
+    only_q = write_csv(tmp_path / "q_only.csv", t, q_meas, tau)
     full = write_csv(tmp_path / "full.csv", t, q, tau, qd=qd, qdd=qdd)
     traj = load_trajectories([only_q, full])
     est, given = traj.estimated
     assert given is None
-    assert est.groups == ("qd", "qdd") and est.filter.window == derivative_filter(DT).window
+    assert est.groups == ("qd", "qdd") and est.filter == choose_derivative_filter(t, q_meas)
     assert est.filter.sample_time == pytest.approx(DT, rel=1e-9)
     a, b = traj.segments
     m = est.filter.window // 2
@@ -129,3 +132,53 @@ def test_simulated_log_round_trip(tmp_path):
         m = traj.estimated[0].filter.window // 2
         scale = np.abs(log.truth.qd).max(axis=0)
         assert (np.abs(traj.qd - log.truth.qd)[m:-m].max(axis=0) < 0.01 * scale).all()
+
+
+def test_interior_drops_the_edge_rows_of_estimated_segments_only(tmp_path):
+    """The filter's edge fit errs far more than its central estimate (analytic truth); the
+    interior keeps exactly the central rows of an estimated file and every row of a file that
+    gave its derivatives, and is its own interior."""
+    rng = np.random.default_rng(4)
+    t, q, qd, qdd = analytic(rng)
+    tau = np.zeros_like(q)
+    only_q = write_csv(tmp_path / "q_only.csv", t, encoder(q, rng), tau)
+    full = write_csv(tmp_path / "full.csv", t, q, tau, qd=qd, qdd=qdd)
+    traj = load_trajectories([only_q, full])
+    m = traj.edge_rows(0)
+    assert m == traj.estimated[0].filter.window // 2 and traj.edge_rows(1) == 0
+    err = np.sqrt(np.mean((traj.qdd[:N] - qdd) ** 2, axis=1))
+    edges = np.concatenate([err[:m], err[-m:]])
+    assert np.sqrt(np.mean(edges**2)) > 3 * np.sqrt(np.mean(err[m:-m] ** 2))
+    inner = traj.interior()
+    assert inner.n_samples == 2 * N - 2 * m and inner.n_segments == 2
+    np.testing.assert_array_equal(inner.t[: N - 2 * m], t[m:-m])
+    np.testing.assert_array_equal(inner.qdd[: N - 2 * m], traj.qdd[m : N - m])
+    np.testing.assert_array_equal(inner.qdd[N - 2 * m :], qdd)
+    assert inner.edge_rows(0) == 0 and inner.estimated[0].filter == traj.estimated[0].filter
+    assert inner.interior() is inner
+
+
+def test_the_span_is_chosen_against_the_noise_of_the_encoder():
+    """Slow motion read by a coarse encoder gets a longer window, and its qdd is closer to
+    the analytic one than with the shortest span; exact positions keep the shortest span
+    (no noise to trade), and so does motion too fast for the longer windows."""
+    rng = np.random.default_rng(5)
+    t = np.arange(N) * DT
+    slow = 0.5 * 2 * math.pi * 0.2
+    q = np.stack([A * np.sin(slow * t), A * np.cos(1.3 * slow * t)], axis=1)
+    qdd = -np.stack([slow**2 * q[:, 0], (1.3 * slow) ** 2 * q[:, 1]], axis=1)
+    step = 2 * math.pi / 2**13
+    coarse = np.round((q + rng.normal(0.0, NOISE * step, q.shape)) / step) * step
+    chosen = choose_derivative_filter(t, coarse)
+    short = derivative_filter(DT, DERIVATIVE_WINDOW)
+    assert chosen.window > short.window
+    m = chosen.window // 2
+    errors = []
+    for filt in (chosen, short):
+        _, qdd_hat, _ = estimate_derivatives(t, coarse, window=(filt.window - 1) * DT)
+        errors.append(np.sqrt(np.mean((qdd_hat - qdd)[m:-m] ** 2, axis=0)))
+    assert (errors[0] < errors[1] / 3).all(), errors
+    assert choose_derivative_filter(t, q).window == short.window
+    fast = np.stack([0.3 * np.sin(2 * math.pi * 3 * t), 0.2 * np.cos(2 * math.pi * 4 * t)], 1)
+    fast = np.round((fast + rng.normal(0.0, NOISE * step, q.shape)) / step) * step
+    assert choose_derivative_filter(t, fast).window == short.window
