@@ -821,12 +821,14 @@ class Diagnosis:
         docstring), or ``""``."""
         if not self.learned_start or not check.failing:
             return ""
-        at = ", ".join(f"{check.ratio[j - 1]:.2f}x on joint {j}" for j in check.failing)
+        at = ", ".join(
+            f"{check.ratio[j - 1]:.2f}x the noise floor on joint {j}" for j in check.failing
+        )
         return (
-            f"; the start model is learned from these logs and this model is at {at} the "
-            "noise floor: a learned start cannot tell its own error from a missing effect, so "
-            "effects found against it there are not reliable (a nominal robot file as the "
-            "start can tell them apart)"
+            f"; the start model is learned from these logs and this model is at {at}: a "
+            "learned start cannot tell its own error from a missing effect, so effects found "
+            "against it there are not reliable (a nominal robot file as the start can tell "
+            "them apart)"
         )
 
     def alternatives(self, cand: Candidate) -> list[Candidate]:

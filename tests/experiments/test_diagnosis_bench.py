@@ -11,6 +11,7 @@ import pytest
 
 from mcpilco.experiments.diagnosis_bench import (
     LIBRARY_KINDS,
+    SPEED_STAGES,
     case_plan,
     run_case,
     run_speed,
@@ -256,3 +257,10 @@ def test_speed_part_times_the_loop_and_writes_its_report(tmp_path):
     data = json.loads((tmp_path / "speed.json").read_text())
     assert data["records"][0]["verdict"] == rec["verdict"]
     assert "| nominal |" in (tmp_path / "speed.md").read_text()
+    # where the time goes: a nominal start has no model to fit or refit, and scoring the
+    # candidates takes a real part of the run
+    stages = {b["stage"]: b["seconds"] for b in rec["breakdown"]}
+    assert list(stages) == list(SPEED_STAGES)
+    assert stages["start-model fit"] == 0.0 and stages["start-model refits (backfitting)"] == 0.0
+    assert stages["candidate scoring (joint effects)"] > 0.1 * sum(stages.values())
+    assert "| candidate scoring (joint effects) |" in (tmp_path / "speed.md").read_text()

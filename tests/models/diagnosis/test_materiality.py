@@ -144,7 +144,8 @@ def test_a_learned_start_above_the_floor_says_its_effects_are_not_reliable():
     d = Diagnosis("v0", [], 5.0, 1.0, 2.0, base=_check([2.13, 1.0]), learned_start=True)
     text = d.verdict()
     assert text.startswith("v0: unexplained: joint 1 at 2.13x the noise floor"), text
-    assert "2.13x on joint 1" in text and "cannot tell its own error" in text
+    assert "this model is at 2.13x the noise floor on joint 1" in text
+    assert "cannot tell its own error" in text
     assert "not reliable" in text
     physics = Diagnosis("v0", [], 5.0, 1.0, 2.0, base=_check([2.13, 1.0]))
     assert "not reliable" not in physics.verdict()
