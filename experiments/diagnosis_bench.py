@@ -548,6 +548,90 @@ def time_diagnosis(case: dict[str, Any], start: str, auto: int = 3) -> dict[str,
     }
 
 
+SPEED_STAGES = (
+    "start-model fit",
+    "candidate scoring (joint effects)",
+    "inertial candidates (links, payload)",
+    "shape refinement and held-out confirmation",
+    "floor checks (held-out noise floor)",
+    "start-model refits (backfitting)",
+    "next versions (effect GPs refitted)",
+    "report and the rest",
+)
+"""Rows of the speed breakdown (:func:`stage_breakdown`), disjoint, in this order."""
+
+
+def stage_breakdown(case: dict[str, Any], start: str, auto: int = 3) -> list[dict[str, Any]]:
+    """Where the time of :func:`time_diagnosis` goes: the run repeated under ``cProfile``,
+    its seconds split into :data:`SPEED_STAGES` by the cumulative time of the functions that
+    do each (the start model's ``fit`` and ``refit``, ``score_candidates`` less the shared
+    rigid-body scoring ``_score_shared``, ``diagnose`` less the scoring and its floor
+    checks, ``heldout_floor``, ``next_version`` less the start refits; the rest is loading,
+    the first fit of the effect GPs, metrics and the report). The profiler slows the run
+    down: the shares, not the seconds, carry over to the timed run.
+
+    Returns:
+        one ``{"stage", "seconds", "share"}`` per stage (``seconds`` under the profiler).
+    """
+    import cProfile
+    import pstats
+
+    from mcpilco.models.diagnosis import search, start_models
+
+    def key(fn: Any) -> tuple[str, int, str]:
+        code = fn.__code__
+        return code.co_filename, code.co_firstlineno, code.co_name
+
+    def unwrap(fn: Any) -> Any:
+        while hasattr(fn, "__wrapped__"):
+            fn = fn.__wrapped__
+        return fn
+
+    prof = cProfile.Profile()
+    prof.enable()
+    try:
+        time_diagnosis(case, start, auto=auto)
+    finally:
+        prof.disable()
+    stats = pstats.Stats(prof).stats
+    fns = {
+        "fit": start_models.LearnedStart.fit,
+        "refit": start_models.LearnedStart.refit,
+        "score": search.score_candidates,
+        "shared": search._score_shared,
+        "diagnose": unwrap(search.diagnose),
+        "floor_check": search.floor_check,
+        "floor": search.heldout_floor,
+        "next": search.next_version,
+    }
+    keys = {name: key(fn) for name, fn in fns.items()}
+
+    def cum(name: str, caller: str | None = None) -> float:
+        entry = stats.get(keys[name])
+        if entry is None:
+            return 0.0
+        if caller is None:
+            return float(entry[3])
+        edge = entry[4].get(keys[caller])
+        return 0.0 if edge is None else float(edge[3])
+
+    total = float(max(ct for _, _, _, ct, _ in stats.values()))
+    rows = [
+        cum("fit"),
+        cum("score") - cum("shared"),
+        cum("shared"),
+        cum("diagnose") - cum("score") - cum("floor_check", "diagnose"),
+        cum("floor") + cum("floor_check", "diagnose") - cum("floor", "floor_check"),
+        cum("refit"),
+        cum("next") - cum("refit"),
+    ]
+    rows.append(total - sum(rows))
+    return [
+        {"stage": stage, "seconds": sec, "share": sec / total if total > 0 else 0.0}
+        for stage, sec in zip(SPEED_STAGES, rows, strict=True)
+    ]
+
+
 def run_speed(
     out: str | Path = "results/diagnosis_speed",
     seed: int = 0,
@@ -556,11 +640,13 @@ def run_speed(
     workdir: str | Path | None = None,
     train_files: int = 3,
     duration: float = 10.0,
+    breakdown: bool = True,
 ) -> dict[str, Any]:
     """Time the diagnosis loop on the speed case (:func:`speed_case`: 3 joints, 7,503
-    training rows) with each start in ``starts`` (:func:`time_diagnosis`) and write ``out``
-    ``.json`` and ``.md``. The targets: nominal start under 10 s, GIP start under 60 s
-    (``train_files``, ``duration``: a smaller case, :func:`speed_case`).
+    training rows) with each start in ``starts`` (:func:`time_diagnosis`), say where the
+    time goes (``breakdown``: :func:`stage_breakdown`, a second, profiled run per start) and
+    write ``out`` ``.json`` and ``.md``. The targets: nominal start under 10 s, GIP start
+    under 60 s (``train_files``, ``duration``: a smaller case, :func:`speed_case`).
 
     Returns:
         ``{"case", "records", "markdown"}``.
@@ -571,6 +657,9 @@ def run_speed(
     with tempfile.TemporaryDirectory() as tmp:
         case = speed_case(workdir or tmp, seed=seed, train_files=train_files, duration=duration)
         records = [time_diagnosis(case, s, auto=auto) for s in starts]
+        if breakdown:
+            for r in records:
+                r["breakdown"] = stage_breakdown(case, r["start"], auto=auto)
     info = {
         "seed": seed,
         "effect": list(SPEED_EFFECT),
@@ -619,4 +708,20 @@ def speed_markdown(info: dict[str, Any], records: list[dict[str, Any]]) -> str:
             f"| {r['start']} | {r['wall_s']:.1f} | {r['cpu_s']:.1f} | {len(r['versions'])} "
             f"({added}) | {ratio} | {r['verdict'].split(':', 1)[-1].split(' (')[0].strip()} |"
         )
+    timed = [r for r in records if r.get("breakdown")]
+    if timed:
+        lines += [
+            "",
+            "Where the time goes (a second run of each start under `cProfile`, which slows it "
+            "down: seconds under the profiler, and the share of that run):",
+            "",
+            "| stage | " + " | ".join(r["start"] for r in timed) + " |",
+            "|---|" + "---|" * len(timed),
+        ]
+        for k, stage in enumerate(SPEED_STAGES):
+            cells = [
+                f"{r['breakdown'][k]['seconds']:.1f} s ({100 * r['breakdown'][k]['share']:.0f}%)"
+                for r in timed
+            ]
+            lines.append(f"| {stage} | " + " | ".join(cells) + " |")
     return "\n".join(lines) + "\n"

@@ -29,7 +29,9 @@ Noise floor (the error a perfect model still has on held-out data)
     itself and the first/second derivative coefficients),
     ``sigma_in,j^2 = mean_t sum_k sigma_x,k^2 w_jk(t)^T B B^T w_jk(t)`` with
     ``w_jk = (d tau_j / d q_k, d tau_j / d qd_k, d tau_j / d qdd_k)`` (central differences of
-    the model's prediction, step = the input's noise std). ``B B^T`` holds the noise gains
+    the model's prediction, step = the input's noise std; forward differences from the
+    prediction itself when it is at hand, half the predictions: the step is small against
+    the scale on which the torque bends). ``B B^T`` holds the noise gains
     ``||c_1||^2``, ``||c_2||^2`` on its diagonal and the correlations between the sample and its
     estimated derivatives off it. The filtered noise is not white, but the filter's edges make
     part of it visible to the first differences that estimate ``sigma_meas``: that part,
@@ -224,10 +226,15 @@ def at_rest(traj: Trajectories) -> NDArray[np.bool_]:
     return rest
 
 
-def input_noise(traj: Trajectories, predict: Callable[[Trajectories], FloatArray]) -> InputNoise:
+def input_noise(
+    traj: Trajectories,
+    predict: Callable[[Trajectories], FloatArray],
+    at: FloatArray | None = None,
+) -> InputNoise:
     """``sigma_in`` of the prediction ``predict(traj)`` (``(N, n)`` output) on ``traj`` from
     the noise of its estimated derivatives (module docstring): central differences of
-    ``predict`` on copies of ``traj`` with one input column moved by its noise std."""
+    ``predict`` on copies of ``traj`` with one input column moved by its noise std, or
+    forward differences from ``at`` (``predict(traj)``, when at hand)."""
     n = traj.n_joints
     pos = position_noise(traj)
     var = np.zeros((traj.n_samples, n))
@@ -257,13 +264,17 @@ def input_noise(traj: Trajectories, predict: Callable[[Trajectories], FloatArray
             if not hk.any():
                 continue
             col = getattr(traj, g)
-            up, down = col.copy(), col.copy()
+            up = col.copy()
             up[:, k] += hk
-            down[:, k] -= hk
             y_up = predict(dataclasses.replace(traj, **{g: up}))
-            y_down = predict(dataclasses.replace(traj, **{g: down}))
             safe = np.where(hk > 0, hk, 1.0)[:, None]
-            grad[:, :, k] = np.where(hk[:, None] > 0, (y_up - y_down) / (2.0 * safe), 0.0)
+            if at is None:
+                down = col.copy()
+                down[:, k] -= hk
+                diff = (y_up - predict(dataclasses.replace(traj, **{g: down}))) / (2.0 * safe)
+            else:
+                diff = (y_up - at) / safe
+            grad[:, :, k] = np.where(hk[:, None] > 0, diff, 0.0)
         grads[g] = grad
     for span, groups, gram, dgram, sigma in parts:
         # w: (rows, n_out, n_in, groups); var = sum_k sigma_k^2 w^T G w

@@ -17,7 +17,12 @@ Significance
     held-out RMSE of the joints it acts on lower by more than ``min_heldout_gain`` percent
     (default 1%) when the effect is added and the model refitted (trajectories held out
     whole: the held-out files never enter the fit; several joints are pooled in units of
-    their noise std, :func:`heldout_change_pct`).
+    their noise std, :func:`heldout_change_pct`), and material: on some joint it acts on it
+    explains more than ``min_explained`` (default :data:`MIN_EXPLAINED`) of the noise floor's
+    variance, ``(e_before_j^2 - e_after_j^2) / f_j^2`` (held-out RMSE ``e_j``, floor ``f_j``).
+    Many training rows make a negligible term significant (a Bayes factor grows with ``N``,
+    and derivative noise correlated by the filter inflates it further); a term whose torque
+    is a small fraction of the noise is not named as an effect.
 Missing or only under-learned (learned starts)
     A GIP start's kernel spans a known, finite function space (thesis eq. 3.8/3.11): an offset,
     an armature ``qdd_j``, a payload (rigid-body torques), a prismatic spring. Such a candidate
@@ -25,7 +30,18 @@ Missing or only under-learned (learned starts)
     their own prior variance; the GIP product kernel ties them to others), but it cannot be
     *missing* from a GIP model fitted on data that hold it. It is reported as a refinement
     ("in the start model's span"), never as the missing effect; :func:`auto_improve` still
-    adds it when no missing effect is left, since it lowers the held-out error.
+    adds it when no missing effect is left and it acts on a joint above the noise floor,
+    since it lowers the held-out error there (at the floor there is nothing to refine).
+Learned start not at the floor
+    A learned start (GIP/RBF GP fitted on the training logs) may itself miss the held-out
+    log: it extrapolates to states its rows do not cover, and its error there looks like a
+    missing effect. On a joint above :data:`FLOOR_FACTOR` floors a learned-start candidate
+    is named only when it explains at least :data:`MIN_EXCESS_SHARE` of that joint's excess
+    held-out variance over the floor, ``(e_before^2 - e_after^2) / (e_before^2 - f^2)`` (a
+    missing effect explains the bulk of the miss; a term fitted to the start's own error
+    explains little of it); and a verdict that leaves such a joint above the floor says that
+    a learned start cannot tell its own error from a missing effect, so effects found
+    against it there are not reliable.
 Groups (what the data cannot tell apart)
     Two candidates on the same joint are in one group when their fitted torque contributions
     on the training rows correlate with ``|rho| > group_correlation`` (default 0.9); the
@@ -106,6 +122,7 @@ __all__ = [
     "FloorCheck",
     "auto_improve",
     "diagnose",
+    "explained_share",
     "floor_check",
     "heldout_change_pct",
     "heldout_floor",
@@ -117,7 +134,15 @@ __all__ = [
 ]
 
 EVIDENCE_THRESHOLD = 5.0
+"""Log-evidence gain of a significant candidate [nats] (Bayes factor e^5 ~ 150)."""
 MIN_HELDOUT_GAIN = 1.0
+"""Held-out RMSE reduction a significant candidate needs [%]."""
+MIN_EXCESS_SHARE = 0.5
+"""Share of a joint's excess held-out variance over the floor that a candidate on a
+learned start explains to be named there (module docstring)."""
+MIN_EXPLAINED = 0.1
+"""Share of a joint's noise-floor variance a material candidate explains on held-out data
+(its torque at least about a third of the noise std)."""
 GROUP_CORRELATION = 0.9
 INDISTINCT_NATS = 2.0
 FLOOR_FACTOR = 1.2
@@ -139,12 +164,14 @@ class Candidate:
     outputs: list[int]
     contributions: dict[int, FloatArray] = field(default_factory=dict, repr=False)
     heldout_delta_pct: float | None = None
+    explained: float | None = None
     group: int = 0
     significant: bool = False
     in_start_span: bool = False
     alternative_to: str | None = None
     replace_delta: float | None = None
     confounded: str | None = None
+    unreliable: str | None = None
 
     @property
     def missing(self) -> bool:
@@ -501,7 +528,7 @@ def heldout_floor(
         return kept[1].copy()
     if mean is None:
         mean, _ = model.predict(heldout, with_var=False)
-    inputs = input_noise(heldout, lambda tr: model.predict(tr, with_var=False)[0])
+    inputs = input_noise(heldout, lambda tr: model.predict(tr, with_var=False)[0], at=mean)
     mean, rest = model.set_valued(heldout, mean)
     floor = noise_floor(without_fitted_scales(heldout, model.effects), mean, inputs, rest)
     model.floors_[key] = (heldout, floor)
@@ -594,6 +621,29 @@ def heldout_change_pct(
     return 100.0 * (e_after / e_before - 1.0)
 
 
+def explained_share(
+    before: FloatArray,
+    after: FloatArray,
+    floor: FloatArray,
+    outputs: Sequence[int] | FloatArray,
+    excess: bool = False,
+) -> float:
+    """Largest share of a joint's held-out variance that a change of the model explains,
+    ``max_j (e_before_j^2 - e_after_j^2) / d_j`` over the joints ``outputs`` (0-based; RMSE
+    ``e_j``, floor ``f_j``): of the noise floor's variance, ``d_j = f_j^2``, or of the excess
+    over it, ``d_j = e_before_j^2 - f_j^2`` (``excess``); joints with ``d_j <= 0`` skipped
+    (``0.0`` when none is left)."""
+    j = np.asarray(outputs, dtype=int)
+    d = np.square(floor[j])
+    if excess:
+        d = np.square(before[j]) - d
+    ok = d > 0
+    if not ok.any():
+        return 0.0
+    gain = (np.square(before[j]) - np.square(after[j]))[ok] / d[ok]
+    return float(np.max(gain))
+
+
 def _confounded_with_constants(model: DiagnosisModel, cand: Candidate) -> str | None:
     """Why ``cand`` cannot be told apart from an estimated torque constant, or ``None``.
 
@@ -642,8 +692,12 @@ class Diagnosis:
     threshold: float
     min_heldout_gain: float
     indistinct_nats: float
+    min_explained: float = MIN_EXPLAINED
     base: FloorCheck | None = None
     after: FloorCheck | None = None
+    learned_start: bool = False
+    """Whether the model's start is a learned GP (its own error cannot be told apart from a
+    missing effect, module docstring)."""
 
     @property
     def significant(self) -> list[Candidate]:
@@ -657,8 +711,15 @@ class Diagnosis:
 
     @property
     def refinement(self) -> Candidate | None:
-        """The first significant candidate inside the start model's span (not missing)."""
-        inside = [c for c in self.significant if c.in_start_span]
+        """The first significant candidate inside the start model's span (not missing) that
+        acts on a joint above the noise floor (on a model at the floor on its joints there is
+        nothing left for it to refine)."""
+        failing = set(self.base.failing) if self.base is not None else None
+        inside = [
+            c
+            for c in self.significant
+            if c.in_start_span and (failing is None or failing & set(c.outputs))
+        ]
         return inside[0] if inside else None
 
     @property
@@ -689,13 +750,14 @@ class Diagnosis:
             rule = (
                 f"no candidate outside the start model's span gains more than "
                 f"{self.threshold:g} nats of evidence with a physical sign and a held-out "
-                f"improvement above {self.min_heldout_gain:g}%"
+                f"improvement above {self.min_heldout_gain:g}% that explains more than "
+                f"{100 * self.min_explained:g}% of a joint's noise-floor variance"
             )
             if check is not None and check.failing:
                 text = f"{self.model_name}: unexplained: {check.failing_text()}; {rule}"
                 if ref is not None:
                     text += f", and the refinement {ref.effect.variant_label} leaves it there"
-                return text
+                return text + self._learned_text(check)
             text = f"{self.model_name}: no significant missing effect ({rule})"
             if ref is not None:
                 text += (
@@ -756,7 +818,24 @@ class Diagnosis:
                 )
             else:
                 text += self._at_floor_text(self.after, " with it")
+        if self.after is not None:
+            text += self._learned_text(self.after)
         return text
+
+    def _learned_text(self, check: FloorCheck) -> str:
+        """With a learned start, what a joint left above the floor means (module
+        docstring), or ``""``."""
+        if not self.learned_start or not check.failing:
+            return ""
+        at = ", ".join(
+            f"{check.ratio[j - 1]:.2f}x the noise floor on joint {j}" for j in check.failing
+        )
+        return (
+            f"; the start model is learned from these logs and this model is at {at}: a "
+            "learned start cannot tell its own error from a missing effect, so effects found "
+            "against it there are not reliable (a nominal robot file as the start can tell "
+            "them apart)"
+        )
 
     def alternatives(self, cand: Candidate) -> list[Candidate]:
         """Candidates the data cannot tell apart from ``cand``: in its group, sharing a joint,
@@ -796,12 +875,16 @@ class Diagnosis:
             return "wrong sign"
         if c.confounded is not None:
             return "not identifiable"
+        if c.unreliable is not None:
+            return "not reliable (learned start)"
         if c.alternative_to is not None:
             return f"alternative to {c.alternative_to}"
         if c.delta <= self.threshold:
             return "weak"
         if c.heldout_delta_pct is None:
             return "untested"
+        if c.heldout_delta_pct < -self.min_heldout_gain and (c.explained or 0.0) > 0.0:
+            return "negligible"
         return "no held-out gain"
 
     def table(self, top: int = 12) -> str:
@@ -829,6 +912,7 @@ class Diagnosis:
             "verdict": self.verdict(),
             "heldout": None if self.base is None else self.base.to_dict(),
             "heldout_with_lead": None if self.after is None else self.after.to_dict(),
+            "learned_start": self.learned_start,
             "candidates": [
                 {
                     "effect": c.effect.variant_label,
@@ -843,6 +927,8 @@ class Diagnosis:
                     "replace_delta_log_evidence": c.replace_delta,
                     "wrong_sign": c.wrong_sign,
                     "confounded": c.confounded,
+                    "unreliable": c.unreliable,
+                    "explained_floor_variance": c.explained,
                     "estimates": [p.__dict__ for p in c.estimates],
                 }
                 for c in self.candidates
@@ -859,6 +945,7 @@ def diagnose(
     n_confirm: int = 3,
     threshold: float = EVIDENCE_THRESHOLD,
     min_heldout_gain: float = MIN_HELDOUT_GAIN,
+    min_explained: float = MIN_EXPLAINED,
     group_correlation: float = GROUP_CORRELATION,
     indistinct_nats: float = INDISTINCT_NATS,
     alternatives: Mapping[str, str] | None = None,
@@ -873,6 +960,8 @@ def diagnose(
             is taken on their interior rows (:meth:`~.data.Trajectories.interior`: without the
             rows whose ``qd``/``qdd`` come from the derivative filter's edge fit).
         library: candidates (default: :func:`default_library`).
+        min_explained: least share of a joint's noise-floor variance a significant
+            candidate explains on ``heldout`` (module docstring).
         alternatives: candidate label -> label of the effect in ``model`` it is an
             alternative to (kept by :func:`next_version`); effects of the same family are
             alternatives without it. An alternative is confirmed as a replacement (module
@@ -892,7 +981,8 @@ def diagnose(
             c.alternative_to = family[0]
         elif other in in_model:
             c.alternative_to = other
-    base_rmse = None
+    base = floor_check(model, held)
+    learned = model.start.has_kernel
     noise = model.noise_std_
     confirmed = 0
     tried: dict[int, DiagnosisModel] = {}
@@ -908,8 +998,6 @@ def diagnose(
         c.confounded = _confounded_with_constants(model, c)
         if c.confounded is not None:
             continue
-        if base_rmse is None:
-            base_rmse = heldout_rmse(model, held)
         if c.alternative_to is None:
             new = model.with_effect(c.effect)
         else:
@@ -919,15 +1007,30 @@ def diagnose(
             c.estimates = new.estimates(c.effect, outs[0]) or c.estimates
         tried[id(c)] = new
         rmse = heldout_rmse(new, held)
-        c.heldout_delta_pct = heldout_change_pct(base_rmse, rmse, noise, np.array(c.outputs) - 1)
-        c.significant = c.heldout_delta_pct < -min_heldout_gain and (
-            c.replace_delta is None or c.replace_delta > threshold
+        outs = np.array(c.outputs) - 1
+        c.heldout_delta_pct = heldout_change_pct(base.rmse, rmse, noise, outs)
+        c.explained = explained_share(base.rmse, rmse, base.floor, outs)
+        failing = [j for j in outs if j + 1 in base.failing]
+        if learned and failing:
+            share = explained_share(base.rmse, rmse, base.floor, failing, excess=True)
+            if share < MIN_EXCESS_SHARE:
+                joints = ", ".join(str(j + 1) for j in failing)
+                c.unreliable = (
+                    f"explains {100 * max(share, 0.0):.0f}% of the learned start's miss on "
+                    f"joint {joints}"
+                )
+        c.significant = (
+            c.heldout_delta_pct < -min_heldout_gain
+            and c.explained > min_explained
+            and c.unreliable is None
+            and (c.replace_delta is None or c.replace_delta > threshold)
         )
         confirmed += 1
     _group(cands[:12], group_correlation)
     cands.sort(key=lambda c: (not c.significant, -c.delta))
-    d = Diagnosis(model.name, cands, threshold, min_heldout_gain, indistinct_nats)
-    d.base = floor_check(model, held)
+    d = Diagnosis(model.name, cands, threshold, min_heldout_gain, indistinct_nats, min_explained)
+    d.base = base
+    d.learned_start = learned
     lead = d.lead
     if lead is not None:
         d.after = floor_check(

@@ -11,6 +11,7 @@ import pytest
 
 from mcpilco.experiments.diagnosis_bench import (
     LIBRARY_KINDS,
+    SPEED_STAGES,
     case_plan,
     run_case,
     run_speed,
@@ -248,7 +249,14 @@ def test_an_effect_below_the_noise_is_not_scored_as_missed():
 def test_speed_part_times_the_loop_and_writes_its_report(tmp_path):
     """A small speed case (one 2 s training log, 501 rows) with the nominal start: the
     report holds its times and verdict, and the damping the generator hid is found."""
-    out = run_speed(tmp_path / "speed", starts=("nominal",), auto=1, train_files=1, duration=2.0)
+    out = run_speed(
+        tmp_path / "speed",
+        starts=("nominal",),
+        auto=1,
+        train_files=1,
+        duration=2.0,
+        breakdown=False,
+    )
     (rec,) = out["records"]
     assert out["case"]["training_rows"] == 501
     assert rec["cpu_s"] > 0 and rec["wall_s"] > 0
@@ -256,3 +264,16 @@ def test_speed_part_times_the_loop_and_writes_its_report(tmp_path):
     data = json.loads((tmp_path / "speed.json").read_text())
     assert data["records"][0]["verdict"] == rec["verdict"]
     assert "| nominal |" in (tmp_path / "speed.md").read_text()
+
+
+@pytest.mark.slow
+def test_speed_breakdown_says_where_the_time_goes(tmp_path):
+    """The profiled rerun's stages: a nominal start has no model to fit or refit, and
+    scoring the candidates takes a real part of the run."""
+    out = run_speed(tmp_path / "speed", starts=("nominal",), auto=1, train_files=1, duration=2.0)
+    (rec,) = out["records"]
+    stages = {b["stage"]: b["seconds"] for b in rec["breakdown"]}
+    assert list(stages) == list(SPEED_STAGES)
+    assert stages["start-model fit"] == 0.0 and stages["start-model refits (backfitting)"] == 0.0
+    assert stages["candidate scoring (joint effects)"] > 0.1 * sum(stages.values())
+    assert "| candidate scoring (joint effects) |" in (tmp_path / "speed.md").read_text()
