@@ -50,8 +50,10 @@ __all__ = [
     "runs_part",
     "section_key",
     "section_table",
+    "reference_table",
     "seed_ranges",
     "timing_part",
+    "timing_row",
     "write_report",
 ]
 
@@ -320,36 +322,43 @@ def timing_part(
     device: str = "cpu",
     compile_rollout: bool = False,
     heap_contrast: bool = False,
+    env_ids: Sequence[str] = (DEFAULT_ENV_ID,),
     log: Callable[[str], None] = print,
 ) -> list[dict[str, Any]]:
     """Part ``timing``: :func:`~mcpilco.experiments.mcpilco_timing.time_opt_step` for every
-    GP size, thread count and particle count (on a CUDA device both with and without a CUDA
-    graph); replaces ``results["timing"]`` and writes the report."""
+    task spec (``env_ids``, each over its own horizon), GP size, thread count and particle
+    count (on a CUDA device both with and without a CUDA graph); replaces
+    ``results["timing"]`` and writes the report."""
     from mcpilco.experiments.mcpilco_timing import time_opt_step
 
     rows = []
     graphs = (True, False) if device.startswith("cuda") else (False,)
-    for n in n_points:
-        for th in threads:
-            for m in particles:
-                for graph in graphs:
-                    t = time_opt_step(
-                        n, num_particles=m, threads=th, device=device, cuda_graph=graph,
-                        compile_rollout=compile_rollout, heap_contrast=heap_contrast,
-                    )  # fmt: skip
-                    comp = t.get("compiled_s_per_step_wall")
-                    log(
-                        f"N={n} M={m} threads={th} device={t['device']} "
-                        f"graph={t['cuda_graph']}: {t['s_per_step_wall']:.3f} s/step wall"
-                        + (f", compiled {comp:.3f}" if comp is not None else "")
-                        + (", compiled step rejected" if t.get("compiled_rejected") else "")
-                        + (
-                            f", 128 KiB heap {t['heap128k_s_per_step_wall']:.3f}"
-                            if "heap128k_s_per_step_wall" in t
-                            else ""
-                        )
-                    )
-                    rows.append(t)
+    grid = [
+        (e, n, th, m, g)
+        for e in env_ids
+        for n in n_points
+        for th in threads
+        for m in particles
+        for g in graphs
+    ]
+    for env_id, n, th, m, graph in grid:
+        t = time_opt_step(
+            n, num_particles=m, threads=th, device=device, cuda_graph=graph,
+            compile_rollout=compile_rollout, heap_contrast=heap_contrast, env_id=env_id,
+        )  # fmt: skip
+        comp = t.get("compiled_s_per_step_wall")
+        log(
+            f"{env_id} N={n} M={m} threads={th} device={t['device']} "
+            f"graph={t['cuda_graph']}: {t['s_per_step_wall']:.3f} s/step wall"
+            + (f", compiled {comp:.3f}" if comp is not None else "")
+            + (", compiled step rejected" if t.get("compiled_rejected") else "")
+            + (
+                f", 128 KiB heap {t['heap128k_s_per_step_wall']:.3f}"
+                if "heap128k_s_per_step_wall" in t
+                else ""
+            )
+        )
+        rows.append(t)
     results["timing"] = rows
     write_report(results, out_dir)
     return rows
@@ -556,6 +565,81 @@ CONVENTION_NOTE = (
 )
 
 
+def timing_row(t: dict) -> str:
+    """One row of a spec's timing table (:func:`write_report`) for a result of
+    :func:`~mcpilco.experiments.mcpilco_timing.time_opt_step`."""
+    graph = "yes" if t.get("cuda_graph") else "no"
+    comp = "| - | - | - | - | - | -"
+    backend = t.get("compile_backend") or "-"
+    if t.get("compile_error"):
+        comp = f"| {backend} | compilation failed | - | - | - | -"
+    elif t.get("compiled_rejected"):
+        comp = f"| {backend} | failed its check against the eager step | - | - | - | -"
+    elif "compiled_s_per_step_wall" in t:
+        comp = (
+            f"| {backend} | {t['compiled_s_per_step_wall']:.3f} "
+            f"| {t['compiled_s_per_step_cpu']:.3f} "
+            f"| {t['s_per_step_cpu'] / t['compiled_s_per_step_cpu']:.2f}x "
+            f"| {t['compile_s']:.1f} | {t.get('rollout_shards', 1)}"
+        )
+    if "torch_s_per_step_wall" in t:
+        comp += f" | {t['torch_s_per_step_wall']:.3f} | {t['torch_s_per_step_cpu']:.3f}"
+    else:
+        comp += " | - | -"
+    if "dynamo_s_per_step_wall" in t:
+        comp += f" | {t['dynamo_s_per_step_wall']:.3f} | {t['dynamo_s_per_step_cpu']:.3f}"
+    else:
+        comp += " | - | -"
+    faults = t.get("page_faults_per_step")
+    heap = "| - | -"
+    if "heap128k_s_per_step_wall" in t:
+        heap = f"| {t['heap128k_s_per_step_wall']:.3f} | {t['heap128k_page_faults_per_step']:.0f}"
+    if "floor_s" in t:
+        heap += f" | {t['floor_s']:.4f} | {t['matmul_gflops']:.0f}"
+    else:
+        heap += " | - | -"
+    return (
+        f"| {t['num_particles']} | {t['n_points']} | {t.get('device', 'cpu')} | {graph} "
+        f"| {t['threads']} | {t['s_per_step_wall']:.3f} | {t['s_per_step_cpu']:.3f} "
+        f"| {'-' if faults is None else f'{faults:.0f}'} {comp} {heap} |"
+    )
+
+
+def reference_table(timing: list[dict]) -> list[str]:
+    """Markdown lines: every timed step (the fast rollout's where there is one, else the
+    eager one) against the reference implementation's seconds per step
+    (:data:`~mcpilco.experiments.mcpilco_timing.REFERENCE_S_PER_STEP`), with its floor."""
+    from mcpilco.experiments.mcpilco_timing import REFERENCE_S_PER_STEP, reference_speedup
+
+    lo, hi = REFERENCE_S_PER_STEP
+    md = [
+        "### Against the reference implementation",
+        "",
+        f"The reference implementation (merlresearch/MC-PILCO) takes {lo:.2f}-{hi:.2f} s per "
+        "optimisation step on the cart-pole at N = 60 GP points and 400 particles on this "
+        "machine class; each step here (the fast rollout's, else the eager one, wall clock) "
+        "is divided into that range. The reference was timed at N = 60 only: at larger N, "
+        "on the other specs, it would take longer, so the ratio understates the speed-up.",
+        "",
+        "| spec | particles M | GP points N | threads | step | wall s/step | CPU s/step "
+        "| floor s/step | x reference |",
+        "|---|---|---|---|---|---|---|---|---|",
+    ]
+    for t in timing:
+        fast = "compiled_s_per_step_wall" in t
+        key = "compiled_" if fast else ""
+        wall, cpu = t[f"{key}s_per_step_wall"], t[f"{key}s_per_step_cpu"]
+        step = t.get("compile_backend") if fast else "eager"
+        floor = f"{t['floor_s']:.4f}" if "floor_s" in t else "-"
+        a, b = reference_speedup(wall)
+        md.append(
+            f"| {t.get('env_id', DEFAULT_ENV_ID)} | {t['num_particles']} | {t['n_points']} "
+            f"| {t['threads']} | {step} | {wall:.3f} | {cpu:.3f} | {floor} | {a:.0f}-{b:.0f}x |"
+        )
+    md.append("")
+    return md
+
+
 def write_report(results: dict, out_dir: Path) -> None:
     """``mcpilco_cartpole.md``, ``.json`` and (with runs) ``.png`` of ``results`` in
     ``out_dir``: one table per runs section, the timing table, the two RMSE tables; the
@@ -568,9 +652,11 @@ def write_report(results: dict, out_dir: Path) -> None:
         md.append(section_table(env_id, section))
     if results.get("timing"):
         md += [
-            "### Seconds per optimisation step (H = 60)",
+            "### Seconds per optimisation step",
             "",
-            "A step at a few particles is the fixed cost of the 60-step rollout (one op after "
+            "One table per task spec (its states n, actions A, GP outputs m and horizon H).",
+            "",
+            "A step at a few particles is the fixed cost of the H-step rollout (one op after "
             "another, forward and backward); the rest grows with M.",
             "",
             "Fast: the same step with the fast rollout (`--compile-rollout`) of the default "
@@ -588,54 +674,31 @@ def write_report(results: dict, out_dir: Path) -> None:
             "(`retain_host_memory`). 128 KiB heap: the eager step with glibc's initial "
             "allocator thresholds instead (`--timing-heap-contrast`), in the same rounds.",
             "",
-            "| particles M | GP points N | device | CUDA graph | threads | wall s/step "
-            "| CPU s/step | faults | fast: backend | wall s/step | CPU s/step "
-            "| speed-up (CPU) | build s | shards | torch: wall s/step | CPU s/step "
-            "| dynamo: wall s/step | CPU s/step | 128 KiB heap: wall s/step | faults "
-            "| floor s/step | GFLOP/s |",
-            "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"
-            "---|---|",
         ]
-        for t in results["timing"]:
-            graph = "yes" if t.get("cuda_graph") else "no"
-            comp = "| - | - | - | - | - | -"
-            backend = t.get("compile_backend") or "-"
-            if t.get("compile_error"):
-                comp = f"| {backend} | compilation failed | - | - | - | -"
-            elif t.get("compiled_rejected"):
-                comp = f"| {backend} | failed its check against the eager step | - | - | - | -"
-            elif "compiled_s_per_step_wall" in t:
-                comp = (
-                    f"| {backend} | {t['compiled_s_per_step_wall']:.3f} "
-                    f"| {t['compiled_s_per_step_cpu']:.3f} "
-                    f"| {t['s_per_step_cpu'] / t['compiled_s_per_step_cpu']:.2f}x "
-                    f"| {t['compile_s']:.1f} | {t.get('rollout_shards', 1)}"
-                )
-            if "torch_s_per_step_wall" in t:
-                comp += f" | {t['torch_s_per_step_wall']:.3f} | {t['torch_s_per_step_cpu']:.3f}"
-            else:
-                comp += " | - | -"
-            if "dynamo_s_per_step_wall" in t:
-                comp += f" | {t['dynamo_s_per_step_wall']:.3f} | {t['dynamo_s_per_step_cpu']:.3f}"
-            else:
-                comp += " | - | -"
-            faults = t.get("page_faults_per_step")
-            heap = "| - | -"
-            if "heap128k_s_per_step_wall" in t:
-                heap = (
-                    f"| {t['heap128k_s_per_step_wall']:.3f} "
-                    f"| {t['heap128k_page_faults_per_step']:.0f}"
-                )
-            if "floor_s" in t:
-                heap += f" | {t['floor_s']:.4f} | {t['matmul_gflops']:.0f}"
-            else:
-                heap += " | - | -"
-            md.append(
-                f"| {t['num_particles']} | {t['n_points']} | {t.get('device', 'cpu')} | {graph} "
-                f"| {t['threads']} | {t['s_per_step_wall']:.3f} | {t['s_per_step_cpu']:.3f} "
-                f"| {'-' if faults is None else f'{faults:.0f}'} {comp} {heap} |"
+        groups: dict[str, list[dict]] = {}
+        for t in results["timing"]:  # rows saved before specs were recorded: the cart-pole
+            groups.setdefault(t.get("env_id", DEFAULT_ENV_ID), []).append(t)
+        for env_id, rows in groups.items():
+            t0 = rows[0]
+            shape = (
+                f"n = {t0['state_dim']}, A = {t0['action_dim']}, m = {t0['gp_outputs']}, "
+                if "state_dim" in t0
+                else ""
             )
-        md.append("")
+            md += [
+                f"#### {env_id} ({shape}H = {t0.get('horizon', 60)})",
+                "",
+                "| particles M | GP points N | device | CUDA graph | threads | wall s/step "
+                "| CPU s/step | faults | fast: backend | wall s/step | CPU s/step "
+                "| speed-up (CPU) | build s | shards | torch: wall s/step | CPU s/step "
+                "| dynamo: wall s/step | CPU s/step | 128 KiB heap: wall s/step | faults "
+                "| floor s/step | GFLOP/s |",
+                "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"
+                "---|---|",
+            ]
+            md += [timing_row(t) for t in rows]
+            md.append("")
+        md += reference_table(results["timing"])
     if results.get("rmse"):
         r = results["rmse"]
         md += [

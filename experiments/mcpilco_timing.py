@@ -24,9 +24,29 @@ import numpy as np
 
 from mcpilco.agents.mc_pilco import DEFAULT_ENV_ID, TaskSpec
 
-__all__ = ["exploration_data", "matmul_rate", "time_opt_step", "variance_flops"]
+__all__ = [
+    "REFERENCE_S_PER_STEP",
+    "exploration_data",
+    "matmul_rate",
+    "reference_speedup",
+    "time_opt_step",
+    "variance_flops",
+]
 
 MATMUL_SIZE = 512  # rows and columns of the square float32 product that measures the rate
+
+# seconds per optimisation step of the reference implementation (merlresearch/MC-PILCO) on the
+# cart-pole at N = 60 GP points, 400 particles (lowest, highest measured on this machine class)
+REFERENCE_S_PER_STEP = (0.45, 0.58)
+
+
+def reference_speedup(s_per_step: float) -> tuple[float, float]:
+    """How many times faster than the reference implementation a step of ``s_per_step``
+    seconds is: :data:`REFERENCE_S_PER_STEP` divided by it (lowest, highest)."""
+    if not s_per_step > 0:
+        raise ValueError(f"s_per_step must be > 0, got {s_per_step}")
+    lo, hi = REFERENCE_S_PER_STEP
+    return lo / s_per_step, hi / s_per_step
 
 
 def variance_flops(n_points: int, num_particles: int, outputs: int, horizon: int) -> float:
@@ -78,7 +98,7 @@ def exploration_data(env_id: str, n_points: int, seed: int, hold: int = 1):
 def time_opt_step(
     n_points: int,
     num_particles: int = 400,
-    horizon: int = 60,
+    horizon: int | None = None,
     kernel: str = "rbf+mpk",
     threads: int = 1,
     repeats: int = 5,
@@ -88,7 +108,9 @@ def time_opt_step(
     compile_rollout: bool = False,
     heap_contrast: bool = False,
 ) -> dict[str, float]:
-    """Median wall and CPU seconds of one optimisation step (rollout, backward, Adam).
+    """Median wall and CPU seconds of one optimisation step (rollout, backward, Adam) on the
+    task of ``env_id`` (its :class:`~mcpilco.agents.mc_pilco.TaskSpec`: state and action
+    sizes, GP outputs, cost) over ``horizon`` steps (None: the task's horizon).
 
     ``compile_rollout``: also time the same step with a fast rollout
     (:func:`~mcpilco.agents.mc_pilco.use_fast_rollout`) of the default backend
@@ -139,6 +161,7 @@ def time_opt_step(
     retain_host_memory()
     s, a, s1, _ = exploration_data(env_id, n_points, 0)
     task = TaskSpec.for_env(env_id)
+    horizon = task.horizon if horizon is None else int(horizon)
     model = GPDynamicsModel(task, kernel=kernel, adam_iters=30, lbfgs_iters=5, max_points=None)
     model.fit(s, a, s1)
     policy = SquashedRBFPolicy(
@@ -208,6 +231,11 @@ def time_opt_step(
             if name == "heap128k":
                 retain_host_memory()
     out = {
+        "env_id": env_id,
+        "state_dim": dynamics.layout.n,
+        "action_dim": policy.action_dim,
+        "gp_outputs": dynamics.layout.output_dim,
+        "horizon": horizon,
         "n_points": n_points,
         "num_particles": num_particles,
         "threads": threads,

@@ -10,9 +10,11 @@ Four parts, each optional:
 2. ``timing``: seconds per policy optimisation step (forward + backward through the
    ``M x H`` particle rollout + Adam step) at ``M = 400`` particles (``--timing-particles``:
    e.g. ``25 400``, where the few-particle step is the fixed, op-by-op cost of the horizon),
-   ``H = 60``, for several GP sizes ``N`` (GP fitted on random-exploration data), 1 torch
-   thread and 2 threads. With ``--device cuda`` each step is timed both as one replayed CUDA
-   graph (what the optimiser does on a GPU) and launched op by op.
+   the task's horizon ``H`` (60 on the cart-pole), for several GP sizes ``N`` (GP fitted on
+   random-exploration data), 1 torch thread and 2 threads, on the task specs of
+   ``--timing-env`` (default: the cart-pole), with each step's floor and its ratio to the
+   reference implementation's seconds per step. With ``--device cuda`` each step is timed
+   both as one replayed CUDA graph (what the optimiser does on a GPU) and launched op by op.
 3. ``rmse``: RBF+MPK vs RBF-only (thesis Fig. 5.5): both GPs fitted on the same 3 s of
    random exploration (actions held the preset's ``explore_hold`` steps, ``--explore-hold``);
    a fixed learned swing-up policy (the final policy of a successful run of part 1, or
@@ -36,6 +38,7 @@ Usage::
     mcpilco-bench-mcpilco --parts runs --seeds 5 --preset small
     mcpilco-bench-mcpilco --parts runs --env mcpilco/DMCCartpoleSwingUp-v0 --seeds 5
     mcpilco-bench-mcpilco --parts timing rmse
+    mcpilco-bench-mcpilco --parts timing --compile-rollout --timing-env mcpilco/UR10-v0
     mcpilco-bench-mcpilco --pool bench bench5                  # one section, seeds of both
     mcpilco-bench-mcpilco --parts timing --device cuda --timing-particles 400 4000
 """
@@ -134,7 +137,14 @@ def build_parser() -> argparse.ArgumentParser:
         default="cpu",
         help="where the runs' policy optimisation and the timing part run: cpu or cuda[:index]",
     )
-    p.add_argument("--timing-n", type=int, nargs="+", default=[100, 200, 300])
+    p.add_argument("--timing-n", type=int, nargs="+", default=[100, 200, 250, 300])
+    p.add_argument(
+        "--timing-env",
+        nargs="+",
+        default=[DEFAULT_ENV_ID],
+        help="env ids whose task specs the timing part times (each over its own horizon; "
+        "e.g. mcpilco/UR10-v0: 24 states, 6 actions, 12 GP outputs)",
+    )
     p.add_argument("--timing-threads", type=int, nargs="+", default=[1, 2])
     p.add_argument(
         "--timing-particles",
@@ -211,7 +221,7 @@ def main(argv: list[str] | None = None) -> int:
         timing_part(
             results, args.out, args.timing_n, args.timing_threads, args.timing_particles,
             device=args.device, compile_rollout=bool(args.compile_rollout),
-            heap_contrast=bool(args.timing_heap_contrast),
+            heap_contrast=bool(args.timing_heap_contrast), env_ids=args.timing_env,
         )  # fmt: skip
     if "rmse" in args.parts:
         try:

@@ -67,9 +67,12 @@ inline float exp_floor(float x) { return std::exp(x < EXP_FLOOR ? EXP_FLOOR : x)
 
 inline int pad_rows(int rows) { return (rows + RB - 1) / RB * RB; }
 
-// C[r][16] = sum_{k in [beg_b, end_b)} A[r][k] X(k)[16] for the rows r of every block b of
-// the packed matrix P, where X(k) = X1 + 16 k for k < split, X2 + 16 (k - split) after.
-void gemm_tile(const Packed &P, const float *X1, int split, const float *X2, float *C) {
+// C_r[16] = sum_{k in [beg_b, end_b)} A[r][k] X(k)[16] for the rows r of every block b of
+// the packed matrix P, where X(k) = X1 + 16 k for k < split, X2 + 16 (k - split) after;
+// each block's RB x 16 results go, still in registers, to epi(first row, c0, c1) (c0[r],
+// c1[r]: particles 0-7 and 8-15 of row first + r), which stores or consumes them.
+template <class Epi>
+inline void gemm_tile(const Packed &P, const float *X1, int split, const float *X2, Epi &&epi) {
     for (int b = 0; b < P.blocks; ++b) {
         v8 c0[RB], c1[RB];
 #pragma GCC unroll 8
@@ -98,16 +101,40 @@ void gemm_tile(const Packed &P, const float *X1, int split, const float *X2, flo
                 }
             }
         }
-        float *c = C + b * RB * TILE;
+        epi(b * RB, c0, c1);
+    }
+}
+
+// gemm_tile storing every row (the padding rows too) in C (rows x 16)
+inline void gemm_tile_store(const Packed &P, const float *X1, int split, const float *X2,
+                            float *C) {
+    gemm_tile(P, X1, split, X2, [C](int first, const v8 *c0, const v8 *c1) {
+        float *c = C + (int64_t)first * TILE;
 #pragma GCC unroll 8
         for (int r = 0; r < RB; ++r) {
             st(c + r * TILE, c0[r]);
             st(c + r * TILE + 8, c1[r]);
         }
-    }
+    });
 }
 
 constexpr int NO_SPLIT = 1 << 30;  // split of a gemm_tile whose X is one block of rows
+
+constexpr int PREFETCH_LINES = 16;  // cache lines of the next record requested per call of next()
+
+// Requests a record (the next one the backward loop reads, written long before and since
+// evicted to memory) into the caches a few lines at a time, between the kernel's blocks, so
+// that its loads overlap the arithmetic instead of waiting at the start of its step.
+struct Prefetch {
+    const char *p = nullptr, *end = nullptr;
+    void start(const float *rec, int64_t floats) {
+        p = (const char *)rec;
+        end = rec ? p + floats * (int64_t)sizeof(float) : p;
+    }
+    void next() {
+        for (int i = 0; i < PREFETCH_LINES && p < end; ++i, p += 64) __builtin_prefetch(p, 0, 3);
+    }
+};
 
 // offsets (floats) of a tile's record of one step, each block a multiple of 16
 struct Lay {
@@ -168,11 +195,11 @@ struct Pol {
 
 // scratch of one thread, sized for the model
 struct Work {
-    std::vector<float> E, xa, mean, var, u, feat, dV, dR, dx, dxs, dpsi, wprior, gmean, gvar,
+    std::vector<float> xa, mean, var, u, feat, dR, dx, dxs, dpsi, wprior, gmean, gvar,
         gstate, G, gs, gin, gf, ga, gx, csum, delta;
     explicit Work(const Model &M)
-        : E(pad_rows(M.N) * TILE), xa((M.d + 2) * TILE), mean(M.m * TILE), var(M.m * TILE),
-          u(M.A * TILE), feat(M.fp), dV(pad_rows(M.N + 1) * TILE),
+        : xa((M.d + 2) * TILE), mean(M.m * TILE), var(M.m * TILE),
+          u(M.A * TILE), feat(M.fp),
           dR((int64_t)pad_rows(M.f + M.N) * TILE), dx(pad_rows(M.d + 1) * TILE),
           dxs(M.d * TILE), dpsi((M.f > 0 ? M.f : 1) * TILE), wprior(M.d * TILE),
           gmean(M.m * TILE), gvar(M.m * TILE), gstate(M.n * TILE), G((int64_t)TILE * M.nb),
@@ -447,16 +474,30 @@ void step_forward_tile(const Model &M, const Lay &L, const Pol &P, float *x, con
             st(xa + d * TILE + h, bc(1.0f));
             st(xa + (d + 1) * TILE + h, sq * bc(-0.5f));
         }
-        gemm_tile(M.w_aug[b], xa, NO_SPLIT, xa, W.E.data());
-        for (int j = 0; j < N * TILE; j += 8) st(r + j, vexp_floor(ld(W.E.data() + j)));
-        // [V; mean] = [B; alpha_aug] [psi; r]
-        gemm_tile(M.fwd[b], psi, F, r, V);
-        for (int h = 0; h < TILE; h += 8) {
-            v8 vv = bc(0.0f);
-            for (int i = 0; i < N; ++i) {
-                v8 s = ld(V + i * TILE + h);
-                vv += s * s;
+        gemm_tile(M.w_aug[b], xa, NO_SPLIT, xa, [r, N](int first, const v8 *c0, const v8 *c1) {
+            const int rows = N - first < RB ? N - first : RB;  // the padding rows are dropped
+            for (int q = 0; q < rows; ++q) {
+                st(r + (first + q) * TILE, vexp_floor(c0[q]));
+                st(r + (first + q) * TILE + 8, vexp_floor(c1[q]));
             }
+        });
+        // [V; mean] = [B; alpha_aug] [psi; r], and ||V||^2 summed over the rows in order
+        v8 vv2[2] = {bc(0.0f), bc(0.0f)};
+        gemm_tile(M.fwd[b], psi, F, r, [V, N, &vv2](int first, const v8 *c0, const v8 *c1) {
+            float *c = V + (int64_t)first * TILE;
+            const int rows = N - first < RB ? N - first : RB;
+#pragma GCC unroll 8
+            for (int q = 0; q < RB; ++q) {
+                st(c + q * TILE, c0[q]);
+                st(c + q * TILE + 8, c1[q]);
+                if (q < rows) {
+                    vv2[0] += c0[q] * c0[q];
+                    vv2[1] += c1[q] * c1[q];
+                }
+            }
+        });
+        for (int h = 0; h < TILE; h += 8) {
+            const v8 vv = vv2[h / 8];
             v8 prior = bc(M.outputscale[b]);
             if (M.p > 0) {
                 v8 prod = bc(1.0f);
@@ -524,11 +565,17 @@ void step_forward_tile(const Model &M, const Lay &L, const Pol &P, float *x, con
         const float *dk = delta + (M.n_pairs + k) * TILE;
         for (int q = 0; q < TILE; ++q) xo[q] += dk[q];
     }
-    // c = 1 - exp(-sum_j (d_j / l_j)^2), d_j by the term's mode (cost.py)
+    // c = 1 - exp(-sum_j (d_j / l_j)^2), d_j of x_i (or x_i - x_r) by the term's mode (cost.py)
     float *sum = W.csum.data();
     for (int q = 0; q < TILE; ++q) sum[q] = 0.0f;
+    float tracked[TILE];  // x_i - x_r of a term that tracks the state x_r
     for (int j = 0; j < M.n_terms; ++j) {
         const float *xv = x + M.cost_idx[j] * TILE;
+        if (M.cost_ref[j] >= 0) {
+            const float *xr = x + M.cost_ref[j] * TILE;
+            for (int q = 0; q < TILE; ++q) tracked[q] = xv[q] - xr[q];
+            xv = tracked;
+        }
         const float tg = M.cost_target[j], ls = M.cost_ls[j];
         float *cd = rec + L.cd + j * TILE;  // d_j d'_j
         if (M.cost_mode[j] == 0) {
@@ -575,8 +622,9 @@ struct PolGrad {
 };
 
 // one tile's backward: g (n x 16) in: dJ/dx_{t+1}; out: dJ/dx_t.  gc (16): dJ/dc_{t+1}.
+// pf: the record of the tile's previous step, requested while this one runs.
 void step_backward_tile(const Model &M, const Lay &L, const Pol &P, const float *rec, Work &W,
-                        float *g, const float *gc, PolGrad &PG) {
+                        float *g, const float *gc, PolGrad &PG, Prefetch &pf) {
     const int m = M.m, N = M.N, d = M.d, F = M.f, np = M.n_plain, fp = M.fp, nb = M.nb;
     float *gstate = W.gstate.data(), *gmean = W.gmean.data(), *gvar = W.gvar.data();
     // cost: dc/dx_j = 2 E d_j d'_j / l_j^2; loops over the tile's 16 particles
@@ -588,6 +636,10 @@ void step_backward_tile(const Model &M, const Lay &L, const Pol &P, const float 
         const float *cd = rec + L.cd + j * TILE;
         const float ls2 = M.cost_ls2[j];
         for (int q = 0; q < TILE; ++q) gj[q] += gE2[q] * cd[q] / ls2;
+        if (M.cost_ref[j] >= 0) {  // the tracked state: the same with the opposite sign
+            float *gr = gx + M.cost_ref[j] * TILE;
+            for (int q = 0; q < TILE; ++q) gr[q] -= gE2[q] * cd[q] / ls2;
+        }
     }
     // integration: g_state = g A, g_Delta = (g S) 1[inside]
     std::memcpy(gstate, gx, sizeof(float) * M.n * TILE);
@@ -615,20 +667,19 @@ void step_backward_tile(const Model &M, const Lay &L, const Pol &P, const float 
     }
     const float *xs = rec + L.xs;
     float *dxs = W.dxs.data(), *dpsi = W.dpsi.data(), *wprior = W.wprior.data();
-    float *dV = W.dV.data(), *dR = W.dR.data(), *dx = W.dx.data();
+    float *dR = W.dR.data(), *dx = W.dx.data();
     std::memset(dxs, 0, sizeof(float) * d * TILE);
     std::memset(dpsi, 0, sizeof(float) * W.dpsi.size());
     std::memset(wprior, 0, sizeof(float) * d * TILE);
     for (int b = 0; b < m; ++b) {
         const float *r = rec + L.r + (int64_t)b * N * TILE;
         const float *V = rec + L.V + (int64_t)b * L.vrows * TILE;
+        v8 gms[2], m2gv[2];  // g_m and -2 g_v (standardised), particles 0-7 and 8-15
         for (int h = 0; h < TILE; h += 8) {
             v8 ys = bc(M.y_scale[b]);
-            v8 gm = ld(gmean + b * TILE + h) * ys;
             v8 gv = ld(gvar + b * TILE + h) * (ys * ys) * ld(rec + L.active + b * TILE + h);
-            v8 m2gv = bc(-2.0f) * gv;
-            for (int i = 0; i < N; ++i) st(dV + i * TILE + h, ld(V + i * TILE + h) * m2gv);
-            st(dV + N * TILE + h, gm);
+            gms[h / 8] = ld(gmean + b * TILE + h) * ys;
+            m2gv[h / 8] = bc(-2.0f) * gv;
             if (M.p > 0) {  // prior: d/dx^ prod_s fac_s = sum_s prod_{s' != s} fac_s' 2 Sigma_s x^
                 for (int s = 0; s < M.p; ++s) {
                     v8 other =
@@ -641,13 +692,29 @@ void step_backward_tile(const Model &M, const Lay &L, const Pol &P, const float 
                 }
             }
         }
-        // dR = [B; alpha_aug]^T [dV; g_m]
-        gemm_tile(M.bwd[b], dV, NO_SPLIT, dV, dR);
-        for (int j = 0; j < F * TILE; j += 8) st(dpsi + j, ld(dpsi + j) + ld(dR + j));
-        // dE = dr o r, then [(X/l^2)^T dE; 1^T dE] = W_t dE
+        // dR = B^T dV + alpha_aug g_m with dV = -2 g_v V: (B^T V) (-2 g_v) + alpha_aug g_m,
+        // row by row as the kernel hands them over: dpsi += dR (rows < F), dE = dr o r
         float *dE = dR + (int64_t)F * TILE;
-        for (int j = 0; j < N * TILE; j += 8) st(dE + j, ld(dE + j) * ld(r + j));
-        gemm_tile(M.w_t[b], dE, NO_SPLIT, dE, dx);
+        const float *al = M.alpha_aug + (int64_t)b * (F + N);
+        gemm_tile(M.bwd[b], V, NO_SPLIT, V, [&](int first, const v8 *c0, const v8 *c1) {
+            pf.next();
+            const int rows = F + N - first < RB ? F + N - first : RB;
+            for (int q = 0; q < rows; ++q) {
+                const int j = first + q;
+                const v8 a = bc(al[j]);
+                const v8 v0 = c0[q] * m2gv[0] + a * gms[0], v1 = c1[q] * m2gv[1] + a * gms[1];
+                if (j < F) {
+                    st(dpsi + j * TILE, ld(dpsi + j * TILE) + v0);
+                    st(dpsi + j * TILE + 8, ld(dpsi + j * TILE + 8) + v1);
+                } else {
+                    const float *rj = r + (int64_t)(j - F) * TILE;
+                    st(dE + (j - F) * TILE, v0 * ld(rj));
+                    st(dE + (j - F) * TILE + 8, v1 * ld(rj + 8));
+                }
+            }
+        });
+        // [(X/l^2)^T dE; 1^T dE] = W_t dE
+        gemm_tile_store(M.w_t[b], dE, NO_SPLIT, dE, dx);
         for (int h = 0; h < TILE; h += 8) {
             v8 sumE = ld(dx + d * TILE + h);
             for (int j = 0; j < d; ++j) {
@@ -774,6 +841,7 @@ void backward(const Model &M, int horizon, int K, int per, const float *rec,
     PolGrad PG(M);
     std::vector<float> g(n * TILE);
     float gc[TILE];
+    Prefetch pf;
     for (int k = 0; k < K; ++k) {
         P.load(M, centers + (int64_t)k * nb * fp, log_l + (int64_t)k * fp,
                w + (int64_t)k * nb * M.A);
@@ -785,9 +853,10 @@ void backward(const Model &M, int horizon, int K, int per, const float *rec,
             for (int t = horizon - 1; t >= 0; --t) {
                 for (int q = 0; q < TILE; ++q)
                     gc[q] = q < valid ? g_costs[(int64_t)t * rows + first + q] : 0.0f;
-                const float *rc =
-                    rec + ((int64_t)t * K * tiles_per + (int64_t)k * tiles_per + tile) * L.size;
-                step_backward_tile(M, L, P, rc, W, g.data(), gc, PG);
+                const int64_t at = (int64_t)k * tiles_per + tile, stride = (int64_t)K * tiles_per;
+                const float *rc = rec + (t * stride + at) * L.size;
+                pf.start(t > 0 ? rec + ((t - 1) * stride + at) * L.size : nullptr, L.size);
+                step_backward_tile(M, L, P, rc, W, g.data(), gc, PG, pf);
             }
         }
         // g_b = G^T a - b o colsum(G); g_c = g_b / l; g_log_l = -(sum g_a o a + sum g_b o b)

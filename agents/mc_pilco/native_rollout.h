@@ -31,6 +31,7 @@ struct Model {
     const int32_t *delta_idx;                    // (n_delta)
     const float *u_mid, *u_half;                 // (A)
     const int32_t *cost_idx, *cost_mode;         // (n_terms): state index; 0 plain, 1 wrap, 2 abs
+    const int32_t *cost_ref;                     // (n_terms): tracked state index, or -1
     const float *cost_target, *cost_ls, *cost_ls2;  // (n_terms): x*, l, l^2
     float dt;
     // the fused GP posterior (models/gp/fused.py): N points, MPK degree p, F MPK features
@@ -43,6 +44,7 @@ struct Model {
     const float *sig_diag, *sig2;   // (p, m, d), (p, m); null for p = 0
     const float *noise_var;         // (m) added to the variance, or null
     const float *bound;             // (m) clip bound of Delta, or null
+    const float *alpha_aug;         // (m, F + N): [alpha^T Phi, alpha^T] per output
     const Packed *w_aug, *fwd, *bwd, *w_t;  // (m) each
 };
 

@@ -7,18 +7,25 @@ the whole forward loop and one for the whole backward loop (``native_rollout.cpp
 of ``2 H`` steps of tensor ops per shard. The task is data, not code: the state layout
 (``n`` coordinates; plain ones and angles, which enter the policy and the GP as ``(sin,
 cos)``; speed-integration pairs and unpaired coordinates), the ``A`` action bounds, the
-``m`` GP outputs over ``d = F_x + A`` inputs and the saturating cost's terms (index, target,
-length scale, mode plain / wrap / abs) are arrays the C++ loop reads. What the loop buys:
+``m`` GP outputs over ``d = F_x + A`` inputs and the saturating cost's terms (index, the
+state it tracks if any, target, length scale, mode plain / wrap / abs) are arrays the C++
+loop reads. What the loop buys:
 
 * particles in tiles of 16 (the extension's ``tile()``): a tile's whole time step (policy,
   GP posterior, sampling, integration, cost) runs on data that stays in the core's caches;
 * the products with the GP's constant matrices, ``[V; m] = [L^{-1} Phi, L^{-1}; alpha^T Phi,
-  alpha^T] [psi; r]`` forward and ``dR = [...]^T [dV; g_m]`` backward (glossary of
-  :mod:`~mcpilco.models.gp.fused`), per output, use one register-blocked kernel over the
-  constant matrix packed once per GP fit, by blocks of 6 rows (``row_block()``; 6 x 16
-  accumulators) with each block's own range of columns: the zeros of the triangular factor
-  are skipped row block by row block (about ``N^2 / 2 + F N`` multiply-adds per particle and
-  output, each way);
+  alpha^T] [psi; r]`` forward and ``dR = [L^{-1} Phi, L^{-1}]^T V (-2 g_v) + alpha_aug g_m``
+  backward (glossary of :mod:`~mcpilco.models.gp.fused`; ``dV = -2 g_v V`` is never formed:
+  the per-particle factor is applied to the product), per output, use one register-blocked
+  kernel over the constant matrix packed once per GP fit, by blocks of 6 rows
+  (``row_block()``; 6 x 16 accumulators) with each block's own range of columns: the zeros
+  of the triangular factor are skipped row block by row block (about ``N^2 / 2 + F N``
+  multiply-adds per particle and output, each way). Each block's results are consumed in
+  registers: ``r = exp(E)`` of the kernel's exponents, ``||V||^2`` of the variance, ``dpsi``
+  and ``dE = dr o r`` of the backward, without a second pass over the tile;
+* the backward loop requests the record of the step it runs next (written in the forward
+  loop, long since evicted to memory) a few cache lines between the kernel's blocks, so
+  that reading it overlaps the arithmetic;
 * no per-op allocation, dispatch or Python between the time steps.
 
 Build: a PyTorch C++ extension (:func:`torch.utils.cpp_extension.load`, with ninja) of
@@ -197,8 +204,6 @@ def native_unsupported_reason(
         return "it runs in float32 only"
     if pred.p not in (0, 2):
         return f"it takes RBF or RBF + degree-2 MPK kernels, not MPK degree {pred.p}"
-    if cost.tracks:
-        return "it takes no cost terms that track another state (the torch backend does)"
     layout = dynamics.layout
     if policy.layout != layout or cost.state_dim != layout.n:
         return "the policy, dynamics and cost have different state layouts"
@@ -247,8 +252,9 @@ def packed_gp(pred: Any, rb: int) -> list[list[Tensor]]:
     (:func:`pack_blocks`; 4 tensors per output): per output ``b``, ``W_aug`` (``N`` rows,
     ``d + 2`` columns), the forward matrix ``[B; alpha_aug]`` with ``B = [L^{-1} Phi,
     L^{-1}]`` (``N + 1`` rows; a block of rows ``r .. r + rb - 1 < N`` needs columns
-    ``< F + r + rb``), the backward matrix ``[B; alpha_aug]^T`` (``F + N`` rows; a block of
-    rows ``j .. j + rb - 1`` needs columns ``>= j - F``) and ``W_t`` (``d + 1`` rows)."""
+    ``< F + r + rb``), the backward matrix ``B^T`` (``F + N`` rows, ``N`` columns; a block of
+    rows ``j .. j + rb - 1`` needs columns ``>= j - F``; ``alpha_aug`` goes to the loop
+    unpacked, :func:`native_model`) and ``W_t`` (``d + 1`` rows)."""
     m, n, d = pred.m, pred.n, pred.input_dim
     F = pred.row_blocks.features
     linv = pred.linv.dense().to(torch.float64).expand(m, n, n)
@@ -262,14 +268,15 @@ def packed_gp(pred: Any, rb: int) -> list[list[Tensor]]:
         ends = [F + n if r + rb > n else min(F + r + rb, F + n) for r in range(0, n + 1, rb)]
         packed[1] += pack_blocks(fwd, [0] * len(ends), ends, rb)
         begs = [max(0, j - F) for j in range(0, F + n, rb)]
-        packed[2] += pack_blocks(fwd.T, begs, [n + 1] * len(begs), rb)
+        packed[2] += pack_blocks(fwd.T[:, :n], begs, [n] * len(begs), rb)
         packed[3] += pack_blocks(pred.W_t[b], [0] * nblk(d + 1), [n] * nblk(d + 1), rb)
     return packed
 
 
 def native_model(lib: ModuleType, policy: Any, dynamics: Any, cost: Any) -> Any:
     """The extension's ``NativeModel`` of one loss: the task layout, the action bounds, the
-    cost's terms and the GP posterior's constants (float32, int32 index arrays)."""
+    cost's terms and the GP posterior's constants (float32, int32 index arrays; the packed
+    matrices of :func:`packed_gp` and ``alpha_aug = [alpha^T Phi, alpha^T]`` per output)."""
     pred, layout = dynamics.delta_model, dynamics.layout
     f32, i32 = torch.float32, torch.int32
     m, d = pred.m, pred.input_dim
@@ -296,6 +303,7 @@ def native_model(lib: ModuleType, policy: Any, dynamics: Any, cost: Any) -> Any:
         ints(cost.modes),
         pred.idx_a.to(i32).contiguous(),
         pred.idx_c.to(i32).contiguous(),
+        ints(cost.refs),
     ]
     values = [
         floats(policy.u_mid),
@@ -313,6 +321,7 @@ def native_model(lib: ModuleType, policy: Any, dynamics: Any, cost: Any) -> Any:
         floats(pred.mp_sigma2) if p else none,
         per_output(dynamics.noise_variance) if dynamics.sample_noise else none,
         none if dynamics.delta_bound is None else per_output(dynamics.delta_bound),
+        floats(pred.row_blocks.alpha),
     ]
     sizes = [
         layout.n, policy.action_dim, m, d, layout.feature_dim, policy.num_basis, pred.n, p,

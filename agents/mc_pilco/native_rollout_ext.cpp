@@ -28,14 +28,14 @@ const Tensor &checked(const Tensor &t, torch::ScalarType dtype, int64_t numel, c
 class NativeModel {
   public:
     // ints: n, A, m, d, fp, nb, N, p, f; index: plain, angle, position, velocity, delta,
-    // cost_idx, cost_mode, idx_a, idx_c (int32); floats: u_mid, u_half, cost_target, cost_ls,
+    // cost_idx, cost_mode, idx_a, idx_c, cost_ref (int32); floats: u_mid, u_half, cost_target, cost_ls,
     // cost_ls2, x_mean, x_scale, y_mean, y_scale, inv_l2, outputscale, sig_diag, sig2,
-    // noise_var, bound (empty: none); packed: per output (w_aug, fwd, bwd, w_t) as 4 tensors
+    // noise_var, bound (empty: none), alpha_aug; packed: per output (w_aug, fwd, bwd, w_t) as 4 tensors
     // each (values, beg, end, off).
     NativeModel(std::vector<int64_t> ints, std::vector<Tensor> index, std::vector<Tensor> floats,
                 double dt, std::vector<std::vector<Tensor>> packed)
         : index_(std::move(index)), floats_(std::move(floats)) {
-        TORCH_CHECK(ints.size() == 9 && index_.size() == 9 && floats_.size() == 15,
+        TORCH_CHECK(ints.size() == 9 && index_.size() == 10 && floats_.size() == 16,
                     "NativeModel: wrong argument counts");
         mcp::Model &M = model_;
         M.n = (int)ints[0];
@@ -69,6 +69,12 @@ class NativeModel {
         M.cost_idx = idx(5, "cost_idx");
         TORCH_CHECK(index_[6].numel() == M.n_terms, "cost_mode needs one entry per term");
         M.cost_mode = idx(6, "cost_mode");
+        TORCH_CHECK(index_[9].numel() == M.n_terms, "cost_ref needs one entry per term");
+        M.cost_ref = idx(9, "cost_ref");
+        for (int j = 0; j < M.n_terms; ++j)
+            TORCH_CHECK(M.cost_ref[j] >= -1 && M.cost_ref[j] < M.n && M.cost_idx[j] >= 0 &&
+                            M.cost_idx[j] < M.n,
+                        "cost term ", j, ": state index out of range");
         const int F = M.p == 2 ? M.f : 0;
         TORCH_CHECK(index_[7].numel() >= F && index_[8].numel() >= F, "idx_a, idx_c too short");
         M.idx_a = idx(7, "idx_a");
@@ -93,6 +99,7 @@ class NativeModel {
         M.sig2 = M.p ? flt(12, (int64_t)M.p * m, "sig2") : nullptr;
         M.noise_var = floats_[13].numel() ? flt(13, m, "noise_var") : nullptr;
         M.bound = floats_[14].numel() ? flt(14, m, "bound") : nullptr;
+        M.alpha_aug = flt(15, (int64_t)m * ((M.p == 2 ? M.f : 0) + M.N), "alpha_aug");
         M.dt = (float)dt;
         TORCH_CHECK((int)packed.size() == 4, "packed needs w_aug, fwd, bwd, w_t");
         for (auto &kind : packed) {

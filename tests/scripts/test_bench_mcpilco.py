@@ -94,6 +94,18 @@ def test_timing_part_reports_each_particle_count(tmp_path, capsys, command):
     assert t["floor_s"] == pytest.approx(2 * 20**2 * 3 * 2 * 60 / (t["matmul_gflops"] * 1e9))
     assert f"| {t['floor_s']:.4f} | {t['matmul_gflops']:.0f} |" in md
     assert f"| {t['dynamo_s_per_step_wall']:.3f} | {t['dynamo_s_per_step_cpu']:.3f} |" in md
+    # the spec's table heading, and the step against the reference implementation's 0.45-0.58 s
+    assert (t["env_id"], t["state_dim"], t["action_dim"], t["gp_outputs"], t["horizon"]) == (
+        "mcpilco/CartpoleSwingUp-v0",
+        4,
+        1,
+        2,
+        60,
+    )
+    assert "#### mcpilco/CartpoleSwingUp-v0 (n = 4, A = 1, m = 2, H = 60)" in md
+    wall = t["compiled_s_per_step_wall"]
+    assert f"| {wall:.3f} | {t['compiled_s_per_step_cpu']:.3f} | {t['floor_s']:.4f} " in md
+    assert f"| {0.45 / wall:.0f}-{0.58 / wall:.0f}x |" in md
     # --timing-heap-contrast: the eager step again under glibc's initial heap thresholds
     assert (
         command(
