@@ -883,7 +883,9 @@ class Diagnosis:
             return "weak"
         if c.heldout_delta_pct is None:
             return "untested"
-        if c.heldout_delta_pct < -self.min_heldout_gain and (c.explained or 0.0) > 0.0:
+        if c.heldout_delta_pct >= -self.min_heldout_gain:
+            return "no held-out gain"
+        if c.explained is not None and c.explained <= self.min_explained:
             return "negligible"
         return "no held-out gain"
 
