@@ -153,6 +153,10 @@ def run_diagnosis(
     data_warnings = list(dict.fromkeys(train.warnings + test.warnings))
     for text in data_warnings:
         log(f"warning: {text}")
+    filters = zip(train.names + test.names, train.estimated + test.estimated, strict=False)
+    for name, est in dict(filters).items():
+        if est is not None:
+            log(f"{name}: {' and '.join(est.groups)} estimated from q by {est.filter.name}")
     train, test, constants = currents_to_torque(train, test, start, torque_constants)
     train, test = train.interior(), test.interior()  # without the derivative filter's edges
     if constants is not None:
