@@ -140,6 +140,13 @@ PHYSICS_TIMESTEP = 1e-3
 """Default physics timestep [s]."""
 SUBSTEPS = 4
 """Default physics steps per logged sample (``T = 4`` ms)."""
+TRACKING_LIMIT = {"R": math.pi, "P": 1.0}
+"""Largest tracking error |q - q_ref| [rad, m] of a joint under the controller before the
+simulation counts as diverged (the arm out of control, e.g. an effect too stiff for ``dt``)."""
+
+
+class SimulationDiverged(ValueError):
+    """The simulated arm left the controller's reach (:data:`TRACKING_LIMIT`)."""
 
 
 @dataclass(frozen=True)
@@ -383,6 +390,10 @@ def simulate_log(
 
     Returns:
         the log and its ground truth.
+
+    Raises:
+        SimulationDiverged: a joint's tracking error left :data:`TRACKING_LIMIT` (the effects
+            are too stiff for ``timestep`` or beyond the controller).
     """
     if substeps < 1 or not timestep > 0 or not duration > 0:
         raise ValueError("need substeps >= 1, timestep > 0 and duration > 0")
@@ -435,6 +446,21 @@ def simulate_log(
                 rec["q"][k], rec["qd"][k], rec["qdd"][k] = q, qd, data.qacc
                 rec["tau"][k], rec["q_ref"][k], rec["qd_ref"][k] = tau, q_ref, qd_ref
 
+    limit_q = np.array([TRACKING_LIMIT[j.type] for j in arm.joints])
+    err = np.abs(rec["q"] - rec["q_ref"])
+    bad = ~np.isfinite(err) | (err > limit_q)
+    unstable = data.warning[mujoco.mjtWarning.mjWARN_BADQACC].number > 0  # MuJoCo reset the state
+    if unstable and not bad.any():
+        bad[np.unravel_index(np.argmax(np.abs(rec["qdd"])), bad.shape)] = True
+    if bad.any():
+        k, j = np.argwhere(bad)[0]
+        raise SimulationDiverged(
+            f"the simulated arm diverged: joint {j + 1} is {err[k, j]:.3g} from its reference at "
+            f"t = {k * timestep * substeps:.3f} s (limit {limit_q[j]:g}"
+            f"{'; MuJoCo found the acceleration unstable' if unstable else ''}); effects "
+            f"{[(e.kind, e.joint, e.value) for e in effects]} are too stiff for the time step "
+            f"{timestep:g} s or beyond the controller"
+        )
     step = np.array(
         [
             2.0 * math.pi / counts_per_rev if j.type == "R" else 1.0 / counts_per_metre

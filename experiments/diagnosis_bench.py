@@ -94,6 +94,8 @@ ENCODER_COUNTS = (2**15, 2**17, 2**19)
 """Encoder counts per revolution a case draws from (prismatic joints: 1e6 counts/m)."""
 TAU_NOISE_RANGE = (0.02, 0.1)
 """Range of the log-uniform torque-noise std [N m or N]."""
+MAX_DRAWS = 20
+"""Draws of a case's arm (and of its effects) before giving up when every simulation diverges."""
 RANKING_KEPT = 10
 """Candidates of the first diagnosis's ranking kept in a record."""
 
@@ -272,7 +274,7 @@ def run_case(
     """
     from mcpilco.envs.arm_builder import arm_to_xml
     from mcpilco.envs.arms import random_arm
-    from mcpilco.envs.robot_logs import simulate_log
+    from mcpilco.envs.robot_logs import SimulationDiverged, simulate_log
     from mcpilco.models.diagnosis import DiagnosisModel, auto_improve
 
     for k in kinds:
@@ -282,21 +284,34 @@ def run_case(
         raise ValueError(f"need 1 <= min_joints <= max_joints, got {min_joints}, {max_joints}")
     t0 = time.perf_counter()
     rng = np.random.default_rng(seed)
-    n = int(rng.integers(min_joints, max_joints + 1))
-    arm = random_arm(n, seed=int(rng.integers(2**31))).rigid()
-    counts = int(rng.choice(ENCODER_COUNTS))
-    tau_noise = _log_uniform(rng, *TAU_NOISE_RANGE)
-    log_seeds = [int(s) for s in rng.integers(2**31, size=train_files + 1)]
-    sim = dict(duration=duration, counts_per_rev=counts, tau_noise=tau_noise)
-    effects = []
-    if kinds:
-        probe = simulate_log(arm, [], seed=log_seeds[0], **sim)
+    for _ in range(MAX_DRAWS):
+        n = int(rng.integers(min_joints, max_joints + 1))
+        arm = random_arm(n, seed=int(rng.integers(2**31))).rigid()
+        counts = int(rng.choice(ENCODER_COUNTS))
+        tau_noise = _log_uniform(rng, *TAU_NOISE_RANGE)
+        log_seeds = [int(s) for s in rng.integers(2**31, size=train_files + 1)]
+        sim = dict(duration=duration, counts_per_rev=counts, tau_noise=tau_noise)
+        try:  # an arm whose controller the simulation cannot follow: draw another arm
+            probe = simulate_log(arm, [], seed=log_seeds[0], **sim)
+            break
+        except SimulationDiverged:
+            continue
+    else:
+        raise RuntimeError(f"seed {seed}: {MAX_DRAWS} random arms all diverged")
+    for _ in range(MAX_DRAWS):
+        effects: list[Any] = []
         for k in kinds:
             e = draw_effect(k, arm, probe, rng, tau_noise)
             while any(e.kind == o.kind and e.joint == o.joint for o in effects):
                 e = draw_effect(k, arm, probe, rng, tau_noise)
             effects.append(e)
-    logs = [simulate_log(arm, effects, seed=s, **sim) for s in log_seeds]
+        try:
+            logs = [simulate_log(arm, effects, seed=s, **sim) for s in log_seeds]
+            break
+        except SimulationDiverged:  # a draw the simulated arm cannot follow: draw again
+            continue
+    else:
+        raise RuntimeError(f"seed {seed}: {MAX_DRAWS} draws of {list(kinds)} all diverged")
     size = np.sqrt(
         np.mean(np.concatenate([effect_torque(arm, effects, log) for log in logs]) ** 2, axis=0)
     )

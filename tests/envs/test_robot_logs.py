@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 
 from mcpilco.envs.arms import random_arm
-from mcpilco.envs.robot_logs import HiddenEffect, build_models, simulate_log
+from mcpilco.envs.robot_logs import HiddenEffect, SimulationDiverged, build_models, simulate_log
 
 DURATION = 2.0
 QUIET = dict(tau_noise=0.0, encoder_noise=0.0)
@@ -198,3 +198,16 @@ def test_current_log_is_the_torque_over_the_torque_constant(arm):
 def test_bad_torque_constants_are_refused(arm, k_t, match):
     with pytest.raises(ValueError, match=match):
         simulate_log(arm, duration=0.1, torque_constants=k_t)
+
+
+def test_a_spring_too_stiff_for_the_time_step_is_reported_as_diverged(arm):
+    # explicit Euler on a spring of natural frequency w is unstable for w dt > 2
+    nominal, _, _ = build_models(arm)
+    data = mujoco.MjData(nominal)
+    mujoco.mj_forward(nominal, data)
+    mass = np.zeros((arm.n_joints, arm.n_joints))
+    mujoco.mj_fullM(nominal, data, mass)
+    dt = 1e-3
+    k = 25.0 * (2.0 / dt) ** 2 * mass[2, 2]  # w dt = 10
+    with pytest.raises(SimulationDiverged, match="joint 3 .* too stiff for the time step"):
+        simulate_log(arm, [HiddenEffect("stiffness", 3, k)], duration=0.5, timestep=dt, seed=0)
