@@ -8,9 +8,11 @@ from __future__ import annotations
 import json
 import os
 
+import numpy as np
 import pytest
 
-from mcpilco.agents.baselines.common import make_curve, save_curve
+from mcpilco.agents.baselines.common import make_curve, save_curve, task_env_ids
+from mcpilco.agents.mc_pilco import TaskSpec
 from mcpilco.experiments.compare import aggregate_method
 
 ENV = "mcpilco/CartpoleSwingUp-v0"
@@ -348,3 +350,47 @@ def test_runs_go_through_the_sweep_runner_and_keep_their_result(tmp_path, comman
     assert record["result"] == curve and record["pid"] != os.getpid()
     report = json.loads((tmp_path / "r" / "compare_CartpoleSwingUp-v0.json").read_text())
     assert report["methods"]["mcpilco"]["seeds"] == [0] and report["failed"] == []
+
+
+# MC-PILCO config overrides for a run of seconds (--mcpilco-set)
+TINY_MCPILCO = [
+    "num_particles=8",
+    "num_candidates=1",
+    "candidate_weight_scales=null",
+    "max_points=40",
+    "gp_adam_iters=3",
+    "gp_lbfgs_iters=2",
+    "num_basis=10",
+    "opt.max_steps=2",
+    "opt.min_steps=1",
+    "opt.monitor_patience=1",
+    "log_particles=4",
+]
+
+
+@pytest.mark.parametrize("env_id", task_env_ids())
+def test_every_task_env_runs_through_compare(env_id, tmp_path, command):
+    """One exploration and one policy trial of MC-PILCO on every env with a task spec: the
+    curve has a point per trial whose experience is every env step taken times the task's
+    control period, and the report carries the method's success figures."""
+    runs, out = tmp_path / "runs", tmp_path / "r"
+    argv = ["--env", env_id, "--methods", "mcpilco", "--seeds", "1", "--trials", "1"]
+    argv += ["--no-progress", "--runs-dir", str(runs), "--out", str(out)]
+    assert command("mcpilco-compare", [*argv, "--mcpilco-set", *TINY_MCPILCO]) == 0
+    name = env_id.split("/")[-1]
+    run = runs / name / "mcpilco" / "seed0"
+    records = json.loads((run / "records.json").read_text())["records"]
+    curve = json.loads((run / "curve.json").read_text())
+    task = TaskSpec.for_env(env_id)
+    steps = np.cumsum([r["steps"] for r in records])
+    assert [r["kind"] for r in records] == ["exploration", "policy"]
+    assert all(1 <= r["steps"] <= task.horizon for r in records)
+    assert [p["steps"] for p in curve["points"]] == steps.tolist()
+    assert [p["experience_s"] for p in curve["points"]] == pytest.approx(steps * task.dt)
+    assert [p["success_rate"] for p in curve["points"]] == [float(r["success"]) for r in records]
+    report = json.loads((out / f"compare_{name}.json").read_text())
+    mc = report["methods"]["mcpilco"]
+    assert mc["seeds"] == [0] and report["failed"] == []
+    assert mc["final_success"] == float(records[-1]["success"])
+    assert (mc["t100_s"] is None) == (not any(r["success"] for r in records))
+    assert (out / f"compare_{name}.png").is_file()
