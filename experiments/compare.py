@@ -78,7 +78,12 @@ def aggregate_method(curves: list[dict[str, Any]]) -> dict[str, Any]:
     curves = [c for c in curves if c["points"]]
     if not curves:
         raise ValueError("all learning curves of this method are empty (no evaluation yet)")
-    t_max = min(c["points"][-1]["experience_s"] for c in curves)
+    # a seed whose last evaluation failed holds that failure past its budget (a success
+    # needs a later evaluation, hence more experience), so only seeds ending in a success
+    # cut the common budget (every seed's when none does)
+    ends = [c["points"][-1] for c in curves]
+    limiting = [e for e in ends if e["success_rate"] > 0] or ends
+    t_max = min(e["experience_s"] for e in limiting)
     grid = np.unique(
         [p["experience_s"] for c in curves for p in c["points"] if p["experience_s"] <= t_max]
     )

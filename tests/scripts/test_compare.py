@@ -394,3 +394,21 @@ def test_every_task_env_runs_through_compare(env_id, tmp_path, command):
     assert mc["final_success"] == float(records[-1]["success"])
     assert (mc["t100_s"] is None) == (not any(r["success"] for r in records))
     assert (out / f"compare_{name}.png").is_file()
+
+
+def test_a_seed_ending_in_a_failure_holds_it_past_its_budget():
+    """Episodes that end early give seeds different budgets: seed 0 fails its trials by
+    0.5 s, seed 1 balances at 2.2 s. Seed 0's failure holds up to 2.2 s (a success would need
+    another trial): mean 0, 0, 0.5 at 0.2, 0.5, 2.2 s; 100 % (all seeds) not reached."""
+
+    def curve(seed, pts):
+        p = [{"steps": 0, "experience_s": t, "success_rate": v, "episodes": 1} for t, v in pts]
+        return make_curve("mcpilco", ENV, seed, 0.04, p, complete=True)
+
+    agg = aggregate_method([curve(0, [(0.2, 0.0), (0.5, 0.0)]), curve(1, [(0.2, 0.0), (2.2, 1.0)])])
+    assert agg["experience_s"] == [0.2, 0.5, 2.2] and agg["budget_s"] == 2.2
+    assert agg["success_mean"] == pytest.approx([0.0, 0.0, 0.5])
+    assert agg["t100_s"] is None and agg["t90_s"] is None
+    both = [curve(0, [(0.2, 0.0), (1.8, 1.0), (2.4, 1.0)]), curve(1, [(0.2, 0.0), (2.2, 1.0)])]
+    agg = aggregate_method(both)
+    assert agg["experience_s"] == [0.2, 1.8, 2.2] and agg["t100_s"] == 2.2
