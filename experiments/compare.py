@@ -5,10 +5,11 @@ Every run yields a learning curve (``mcpilco-curve/1``, :mod:`mcpilco.agents.bas
 success rate against seconds of experience. Per method, :func:`aggregate_method` holds each
 seed's last evaluation between evaluations (0 before the first), averages over seeds up to
 the shortest seed's budget, and reads ``T90``, the first experience with a mean success rate
->= 0.9. :func:`headline` divides each method's ``T90`` by MC-PILCO's and checks the two
-data-efficiency targets: the best SB3 method needs >= :data:`GOAL_SB3_RATIO` times MC-PILCO's
-experience, PILCO more than MC-PILCO. A method that never reaches 0.9 within its budget ``B``
-has ``T90 > B``, so its ratio is a lower bound.
+>= 0.9, and ``T100``, the first experience at which every seed's last evaluation succeeds.
+:func:`headline` divides each method's ``T90`` (and ``T100``) by MC-PILCO's and checks the
+two data-efficiency targets: the best SB3 method needs >= :data:`GOAL_SB3_RATIO` times
+MC-PILCO's experience, PILCO more than MC-PILCO. A method that never reaches 0.9 within its
+budget ``B`` has ``T90 > B``, so its ratio is a lower bound.
 
 :func:`run_method` runs (or resumes) one method on one seed; :func:`compare` collects the
 existing curves, runs the missing ones as sweep jobs and builds the report; :func:`write_report`
@@ -50,6 +51,7 @@ LABELS = {
     "ppo": "PPO",
 }
 SUCCESS_LEVEL = 0.9  # the success rate whose first crossing is T90
+ALL_LEVEL = 1.0  # the success rate of every seed: its first crossing is T100
 GOAL_SB3_RATIO = 100.0  # target: the best SB3 method needs this many times MC-PILCO's T90
 
 
@@ -69,13 +71,19 @@ def first_reach(times: np.ndarray, values: np.ndarray, level: float = SUCCESS_LE
 
 
 def aggregate_method(curves: list[dict[str, Any]]) -> dict[str, Any]:
-    """Mean success curve over seeds, its standard error, ``T90`` and per-seed summaries."""
+    """Mean success curve over seeds, its standard error, ``T90``, ``T100`` (every seed's
+    last evaluation a success) and per-seed summaries."""
     if not curves:
         raise ValueError("aggregate_method needs at least one learning curve")
     curves = [c for c in curves if c["points"]]
     if not curves:
         raise ValueError("all learning curves of this method are empty (no evaluation yet)")
-    t_max = min(c["points"][-1]["experience_s"] for c in curves)
+    # a seed whose last evaluation failed holds that failure past its budget (a success
+    # needs a later evaluation, hence more experience), so only seeds ending in a success
+    # cut the common budget (every seed's when none does)
+    ends = [c["points"][-1] for c in curves]
+    limiting = [e for e in ends if e["success_rate"] > 0] or ends
+    t_max = min(e["experience_s"] for e in limiting)
     grid = np.unique(
         [p["experience_s"] for c in curves for p in c["points"] if p["experience_s"] <= t_max]
     )
@@ -107,6 +115,7 @@ def aggregate_method(curves: list[dict[str, Any]]) -> dict[str, Any]:
         "success_mean": mean.tolist(),
         "success_sem": np.asarray(sem).tolist(),
         "t90_s": first_reach(grid, mean),
+        "t100_s": first_reach(grid, mean, ALL_LEVEL),
         "budget_s": float(t_max),
         "final_success": float(mean[-1]),
         "best_success": float(mean.max()),
@@ -118,12 +127,13 @@ def aggregate_method(curves: list[dict[str, Any]]) -> dict[str, Any]:
     }
 
 
-def _ratio(agg: dict[str, Any], t_ref: float | None) -> dict[str, Any]:
-    """``T90 / T90_ref``; a lower bound (``budget / T90_ref``) when 90% was not reached."""
+def _ratio(agg: dict[str, Any], t_ref: float | None, key: str = "t90_s") -> dict[str, Any]:
+    """``T / T_ref`` of ``key`` (``"t90_s"`` or ``"t100_s"``); a lower bound
+    (``budget / T_ref``) when the level was not reached."""
     if t_ref is None:
         return {"value": None, "lower_bound": None}
-    if agg["t90_s"] is not None:
-        return {"value": agg["t90_s"] / t_ref, "lower_bound": None}
+    if agg.get(key) is not None:
+        return {"value": agg[key] / t_ref, "lower_bound": None}
     return {"value": None, "lower_bound": agg["budget_s"] / t_ref}
 
 
@@ -133,6 +143,8 @@ def headline(aggs: dict[str, dict[str, Any]]) -> dict[str, Any]:
     ref = aggs.get("mcpilco")
     t_ref = ref["t90_s"] if ref else None
     ratios = {m: _ratio(a, t_ref) for m, a in aggs.items()}
+    t100_ref = ref.get("t100_s") if ref else None
+    ratios_100 = {m: _ratio(a, t100_ref, "t100_s") for m, a in aggs.items()}
     goal: dict[str, Any] = {}
     if ref is None:
         goal["note"] = "MC-PILCO is not part of this comparison"
@@ -177,7 +189,13 @@ def headline(aggs: dict[str, dict[str, Any]]) -> dict[str, Any]:
                 "target": 1.0,
                 "status": status,
             }
-    return {"mcpilco_t90_s": t_ref, "ratios": ratios, "goal": goal}
+    return {
+        "mcpilco_t90_s": t_ref,
+        "ratios": ratios,
+        "mcpilco_t100_s": t100_ref,
+        "ratios_100": ratios_100,
+        "goal": goal,
+    }
 
 
 # ------------------------------------------------------------------------------ report
@@ -211,15 +229,16 @@ def markdown(report: dict[str, Any]) -> str:
         "trial's episode; SB3: 10 deterministic evaluation episodes every K steps).",
         "",
         "| method | seeds | budget | final success | best success | experience to 90% "
-        "| ratio to MC-PILCO | seeds reaching 90% (median) | compute |",
-        "|---|---|---|---|---|---|---|---|---|",
+        "| ratio to MC-PILCO | experience to 100% (all seeds) | ratio (100%) "
+        "| seeds reaching 90% (median) | compute |",
+        "|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     for m, a in aggs.items():
-        t90 = (
-            _fmt_s(a["t90_s"])
-            if a["t90_s"] is not None
-            else f"not reached (> {_fmt_s(a['budget_s'])})"
+        t90, t100 = (
+            _fmt_s(a[key]) if a.get(key) is not None else f"not reached (> {_fmt_s(a['budget_s'])})"
+            for key in ("t90_s", "t100_s")
         )
+        r100 = head.get("ratios_100", {}).get(m, {"value": None, "lower_bound": None})
         comp = []
         if a.get("cpu_s_per_1k_steps") is not None:
             comp.append(f"{a['cpu_s_per_1k_steps']:.1f} CPU s / 1k steps")
@@ -228,14 +247,14 @@ def markdown(report: dict[str, Any]) -> str:
         lines.append(
             f"| {LABELS.get(m, m)} | {len(a['seeds'])} | {_fmt_s(a['budget_s'])} "
             f"| {100 * a['final_success']:.0f}% | {100 * a['best_success']:.0f}% | {t90} "
-            f"| {_fmt_ratio(head['ratios'][m])} "
+            f"| {_fmt_ratio(head['ratios'][m])} | {t100} | {_fmt_ratio(r100)} "
             f"| {a['seeds_reaching_90']}/{len(a['seeds'])} ({_fmt_s(a['median_seed_t90_s'])}) "
             f"| {'; '.join(comp) or '-'} |"
         )
     for f in report.get("failed", []):
         lines.append(
             f"| {LABELS.get(f['method'], f['method'])} | seed {f['seed']} FAILED: "
-            f"{f['error'][:200]} |||||||"
+            f"{f['error'][:200]} |||||||||"
         )
     goal = head["goal"]
     lines += ["", "Data-efficiency targets:", ""]
@@ -385,14 +404,30 @@ def curve_path(runs_dir: Path, env_id: str, method: str, seed: int) -> Path:
     return runs_dir / env_id.split("/")[-1] / method / f"seed{seed}" / "curve.json"
 
 
+def mcpilco_preset(env_id: str, preset: str | None = None) -> str | None:
+    """The preset of the env's MC-PILCO config file that a comparison runs: ``preset`` when
+    given, else ``"bench"`` (the benchmarks' budget) when the file has it, else None (the
+    file's config as it is)."""
+    import yaml
+
+    from mcpilco.agents.mc_pilco.loop import config_files
+
+    if preset is not None:
+        return preset
+    path = config_files().get(env_id)
+    data = (yaml.safe_load(path.read_text()) or {}) if path is not None else {}
+    return "bench" if "bench" in (data.get("presets") or {}) else None
+
+
 def run_method(
     method: str, env_id: str, seed: int, out_dir: str | Path, opts: dict[str, Any]
 ) -> dict[str, Any]:
     """Run (or resume) one method on one seed; writes and returns its learning curve.
 
-    ``opts``: ``trials`` (MC-PILCO / PILCO policy trials), ``mcpilco_preset``, ``pilco``
-    (PilcoConfig overrides), ``steps`` (per SB3 algorithm), ``eval_every``,
-    ``eval_episodes``, ``sb3_preset``, ``sb3_hp`` (per algorithm), ``threads``, ``progress``.
+    ``opts``: ``trials`` (MC-PILCO / PILCO policy trials), ``mcpilco_preset``,
+    ``mcpilco_set`` (MC-PILCO config overrides, nested), ``pilco`` (PilcoConfig overrides),
+    ``steps`` (per SB3 algorithm), ``eval_every``, ``eval_episodes``, ``sb3_preset``,
+    ``sb3_hp`` (per algorithm), ``threads``, ``progress``.
     """
     import torch
 
@@ -430,7 +465,11 @@ def run_method(
     if method == "mcpilco":
         from mcpilco.agents.mc_pilco import run_mcpilco
 
-        base = load_config(env_id, preset=opts.get("mcpilco_preset", "bench"))
+        base = load_config(
+            env_id,
+            preset=mcpilco_preset(env_id, opts.get("mcpilco_preset")),
+            overrides=opts.get("mcpilco_set"),
+        )
         over: dict[str, Any] = {"seed": seed, "torch_threads": threads}
         if trials is not None:
             over["num_trials"] = trials
@@ -446,23 +485,22 @@ def run_method(
         )
         horizon = cfg_m.task_spec().horizon
     else:
-        from mcpilco.agents.baselines.pilco import PilcoConfig, run_pilco
+        from mcpilco.agents.baselines.pilco import pilco_config, run_pilco
 
-        mc = load_config(env_id, preset=opts.get("mcpilco_preset", "bench"))
-        over = {
-            "env_id": env_id,
-            "seed": seed,
-            "torch_threads": threads,
-            "explore_hold": mc.explore_hold,  # the same exploration trial as MC-PILCO's
-            "cost_length_scales": mc.cost_length_scales,  # MC-PILCO's optimisation cost
-            **opts.get("pilco", {}),
-        }
-        over["num_trials"] = trials if trials is not None else mc.num_trials
-        cfg_p = PilcoConfig(**over)
+        # defaults, MC-PILCO's exploration hold and cost, the env's PILCO settings, options
+        over = {"seed": seed, "torch_threads": threads, **opts.get("pilco", {})}
+        if trials is not None:
+            over["num_trials"] = trials
+        cfg_p = pilco_config(
+            env_id,
+            over,
+            mcpilco_preset=mcpilco_preset(env_id, opts.get("mcpilco_preset")),
+            mcpilco_overrides=opts.get("mcpilco_set"),
+        )
         summary = run_pilco(
             cfg_p, out, resume=(out / "checkpoint.pt").is_file(), progress=progress, log=log
         )
-        horizon = cfg_p.horizon or mc.task_spec().horizon
+        horizon = cfg_p.horizon or TaskSpec.for_env(env_id).horizon
     points = trial_records_to_points(summary.records, horizon)
     dt = summary.records[0]["experience_s"] / max(1, summary.records[0].get("steps", horizon))
     curve = make_curve(
@@ -500,7 +538,11 @@ def covers(curve: dict[str, Any], method: str, opts: dict[str, Any]) -> bool:
         return curve.get("budget_steps", 0) >= (want or DEFAULT_STEPS[method])
     trials = opts.get("trials")
     if trials is None:
-        trials = load_config(curve["env_id"], preset=opts.get("mcpilco_preset", "bench")).num_trials
+        trials = load_config(
+            curve["env_id"],
+            preset=mcpilco_preset(curve["env_id"], opts.get("mcpilco_preset")),
+            overrides=opts.get("mcpilco_set"),
+        ).num_trials
     return len(curve["points"]) >= trials + 1
 
 

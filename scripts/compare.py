@@ -8,8 +8,9 @@ vs seconds of experience (log x-axis), one curve per method, mean over seeds wit
 Glossary
 --------
 experience ``T``
-    seconds of real interaction: env steps x control period (0.05 s on the cartpoles);
-    MC-PILCO / PILCO: ``3 (k + 1)`` s after trial ``k`` (exploration included).
+    seconds of real interaction: every env step taken (exploration included) x the control
+    period (0.05 s on the cartpoles; ``3 (k + 1)`` s after trial ``k`` there, fewer on a
+    task whose episodes end early, such as InvertedPendulum-v5).
 ``p_m(T)``
     success rate of method ``m`` at ``T``: mean over seeds of each seed's last evaluation at
     or before ``T`` (sample and hold; 0 before its first evaluation), up to the shortest
@@ -17,7 +18,8 @@ experience ``T``
     deterministic episodes (SB3); success = ``info["success"]`` at the end of the episode.
 ``T90_m``
     the first ``T`` with ``p_m(T) >= 0.9`` (headline); when never reached, only
-    ``T90_m > T_max`` (the budget) is known.
+    ``T90_m > T_max`` (the budget) is known. ``T100_m``: the first ``T`` at which every
+    seed's last evaluation succeeds (e.g. 10 of 10 seeds balance).
 ratio
     ``T90_m / T90_MC-PILCO``: how much more experience method ``m`` needs. The report checks
     two targets: ratio >= 100 for the best SB3 method and > 1 for PILCO.
@@ -47,7 +49,7 @@ from typing import Any
 from mcpilco.agents.baselines.common import check_task_env, load_curves
 from mcpilco.agents.baselines.pilco import OPTIMIZERS
 from mcpilco.agents.common.cli import console_main
-from mcpilco.agents.mc_pilco.loop import DEFAULT_ENV_ID
+from mcpilco.agents.mc_pilco.loop import DEFAULT_ENV_ID, parse_set
 from mcpilco.experiments.compare import (
     METHODS,
     compare,
@@ -92,7 +94,14 @@ def build_parser() -> argparse.ArgumentParser:
         "--trials", type=int, help="MC-PILCO / PILCO policy trials (default: bench preset, 4)"
     )
     p.add_argument(
-        "--mcpilco-preset", default="bench", help="preset of the env's MC-PILCO config file"
+        "--mcpilco-preset",
+        help="preset of the env's MC-PILCO config file (default: its bench preset if any)",
+    )
+    p.add_argument(
+        "--mcpilco-set",
+        nargs="+",
+        metavar="KEY=VALUE",
+        help="override MC-PILCO config fields (as mcpilco-train --set, e.g. opt.max_steps=50)",
     )
     p.add_argument(
         "--mcpilco-json", type=Path, help="collect MC-PILCO from mcpilco-bench-mcpilco's JSON"
@@ -102,18 +111,32 @@ def build_parser() -> argparse.ArgumentParser:
         default="",
         help="with --mcpilco-json: the section's --label (e.g. K2); default: unlabelled",
     )
-    p.add_argument("--pilco-max-points", type=int, help="PILCO GP points (default 180)")
+    p.add_argument(
+        "--pilco-max-points",
+        type=int,
+        help="PILCO GP points (default: the env's in agents/baselines/conf/pilco.yaml, else 180)",
+    )
     p.add_argument(
         "--pilco-opt-steps",
         type=int,
-        help="PILCO evaluations of J (L-BFGS) or Adam steps per trial (default 150)",
+        help="PILCO evaluations of J (L-BFGS) or Adam steps per trial (default: the env's, "
+        "else 150)",
     )
     p.add_argument(
         "--pilco-optimizer",
         choices=OPTIMIZERS,
-        help="PILCO policy optimiser (default lbfgs, as PILCO's own line-search optimiser)",
+        help="PILCO policy optimiser (default: the env's, else lbfgs, as PILCO's own "
+        "line-search optimiser)",
     )
-    p.add_argument("--pilco-basis", type=int, help="PILCO RBF centres (default 50)")
+    p.add_argument(
+        "--pilco-basis", type=int, help="PILCO RBF centres (default: the env's, else 50)"
+    )
+    p.add_argument(
+        "--pilco-set",
+        nargs="+",
+        metavar="KEY=VALUE",
+        help="override PilcoConfig fields (e.g. imagined_horizon=40 explore_steps=200)",
+    )
     p.add_argument(
         "--inputs", nargs="+", type=Path, default=[], help="extra learning-curve JSON files"
     )
@@ -156,9 +179,11 @@ def main(argv: list[str] | None = None) -> int:
     try:
         steps = parse_steps(args.steps)
         sb3_hp = parse_sb3_hp(args.sb3_hp)
+        mcpilco_set = parse_set(args.mcpilco_set)
+        pilco_set = parse_set(args.pilco_set)
     except ValueError as err:
         parser.error(str(err))
-    pilco_over = {
+    pilco_over = pilco_set | {
         k: v
         for k, v in (
             ("max_points", args.pilco_max_points),
@@ -171,6 +196,7 @@ def main(argv: list[str] | None = None) -> int:
     opts: dict[str, Any] = {
         "trials": args.trials,
         "mcpilco_preset": args.mcpilco_preset,
+        "mcpilco_set": mcpilco_set,
         "pilco": pilco_over,
         "steps": steps,
         "eval_every": args.eval_every,

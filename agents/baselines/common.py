@@ -111,15 +111,20 @@ def eval_seeds(seed: int, n: int) -> list[int]:
 def trial_records_to_points(records: Sequence[dict[str, Any]], horizon: int) -> list[dict]:
     """Learning-curve points of an MC-PILCO / PILCO run: one per trial (exploration too).
 
-    ``steps = (k + 1) H``, ``experience_s`` as recorded (``3 (k + 1)`` s on the cartpoles),
-    ``success_rate`` = 1.0 or 0.0 from the trial's single episode.
+    ``steps``: the env steps taken up to and including trial ``k`` (the sum of the records'
+    ``steps``; ``(k + 1) H`` for records without them), ``experience_s`` as recorded
+    (``3 (k + 1)`` s on the cartpoles), ``success_rate`` = 1.0 or 0.0 from the trial's
+    single episode.
     """
     pts = []
+    counted = all("steps" in r for r in records)
+    taken = 0
     for r in records:
         k = int(r["index"])
+        taken += int(r["steps"]) if counted else 0
         pts.append(
             {
-                "steps": (k + 1) * int(horizon),
+                "steps": taken if counted else (k + 1) * int(horizon),
                 "experience_s": float(r["experience_s"]),
                 "success_rate": float(bool(r["success"])),
                 "episodes": 1,

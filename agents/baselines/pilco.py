@@ -32,9 +32,17 @@ units fix
 outer loop
     exactly MC-PILCO's (:mod:`mcpilco.agents.mc_pilco.loop`): the same exploration trial
     (``u ~ U(-1, 1)`` from the same generator and seed), the same env, reset seeds and
-    success flag; after trial ``k`` the experience is ``3 (k + 1)`` s. Data for the GP: the
-    latest ``max_points`` transitions (the example's ``max_rollout_length``), since the
-    moment-matching cost grows as ``O(n^2 D^2)`` memory per step.
+    success flag; the experience is every env step taken so far (exploration included)
+    times the control period (``3 (k + 1)`` s after trial ``k`` on the cart-pole, whose
+    episodes never terminate early). ``explore_steps`` replaces the exploration trial with a
+    random rollout of that many steps that resets whenever an episode ends (TorchRL's
+    example). Data for the GP: the latest ``max_points`` transitions (the example's
+    ``max_rollout_length``), since the moment-matching cost grows as ``O(n^2 D^2)`` memory
+    per step.
+settings per env
+    :data:`CONF_FILE` holds settings keyed by env id (TorchRL's example's on
+    ``InvertedPendulum-v5``, each with its source); :func:`pilco_config` builds a run's
+    config from them.
 
 After every trial the run is checkpointed atomically (``checkpoint.pt``); ``resume=True``
 continues from it. ``records.json`` has one record per trial in MC-PILCO's format.
@@ -67,7 +75,8 @@ from mcpilco.agents.mc_pilco.loop import (
     check_resume,
     env_dt,
     episode_outcome,
-    exploration_episode,
+    exploration_episodes,
+    load_config,
     make_env,
     record_line,
     run_episode,
@@ -78,10 +87,11 @@ from mcpilco.agents.mc_pilco.loop import (
 from mcpilco.agents.mc_pilco.task import TaskSpec
 from mcpilco.agents.mc_pilco.viz import plot_optimisation
 
-CHECKPOINT_NAME = "checkpoint.pt"
-OPTIMIZERS = ("lbfgs", "adam")
-_RESUME_FIXED = ("env_id", "seed", "horizon", "num_basis", "explore_hold")
-DTYPE = torch.float64
+CHECKPOINT_NAME = "checkpoint.pt"  # the run's checkpoint file in its output folder
+OPTIMIZERS = ("lbfgs", "adam")  # choices of PilcoConfig.optimizer
+_RESUME_FIXED = ("env_id", "seed", "horizon", "num_basis", "explore_hold", "explore_steps")
+DTYPE = torch.float64  # dtype of TorchRL's GP world model, controller and cost
+CONF_FILE = Path(__file__).resolve().parent / "conf" / "pilco.yaml"  # settings by env id
 
 
 @dataclass
@@ -92,7 +102,9 @@ class PilcoConfig:
         env_id: registered env id with a task specification whose state is the observation
             and whose action bounds are symmetric and equal.
         num_trials: policy trials after the exploration trial.
-        horizon: ``H``, steps per trial and of the imagined rollout (None: the task's).
+        horizon: ``H``, steps per trial (None: the task's).
+        imagined_horizon: steps of the imagined rollout in ``J`` (None: ``H``; TorchRL's
+            example: 40 on InvertedPendulum-v5).
         num_basis: RBF centres of the controller (50: the size of PILCO's cart-pole policy).
         max_points: GP training set = the latest ``max_points`` transitions; 180 keeps all
             the data up to 12 s of experience (the bench budget's last trial drops the first
@@ -111,10 +123,15 @@ class PilcoConfig:
         lr: Adam learning rate (L-BFGS takes the usual initial step 1).
         cost_length_scales: length scales ``l_j`` of the cost by state name (None: the
             task's evaluation cost's); pass MC-PILCO's optimisation values of the same env
-            (on the cart-pole ``l_x = 1``, ``l_theta = 3``, Amadio et al. 2022).
+            (on the cart-pole ``l_x = 1``, ``l_theta = 3``, Amadio et al. 2022). A state
+            without a cost term in the task gets the target 0 (TorchRL's default target);
+            ``sqrt(2)`` on every state is ``ExponentialQuadraticCost``'s default ``W = I``.
         explore_hold: steps each random exploration action is held (pass
             :attr:`MCPilcoConfig.explore_hold <mcpilco.agents.mc_pilco.MCPilcoConfig>` of the
             same env, so that both agents start from the same exploration trial).
+        explore_steps: random steps of the exploration trial, in episodes of at most ``H``
+            steps that reset whenever one ends (None: one episode of ``H`` steps, MC-PILCO's
+            exploration trial; TorchRL's example: 200).
         init_std: ``Sigma_0 = init_std^2 I`` of the initial belief (the env's 0.01); must be
             > 1e-3 so that TorchRL's world model takes its moment-matching path.
         seed: seeds torch, numpy and the env resets (same trial seeds as MC-PILCO).
@@ -124,6 +141,7 @@ class PilcoConfig:
     env_id: str = DEFAULT_ENV_ID
     num_trials: int = 5
     horizon: int | None = None
+    imagined_horizon: int | None = None
     num_basis: int = 50
     max_points: int = 180
     optimizer: str = "lbfgs"
@@ -131,6 +149,7 @@ class PilcoConfig:
     lr: float = 0.02
     cost_length_scales: dict[str, float] | None = None
     explore_hold: int = 1
+    explore_steps: int | None = None
     init_std: float = 0.01
     seed: int = 0
     torch_threads: int | None = None
@@ -140,9 +159,16 @@ class PilcoConfig:
             v = getattr(self, name)
             if int(v) != v or v < 0:
                 raise ValueError(f"{name} must be an integer >= 0, got {v!r}")
-        for name in ("horizon", "num_basis", "opt_steps", "explore_hold"):
+        for name in (
+            "horizon",
+            "imagined_horizon",
+            "explore_steps",
+            "num_basis",
+            "opt_steps",
+            "explore_hold",
+        ):
             v = getattr(self, name)
-            if v is None and name == "horizon":
+            if v is None and name in ("horizon", "imagined_horizon", "explore_steps"):
                 continue
             if int(v) != v or v < 1:
                 raise ValueError(f"{name} must be a positive integer, got {v!r}")
@@ -178,6 +204,50 @@ class PilcoConfig:
         return cls(**{**LEGACY_FIELD_VALUES, **d})
 
 
+def env_settings(env_id: str, path: str | Path = CONF_FILE) -> dict[str, Any]:
+    """The settings of ``env_id`` in the PILCO config file ``path`` (``envs: {id: {...}}``;
+    empty for an env without an entry).
+
+    Raises:
+        ValueError: the entry names a field that :class:`PilcoConfig` does not have.
+    """
+    import yaml
+
+    data = yaml.safe_load(Path(path).read_text()) or {}
+    entry = dict((data.get("envs") or {}).get(env_id) or {})
+    fields = {f.name for f in dataclasses.fields(PilcoConfig)}
+    unknown = sorted(set(entry) - fields)
+    if unknown:
+        raise ValueError(
+            f"{Path(path).name}: {env_id}: unknown PILCO field(s) {', '.join(unknown)}"
+        )
+    return entry
+
+
+def pilco_config(
+    env_id: str,
+    overrides: dict[str, Any] | None = None,
+    mcpilco_preset: str | None = None,
+    path: str | Path = CONF_FILE,
+    mcpilco_overrides: dict[str, Any] | None = None,
+) -> PilcoConfig:
+    """The PILCO config of a run on ``env_id``, from (later wins): :class:`PilcoConfig`'s
+    defaults; MC-PILCO's ``explore_hold`` and cost length scales on that env (its config
+    file, its preset ``mcpilco_preset`` if given, then ``mcpilco_overrides``), so that both
+    agents start from the same exploration trial and optimise the same cost; the env's entry
+    in ``path`` (:func:`env_settings`); ``overrides``. ``num_trials`` defaults to MC-PILCO's."""
+    mc = load_config(env_id, preset=mcpilco_preset, overrides=mcpilco_overrides)
+    merged: dict[str, Any] = {
+        "env_id": env_id,
+        "num_trials": mc.num_trials,
+        "explore_hold": mc.explore_hold,
+        "cost_length_scales": mc.cost_length_scales,
+        **env_settings(env_id, path),
+        **dict(overrides or {}),
+    }
+    return PilcoConfig(**merged)
+
+
 # ------------------------------------------------------------------------ TorchRL parts
 def make_controller(
     obs_dim: int, action_dim: int, num_basis: int, seed: int, max_action: float = 1.0
@@ -201,12 +271,25 @@ def make_controller(
 
 def make_cost(task: TaskSpec, length_scales: dict[str, float] | None = None):
     """TorchRL's :class:`ExponentialQuadraticCost` of the task's cost terms (see the
-    glossary); ``length_scales`` by state name replace the task's."""
+    glossary); ``length_scales`` by state name replace the task's, and a named state without
+    a cost term in the task is added with target 0 (TorchRL's default target).
+
+    Raises:
+        ValueError: a length scale for a name that is not one of the task's states.
+    """
     from torchrl.objectives import ExponentialQuadraticCost
 
     length_scales = dict(length_scales or {})
+    unknown = sorted(set(length_scales) - set(task.state_names))
+    if unknown:
+        raise ValueError(
+            f"cost_length_scales: unknown state(s) {', '.join(unknown)} "
+            f"(states: {', '.join(task.state_names)})"
+        )
     target = torch.zeros(task.state_dim, dtype=DTYPE)
     w = torch.zeros(task.state_dim, dtype=DTYPE)
+    for name, scale in length_scales.items():
+        w[task.index(name)] = 2.0 / float(scale) ** 2
     for term in task.cost_terms:
         j = task.index(term.state)
         target[j] = term.target
@@ -508,9 +591,17 @@ def run_pilco(
             rec: dict[str, Any] = {"index": k}
             if k == 0:
                 rec["kind"] = "exploration"
-                ep = exploration_episode(
-                    env, np_rng, config.seed, horizon, task, config.explore_hold
+                eps = exploration_episodes(
+                    env,
+                    np_rng,
+                    config.seed,
+                    horizon,
+                    task,
+                    config.explore_hold,
+                    config.explore_steps,
                 )
+                ep = eps[0]  # its outcome is the record's (MC-PILCO's exploration trial)
+                rec["exploration_episodes"] = len(eps)
             else:
                 rec["kind"] = "policy"
                 s, a, s1 = transitions(episodes)
@@ -528,7 +619,7 @@ def run_pilco(
                     base_env,
                     policy_module,
                     cost,
-                    horizon,
+                    config.imagined_horizon or horizon,
                     config.init_std,
                     task.init_mean,
                 )
@@ -565,8 +656,11 @@ def run_pilco(
                     horizon,
                     task,
                 )
-            episodes.append({"obs": ep["obs"], "actions": ep["actions"]})
+                eps = [ep]
+            episodes += [{"obs": e["obs"], "actions": e["actions"]} for e in eps]
             rec.update(episode_outcome(ep, t0))
+            if k == 0:  # every step of the exploration counts
+                rec["steps"] = sum(len(e["actions"]) for e in episodes)
             rec["experience_s"] = sum(len(e["actions"]) for e in episodes) * dt
             records.append(rec)
             _write_outputs(out, config, records, opt_curves)
@@ -625,5 +719,7 @@ __all__ = [
     "make_controller",
     "make_cost",
     "optimize_controller",
+    "pilco_config",
+    "env_settings",
     "run_pilco",
 ]

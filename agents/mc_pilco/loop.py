@@ -551,12 +551,37 @@ def exploration_actions(
     return np.repeat(draws, hold, axis=0)[:horizon]
 
 
-def exploration_episode(
-    env, rng: np.random.Generator, seed: int, horizon: int, task: TaskSpec, hold: int = 1
-) -> dict[str, Any]:
-    """Trial 0: the actions of :func:`exploration_actions` for ``horizon`` steps."""
-    it = iter(exploration_actions(rng, horizon, hold, task.action_low, task.action_high))
-    return run_episode(env, lambda _o: next(it), trial_seed(seed, 0), horizon, task)
+def exploration_episodes(
+    env,
+    rng: np.random.Generator,
+    seed: int,
+    horizon: int,
+    task: TaskSpec,
+    hold: int = 1,
+    min_steps: int | None = None,
+) -> list[dict[str, Any]]:
+    """Trial 0: episodes under the random actions of :func:`exploration_actions`.
+
+    The first episode runs ``horizon`` steps from the reset seed ``trial_seed(seed, 0)``
+    (fewer when the env terminates it). With ``min_steps``, further episodes follow, each
+    reset from the env's own generator (seeded by the first reset) and at most ``horizon``
+    steps long, the last one cut so that exactly ``min_steps`` steps are taken in all: a
+    random rollout of ``min_steps`` steps that resets whenever an episode ends, as in
+    TorchRL's PILCO example (``initial_rollout_length``). Returns the episodes in order
+    (:func:`run_episode`'s dicts).
+    """
+    if min_steps is not None and (int(min_steps) != min_steps or min_steps < 1):
+        raise ValueError(f"min_steps must be a positive integer, got {min_steps!r}")
+    episodes: list[dict[str, Any]] = []
+    taken, reset_seed = 0, trial_seed(seed, 0)
+    while not episodes or (min_steps is not None and taken < min_steps):
+        n = horizon if not episodes else min(horizon, int(min_steps) - taken)
+        it = iter(exploration_actions(rng, n, hold, task.action_low, task.action_high))
+        ep = run_episode(env, lambda _o, it=it: next(it), reset_seed, n, task)
+        episodes.append(ep)
+        taken += ep["steps"]
+        reset_seed = None
+    return episodes
 
 
 def check_resume(saved: dict[str, Any], config: Any, keys: tuple[str, ...]) -> None:
@@ -753,7 +778,7 @@ def run_mcpilco(
             arr: dict[str, Any] = {"index": k, "particles": None, "opt_costs": None}
             if k == 0:
                 rec["kind"] = "exploration"
-                ep = exploration_episode(
+                (ep,) = exploration_episodes(
                     env,
                     np_rng,
                     config.seed,

@@ -8,9 +8,11 @@ from __future__ import annotations
 import json
 import os
 
+import numpy as np
 import pytest
 
-from mcpilco.agents.baselines.common import make_curve, save_curve
+from mcpilco.agents.baselines.common import make_curve, save_curve, task_env_ids
+from mcpilco.agents.mc_pilco import TaskSpec
 from mcpilco.experiments.compare import aggregate_method
 
 ENV = "mcpilco/CartpoleSwingUp-v0"
@@ -348,3 +350,65 @@ def test_runs_go_through_the_sweep_runner_and_keep_their_result(tmp_path, comman
     assert record["result"] == curve and record["pid"] != os.getpid()
     report = json.loads((tmp_path / "r" / "compare_CartpoleSwingUp-v0.json").read_text())
     assert report["methods"]["mcpilco"]["seeds"] == [0] and report["failed"] == []
+
+
+# MC-PILCO config overrides for a run of seconds (--mcpilco-set)
+TINY_MCPILCO = [
+    "num_particles=8",
+    "num_candidates=1",
+    "candidate_weight_scales=null",
+    "max_points=40",
+    "gp_adam_iters=3",
+    "gp_lbfgs_iters=2",
+    "num_basis=10",
+    "opt.max_steps=2",
+    "opt.min_steps=1",
+    "opt.monitor_patience=1",
+    "log_particles=4",
+]
+
+
+@pytest.mark.parametrize("env_id", task_env_ids())
+def test_every_task_env_runs_through_compare(env_id, tmp_path, command):
+    """One exploration and one policy trial of MC-PILCO on every env with a task spec: the
+    curve has a point per trial whose experience is every env step taken times the task's
+    control period, and the report carries the method's success figures."""
+    runs, out = tmp_path / "runs", tmp_path / "r"
+    argv = ["--env", env_id, "--methods", "mcpilco", "--seeds", "1", "--trials", "1"]
+    argv += ["--no-progress", "--runs-dir", str(runs), "--out", str(out)]
+    assert command("mcpilco-compare", [*argv, "--mcpilco-set", *TINY_MCPILCO]) == 0
+    name = env_id.split("/")[-1]
+    run = runs / name / "mcpilco" / "seed0"
+    records = json.loads((run / "records.json").read_text())["records"]
+    curve = json.loads((run / "curve.json").read_text())
+    task = TaskSpec.for_env(env_id)
+    steps = np.cumsum([r["steps"] for r in records])
+    assert [r["kind"] for r in records] == ["exploration", "policy"]
+    assert all(1 <= r["steps"] <= task.horizon for r in records)
+    assert [p["steps"] for p in curve["points"]] == steps.tolist()
+    assert [p["experience_s"] for p in curve["points"]] == pytest.approx(steps * task.dt)
+    assert [p["success_rate"] for p in curve["points"]] == [float(r["success"]) for r in records]
+    report = json.loads((out / f"compare_{name}.json").read_text())
+    mc = report["methods"]["mcpilco"]
+    assert mc["seeds"] == [0] and report["failed"] == []
+    assert mc["final_success"] == float(records[-1]["success"])
+    assert (mc["t100_s"] is None) == (not any(r["success"] for r in records))
+    assert (out / f"compare_{name}.png").is_file()
+
+
+def test_a_seed_ending_in_a_failure_holds_it_past_its_budget():
+    """Episodes that end early give seeds different budgets: seed 0 fails its trials by
+    0.5 s, seed 1 balances at 2.2 s. Seed 0's failure holds up to 2.2 s (a success would need
+    another trial): mean 0, 0, 0.5 at 0.2, 0.5, 2.2 s; 100 % (all seeds) not reached."""
+
+    def curve(seed, pts):
+        p = [{"steps": 0, "experience_s": t, "success_rate": v, "episodes": 1} for t, v in pts]
+        return make_curve("mcpilco", ENV, seed, 0.04, p, complete=True)
+
+    agg = aggregate_method([curve(0, [(0.2, 0.0), (0.5, 0.0)]), curve(1, [(0.2, 0.0), (2.2, 1.0)])])
+    assert agg["experience_s"] == [0.2, 0.5, 2.2] and agg["budget_s"] == 2.2
+    assert agg["success_mean"] == pytest.approx([0.0, 0.0, 0.5])
+    assert agg["t100_s"] is None and agg["t90_s"] is None
+    both = [curve(0, [(0.2, 0.0), (1.8, 1.0), (2.4, 1.0)]), curve(1, [(0.2, 0.0), (2.2, 1.0)])]
+    agg = aggregate_method(both)
+    assert agg["experience_s"] == [0.2, 1.8, 2.2] and agg["t100_s"] == 2.2

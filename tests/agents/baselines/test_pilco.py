@@ -18,10 +18,12 @@ from tensordict import TensorDict
 from mcpilco.agents.baselines.pilco import (
     PilcoConfig,
     controller_act,
+    env_settings,
     fit_world_model,
     make_controller,
     make_cost,
     optimize_controller,
+    pilco_config,
 )
 from mcpilco.agents.mc_pilco import TaskSpec, load_config, run_mcpilco
 from mcpilco.envs.cartpole_task import cartpole_cost
@@ -61,6 +63,61 @@ def test_cost_on_a_point_state_is_the_env_cost(l_x, l_theta):
     if (l_x, l_theta) == (1.5, 1.0):  # the task's own length scales: its evaluation cost
         own = _expected_cost(make_cost(TASK), states, np.zeros((50, 4, 4)))
         np.testing.assert_allclose(own, got, rtol=0, atol=0)
+
+
+def test_cost_on_states_without_a_task_term_is_torchrls_default():
+    """Length scales sqrt(2) on every state of InvertedPendulum-v5 (whose task has cost terms
+    on x and theta only) give ExponentialQuadraticCost's defaults, target 0 and W = I:
+    ``c(x) = 1 - exp(-|x|^2 / 2)`` on a point state."""
+    task = TaskSpec.for_env("InvertedPendulum-v5")
+    states = np.random.default_rng(1).normal(scale=0.7, size=(40, 4))
+    cost = make_cost(task, dict.fromkeys(task.state_names, math.sqrt(2.0)))
+    got = _expected_cost(cost, states, np.zeros((40, 4, 4)))
+    np.testing.assert_allclose(got, 1 - np.exp(-0.5 * (states**2).sum(1)), atol=1e-4)
+    with pytest.raises(ValueError, match="cost_length_scales: unknown state.*theta_ddot"):
+        make_cost(task, {"theta_ddot": 1.0})
+
+
+def test_settings_by_env_id(tmp_path):
+    """InvertedPendulum-v5 takes TorchRL's example (sota-implementations/pilco/config.yaml);
+    an env without an entry takes MC-PILCO's exploration hold and cost; overrides win."""
+    ip = pilco_config("InvertedPendulum-v5")
+    assert (ip.num_basis, ip.optimizer, ip.lr, ip.opt_steps) == (10, "adam", 5e-3, 100)
+    assert (ip.imagined_horizon, ip.max_points, ip.explore_steps) == (40, 350, 200)
+    assert ip.init_std**2 == pytest.approx(1e-3)
+    assert ip.cost_length_scales == dict.fromkeys(["x", "theta", "x_dot", "theta_dot"], 2**0.5)
+    cart = pilco_config(ENV, {"num_basis": 7})
+    assert (cart.explore_hold, cart.cost_length_scales) == (2, {"x": 1.0, "theta": 3.0})
+    assert (cart.num_basis, cart.imagined_horizon, cart.explore_steps) == (7, None, None)
+    bad = tmp_path / "pilco.yaml"
+    bad.write_text("envs:\n  InvertedPendulum-v5: {basis: 3}\n")
+    with pytest.raises(ValueError, match="unknown PILCO field\\(s\\) basis"):
+        env_settings("InvertedPendulum-v5", bad)
+    assert env_settings("mcpilco/UR10-v0", bad) == {}
+
+
+def test_inverted_pendulum_run_counts_every_exploration_step(tmp_path):
+    """TorchRL's example on InvertedPendulum-v5 through the compare entry point (a shorter
+    random rollout and 2 Adam steps): the random rollout resets after every fall and takes
+    exactly ``explore_steps`` steps, all of them experience (0.04 s each) and GP data."""
+    opts = {
+        "trials": 1,
+        "pilco": {"explore_steps": 60, "opt_steps": 2, "max_points": 60},
+        "threads": 1,
+        "log": False,
+    }
+    curve = run_method("pilco", "InvertedPendulum-v5", 0, tmp_path, opts)
+    saved = json.loads((tmp_path / "records.json").read_text())
+    explore, policy = saved["records"]
+    assert explore["steps"] == 60 and explore["exploration_episodes"] > 1
+    assert explore["experience_s"] == pytest.approx(60 * 0.04)
+    assert policy["gp_points"] == 60 and policy["opt_steps"] == 2
+    assert 1 <= policy["steps"] <= 50
+    assert policy["experience_s"] == pytest.approx((60 + policy["steps"]) * 0.04)
+    assert [p["steps"] for p in curve["points"]] == [60, 60 + policy["steps"]]
+    assert policy["success"] == (policy["steps"] == 50)
+    cfg = saved["config"]
+    assert (cfg["num_basis"], cfg["imagined_horizon"], cfg["optimizer"]) == (10, 40, "adam")
 
 
 def test_expected_cost_matches_monte_carlo():

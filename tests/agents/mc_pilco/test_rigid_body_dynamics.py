@@ -26,7 +26,7 @@ from mcpilco.agents.mc_pilco import (
 from mcpilco.agents.mc_pilco.backends import use_fast_rollout
 from mcpilco.agents.mc_pilco.checkpoint import load_checkpoint
 from mcpilco.agents.mc_pilco.loop import (
-    exploration_episode,
+    exploration_episodes,
     make_env,
     run_episode,
     transitions,
@@ -89,7 +89,7 @@ def test_rigid_body_kernel_predicts_the_arm_better_than_rbf_and_rbf_mpk():
 def tracking_data(seed: int) -> tuple[TaskSpec, list[dict]]:
     task = TaskSpec.from_dict(TASK)
     env = make_env(ENV_ID, task.horizon, task)
-    ep = exploration_episode(env, np.random.default_rng(seed), seed, task.horizon, task, 2)
+    (ep,) = exploration_episodes(env, np.random.default_rng(seed), seed, task.horizon, task, 2)
     env.close()
     return task, [ep]
 

@@ -20,7 +20,7 @@ from mcpilco.agents.mc_pilco import (
     load_config,
     parse_set,
 )
-from mcpilco.agents.mc_pilco.loop import config_files
+from mcpilco.agents.mc_pilco.loop import config_files, exploration_episodes, make_env, run_episode
 from mcpilco.envs.cartpole_task import cartpole_cost
 from mcpilco.envs.tasks import task_ids
 
@@ -157,6 +157,43 @@ def test_success_rules():
     assert not task.is_success(tipped, {}, task.horizon)
     cart = TaskSpec.for_env("mcpilco/CartpoleSwingUp-v0")
     assert cart.is_success(np.zeros((60, 4)), {"success": True}, 60)  # the env's flag wins
+
+
+def test_inverted_pendulum_success_is_gymnasiums_balance():
+    """Gymnasium's InvertedPendulum-v5 terminates when |theta| > 0.2 rad: an episode under a
+    balancing PD law runs the task's whole horizon and succeeds; under zero force the pole
+    falls, the env ends the episode at the first |theta| > 0.2 and the task says failure."""
+    task = TaskSpec.for_env("InvertedPendulum-v5")
+    env = make_env(task.env_id, task.horizon, task)
+    gains = np.array([1.0, 10.0, 1.0, 2.0])  # u = K [x, theta, x_dot, theta_dot]
+    for seed in range(3):
+        ep = run_episode(env, lambda s: np.array([gains @ s]), seed, task.horizon, task)
+        assert ep["steps"] == task.horizon and ep["success"]
+        fell = run_episode(env, lambda s: np.zeros(1), seed, task.horizon, task)
+        theta = np.abs(fell["states"][:, 1])
+        assert fell["steps"] < task.horizon and not fell["success"]
+        assert theta[-1] > 0.2 and np.all(theta[:-1] <= 0.2)
+    env.close()
+
+
+def test_exploration_resets_until_its_steps_are_taken():
+    """``min_steps`` random steps in episodes that end at termination (|theta| > 0.2) or at
+    the horizon, the last one cut to the exact total; the first episode is the one-episode
+    exploration trial's, the later ones start from fresh resets."""
+    task = TaskSpec.for_env("InvertedPendulum-v5")
+    env = make_env(task.env_id, task.horizon, task)
+    (one,) = exploration_episodes(env, np.random.default_rng(5), 5, task.horizon, task)
+    eps = exploration_episodes(env, np.random.default_rng(5), 5, task.horizon, task, 1, 120)
+    env.close()
+    assert sum(e["steps"] for e in eps) == 120 and len(eps) > 2
+    np.testing.assert_array_equal(eps[0]["obs"], one["obs"])
+    for e in eps[:-1]:
+        theta = np.abs(e["states"][1:, 1])
+        assert e["steps"] == task.horizon or (theta[-1] > 0.2 and np.all(theta[:-1] <= 0.2))
+    for e in eps[1:]:  # a reset state: U(-0.01, 0.01) around upright
+        assert np.all(np.abs(e["states"][0]) <= 0.01)
+    with pytest.raises(ValueError, match="min_steps must be a positive integer"):
+        exploration_episodes(env, np.random.default_rng(0), 0, task.horizon, task, 1, 0)
 
 
 def test_config_files_and_overrides():
