@@ -48,7 +48,9 @@ Groups (what the data cannot tell apart)
     table then names them together, and when their evidences differ by less than
     ``indistinct_nats`` (default 2 nats, Bayes factor < e^2) the verdict says so. Within a
     group, the held-out data decide which significant member is the missing effect: the one
-    that lowers the held-out RMSE most. The training evidences of correlated candidates
+    with the most evidence, unless another lowers the held-out RMSE by more than
+    ``min_heldout_gain`` percentage points more (the rule by which an alternative replaces
+    an effect); then the one that lowers it most. The training evidences of correlated candidates
     differ mainly by how well each fits the noise that the derivative filter correlates
     across rows (which the white-noise likelihood overcounts); a held-out log is an
     independent test (a link 40 % heavier: link 2's inertia -40 % held-out RMSE against a
@@ -711,16 +713,24 @@ class Diagnosis:
 
     @property
     def best(self) -> Candidate | None:
-        """The missing effect: of the significant candidates outside the start's span in the
-        group of the first one, the one with the lowest held-out RMSE (module docstring:
-        within a group, held-out data decide)."""
+        """The missing effect: the first significant candidate outside the start's span,
+        unless another one of its group lowers the held-out RMSE by more than
+        ``min_heldout_gain`` percentage points more (module docstring: within a group, the
+        held-out data decide); then the one that lowers it most."""
         missing = [c for c in self.candidates if c.missing]
         if not missing:
             return None
+        first = missing[0]
+        if first.heldout_delta_pct is None:
+            return first
         peers = [
-            c for c in missing if c.group == missing[0].group and c.heldout_delta_pct is not None
+            c
+            for c in missing
+            if c.group == first.group
+            and c.heldout_delta_pct is not None
+            and c.heldout_delta_pct < first.heldout_delta_pct - self.min_heldout_gain
         ]
-        return min(peers, key=lambda c: c.heldout_delta_pct) if peers else missing[0]
+        return min(peers, key=lambda c: c.heldout_delta_pct) if peers else first
 
     @property
     def refinement(self) -> Candidate | None:
