@@ -50,11 +50,12 @@ Groups (what the data cannot tell apart)
     group, the held-out data decide which significant member is the missing effect: the one
     with the most evidence, unless another lowers the held-out RMSE by more than
     ``min_heldout_gain`` percentage points more (the rule by which an alternative replaces
-    an effect); then the one that lowers it most. The training evidences of correlated candidates
-    differ mainly by how well each fits the noise that the derivative filter correlates
-    across rows (which the white-noise likelihood overcounts); a held-out log is an
-    independent test (a link 40 % heavier: link 2's inertia -40 % held-out RMSE against a
-    payload's -20 %, though the payload led by 12 nats).
+    an effect), both judged on the joints either acts on; then the one that lowers it
+    most. The training evidences of correlated candidates differ mainly by how well each
+    fits the noise that the derivative filter correlates across rows (which the white-noise
+    likelihood overcounts); a held-out log is an independent test (a link 40 % heavier:
+    link 2's inertia -40 % held-out RMSE against a payload's -20 %, though the payload led
+    by 12 nats).
 Continuous shape values
     The scan picks the best grid value of a continuous shape field (smoothing ``eps``,
     Stribeck velocity ``v_s``, dead-zone width ``c``, cogging order ``n``, delay ``k`` in
@@ -172,6 +173,8 @@ class Candidate:
     outputs: list[int]
     contributions: dict[int, FloatArray] = field(default_factory=dict, repr=False)
     heldout_delta_pct: float | None = None
+    heldout_rmse: FloatArray | None = field(default=None, repr=False)
+    """``(n,)`` held-out RMSE per joint of the model with this candidate (when confirmed)."""
     explained: float | None = None
     group: int = 0
     significant: bool = False
@@ -703,6 +706,8 @@ class Diagnosis:
     min_explained: float = MIN_EXPLAINED
     base: FloorCheck | None = None
     after: FloorCheck | None = None
+    noise_std: FloatArray | None = field(default=None, repr=False)
+    """``(n,)`` the diagnosed model's fitted noise std per joint (units of held-out changes)."""
     learned_start: bool = False
     """Whether the model's start is a learned GP (its own error cannot be told apart from a
     missing effect, module docstring)."""
@@ -721,16 +726,19 @@ class Diagnosis:
         if not missing:
             return None
         first = missing[0]
-        if first.heldout_delta_pct is None:
+        if first.heldout_rmse is None or self.base is None or self.noise_std is None:
             return first
-        peers = [
-            c
-            for c in missing
-            if c.group == first.group
-            and c.heldout_delta_pct is not None
-            and c.heldout_delta_pct < first.heldout_delta_pct - self.min_heldout_gain
-        ]
-        return min(peers, key=lambda c: c.heldout_delta_pct) if peers else first
+        best, gain = first, 0.0
+        for c in missing[1:]:
+            if c.group != first.group or c.heldout_rmse is None:
+                continue
+            # both judged on the joints either acts on (a payload moves every joint)
+            outs = np.array(sorted(set(first.outputs) | set(c.outputs))) - 1
+            mine = heldout_change_pct(self.base.rmse, first.heldout_rmse, self.noise_std, outs)
+            theirs = heldout_change_pct(self.base.rmse, c.heldout_rmse, self.noise_std, outs)
+            if mine - theirs > max(self.min_heldout_gain, gain):
+                best, gain = c, mine - theirs
+        return best
 
     @property
     def refinement(self) -> Candidate | None:
@@ -1034,6 +1042,7 @@ def diagnose(
         rmse = heldout_rmse(new, held)
         outs = np.array(c.outputs) - 1
         c.heldout_delta_pct = heldout_change_pct(base.rmse, rmse, noise, outs)
+        c.heldout_rmse = rmse
         c.explained = explained_share(base.rmse, rmse, base.floor, outs)
         failing = [j for j in outs if j + 1 in base.failing]
         if learned and failing:
@@ -1055,6 +1064,7 @@ def diagnose(
     cands.sort(key=lambda c: (not c.significant, -c.delta))
     d = Diagnosis(model.name, cands, threshold, min_heldout_gain, indistinct_nats, min_explained)
     d.base = base
+    d.noise_std = noise
     d.learned_start = learned
     lead = d.lead
     if lead is not None:
