@@ -335,10 +335,30 @@ class InProcessBackend:
             yield i, execute(job.fn, job.kwargs, job.thread_count)
 
 
+PARENT_POLL_S = 1.0  # seconds between a local worker's checks that the sweep still runs
+
+
+def _watch_parent(parent: int) -> None:
+    while os.getppid() == parent:
+        time.sleep(PARENT_POLL_S)
+    os._exit(1)  # the sweep's process is gone: the job in flight has no one to report to
+
+
+def exit_with_parent(parent: int) -> None:
+    """Initializer of a local worker: a daemon thread ends the worker within
+    :data:`PARENT_POLL_S` once the sweep process ``parent`` is gone (killed with SIGTERM or
+    SIGKILL, which runs no cleanup), instead of leaving it to finish its job unseen. The
+    job's own checkpoints are what a rerun resumes from."""
+    import threading
+
+    threading.Thread(target=_watch_parent, args=(parent,), daemon=True).start()
+
+
 class LocalBackend:
     """``workers`` spawned processes (CPUs); jobs in flight use at most ``workers`` CPUs
     together (``Job.cpus``; a job wider than that runs alone), so that a kill loses at most
-    those. A worker that dies fails the jobs in flight and the pool is restarted."""
+    those. A worker that dies fails the jobs in flight and the pool is restarted; a worker
+    whose sweep process is killed exits (:func:`exit_with_parent`)."""
 
     def __init__(self, workers: int) -> None:
         if workers < 1:
@@ -359,7 +379,12 @@ class LocalBackend:
         import multiprocessing
 
         # spawned, not forked: a fork copies the parent's torch thread pools and CUDA state
-        return ProcessPoolExecutor(self.workers, mp_context=multiprocessing.get_context("spawn"))
+        return ProcessPoolExecutor(
+            self.workers,
+            mp_context=multiprocessing.get_context("spawn"),
+            initializer=exit_with_parent,
+            initargs=(os.getpid(),),
+        )
 
     def _fits(self, job: Job, inflight: Mapping[Future, int], jobs: Sequence[Job]) -> bool:
         """Whether ``job`` can start next to the jobs in flight."""

@@ -469,6 +469,10 @@ def run_episode(
     the true states ``states`` (T+1, n), ``actions`` (T, A), per-step evaluation ``costs``,
     their sum ``cost``, ``success`` (the task's test) and ``time_in_goal`` [s] (steps within
     the task's success bounds times ``T_s``).
+
+    Raises:
+        RuntimeError: the env truncated the episode before ``horizon`` steps (a time limit of
+            its own, shorter than the horizon; a termination ends the episode normally).
     """
     obs, info = env.reset(seed=seed, options=task.reset_options())
     observed = [task.state_from_obs(obs)]
@@ -486,6 +490,13 @@ def run_episode(
         actions.append(a)
         if terminated or truncated:
             break
+    if truncated and not terminated and len(actions) < horizon:
+        name = env.spec.id if env.spec is not None else type(env.unwrapped).__name__
+        raise RuntimeError(
+            f"{name} truncated the episode after {len(actions)} of the horizon's {horizon} "
+            "control steps (its own episode length is shorter than the horizon): pass the "
+            "env's episode-length argument in the config's env_kwargs"
+        )
     states_arr = np.stack(states)
     costs = task.cost(states_arr[1:])
     steps = len(actions)

@@ -156,6 +156,48 @@ def test_local_sweep_killed_halfway_resumes_the_rest(tmp_path):
     assert _results(out) == _expected(8)
 
 
+def test_local_workers_exit_when_the_sweep_process_is_killed(tmp_path):
+    """SIGKILL of the sweep process alone (not its group): its workers, each in a 60 s job,
+    are gone within seconds instead of running their jobs to the end unseen."""
+    out = tmp_path / "sweep"
+    cmd = [sys.executable, "-m", "mcpilco.experiments.probe", "--out", str(out), "--n", "2"]
+    cmd += ["--seconds", "60", "--no-progress", "--jobs", "2"]
+    proc = subprocess.Popen(cmd, start_new_session=True, stdout=subprocess.DEVNULL)
+    try:
+        deadline = time.monotonic() + 120
+        workers: list[int] = []
+        while len(workers) < 2 and time.monotonic() < deadline:
+            ps = subprocess.run(
+                ["ps", "-o", "pid=", "--ppid", str(proc.pid)], capture_output=True, text=True
+            )
+            workers = [int(p) for p in ps.stdout.split()]
+            time.sleep(0.2)
+        assert len(workers) >= 2, "the sweep should have started its workers"
+        time.sleep(3)  # the workers have imported the job and sleep in it
+        os.kill(proc.pid, signal.SIGKILL)
+        proc.wait()
+        deadline = time.monotonic() + 15
+        alive = workers
+        while alive and time.monotonic() < deadline:
+            alive = [p for p in alive if Path(f"/proc/{p}").exists() and _running(p)]
+            time.sleep(0.2)
+        assert not alive, f"workers {alive} outlived the sweep process"
+        assert not list(out.glob("*.json"))
+    finally:
+        try:
+            os.killpg(proc.pid, signal.SIGKILL)
+        except ProcessLookupError:
+            pass
+
+
+def _running(pid: int) -> bool:
+    """Whether ``pid`` is a live process (not a zombie awaiting its reaper)."""
+    try:
+        return Path(f"/proc/{pid}/stat").read_text().split(")")[-1].split()[0] != "Z"
+    except OSError:
+        return False
+
+
 @pytest.mark.slow  # 50-65 s on 2 busy cores: two local Ray starts (6-9 s each), the sweeps
 def test_ray_sweep_killed_halfway_resumes_to_the_local_results(tmp_path):
     """A local Ray instance of 2 CPUs on 127.0.0.1, started by the sweep subprocess."""

@@ -305,7 +305,8 @@ def test_exploration_trial_length_and_bad_values(tmp_path):
 
 def test_env_kwargs_reach_gym_make():
     """The dm-control adapter's own episode length follows ``env_kwargs``: with
-    ``episode_steps=80`` an 80-step horizon runs 80 steps (it stops at 60 by default)."""
+    ``episode_steps=80`` an 80-step horizon runs 80 steps; without it the adapter truncates at
+    its default 60 steps, which is an error naming the fix, not a shorter trial."""
     task = TaskSpec.for_env("mcpilco/DMCCartpoleSwingUp-v0").replace(horizon=80)
     env = make_env(task.env_id, 80, task, {"episode_steps": 80})
     try:
@@ -313,3 +314,9 @@ def test_env_kwargs_reach_gym_make():
     finally:
         env.close()
     assert ep["steps"] == 80
+    env = make_env(task.env_id, 80, task)
+    try:
+        with pytest.raises(RuntimeError, match="after 60 of the horizon's 80 .*env_kwargs"):
+            run_episode(env, lambda _s: np.zeros(1), 0, 80, task)
+    finally:
+        env.close()
