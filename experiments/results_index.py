@@ -272,6 +272,14 @@ def _mcpilco_fresh(data: dict[str, Any]) -> str:
     )
 
 
+def _mcpilco_dmc_fresh(data: dict[str, Any]) -> str:
+    s = _success_at(data["runs"]["mcpilco/DMCCartpoleSwingUp-v0 (fresh100)"])
+    return (
+        f"dm-control's cart-pole, seeds no setting was chosen on: success {_pct(s[7.0])} / "
+        f"{_pct(s[11.0])} / {_pct(s[15.0])} after 7 / 11 / 15 s of experience"
+    )
+
+
 def _mcpilco_step(data: dict[str, Any]) -> str:
     row = next(
         t
@@ -523,6 +531,14 @@ REGISTRY: tuple[Headline, ...] = (
         "mcpilco_cartpole.md",
         key="runs (fresh100)",
         seeds=lambda d: seed_ranges(_run_section(d, "fresh100")["seeds"]),
+    ),
+    Headline(
+        "MC-PILCO, dm-control cart-pole",
+        "mcpilco_cartpole.json",
+        _mcpilco_dmc_fresh,
+        "mcpilco_cartpole.md",
+        key="runs (DMC fresh100)",
+        seeds=lambda d: seed_ranges(d["runs"]["mcpilco/DMCCartpoleSwingUp-v0 (fresh100)"]["seeds"]),
     ),
     Headline(
         "MC-PILCO, speed (CPU)",
