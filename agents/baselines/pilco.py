@@ -604,7 +604,7 @@ def run_pilco(
                 rec["exploration_episodes"] = len(eps)
             else:
                 rec["kind"] = "policy"
-                s, a, s1 = transitions(episodes)
+                s, a, s1 = transitions(episodes, task)  # the same data as MC-PILCO
                 s, a, s1 = (
                     s[-config.max_points :],
                     a[-config.max_points :],

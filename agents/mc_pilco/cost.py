@@ -18,6 +18,13 @@ Glossary
     sec. V-A), where every full rotation increases ``|x_j|``, so spinning the pole through
     the target is not rewarded (with a wide ``l_j`` and the wrapped angle a spinning policy
     gets a low average cost);
+``c_b(x) = sum_k sigma((x_k - hi_k) / s_k) + sigma((lo_k - x_k) / s_k)``
+    a barrier at the declared limits ``[lo_k, hi_k]`` of states ``x_k`` (``sigma`` the
+    logistic function, ``s_k`` its width: ``c_b`` is 1/2 at a limit, 0.05 at ``3 s_k`` inside
+    it), added to ``c``, as MC-PILCO's Furuta-pendulum cost bounds the arm angle (Amadio et al.
+    2022, sec. VI). It grows whatever the other terms, so it also acts while ``c`` is
+    saturated (the pole hanging during a swing-up), and it keeps the particles, which a GP of
+    the free motion lets pass through a stop, inside the reachable range;
 ``J = sum_t E[c(x_t)]``
     expected cumulative cost, eq. (5.1); its Monte Carlo estimate is eq. (5.8)
     (:mod:`mcpilco.agents.mc_pilco.loss`).
@@ -52,6 +59,8 @@ class SaturatingCost(nn.Module):
         modes: per term, 0 plain, 1 wrapped angle, 2 ``|x| - |x*|`` (see the constants).
         refs: per term, the index of the state it tracks (``d_j = x_j - x_r - x*_j``), or -1;
             None: no term tracks a state.
+        barriers: ``(k, lo_k, hi_k, s_k)`` per barrier ``c_b`` (module glossary): state index,
+            limits and width (> 0); None: none.
 
     Shapes:
         ``forward(state (..., n)) -> cost (...)``.
@@ -65,6 +74,7 @@ class SaturatingCost(nn.Module):
         length_scales: Sequence[float],
         modes: Sequence[int],
         refs: Sequence[int] | None = None,
+        barriers: Sequence[tuple[int, float, float, float]] | None = None,
     ) -> None:
         super().__init__()
         if not (len(idx) == len(targets) == len(length_scales) == len(modes)) or not idx:
@@ -83,6 +93,15 @@ class SaturatingCost(nn.Module):
             raise ValueError(f"refs needs one index in -1..{state_dim - 1} per term, got {refs}")
         if any(r >= 0 and m == MODE_ABS for r, m in zip(self.refs, self.modes, strict=True)):
             raise ValueError("a term with a reference state takes mode plain or wrap, not abs")
+        self.barriers = tuple(
+            (int(k), float(lo), float(hi), float(w)) for k, lo, hi, w in (barriers or ())
+        )
+        for k, lo, hi, w in self.barriers:
+            if not (0 <= k < state_dim and lo < hi and w > 0 and math.isfinite(lo + hi + w)):
+                raise ValueError(
+                    f"a barrier needs a state index in 0..{state_dim - 1}, finite lo < hi and "
+                    f"a width > 0, got {(k, lo, hi, w)}"
+                )
 
     @property
     def tracks(self) -> bool:
@@ -95,9 +114,19 @@ class SaturatingCost(nn.Module):
         task: Any,
         length_scales: Mapping[str, float] | None = None,
         angle_mode: str | None = None,
+        limit_widths: Mapping[str, float] | None = None,
     ) -> SaturatingCost:
         """The cost of ``task``'s terms; ``length_scales`` (by state name) and ``angle_mode``
-        (for every angle term) replace the task's values, e.g. for the optimised cost."""
+        (for every angle term) replace the task's values, e.g. for the optimised cost;
+        ``limit_widths`` (by state name) adds a barrier of that width at the task's limits of
+        each named state."""
+        limit_widths = dict(limit_widths or {})
+        no_limits = sorted(set(limit_widths) - set(task.limits))
+        if no_limits:
+            raise ValueError(
+                f"cost limit widths for {no_limits}, which have no limits in the task "
+                f"(limits: {sorted(task.limits)})"
+            )
         length_scales = dict(length_scales or {})
         unknown = set(length_scales) - {t.state for t in task.cost_terms}
         if unknown:
@@ -121,6 +150,7 @@ class SaturatingCost(nn.Module):
             [float(length_scales.get(t.state, t.length_scale)) for t in task.cost_terms],
             modes,
             [-1 if t.reference is None else task.index(t.reference) for t in task.cost_terms],
+            [(task.index(k), *task.limits[k], float(w)) for k, w in limit_widths.items()],
         )
 
     def forward(self, state: Tensor) -> Tensor:
@@ -133,7 +163,9 @@ class SaturatingCost(nn.Module):
     def extra_repr(self) -> str:
         return (
             f"idx={self.idx}, targets={self.targets}, length_scales={self.length_scales}, "
-            f"modes={self.modes}" + (f", refs={self.refs}" if self.tracks else "")
+            f"modes={self.modes}"
+            + (f", refs={self.refs}" if self.tracks else "")
+            + (f", barriers={self.barriers}" if self.barriers else "")
         )
 
 
@@ -147,10 +179,12 @@ def _distance(v: Tensor, target: float, mode: int) -> tuple[Tensor, Tensor | Non
 
 
 class _SaturatingCostFn(torch.autograd.Function):
-    """``c = 1 - E``, ``E = exp(-sum_j (d_j / l_j)^2)``; one autograd node. Backward:
+    """``c = 1 - E + c_b``, ``E = exp(-sum_j (d_j / l_j)^2)``; one autograd node. Backward:
     ``dc/dx_j = 2 E d_j d'_j / l_j^2`` with ``d'_j = 1`` (plain, wrap) or ``sign(x_j)``
     (``abs``; ``sign(0) = 0``, the subgradient of ``abs`` in torch), and the same with the
-    opposite sign on the tracked state ``x_r`` of a term that has one."""
+    opposite sign on the tracked state ``x_r`` of a term that has one; each barrier adds
+    ``dc_b/dx_k = (a (1 - a) - b (1 - b)) / s_k``, ``a = sigma((x_k - hi_k) / s_k)``,
+    ``b = sigma((lo_k - x_k) / s_k)``."""
 
     @staticmethod
     def forward(ctx, state: Tensor, cost: SaturatingCost) -> Tensor:  # noqa: D102
@@ -166,18 +200,27 @@ class _SaturatingCostFn(torch.autograd.Function):
             ds.append(d)
             slopes.append(slope)
         E = torch.exp(-s)
-        ctx.save_for_backward(E, *ds, *(sl for sl in slopes if sl is not None))
+        c = 1.0 - E
+        dbar = []  # dc_b / dx_k per barrier
+        for k, lo, hi, w in cost.barriers:
+            a = torch.sigmoid((state[..., k] - hi) / w)
+            b = torch.sigmoid((lo - state[..., k]) / w)
+            c = c + (a + b)
+            dbar.append((a * (1.0 - a) - b * (1.0 - b)) / w)
+        ctx.save_for_backward(E, *ds, *(sl for sl in slopes if sl is not None), *dbar)
         ctx.cost = cost
         ctx.has_slope = tuple(sl is not None for sl in slopes)
         ctx.shape = state.shape
-        return 1.0 - E
+        return c
 
     @staticmethod
     def backward(ctx, g: Tensor) -> tuple[Tensor, None]:  # noqa: D102
         cost = ctx.cost
         E, *rest = ctx.saved_tensors
         k = len(cost.idx)
-        ds, slopes = rest[:k], iter(rest[k:])
+        n_slopes = sum(ctx.has_slope)
+        ds, slopes = rest[:k], iter(rest[k : k + n_slopes])
+        dbar = rest[k + n_slopes :]
         gE2 = 2.0 * g * E
         cols = [None] * cost.state_dim
         for j, (i, ls, r) in enumerate(zip(cost.idx, cost.length_scales, cost.refs, strict=True)):
@@ -187,5 +230,7 @@ class _SaturatingCostFn(torch.autograd.Function):
             cols[i] = gj if cols[i] is None else cols[i] + gj
             if r >= 0:
                 cols[r] = -gj if cols[r] is None else cols[r] - gj
+        for (i, *_), db in zip(cost.barriers, dbar, strict=True):
+            cols[i] = g * db if cols[i] is None else cols[i] + g * db
         zero = torch.zeros_like(E)
         return torch.stack([zero if c is None else c for c in cols], dim=-1), None

@@ -124,6 +124,8 @@ class MCPilcoConfig:
             task's evaluation cost.
         cost_angle_mode: ``"wrap"`` or ``"abs"`` for the angle terms of the optimised cost
             (None: the task's); see :mod:`.cost`.
+        cost_limit_widths: width ``s_k`` of the barrier the optimised cost puts at the task's
+            declared limits of state ``k``, by state name (:mod:`.cost`); None: no barrier.
         num_candidates: ``K`` candidate policies optimised side by side (``M`` particles
             each; :class:`~mcpilco.agents.mc_pilco.policy.PolicyPopulation`); the one with
             the lowest ``J^`` (fresh particles, no dropout) is applied. 1: plain MC-PILCO.
@@ -175,6 +177,7 @@ class MCPilcoConfig:
     policy_centers_box: float = math.pi
     cost_length_scales: dict[str, float] | None = None
     cost_angle_mode: str | None = None
+    cost_limit_widths: dict[str, float] | None = None
     num_candidates: int = 1
     candidate_weight_scales: list[float] | None = None
     explore_hold: int = 1
@@ -244,6 +247,15 @@ class MCPilcoConfig:
                     f"{self.cost_length_scales!r}"
                 )
             self.cost_length_scales = {str(k): float(v) for k, v in self.cost_length_scales.items()}
+        if self.cost_limit_widths is not None:
+            widths = self.cost_limit_widths
+            if not isinstance(widths, dict) or not all(
+                _is_positive_number(v) for v in widths.values()
+            ):
+                raise ValueError(
+                    f"cost_limit_widths must map state names to positive widths, got {widths!r}"
+                )
+            self.cost_limit_widths = {str(k): float(v) for k, v in widths.items()}
         self.device = str(check_device_name(self.device))
         if self.max_points is not None and self.max_points < 10:
             raise ValueError(f"max_points must be >= 10 or None, got {self.max_points}")
@@ -291,6 +303,10 @@ class MCPilcoConfig:
         if self.horizon is not None and self.horizon != spec.horizon:
             spec = spec.replace(horizon=int(self.horizon))
         return spec
+
+
+def _is_positive_number(v: Any) -> bool:
+    return isinstance(v, int | float) and not isinstance(v, bool) and math.isfinite(v) and v > 0
 
 
 def parse_set(items: list[str] | None) -> dict[str, Any]:
@@ -537,11 +553,18 @@ def choose_candidate(
     return costs
 
 
-def transitions(episodes: list[dict[str, Any]]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """``(s_t, a_t, s_{t+1})`` of all episodes (observed states), stacked."""
+def transitions(
+    episodes: list[dict[str, Any]], task: TaskSpec | None = None
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``(s_t, a_t, s_{t+1})`` of all episodes (observed states), stacked. With ``task``, the
+    transitions that touch one of its declared limits are left out
+    (:meth:`~.task.TaskSpec.touches_limit`): the dynamics data of the free motion."""
     s = np.concatenate([e["obs"][:-1] for e in episodes])
     a = np.concatenate([e["actions"] for e in episodes])
     s1 = np.concatenate([e["obs"][1:] for e in episodes])
+    if task is not None and task.limits:
+        free = ~task.touches_limit(s, s1)
+        s, a, s1 = s[free], a[free], s1[free]
     return s, a, s1
 
 
@@ -764,10 +787,15 @@ def run_mcpilco(
                 log(f"resumed {ckpt_path}: trials 0..{start_trial - 1} done")
 
         if task.cost_fn is not None:
+            if config.cost_limit_widths:
+                raise ValueError(
+                    "cost_limit_widths adds barriers to the task's cost terms; the task has a "
+                    "cost function instead (put the barrier in it)"
+                )
             cost_fn = task.cost_fn if isinstance(task.cost_fn, torch.nn.Module) else _CostFn(task)
         else:
             cost_fn = SaturatingCost.from_task(
-                task, config.cost_length_scales, config.cost_angle_mode
+                task, config.cost_length_scales, config.cost_angle_mode, config.cost_limit_widths
             )
         init_std = task.init_std if config.init_std is None else config.init_std
     except BaseException:
@@ -801,10 +829,13 @@ def run_mcpilco(
                 rec["kind"] = "policy"
                 # 1. model learning
                 t_fit = time.perf_counter()
-                model.fit(*transitions(episodes))
+                data = transitions(episodes, task)
+                model.fit(*data)
                 rec["gp_fit_s"] = time.perf_counter() - t_fit
                 rec["gp_points"] = int(model.gp_.train_x_.shape[0])
-                rec["n_data"] = int(sum(len(e["actions"]) for e in episodes))
+                rec["n_data"] = int(len(data[1]))
+                # transitions left out of the model's data: they touch a declared limit
+                rec["n_at_limits"] = int(sum(len(e["actions"]) for e in episodes)) - rec["n_data"]
                 dynamics = model.particle_dynamics(getattr(torch, config.rollout_dtype))
 
                 def make_loss(module, dynamics=dynamics) -> MCPilcoLoss:
@@ -878,7 +909,12 @@ def run_mcpilco(
                 ep = run_episode(
                     env, _policy_act(policy), trial_seed(config.seed, k), horizon, task
                 )
-                rec["gp_rmse"] = model.one_step_rmse(*transitions([ep])).tolist()
+                free = transitions([ep], task)
+                rec["gp_rmse"] = (
+                    model.one_step_rmse(*free).tolist()
+                    if len(free[1])
+                    else [math.nan] * layout.output_dim
+                )
                 arr["gp_rmse"] = rec["gp_rmse"]
                 opt_state = None  # Adam restarts at each trial (MC-PILCO)
             episodes.append({"obs": ep["obs"], "actions": ep["actions"]})

@@ -139,7 +139,7 @@ struct Prefetch {
 // offsets (floats) of a tile's record of one step, each block a multiple of 16
 struct Lay {
     int64_t phi, a, t, so, co, sn, cs, xs, psi, r, V, active, fac, eps, sd, varon, inside, cd,
-        cE, size;
+        cE, cb, size;
     int vrows;  // rows of one output's [V; mean], padded to RB
     explicit Lay(const Model &M) {
         const int64_t T = TILE;
@@ -169,6 +169,7 @@ struct Lay {
         inside = take(T * M.m);
         cd = take(T * M.n_terms);
         cE = take(T);
+        cb = take(T * M.n_bar);
         size = o;
     }
 };
@@ -607,6 +608,18 @@ void step_forward_tile(const Model &M, const Lay &L, const Pol &P, float *x, con
         st(rec + L.cE + h, E);
         st(cost + h, bc(1.0f) - E);
     }
+    // c_b = sigma((x - hi) / s) + sigma((lo - x) / s) per barrier; dc_b/dx to the record
+    for (int k = 0; k < M.n_bar; ++k) {
+        const float *xv = x + M.bar_idx[k] * TILE;
+        const float lo = M.bar_lo[k], hi = M.bar_hi[k], iw = M.bar_inv_w[k];
+        float *db = rec + L.cb + k * TILE;
+        for (int q = 0; q < TILE; ++q) {
+            const float a = 1.0f / (1.0f + std::exp(-(xv[q] - hi) * iw));
+            const float b = 1.0f / (1.0f + std::exp(-(lo - xv[q]) * iw));
+            cost[q] += a + b;
+            db[q] = (a * (1.0f - a) - b * (1.0f - b)) * iw;
+        }
+    }
 }
 
 // The tile's running sums of the policy-parameter gradients of one candidate.
@@ -640,6 +653,11 @@ void step_backward_tile(const Model &M, const Lay &L, const Pol &P, const float 
             float *gr = gx + M.cost_ref[j] * TILE;
             for (int q = 0; q < TILE; ++q) gr[q] -= gE2[q] * cd[q] / ls2;
         }
+    }
+    for (int k = 0; k < M.n_bar; ++k) {  // barriers: dc_b/dx from the record
+        float *gk = gx + M.bar_idx[k] * TILE;
+        const float *db = rec + L.cb + k * TILE;
+        for (int q = 0; q < TILE; ++q) gk[q] += gc[q] * db[q];
     }
     // integration: g_state = g A, g_Delta = (g S) 1[inside]
     std::memcpy(gstate, gx, sizeof(float) * M.n * TILE);

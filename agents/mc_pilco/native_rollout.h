@@ -33,6 +33,9 @@ struct Model {
     const int32_t *cost_idx, *cost_mode;         // (n_terms): state index; 0 plain, 1 wrap, 2 abs
     const int32_t *cost_ref;                     // (n_terms): tracked state index, or -1
     const float *cost_target, *cost_ls, *cost_ls2;  // (n_terms): x*, l, l^2
+    int n_bar;                                   // barriers c_b at state limits (cost.py)
+    const int32_t *bar_idx;                      // (n_bar): state index
+    const float *bar_lo, *bar_hi, *bar_inv_w;    // (n_bar): limits, 1 / width
     float dt;
     // the fused GP posterior (models/gp/fused.py): N points, MPK degree p, F MPK features
     int N, p, f;

@@ -304,6 +304,7 @@ def native_model(lib: ModuleType, policy: Any, dynamics: Any, cost: Any) -> Any:
         pred.idx_a.to(i32).contiguous(),
         pred.idx_c.to(i32).contiguous(),
         ints(cost.refs),
+        ints(k for k, *_ in cost.barriers),
     ]
     values = [
         floats(policy.u_mid),
@@ -322,6 +323,9 @@ def native_model(lib: ModuleType, policy: Any, dynamics: Any, cost: Any) -> Any:
         per_output(dynamics.noise_variance) if dynamics.sample_noise else none,
         none if dynamics.delta_bound is None else per_output(dynamics.delta_bound),
         floats(pred.row_blocks.alpha),
+        floats(torch.tensor([lo for _, lo, _, _ in cost.barriers], dtype=torch.float64)),
+        floats(torch.tensor([hi for _, _, hi, _ in cost.barriers], dtype=torch.float64)),
+        floats(torch.tensor([1.0 / w for *_, w in cost.barriers], dtype=torch.float64)),
     ]
     sizes = [
         layout.n, policy.action_dim, m, d, layout.feature_dim, policy.num_basis, pred.n, p,

@@ -28,14 +28,14 @@ const Tensor &checked(const Tensor &t, torch::ScalarType dtype, int64_t numel, c
 class NativeModel {
   public:
     // ints: n, A, m, d, fp, nb, N, p, f; index: plain, angle, position, velocity, delta,
-    // cost_idx, cost_mode, idx_a, idx_c, cost_ref (int32); floats: u_mid, u_half, cost_target, cost_ls,
-    // cost_ls2, x_mean, x_scale, y_mean, y_scale, inv_l2, outputscale, sig_diag, sig2,
-    // noise_var, bound (empty: none), alpha_aug; packed: per output (w_aug, fwd, bwd, w_t) as 4 tensors
+    // cost_idx, cost_mode, idx_a, idx_c, cost_ref, bar_idx (int32); floats: u_mid, u_half,
+    // cost_target, cost_ls, cost_ls2, x_mean, x_scale, y_mean, y_scale, inv_l2, outputscale,
+    // sig_diag, sig2, noise_var, bound (empty: none), alpha_aug, bar_lo, bar_hi, bar_inv_w; packed: per output (w_aug, fwd, bwd, w_t) as 4 tensors
     // each (values, beg, end, off).
     NativeModel(std::vector<int64_t> ints, std::vector<Tensor> index, std::vector<Tensor> floats,
                 double dt, std::vector<std::vector<Tensor>> packed)
         : index_(std::move(index)), floats_(std::move(floats)) {
-        TORCH_CHECK(ints.size() == 9 && index_.size() == 10 && floats_.size() == 16,
+        TORCH_CHECK(ints.size() == 9 && index_.size() == 11 && floats_.size() == 19,
                     "NativeModel: wrong argument counts");
         mcp::Model &M = model_;
         M.n = (int)ints[0];
@@ -100,6 +100,14 @@ class NativeModel {
         M.noise_var = floats_[13].numel() ? flt(13, m, "noise_var") : nullptr;
         M.bound = floats_[14].numel() ? flt(14, m, "bound") : nullptr;
         M.alpha_aug = flt(15, (int64_t)m * ((M.p == 2 ? M.f : 0) + M.N), "alpha_aug");
+        M.n_bar = (int)index_[10].numel();
+        M.bar_idx = idx(10, "bar_idx");
+        for (int k = 0; k < M.n_bar; ++k)
+            TORCH_CHECK(M.bar_idx[k] >= 0 && M.bar_idx[k] < M.n, "barrier ", k,
+                        ": state index out of range");
+        M.bar_lo = M.n_bar ? flt(16, M.n_bar, "bar_lo") : nullptr;
+        M.bar_hi = M.n_bar ? flt(17, M.n_bar, "bar_hi") : nullptr;
+        M.bar_inv_w = M.n_bar ? flt(18, M.n_bar, "bar_inv_w") : nullptr;
         M.dt = (float)dt;
         TORCH_CHECK((int)packed.size() == 4, "packed needs w_aug, fwd, bwd, w_t");
         for (auto &kind : packed) {

@@ -37,6 +37,13 @@ reference
     ``duration`` of at least the horizon. The particle rollout predicts the reference
     states with the GP like the others, so a reference that is a Markov state on its own
     (one sinusoid per joint: ``(q_r, qd_r)`` is a harmonic oscillator) is learned exactly.
+limits
+    ``lo_j <= x_j <= hi_j``: the range a coordinate cannot leave on the system (a rail's end
+    stop, a joint limit). Contact with a limit is a regime of its own (an impact, a constraint
+    force) that a smooth GP of the free dynamics would blur into its neighbourhood, so a
+    transition that touches one is kept out of the dynamics data
+    (:meth:`TaskSpec.touches_limit`); the optimised cost can put a barrier at each limit
+    (:mod:`.cost`), which keeps the predicted particles, and so the policy, off the stops.
 success
     the env's ``info[info_key]`` at the last step, else every state of the last ``window``
     steps within ``tol`` of its target (angles by wrapped distance), and with
@@ -132,6 +139,8 @@ class TaskSpec:
         affine_inputs: states the accelerations are affine in at a fixed configuration.
         reference: the sum-of-sinusoids joint reference passed to the env at reset
             (keys ``centre``, ``amplitudes``, ``omegas``, ``phases``, ``duration``), or None.
+        limits: ``{state name: (lo, hi)}``, the range each listed coordinate cannot leave on
+            the system (module glossary); no angle.
     """
 
     env_id: str
@@ -154,6 +163,7 @@ class TaskSpec:
     affine_inputs: tuple[str, ...] = ()
     reference: Mapping[str, Any] | None = None
     action_repeat: int = 1
+    limits: Mapping[str, tuple[float, float]] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
         names = tuple(str(n) for n in self.state_names)
@@ -265,7 +275,27 @@ class TaskSpec:
             raise _fail("success.window", f"needs 1..horizon ({self.horizon}), got {s.window}")
         if s.info_key is None and not s.bounds and not s.full_horizon:
             raise _fail("success", "needs an info_key, bounds, or full_horizon")
+        self._check_limits()
         self._check_arm()
+
+    def _check_limits(self) -> None:
+        """``limits``: known, non-angle state names, each with finite ``lo < hi``."""
+        if not isinstance(self.limits, Mapping):
+            raise _fail("limits", f"expected a mapping state name -> [lo, hi], got {self.limits!r}")
+        limits = {}
+        for key, lim in self.limits.items():
+            if key not in self.state_names:
+                raise _fail(f"limits.{key}", f"unknown state name (states: {self.state_names})")
+            if key in self.angles:
+                raise _fail(f"limits.{key}", "an angle wraps around and has no limits")
+            ok = isinstance(lim, Sequence) and not isinstance(lim, str) and len(lim) == 2
+            if not ok or not all(_is_number(v) for v in lim):
+                raise _fail(f"limits.{key}", f"needs [lo, hi], got {lim!r}")
+            lo, hi = float(lim[0]), float(lim[1])
+            if not (math.isfinite(lo) and math.isfinite(hi) and lo < hi):
+                raise _fail(f"limits.{key}", f"needs finite lo < hi, got [{lo}, {hi}]")
+            limits[str(key)] = (lo, hi)
+        object.__setattr__(self, "limits", limits)
 
     def _check_arm(self) -> None:
         """The arm fields (module glossary); errors name the field."""
@@ -483,6 +513,23 @@ class TaskSpec:
         if name not in self.angles:
             return v - target
         return wrap(v - target) if mode == "wrap" else np.abs(v) - abs(target)
+
+    def touches_limit(self, s: np.ndarray, s1: np.ndarray) -> np.ndarray:
+        """Which transitions ``x_t -> x_{t+1}`` (rows of ``s``, ``s1``, shape ``(T, n)``) touch
+        a declared limit: ``x_t`` or ``x_{t+1}`` outside ``[lo_j, hi_j]``, or, for the position
+        of a pair, the free motion ``x_t + T_s xdot_t`` outside it (the stop was reached
+        during the step and stopped the coordinate short). Returns a ``(T,)`` bool array."""
+        s, s1 = np.atleast_2d(s), np.atleast_2d(s1)
+        hit = np.zeros(len(s), dtype=bool)
+        velocity = dict(self.pairs)
+        for name, (lo, hi) in self.limits.items():
+            j = self.index(name)
+            cols = [s[:, j], s1[:, j]]
+            if name in velocity:
+                cols.append(s[:, j] + self.dt * s[:, self.index(velocity[name])])
+            for v in cols:
+                hit |= (v < lo) | (v > hi)
+        return hit
 
     def in_goal(self, states: np.ndarray) -> np.ndarray:
         """Per state, whether every success bound holds (all True without bounds)."""

@@ -72,7 +72,8 @@ def test_toy_env_reaches_its_goal(tmp_path):
 
 
 def random_task(rng: np.random.Generator) -> TaskSpec:
-    """A task of 2-6 states with angles anywhere, 0-2 speed-integration pairs and 1-3 actions."""
+    """A task of 2-6 states with angles anywhere, 0-2 speed-integration pairs, 1-3 actions and
+    limits on some plain states, within about 1 of their initial mean."""
     n = int(rng.integers(2, 7))
     names = [f"s{i}" for i in range(n)]
     order = rng.permutation(n)
@@ -86,6 +87,12 @@ def random_task(rng: np.random.Generator) -> TaskSpec:
         for s in names
         if rng.random() < 0.6
     ] or [{"state": names[0], "target": 0.3, "length_scale": 1.0}]
+    init_mean = rng.normal(size=n)
+    limits = {
+        s: [float(init_mean[i] - rng.uniform(0.2, 1)), float(init_mean[i] + rng.uniform(0.2, 1))]
+        for i, s in enumerate(names)
+        if s not in angles and rng.random() < 0.5
+    }
     return TaskSpec.from_dict(
         {
             "env_id": "any",
@@ -96,9 +103,10 @@ def random_task(rng: np.random.Generator) -> TaskSpec:
             "action_high": [1.0] * a,
             "dt": 0.05,
             "horizon": 8,
-            "init_mean": rng.normal(size=n).tolist(),
+            "init_mean": init_mean.tolist(),
             "init_std": 0.1,
             "cost": {"terms": terms},
+            "limits": limits,
             "success": {"bounds": {names[0]: {"target": 0.0, "tol": 0.1}}},
         }
     )
@@ -113,7 +121,8 @@ def fitted_loss(
     angle_mode: str | None = None,
 ):
     """An MCPilcoLoss over a GP fitted (briefly) on smooth random transitions of ``task``;
-    ``candidates > 1``: a :class:`PolicyPopulation` of that many (returned as the policy)."""
+    ``candidates > 1``: a :class:`PolicyPopulation` of that many (returned as the policy).
+    The cost has a barrier of width 0.3 at each of the task's limits."""
     n, a = task.state_dim, task.action_dim
     s = rng.normal(size=(40, n))
     u = rng.uniform(-2, 1, size=(40, a))
@@ -129,7 +138,9 @@ def fitted_loss(
     ]
     policy = policies[0] if candidates == 1 else PolicyPopulation(policies)
     mode = angle_mode or str(rng.choice(["wrap", "abs"]))
-    cost = SaturatingCost.from_task(task, angle_mode=mode)
+    cost = SaturatingCost.from_task(
+        task, angle_mode=mode, limit_widths={k: 0.3 for k in task.limits}
+    )
     loss = MCPilcoLoss(
         make_policy_module(policy),
         model.particle_dynamics(torch.float32),
@@ -160,8 +171,9 @@ def test_hand_chained_rollout_matches_autograd_on_random_tasks(seed):
 
 def six_state_task(pairs: bool) -> TaskSpec:
     """Six states with angles at indices 0 and 2 (one of them a pair's position), three
-    actions, a cost on an angle, a plain state and an unpaired one; ``pairs=False``: every
-    coordinate predicted as its own change (no speed integration)."""
+    actions, a cost on an angle, a plain state and an unpaired one, limits on the plain one
+    and the unpaired one; ``pairs=False``: every coordinate predicted as its own change (no
+    speed integration)."""
     names = ["a0", "p", "a1", "v_a0", "v", "o"]
     return TaskSpec.from_dict(
         {
@@ -183,6 +195,7 @@ def six_state_task(pairs: bool) -> TaskSpec:
                 ]
             },
             "success": {"bounds": {"p": {"target": 0.0, "tol": 0.1}}},
+            "limits": {"p": [-0.3, 0.4], "o": [0.0, 0.9]},
         }
     )
 
