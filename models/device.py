@@ -84,7 +84,7 @@ def retain_host_memory(
     again page by page, one minor page fault per 4 KiB page, unless the adaptive threshold
     happens to have risen above the block size (it depends on the allocation history).
     Fixing both thresholds high (``mallopt``) reuses the freed blocks instead (figures in
-    ``results/mcpilco_notes.md``). The price: the process keeps its peak heap (blocks above
+    ``docs/performance.md``, "Memory"). The price: the process keeps its peak heap (blocks above
     ``mmap_threshold`` are still unmapped on free).
 
     Process-wide; call it once, from the program that owns the process (the scripts do).

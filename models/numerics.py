@@ -4,8 +4,8 @@
 fast path when the result underflows below the smallest normal float
 (:math:`x < \\log(\\mathrm{tiny}) \\approx -87.3` in float32, :math:`-708.4` in float64), and
 is then many times slower per element. A GP with short lengthscales, or an RBF policy, puts
-most entries of its kernel matrix there, which slows a whole MC-PILCO optimisation step
-(``results/mcpilco_notes.md``). :func:`exp_floor_` clamps the argument at
+most entries of its kernel matrix there, which slows a whole MC-PILCO optimisation step.
+:func:`exp_floor_` clamps the argument at
 :math:`\\log(\\mathrm{tiny})` first, so such entries become the smallest normal float
 (1.2e-38 in float32, 2.2e-308 in float64) instead of 0 or a subnormal: a change below any
 tolerance the kernels or the policy can see, for one cheap clamp.

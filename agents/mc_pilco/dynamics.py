@@ -61,7 +61,7 @@ import numpy as np
 import torch
 from torch import Tensor, nn
 
-from mcpilco.agents.mc_pilco.features import StateLayout, gp_inputs
+from mcpilco.agents.mc_pilco.features import StateLayout, gp_inputs, take
 
 KernelName = Literal["rbf+mpk", "rbf", "rigid_body"]
 KERNEL_CHOICES: tuple[str, ...] = ("rbf+mpk", "rbf", "rigid_body")  # GPDynamicsModel's kernels
@@ -141,9 +141,9 @@ class JointSpaceInputs:
         return len(self.names)
 
     def __call__(self, state: Tensor, action: Tensor) -> Tensor:
-        parts = [state[..., list(self.q_idx)], state[..., list(self.qd_idx)], action]
+        parts = [take(state, self.q_idx), take(state, self.qd_idx), action]
         if self.w_idx:
-            parts.append(state[..., list(self.w_idx)])
+            parts.append(take(state, self.w_idx))
         return torch.cat(parts, dim=-1)
 
 
@@ -344,7 +344,7 @@ class GPDynamicsModel:
         warm_start: start each :meth:`fit` from the previous hyperparameters instead of the
             kernel's initial values. Off by default, as in the MC-PILCO reference code: a
             warm start keeps the optimum of the first, poorer data, and a fresh fit predicts
-            the next trial better (``results/mcpilco_notes.md``).
+            the next trial better.
     """
 
     def __init__(

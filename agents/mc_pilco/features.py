@@ -82,10 +82,10 @@ class StateLayout:
 
     def features(self, x: Tensor) -> tuple[Tensor, Tensor | None, Tensor | None]:
         """``f(x)`` (..., F) and the ``sin, cos`` of the angles (kept for the backward)."""
-        plain = x[..., list(self.plain_idx)]
+        plain = take(x, self.plain_idx)
         if not self.angle_idx:
             return plain, None, None
-        ang = x[..., list(self.angle_idx)]
+        ang = take(x, self.angle_idx)
         s, c = torch.sin(ang), torch.cos(ang)
         sc = torch.stack([s, c], dim=-1).flatten(-2)
         return torch.cat([plain, sc], dim=-1), s, c
@@ -100,6 +100,18 @@ class StateLayout:
             g_s, g_c = g[..., p + 2 * k], g[..., p + 2 * k + 1]
             parts[i] = g_s * c[..., k] - g_c * s[..., k]
         return torch.stack(parts, dim=-1)
+
+
+def take(x: Tensor, idx: tuple[int, ...]) -> Tensor:
+    """``x[..., idx]`` for fixed indices, built from views of ``x`` (a slice for a run of
+    consecutive indices, else a stack of columns) instead of an index tensor: no tensor is
+    made from host memory, so the selection also runs inside a CUDA graph capture."""
+    idx = tuple(idx)
+    if not idx:
+        return x[..., :0]
+    if idx == tuple(range(idx[0], idx[0] + len(idx))):
+        return x[..., idx[0] : idx[0] + len(idx)]
+    return torch.stack([x[..., i] for i in idx], dim=-1)
 
 
 class _GPInputs(torch.autograd.Function):

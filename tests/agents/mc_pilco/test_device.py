@@ -2,7 +2,7 @@
 rollout and GP posterior against the CPU ones.
 
 The CUDA tests need a GPU and are skipped without one (CI has none); they ran on an H100
-(`results/mcpilco_notes.md`, "On a GPU"). The CPU computation is the independent reference: same
+(`docs/mcpilco.md`, "On a GPU"). The CPU computation is the independent reference: same
 inputs, same random numbers (passed in), other kernels.
 """
 
@@ -93,15 +93,17 @@ def test_gp_posterior_on_cuda_equals_cpu_float64(fused):
 @needs_cuda
 def test_rollout_and_policy_gradient_on_cuda_equal_cpu():
     """Same GP, policy, initial particles and noise (float64 posterior): the expected cost
-    and its gradient w.r.t. every policy parameter agree between CPU and CUDA."""
+    (with a barrier at limits of x that the particles reach) and its gradient w.r.t. every
+    policy parameter agree between CPU and CUDA."""
     model = _gp_model()
+    task = TASK.replace(limits={"x": (-0.3, 0.3)})
     results = []
     for dev in ("cpu", "cuda"):
         policy = SquashedRBFPolicy(LAYOUT, num_basis=50, weight_scale=0.5, seed=1).to(dev)
         loss = MCPilcoLoss(
             make_policy_module(policy),
             model.particle_dynamics(f64).to(dev),
-            SaturatingCost.from_task(TASK),
+            SaturatingCost.from_task(task, limit_widths={"x": 0.1}),
             horizon=30,
             num_particles=200,
             init_mean=TASK.init_mean,

@@ -333,3 +333,34 @@ def test_env_kwargs_reach_gym_make():
             run_episode(env, lambda _s: np.zeros(1), 0, 80, task)
     finally:
         env.close()
+
+
+def test_transitions_at_declared_limits_stay_out_of_the_model_data(tmp_path):
+    """A lower limit on ``py`` 0.2 below the start: the random trial crosses it, and the first
+    policy trial's GP is fitted on the other transitions only (counted here from the
+    episode's states); the barrier on that limit runs in the optimised cost. Widths on a state
+    without limits, bad widths, and widths beside a cost function are refused."""
+    lo = TASK["init_mean"][2] - 0.2
+    task = {**TASK, "limits": {"py": [lo, 5.0]}}
+    cfg = toy_config(
+        task=task,
+        num_trials=1,
+        cost_limit_widths={"py": 0.02},
+        opt=PolicyOptConfig(max_steps=5, min_steps=1),
+    )
+    summary = run_mcpilco(cfg, tmp_path, progress=False, log=None, write_rrd=False)
+    obs = np.asarray(load_checkpoint(tmp_path / "checkpoint.pt")["episodes"][0]["obs"])
+    py, vy = obs[:, 2], obs[:, 3]
+    hit = (py[:-1] < lo) | (py[1:] < lo) | (py[:-1] + TASK["dt"] * vy[:-1] < lo)
+    policy = summary.records[1]
+    assert 0 < hit.sum() < len(hit)  # the random trial crossed the limit, not only
+    assert policy["n_at_limits"] == hit.sum() and policy["n_data"] == len(hit) - hit.sum()
+    assert policy["gp_points"] == policy["n_data"]
+    with pytest.raises(ValueError, match=r"no limits in the task"):
+        run_mcpilco(toy_config(task=task, cost_limit_widths={"px": 0.1}), tmp_path / "b", log=None)
+    with pytest.raises(ValueError, match="cost_limit_widths must map"):
+        toy_config(cost_limit_widths={"py": 0})
+    own_cost = TaskSpec.from_dict(task).replace(cost_fn=lambda x: x[..., 0] ** 2)
+    with pytest.raises(ValueError, match="has a cost function instead"):
+        cfg = toy_config(task=task, cost_limit_widths={"py": 0.1})
+        run_mcpilco(cfg, tmp_path / "c", log=None, task=own_cost)

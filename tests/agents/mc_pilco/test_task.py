@@ -74,6 +74,12 @@ def test_shipped_tasks_fit_their_envs(env_id):
         ({"success": {"bounds": {"q": {"tol": 1}}}}, "task.success.bounds.q"),
         ({"success": {"window": 99, "bounds": {"x": {"tol": 1}}}}, "task.success.window"),
         ({"colour": "red"}, "task.colour"),
+        ({"limits": {"q": [-1, 1]}}, "task.limits.q"),
+        ({"limits": {"theta": [-1, 1]}}, "task.limits.theta"),
+        ({"limits": {"x": [1, -1]}}, "task.limits.x"),
+        ({"limits": {"x": [-1]}}, "task.limits.x"),
+        ({"limits": {"x": ["a", 1]}}, "task.limits.x"),
+        ({"limits": [-1, 1]}, "task.limits"),
     ],
 )
 def test_bad_specs_name_the_field(change, field):
@@ -128,6 +134,46 @@ def test_abs_mode_is_mcpilco_unwrapped_cost_and_gradients_match_autograd():
     (g1,) = torch.autograd.grad((mine * w).sum(), x1)
     (g2,) = torch.autograd.grad((truth * w).sum(), x2)
     torch.testing.assert_close(g1, g2)
+
+
+def test_limit_barrier_is_the_logistic_pair_and_its_gradient_matches_autograd():
+    """``c = 1 - exp(-x^2 / l^2) + sigma((x - hi) / s) + sigma((lo - x) / s)`` written out
+    here, with its known values: 1/2 at a limit, 0.047 at 3 s inside it."""
+    task = TaskSpec.from_dict({**GOOD, "limits": {"x": [-1.8, 1.2]}})
+    cost = SaturatingCost.from_task(task, {"theta": 1.0}, limit_widths={"x": 0.1})
+    x = torch.randn(64, 4, dtype=torch.float64) * 2
+    x1 = x.clone().requires_grad_(True)
+    x2 = x.clone().requires_grad_(True)
+    truth = (
+        1
+        - torch.exp(-((torch.remainder(x2[:, 2], 2 * math.pi) - math.pi) ** 2))
+        + 1 / (1 + torch.exp(-(x2[:, 0] - 1.2) / 0.1))
+        + 1 / (1 + torch.exp(-(-1.8 - x2[:, 0]) / 0.1))
+    )
+    mine = cost(x1)
+    torch.testing.assert_close(mine, truth)
+    w = torch.randn(64, dtype=torch.float64)
+    (g1,) = torch.autograd.grad((mine * w).sum(), x1)
+    (g2,) = torch.autograd.grad((truth * w).sum(), x2)
+    torch.testing.assert_close(g1, g2)
+    # upright at the upper limit, and 3 widths inside the lower one
+    upright = torch.tensor(
+        [[1.2, 0.0, math.pi, 0.0], [-1.5, 0.0, math.pi, 0.0]], dtype=torch.float64
+    )
+    c = cost(upright)
+    assert abs(float(c[0]) - 0.5) < 1e-9 and abs(float(c[1]) - 1 / (1 + math.exp(3))) < 1e-9
+    with pytest.raises(ValueError, match="no limits"):
+        SaturatingCost.from_task(task, limit_widths={"x_dot": 0.1})
+
+
+def test_transitions_that_touch_a_limit_are_found():
+    """A cart against a stop at x = 1: before, during and after the impact, and a step whose
+    free motion x + T_s xdot would have crossed the stop though both samples are inside."""
+    task = TaskSpec.from_dict({**GOOD, "limits": {"x": [-1.0, 1.0]}})
+    s = np.array([[0.0, 1.0, 0, 0], [0.9, 1.0, 0, 0], [0.99, 3.0, 0, 0], [1.02, 0.0, 0, 0]])
+    s1 = np.array([[0.05, 1.0, 0, 0], [0.95, 1.0, 0, 0], [0.98, -0.5, 0, 0], [0.95, -1.0, 0, 0]])
+    np.testing.assert_array_equal(task.touches_limit(s, s1), [False, False, True, True])
+    assert not TaskSpec.from_dict(GOOD).touches_limit(s, s1).any()  # no limits declared
 
 
 def test_features_and_their_backward_against_autograd():
@@ -211,3 +257,18 @@ def test_config_files_and_overrides():
     with pytest.raises(ValueError, match="key=value"):
         parse_set(["num_particles"])
     assert MCPilcoConfig(env_id="x", task=GOOD | {"env_id": "x"}).task_spec().state_dim == 4
+
+
+@pytest.mark.parametrize("idx", [(), (2,), (1, 2, 3), (3, 0), (0, 2, 4), (4, 3, 2, 1, 0)])
+def test_take_selects_like_advanced_indexing(idx):
+    """``take`` (views, no index tensor) against torch's advanced indexing, values and
+    gradients."""
+    from mcpilco.agents.mc_pilco.features import take
+
+    x = torch.randn(3, 7, 5, dtype=torch.float64, requires_grad=True)
+    w = torch.randn(3, 7, len(idx), dtype=torch.float64)
+    mine, ref = take(x, idx), x[..., list(idx)]
+    torch.testing.assert_close(mine, ref, rtol=0, atol=0)
+    (g1,) = torch.autograd.grad((mine * w).sum(), x)
+    (g2,) = torch.autograd.grad((ref * w).sum(), x)
+    torch.testing.assert_close(g1, g2, rtol=0, atol=0)
