@@ -21,8 +21,7 @@ Glossary
 ``c_b(x) = sum_k sigma((x_k - hi_k) / s_k) + sigma((lo_k - x_k) / s_k)``
     a barrier at the declared limits ``[lo_k, hi_k]`` of states ``x_k`` (``sigma`` the
     logistic function, ``s_k`` its width: ``c_b`` is 1/2 at a limit, 0.05 at ``3 s_k`` inside
-    it), added to ``c``, as MC-PILCO's Furuta-pendulum cost bounds the arm angle (Amadio et al.
-    2022, sec. VI). It grows whatever the other terms, so it also acts while ``c`` is
+    it), added to ``c``. It grows whatever the other terms, so it also acts while ``c`` is
     saturated (the pole hanging during a swing-up), and it keeps the particles, which a GP of
     the free motion lets pass through a stop, inside the reachable range;
 ``J = sum_t E[c(x_t)]``

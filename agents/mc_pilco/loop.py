@@ -644,6 +644,8 @@ def record_line(r: dict[str, Any]) -> str:
             f"x {r['s_per_opt_step']:.3f} s (CPU {r['cpu_s_per_opt_step']:.3f} s), "
             f"J^ {r['opt_final_cost']:.2f})"
         )
+        if r.get("n_at_limits"):
+            line += f"; {r['n_at_limits']} transitions at the task's limits left out of the GP data"
         if r.get("compile_error"):
             line += f"; compiling the step failed ({r['compile_error']}): ran eagerly"
         elif r.get("compiled_step") is False:

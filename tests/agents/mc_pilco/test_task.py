@@ -272,3 +272,27 @@ def test_take_selects_like_advanced_indexing(idx):
     (g1,) = torch.autograd.grad((mine * w).sum(), x)
     (g2,) = torch.autograd.grad((ref * w).sum(), x)
     torch.testing.assert_close(g1, g2, rtol=0, atol=0)
+
+
+def test_declared_limits_are_the_simulators_joint_ranges():
+    """The rail limits in the shipped task files are the slider ranges of the MuJoCo models
+    the envs simulate (read from the compiled models, not from the files)."""
+    for env_id, read in (
+        ("mcpilco/DMCCartpoleSwingUp-v0", lambda e: e.unwrapped.physics.named.model.jnt_range),
+        ("InvertedPendulum-v5", lambda e: _named_ranges(e.unwrapped.model)),
+    ):
+        env = gym.make(env_id)
+        try:
+            ranges = read(env)
+            assert TaskSpec.for_env(env_id).limits == {"x": tuple(ranges["slider"])}, env_id
+        finally:
+            env.close()
+
+
+def _named_ranges(model) -> dict[str, np.ndarray]:
+    import mujoco
+
+    return {
+        mujoco.mj_id2name(model, mujoco.mjtObj.mjOBJ_JOINT, j): model.jnt_range[j]
+        for j in range(model.njnt)
+    }
