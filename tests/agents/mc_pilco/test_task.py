@@ -124,15 +124,23 @@ def test_abs_mode_is_mcpilco_unwrapped_cost_and_gradients_match_autograd():
     the analytic backward against autograd of that expression."""
     task = TaskSpec.for_env("mcpilco/CartpoleSwingUp-v0")
     cost = SaturatingCost.from_task(task, {"x": 1.0, "theta": 3.0}, angle_mode="abs")
-    x = torch.randn(64, 4, dtype=torch.float64) * 5
+    assert_cost_is(
+        cost,
+        lambda x: 1 - torch.exp(-((x[:, 2].abs() - math.pi) ** 2) / 9.0 - x[:, 0] ** 2),
+        torch.randn(64, 4, dtype=torch.float64) * 5,
+    )
+
+
+def assert_cost_is(cost, truth, x: torch.Tensor) -> None:
+    """``cost(x)`` and its vector-Jacobian product against autograd of ``truth(x)``, an
+    expression written out in the test."""
     x1 = x.clone().requires_grad_(True)
     x2 = x.clone().requires_grad_(True)
-    truth = 1 - torch.exp(-((x2[:, 2].abs() - math.pi) ** 2) / 9.0 - x2[:, 0] ** 2)
-    mine = cost(x1)
-    torch.testing.assert_close(mine, truth)
-    w = torch.randn(64, dtype=torch.float64)
+    mine, ref = cost(x1), truth(x2)
+    torch.testing.assert_close(mine, ref)
+    w = torch.randn(len(x), dtype=x.dtype)
     (g1,) = torch.autograd.grad((mine * w).sum(), x1)
-    (g2,) = torch.autograd.grad((truth * w).sum(), x2)
+    (g2,) = torch.autograd.grad((ref * w).sum(), x2)
     torch.testing.assert_close(g1, g2)
 
 
@@ -141,21 +149,16 @@ def test_limit_barrier_is_the_logistic_pair_and_its_gradient_matches_autograd():
     here, with its known values: 1/2 at a limit, 0.047 at 3 s inside it."""
     task = TaskSpec.from_dict({**GOOD, "limits": {"x": [-1.8, 1.2]}})
     cost = SaturatingCost.from_task(task, {"theta": 1.0}, limit_widths={"x": 0.1})
-    x = torch.randn(64, 4, dtype=torch.float64) * 2
-    x1 = x.clone().requires_grad_(True)
-    x2 = x.clone().requires_grad_(True)
-    truth = (
-        1
-        - torch.exp(-((torch.remainder(x2[:, 2], 2 * math.pi) - math.pi) ** 2))
-        + 1 / (1 + torch.exp(-(x2[:, 0] - 1.2) / 0.1))
-        + 1 / (1 + torch.exp(-(-1.8 - x2[:, 0]) / 0.1))
+    assert_cost_is(
+        cost,
+        lambda x: (
+            1
+            - torch.exp(-((torch.remainder(x[:, 2], 2 * math.pi) - math.pi) ** 2))
+            + 1 / (1 + torch.exp(-(x[:, 0] - 1.2) / 0.1))
+            + 1 / (1 + torch.exp(-(-1.8 - x[:, 0]) / 0.1))
+        ),
+        torch.randn(64, 4, dtype=torch.float64) * 2,
     )
-    mine = cost(x1)
-    torch.testing.assert_close(mine, truth)
-    w = torch.randn(64, dtype=torch.float64)
-    (g1,) = torch.autograd.grad((mine * w).sum(), x1)
-    (g2,) = torch.autograd.grad((truth * w).sum(), x2)
-    torch.testing.assert_close(g1, g2)
     # upright at the upper limit, and 3 widths inside the lower one
     upright = torch.tensor(
         [[1.2, 0.0, math.pi, 0.0], [-1.5, 0.0, math.pi, 0.0]], dtype=torch.float64
