@@ -345,6 +345,8 @@ class GPDynamicsModel:
             kernel's initial values. Off by default, as in the MC-PILCO reference code: a
             warm start keeps the optimum of the first, poorer data, and a fresh fit predicts
             the next trial better.
+        noise_min: lower bound of each GP's noise variance, as a fraction of its output's
+            variance (:class:`~mcpilco.models.gp.GPRegressor`).
     """
 
     def __init__(
@@ -358,8 +360,10 @@ class GPDynamicsModel:
         sample_noise: bool = False,
         delta_clip_factor: float | None = 3.0,
         warm_start: bool = False,
+        noise_min: float = 1e-8,
     ) -> None:
         self.task = task
+        self.noise_min = float(noise_min)
         self.layout = StateLayout.from_task(task)
         if kernel not in KERNEL_CHOICES:
             raise ValueError(f"kernel must be one of {KERNEL_CHOICES}, got {kernel!r}")
@@ -388,6 +392,7 @@ class GPDynamicsModel:
             standardize_x=self.joint_inputs is None,  # the rigid-body kernel takes raw q
             input_names=self.input_names,
             output_names=self.task.gp_output_names(),
+            noise_min=self.noise_min,
         )
 
     def fit(self, states, actions, next_states) -> GPDynamicsModel:

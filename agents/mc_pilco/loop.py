@@ -114,6 +114,8 @@ class MCPilcoConfig:
             ``"native"`` / ``"torch"`` are refused here.
         max_points: GP subset-of-data size.
         gp_adam_iters, gp_lbfgs_iters: marginal-likelihood budget per fit.
+        gp_noise_min: lower bound of each dynamics GP's noise variance, as a fraction of its
+            output's variance.
         num_basis: policy basis functions.
         policy_weight_scale: initial policy weights ``w ~ U(-s, s) u_half``. Small, so that the
             initial policy is close to the middle of the action range.
@@ -172,6 +174,7 @@ class MCPilcoConfig:
     max_points: int | None = 300
     gp_adam_iters: int = 200
     gp_lbfgs_iters: int = 100
+    gp_noise_min: float = 1e-8
     num_basis: int = 200
     policy_weight_scale: float = 0.01
     policy_centers_box: float = math.pi
@@ -257,6 +260,8 @@ class MCPilcoConfig:
                 )
             self.cost_limit_widths = {str(k): float(v) for k, v in widths.items()}
         self.device = str(check_device_name(self.device))
+        if not (math.isfinite(self.gp_noise_min) and self.gp_noise_min >= 0):
+            raise ValueError(f"gp_noise_min must be a finite value >= 0, got {self.gp_noise_min}")
         if self.max_points is not None and self.max_points < 10:
             raise ValueError(f"max_points must be >= 10 or None, got {self.max_points}")
 
@@ -764,6 +769,7 @@ def run_mcpilco(
             max_points=config.max_points,
             adam_iters=config.gp_adam_iters,
             lbfgs_iters=config.gp_lbfgs_iters,
+            noise_min=config.gp_noise_min,
         )
         episodes: list[dict[str, Any]] = []
         records: list[dict[str, Any]] = []

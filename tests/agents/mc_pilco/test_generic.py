@@ -364,3 +364,31 @@ def test_transitions_at_declared_limits_stay_out_of_the_model_data(tmp_path):
     with pytest.raises(ValueError, match="has a cost function instead"):
         cfg = toy_config(task=task, cost_limit_widths={"py": 0.1})
         run_mcpilco(cfg, tmp_path / "c", log=None, task=own_cost)
+
+
+def test_gp_noise_floor_is_a_fraction_of_each_outputs_variance():
+    """Noise-free transitions of the toy's exact linear dynamics: the marginal likelihood
+    drives each GP's noise variance down to its floor; ``noise_min`` (a fraction of the
+    output's variance) is that floor. A negative floor is refused by the config."""
+    from tests.agents.mc_pilco.toy_env import PointMass2D
+
+    env, rng = PointMass2D(), np.random.default_rng(0)
+    s = rng.normal(size=(60, 4))
+    a = rng.uniform(-1, 1, size=(60, 2))
+    s1 = np.empty_like(s)
+    for i in range(60):  # one exact zero-order-hold step of the toy from s[i]
+        env._x = s[i].copy()
+        s1[i] = env.step(a[i])[0]
+    task = toy_config().task_spec()
+    fractions = {}
+    for floor in (1e-8, 1e-3):
+        model = GPDynamicsModel(
+            task, adam_iters=100, lbfgs_iters=30, max_points=None, noise_min=floor
+        )
+        model.fit(s, a, s1)
+        gp = model.gp_
+        fractions[floor] = (gp.noise_variance / gp.y_scale_**2).numpy()
+    assert np.all(fractions[1e-3] >= 1e-3 * (1 - 1e-6)) and np.all(fractions[1e-3] < 2e-3)
+    assert np.all(fractions[1e-8] < 1e-4)
+    with pytest.raises(ValueError, match="gp_noise_min"):
+        toy_config(gp_noise_min=-1.0)
