@@ -605,6 +605,11 @@ def timing_row(t: dict) -> str:
     )
 
 
+def _ratio(x: float) -> str:
+    """A speed-up ratio: whole numbers from 10 on, two significant digits below."""
+    return f"{x:.0f}" if x >= 10 else f"{x:.2g}"
+
+
 def reference_table(timing: list[dict]) -> list[str]:
     """Markdown lines: every timed step (the fast rollout's where there is one, else the
     eager one) against the reference implementation's seconds per step
@@ -634,7 +639,8 @@ def reference_table(timing: list[dict]) -> list[str]:
         a, b = reference_speedup(wall)
         md.append(
             f"| {t.get('env_id', DEFAULT_ENV_ID)} | {t['num_particles']} | {t['n_points']} "
-            f"| {t['threads']} | {step} | {wall:.3f} | {cpu:.3f} | {floor} | {a:.0f}-{b:.0f}x |"
+            f"| {t['threads']} | {step} | {wall:.3f} | {cpu:.3f} | {floor} "
+            f"| {_ratio(a)}-{_ratio(b)}x |"
         )
     md.append("")
     return md
