@@ -30,8 +30,8 @@ class NativeModel {
     // ints: n, A, m, d, fp, nb, N, p, f; index: plain, angle, position, velocity, delta,
     // cost_idx, cost_mode, idx_a, idx_c, cost_ref, bar_idx (int32); floats: u_mid, u_half,
     // cost_target, cost_ls, cost_ls2, x_mean, x_scale, y_mean, y_scale, inv_l2, outputscale,
-    // sig_diag, sig2, noise_var, bound (empty: none), alpha_aug, bar_lo, bar_hi, bar_inv_w; packed: per output (w_aug, fwd, bwd, w_t) as 4 tensors
-    // each (values, beg, end, off).
+    // sig_diag, sig2, noise_var, bound (empty: none), alpha_aug, bar_lo, bar_hi, bar_inv_w;
+    // packed: per output (w_aug, fwd, bwd, w_t) as 4 tensors each (values, beg, end, off).
     NativeModel(std::vector<int64_t> ints, std::vector<Tensor> index, std::vector<Tensor> floats,
                 double dt, std::vector<std::vector<Tensor>> packed)
         : index_(std::move(index)), floats_(std::move(floats)) {
