@@ -86,6 +86,7 @@ from mcpilco.agents.mc_pilco.loop import (
 )
 from mcpilco.agents.mc_pilco.task import TaskSpec
 from mcpilco.agents.mc_pilco.viz import plot_optimisation
+from mcpilco.models.device import check_device_name, resolve_device
 
 CHECKPOINT_NAME = "checkpoint.pt"  # the run's checkpoint file in its output folder
 OPTIMIZERS = ("lbfgs", "adam")  # choices of PilcoConfig.optimizer
@@ -136,6 +137,9 @@ class PilcoConfig:
             > 1e-3 so that TorchRL's world model takes its moment-matching path.
         seed: seeds torch, numpy and the env resets (same trial seeds as MC-PILCO).
         torch_threads: ``torch.set_num_threads`` (None: leave as is).
+        device: torch device of the GP world model, the controller, the cost and the
+            imagined rollout (``"cuda"`` runs the moment matching on a GPU; the real env and
+            the GP's evidence maximisation data come from the host).
     """
 
     env_id: str = DEFAULT_ENV_ID
@@ -153,8 +157,10 @@ class PilcoConfig:
     init_std: float = 0.01
     seed: int = 0
     torch_threads: int | None = None
+    device: str = "cpu"
 
     def __post_init__(self) -> None:
+        check_device_name(self.device)
         for name in ("num_trials",):
             v = getattr(self, name)
             if int(v) != v or v < 0:
@@ -250,9 +256,14 @@ def pilco_config(
 
 # ------------------------------------------------------------------------ TorchRL parts
 def make_controller(
-    obs_dim: int, action_dim: int, num_basis: int, seed: int, max_action: float = 1.0
+    obs_dim: int,
+    action_dim: int,
+    num_basis: int,
+    seed: int,
+    max_action: float = 1.0,
+    device: str | torch.device = "cpu",
 ):
-    """TorchRL's :class:`RBFController` (float64, ``u_max = max_action``) as a
+    """TorchRL's :class:`RBFController` (float64, ``u_max = max_action``, on ``device``) as a
     ``TensorDictModule``."""
     from tensordict.nn import TensorDictModule
     from torchrl.modules.models import RBFController
@@ -260,7 +271,7 @@ def make_controller(
     torch.manual_seed(seed)
     controller = RBFController(
         input_dim=obs_dim, output_dim=action_dim, max_action=max_action, n_basis=num_basis
-    ).to(DTYPE)
+    ).to(device=device, dtype=DTYPE)
     module = TensorDictModule(
         controller,
         in_keys=[("observation", "mean"), ("observation", "var")],
@@ -297,8 +308,14 @@ def make_cost(task: TaskSpec, length_scales: dict[str, float] | None = None):
     return ExponentialQuadraticCost(target=target, weights=torch.diag(w), reduction="none")
 
 
-def fit_world_model(obs: np.ndarray, actions: np.ndarray, next_obs: np.ndarray):
-    """TorchRL's :class:`GPWorldModel` fitted on transitions ``(x_t, u_t, x_{t+1})``."""
+def fit_world_model(
+    obs: np.ndarray,
+    actions: np.ndarray,
+    next_obs: np.ndarray,
+    device: str | torch.device = "cpu",
+):
+    """TorchRL's :class:`GPWorldModel` on ``device``, fitted on transitions
+    ``(x_t, u_t, x_{t+1})``."""
     from tensordict import TensorDict
     from torchrl.modules.models import GPWorldModel
 
@@ -311,7 +328,7 @@ def fit_world_model(obs: np.ndarray, actions: np.ndarray, next_obs: np.ndarray):
         },
         batch_size=[n],
     )
-    model = GPWorldModel(obs_dim=d, action_dim=data["action"].shape[-1])
+    model = GPWorldModel(obs_dim=d, action_dim=data["action"].shape[-1]).to(device)
     model.fit(data)
     rescale_to_raw_targets(model)
     model.eval()
@@ -349,7 +366,7 @@ def rescale_to_raw_targets(model) -> torch.Tensor:
     for gp in model.model_list.models:
         stdvs = getattr(getattr(gp, "outcome_transform", None), "stdvs", None)
         scales.append(torch.ones(()) if stdvs is None else stdvs.reshape(()).detach())
-    s2 = torch.stack(scales).to(model.alpha_sq) ** 2
+    s2 = torch.stack([s.to(model.alpha_sq) for s in scales]) ** 2
     inv_k, beta = model.compute_factorizations()
     model.alpha_sq = model.alpha_sq * s2.unsqueeze(-1)
     model.sigma_sq_eps = model.sigma_sq_eps * s2
@@ -361,11 +378,14 @@ def rescale_to_raw_targets(model) -> torch.Tensor:
 def controller_act(controller) -> Callable[[np.ndarray], np.ndarray]:
     """The deterministic action ``E[pi(x)]`` for a point observation (zero covariance)."""
 
+    device = next(controller.parameters()).device
+
     @torch.no_grad()
     def act(obs: np.ndarray) -> np.ndarray:
-        x = torch.as_tensor(obs, dtype=DTYPE).reshape(1, -1)
-        mean, _, _ = controller(x, torch.zeros(1, x.shape[1], x.shape[1], dtype=DTYPE))
-        return mean[0].numpy()
+        x = torch.as_tensor(obs, dtype=DTYPE, device=device).reshape(1, -1)
+        zero = torch.zeros(1, x.shape[1], x.shape[1], dtype=DTYPE, device=device)
+        mean, _, _ = controller(x, zero)
+        return mean[0].cpu().numpy()
 
     return act
 
@@ -387,16 +407,17 @@ class ImaginedCost:
         from torchrl.envs.model_based import ImaginedEnv
 
         self.env = ImaginedEnv(world_model_module=world_model, base_env=base_env)
-        d = world_model.obs_dim
+        d, device = world_model.obs_dim, world_model.device
         self.reset_td = TensorDict(
             {
                 ("observation", "mean"): (
-                    torch.zeros(d, dtype=DTYPE)
+                    torch.zeros(d, dtype=DTYPE, device=device)
                     if init_mean is None
-                    else torch.as_tensor(init_mean, dtype=DTYPE)
+                    else torch.as_tensor(init_mean, dtype=DTYPE, device=device)
                 ),
-                ("observation", "var"): init_std**2 * torch.eye(d, dtype=DTYPE),
-            }
+                ("observation", "var"): init_std**2 * torch.eye(d, dtype=DTYPE, device=device),
+            },
+            device=device,
         ).expand(*self.env.batch_size)
         self.policy_module = policy_module
         self.cost = cost
@@ -409,8 +430,9 @@ class ImaginedCost:
         return self.cost(data["next"])["loss_cost"].sum(-1).mean()
 
 
-def _torchrl_env(env_id: str):
-    """TorchRL ``GymEnv`` of a registered id (its specs shape the imagined env)."""
+def _torchrl_env(env_id: str, device: str | torch.device = "cpu"):
+    """TorchRL ``GymEnv`` of a registered id on ``device`` (its specs and device shape the
+    imagined env)."""
     import warnings
 
     import mcpilco.envs  # noqa: F401  (registers the ids)
@@ -419,7 +441,7 @@ def _torchrl_env(env_id: str):
         warnings.simplefilter("ignore")
         from torchrl.envs import GymEnv
 
-        return GymEnv(env_id)
+        return GymEnv(env_id, device=device)
 
 
 def optimize_controller(
@@ -532,6 +554,7 @@ def run_pilco(
         log: called with one line per trial (None: silent).
     """
     t_start = time.perf_counter()
+    device = resolve_device(config.device)  # refuses a CUDA device this machine lacks
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     ckpt_path = out / CHECKPOINT_NAME
@@ -555,14 +578,14 @@ def run_pilco(
     env = make_env(config.env_id, horizon, task)
     obs_dim, act_dim = task.state_dim, task.action_dim
     dt = env_dt(env, task)
-    base_env = _torchrl_env(config.env_id)
+    base_env = _torchrl_env(config.env_id, device)
 
     torch.manual_seed(config.seed)
     np_rng = np.random.default_rng(config.seed)
     controller, policy_module = make_controller(
-        obs_dim, act_dim, config.num_basis, config.seed, max_action=half.pop()
+        obs_dim, act_dim, config.num_basis, config.seed, half.pop(), device
     )
-    cost = make_cost(task, config.cost_length_scales)
+    cost = make_cost(task, config.cost_length_scales).to(device)
     episodes: list[dict[str, Any]] = []
     records: list[dict[str, Any]] = []
     opt_curves: list[list[float]] = []
@@ -611,7 +634,7 @@ def run_pilco(
                     s1[-config.max_points :],
                 )
                 t_fit = time.perf_counter()
-                world_model = fit_world_model(s, a, s1)
+                world_model = fit_world_model(s, a, s1, device)
                 rec["gp_fit_s"] = time.perf_counter() - t_fit
                 rec["gp_points"] = int(s.shape[0])
                 objective = ImaginedCost(
