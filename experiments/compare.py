@@ -222,6 +222,8 @@ def markdown(report: dict[str, Any]) -> str:
     ]
     if report.get("note"):
         lines += [report["note"], ""]
+    if report.get("command"):
+        lines += [f"Command: `{report['command']}` ({report.get('measured', 'undated')})", ""]
     lines += [
         "Success = the task's success test at the episode end (`envs/tasks/`). "
         "Experience = env steps x the control period (MC-PILCO / PILCO: the steps of each "

@@ -42,6 +42,8 @@ Usage::
 from __future__ import annotations
 
 import argparse
+import datetime
+import shlex
 import sys
 from pathlib import Path
 from typing import Any
@@ -59,6 +61,20 @@ from mcpilco.experiments.compare import (
     write_report,
 )
 from mcpilco.experiments.sweep import SweepError, add_sweep_arguments, runner_from_args
+
+
+def recorded_command_line(argv: list[str]) -> str:
+    """The command line a report records: ``argv`` without ``--note``'s text (the report
+    holds it)."""
+    kept, skip = [], False
+    for token in argv:
+        if skip:
+            skip = False
+        elif token == "--note":
+            skip = True
+        elif not token.startswith("--note="):
+            kept.append(token)
+    return shlex.join(["mcpilco-compare", *kept])
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -231,6 +247,8 @@ def main(argv: list[str] | None = None) -> int:
         )
     except ValueError as err:
         parser.error(str(err))
+    report["command"] = recorded_command_line(sys.argv[1:] if argv is None else argv)
+    report["measured"] = datetime.date.today().isoformat()
     paths = write_report(report, args.out)
     print(markdown(report))
     print(f"wrote {paths['json']}, {paths['md']} and {paths['png']}")

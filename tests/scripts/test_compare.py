@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import json
 import os
+import shlex
 
 import numpy as np
 import pytest
@@ -14,6 +15,7 @@ import pytest
 from mcpilco.agents.baselines.common import make_curve, save_curve, task_env_ids
 from mcpilco.agents.mc_pilco import load_config
 from mcpilco.experiments.compare import aggregate_method
+from mcpilco.experiments.results_index import recorded_command
 
 ENV = "mcpilco/CartpoleSwingUp-v0"
 
@@ -81,6 +83,8 @@ def test_two_fake_files_give_table_plot_and_ratios(fake_files, tmp_path, capsys,
         str(tmp_path / "none"),
         "--tag",
         "fake",
+        "--note",
+        "two fake files",
     ]
     assert command("mcpilco-compare", argv) == 0
     stem = out / "compare_CartpoleSwingUp-v0_fake"
@@ -102,6 +106,10 @@ def test_two_fake_files_give_table_plot_and_ratios(fake_files, tmp_path, capsys,
     md = stem.with_suffix(".md").read_text()
     assert "| MC-PILCO | 2 |" in md and "| SAC | 2 |" in md
     assert "250.0x" in md and "**met**" in md
+    # the report records the command line that made it, and the results index reads it
+    assert report["command"] == shlex.join(["mcpilco-compare", *argv[:-2]])
+    assert report["note"] == "two fake files"
+    assert recorded_command(report) == report["command"] and f"`{report['command']}`" in md
     png = stem.with_suffix(".png").read_bytes()
     assert png[:8] == b"\x89PNG\r\n\x1a\n" and len(png) > 5_000
     assert "wrote" in capsys.readouterr().out
