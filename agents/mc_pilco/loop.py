@@ -29,11 +29,12 @@ GP state, optimiser and RNG states, records. ``resume=True`` continues from it.
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import json
 import math
 import time
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -547,15 +548,49 @@ def _policy_act(policy: SquashedRBFPolicy) -> Callable[[np.ndarray], np.ndarray]
 
 
 @torch.no_grad()
-def choose_candidate(
-    loss: MCPilcoLoss, population: PolicyPopulation, policy: SquashedRBFPolicy, repeats: int = 4
-) -> torch.Tensor:
-    """``J^_k`` of every candidate (mean of ``repeats`` rollouts with fresh particles, no
-    dropout); copies the best candidate into ``policy`` and returns the ``J^_k`` (K,)."""
+def choose_policy(
+    loss: MCPilcoLoss,
+    population: PolicyPopulation,
+    policy: SquashedRBFPolicy,
+    snapshots: Sequence[tuple[int, Sequence[torch.Tensor]]] = (),
+    repeats: int = 4,
+) -> tuple[torch.Tensor, int]:
+    """The policy to apply: the candidate and parameter snapshot with the lowest ``J^``.
+
+    ``J^`` of every candidate in every snapshot (``(steps, parameter copies)`` as in
+    :attr:`~.optimize.OptimizationResult.snapshots`; none: the population's current
+    parameters) is the mean of ``repeats`` rollouts without dropout. With several snapshots,
+    each is evaluated on the same random numbers (particles, noise), so that their
+    difference is the policies' and not the draws'. The population is left at the chosen
+    snapshot and the chosen candidate is copied into ``policy``.
+
+    Returns:
+        ``J^`` per snapshot and candidate ``(S, K)`` and the chosen snapshot's index.
+    """
+    params = [p for p in population.parameters() if p.requires_grad]
+    values = [list(v) for _, v in snapshots] or [[p.detach().clone() for p in params]]
     population.eval()
-    costs = torch.stack([loss()["candidate_costs"] for _ in range(repeats)]).mean(0)
-    population.copy_to(int(costs.argmin()), policy)
-    return costs
+    device = params[0].device
+    seed = int(torch.randint(2**62, ())) if len(values) > 1 else None
+    costs = []
+    for vals in values:
+        for p, v in zip(params, vals, strict=True):
+            p.copy_(v)
+        same_draws = (
+            contextlib.nullcontext()
+            if seed is None
+            else torch.random.fork_rng(devices=[device] if device.type == "cuda" else [])
+        )
+        with same_draws:
+            if seed is not None:
+                torch.manual_seed(seed)
+            costs.append(torch.stack([loss()["candidate_costs"] for _ in range(repeats)]).mean(0))
+    table = torch.stack(costs)
+    s, k = divmod(int(table.argmin()), table.shape[1])
+    for p, v in zip(params, values[s], strict=True):
+        p.copy_(v)
+    population.copy_to(k, policy)
+    return table, s
 
 
 def transitions(
@@ -890,7 +925,8 @@ def run_mcpilco(
                 )
                 if obar is not None:
                     obar.close()
-                cand_costs = choose_candidate(loss, population, policy)
+                snap_costs, snap = choose_policy(loss, population, policy, res.snapshots)
+                cand_costs = snap_costs[snap]
                 rec.update(
                     opt_steps=res.num_steps,
                     opt_s=res.seconds,
@@ -903,6 +939,9 @@ def run_mcpilco(
                     candidate_costs=cand_costs.tolist(),
                     chosen_candidate=int(cand_costs.argmin()),
                     chosen_cost=float(cand_costs.min()),
+                    snapshot_steps=[step for step, _ in res.snapshots],
+                    snapshot_costs=snap_costs.min(1).values.tolist(),
+                    chosen_step=res.snapshots[snap][0],
                 )
                 # mean J^_k over candidates per step (J^ itself for one candidate)
                 arr["opt_costs"] = np.asarray(res.costs, dtype=np.float32) / config.num_candidates

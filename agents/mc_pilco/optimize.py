@@ -21,6 +21,13 @@ stall
     (``0.25 -> 0.125 -> 0``), ``sigma_s`` halved (down to ``0.01``), Adam restarted (fresh
     moments) and the count reset (the filters run on). A stall at ``a = a_min`` ends the
     optimisation, as does ``N_opt`` steps.
+snapshot
+    with ``snapshot_every = S > 0``, a copy of the policy parameters after every ``S``-th
+    step (:attr:`OptimizationResult.snapshots`, the final parameters always last). The
+    caller evaluates them without dropout and applies the best
+    (:func:`~mcpilco.agents.mc_pilco.loop.choose_policy`): Adam on a noisy ``J^`` can leave
+    a good policy late in the run (a sudden rise of ``J^`` that later steps do not undo),
+    and the last parameters are then not the best ones seen.
 NaN restart
     a non-finite ``J^`` re-initialises the policy parameters and Adam (at most
     ``max_reinits`` times, then ``FloatingPointError``).
@@ -64,6 +71,7 @@ class PolicyOptConfig:
     min_steps: int = 200
     max_reinits: int = 3
     cuda_graph: bool = True
+    snapshot_every: int = 0  # steps between kept parameter copies (0: the final ones only)
 
     def __post_init__(self) -> None:
         if self.max_steps < 1:
@@ -78,6 +86,8 @@ class PolicyOptConfig:
             raise ValueError(f"monitor_patience must be >= 1, got {self.monitor_patience}")
         if self.min_steps < 0:
             raise ValueError(f"min_steps must be >= 0, got {self.min_steps}")
+        if int(self.snapshot_every) != self.snapshot_every or self.snapshot_every < 0:
+            raise ValueError(f"snapshot_every must be an integer >= 0, got {self.snapshot_every!r}")
 
 
 class CostMonitor:
@@ -137,6 +147,8 @@ class OptimizationResult:
     seconds: float = 0.0
     cpu_seconds: float = 0.0
     stop_reason: str = "max_steps"
+    snapshots: list[tuple[int, list[Tensor]]] = field(default_factory=list)
+    """``(steps done, parameter copies)``, every ``snapshot_every`` steps and at the end."""
 
     @property
     def num_steps(self) -> int:
@@ -282,6 +294,8 @@ def optimize_policy(
             res.signals.append(monitor.signal)
             if on_step is not None:
                 on_step(k, cost, std, lr)
+            if config.snapshot_every and res.num_steps % config.snapshot_every == 0:
+                res.snapshots.append((res.num_steps, [p.detach().clone() for p in params]))
             if stalled:
                 if lr <= config.lr_min:
                     res.stop_reason = "lr_min"
@@ -293,6 +307,8 @@ def optimize_policy(
                 opt = torch.optim.Adam(params, lr=lr)
                 monitor.on_stall()
                 res.num_lr_reductions += 1
+        if not res.snapshots or res.snapshots[-1][0] != res.num_steps:
+            res.snapshots.append((res.num_steps, [p.detach().clone() for p in params]))
     finally:
         res.seconds = time.perf_counter() - t0
         res.cpu_seconds = time.process_time() - c0

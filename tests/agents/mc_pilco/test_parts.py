@@ -365,6 +365,29 @@ def test_optimizer_reinitialises_policy_on_nan_cost():
         optimize_policy(StalledLoss(pol, nan_first=100), pol, PolicyOptConfig(max_steps=10))
 
 
+def test_optimizer_keeps_snapshots_of_the_parameters_it_had_after_those_steps():
+    """``snapshot_every = 4`` over 10 steps: copies after steps 4 and 8 and the final ones
+    (10), each equal to the parameters seen by ``on_step`` after that step."""
+    pol = SquashedRBFPolicy(LAYOUT, num_basis=5, seed=0)
+    seen = {}
+
+    def on_step(k, *_):
+        seen[k + 1] = [p.detach().clone() for p in pol.parameters() if p.requires_grad]
+
+    cfg = PolicyOptConfig(max_steps=10, monitor_patience=100, snapshot_every=4)
+    res = optimize_policy(StalledLoss(pol), pol, cfg, on_step=on_step)
+    assert [step for step, _ in res.snapshots] == [4, 8, 10]
+    for step, values in res.snapshots:
+        for v, w in zip(values, seen[step], strict=True):
+            torch.testing.assert_close(v, w, rtol=0, atol=0)
+    first, last = res.snapshots[0][1], res.snapshots[-1][1]
+    assert any(not torch.equal(v, w) for v, w in zip(first, last, strict=True))
+    only_final = optimize_policy(StalledLoss(pol), pol, PolicyOptConfig(max_steps=3))
+    assert [step for step, _ in only_final.snapshots] == [3]
+    with pytest.raises(ValueError, match="snapshot_every must be an integer >= 0"):
+        PolicyOptConfig(snapshot_every=-1)
+
+
 def test_unwrapped_cost_penalises_full_rotations():
     cost = swingup_cost(l_x=1.0, l_theta=3.0, wrap=False)
     up_once = torch.tensor([0.0, 0.0, math.pi, 0.0])

@@ -21,7 +21,7 @@ from mcpilco.agents.mc_pilco import (
     run_mcpilco,
 )
 from mcpilco.agents.mc_pilco.checkpoint import load_checkpoint
-from mcpilco.agents.mc_pilco.loop import choose_candidate
+from mcpilco.agents.mc_pilco.loop import choose_policy
 
 f64 = torch.float64
 TASK = TaskSpec.for_env("mcpilco/CartpoleSwingUp-v0")
@@ -94,20 +94,48 @@ def test_population_loss_and_gradients_equal_each_candidate_alone():
     torch.testing.assert_close(out["loss_cost"].detach(), out["candidate_costs"].sum())
 
 
-def test_choose_candidate_copies_the_lowest_expected_cost():
-    K, M, H = 3, 64, 20  # float32, as in the loop
+def _population_loss(K: int = 3, H: int = 20, M: int = 64):
     cands = [SquashedRBFPolicy(LAYOUT, num_basis=20, weight_scale=0.8, seed=s) for s in range(K)]
     with torch.no_grad():
         cands[1].weights.zero_()  # u = 0: the pole stays down, the highest cost
     dyn = SpeedIntegrationDynamics(LinearDelta(), 0.05, LAYOUT)
     pop = PolicyPopulation(cands)
     cost = SaturatingCost.from_task(TASK, angle_mode="abs")
-    loss = MCPilcoLoss(make_policy_module(pop), dyn, cost, H, M, MU0)
+    return pop, cands, MCPilcoLoss(make_policy_module(pop), dyn, cost, H, M, MU0)
+
+
+def test_choose_policy_copies_the_lowest_expected_cost():
+    K = 3  # float32, as in the loop
+    pop, cands, loss = _population_loss(K)
     applied = SquashedRBFPolicy(LAYOUT, num_basis=20, weight_scale=0.8)
-    costs = choose_candidate(loss, pop, applied)
-    best = int(costs.argmin())
-    assert costs.shape == (K,) and best != 1
+    costs, snap = choose_policy(loss, pop, applied)
+    best = int(costs[0].argmin())
+    assert costs.shape == (1, K) and snap == 0 and best != 1
     torch.testing.assert_close(applied.weights, cands[best].weights)
+
+
+def test_choose_policy_over_snapshots_compares_them_on_the_same_draws():
+    """Snapshots: the current parameters, the same again, and one where every candidate is
+    the zero policy (pole stays down, the highest cost). The two equal snapshots get the
+    same J^ to the last bit (same particles); the zero snapshot is never chosen; the
+    population is left at the chosen snapshot."""
+    pop, _, loss = _population_loss()
+    params = [p for p in pop.parameters() if p.requires_grad]
+    now = [p.detach().clone() for p in params]
+    zero = [p.detach().clone() for p in params]
+    zero[[i for i, p in enumerate(params) if p is pop.weights][0]].zero_()
+    applied = SquashedRBFPolicy(LAYOUT, num_basis=20, weight_scale=0.8)
+    torch.manual_seed(0)
+    costs, snap = choose_policy(loss, pop, applied, [(10, zero), (20, now), (30, now)])
+    assert costs.shape == (3, 3)
+    torch.testing.assert_close(costs[1], costs[2], rtol=0, atol=0)
+    assert bool((costs[0] > costs[1].min()).all()) and snap in (1, 2)
+    for p, v in zip(params, now, strict=True):
+        torch.testing.assert_close(p, v)
+    k = int(costs[snap].argmin())
+    torch.testing.assert_close(
+        applied.weights, now[[i for i, p in enumerate(params) if p is pop.weights][0]][k]
+    )
 
 
 def test_loop_with_two_candidates_applies_the_chosen_one_and_resumes(tmp_path):
