@@ -969,6 +969,9 @@ def run_mcpilco(
             # seconds of interaction so far (episodes that terminate early count what they ran)
             rec["experience_s"] = sum(len(e["actions"]) for e in episodes) * dt
             arr.update(real=ep["states"], **{key: rec[key] for key in ("cost", "success")})
+            arr["excluded"] = (
+                task.touches_limit(ep["obs"][:-1], ep["obs"][1:]) if task.limits else None
+            )
             arr.update(time_in_goal=rec["time_in_goal"])
             records.append(rec)
             arrays.append(arr)
@@ -982,6 +985,8 @@ def run_mcpilco(
                         dt,
                         task.state_names,
                         title=f"trial {k}: particles (model) vs real, success={ep['success']}",
+                        references=task.tracked_states(),
+                        excluded=arr["excluded"],
                     )
                 )
             _write_outputs(out, config, records, arrays, task, write_rrd)
@@ -1058,6 +1063,11 @@ def _write_outputs(
         plot_optimisation(out / "optimisation.png", [c for c, _ in curves], [n for _, n in curves])
     if write_rrd:
         write_rerun_recording(
-            out / "run.rrd", arrays, task.dt, task.state_names, task.gp_output_names()
+            out / "run.rrd",
+            arrays,
+            task.dt,
+            task.state_names,
+            task.gp_output_names(),
+            references=task.tracked_states(),
         )
     write_records(out, config, records)

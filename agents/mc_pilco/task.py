@@ -514,6 +514,11 @@ class TaskSpec:
             return v - target
         return wrap(v - target) if mode == "wrap" else np.abs(v) - abs(target)
 
+    def tracked_states(self) -> dict[str, str]:
+        """State -> the state its cost term tracks (``CostTerm.reference``), for the terms
+        that track one (a joint and its reference)."""
+        return {t.state: t.reference for t in self.cost_terms if t.reference is not None}
+
     def touches_limit(self, s: np.ndarray, s1: np.ndarray) -> np.ndarray:
         """Which transitions ``x_t -> x_{t+1}`` (rows of ``s``, ``s1``, shape ``(T, n)``) touch
         a declared limit: ``x_t`` or ``x_{t+1}`` outside ``[lo_j, hi_j]``, or, for the position

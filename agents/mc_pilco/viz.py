@@ -11,6 +11,13 @@ Per trial ``k`` the loop stores (see :mod:`mcpilco.agents.mc_pilco.loop`):
 ``gp_rmse (m,)``
     one-step RMSE of ``E[Delta]`` of the model fitted before trial ``k`` on the data
     of trial ``k`` (out of sample), per GP output.
+``excluded (H,)`` (optional)
+    the transitions ``x_t -> x_{t+1}`` of the real trajectory left out of the dynamics data
+    (they touch one of the task's declared limits); drawn as red marks at ``x_t``.
+
+A state that a cost term tracks against another state (``reference``) gets that state's
+real trajectory drawn in its panel (green line): a tracking task's joint against its
+reference.
 
 The Rerun file is rebuilt from these arrays after every trial (through a temporary file and
 ``os.replace``), so a resumed run has one consistent recording. Its blueprint (built in
@@ -22,7 +29,7 @@ metrics.
 from __future__ import annotations
 
 import os
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -36,9 +43,13 @@ def plot_trial_particles(
     dt: float,
     state_names: Sequence[str],
     title: str = "",
+    references: Mapping[str, str] | None = None,
+    excluded: np.ndarray | None = None,
 ) -> Path:
     """PNG like thesis Fig. 5.3: particles (lines) of every state coordinate vs the real
-    trajectory (dots), one panel per coordinate."""
+    trajectory (dots), one panel per coordinate; ``references`` (state -> the state it
+    tracks) adds the tracked state's real trajectory, ``excluded`` (H,) marks the real
+    states whose transitions were left out of the dynamics data."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -56,6 +67,15 @@ def plot_trial_particles(
         ax = axes[idx]
         ax.plot(tp, particles[:, :, idx].T, color="tab:blue", alpha=0.15, linewidth=0.7)
         ax.plot(t, real[:, idx], "o", color="black", markersize=2.5, label="real")
+        ref = (references or {}).get(state_names[idx])
+        if ref is not None:
+            j = list(state_names).index(ref)
+            ax.plot(t, real[:, j], color="tab:green", linewidth=1.2, label=f"reference ({ref})")
+        if excluded is not None and np.any(excluded):
+            at = np.flatnonzero(excluded)
+            ax.plot(
+                t[at], real[at, idx], "x", color="tab:red", markersize=5, label="not in GP data"
+            )
         ax.set_ylabel(state_names[idx])
         ax.grid(alpha=0.3)
     for ax in axes[n:]:
@@ -128,6 +148,7 @@ def write_rerun_recording(
     output_names: Sequence[str],
     application_id: str = "mcpilco",
     recording_id: str | None = None,
+    references: Mapping[str, str] | None = None,
 ) -> Path:
     """Write ``run.rrd`` from the per-trial arrays (atomically).
 
@@ -139,6 +160,9 @@ def write_rerun_recording(
         dt: control period [s] (time axis of the particle plots).
         state_names: the task's state names (one plot each).
         output_names: the GP outputs' names (one error series each).
+        references: state -> the state it tracks (its real trajectory is drawn in the
+            state's plot, ``particles/<state>/reference``); the transitions of ``excluded``
+            (a trial's optional (H,) mask) are drawn at ``particles/<state>/excluded``.
     """
     import rerun as rr
 
@@ -169,6 +193,21 @@ def write_rerun_recording(
                 f"particles/{name}/real",
                 rr.Points2D(pts, colors=[0, 0, 0, 255], radii=0.02),
             )
+            ref = (references or {}).get(name)
+            if ref is not None:
+                line = np.stack([t, real[:, list(state_names).index(ref)]], -1)
+                rec.log(
+                    f"particles/{name}/reference",
+                    rr.LineStrips2D([line], colors=[40, 160, 60, 255], radii=0.006),
+                )
+            excl = tr.get("excluded")
+            if excl is not None and np.any(excl):
+                rec.log(
+                    f"particles/{name}/excluded",
+                    rr.Points2D(pts[np.flatnonzero(excl)], colors=[220, 40, 40, 255], radii=0.04),
+                )
+            else:
+                rec.log(f"particles/{name}/excluded", rr.Clear(recursive=False))
         for key in ("cost", "time_in_goal"):
             if tr.get(key) is not None:
                 rec.log(f"trial/{key}", rr.Scalars([float(tr[key])]))

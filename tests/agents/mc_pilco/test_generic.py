@@ -356,6 +356,9 @@ def test_transitions_at_declared_limits_stay_out_of_the_model_data(tmp_path):
     assert 0 < hit.sum() < len(hit)  # the random trial crossed the limit, not only
     assert policy["n_at_limits"] == hit.sum() and policy["n_data"] == len(hit) - hit.sum()
     assert policy["gp_points"] == policy["n_data"]
+    # the plots mark the same transitions as left out
+    excluded = load_checkpoint(tmp_path / "checkpoint.pt")["arrays"][0]["excluded"]
+    np.testing.assert_array_equal(excluded, hit)
     with pytest.raises(ValueError, match=r"no limits in the task"):
         run_mcpilco(toy_config(task=task, cost_limit_widths={"px": 0.1}), tmp_path / "b", log=None)
     with pytest.raises(ValueError, match="cost_limit_widths must map"):
