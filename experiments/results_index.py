@@ -272,7 +272,7 @@ def _mcpilco_fresh(data: dict[str, Any]) -> str:
     )
 
 
-DMC_SECTION = "mcpilco/DMCCartpoleSwingUp-v0 (limits120)"  # the dm-control headline's section
+DMC_SECTION = "mcpilco/DMCCartpoleSwingUp-v0 (snap140)"  # the dm-control headline's section
 
 
 def _mcpilco_dmc_fresh(data: dict[str, Any]) -> str:
@@ -555,7 +555,7 @@ REGISTRY: tuple[Headline, ...] = (
         "mcpilco_cartpole.json",
         _mcpilco_dmc_fresh,
         "mcpilco_cartpole.md",
-        key="runs (DMC limits120)",
+        key="runs (DMC snap140)",
         seeds=lambda d: seed_ranges(d["runs"][DMC_SECTION]["seeds"]),
     ),
     Headline(
