@@ -331,8 +331,7 @@ def _compare_balance(data: dict[str, Any]) -> str:
 
     m = data["methods"]["mcpilco"]
     line = (
-        f"experience until all {len(m['seeds'])} seeds balance at once: MC-PILCO "
-        f"{t100('mcpilco')}"
+        f"experience until all {len(m['seeds'])} seeds balance at once: MC-PILCO {t100('mcpilco')}"
     )
     if "pilco" in data["methods"]:
         return line + f", TorchRL PILCO {t100('pilco')} (its example's settings)"
