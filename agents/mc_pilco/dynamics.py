@@ -57,6 +57,8 @@ from __future__ import annotations
 from collections.abc import Callable
 from typing import Any, Literal
 
+import math
+
 import numpy as np
 import torch
 from torch import Tensor, nn
@@ -69,10 +71,18 @@ KERNEL_CHOICES: tuple[str, ...] = ("rbf+mpk", "rbf", "rigid_body")  # GPDynamics
 
 def speed_integration(state: Tensor, delta: Tensor, dt: float, layout: StateLayout) -> Tensor:
     """Next state by eq. (5.9): ``q+ = q + T_s q_dot + T_s/2 Delta``, ``q_dot+ = q_dot + Delta``
-    per pair, ``o+ = o + Delta`` per unpaired coordinate.
+    per pair, ``o+ = o + Delta`` per unpaired coordinate, and the exact step of each known
+    oscillator ``(r, r_dot)`` of the layout (a sinusoidal reference
+    ``r(t) = c + a sin(w t + phi)``, ``theta = w T_s``)::
 
-    Written as ``x+ = x A^T + Delta S^T`` with constant matrices (two small matmuls instead
-    of slicing ops in the rollout's hot loop).
+        r+ - c = cos(theta) (r - c) + sin(theta) / w r_dot
+        r_dot+ = -w sin(theta) (r - c) + cos(theta) r_dot
+
+    (``sin(theta) / w -> T_s`` for ``w = 0``: a constant reference). The oscillators take no
+    GP output: the reference a tracking controller follows is known, not learned.
+
+    Written as ``x+ = x A^T + Delta S^T + z`` with constant matrices and offset (two small
+    matmuls instead of slicing ops in the rollout's hot loop; ``z`` only with oscillators).
 
     Args:
         state: (..., n).
@@ -80,8 +90,9 @@ def speed_integration(state: Tensor, delta: Tensor, dt: float, layout: StateLayo
         dt: control period ``T_s`` [s].
         layout: the task's state layout.
     """
-    A, S = _integration_matrices(dt, layout, state.dtype, state.device)
-    return state @ A + delta @ S
+    A, S, z = _integration_matrices(dt, layout, state.dtype, state.device)
+    nxt = state @ A + delta @ S
+    return nxt if z is None else nxt + z
 
 
 _INTEGRATION_CACHE: dict = {}
@@ -89,8 +100,9 @@ _INTEGRATION_CACHE: dict = {}
 
 def _integration_matrices(
     dt: float, layout: StateLayout, dtype: torch.dtype, device
-) -> tuple[Tensor, Tensor]:
-    """``A^T`` (n, n) and ``S^T`` (m, n) of :func:`speed_integration` (cached)."""
+) -> tuple[Tensor, Tensor, Tensor | None]:
+    """``A^T`` (n, n), ``S^T`` (m, n) and ``z`` (n,) or None (no oscillators) of
+    :func:`speed_integration` (cached)."""
     key = (float(dt), layout, dtype, str(device))
     if key not in _INTEGRATION_CACHE:
         n = layout.n
@@ -102,9 +114,19 @@ def _integration_matrices(
             S[qd, j] = 1.0
         for j, o in enumerate(layout.delta_idx, start=len(layout.velocity_idx)):
             S[o, j] = 1.0
+        z = None
+        if layout.oscillators:
+            z = torch.zeros(n, dtype=torch.float64)
+            for r, rd, w, c in layout.oscillators:
+                cos, sin = math.cos(w * dt), math.sin(w * dt)
+                A[r, r], A[r, rd] = cos, (sin / w if w != 0.0 else dt)
+                A[rd, r], A[rd, rd] = -w * sin, cos
+                z[r], z[rd] = c * (1.0 - cos), c * w * sin
+            z = z.to(dtype=dtype, device=device)
         _INTEGRATION_CACHE[key] = (
             A.T.contiguous().to(dtype=dtype, device=device),
             S.T.contiguous().to(dtype=dtype, device=device),
+            z,
         )
     return _INTEGRATION_CACHE[key]
 
@@ -247,13 +269,14 @@ VAR_FLOOR = 1e-12
 
 class _SampleClipIntegrate(torch.autograd.Function):
     """``Delta = clip(mean + sqrt(max(var, VAR_FLOOR)) eps, -b, b)``, ``x+ = x A^T + Delta S^T``
-    (eq. 5.9), one autograd node. Backward: ``g_x = g A``, ``g_Delta = (g S) 1[|Delta| <= b]``,
+    (+ the oscillators' constant offset; eq. 5.9, :func:`speed_integration`), one autograd
+    node. Backward: ``g_x = g A``, ``g_Delta = (g S) 1[|Delta| <= b]``,
     ``g_mean = g_Delta``, ``g_var = g_Delta eps / (2 sqrt(var)) 1[var >= VAR_FLOOR]`` (the
     subgradients torch's ``clamp`` and ``sqrt`` use). ``eps = None``: ``Delta = mean``."""
 
     @staticmethod
     def forward(ctx, state, mean, var, eps, bound, dt, layout):  # noqa: D102
-        A, S = _integration_matrices(dt, layout, state.dtype, state.device)
+        A, S, z = _integration_matrices(dt, layout, state.dtype, state.device)
         if eps is None:
             delta, sd, var_on = mean, None, None
         else:
@@ -267,6 +290,8 @@ class _SampleClipIntegrate(torch.autograd.Function):
             delta = torch.clamp(delta, -b, b)
         lead, n = state.shape[:-1], state.shape[-1]
         nxt = torch.addmm(state.reshape(-1, n) @ A, delta.reshape(-1, S.shape[0]), S)
+        if z is not None:
+            nxt = nxt + z
         ctx.save_for_backward(eps, sd, var_on, inside, A, S)
         return nxt.reshape(*lead, n)
 

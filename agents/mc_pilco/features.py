@@ -27,6 +27,10 @@ class StateLayout:
         angle_idx: coordinates entering through ``(sin, cos)``.
         position_idx, velocity_idx: the speed-integration pairs, eq. (5.9).
         delta_idx: coordinates in no pair, predicted as their own change.
+        oscillators: ``(position index, velocity index, omega, centre)`` per known reference
+            joint: states that follow a known harmonic oscillator (a sinusoidal reference,
+            the exosystem of a tracking task), propagated exactly instead of predicted
+            (:func:`~mcpilco.agents.mc_pilco.dynamics.speed_integration`).
     """
 
     n: int
@@ -35,6 +39,7 @@ class StateLayout:
     position_idx: tuple[int, ...] = ()
     velocity_idx: tuple[int, ...] = ()
     delta_idx: tuple[int, ...] = ()
+    oscillators: tuple[tuple[int, int, float, float], ...] = ()
 
     def __post_init__(self) -> None:
         if sorted(self.plain_idx + self.angle_idx) != list(range(self.n)):
@@ -42,10 +47,12 @@ class StateLayout:
                 f"plain_idx {self.plain_idx} and angle_idx {self.angle_idx} must split "
                 f"range({self.n})"
             )
-        if sorted(self.position_idx + self.velocity_idx + self.delta_idx) != list(range(self.n)):
+        covered = self.position_idx + self.velocity_idx + self.delta_idx + self.oscillator_idx
+        if sorted(covered) != list(range(self.n)):
             raise ValueError(
-                f"pairs {list(zip(self.position_idx, self.velocity_idx, strict=False))} and "
-                f"delta_idx {self.delta_idx} must cover range({self.n}) once"
+                f"pairs {list(zip(self.position_idx, self.velocity_idx, strict=False))}, "
+                f"delta_idx {self.delta_idx} and oscillators {self.oscillator_idx} must cover "
+                f"range({self.n}) once"
             )
 
     @classmethod
@@ -58,7 +65,13 @@ class StateLayout:
             position_idx=task.position_idx,
             velocity_idx=task.velocity_idx,
             delta_idx=task.delta_idx,
+            oscillators=task.oscillators,
         )
+
+    @property
+    def oscillator_idx(self) -> tuple[int, ...]:
+        """The coordinates of the known oscillators (positions and velocities): no GP output."""
+        return tuple(i for p, v, _, _ in self.oscillators for i in (p, v))
 
     @property
     def feature_dim(self) -> int:
@@ -74,11 +87,17 @@ class StateLayout:
         return len(self.output_idx)
 
     def to_dict(self) -> dict[str, Any]:
-        return {k: list(v) if isinstance(v, tuple) else v for k, v in vars(self).items()}
+        d = {k: list(v) if isinstance(v, tuple) else v for k, v in vars(self).items()}
+        d["oscillators"] = [list(o) for o in self.oscillators]
+        return d
 
     @classmethod
     def from_dict(cls, d: dict[str, Any]) -> StateLayout:
-        return cls(**{k: tuple(v) if isinstance(v, list) else v for k, v in d.items()})
+        d = {k: tuple(v) if isinstance(v, list) else v for k, v in d.items()}
+        oscillators = tuple(
+            (int(p), int(v), float(w), float(c)) for p, v, w, c in d.get("oscillators", ())
+        )
+        return cls(**{**d, "oscillators": oscillators})
 
     def features(self, x: Tensor) -> tuple[Tensor, Tensor | None, Tensor | None]:
         """``f(x)`` (..., F) and the ``sin, cos`` of the angles (kept for the backward)."""

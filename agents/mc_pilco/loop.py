@@ -60,6 +60,7 @@ from mcpilco.agents.mc_pilco.optimize import OptimizationResult, PolicyOptConfig
 from mcpilco.agents.mc_pilco.policy import (
     PolicyPopulation,
     SquashedRBFPolicy,
+    data_init,
     make_policy_module,
 )
 from mcpilco.agents.mc_pilco.task import ANGLE_MODES, TaskSpec
@@ -84,15 +85,19 @@ _RESUME_FIXED = (
     "explore_hold",
     "explore_steps",
     "env_kwargs",
+    "policy_init",
 )
 ROLLOUT_DTYPES = ("float32", "float64")
 """Choices of :attr:`MCPilcoConfig.rollout_dtype`."""
 CONF_DIR = Path(__file__).resolve().parent / "conf"
 """The shipped per-env config files (one YAML file per env id)."""
-LEGACY_FIELD_VALUES: dict[str, Any] = {"explore_hold": 1}
+LEGACY_FIELD_VALUES: dict[str, Any] = {"explore_hold": 1, "policy_init": "box"}
 """Value of each config field added after results were saved, for configs that lack it."""
 CANDIDATE_SEED_STRIDE = 7919
 """Candidate ``k`` of run ``seed`` is initialised with seed ``seed + 7919 k``."""
+
+
+POLICY_INITS = ("box", "data")  # MCPilcoConfig.policy_init
 
 
 @dataclass
@@ -122,6 +127,11 @@ class MCPilcoConfig:
             initial policy is close to the middle of the action range.
         policy_centers_box: half width of the box the centres of the plain state coordinates
             are drawn in.
+        policy_init: ``"box"`` (centres in the box, the thesis's initialisation) or
+            ``"data"``: before the first policy optimisation, centres and lengthscales are
+            re-drawn from the spread of the exploration trial's states
+            (:func:`~mcpilco.agents.mc_pilco.policy.data_init`), which a state of many
+            coordinates needs.
         cost_length_scales: length scales of the optimised cost by state name (None: the
             task's evaluation cost's). Success and the reported cost always come from the
             task's evaluation cost.
@@ -179,6 +189,7 @@ class MCPilcoConfig:
     num_basis: int = 200
     policy_weight_scale: float = 0.01
     policy_centers_box: float = math.pi
+    policy_init: str = "box"
     cost_length_scales: dict[str, float] | None = None
     cost_angle_mode: str | None = None
     cost_limit_widths: dict[str, float] | None = None
@@ -226,6 +237,8 @@ class MCPilcoConfig:
             raise ValueError(
                 f"rollout_dtype must be one of {ROLLOUT_DTYPES}, got {self.rollout_dtype!r}"
             )
+        if self.policy_init not in POLICY_INITS:
+            raise ValueError(f"policy_init must be one of {POLICY_INITS}, got {self.policy_init!r}")
         if self.kernel not in KERNEL_CHOICES:
             raise ValueError(f"kernel must be one of {KERNEL_CHOICES}, got {self.kernel!r}")
         if self.rollout_backend not in BACKENDS:
@@ -840,7 +853,11 @@ def run_mcpilco(
             cost_fn = SaturatingCost.from_task(
                 task, config.cost_length_scales, config.cost_angle_mode, config.cost_limit_widths
             )
-        init_std = task.init_std if config.init_std is None else config.init_std
+        init_std = np.broadcast_to(
+            np.asarray(task.init_std if config.init_std is None else config.init_std, float),
+            (task.state_dim,),
+        ).copy()
+        init_std[list(layout.oscillator_idx)] = 0.0  # a known reference starts on it
     except BaseException:
         if env is not None:
             env.close()
@@ -870,7 +887,14 @@ def run_mcpilco(
                 )
             else:
                 rec["kind"] = "policy"
-                # 1. model learning
+                if config.policy_init == "data" and policy.center_mean is None:
+                    # from the exploration trial: the same settings on a resumed run
+                    init = data_init(task.features(task.state_from_obs(episodes[0]["obs"])))
+                    population.use_data_init(init)
+                    policy.use_data_init(init)
+                    if k == 1:  # the first policy starts there
+                        population.reset_parameters(config.seed)
+                        population.copy_to(0, policy)
                 t_fit = time.perf_counter()
                 data = transitions(episodes, task)
                 model.fit(*data)

@@ -566,6 +566,16 @@ void step_forward_tile(const Model &M, const Lay &L, const Pol &P, float *x, con
         const float *dk = delta + (M.n_pairs + k) * TILE;
         for (int q = 0; q < TILE; ++q) xo[q] += dk[q];
     }
+    // known oscillators: [r, rd]+ = [[a_pp, a_pv], [a_vp, a_vv]] [r, rd] + [z_p, z_v]
+    for (int k = 0; k < M.n_osc; ++k) {
+        float *xp = x + M.osc_idx[2 * k] * TILE, *xv = x + M.osc_idx[2 * k + 1] * TILE;
+        const float *a = M.osc_coef + 6 * k;
+        for (int q = 0; q < TILE; ++q) {
+            const float p0 = xp[q], v0 = xv[q];
+            xp[q] = a[0] * p0 + a[1] * v0 + a[4];
+            xv[q] = a[2] * p0 + a[3] * v0 + a[5];
+        }
+    }
     // c = 1 - exp(-sum_j (d_j / l_j)^2), d_j of x_i (or x_i - x_r) by the term's mode (cost.py)
     float *sum = W.csum.data();
     for (int q = 0; q < TILE; ++q) sum[q] = 0.0f;
@@ -673,6 +683,15 @@ void step_backward_tile(const Model &M, const Lay &L, const Pol &P, const float 
     for (int k = 0; k < M.n_delta; ++k)
         std::memcpy(gmean + (M.n_pairs + k) * TILE, gx + M.delta_idx[k] * TILE,
                     sizeof(float) * TILE);
+    for (int k = 0; k < M.n_osc; ++k) {  // g_state = g A on the oscillator's block
+        const int ip = M.osc_idx[2 * k], iv = M.osc_idx[2 * k + 1];
+        const float *gp = gx + ip * TILE, *gv = gx + iv * TILE, *a = M.osc_coef + 6 * k;
+        float *sp = gstate + ip * TILE, *sv = gstate + iv * TILE;
+        for (int q = 0; q < TILE; ++q) {
+            sp[q] = a[0] * gp[q] + a[2] * gv[q];
+            sv[q] = a[1] * gp[q] + a[3] * gv[q];
+        }
+    }
     for (int b = 0; b < m; ++b) {
         float *gm = gmean + b * TILE, *gv = gvar + b * TILE;
         const float *in = rec + L.inside + b * TILE, *e = rec + L.eps + b * TILE;

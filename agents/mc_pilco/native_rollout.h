@@ -36,6 +36,9 @@ struct Model {
     int n_bar;                                   // barriers c_b at state limits (cost.py)
     const int32_t *bar_idx;                      // (n_bar): state index
     const float *bar_lo, *bar_hi, *bar_inv_w;    // (n_bar): limits, 1 / width
+    int n_osc;                                   // known oscillators (no GP output)
+    const int32_t *osc_idx;                      // (n_osc, 2): position, velocity index
+    const float *osc_coef;                       // (n_osc, 6): a_pp a_pv a_vp a_vv z_p z_v
     float dt;
     // the fused GP posterior (models/gp/fused.py): N points, MPK degree p, F MPK features
     int N, p, f;

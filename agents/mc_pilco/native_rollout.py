@@ -58,6 +58,7 @@ import torch
 from torch import Tensor
 
 from mcpilco.agents.mc_pilco.backends import ShardedRollout, unsupported_reason
+from mcpilco.agents.mc_pilco.dynamics import _integration_matrices
 
 SOURCES = tuple(
     Path(__file__).with_name(name) for name in ("native_rollout_ext.cpp", "native_rollout.cpp")
@@ -219,6 +220,23 @@ def native_unsupported_reason(
     return None
 
 
+def oscillator_coefficients(layout: Any, dt: float) -> Tensor:
+    """``(a_pp, a_pv, a_vp, a_vv, z_p, z_v)`` per known oscillator of ``layout`` (float64,
+    ``(n_osc * 6,)``): its block of the integration's ``A`` and offset ``z``
+    (:func:`~mcpilco.agents.mc_pilco.dynamics.speed_integration`)."""
+    if not layout.oscillators:
+        return torch.empty(0, dtype=torch.float64)
+    A_t, _, z = _integration_matrices(dt, layout, torch.float64, "cpu")
+    A = A_t.T
+    return torch.tensor(
+        [
+            [A[p, p], A[p, v], A[v, p], A[v, v], z[p], z[v]]
+            for p, v, _, _ in layout.oscillators
+        ],
+        dtype=torch.float64,
+    ).reshape(-1)
+
+
 def pack_blocks(
     A: Tensor, beg: list[int], end: list[int], rb: int
 ) -> tuple[Tensor, Tensor, Tensor, Tensor]:
@@ -305,6 +323,7 @@ def native_model(lib: ModuleType, policy: Any, dynamics: Any, cost: Any) -> Any:
         pred.idx_c.to(i32).contiguous(),
         ints(cost.refs),
         ints(k for k, *_ in cost.barriers),
+        ints(i for p, v, _, _ in layout.oscillators for i in (p, v)),
     ]
     values = [
         floats(policy.u_mid),
@@ -326,6 +345,7 @@ def native_model(lib: ModuleType, policy: Any, dynamics: Any, cost: Any) -> Any:
         floats(torch.tensor([lo for _, lo, _, _ in cost.barriers], dtype=torch.float64)),
         floats(torch.tensor([hi for _, _, hi, _ in cost.barriers], dtype=torch.float64)),
         floats(torch.tensor([1.0 / w for *_, w in cost.barriers], dtype=torch.float64)),
+        floats(oscillator_coefficients(layout, float(dynamics.dt))),
     ]
     sizes = [
         layout.n, policy.action_dim, m, d, layout.feature_dim, policy.num_basis, pred.n, p,

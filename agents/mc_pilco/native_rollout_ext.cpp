@@ -28,14 +28,15 @@ const Tensor &checked(const Tensor &t, torch::ScalarType dtype, int64_t numel, c
 class NativeModel {
   public:
     // ints: n, A, m, d, fp, nb, N, p, f; index: plain, angle, position, velocity, delta,
-    // cost_idx, cost_mode, idx_a, idx_c, cost_ref, bar_idx (int32); floats: u_mid, u_half,
-    // cost_target, cost_ls, cost_ls2, x_mean, x_scale, y_mean, y_scale, inv_l2, outputscale,
-    // sig_diag, sig2, noise_var, bound (empty: none), alpha_aug, bar_lo, bar_hi, bar_inv_w;
+    // cost_idx, cost_mode, idx_a, idx_c, cost_ref, bar_idx, osc_idx (int32); floats: u_mid,
+    // u_half, cost_target, cost_ls, cost_ls2, x_mean, x_scale, y_mean, y_scale, inv_l2,
+    // outputscale, sig_diag, sig2, noise_var, bound (empty: none), alpha_aug, bar_lo, bar_hi,
+    // bar_inv_w, osc_coef;
     // packed: per output (w_aug, fwd, bwd, w_t) as 4 tensors each (values, beg, end, off).
     NativeModel(std::vector<int64_t> ints, std::vector<Tensor> index, std::vector<Tensor> floats,
                 double dt, std::vector<std::vector<Tensor>> packed)
         : index_(std::move(index)), floats_(std::move(floats)) {
-        TORCH_CHECK(ints.size() == 9 && index_.size() == 11 && floats_.size() == 19,
+        TORCH_CHECK(ints.size() == 9 && index_.size() == 12 && floats_.size() == 20,
                     "NativeModel: wrong argument counts");
         mcp::Model &M = model_;
         M.n = (int)ints[0];
@@ -108,6 +109,13 @@ class NativeModel {
         M.bar_lo = M.n_bar ? flt(16, M.n_bar, "bar_lo") : nullptr;
         M.bar_hi = M.n_bar ? flt(17, M.n_bar, "bar_hi") : nullptr;
         M.bar_inv_w = M.n_bar ? flt(18, M.n_bar, "bar_inv_w") : nullptr;
+        TORCH_CHECK(index_[11].numel() % 2 == 0, "osc_idx needs (position, velocity) pairs");
+        M.n_osc = (int)index_[11].numel() / 2;
+        M.osc_idx = idx(11, "osc_idx");
+        for (int k = 0; k < 2 * M.n_osc; ++k)
+            TORCH_CHECK(M.osc_idx[k] >= 0 && M.osc_idx[k] < M.n, "oscillator ", k / 2,
+                        ": state index out of range");
+        M.osc_coef = M.n_osc ? flt(19, 6 * M.n_osc, "osc_coef") : nullptr;
         M.dt = (float)dt;
         TORCH_CHECK((int)packed.size() == 4, "packed needs w_aug, fwd, bwd, w_t");
         for (auto &kind : packed) {

@@ -59,6 +59,9 @@ class SquashedRBFPolicy(nn.Module):
         weight_scale: initial weights ``w ~ U(-weight_scale, weight_scale) u_half``.
         dropout: initial dropout probability ``p`` on the activations (training mode only).
         seed: seed of the initialisation (None: torch's global generator).
+        center_mean, center_std: (F,) each: draw the centres ``c_i ~ N(center_mean,
+            diag(center_std^2))`` in feature space instead of the box (the spread of the
+            states the system visits, :func:`data_init`); None: the box.
 
     Shapes:
         ``forward(obs (..., n)) -> action (..., A)``.
@@ -75,6 +78,8 @@ class SquashedRBFPolicy(nn.Module):
         weight_scale: float = 0.5,
         dropout: float = 0.25,
         seed: int | None = None,
+        center_mean: Sequence[float] | None = None,
+        center_std: Sequence[float] | None = None,
     ) -> None:
         super().__init__()
         if isinstance(layout, dict):
@@ -109,6 +114,15 @@ class SquashedRBFPolicy(nn.Module):
         self.register_buffer("u_half", (high - low) / 2)
         self.register_buffer("centers_box", box)
         self.register_buffer("lengthscale_init", ls)
+        self.center_mean: Tensor | None = None
+        self.center_std: Tensor | None = None
+        if (center_mean is None) != (center_std is None):
+            raise ValueError("center_mean and center_std go together")
+        if center_mean is not None:
+            self.center_mean = torch.as_tensor(center_mean, dtype=torch.float32).reshape(-1)
+            self.center_std = torch.as_tensor(center_std, dtype=torch.float32).reshape(-1)
+            if self.center_mean.numel() != F or self.center_std.numel() != F:
+                raise ValueError(f"center_mean and center_std need {F} entries (one per feature)")
         self.centers = nn.Parameter(torch.empty(self.num_basis, self.input_dim))
         self.log_lengthscales = nn.Parameter(torch.empty(self.input_dim))
         self.weights = nn.Parameter(torch.empty(self.num_basis, self.action_dim))
@@ -121,8 +135,9 @@ class SquashedRBFPolicy(nn.Module):
 
     @torch.no_grad()
     def reset_parameters(self, seed: int | None = None) -> None:
-        """(Re-)initialise ``c`` (uniformly in the box; on the circle for ``sin, cos``), ``l``
-        to its initial value and ``w`` uniformly in ``+-weight_scale u_half``."""
+        """(Re-)initialise ``c`` (uniformly in the box, on the circle for ``sin, cos``; or
+        from ``N(center_mean, diag(center_std^2))``), ``l`` to its initial value and ``w``
+        uniformly in ``+-weight_scale u_half``."""
         gen = None
         if seed is not None:
             gen = torch.Generator().manual_seed(int(seed))
@@ -130,7 +145,11 @@ class SquashedRBFPolicy(nn.Module):
         c = torch.rand(self.num_basis, n_plain, generator=gen) * 2.0 - 1.0
         psi = (torch.rand(self.num_basis, n_ang, generator=gen) * 2.0 - 1.0) * math.pi
         sc = torch.stack([psi.sin(), psi.cos()], dim=-1).reshape(self.num_basis, 2 * n_ang)
-        self.centers.copy_(torch.cat([c * self.centers_box, sc], 1))
+        if self.center_mean is None:
+            self.centers.copy_(torch.cat([c * self.centers_box, sc], 1))
+        else:
+            z = torch.randn(self.num_basis, self.input_dim, generator=gen)
+            self.centers.copy_(self.center_mean + self.center_std * z)
         self.log_lengthscales.copy_(self.lengthscale_init.log())
         w = torch.rand(self.num_basis, self.action_dim, generator=gen) * 2.0 - 1.0
         self.weights.copy_(w * self.weight_scale * self.u_half)
@@ -146,7 +165,17 @@ class SquashedRBFPolicy(nn.Module):
             "lengthscale_init": self.lengthscale_init.tolist(),
             "weight_scale": self.weight_scale,
             "dropout": self.dropout,
+            "center_mean": None if self.center_mean is None else self.center_mean.tolist(),
+            "center_std": None if self.center_std is None else self.center_std.tolist(),
         }
+
+    @torch.no_grad()
+    def use_data_init(self, init: dict[str, list[float]]) -> None:
+        """Take the centre distribution and initial lengthscales of :func:`data_init` for the
+        next :meth:`reset_parameters` (and :meth:`settings`)."""
+        self.center_mean = torch.as_tensor(init["center_mean"], dtype=torch.float32)
+        self.center_std = torch.as_tensor(init["center_std"], dtype=torch.float32)
+        self.lengthscale_init.copy_(torch.as_tensor(init["lengthscale_init"]))
 
     def basis(self, features: Tensor) -> Tensor:
         """Activations ``phi(x~)`` (..., n_b), matmul form of ``||(x~ - c)/l||^2``."""
@@ -301,6 +330,11 @@ class PolicyPopulation(nn.Module):
         policy.log_lengthscales.copy_(self.log_lengthscales[k])
         policy.weights.copy_(self.weights[k])
 
+    def use_data_init(self, init: dict[str, list[float]]) -> None:
+        """Take :func:`data_init`'s centre distribution and lengthscales for the candidates
+        of the next :meth:`reset_parameters`."""
+        self._settings = {**self._settings, **init}
+
     @torch.no_grad()
     def reset_parameters(self, seed: int | None = None) -> None:
         """Re-initialise every candidate as :meth:`SquashedRBFPolicy.reset_parameters`."""
@@ -317,6 +351,32 @@ class PolicyPopulation(nn.Module):
             f"num_candidates={self.num_candidates}, num_basis={self.num_basis}, "
             f"action_dim={self.action_dim}, dropout={self.dropout}"
         )
+
+
+DATA_STD_FLOOR = 1e-6  # a feature that spreads less than this over the data counts as constant
+
+
+def data_init(features: Tensor) -> dict[str, list[float]]:
+    """Centre distribution and initial lengthscales of the policy from the features
+    ``x~ (N, F)`` of the states a system visits (e.g. its exploration trial).
+
+    ``c_i ~ N(m, diag(s^2))`` with ``m, s`` the features' mean and standard deviation, and
+    ``l_j = sqrt(F) s_j``: for ``x~`` and ``c`` both drawn from that spread,
+    ``E ||(x~ - c) / l||^2 = sum_j 2 s_j^2 / (F s_j^2) = 2``, so a basis function's typical
+    activation is ``exp(-1)`` in any dimension. The box initialisation puts the centres of
+    a high-dimensional state (the UR10's 24) so far from the visited states that every
+    activation, and the policy's gradient, underflows to zero. A feature constant over the
+    data (``s_j < DATA_STD_FLOOR``) gets ``s_j = 1``."""
+    f = torch.as_tensor(features, dtype=torch.float64)
+    if f.ndim != 2 or f.shape[0] < 2:
+        raise ValueError(f"data_init needs features (N >= 2, F), got {tuple(f.shape)}")
+    m, s = f.mean(0), f.std(0)
+    s = torch.where(s < DATA_STD_FLOOR, torch.ones_like(s), s)
+    return {
+        "center_mean": m.tolist(),
+        "center_std": s.tolist(),
+        "lengthscale_init": (math.sqrt(f.shape[1]) * s).tolist(),
+    }
 
 
 def dropout_threshold(p: float) -> int:

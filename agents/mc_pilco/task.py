@@ -34,9 +34,13 @@ joints (an arm)
 reference
     a joint reference the env tracks, passed at every reset as ``options["reference"]``: a
     sum of sinusoids ``q_r,b(t) = c_b + sum_k A_bk sin(w_bk t + phi_bk)`` with a
-    ``duration`` of at least the horizon. The particle rollout predicts the reference
-    states with the GP like the others, so a reference that is a Markov state on its own
-    (one sinusoid per joint: ``(q_r, qd_r)`` is a harmonic oscillator) is learned exactly.
+    ``duration`` of at least the horizon. With one sinusoid per joint, ``reference.states``
+    may name the state pair ``(q_r,b, qd_r,b)`` that holds each joint's reference: then
+    ``(q_r - c, qd_r / w)`` rotates by ``w T_s`` per period (a harmonic oscillator, the
+    exosystem of the tracking task), which the particle rollout propagates exactly instead
+    of learning it (:func:`~mcpilco.agents.mc_pilco.dynamics.speed_integration`); those
+    states take no GP output and start exactly on the reference. Without ``states`` the
+    GP predicts the reference states like any other.
 limits
     ``lo_j <= x_j <= hi_j``: the range a coordinate cannot leave on the system (a rail's end
     stop, a joint limit). Contact with a limit is a regime of its own (an impact, a constraint
@@ -381,9 +385,33 @@ class TaskSpec:
 
     @property
     def delta_idx(self) -> tuple[int, ...]:
-        """Coordinates in no pair: each predicted as its own change ``Delta x_j``."""
-        paired = set(self.position_idx) | set(self.velocity_idx)
-        return tuple(i for i in range(self.state_dim) if i not in paired)
+        """Coordinates in no pair and no known oscillator: each predicted as its own change
+        ``Delta x_j``."""
+        taken = set(self.position_idx) | set(self.velocity_idx)
+        taken |= {i for p, v, _, _ in self.oscillators for i in (p, v)}
+        return tuple(i for i in range(self.state_dim) if i not in taken)
+
+    @property
+    def oscillators(self) -> tuple[tuple[int, int, float, float], ...]:
+        """``(index of q_r,b, index of qd_r,b, w_b, c_b)`` per joint of a reference that names
+        its ``states`` (module glossary), else ()."""
+        ref = self.reference
+        if ref is None or not ref.get("states"):
+            return ()
+        return tuple(
+            (self.index(p), self.index(v), float(w[0]), float(c))
+            for (p, v), w, c in zip(ref["states"], ref["omegas"], ref["centre"], strict=True)
+        )
+
+    def reference_at(self, t: float) -> tuple[np.ndarray, np.ndarray]:
+        """``(q_r(t), qd_r(t))`` (one entry per joint) of the task's reference."""
+        ref = self.reference
+        if ref is None:
+            raise ValueError(f"{self.env_id}: the task has no reference")
+        amp, om, ph = (np.asarray(ref[k]) for k in ("amplitudes", "omegas", "phases"))
+        arg = om * t + ph
+        q = np.asarray(ref["centre"]) + np.sum(amp * np.sin(arg), axis=-1)
+        return q, np.sum(amp * om * np.cos(arg), axis=-1)
 
     @property
     def output_idx(self) -> tuple[int, ...]:
@@ -684,7 +712,12 @@ def _parse_term(t: Any, path: str) -> CostTerm:
 
 
 REFERENCE_KEYS = ("centre", "amplitudes", "omegas", "phases", "duration")
-"""Fields of a task's sum-of-sinusoids joint reference (module glossary)."""
+"""Required fields of a task's sum-of-sinusoids joint reference (module glossary); ``states``
+is optional."""
+
+REFERENCE_STATE_TOL = 1e-6
+"""Largest ``|mu_0 - r(0)|`` [rad, rad/s] allowed for the initial mean of a reference state
+propagated as an oscillator (it starts on the reference)."""
 
 
 def _check_reference(task: TaskSpec) -> dict[str, Any]:
@@ -693,9 +726,12 @@ def _check_reference(task: TaskSpec) -> dict[str, Any]:
     ref = task.reference
     if not isinstance(ref, Mapping):
         raise _fail("reference", f"expected a mapping, got {ref!r}")
-    unknown = set(ref) - set(REFERENCE_KEYS)
+    unknown = set(ref) - set(REFERENCE_KEYS) - {"states"}
     if unknown:
-        raise _fail(f"reference.{sorted(unknown)[0]}", f"unknown key (keys: {REFERENCE_KEYS})")
+        raise _fail(
+            f"reference.{sorted(unknown)[0]}",
+            f"unknown key (keys: {REFERENCE_KEYS + ('states',)})",
+        )
     n = len(task.joints)
     if not n:
         raise _fail("reference", "needs joints (the reference has one entry per joint)")
@@ -726,4 +762,50 @@ def _check_reference(task: TaskSpec) -> dict[str, Any]:
             f"{task.horizon * task.dt:g} s)",
         )
     out["duration"] = duration
+    if ref.get("states") is not None:
+        out["states"] = _check_reference_states(task, ref["states"], out)
+    return out
+
+
+def _check_reference_states(task: TaskSpec, states: Any, ref: Mapping[str, Any]) -> list[list[str]]:
+    """``reference.states``: one ``[q_r, qd_r]`` pair of state names per joint, states in no
+    speed-integration pair, one sinusoid per joint, and the initial mean on the reference."""
+    n, names = len(task.joints), task.state_names
+    if isinstance(states, str) or not isinstance(states, Sequence) or len(states) != n:
+        raise _fail("reference.states", f"needs {n} [position, velocity] pairs (one per joint)")
+    paired = {name for pair in task.pairs for name in pair}
+    seen: set[str] = set()
+    out = []
+    for i, pair in enumerate(states):
+        if isinstance(pair, str) or not isinstance(pair, Sequence) or len(pair) != 2:
+            raise _fail(f"reference.states[{i}]", f"needs [position, velocity], got {pair!r}")
+        for name in pair:
+            if name not in names:
+                raise _fail(f"reference.states[{i}]", f"unknown state name {name!r}")
+            if name in paired:
+                raise _fail(
+                    f"reference.states[{i}]",
+                    f"{name!r} is in pairs: a known reference state takes no GP output",
+                )
+            if name in seen:
+                raise _fail(f"reference.states[{i}]", f"{name!r} listed twice")
+            seen.add(name)
+        out.append([str(pair[0]), str(pair[1])])
+    if any(len(row) != 1 for row in ref["amplitudes"]):
+        raise _fail(
+            "reference.states",
+            "needs one sinusoid per joint: with several, (q_r, qd_r) alone is not a state "
+            "that determines the reference's future",
+        )
+    amp, om, ph = (np.asarray(ref[k]) for k in ("amplitudes", "omegas", "phases"))
+    r0 = np.asarray(ref["centre"]) + (amp * np.sin(ph))[:, 0]
+    rd0 = (amp * om * np.cos(ph))[:, 0]
+    for (p, v), want_p, want_v in zip(out, r0, rd0, strict=True):
+        for name, want in ((p, want_p), (v, want_v)):
+            got = task.init_mean[task.index(name)]
+            if abs(got - want) > REFERENCE_STATE_TOL:
+                raise _fail(
+                    f"init_mean[{task.index(name)}]",
+                    f"{name} starts on the reference: needs {want:.12g}, got {got:.12g}",
+                )
     return out

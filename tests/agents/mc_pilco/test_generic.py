@@ -4,6 +4,7 @@ kill on a non-cart-pole task."""
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import os
 import signal
@@ -395,3 +396,62 @@ def test_gp_noise_floor_is_a_fraction_of_each_outputs_variance():
     assert np.all(fractions[1e-8] < 1e-4)
     with pytest.raises(ValueError, match="gp_noise_min"):
         toy_config(gp_noise_min=-1.0)
+
+
+def test_data_init_keeps_the_basis_functions_alive_in_many_dimensions():
+    """24 features of very different spreads: with the box initialisation every activation
+    underflows (no gradient reaches the policy); with :func:`data_init` the mean
+    log-activation at fresh states is ``-1`` (``E ||(x~ - c)/l||^2 = 2`` for Gaussian data,
+    analytic) and the policy gradient is non-zero."""
+    from mcpilco.agents.mc_pilco.policy import data_init
+
+    rng = np.random.default_rng(0)
+    F = 24
+    scale = np.exp(rng.uniform(-3, 1, F))
+    centre = rng.normal(size=F) * 2
+    data = centre + scale * rng.normal(size=(4000, F))
+    layout = StateLayout(n=F, plain_idx=tuple(range(F)), angle_idx=(), delta_idx=tuple(range(F)))
+    init = data_init(torch.as_tensor(data[:2000]))
+    np.testing.assert_allclose(init["center_std"], scale, rtol=0.1)
+    np.testing.assert_allclose(
+        init["lengthscale_init"], np.sqrt(F) * np.asarray(init["center_std"])
+    )
+    fresh = torch.as_tensor(data[2000:], dtype=torch.float32)
+    box = SquashedRBFPolicy(layout, [-1.0], [1.0], num_basis=50, seed=0)
+    assert box.basis(fresh).max() < 1e-10
+    fitted = SquashedRBFPolicy(layout, [-1.0], [1.0], num_basis=50, seed=0, **init)
+    log_phi = fitted.basis(fresh).detach().log()
+    assert abs(float(log_phi.mean()) + 1.0) < 0.1
+    fitted.eval()
+    fitted(fresh).sum().backward()
+    assert fitted.weights.grad.abs().min() > 0
+    with pytest.raises(ValueError, match="N >= 2"):
+        data_init(torch.zeros(1, F))
+    # a population re-draws from the data spread (its re-initialisation after a non-finite
+    # cost as well)
+    pop = PolicyPopulation([box, SquashedRBFPolicy(layout, [-1.0], [1.0], num_basis=50, seed=1)])
+    pop.use_data_init(init)
+    pop.reset_parameters(3)
+    assert pop.candidate(1).basis(fresh).detach().log().mean() > -1.5
+
+
+def test_data_init_runs_resume_where_they_stopped(tmp_path):
+    """``policy_init: data`` through run_mcpilco: the policy is re-drawn from the exploration
+    trial's spread before the first optimisation, reaches the toy goal, and a run extended
+    from one to two policy trials by ``resume`` (the data initialisation restored, not
+    redrawn) repeats the two-trial run bit for bit."""
+    cfg = toy_config(
+        num_trials=2, policy_init="data", opt=PolicyOptConfig(max_steps=40, min_steps=20)
+    )
+    straight = run_mcpilco(cfg, tmp_path / "straight", progress=False, log=None, write_rrd=False)
+    short = dataclasses.replace(cfg, num_trials=1)
+    run_mcpilco(short, tmp_path / "grown", progress=False, log=None, write_rrd=False)
+    grown = run_mcpilco(
+        cfg, tmp_path / "grown", resume=True, progress=False, log=None, write_rrd=False
+    )
+    assert grown.resumed_from_trial == 2
+    assert [r["cost"] for r in grown.records] == [r["cost"] for r in straight.records]
+    ckpt = load_checkpoint(tmp_path / "straight" / "checkpoint.pt")
+    assert ckpt["policy_settings"]["center_mean"] is not None
+    with pytest.raises(ValueError, match="policy_init must be one of"):
+        toy_config(policy_init="grid")

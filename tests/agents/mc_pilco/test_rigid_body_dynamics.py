@@ -247,3 +247,102 @@ def test_arm_tracking_error_falls_after_the_first_policy_trial(tmp_path):
     pd_alone = tracking_rms(zero["states"])
     assert np.all(policy < 0.6 * pd_alone), (policy, pd_alone)
     assert np.all(policy < explore), (policy, explore)
+
+
+KNOWN_REFERENCE_TASK = dict(
+    TASK,
+    pairs=[["q1", "qd1"], ["q2", "qd2"]],
+    reference=dict(REFERENCE, states=[["r1", "rd1"], ["r2", "rd2"]]),
+)  # the tracking task with its reference propagated as known oscillators
+
+
+def test_known_reference_oscillators_follow_the_sinusoids_exactly():
+    """With ``reference.states`` the layout takes the reference out of the GP outputs (2
+    instead of 4) and the particle integration carries it exactly: from the initial mean,
+    with any velocity changes of the arm, the reference states after 40 steps equal the
+    sinusoids of the env's ``SumOfSinusoids`` at those times (float64, 1e-12); a constant
+    reference (``w = 0``) stays put."""
+    from mcpilco.agents.mc_pilco import speed_integration
+    from tests.agents.mc_pilco.arm_env import sinusoids
+
+    task = TaskSpec.from_dict(KNOWN_REFERENCE_TASK)
+    layout = StateLayout.from_task(task)
+    assert layout.output_idx == (2, 3) and layout.oscillator_idx == (4, 6, 5, 7)
+    assert StateLayout.from_dict(layout.to_dict()) == layout
+    x = torch.tensor([task.init_mean] * 3, dtype=torch.float64)
+    ref = sinusoids(REFERENCE)
+    gen = torch.Generator().manual_seed(0)
+    for t in range(1, task.horizon + 1):
+        x = speed_integration(x, torch.randn(3, 2, generator=gen, dtype=x.dtype), task.dt, layout)
+        q_r, qd_r, _ = ref(t * task.dt)
+        np.testing.assert_allclose(x[:, 4:6].numpy(), np.tile(q_r, (3, 1)), rtol=0, atol=1e-12)
+        np.testing.assert_allclose(x[:, 6:8].numpy(), np.tile(qd_r, (3, 1)), rtol=0, atol=1e-12)
+    hold = dict(REFERENCE, omegas=[[0.0], [0.0]], states=[["r1", "rd1"], ["r2", "rd2"]])
+    start = [-0.8, 1.0 + 0.6 * np.sin(1.0)]
+    held = TaskSpec.from_dict(
+        dict(KNOWN_REFERENCE_TASK, reference=hold, init_mean=[*start, 0, 0, *start, 0, 0])
+    )
+    lay = StateLayout.from_task(held)
+    x0 = torch.tensor([held.init_mean], dtype=torch.float64)
+    x1 = speed_integration(x0, torch.ones(1, 2, dtype=x0.dtype), held.dt, lay)
+    torch.testing.assert_close(x1[:, 4:], x0[:, 4:], rtol=0, atol=1e-15)
+
+
+@pytest.mark.usefixtures("one_torch_thread")
+def test_known_reference_rollouts_agree_and_the_policy_learns_no_reference_gradient():
+    """The tracking task with a known reference and an RBF + MPK GP of the arm's two
+    velocity changes: the torch backend's chained rollout (float64) agrees with the eager one in J^
+    and dJ^/dtheta; the particles' reference states are the same in every particle (they
+    start on the reference and nothing the policy does moves them); so does the native
+    backend in float32 over two shards."""
+    task = TaskSpec.from_dict(KNOWN_REFERENCE_TASK)
+    env = make_env(ENV_ID, task.horizon, task)
+    (ep,) = exploration_episodes(env, np.random.default_rng(0), 0, task.horizon, task, 2)
+    env.close()
+    model = GPDynamicsModel(task, "rbf+mpk", adam_iters=20, lbfgs_iters=5)
+    model.fit(*transitions([ep]))
+    assert model.gp_.y_mean_.shape == (2,)
+    layout = StateLayout.from_task(task)
+    policy = SquashedRBFPolicy(layout, task.action_low, task.action_high, num_basis=10, seed=0)
+    init_std = np.array([0.002] * 4 + [0.0] * 4)
+    loss = MCPilcoLoss(
+        make_policy_module(policy), model.particle_dynamics(), SaturatingCost.from_task(task),
+        horizon=task.horizon, num_particles=8, init_mean=task.init_mean, init_std=init_std,
+    )  # fmt: skip
+    with torch.no_grad():
+        states = loss.rollout().states
+    assert torch.all(states[:, :, 4:].std(dim=0) == 0)
+    assert states[:, :, :4].std(dim=0)[1:].min() > 0
+    fast = use_fast_rollout(loss, "torch")
+    assert fast.backend == "torch"
+    assert fast.check["J_rel"] < 1e-5 and fast.check["grad_rel"] < 1e-4, fast.check
+    loss32 = MCPilcoLoss(
+        make_policy_module(policy), model.particle_dynamics(torch.float32),
+        SaturatingCost.from_task(task), horizon=task.horizon, num_particles=40,
+        init_mean=task.init_mean, init_std=init_std,
+    )  # fmt: skip
+    fast = use_fast_rollout(loss32, "native", shards=2)
+    assert fast.backend == "native"  # float32 against float32 eager, 10 steps
+    assert fast.check["J_rel"] < 1e-3 and fast.check["grad_rel"] < 1e-3, fast.check
+
+
+def test_known_reference_spec_errors_name_the_field():
+    two = dict(
+        KNOWN_REFERENCE_TASK["reference"],
+        amplitudes=[[0.5, 0.1], [0.6, 0.1]], omegas=[[3.0, 1.0], [4.0, 1.0]],
+        phases=[[0.0, 0.0], [1.0, 0.0]],
+    )  # fmt: skip
+    with pytest.raises(TaskSpecError, match=r"task\.reference\.states: needs one sinusoid"):
+        TaskSpec.from_dict(dict(KNOWN_REFERENCE_TASK, reference=two))
+    with pytest.raises(TaskSpecError, match=r"task\.reference\.states\[0\]: 'r1' is in pairs"):
+        TaskSpec.from_dict(dict(KNOWN_REFERENCE_TASK, pairs=TASK["pairs"]))
+    with pytest.raises(TaskSpecError, match=r"task\.reference\.states\[1\]: unknown state"):
+        bad = dict(KNOWN_REFERENCE_TASK["reference"], states=[["r1", "rd1"], ["r2", "x"]])
+        TaskSpec.from_dict(dict(KNOWN_REFERENCE_TASK, reference=bad))
+    with pytest.raises(TaskSpecError, match=r"task\.reference\.states: needs 2 \[position"):
+        bad = dict(KNOWN_REFERENCE_TASK["reference"], states=[["r1", "rd1"]])
+        TaskSpec.from_dict(dict(KNOWN_REFERENCE_TASK, reference=bad))
+    off = list(KNOWN_REFERENCE_TASK["init_mean"])
+    off[6] += 0.1
+    with pytest.raises(TaskSpecError, match=r"task\.init_mean\[6\]: rd1 starts on the reference"):
+        TaskSpec.from_dict(dict(KNOWN_REFERENCE_TASK, init_mean=off))
