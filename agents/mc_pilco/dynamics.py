@@ -54,10 +54,9 @@ Glossary
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable
 from typing import Any, Literal
-
-import math
 
 import numpy as np
 import torch

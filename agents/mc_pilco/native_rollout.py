@@ -229,10 +229,7 @@ def oscillator_coefficients(layout: Any, dt: float) -> Tensor:
     A_t, _, z = _integration_matrices(dt, layout, torch.float64, "cpu")
     A = A_t.T
     return torch.tensor(
-        [
-            [A[p, p], A[p, v], A[v, p], A[v, v], z[p], z[v]]
-            for p, v, _, _ in layout.oscillators
-        ],
+        [[A[p, p], A[p, v], A[v, p], A[v, v], z[p], z[v]] for p, v, _, _ in layout.oscillators],
         dtype=torch.float64,
     ).reshape(-1)
 
