@@ -27,6 +27,11 @@ Four parts, each optional:
    initial state, against its real trajectory. Grouped by the kernel each run learned with
    and its env.
 
+5. ``tracking`` (only when named): for a tracking task (``--env mcpilco/UR10-v0``), the
+   seeds' runs and the tracking RMS per joint after each policy trial against the env's
+   controller alone (:mod:`mcpilco.experiments.tracking_bench`); writes
+   ``results/mcpilco_tracking.{json,md,png}``.
+
 Writes ``results/mcpilco_cartpole.json`` (merged with an existing file, one section per
 env), ``results/mcpilco_cartpole.md`` and ``results/mcpilco_cartpole.png``. ``--pool`` merges
 sections of the same config run on other seeds (e.g. 12 seeds, then 8 more with
@@ -40,6 +45,7 @@ Usage::
     mcpilco-bench-mcpilco --parts timing rmse
     mcpilco-bench-mcpilco --parts timing --compile-rollout --timing-env mcpilco/UR10-v0
     mcpilco-bench-mcpilco --pool bench bench5                  # one section, seeds of both
+    mcpilco-bench-mcpilco --parts tracking --env mcpilco/UR10-v0 --seeds 10 --jobs 2
     mcpilco-bench-mcpilco --parts timing --device cuda --timing-particles 400 4000
 """
 
@@ -64,6 +70,7 @@ from mcpilco.experiments.mcpilco_bench import (
     timing_part,
 )
 from mcpilco.experiments.sweep import SweepError, add_sweep_arguments, runner_from_args
+from mcpilco.experiments.tracking_bench import tracking_part
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -75,8 +82,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument(
         "--parts",
         nargs="+",
-        choices=PARTS,
-        help=f"parts to run (default: all of {', '.join(PARTS)}; none when --pool is given)",
+        choices=(*PARTS, "tracking"),
+        help=f"parts to run (default: all of {', '.join(PARTS)}; none when --pool is given; "
+        "tracking only when named)",
     )
     p.add_argument(
         "--pool",
@@ -214,6 +222,15 @@ def main(argv: list[str] | None = None) -> int:
 
     results = load_results(args.out)
     failed = 0
+    if "tracking" in args.parts:
+        seeds = range(args.first_seed, args.first_seed + args.seeds)
+        try:
+            failed += tracking_part(configs, seeds, runner, args.runs_dir, args.out, args.label)
+        except ValueError as err:
+            parser.error(str(err))
+        if set(args.parts) == {"tracking"}:
+            print(f"wrote {args.out / 'mcpilco_tracking.json'} and its report")
+            return 1 if failed else 0
     if "runs" in args.parts:
         seeds = range(args.first_seed, args.first_seed + args.seeds)
         failed += runs_part(results, configs, seeds, runner, args.runs_dir, args.out, args.label)

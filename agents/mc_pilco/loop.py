@@ -502,8 +502,9 @@ def run_episode(
 
     Returns the observed states ``obs`` (T+1, n) (read from the observations by the task),
     the true states ``states`` (T+1, n), ``actions`` (T, A), per-step evaluation ``costs``,
-    their sum ``cost``, ``success`` (the task's test) and ``time_in_goal`` [s] (steps within
-    the task's success bounds times ``T_s``).
+    their sum ``cost``, ``success`` (the task's test), ``time_in_goal`` [s] (steps within
+    the task's success bounds times ``T_s``) and, for a task whose cost tracks states,
+    ``tracking_rms`` (:meth:`TaskSpec.tracking_rms`).
 
     Raises:
         RuntimeError: the env truncated the episode before ``horizon`` steps (a time limit of
@@ -535,7 +536,9 @@ def run_episode(
     states_arr = np.stack(states)
     costs = task.cost(states_arr[1:])
     steps = len(actions)
+    tracking = {"tracking_rms": task.tracking_rms(states_arr)} if task.tracked_states() else {}
     return {
+        **tracking,
         "obs": np.stack(observed),
         "states": states_arr,
         "actions": np.stack(actions) if actions else np.zeros((0, task.action_dim)),
@@ -691,6 +694,8 @@ def record_line(r: dict[str, Any]) -> str:
         f"cost {r['cost']:.2f}, success {r['success']}, in goal {r['time_in_goal']:.2f} s, "
         f"time {r['wall_s']:.1f} s"
     )
+    if r.get("tracking_rms"):
+        line += ", tracking RMS " + " / ".join(f"{v:.4f}" for v in r["tracking_rms"].values())
     if r["kind"] == "policy":
         line += (
             f" (GP fit {r['gp_fit_s']:.1f} s on N={r['gp_points']}, {r['opt_steps']} opt steps "
@@ -708,14 +713,18 @@ def record_line(r: dict[str, Any]) -> str:
 
 def episode_outcome(ep: dict[str, Any], t0: float) -> dict[str, Any]:
     """The real-system part of a trial record: evaluation cost, ``success``, time in the goal
-    region of episode ``ep``, and the wall-clock since ``t0`` (``time.perf_counter``)."""
-    return {
+    region of episode ``ep``, its ``tracking_rms`` where it has one, and the wall-clock since
+    ``t0`` (``time.perf_counter``)."""
+    out = {
         "cost": ep["cost"],
         "success": ep["success"],
         "time_in_goal": ep["time_in_goal"],
         "steps": ep["steps"],
         "wall_s": time.perf_counter() - t0,
     }
+    if "tracking_rms" in ep:
+        out["tracking_rms"] = ep["tracking_rms"]
+    return out
 
 
 def write_records(out: Path, config: Any, records: list[dict[str, Any]]) -> None:

@@ -547,6 +547,20 @@ class TaskSpec:
         that track one (a joint and its reference)."""
         return {t.state: t.reference for t in self.cost_terms if t.reference is not None}
 
+    def tracking_rms(self, states: np.ndarray) -> dict[str, float]:
+        """``{state: sqrt(mean_t d_t^2)}`` over an episode's states ``x_1..x_T`` (``states``
+        (T+1, n), ``x_0`` left out) for each cost term that tracks a reference state, with
+        ``d = x - x_ref`` (wrapped for an angle): the tracking error a controller leaves."""
+        x = np.asarray(states, dtype=np.float64)[1:]
+        out = {}
+        for t in self.cost_terms:
+            if t.reference is not None:
+                d = x[:, self.index(t.state)] - x[:, self.index(t.reference)]
+                if t.state in self.angles:
+                    d = wrap(d)
+                out[t.state] = float(np.sqrt(np.mean(d**2))) if len(d) else math.nan
+        return out
+
     def touches_limit(self, s: np.ndarray, s1: np.ndarray) -> np.ndarray:
         """Which transitions ``x_t -> x_{t+1}`` (rows of ``s``, ``s1``, shape ``(T, n)``) touch
         a declared limit: ``x_t`` or ``x_{t+1}`` outside ``[lo_j, hi_j]``, or, for the position

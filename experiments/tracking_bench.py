@@ -1,0 +1,235 @@
+"""MC-PILCO on a tracking task: the tracking error per joint after each trial against the
+controller alone (part ``tracking`` of ``mcpilco-bench-mcpilco``).
+
+A tracking task's cost terms track reference states (``q_b - q_r,b``; the UR10 task of
+``envs/tasks/ur10_tracking.yaml``). Each seed runs the whole loop (:func:`bench_runs`); its
+trial records carry ``tracking_rms``, the RMS of ``q_b - q_r,b`` over the episode per joint.
+The baseline is the controller alone: the same episodes (same reset seeds,
+:func:`~mcpilco.agents.mc_pilco.loop.trial_seed`) with the action at the middle of its
+range (a zero torque correction). Reported per policy trial: the mean over seeds of each
+joint's RMS, its ratio to the baseline's, and the number of seeds whose every joint is at
+most half the baseline's (the goal "error at least halved").
+
+Writes ``results/mcpilco_tracking.json`` (one section per env and label),
+``mcpilco_tracking.md`` and ``mcpilco_tracking.png`` (per joint: RMS against experience,
+mean and the seeds' range, the baseline dashed).
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import platform
+from collections.abc import Callable, Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from mcpilco.agents.mc_pilco import MCPilcoConfig
+from mcpilco.experiments.mcpilco_bench import bench_runs, section_key, seed_ranges
+from mcpilco.experiments.sweep import SweepRunner
+
+RESULTS_NAME = "mcpilco_tracking"  # stem of the JSON, Markdown and PNG outputs
+HALVED = 0.5  # the goal: every joint's RMS at most this fraction of the controller alone's
+
+
+def controller_alone(config: MCPilcoConfig, seed: int, trials: int) -> list[dict[str, float]]:
+    """``tracking_rms`` of the episodes of policy trials ``1..trials`` of run ``seed`` with
+    the action held at the middle of its range (the env's controller alone)."""
+    from mcpilco.agents.mc_pilco.loop import make_env, run_episode, trial_seed
+
+    task = config.task_spec()
+    env = make_env(config.env_id, task.horizon, task, config.env_kwargs)
+    mid = (np.asarray(task.action_low) + np.asarray(task.action_high)) / 2
+    try:
+        return [
+            run_episode(env, lambda _x: mid, trial_seed(seed, k), task.horizon, task)[
+                "tracking_rms"
+            ]
+            for k in range(1, trials + 1)
+        ]
+    finally:
+        env.close()
+
+
+def tracking_section(
+    config: MCPilcoConfig, runs: Sequence[dict[str, Any]], section: dict[str, Any]
+) -> dict[str, Any]:
+    """``section`` (:func:`bench_runs`) with the tracking figures of ``runs`` (the seeds'
+    :func:`~mcpilco.experiments.mcpilco_bench.run_seed` results): per seed the RMS per joint
+    after each trial and the controller alone's; per policy trial the means, ratios and
+    the count of seeds with every joint halved."""
+    per_seed = []
+    for r in sorted(runs, key=lambda r: r["seed"]):
+        recs = [x for x in r["records"] if x["kind"] == "policy"]
+        per_seed.append(
+            {
+                "seed": r["seed"],
+                "rms": [x["tracking_rms"] for x in recs],
+                "alone": controller_alone(config, r["seed"], len(recs)),
+                "experience_s": [x["experience_s"] for x in recs],
+            }
+        )
+    joints = list(per_seed[0]["rms"][0])
+    trials = min(len(s["rms"]) for s in per_seed)
+    rows = []
+    for k in range(trials):
+        rms = np.array([[s["rms"][k][j] for j in joints] for s in per_seed])
+        alone = np.array([[s["alone"][k][j] for j in joints] for s in per_seed])
+        ratio = rms / alone
+        rows.append(
+            {
+                "trial": k + 1,
+                "experience_s": per_seed[0]["experience_s"][k],
+                "rms_mean": rms.mean(0).tolist(),
+                "rms_min": rms.min(0).tolist(),
+                "rms_max": rms.max(0).tolist(),
+                "alone_mean": alone.mean(0).tolist(),
+                "ratio_mean": ratio.mean(0).tolist(),
+                "ratio_worst": ratio.max(0).tolist(),
+                "seeds_halved": int(np.sum(np.all(ratio <= HALVED, axis=1))),
+            }
+        )
+    return {**section, "joints": joints, "tracking": rows, "tracking_per_seed": per_seed}
+
+
+def tracking_table(key: str, section: dict[str, Any]) -> str:
+    """The Markdown table of a tracking section: one row per policy trial, per joint the
+    mean RMS [mrad] and its ratio to the controller alone."""
+    cfg, joints, seeds = section["config"], section["joints"], section["seeds"]
+    lines = [
+        f"### {key}",
+        "",
+        f"{len(seeds)} seeds ({seed_ranges(seeds)}); M={cfg['num_particles']} particles, "
+        f"max {cfg['opt']['max_steps']} opt steps per trial, GP subset N<={cfg['max_points']}, "
+        f"kernel {cfg['kernel']}, rollout {cfg.get('rollout_backend', 'auto')} "
+        f"{cfg.get('rollout_dtype', 'float32')}, policy init {cfg.get('policy_init', 'box')}; "
+        f"{section['jobs']} parallel jobs x 1 thread; mean wall-clock per run "
+        f"{section['wall_s_per_run']:.0f} s.",
+        "",
+        "Per joint: mean over seeds of the episode's tracking RMS [mrad] (ratio to the "
+        "controller alone, mean over seeds). Halved: seeds whose every joint is at most "
+        f"{HALVED:g} x the controller alone's.",
+        "",
+        "| experience | " + " | ".join(joints) + " | halved |",
+        "|---|" + "---|" * len(joints) + "---|",
+    ]
+    first = section["tracking"][0]
+    lines.append(
+        "| controller alone | "
+        + " | ".join(f"{1e3 * v:.1f}" for v in first["alone_mean"])
+        + " | - |"
+    )
+    for r in section["tracking"]:
+        cells = [
+            f"{1e3 * m:.1f} ({q:.2f})" for m, q in zip(r["rms_mean"], r["ratio_mean"], strict=True)
+        ]
+        lines.append(
+            f"| {r['experience_s']:.0f} s (policy {r['trial']}) | "
+            + " | ".join(cells)
+            + f" | {r['seeds_halved']} / {len(seeds)} |"
+        )
+    return "\n".join(lines) + "\n"
+
+
+def write_tracking_report(results: dict[str, Any], out_dir: Path) -> None:
+    """``mcpilco_tracking.{json,md,png}`` of ``results`` (``{"runs": {key: section}}``)."""
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    md = [
+        "# MC-PILCO on tracking tasks",
+        "",
+        "Command: `mcpilco-bench-mcpilco --parts tracking --env ENV --seeds S --first-seed F "
+        "--jobs J [--label L]`. Experience counts the exploration trial.",
+        "",
+    ]
+    if results.get("machine"):
+        md += [f"Machine: {results['machine']}.", ""]
+    for key, section in results.get("runs", {}).items():
+        md.append(tracking_table(key, section))
+    (out_dir / f"{RESULTS_NAME}.md").write_text("\n".join(md))
+    (out_dir / f"{RESULTS_NAME}.json").write_text(json.dumps(results, indent=1))
+    if not results.get("runs"):
+        return
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    sections = list(results["runs"].items())
+    n_joints = max(len(s["joints"]) for _, s in sections)
+    cols = min(n_joints, 3)
+    rows = -(-n_joints // cols)
+    fig, axes = plt.subplots(rows, cols, figsize=(3.6 * cols, 2.8 * rows), squeeze=False)
+    for key, section in sections:
+        t = [r["experience_s"] for r in section["tracking"]]
+        for j, name in enumerate(section["joints"]):
+            ax = axes[j // cols][j % cols]
+            mean = [1e3 * r["rms_mean"][j] for r in section["tracking"]]
+            lo = [1e3 * r["rms_min"][j] for r in section["tracking"]]
+            hi = [1e3 * r["rms_max"][j] for r in section["tracking"]]
+            (line,) = ax.plot(t, mean, "o-", label=key)
+            ax.fill_between(t, lo, hi, color=line.get_color(), alpha=0.2)
+            alone = 1e3 * section["tracking"][0]["alone_mean"][j]
+            ax.axhline(alone, color=line.get_color(), ls="--", lw=1)
+            ax.axhline(HALVED * alone, color="grey", ls=":", lw=1)
+            ax.set_title(f"{name}: tracking RMS [mrad]")
+            ax.set_xlabel("experience [s]")
+            ax.set_ylim(bottom=0)
+    for j in range(n_joints, rows * cols):
+        axes[j // cols][j % cols].axis("off")
+    axes[0][0].legend(fontsize=7)
+    fig.suptitle("dashed: controller alone; dotted: half of it; band: seeds' range", fontsize=9)
+    fig.tight_layout()
+    fig.savefig(out_dir / f"{RESULTS_NAME}.png", dpi=120)
+    plt.close(fig)
+
+
+def load_tracking_results(out_dir: Path) -> dict[str, Any]:
+    """The results in ``out_dir/mcpilco_tracking.json`` (empty when there is none yet)."""
+    path = Path(out_dir) / f"{RESULTS_NAME}.json"
+    return json.loads(path.read_text()) if path.is_file() else {}
+
+
+def tracking_part(
+    configs: dict[str, MCPilcoConfig],
+    seeds: Sequence[int],
+    runner: SweepRunner,
+    runs_dir: Path,
+    out_dir: Path,
+    label: str = "",
+    log: Callable[[str], None] = print,
+) -> int:
+    """Part ``tracking``: the seeds of each config (:func:`bench_runs`, in
+    ``runs_dir/<env name>[_<label>]``), each env's tracking section stored under
+    :func:`section_key` in ``out_dir/mcpilco_tracking.json`` and the report written after
+    each env. Returns the number of failed seeds.
+
+    Raises:
+        ValueError: a config whose task tracks no reference state.
+    """
+    for env_id, cfg in configs.items():
+        if not cfg.task_spec().tracked_states():
+            raise ValueError(f"{env_id}: the task's cost tracks no reference state")
+    import torch
+
+    results = load_tracking_results(out_dir)
+    results["machine"] = (
+        f"{platform.machine()} {os.cpu_count()} CPUs, Python {platform.python_version()}, "
+        f"torch {torch.__version__}"
+    )
+    results.setdefault("runs", {})
+    failed = 0
+    for env_id, cfg in configs.items():
+        tag = env_id.split("/")[-1] + (f"_{label}" if label else "")
+        section, sweep = bench_runs(cfg, list(seeds), runner, Path(runs_dir) / tag)
+        log(sweep.summary())
+        failed += len(sweep.failed)
+        if section is None:
+            continue
+        key = section_key(env_id, label)
+        results["runs"][key] = tracking_section(cfg, list(sweep.results.values()), section)
+        log(tracking_table(key, results["runs"][key]))
+        write_tracking_report(results, out_dir)
+    return failed

@@ -1,0 +1,85 @@
+"""The tracking benchmark's figures: the controller-alone baseline against the two-link arm
+run by hand, the per-trial means, ratios and halved counts against hand-computed values,
+and the report files."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from mcpilco.agents.mc_pilco import MCPilcoConfig, TaskSpec
+from mcpilco.agents.mc_pilco.loop import make_env, run_episode, trial_seed
+from mcpilco.experiments.tracking_bench import (
+    controller_alone,
+    tracking_part,
+    tracking_section,
+    write_tracking_report,
+)
+from tests.agents.mc_pilco.arm_env import ENV_ID, TASK
+
+
+def test_controller_alone_is_the_zero_correction_episode():
+    """The baseline of trial k is the episode of reset seed ``trial_seed(seed, k)`` with a
+    zero torque correction; its RMS per joint equals sqrt(mean (q - q_r)^2) computed here from
+    the states."""
+    cfg = MCPilcoConfig(env_id=ENV_ID, task=TASK)
+    got = controller_alone(cfg, seed=4, trials=2)
+    task = TaskSpec.from_dict(TASK)
+    env = make_env(ENV_ID, task.horizon, task)
+    for k, rms in enumerate(got, start=1):
+        ep = run_episode(env, lambda _x: np.zeros(2), trial_seed(4, k), task.horizon, task)
+        s = ep["states"][1:]
+        want = np.sqrt(np.mean((s[:, :2] - s[:, 4:6]) ** 2, axis=0))
+        np.testing.assert_allclose([rms["q1"], rms["q2"]], want, rtol=1e-12)
+    assert got[0] != got[1]  # another reset seed, another initial state
+
+
+def test_tracking_section_means_ratios_and_halved_counts(tmp_path, monkeypatch):
+    """Two seeds, two policy trials, baselines fixed: means, ratios to the baseline, the
+    worst ratio and the number of seeds with every joint at most half the baseline's."""
+    alone = {"q1": 0.04, "q2": 0.02}
+    monkeypatch.setattr(
+        "mcpilco.experiments.tracking_bench.controller_alone",
+        lambda config, seed, trials: [alone] * trials,
+    )
+
+    def run(seed, rms):
+        recs = [{"kind": "exploration", "experience_s": 2.0}]
+        recs += [
+            {"kind": "policy", "experience_s": 2.0 * (k + 2), "tracking_rms": r}
+            for k, r in enumerate(rms)
+        ]
+        return {"seed": seed, "records": recs, "seconds": 1.0}
+
+    runs = [
+        run(1, [{"q1": 0.03, "q2": 0.02}, {"q1": 0.01, "q2": 0.01}]),
+        run(0, [{"q1": 0.01, "q2": 0.005}, {"q1": 0.02, "q2": 0.012}]),
+    ]
+    section = {"config": {}, "seeds": [0, 1], "jobs": 1, "wall_s_per_run": 1.0}
+    out = tracking_section(MCPilcoConfig(env_id=ENV_ID, task=TASK), runs, section)
+    assert out["joints"] == ["q1", "q2"]
+    first, second = out["tracking"]
+    np.testing.assert_allclose(first["rms_mean"], [0.02, 0.0125])
+    np.testing.assert_allclose(first["ratio_mean"], [(0.75 + 0.25) / 2, (1.0 + 0.25) / 2])
+    np.testing.assert_allclose(first["ratio_worst"], [0.75, 1.0])
+    assert first["seeds_halved"] == 1  # seed 0 only
+    assert second["seeds_halved"] == 1  # seed 1 (0.25, 0.5); seed 0 has q2 at 0.6
+    assert [s["seed"] for s in out["tracking_per_seed"]] == [0, 1]
+    out["config"] = MCPilcoConfig(env_id=ENV_ID, task=TASK).to_dict()
+    write_tracking_report({"runs": {"arm": out}}, tmp_path)
+    md = (tmp_path / "mcpilco_tracking.md").read_text()
+    assert "| controller alone | 40.0 | 20.0 | - |" in md
+    assert "| 4 s (policy 1) | 20.0 (0.50) | 12.5 (0.62) | 1 / 2 |" in md
+    assert json.loads((tmp_path / "mcpilco_tracking.json").read_text())["runs"]["arm"]["joints"]
+    assert (tmp_path / "mcpilco_tracking.png").stat().st_size > 0
+
+
+def test_tracking_part_refuses_a_task_without_a_reference(tmp_path):
+    from tests.agents.mc_pilco.toy_env import ENV_ID as TOY_ID
+    from tests.agents.mc_pilco.toy_env import TASK as TOY_TASK
+
+    cfg = MCPilcoConfig(env_id=TOY_ID, task=TOY_TASK)
+    with pytest.raises(ValueError, match="tracks no reference state"):
+        tracking_part({TOY_ID: cfg}, [0], None, tmp_path, tmp_path)
