@@ -309,14 +309,22 @@ class _SampleClipIntegrate(torch.autograd.Function):
 
 
 def make_kernel_factory(
-    kernel: str, input_dim: int, joint_inputs: JointSpaceInputs | None = None
+    kernel: str,
+    input_dim: int,
+    joint_inputs: JointSpaceInputs | None = None,
+    min_lengthscale: float | None = None,
 ) -> Callable[[torch.Size], nn.Module]:
     """Kernel factory for ``GPRegressor``: ``k = k_RBF (+ k_MP^(2))``, eq. (5.10), or the
     rigid-body kernel (module glossary).
 
     ``kernel`` is ``"rbf+mpk"`` (RBF with ARD and output scale, plus a degree-2 MPK),
     ``"rbf"`` (RBF only) or ``"rigid_body"`` (needs ``joint_inputs``, whose columns it
-    reads; ``input_dim`` must be its ``dim``).
+    reads; ``input_dim`` must be its ``dim``). ``min_lengthscale``: a lower bound ``l_min``
+    on the RBF lengthscales (standardised inputs; None: only ``l > 0``). On noise-free
+    simulated data the marginal likelihood can shrink a lengthscale towards a delta kernel
+    (``1/l^2`` of ``1e12``), which predicts nothing away from the data and whose matmul
+    form ``(X/l^2)^T x^ - 1/2 ||x^/l||^2 - ...`` cancels terms of ``1e13``: in float32 the
+    particle rollout then overflows.
     """
     if kernel not in KERNEL_CHOICES:
         raise ValueError(f"kernel must be one of {KERNEL_CHOICES}, got {kernel!r}")
@@ -338,8 +346,11 @@ def make_kernel_factory(
     def factory(batch_shape: torch.Size) -> nn.Module:
         import gpytorch
 
+        bound = {}
+        if min_lengthscale is not None:
+            bound["lengthscale_constraint"] = gpytorch.constraints.GreaterThan(min_lengthscale)
         rbf = gpytorch.kernels.ScaleKernel(
-            gpytorch.kernels.RBFKernel(ard_num_dims=input_dim, batch_shape=batch_shape),
+            gpytorch.kernels.RBFKernel(ard_num_dims=input_dim, batch_shape=batch_shape, **bound),
             batch_shape=batch_shape,
         )
         if kernel == "rbf":
@@ -371,6 +382,8 @@ class GPDynamicsModel:
             the next trial better.
         noise_min: lower bound of each GP's noise variance, as a fraction of its output's
             variance (:class:`~mcpilco.models.gp.GPRegressor`).
+        min_lengthscale: lower bound of the RBF lengthscales on standardised inputs
+            (:func:`make_kernel_factory`); None: none.
     """
 
     def __init__(
@@ -385,9 +398,12 @@ class GPDynamicsModel:
         delta_clip_factor: float | None = 3.0,
         warm_start: bool = False,
         noise_min: float = 1e-8,
+        min_lengthscale: float | None = None,
     ) -> None:
         self.task = task
         self.noise_min = float(noise_min)
+        if min_lengthscale is not None and not min_lengthscale > 0:
+            raise ValueError(f"min_lengthscale must be > 0, got {min_lengthscale}")
         self.layout = StateLayout.from_task(task)
         if kernel not in KERNEL_CHOICES:
             raise ValueError(f"kernel must be one of {KERNEL_CHOICES}, got {kernel!r}")
@@ -397,7 +413,9 @@ class GPDynamicsModel:
         self.input_names = (
             task.gp_input_names() if self.joint_inputs is None else self.joint_inputs.names
         )
-        self.kernel_factory = make_kernel_factory(kernel, len(self.input_names), self.joint_inputs)
+        self.kernel_factory = make_kernel_factory(
+            kernel, len(self.input_names), self.joint_inputs, min_lengthscale
+        )
         self.dt = float(task.dt)
         self.max_points = max_points
         self.adam_iters = int(adam_iters)

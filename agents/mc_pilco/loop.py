@@ -57,6 +57,7 @@ from mcpilco.agents.mc_pilco.features import StateLayout
 from mcpilco.agents.mc_pilco.loss import MCPilcoLoss
 from mcpilco.agents.mc_pilco.native_rollout import cpp_compiler, cpp_compiler_names
 from mcpilco.agents.mc_pilco.optimize import OptimizationResult, PolicyOptConfig, optimize_policy
+from mcpilco.agents.mc_pilco.filters import CollisionFilter, contact_steps
 from mcpilco.agents.mc_pilco.policy import (
     PolicyPopulation,
     SquashedRBFPolicy,
@@ -86,12 +87,13 @@ _RESUME_FIXED = (
     "explore_steps",
     "env_kwargs",
     "policy_init",
+    "push_filter",
 )
 ROLLOUT_DTYPES = ("float32", "float64")
 """Choices of :attr:`MCPilcoConfig.rollout_dtype`."""
 CONF_DIR = Path(__file__).resolve().parent / "conf"
 """The shipped per-env config files (one YAML file per env id)."""
-LEGACY_FIELD_VALUES: dict[str, Any] = {"explore_hold": 1, "policy_init": "box"}
+LEGACY_FIELD_VALUES: dict[str, Any] = {"explore_hold": 1, "policy_init": "box", "push_filter": None}
 """Value of each config field added after results were saved, for configs that lack it."""
 CANDIDATE_SEED_STRIDE = 7919
 """Candidate ``k`` of run ``seed`` is initialised with seed ``seed + 7919 k``."""
@@ -122,11 +124,18 @@ class MCPilcoConfig:
         gp_adam_iters, gp_lbfgs_iters: marginal-likelihood budget per fit.
         gp_noise_min: lower bound of each dynamics GP's noise variance, as a fraction of its
             output's variance.
+        gp_min_lengthscale: lower bound of the RBF lengthscales on standardised inputs (None:
+            none); keeps noise-free simulated data from shrinking one to a delta kernel,
+            which overflows a float32 rollout (:func:`~.dynamics.make_kernel_factory`).
         num_basis: policy basis functions.
         policy_weight_scale: initial policy weights ``w ~ U(-s, s) u_half``. Small, so that the
             initial policy is close to the middle of the action range.
         policy_centers_box: half width of the box the centres of the plain state coordinates
             are drawn in.
+        push_filter: path of a collision-detector file (``CollisionDetector.save``): the
+            transitions in which it alarms are kept out of the dynamics data, with
+            ``push_filter_margin`` transitions before and after (:mod:`.filters`; an arm
+            task whose env reports motor currents). None: every transition is data.
         policy_init: ``"box"`` (centres in the box, the thesis's initialisation) or
             ``"data"``: before the first policy optimisation, centres and lengthscales are
             re-drawn from the spread of the exploration trial's states
@@ -186,10 +195,13 @@ class MCPilcoConfig:
     gp_adam_iters: int = 200
     gp_lbfgs_iters: int = 100
     gp_noise_min: float = 1e-8
+    gp_min_lengthscale: float | None = None
     num_basis: int = 200
     policy_weight_scale: float = 0.01
     policy_centers_box: float = math.pi
     policy_init: str = "box"
+    push_filter: str | None = None
+    push_filter_margin: int = 1
     cost_length_scales: dict[str, float] | None = None
     cost_angle_mode: str | None = None
     cost_limit_widths: dict[str, float] | None = None
@@ -276,6 +288,13 @@ class MCPilcoConfig:
         self.device = str(check_device_name(self.device))
         if not (math.isfinite(self.gp_noise_min) and self.gp_noise_min >= 0):
             raise ValueError(f"gp_noise_min must be a finite value >= 0, got {self.gp_noise_min}")
+        if self.gp_min_lengthscale is not None and not (
+            _is_positive_number(self.gp_min_lengthscale) and math.isfinite(self.gp_min_lengthscale)
+        ):
+            raise ValueError(
+                f"gp_min_lengthscale must be a finite value > 0 or None, got "
+                f"{self.gp_min_lengthscale!r}"
+            )
         if self.max_points is not None and self.max_points < 10:
             raise ValueError(f"max_points must be >= 10 or None, got {self.max_points}")
 
@@ -495,10 +514,12 @@ def run_episode(
     seed: int,
     horizon: int,
     task: TaskSpec,
+    record_info: bool = False,
 ) -> dict[str, Any]:
     """One episode of at most ``horizon`` control steps under ``act(state)``, each action held
     for the task's ``action_repeat`` env steps (the observation after the last is the next
-    state).
+    state). ``record_info``: also return ``infos``, per control step the ``info`` dicts of
+    its env steps (what a push filter reads, :mod:`.filters`).
 
     Returns the observed states ``obs`` (T+1, n) (read from the observations by the task),
     the true states ``states`` (T+1, n), ``actions`` (T, A), per-step evaluation ``costs``,
@@ -514,13 +535,19 @@ def run_episode(
     observed = [task.state_from_obs(obs)]
     states = [task.true_state(obs, info)]
     actions = []
+    infos: list[list[dict[str, Any]]] = []
     low, high = np.asarray(task.action_low), np.asarray(task.action_high)
     for _ in range(horizon):
         a = np.clip(np.asarray(act(observed[-1]), dtype=np.float64).reshape(-1), low, high)
+        step_infos = []
         for _ in range(task.action_repeat):
             obs, _, terminated, truncated, info = env.step(a.astype(np.float32))
+            if record_info:
+                step_infos.append(info)
             if terminated or truncated:
                 break
+        if record_info:
+            infos.append(step_infos)
         observed.append(task.state_from_obs(obs))
         states.append(task.true_state(obs, info))
         actions.append(a)
@@ -536,9 +563,11 @@ def run_episode(
     states_arr = np.stack(states)
     costs = task.cost(states_arr[1:])
     steps = len(actions)
-    tracking = {"tracking_rms": task.tracking_rms(states_arr)} if task.tracked_states() else {}
+    extra: dict[str, Any] = {"infos": infos} if record_info else {}
+    if task.tracked_states():
+        extra["tracking_rms"] = task.tracking_rms(states_arr)
     return {
-        **tracking,
+        **extra,
         "obs": np.stack(observed),
         "states": states_arr,
         "actions": np.stack(actions) if actions else np.zeros((0, task.action_dim)),
@@ -614,14 +643,22 @@ def transitions(
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """``(s_t, a_t, s_{t+1})`` of all episodes (observed states), stacked. With ``task``, the
     transitions that touch one of its declared limits are left out
-    (:meth:`~.task.TaskSpec.touches_limit`): the dynamics data of the free motion."""
+    (:meth:`~.task.TaskSpec.touches_limit`), and so are those an episode's ``filtered`` mask
+    marks (a push filter's, :mod:`.filters`): the dynamics data of the free motion."""
     s = np.concatenate([e["obs"][:-1] for e in episodes])
     a = np.concatenate([e["actions"] for e in episodes])
     s1 = np.concatenate([e["obs"][1:] for e in episodes])
+    free = np.ones(len(a), dtype=bool)
     if task is not None and task.limits:
-        free = ~task.touches_limit(s, s1)
-        s, a, s1 = s[free], a[free], s1[free]
-    return s, a, s1
+        free &= ~task.touches_limit(s, s1)
+    if any(e.get("filtered") is not None for e in episodes):  # a push filter's marks
+        free &= ~np.concatenate(
+            [
+                np.zeros(len(e["actions"]), bool) if e.get("filtered") is None else e["filtered"]
+                for e in episodes
+            ]
+        )
+    return s[free], a[free], s1[free]
 
 
 def trial_seed(seed: int, k: int) -> int:
@@ -649,6 +686,7 @@ def exploration_episodes(
     task: TaskSpec,
     hold: int = 1,
     min_steps: int | None = None,
+    record_info: bool = False,
 ) -> list[dict[str, Any]]:
     """Trial 0: episodes under the random actions of :func:`exploration_actions`.
 
@@ -667,7 +705,7 @@ def exploration_episodes(
     while not episodes or (min_steps is not None and taken < min_steps):
         n = horizon if not episodes else min(horizon, int(min_steps) - taken)
         it = iter(exploration_actions(rng, n, hold, task.action_low, task.action_high))
-        ep = run_episode(env, lambda _o, it=it: next(it), reset_seed, n, task)
+        ep = run_episode(env, lambda _o, it=it: next(it), reset_seed, n, task, record_info)
         episodes.append(ep)
         taken += ep["steps"]
         reset_seed = None
@@ -702,6 +740,10 @@ def record_line(r: dict[str, Any]) -> str:
             f"x {r['s_per_opt_step']:.3f} s (CPU {r['cpu_s_per_opt_step']:.3f} s), "
             f"J^ {r['opt_final_cost']:.2f})"
         )
+        if r.get("n_filtered") is not None:
+            line += f"; {r['n_filtered']} transitions filtered as pushes"
+            if r.get("n_contact") is not None:
+                line += f" ({r.get('n_filtered_contact', 0)} of the {r['n_contact']} pushed)"
         if r.get("n_at_limits"):
             line += f"; {r['n_at_limits']} transitions at the task's limits left out of the GP data"
         if r.get("compile_error"):
@@ -799,6 +841,16 @@ def run_mcpilco(
         env = make_env(config.env_id, horizon, task, config.env_kwargs)
         dt = task.dt
         layout = StateLayout.from_task(task)
+        push_filter = None
+        if config.push_filter is not None:
+            if not task.joints:
+                raise ValueError("push_filter needs an arm task (task.joints)")
+            push_filter = CollisionFilter(
+                config.push_filter,
+                len(task.joints),
+                task.dt / task.action_repeat,
+                config.push_filter_margin,
+            )
 
         torch.manual_seed(config.seed)
         np_rng = np.random.default_rng(config.seed)
@@ -827,6 +879,7 @@ def run_mcpilco(
             adam_iters=config.gp_adam_iters,
             lbfgs_iters=config.gp_lbfgs_iters,
             noise_min=config.gp_noise_min,
+            min_lengthscale=config.gp_min_lengthscale,
         )
         episodes: list[dict[str, Any]] = []
         records: list[dict[str, Any]] = []
@@ -893,6 +946,7 @@ def run_mcpilco(
                     config.explore_steps or horizon,
                     task,
                     config.explore_hold,
+                    record_info=True,
                 )
             else:
                 rec["kind"] = "policy"
@@ -910,8 +964,14 @@ def run_mcpilco(
                 rec["gp_fit_s"] = time.perf_counter() - t_fit
                 rec["gp_points"] = int(model.gp_.train_x_.shape[0])
                 rec["n_data"] = int(len(data[1]))
-                # transitions left out of the model's data: they touch a declared limit
-                rec["n_at_limits"] = int(sum(len(e["actions"]) for e in episodes)) - rec["n_data"]
+                # transitions left out of the model's data: they touch a declared limit (or
+                # a push filter marked them)
+                n_filtered = sum(
+                    int(np.sum(e["filtered"])) for e in episodes if e.get("filtered") is not None
+                )
+                rec["n_at_limits"] = (
+                    int(sum(len(e["actions"]) for e in episodes)) - rec["n_data"] - n_filtered
+                )
                 dynamics = model.particle_dynamics(getattr(torch, config.rollout_dtype))
 
                 def make_loss(module, dynamics=dynamics) -> MCPilcoLoss:
@@ -987,7 +1047,7 @@ def run_mcpilco(
                 arr["particles"] = ro.states.cpu().numpy()
                 # 3. apply the policy
                 ep = run_episode(
-                    env, _policy_act(policy), trial_seed(config.seed, k), horizon, task
+                    env, _policy_act(policy), trial_seed(config.seed, k), horizon, task, True
                 )
                 free = transitions([ep], task)
                 rec["gp_rmse"] = (
@@ -997,7 +1057,16 @@ def run_mcpilco(
                 )
                 arr["gp_rmse"] = rec["gp_rmse"]
                 opt_state = None  # Adam restarts at each trial (MC-PILCO)
-            episodes.append({"obs": ep["obs"], "actions": ep["actions"]})
+            filtered = None if push_filter is None else push_filter.excluded(ep["infos"])
+            contact = contact_steps(ep.pop("infos"))
+            if contact is not None:  # the env says when it was pushed (ground truth)
+                rec["n_contact"] = int(contact.sum())
+                arr["contact"] = contact
+            if filtered is not None:
+                rec["n_filtered"] = int(filtered.sum())
+                if contact is not None:  # filtered transitions that overlap a push
+                    rec["n_filtered_contact"] = int((filtered & contact).sum())
+            episodes.append({"obs": ep["obs"], "actions": ep["actions"], "filtered": filtered})
             rec.update(episode_outcome(ep, t0))
             # seconds of interaction so far (episodes that terminate early count what they ran)
             rec["experience_s"] = sum(len(e["actions"]) for e in episodes) * dt
@@ -1005,6 +1074,8 @@ def run_mcpilco(
             arr["excluded"] = (
                 task.touches_limit(ep["obs"][:-1], ep["obs"][1:]) if task.limits else None
             )
+            if filtered is not None:
+                arr["excluded"] = filtered | (False if arr["excluded"] is None else arr["excluded"])
             arr.update(time_in_goal=rec["time_in_goal"])
             records.append(rec)
             arrays.append(arr)

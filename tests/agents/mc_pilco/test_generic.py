@@ -455,3 +455,27 @@ def test_data_init_runs_resume_where_they_stopped(tmp_path):
     assert ckpt["policy_settings"]["center_mean"] is not None
     with pytest.raises(ValueError, match="policy_init must be one of"):
         toy_config(policy_init="grid")
+
+
+def test_min_lengthscale_bounds_the_fitted_rbf_lengthscales():
+    """Noise-free data of ``sin(8 x_1)``, a wiggle of about 0.12 input standard deviations:
+    unbounded, the fit takes a lengthscale below 0.5 (0.23); with ``min_lengthscale = 0.5``
+    every fitted RBF lengthscale (standardised inputs) is at least 0.5; a bad bound is
+    refused by the model and the config."""
+    task = TaskSpec.from_dict(TASK)
+    rng = np.random.default_rng(0)
+    n, a = task.state_dim, task.action_dim
+    s = rng.normal(size=(60, n))
+    u = rng.uniform(-1, 1, size=(60, a))
+    s1 = s + 0.1 * np.sin(8 * s[:, :1])
+    low = {}
+    for bound in (None, 0.5):
+        model = GPDynamicsModel(task, adam_iters=30, lbfgs_iters=10, min_lengthscale=bound)
+        model.fit(s, u, s1)
+        ls = model.gp_.model_.covar_module.kernels[0].base_kernel.lengthscale
+        low[bound] = float(ls.detach().min())
+    assert low[None] < 0.5 <= low[0.5] + 1e-9, low
+    with pytest.raises(ValueError, match="min_lengthscale must be > 0"):
+        GPDynamicsModel(task, min_lengthscale=0.0)
+    with pytest.raises(ValueError, match="gp_min_lengthscale must be a finite value > 0"):
+        toy_config(gp_min_lengthscale=-1.0)
