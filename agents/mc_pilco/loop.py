@@ -54,10 +54,10 @@ from mcpilco.agents.mc_pilco.checkpoint import (
 from mcpilco.agents.mc_pilco.cost import SaturatingCost
 from mcpilco.agents.mc_pilco.dynamics import KERNEL_CHOICES, GPDynamicsModel
 from mcpilco.agents.mc_pilco.features import StateLayout
+from mcpilco.agents.mc_pilco.filters import CollisionFilter, contact_steps
 from mcpilco.agents.mc_pilco.loss import MCPilcoLoss
 from mcpilco.agents.mc_pilco.native_rollout import cpp_compiler, cpp_compiler_names
 from mcpilco.agents.mc_pilco.optimize import OptimizationResult, PolicyOptConfig, optimize_policy
-from mcpilco.agents.mc_pilco.filters import CollisionFilter, contact_steps
 from mcpilco.agents.mc_pilco.policy import (
     PolicyPopulation,
     SquashedRBFPolicy,
