@@ -34,6 +34,61 @@ RESULTS_NAME = "mcpilco_tracking"  # stem of the JSON, Markdown and PNG outputs
 HALVED = 0.5  # the goal: every joint's RMS at most this fraction of the controller alone's
 
 
+LOG_NAMES = {"i": "current", "i_cmd": "current_cmd"}  # robot-data column -> arm env info key
+LOG_COLUMNS = ("q", "qd", "qdd", "tau", "i", "i_cmd", "e_q", "e_qd", "contact")
+
+
+def train_task_detector(
+    config: MCPilcoConfig,
+    path: Path,
+    episodes: int = 5,
+    seed: int = 0,
+    gp_points: int = 1500,
+) -> Path:
+    """A collision detector for ``config``'s arm task, saved at ``path``: ``episodes``
+    collision-free episodes of the task (its reference, pushes off, random corrections as in
+    the exploration trial, reset seeds ``seed, seed + 1, ...`` of their own) logged at the
+    env's sampling time, then :func:`~mcpilco.models.collision.train_detector` with the FC
+    estimator on the robot's nominal model, thresholds by the maximum rule on the last
+    episode, 2-sample persistence. What a user does on the real arm: record the task's
+    motion without contacts, train, then filter the learning runs."""
+    from mcpilco.agents.mc_pilco.loop import exploration_actions, make_env, run_episode
+    from mcpilco.experiments.collision_detection import nominal_model
+    from mcpilco.models.collision import train_detector
+    from mcpilco.models.robot_data import save_dataset
+
+    task = config.task_spec()
+    kwargs = {k: v for k, v in (config.env_kwargs or {}).items() if k != "disturbances"}
+    env = make_env(config.env_id, task.horizon, task, kwargs)
+    rng = np.random.default_rng(seed)
+    rows: list[dict[str, Any]] = []
+    try:
+        robot = type(env.unwrapped).__name__.removesuffix("Env").lower()
+        sample_time = float(env.unwrapped.dt)
+        for e in range(episodes):
+            acts = iter(
+                exploration_actions(rng, task.horizon, 1, task.action_low, task.action_high)
+            )
+            ep = run_episode(
+                env, lambda _x, it=acts: next(it), seed + e, task.horizon, task, record_info=True
+            )
+            rows += [info for step in ep["infos"] for info in step]
+    finally:
+        env.close()
+    log = {k: np.array([r[LOG_NAMES.get(k, k)] for r in rows]) for k in LOG_COLUMNS}
+    log["t"] = np.arange(len(rows)) * sample_time
+    log["contact"] = log["contact"].astype(np.int64)
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    log_path = path.with_suffix(".free.parquet")
+    save_dataset(log, log_path)
+    train_detector(
+        log_path, nominal_model(robot), estimator="FC", gp_points=gp_points,
+        calibration_fraction=1.0 / episodes, persistence=2, save=path,
+    )  # fmt: skip
+    return path
+
+
 def controller_alone(config: MCPilcoConfig, seed: int, trials: int) -> list[dict[str, float]]:
     """``tracking_rms`` of the episodes of policy trials ``1..trials`` of run ``seed`` with
     the action held at the middle of its range (the env's controller alone)."""
@@ -66,6 +121,7 @@ def tracking_section(
         per_seed.append(
             {
                 "seed": r["seed"],
+                "records": recs,
                 "rms": [x["tracking_rms"] for x in recs],
                 "alone": controller_alone(config, r["seed"], len(recs)),
                 "experience_s": [x["experience_s"] for x in recs],
@@ -89,9 +145,23 @@ def tracking_section(
                 "ratio_mean": ratio.mean(0).tolist(),
                 "ratio_worst": ratio.max(0).tolist(),
                 "seeds_halved": int(np.sum(np.all(ratio <= HALVED, axis=1))),
+                **push_counts([s["records"][k] for s in per_seed]),
             }
         )
+    for p in per_seed:
+        del p["records"]
     return {**section, "joints": joints, "tracking": rows, "tracking_per_seed": per_seed}
+
+
+def push_counts(records: Sequence[dict[str, Any]]) -> dict[str, int]:
+    """Sums over seeds of a trial's pushed transitions (``n_contact``, the env's truth),
+    those a push filter left out (``n_filtered``) and the pushed ones among them, where the
+    records have them."""
+    return {
+        key: int(sum(r[key] for r in records))
+        for key in ("n_contact", "n_filtered", "n_filtered_contact")
+        if all(key in r for r in records)
+    }
 
 
 def tracking_table(key: str, section: dict[str, Any]) -> str:
@@ -110,16 +180,18 @@ def tracking_table(key: str, section: dict[str, Any]) -> str:
         "",
         "Per joint: mean over seeds of the episode's tracking RMS [mrad] (ratio to the "
         "controller alone, mean over seeds). Halved: seeds whose every joint is at most "
-        f"{HALVED:g} x the controller alone's.",
+        f"{HALVED:g} x the controller alone's. Pushed / filtered: the trial's transitions "
+        "(40 ms) during an external push (the env's truth) / left out of the GP data by the "
+        "push filter (in brackets: both), summed over seeds.",
         "",
-        "| experience | " + " | ".join(joints) + " | halved |",
-        "|---|" + "---|" * len(joints) + "---|",
+        "| experience | " + " | ".join(joints) + " | halved | pushed / filtered (both) |",
+        "|---|" + "---|" * len(joints) + "---|---|",
     ]
     first = section["tracking"][0]
     lines.append(
         "| controller alone | "
         + " | ".join(f"{1e3 * v:.1f}" for v in first["alone_mean"])
-        + " | - |"
+        + " | - | - |"
     )
     for r in section["tracking"]:
         cells = [
@@ -128,9 +200,18 @@ def tracking_table(key: str, section: dict[str, Any]) -> str:
         lines.append(
             f"| {r['experience_s']:.0f} s (policy {r['trial']}) | "
             + " | ".join(cells)
-            + f" | {r['seeds_halved']} / {len(seeds)} |"
+            + f" | {r['seeds_halved']} / {len(seeds)} | {_push_cell(r)} |"
         )
     return "\n".join(lines) + "\n"
+
+
+def _push_cell(row: dict[str, Any]) -> str:
+    """``pushed / filtered (both)`` transitions of a trial, summed over seeds; ``-`` for a
+    count the records do not have."""
+    if "n_contact" not in row and "n_filtered" not in row:
+        return "-"
+    both = f" ({row['n_filtered_contact']})" if "n_filtered_contact" in row else ""
+    return f"{row.get('n_contact', '-')} / {row.get('n_filtered', '-')}{both}"
 
 
 def write_tracking_report(results: dict[str, Any], out_dir: Path) -> None:
@@ -199,12 +280,19 @@ def tracking_part(
     runs_dir: Path,
     out_dir: Path,
     label: str = "",
+    pushes: bool = False,
     log: Callable[[str], None] = print,
 ) -> int:
     """Part ``tracking``: the seeds of each config (:func:`bench_runs`, in
     ``runs_dir/<env name>[_<label>]``), each env's tracking section stored under
     :func:`section_key` in ``out_dir/mcpilco_tracking.json`` and the report written after
     each env. Returns the number of failed seeds.
+
+    ``pushes``: the env's random pushes on (``env_kwargs: {disturbances: true}``) in
+    learning and evaluation, and two sections per env on the same seeds: the transitions
+    of the pushes kept in the GP data (label ``pushes``) and left out by the push filter
+    (``pushes-filtered``) with a detector of :func:`train_task_detector`, trained once
+    in ``runs_dir``.
 
     Raises:
         ValueError: a config whose task tracks no reference state.
@@ -222,14 +310,27 @@ def tracking_part(
     results.setdefault("runs", {})
     failed = 0
     for env_id, cfg in configs.items():
-        tag = env_id.split("/")[-1] + (f"_{label}" if label else "")
-        section, sweep = bench_runs(cfg, list(seeds), runner, Path(runs_dir) / tag)
-        log(sweep.summary())
-        failed += len(sweep.failed)
-        if section is None:
-            continue
-        key = section_key(env_id, label)
-        results["runs"][key] = tracking_section(cfg, list(sweep.results.values()), section)
-        log(tracking_table(key, results["runs"][key]))
-        write_tracking_report(results, out_dir)
+        variants = [(label, cfg)]
+        if pushes:
+            kwargs = {**(cfg.env_kwargs or {}), "disturbances": True}
+            pushed = cfg.with_overrides(env_kwargs=kwargs)
+            name = env_id.split("/")[-1]
+            detector = Path(runs_dir) / f"{name}_{label}_detector.pt"
+            if not detector.is_file():
+                log(f"training the push detector of {env_id} in {detector}")
+                train_task_detector(cfg, detector, seed=10_000)
+            filtered = pushed.with_overrides(push_filter=str(detector))
+            prefix = f"{label}-" if label else ""
+            variants = [(f"{prefix}pushes", pushed), (f"{prefix}pushes-filtered", filtered)]
+        for lab, c in variants:
+            tag = env_id.split("/")[-1] + (f"_{lab}" if lab else "")
+            section, sweep = bench_runs(c, list(seeds), runner, Path(runs_dir) / tag)
+            log(sweep.summary())
+            failed += len(sweep.failed)
+            if section is None:
+                continue
+            key = section_key(env_id, lab)
+            results["runs"][key] = tracking_section(c, list(sweep.results.values()), section)
+            log(tracking_table(key, results["runs"][key]))
+            write_tracking_report(results, out_dir)
     return failed

@@ -46,6 +46,7 @@ Usage::
     mcpilco-bench-mcpilco --parts timing --compile-rollout --timing-env mcpilco/UR10-v0
     mcpilco-bench-mcpilco --pool bench bench5                  # one section, seeds of both
     mcpilco-bench-mcpilco --parts tracking --env mcpilco/UR10-v0 --seeds 10 --jobs 2
+    mcpilco-bench-mcpilco --parts tracking --env mcpilco/UR10-v0 --pushes --seeds 10
     mcpilco-bench-mcpilco --parts timing --device cuda --timing-particles 400 4000
 """
 
@@ -99,6 +100,11 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--first-seed", type=int, default=0)
     add_sweep_arguments(p)  # --jobs N (local processes, 1 thread each), --ray [ADDRESS]
     p.add_argument("--preset", default="bench", help="preset of each env's config file")
+    p.add_argument(
+        "--pushes",
+        action="store_true",
+        help="tracking part: the env's random pushes on, runs with and without the push filter",
+    )
     p.add_argument("--trials", type=int, help="policy trials (override)")
     p.add_argument("--particles", type=int, help="particles (override)")
     p.add_argument("--opt-steps", type=int, help="max opt steps per trial (override)")
@@ -225,7 +231,9 @@ def main(argv: list[str] | None = None) -> int:
     if "tracking" in args.parts:
         seeds = range(args.first_seed, args.first_seed + args.seeds)
         try:
-            failed += tracking_part(configs, seeds, runner, args.runs_dir, args.out, args.label)
+            failed += tracking_part(
+                configs, seeds, runner, args.runs_dir, args.out, args.label, args.pushes
+            )
         except ValueError as err:
             parser.error(str(err))
         if set(args.parts) == {"tracking"}:

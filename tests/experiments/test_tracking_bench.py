@@ -83,3 +83,28 @@ def test_tracking_part_refuses_a_task_without_a_reference(tmp_path):
     cfg = MCPilcoConfig(env_id=TOY_ID, task=TOY_TASK)
     with pytest.raises(ValueError, match="tracks no reference state"):
         tracking_part({TOY_ID: cfg}, [0], None, tmp_path, tmp_path)
+
+
+def test_task_detector_is_trained_on_the_tasks_motion_and_alarms_on_a_push(tmp_path):
+    """:func:`train_task_detector` on two collision-free UR10 tracking episodes: the file
+    loads as a 6-joint detector for 8 ms samples; on a third, pushed episode of the task
+    (80 N for 0.6 s) it alarms inside the push and nowhere before it."""
+    from mcpilco.agents.mc_pilco import load_config
+    from mcpilco.agents.mc_pilco.filters import CollisionFilter, contact_steps
+    from mcpilco.agents.mc_pilco.loop import make_env, run_episode
+    from mcpilco.envs.arm_env import Push
+    from mcpilco.experiments.tracking_bench import train_task_detector
+    from mcpilco.models.collision import CollisionDetector
+
+    cfg = load_config("mcpilco/UR10-v0")
+    path = train_task_detector(cfg, tmp_path / "det.pt", episodes=2, gp_points=200)
+    det = CollisionDetector.load(path)
+    assert det.n_joints == 6 and det.sample_time == pytest.approx(0.008)
+    task = cfg.task_spec()
+    push = Push(2.0, 0.6, 3, (0.0, 80.0, 0.0), 0.05)
+    env = make_env(task.env_id, task.horizon, task, {"disturbances": [push]})
+    ep = run_episode(env, lambda _x: np.zeros(6), 7, task.horizon, task, record_info=True)
+    marked = CollisionFilter(det, 6, 0.008, margin=0).excluded(ep["infos"])
+    contact = contact_steps(ep["infos"])
+    first = int(np.argmax(contact))
+    assert marked[contact].any() and not marked[: first - 1].any(), np.flatnonzero(marked)
