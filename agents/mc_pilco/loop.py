@@ -1091,6 +1091,7 @@ def run_mcpilco(
                         title=f"trial {k}: particles (model) vs real, success={ep['success']}",
                         references=task.tracked_states(),
                         excluded=arr["excluded"],
+                        contact=arr.get("contact"),
                     )
                 )
             _write_outputs(out, config, records, arrays, task, write_rrd)

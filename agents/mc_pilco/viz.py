@@ -13,7 +13,11 @@ Per trial ``k`` the loop stores (see :mod:`mcpilco.agents.mc_pilco.loop`):
     of trial ``k`` (out of sample), per GP output.
 ``excluded (H,)`` (optional)
     the transitions ``x_t -> x_{t+1}`` of the real trajectory left out of the dynamics data
-    (they touch one of the task's declared limits); drawn as red marks at ``x_t``.
+    (they touch one of the task's declared limits, or a push filter marked them); drawn as
+    red marks at ``x_t``.
+``contact (H,)`` (optional)
+    the transitions during which the env pushed the system (its own ground truth); drawn as
+    an orange band.
 
 A state that a cost term tracks against another state (``reference``) gets that state's
 real trajectory drawn in its panel (green line): a tracking task's joint against its
@@ -45,11 +49,13 @@ def plot_trial_particles(
     title: str = "",
     references: Mapping[str, str] | None = None,
     excluded: np.ndarray | None = None,
+    contact: np.ndarray | None = None,
 ) -> Path:
     """PNG like thesis Fig. 5.3: particles (lines) of every state coordinate vs the real
     trajectory (dots), one panel per coordinate; ``references`` (state -> the state it
     tracks) adds the tracked state's real trajectory, ``excluded`` (H,) marks the real
-    states whose transitions were left out of the dynamics data."""
+    states whose transitions were left out of the dynamics data, ``contact`` (H,) shades
+    the transitions during which the system was pushed."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -76,6 +82,8 @@ def plot_trial_particles(
             ax.plot(
                 t[at], real[at, idx], "x", color="tab:red", markersize=5, label="not in GP data"
             )
+        for k, (a, b) in enumerate(_runs(contact)):
+            ax.axvspan(t[a], t[b], color="tab:orange", alpha=0.2, label=None if k else "push")
         ax.set_ylabel(state_names[idx])
         ax.grid(alpha=0.3)
     for ax in axes[n:]:
@@ -87,6 +95,16 @@ def plot_trial_particles(
     fig.savefig(path, dpi=110)
     plt.close(fig)
     return path
+
+
+def _runs(mask: np.ndarray | None) -> list[tuple[int, int]]:
+    """``(first, last + 1)`` of each run of true entries of a transition mask (H,): the
+    state indices a run of transitions spans."""
+    if mask is None:
+        return []
+    m = np.concatenate([[False], np.asarray(mask, dtype=bool), [False]])
+    edges = np.flatnonzero(np.diff(m.astype(np.int8)))
+    return [(int(a), int(b)) for a, b in zip(edges[::2], edges[1::2], strict=True)]
 
 
 def plot_optimisation(
@@ -162,7 +180,8 @@ def write_rerun_recording(
         output_names: the GP outputs' names (one error series each).
         references: state -> the state it tracks (its real trajectory is drawn in the
             state's plot, ``particles/<state>/reference``); the transitions of ``excluded``
-            (a trial's optional (H,) mask) are drawn at ``particles/<state>/excluded``.
+            (a trial's optional (H,) mask) are drawn at ``particles/<state>/excluded``, the
+            transitions of ``contact`` (pushes) at ``particles/<state>/push``.
     """
     import rerun as rr
 
@@ -208,6 +227,16 @@ def write_rerun_recording(
                 )
             else:
                 rec.log(f"particles/{name}/excluded", rr.Clear(recursive=False))
+            spans = _runs(tr.get("contact"))
+            if spans:
+                rec.log(
+                    f"particles/{name}/push",
+                    rr.LineStrips2D(
+                        [pts[a : b + 1] for a, b in spans], colors=[240, 140, 20, 255], radii=0.03
+                    ),
+                )
+            else:
+                rec.log(f"particles/{name}/push", rr.Clear(recursive=False))
         for key in ("cost", "time_in_goal"):
             if tr.get(key) is not None:
                 rec.log(f"trial/{key}", rr.Scalars([float(tr[key])]))

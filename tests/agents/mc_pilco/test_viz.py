@@ -76,3 +76,32 @@ def test_particle_plot_draws_the_reference_and_marks_excluded_states(tmp_path, m
     marks = [y for label, y in drawn if label == "not in GP data"]
     assert len(marks) == len(NAMES)  # one set per panel, at the states x_2 and x_7
     assert np.allclose(marks[0], trial["real"][[2, 7], 0])
+
+
+def test_pushes_are_shaded_in_the_plot_and_drawn_in_the_recording(tmp_path, monkeypatch):
+    """A trial with pushes during transitions 3-5 and 8: the plot shades [t_3, t_6] and
+    [t_8, t_9] in every panel; the recording has ``particles/<state>/push``."""
+    import matplotlib.axes
+    from rerun.chunk import RrdReader
+
+    spans: list[tuple[float, float]] = []
+    original = matplotlib.axes.Axes.axvspan
+
+    def spy(self, a, b, **kwargs):
+        spans.append((a, b))
+        return original(self, a, b, **kwargs)
+
+    monkeypatch.setattr(matplotlib.axes.Axes, "axvspan", spy)
+    trial = _trial(0, None)
+    contact = np.zeros(10, dtype=bool)
+    contact[[3, 4, 5, 8]] = True
+    plot_trial_particles(
+        tmp_path / "p.png", trial["particles"], trial["real"], 0.1, NAMES, contact=contact
+    )
+    assert len(spans) == 2 * len(NAMES)
+    np.testing.assert_allclose(spans[:2], [(0.3, 0.6), (0.8, 0.9)])
+    path = write_rerun_recording(
+        tmp_path / "run.rrd", [dict(trial, contact=contact)], 0.1, NAMES, ["a", "b"]
+    )
+    text = RrdReader(path).store().summary()
+    assert "/particles/q1/push" in text and "/particles/rd1/push" in text
