@@ -51,7 +51,9 @@ limits
 success
     the env's ``info[info_key]`` at the last step, else every state of the last ``window``
     steps within ``tol`` of its target (angles by wrapped distance), and with
-    ``full_horizon`` the episode must not end early.
+    ``full_horizon`` the episode must not end early; ``tracking_rms`` (state -> bound) also
+    needs the episode's tracking RMS of each listed tracked state
+    (:meth:`TaskSpec.tracking_rms`) at most its bound.
 
 Task files of the registered envs ship in :mod:`mcpilco.envs.tasks`; a user's own env gets a
 spec from a dict, a YAML file, or Python (:meth:`TaskSpec.from_dict`, :meth:`from_yaml`).
@@ -113,6 +115,7 @@ class SuccessSpec:
     window: int | None = None
     bounds: Mapping[str, Bound] = field(default_factory=dict)
     full_horizon: bool = False
+    tracking_rms: Mapping[str, float] = field(default_factory=dict)
 
 
 @dataclass(frozen=True)
@@ -277,8 +280,17 @@ class TaskSpec:
                 raise _fail(f"success.bounds.{key}.tol", f"needs > 0, got {b.tol}")
         if s.window is not None and not 1 <= int(s.window) <= self.horizon:
             raise _fail("success.window", f"needs 1..horizon ({self.horizon}), got {s.window}")
-        if s.info_key is None and not s.bounds and not s.full_horizon:
-            raise _fail("success", "needs an info_key, bounds, or full_horizon")
+        tracked = {t.state for t in self.cost_terms if t.reference is not None}
+        for key, bound in s.tracking_rms.items():
+            if key not in tracked:
+                raise _fail(
+                    f"success.tracking_rms.{key}",
+                    f"needs a state a cost term tracks (tracked: {sorted(tracked)})",
+                )
+            if not (_is_number(bound) and bound > 0):
+                raise _fail(f"success.tracking_rms.{key}", f"needs a bound > 0, got {bound!r}")
+        if s.info_key is None and not s.bounds and not s.full_horizon and not s.tracking_rms:
+            raise _fail("success", "needs an info_key, bounds, full_horizon or tracking_rms")
         self._check_limits()
         self._check_arm()
 
@@ -596,6 +608,12 @@ class TaskSpec:
         if s.full_horizon and steps < self.horizon:
             return False
         states = np.asarray(states, dtype=np.float64)
+        if s.tracking_rms:
+            rms = self.tracking_rms(np.concatenate([states[:1], states]))  # x_0 is left out
+            if any(rms[k] > bound for k, bound in s.tracking_rms.items()):
+                return False
+            if not s.bounds:
+                return True
         window = states if s.window is None else states[-int(s.window) :]
         if s.window is not None and len(states) < int(s.window):
             return False
@@ -636,6 +654,7 @@ class TaskSpec:
                 window=success.get("window"),
                 bounds=bounds,
                 full_horizon=bool(success.get("full_horizon", False)),
+                tracking_rms={str(k): v for k, v in (success.get("tracking_rms") or {}).items()},
             )
         pairs = d.pop("pairs", ()) or ()
         if not isinstance(pairs, Sequence) or isinstance(pairs, str):

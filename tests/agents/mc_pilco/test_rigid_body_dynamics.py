@@ -346,3 +346,20 @@ def test_known_reference_spec_errors_name_the_field():
     off[6] += 0.1
     with pytest.raises(TaskSpecError, match=r"task\.init_mean\[6\]: rd1 starts on the reference"):
         TaskSpec.from_dict(dict(KNOWN_REFERENCE_TASK, init_mean=off))
+
+
+def test_tracking_success_bounds_the_rms_of_each_tracked_joint():
+    """``success.tracking_rms``: an episode whose q1 - r1 is 0.01 rad at every step (RMS
+    0.01) succeeds under a bound of 0.011 and fails under 0.009; q2 on its reference passes
+    any bound; a bound on an untracked state or a bad bound is an error naming it."""
+    spec = dict(KNOWN_REFERENCE_TASK, success={"tracking_rms": {"q1": 0.011, "q2": 1e-6}})
+    task = TaskSpec.from_dict(spec)
+    states = np.zeros((task.horizon, 8))
+    states[:, 0] = 0.01  # q1 - r1
+    assert task.is_success(states, {}, task.horizon)
+    strict = TaskSpec.from_dict(dict(spec, success={"tracking_rms": {"q1": 0.009}}))
+    assert not strict.is_success(states, {}, task.horizon)
+    with pytest.raises(TaskSpecError, match=r"task\.success\.tracking_rms\.qd1: needs a state"):
+        TaskSpec.from_dict(dict(spec, success={"tracking_rms": {"qd1": 0.1}}))
+    with pytest.raises(TaskSpecError, match=r"task\.success\.tracking_rms\.q1: needs a bound"):
+        TaskSpec.from_dict(dict(spec, success={"tracking_rms": {"q1": -1}}))
