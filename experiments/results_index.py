@@ -338,6 +338,21 @@ def _compare_balance(data: dict[str, Any]) -> str:
     return line + "; TorchRL PILCO not measured"
 
 
+TRACKING_SECTION = "mcpilco/UR10-v0 (fresh300)"  # the UR10 tracking headline's section
+
+
+def _tracking(data: dict[str, Any]) -> str:
+    """The tracking RMS after the last policy trial against the controller alone, per joint."""
+    sec = data["runs"][TRACKING_SECTION]
+    last = sec["tracking"][-1]
+    ratios = " / ".join(f"{q:.2f}" for q in last["ratio_mean"])
+    return (
+        f"UR10 tracking after {last['experience_s']:.0f} s of experience: RMS per joint "
+        f"{ratios} x the PD + gravity controller's (mean over seeds); every joint halved in "
+        f"{last['seeds_halved']} of {len(sec['seeds'])} seeds"
+    )
+
+
 def _gp_speed(data: dict[str, Any]) -> str:
     s = data["speedup_vs_gpytorch"]
     return (
@@ -563,6 +578,14 @@ REGISTRY: tuple[Headline, ...] = (
         _compare_balance,
         "compare_InvertedPendulum-v5_noisefloor110.md",
         seeds=_per_method_seeds,
+    ),
+    Headline(
+        "MC-PILCO, UR10 tracking",
+        "mcpilco_tracking.json",
+        _tracking,
+        "mcpilco_tracking.md",
+        key=TRACKING_SECTION,
+        seeds=lambda d: seed_ranges(d["runs"][TRACKING_SECTION]["seeds"]),
     ),
     Headline(
         "MC-PILCO, speed (CPU)",

@@ -20,6 +20,7 @@ from __future__ import annotations
 import json
 import os
 import platform
+import time
 from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
@@ -229,6 +230,9 @@ def write_tracking_report(results: dict[str, Any], out_dir: Path) -> None:
         md += [f"Machine: {results['machine']}.", ""]
     for key, section in results.get("runs", {}).items():
         md.append(tracking_table(key, section))
+        if results.get("commands", {}).get(key):
+            when = results.get("measured", {}).get(key, "undated")
+            md += [f"Command: `{results['commands'][key]}` ({when})", ""]
     (out_dir / f"{RESULTS_NAME}.md").write_text("\n".join(md))
     (out_dir / f"{RESULTS_NAME}.json").write_text(json.dumps(results, indent=1))
     if not results.get("runs"):
@@ -281,6 +285,7 @@ def tracking_part(
     out_dir: Path,
     label: str = "",
     pushes: bool = False,
+    command: str = "",
     log: Callable[[str], None] = print,
 ) -> int:
     """Part ``tracking``: the seeds of each config (:func:`bench_runs`, in
@@ -292,7 +297,8 @@ def tracking_part(
     learning and evaluation, and two sections per env on the same seeds: the transitions
     of the pushes kept in the GP data (label ``pushes``) and left out by the push filter
     (``pushes-filtered``) with a detector of :func:`train_task_detector`, trained once
-    in ``runs_dir``.
+    in ``runs_dir``. ``command``: the command line, recorded with each section's date of
+    measurement (``commands`` and ``measured``, keyed by section).
 
     Raises:
         ValueError: a config whose task tracks no reference state.
@@ -331,6 +337,9 @@ def tracking_part(
                 continue
             key = section_key(env_id, lab)
             results["runs"][key] = tracking_section(c, list(sweep.results.values()), section)
+            if command:
+                results.setdefault("commands", {})[key] = command
+            results.setdefault("measured", {})[key] = time.strftime("%Y-%m-%d")
             log(tracking_table(key, results["runs"][key]))
             write_tracking_report(results, out_dir)
     return failed

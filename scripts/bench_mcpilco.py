@@ -53,6 +53,7 @@ Usage::
 from __future__ import annotations
 
 import argparse
+import shlex
 import sys
 from pathlib import Path
 
@@ -231,8 +232,11 @@ def main(argv: list[str] | None = None) -> int:
     if "tracking" in args.parts:
         seeds = range(args.first_seed, args.first_seed + args.seeds)
         try:
+            command = shlex.join(
+                ["mcpilco-bench-mcpilco", *(sys.argv[1:] if argv is None else argv)]
+            )
             failed += tracking_part(
-                configs, seeds, runner, args.runs_dir, args.out, args.label, args.pushes
+                configs, seeds, runner, args.runs_dir, args.out, args.label, args.pushes, command
             )
         except ValueError as err:
             parser.error(str(err))
