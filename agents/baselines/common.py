@@ -101,6 +101,32 @@ def evaluate_success(
     }
 
 
+def task_step_wrapper(env, task: Any):
+    """``env`` as a task's agent sees it (a ``gymnasium.Wrapper``): every reset passes the
+    task's ``reset_options()`` (its joint reference) unless options are given, and each
+    action is held for the task's ``action_repeat`` env steps, the rewards summed, the
+    observation after the last returned (stopping early at a termination or truncation).
+    What MC-PILCO's :func:`~mcpilco.agents.mc_pilco.loop.run_episode` does, so that a
+    model-free learner trains on the same control period and reference it is scored on."""
+    import gymnasium as gym
+
+    class TaskSteps(gym.Wrapper):
+        def reset(self, *, seed=None, options=None):
+            opts = task.reset_options() if options is None else options
+            return self.env.reset(seed=seed, options=opts)
+
+        def step(self, action):
+            total = 0.0
+            for _ in range(task.action_repeat):
+                obs, reward, terminated, truncated, info = self.env.step(action)
+                total += float(reward)
+                if terminated or truncated:
+                    break
+            return obs, total, terminated, truncated, info
+
+    return TaskSteps(env)
+
+
 def eval_seeds(seed: int, n: int) -> list[int]:
     """Reset seeds of the ``n`` evaluation episodes of run ``seed`` (fixed for the whole run,
     disjoint from the training trials' seeds ``10007 seed + k`` of MC-PILCO / PILCO)."""

@@ -54,6 +54,7 @@ from mcpilco.agents.baselines.common import (
     evaluate_success,
     make_curve,
     save_curve,
+    task_step_wrapper,
 )
 from mcpilco.agents.mc_pilco.loop import DEFAULT_ENV_ID, check_resume, env_dt, make_env
 from mcpilco.agents.mc_pilco.task import TaskSpec
@@ -176,11 +177,14 @@ def _make_vec_env(cfg: SB3Config, runner: dict[str, Any], stats_path: Path | Non
 
     import mcpilco.envs  # noqa: F401  (registers the ids)
 
+    task = TaskSpec.for_env(cfg.env_id)
     venv = make_vec_env(
         cfg.env_id,
         n_envs=int(runner.get("n_envs", 1)),
         seed=cfg.seed,
-        env_kwargs={"max_episode_steps": episode_steps(cfg.env_id)},
+        env_kwargs={"max_episode_steps": episode_steps(cfg.env_id) * task.action_repeat},
+        wrapper_class=task_step_wrapper,
+        wrapper_kwargs={"task": task},
     )
     if runner.get("normalize"):
         if stats_path is not None:

@@ -958,6 +958,7 @@ def run_mcpilco(
                     if k == 1:  # the first policy starts there
                         population.reset_parameters(config.seed)
                         population.copy_to(0, policy)
+                # 1. model learning
                 t_fit = time.perf_counter()
                 data = transitions(episodes, task)
                 model.fit(*data)

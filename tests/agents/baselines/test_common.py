@@ -176,3 +176,30 @@ def test_policy_act_normalises_observations_when_asked():
     act = policy_act(_StubModel(), Norm())
     assert act(np.zeros(4))[0] == 1.0
     assert policy_act(_StubModel())(np.zeros(4))[0] == -1.0
+
+
+def test_task_step_wrapper_holds_actions_and_passes_the_reference():
+    """The two-link tracking arm with ``action_repeat = 2``: the wrapped env's reset gets the
+    task's reference (its observation equals the raw env's reset with the options), each
+    step equals two raw steps with the same action (observation; reward = their sum)."""
+    from mcpilco.agents.baselines.common import task_step_wrapper
+    from mcpilco.agents.mc_pilco import TaskSpec
+    from mcpilco.agents.mc_pilco.loop import make_env
+    from tests.agents.mc_pilco.arm_env import ENV_ID, REFERENCE, TASK
+
+    far = dict(REFERENCE, centre=[0.5, -0.5])  # not the env's default reference
+    task = TaskSpec.from_dict(
+        dict(TASK, dt=2 * TASK["dt"], action_repeat=2, horizon=10, reference=far)
+    )
+    raw = make_env(ENV_ID, task.horizon, task)
+    wrapped = task_step_wrapper(make_env(ENV_ID, task.horizon, task), task)
+    o_w, _ = wrapped.reset(seed=4)
+    o_r, _ = raw.reset(seed=4, options=task.reset_options())
+    np.testing.assert_array_equal(o_w, o_r)
+    assert abs(o_w[4] - 0.5) < 0.6  # the task's reference, centred at 0.5
+    for a in np.random.default_rng(0).uniform(-1, 1, (5, 2)).astype(np.float32):
+        o_w, r_w, *_ = wrapped.step(a)
+        _, r1, *_ = raw.step(a)
+        o_r, r2, *_ = raw.step(a)
+        np.testing.assert_array_equal(o_w, o_r)
+        assert r_w == pytest.approx(r1 + r2, rel=1e-12)
