@@ -343,13 +343,18 @@ TRACKING_SECTION = "mcpilco/UR10-v0 (fresh300)"  # the UR10 tracking headline's 
 
 def _tracking(data: dict[str, Any]) -> str:
     """The tracking RMS after the last policy trial against the controller alone, per joint."""
+    from mcpilco.experiments.tracking_bench import overall
+
     sec = data["runs"][TRACKING_SECTION]
     last = sec["tracking"][-1]
+    tot = overall(sec, len(sec["tracking"]) - 1)
     ratios = " / ".join(f"{q:.2f}" for q in last["ratio_mean"])
+    n = len(sec["seeds"])
     return (
-        f"UR10 tracking after {last['experience_s']:.0f} s of experience: RMS per joint "
-        f"{ratios} x the PD + gravity controller's (mean over seeds); every joint halved in "
-        f"{last['seeds_halved']} of {len(sec['seeds'])} seeds"
+        f"UR10 tracking after {last['experience_s']:.0f} s of experience: all joints "
+        f"{tot['ratio']:.2f} x the PD + gravity controller's error (halved in "
+        f"{tot['halved']} of {n} seeds); per joint {ratios}; every joint halved in "
+        f"{last['seeds_halved']} of {n} seeds"
     )
 
 

@@ -154,6 +154,27 @@ def tracking_section(
     return {**section, "joints": joints, "tracking": rows, "tracking_per_seed": per_seed}
 
 
+def overall(section: dict[str, Any], k: int) -> dict[str, float]:
+    """The error of all joints together after policy trial ``k + 1``: per seed
+    ``sqrt(mean_j rms_j^2)`` of the episode and of the controller alone's; returned as the
+    means over seeds (``rms``, ``alone``) and the mean of the seeds' ratios (``ratio``) and
+    the number of seeds at most :data:`HALVED` of the controller alone (``halved``)."""
+    joints = section["joints"]
+    per = section["tracking_per_seed"]
+
+    def total(row: dict[str, float]) -> float:
+        return float(np.sqrt(np.mean([row[j] ** 2 for j in joints])))
+
+    rms = np.array([total(p["rms"][k]) for p in per])
+    alone = np.array([total(p["alone"][k]) for p in per])
+    return {
+        "rms": float(rms.mean()),
+        "alone": float(alone.mean()),
+        "ratio": float(np.mean(rms / alone)),
+        "halved": int(np.sum(rms <= HALVED * alone)),
+    }
+
+
 def push_counts(records: Sequence[dict[str, Any]]) -> dict[str, int]:
     """Sums over seeds of a trial's pushed transitions (``n_contact``, the env's truth),
     those a push filter left out (``n_filtered``) and the pushed ones among them, where the
@@ -181,27 +202,33 @@ def tracking_table(key: str, section: dict[str, Any]) -> str:
         "",
         "Per joint: mean over seeds of the episode's tracking RMS [mrad] (ratio to the "
         "controller alone, mean over seeds). Halved: seeds whose every joint is at most "
-        f"{HALVED:g} x the controller alone's. Pushed / filtered: the trial's transitions "
+        f"{HALVED:g} x the controller alone's. All joints: sqrt(mean over joints of RMS^2) "
+        "per seed, mean over seeds (ratio: mean of the seeds' ratios); all joints halved: "
+        "seeds whose all-joint error is at most half the controller alone's. "
+        "Pushed / filtered: the trial's transitions "
         "(40 ms) during an external push (the env's truth) / left out of the GP data by the "
         "push filter (in brackets: both), summed over seeds.",
         "",
-        "| experience | " + " | ".join(joints) + " | halved | pushed / filtered (both) |",
-        "|---|" + "---|" * len(joints) + "---|---|",
+        "| experience | " + " | ".join(joints) + " | every joint halved | all joints "
+        "| all joints halved | pushed / filtered (both) |",
+        "|---|" + "---|" * len(joints) + "---|---|---|---|",
     ]
     first = section["tracking"][0]
     lines.append(
         "| controller alone | "
         + " | ".join(f"{1e3 * v:.1f}" for v in first["alone_mean"])
-        + " | - | - |"
+        + f" | - | {1e3 * overall(section, 0)['alone']:.1f} | - | - |"
     )
-    for r in section["tracking"]:
+    for k, r in enumerate(section["tracking"]):
         cells = [
             f"{1e3 * m:.1f} ({q:.2f})" for m, q in zip(r["rms_mean"], r["ratio_mean"], strict=True)
         ]
+        tot = overall(section, k)
         lines.append(
             f"| {r['experience_s']:.0f} s (policy {r['trial']}) | "
             + " | ".join(cells)
-            + f" | {r['seeds_halved']} / {len(seeds)} | {_push_cell(r)} |"
+            + f" | {r['seeds_halved']} / {len(seeds)} | {1e3 * tot['rms']:.1f} "
+            f"({tot['ratio']:.2f}) | {tot['halved']} / {len(seeds)} | {_push_cell(r)} |"
         )
     return "\n".join(lines) + "\n"
 

@@ -13,6 +13,7 @@ from mcpilco.agents.mc_pilco import MCPilcoConfig, TaskSpec
 from mcpilco.agents.mc_pilco.loop import make_env, run_episode, trial_seed
 from mcpilco.experiments.tracking_bench import (
     controller_alone,
+    overall,
     tracking_part,
     tracking_section,
     write_tracking_report,
@@ -67,6 +68,11 @@ def test_tracking_section_means_ratios_and_halved_counts(tmp_path, monkeypatch):
     assert first["seeds_halved"] == 1  # seed 0 only
     assert second["seeds_halved"] == 1  # seed 1 (0.25, 0.5); seed 0 has q2 at 0.6
     assert [s["seed"] for s in out["tracking_per_seed"]] == [0, 1]
+    tot = overall(out, 0)  # all joints: sqrt(mean_j rms_j^2) per seed
+    a0, a1, alone_all = np.sqrt(6.25e-5), np.sqrt(6.5e-4), np.sqrt(1e-3)
+    assert tot["rms"] == pytest.approx((a0 + a1) / 2)
+    assert tot["ratio"] == pytest.approx((a0 + a1) / 2 / alone_all)
+    assert tot["alone"] == pytest.approx(alone_all) and tot["halved"] == 1
     out["config"] = MCPilcoConfig(env_id=ENV_ID, task=TASK).to_dict()
     write_tracking_report({"runs": {"arm": out}}, tmp_path)
     md = (tmp_path / "mcpilco_tracking.md").read_text()
