@@ -323,12 +323,14 @@ def timing_part(
     compile_rollout: bool = False,
     heap_contrast: bool = False,
     env_ids: Sequence[str] = (DEFAULT_ENV_ID,),
+    append: bool = False,
     log: Callable[[str], None] = print,
 ) -> list[dict[str, Any]]:
     """Part ``timing``: :func:`~mcpilco.experiments.mcpilco_timing.time_opt_step` for every
     task spec (``env_ids``, each over its own horizon), GP size, thread count and particle
     count (on a CUDA device both with and without a CUDA graph); replaces
-    ``results["timing"]`` and writes the report."""
+    ``results["timing"]`` (``append``: only the rows of the task specs timed now) and writes
+    the report."""
     from mcpilco.experiments.mcpilco_timing import time_opt_step
 
     rows = []
@@ -359,7 +361,13 @@ def timing_part(
             )
         )
         rows.append(t)
-    results["timing"] = rows
+    if append:  # keep the other task specs' rows (rows saved before specs: the cart-pole)
+        kept = [
+            t for t in results.get("timing", []) if t.get("env_id", DEFAULT_ENV_ID) not in env_ids
+        ]
+        results["timing"] = kept + rows
+    else:
+        results["timing"] = rows
     write_report(results, out_dir)
     return rows
 

@@ -102,6 +102,11 @@ def build_parser() -> argparse.ArgumentParser:
     add_sweep_arguments(p)  # --jobs N (local processes, 1 thread each), --ray [ADDRESS]
     p.add_argument("--preset", default="bench", help="preset of each env's config file")
     p.add_argument(
+        "--timing-append",
+        action="store_true",
+        help="timing part: replace only the rows of the --timing-env specs, keep the others",
+    )
+    p.add_argument(
         "--pushes",
         action="store_true",
         help="tracking part: the env's random pushes on, runs with and without the push filter",
@@ -251,6 +256,7 @@ def main(argv: list[str] | None = None) -> int:
             results, args.out, args.timing_n, args.timing_threads, args.timing_particles,
             device=args.device, compile_rollout=bool(args.compile_rollout),
             heap_contrast=bool(args.timing_heap_contrast), env_ids=args.timing_env,
+            append=bool(args.timing_append),
         )  # fmt: skip
     if "rmse" in args.parts:
         try:
