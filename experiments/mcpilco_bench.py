@@ -277,9 +277,10 @@ def bench_configs(
     return configs
 
 
-def load_results(out_dir: Path) -> dict[str, Any]:
-    """The results in ``out_dir/mcpilco_cartpole.json`` (empty when there is none yet)."""
-    path = Path(out_dir) / f"{RESULTS_NAME}.json"
+def load_results(out_dir: Path, name: str = RESULTS_NAME) -> dict[str, Any]:
+    """The results in ``out_dir/<name>.json`` (default ``mcpilco_cartpole.json``; empty when
+    there is none yet)."""
+    path = Path(out_dir) / f"{name}.json"
     return json.loads(path.read_text()) if path.is_file() else {}
 
 

@@ -28,7 +28,7 @@ from typing import Any
 import numpy as np
 
 from mcpilco.agents.mc_pilco import MCPilcoConfig
-from mcpilco.experiments.mcpilco_bench import bench_runs, section_key, seed_ranges
+from mcpilco.experiments.mcpilco_bench import bench_runs, load_results, section_key, seed_ranges
 from mcpilco.experiments.sweep import SweepRunner
 
 RESULTS_NAME = "mcpilco_tracking"  # stem of the JSON, Markdown and PNG outputs
@@ -298,12 +298,6 @@ def write_tracking_report(results: dict[str, Any], out_dir: Path) -> None:
     plt.close(fig)
 
 
-def load_tracking_results(out_dir: Path) -> dict[str, Any]:
-    """The results in ``out_dir/mcpilco_tracking.json`` (empty when there is none yet)."""
-    path = Path(out_dir) / f"{RESULTS_NAME}.json"
-    return json.loads(path.read_text()) if path.is_file() else {}
-
-
 def tracking_part(
     configs: dict[str, MCPilcoConfig],
     seeds: Sequence[int],
@@ -335,7 +329,7 @@ def tracking_part(
             raise ValueError(f"{env_id}: the task's cost tracks no reference state")
     import torch
 
-    results = load_tracking_results(out_dir)
+    results = load_results(out_dir, RESULTS_NAME)
     results["machine"] = (
         f"{platform.machine()} {os.cpu_count()} CPUs, Python {platform.python_version()}, "
         f"torch {torch.__version__}"
