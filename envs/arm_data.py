@@ -24,7 +24,7 @@ from __future__ import annotations
 
 import bisect
 import math
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -418,6 +418,20 @@ def make_program(
 ROLLOUT_KEYS = ("t", "q", "qd", "qdd", "tau", "i", "i_cmd", "e_q", "e_qd", "contact")
 """Keys of :func:`rollout`'s arrays that are dataset columns (see ``models.robot_data``)."""
 
+INFO_NAMES = {"i": "current", "i_cmd": "current_cmd"}
+"""Dataset column group -> the arm env's ``info`` key, where the two differ."""
+
+
+def log_from_infos(
+    rows: Sequence[Mapping[str, Any]], keys: Sequence[str] = ROLLOUT_KEYS
+) -> dict[str, FloatArray]:
+    """The dataset arrays ``keys`` (``models.robot_data`` groups) of a sequence of the arm
+    env's per-sample ``info`` dicts; ``contact`` as int."""
+    out = {key: np.array([r[INFO_NAMES.get(key, key)] for r in rows]) for key in keys}
+    if "contact" in out:
+        out["contact"] = out["contact"].astype(np.int64)
+    return out
+
 
 def make_arm_env(robot: str, **kwargs: Any) -> ArmTrackingEnv:
     """``"ur10"`` -> :class:`UR10Env`, ``"scara"`` -> :class:`SCARAEnv` (keyword arguments
@@ -473,12 +487,7 @@ def rollout(
         action = zero if policy is None else policy(obs)
         obs, _, _, _, info = env.step(action)
         rows.append(info)
-    names = {"i": "current", "i_cmd": "current_cmd"}
-    out = {}
-    for key in (*ROLLOUT_KEYS, "q_ref", "qd_ref", "f_ext", "tau_ext"):
-        out[key] = np.array([r[names.get(key, key)] for r in rows])
-    out["contact"] = out["contact"].astype(np.int64)
-    return out
+    return log_from_infos(rows, (*ROLLOUT_KEYS, "q_ref", "qd_ref", "f_ext", "tau_ext"))
 
 
 def inverse_dynamics_samples(

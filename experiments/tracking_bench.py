@@ -35,10 +35,6 @@ RESULTS_NAME = "mcpilco_tracking"  # stem of the JSON, Markdown and PNG outputs
 HALVED = 0.5  # the goal: every joint's RMS at most this fraction of the controller alone's
 
 
-LOG_NAMES = {"i": "current", "i_cmd": "current_cmd"}  # robot-data column -> arm env info key
-LOG_COLUMNS = ("q", "qd", "qdd", "tau", "i", "i_cmd", "e_q", "e_qd", "contact")
-
-
 def train_task_detector(
     config: MCPilcoConfig,
     path: Path,
@@ -54,6 +50,7 @@ def train_task_detector(
     episode, 2-sample persistence. What a user does on the real arm: record the task's
     motion without contacts, train, then filter the learning runs."""
     from mcpilco.agents.mc_pilco.loop import exploration_actions, make_env, run_episode
+    from mcpilco.envs.arm_data import log_from_infos
     from mcpilco.experiments.collision_detection import nominal_model
     from mcpilco.models.collision import train_detector
     from mcpilco.models.robot_data import save_dataset
@@ -76,9 +73,8 @@ def train_task_detector(
             rows += [info for step in ep["infos"] for info in step]
     finally:
         env.close()
-    log = {k: np.array([r[LOG_NAMES.get(k, k)] for r in rows]) for k in LOG_COLUMNS}
-    log["t"] = np.arange(len(rows)) * sample_time
-    log["contact"] = log["contact"].astype(np.int64)
+    log = log_from_infos(rows)
+    log["t"] = np.arange(len(rows)) * sample_time  # one clock over the episodes
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     log_path = path.with_suffix(".free.parquet")

@@ -34,8 +34,10 @@ from typing import Any
 
 import numpy as np
 
-FILTER_INFO_KEYS = ("q", "qd", "qdd", "e_q", "e_qd", "current", "current_cmd")
-"""``info`` keys each env sample must carry for :class:`CollisionFilter`."""
+FILTER_GROUPS = ("q", "qd", "qdd", "e_q", "e_qd", "i", "i_cmd")
+"""Dataset groups the detector reads, from each env sample's ``info``
+(:func:`mcpilco.envs.arm_data.log_from_infos`: ``i`` is ``current``, ``i_cmd`` is
+``current_cmd``)."""
 
 SAMPLE_TIME_TOLERANCE = 0.05  # relative difference allowed between the detector's and the env's T
 
@@ -83,20 +85,16 @@ class CollisionFilter:
 
     def alarms(self, infos: Sequence[Mapping[str, Any]]) -> np.ndarray:
         """The detector's alarms ``(K,)`` on the env samples whose ``info`` dicts are given."""
-        missing = [k for k in FILTER_INFO_KEYS if k not in infos[0]]
+        from mcpilco.envs.arm_data import INFO_NAMES, log_from_infos
+
+        missing = [
+            INFO_NAMES.get(g, g) for g in FILTER_GROUPS if INFO_NAMES.get(g, g) not in infos[0]
+        ]
         if missing:
-            raise ValueError(
-                f"push_filter: the env's info lacks {missing} (needs {list(FILTER_INFO_KEYS)})"
-            )
-        col = {
-            k: np.array([np.asarray(r[k], dtype=np.float64) for r in infos])
-            for k in FILTER_INFO_KEYS
-        }
-        X = {
-            "q": col["q"], "qd": col["qd"], "qdd": col["qdd"], "e_q": col["e_q"],
-            "e_qd": col["e_qd"], "i_cmd": col["current_cmd"],
-        }  # fmt: skip
-        return np.asarray(self.detector.detect(X, col["current"]).alarm, dtype=bool)
+            raise ValueError(f"push_filter: the env's info lacks {missing}")
+        col = log_from_infos(infos, FILTER_GROUPS)
+        X = {g: col[g] for g in FILTER_GROUPS if g != "i"}
+        return np.asarray(self.detector.detect(X, col["i"]).alarm, dtype=bool)
 
     def excluded(self, steps: Sequence[Sequence[Mapping[str, Any]]]) -> np.ndarray:
         """``e_t`` ``(T,)`` for an episode's ``T`` transitions, given as the ``info`` dicts of
