@@ -326,12 +326,15 @@ def timing_part(
     env_ids: Sequence[str] = (DEFAULT_ENV_ID,),
     append: bool = False,
     log: Callable[[str], None] = print,
+    kernel: str | None = None,
+    mpk_degree: int | None = None,
 ) -> list[dict[str, Any]]:
     """Part ``timing``: :func:`~mcpilco.experiments.mcpilco_timing.time_opt_step` for every
-    task spec (``env_ids``, each over its own horizon), GP size, thread count and particle
-    count (on a CUDA device both with and without a CUDA graph); replaces
-    ``results["timing"]`` (``append``: only the rows of the task specs timed now) and writes
-    the report."""
+    task spec (``env_ids``, each over its own horizon and with its config's GP kernel), GP
+    size, thread count and particle count (on a CUDA device both with and without a CUDA
+    graph; ``kernel``, ``mpk_degree``: instead of the config's); replaces
+    ``results["timing"]`` (``append``: only the rows of the task specs and kernels timed
+    now) and writes the report."""
     from mcpilco.experiments.mcpilco_timing import time_opt_step
 
     rows = []
@@ -344,10 +347,16 @@ def timing_part(
         for m in particles
         for g in graphs
     ]
+    # each spec's GP as its config fits it, or as the arguments say
+    configs = {
+        e: load_config(e).with_overrides(kernel=kernel, mpk_degree=mpk_degree) for e in env_ids
+    }
     for env_id, n, th, m, graph in grid:
+        cfg = configs[env_id]
         t = time_opt_step(
             n, num_particles=m, threads=th, device=device, cuda_graph=graph,
             compile_rollout=compile_rollout, heap_contrast=heap_contrast, env_id=env_id,
+            kernel=cfg.kernel, mpk_degree=cfg.mpk_degree,
         )  # fmt: skip
         comp = t.get("compiled_s_per_step_wall")
         log(
@@ -362,10 +371,9 @@ def timing_part(
             )
         )
         rows.append(t)
-    if append:  # keep the other task specs' rows (rows saved before specs: the cart-pole)
-        kept = [
-            t for t in results.get("timing", []) if t.get("env_id", DEFAULT_ENV_ID) not in env_ids
-        ]
+    if append:  # keep the rows of other task specs and kernels
+        timed = {timing_spec(t) for t in rows}
+        kept = [t for t in results.get("timing", []) if timing_spec(t) not in timed]
         results["timing"] = kept + rows
     else:
         results["timing"] = rows
@@ -574,6 +582,18 @@ CONVENTION_NOTE = (
 )
 
 
+def timing_spec(t: dict) -> tuple[str, str, int | None]:
+    """A timing row's task spec and GP kernel: ``(env_id, kernel, mpk_degree)``; rows saved
+    before specs and kernels were recorded are the cart-pole's with RBF + degree-2 MPK."""
+    kernel = t.get("kernel", "rbf+mpk")
+    return t.get("env_id", DEFAULT_ENV_ID), kernel, t.get("mpk_degree", 2)
+
+
+def kernel_label(kernel: str, mpk_degree: int | None = None) -> str:
+    """``"rbf+mpk"`` with its degree (``"RBF + MPK (p = 1)"``), other kernels by name."""
+    return f"RBF + MPK (p = {mpk_degree})" if kernel == "rbf+mpk" else kernel
+
+
 def timing_row(t: dict) -> str:
     """One row of a spec's timing table (:func:`write_report`) for a result of
     :func:`~mcpilco.experiments.mcpilco_timing.time_opt_step`."""
@@ -640,6 +660,7 @@ def reference_table(timing: list[dict]) -> list[str]:
         "|---|---|---|---|---|---|---|---|---|",
     ]
     for t in timing:
+        env_id, kernel, degree = timing_spec(t)
         fast = "compiled_s_per_step_wall" in t
         key = "compiled_" if fast else ""
         wall, cpu = t[f"{key}s_per_step_wall"], t[f"{key}s_per_step_cpu"]
@@ -647,7 +668,8 @@ def reference_table(timing: list[dict]) -> list[str]:
         floor = f"{t['floor_s']:.4f}" if "floor_s" in t else "-"
         a, b = reference_speedup(wall)
         md.append(
-            f"| {t.get('env_id', DEFAULT_ENV_ID)} | {t['num_particles']} | {t['n_points']} "
+            f"| {env_id} ({kernel_label(kernel, degree)}) | {t['num_particles']} "
+            f"| {t['n_points']} "
             f"| {t['threads']} | {step} | {wall:.3f} | {cpu:.3f} | {floor} "
             f"| {_ratio(a)}-{_ratio(b)}x |"
         )
@@ -690,10 +712,10 @@ def write_report(results: dict, out_dir: Path) -> None:
             "allocator thresholds instead (`--timing-heap-contrast`), in the same rounds.",
             "",
         ]
-        groups: dict[str, list[dict]] = {}
-        for t in results["timing"]:  # rows saved before specs were recorded: the cart-pole
-            groups.setdefault(t.get("env_id", DEFAULT_ENV_ID), []).append(t)
-        for env_id, rows in groups.items():
+        groups: dict[tuple, list[dict]] = {}
+        for t in results["timing"]:
+            groups.setdefault(timing_spec(t), []).append(t)
+        for (env_id, kernel, degree), rows in groups.items():
             t0 = rows[0]
             shape = (
                 f"n = {t0['state_dim']}, A = {t0['action_dim']}, m = {t0['gp_outputs']}, "
@@ -701,7 +723,8 @@ def write_report(results: dict, out_dir: Path) -> None:
                 else ""
             )
             md += [
-                f"#### {env_id} ({shape}H = {t0.get('horizon', 60)})",
+                f"#### {env_id} ({shape}H = {t0.get('horizon', 60)}; GP "
+                f"{kernel_label(kernel, degree)})",
                 "",
                 "| particles M | GP points N | device | CUDA graph | threads | wall s/step "
                 "| CPU s/step | faults | fast: backend | wall s/step | CPU s/step "

@@ -19,7 +19,9 @@ from mcpilco.agents.mc_pilco import DEFAULT_ENV_ID, MCPilcoConfig, TaskSpec
 from mcpilco.experiments.mcpilco_timing import exploration_data
 
 __all__ = [
+    "KERNEL_ARGS",
     "find_swingup_policy",
+    "model_particles",
     "group_rmse_runs",
     "particle_rmse",
     "particle_rmse_on_run",
@@ -44,6 +46,55 @@ def find_swingup_policy(runs_dir: Path) -> Path:
     )
 
 
+KERNEL_ARGS: dict[str, dict[str, Any]] = {
+    "rbf+mpk": {"kernel": "rbf+mpk", "mpk_degree": 2},
+    "rbf+mpk1": {"kernel": "rbf+mpk", "mpk_degree": 1},
+    "rbf": {"kernel": "rbf"},
+    "rigid_body": {"kernel": "rigid_body"},
+}  # kernel labels of the comparisons -> GPDynamicsModel arguments
+
+
+def model_particles(
+    task: TaskSpec,
+    data: tuple,
+    policy,
+    x0: np.ndarray,
+    horizon: int,
+    kernel: str,
+    num_particles: int,
+    seed: int,
+    **fit_kwargs: Any,
+) -> np.ndarray:
+    """The particles ``(M, H + 1, n)`` of a GP with kernel label ``kernel``
+    (:data:`KERNEL_ARGS`) fitted on ``data = (s, a, s')`` with ``fit_kwargs``
+    (:class:`~mcpilco.agents.mc_pilco.GPDynamicsModel` arguments), rolled out under
+    ``policy`` (evaluation mode) from the real state ``x0`` for ``horizon`` steps,
+    random numbers from ``seed``."""
+    import torch
+
+    from mcpilco.agents.mc_pilco import (
+        GPDynamicsModel,
+        MCPilcoLoss,
+        SaturatingCost,
+        make_policy_module,
+    )
+
+    model = GPDynamicsModel(task, **KERNEL_ARGS[kernel], **fit_kwargs).fit(*data)
+    torch.manual_seed(seed)
+    loss = MCPilcoLoss(
+        make_policy_module(policy),
+        model.particle_dynamics(),
+        SaturatingCost.from_task(task),
+        horizon,
+        num_particles,
+        task.init_mean,
+    )
+    policy.eval()
+    with torch.no_grad():
+        x = torch.as_tensor(np.asarray(x0), dtype=torch.float32).expand(num_particles, -1)
+        return loss.rollout(initial_state=x.clone()).states.numpy()
+
+
 def _theta_rmse_both_kernels(
     data: tuple,
     policy,
@@ -57,33 +108,12 @@ def _theta_rmse_both_kernels(
     through each under ``policy`` from ``real[0]``; per kernel the RMSE of theta against
     ``real[1:, 2]`` over particles and steps (``kernel``), per step (``kernel_per_step``)
     and, with ``keep_particles``, the first 100 particles' theta (``kernel_particles``)."""
-    import torch
-
-    from mcpilco.agents.mc_pilco import (
-        GPDynamicsModel,
-        MCPilcoLoss,
-        SaturatingCost,
-        make_policy_module,
-    )
-
     out: dict[str, Any] = {}
-    horizon = len(real) - 1
     task = TaskSpec.for_env(DEFAULT_ENV_ID)
     for kernel in ("rbf+mpk", "rbf"):
-        model = GPDynamicsModel(task, kernel=kernel, **fit_kwargs).fit(*data)
-        torch.manual_seed(seed)
-        loss = MCPilcoLoss(
-            make_policy_module(policy),
-            model.particle_dynamics(),
-            SaturatingCost.from_task(task),
-            horizon,
-            num_particles,
-            task.init_mean,
+        parts = model_particles(
+            task, data, policy, real[0], len(real) - 1, kernel, num_particles, seed, **fit_kwargs
         )
-        policy.eval()
-        with torch.no_grad():
-            x0 = torch.as_tensor(real[0], dtype=torch.float32).expand(num_particles, 4)
-            parts = loss.rollout(initial_state=x0.clone()).states.numpy()
         err = parts[:, 1:, 2] - real[None, 1:, 2]
         out[kernel] = float(np.sqrt(np.mean(err**2)))
         out[f"{kernel}_per_step"] = np.sqrt(np.mean(err**2, axis=0)).tolist()

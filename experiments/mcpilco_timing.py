@@ -100,6 +100,7 @@ def time_opt_step(
     num_particles: int = 400,
     horizon: int | None = None,
     kernel: str = "rbf+mpk",
+    mpk_degree: int = 2,
     threads: int = 1,
     repeats: int = 5,
     env_id: str = DEFAULT_ENV_ID,
@@ -110,7 +111,8 @@ def time_opt_step(
 ) -> dict[str, float]:
     """Median wall and CPU seconds of one optimisation step (rollout, backward, Adam) on the
     task of ``env_id`` (its :class:`~mcpilco.agents.mc_pilco.TaskSpec`: state and action
-    sizes, GP outputs, cost) over ``horizon`` steps (None: the task's horizon).
+    sizes, GP outputs, cost) over ``horizon`` steps (None: the task's horizon), the GP with
+    ``kernel`` (and ``mpk_degree``) fitted on ``n_points`` random-exploration transitions.
 
     ``compile_rollout``: also time the same step with a fast rollout
     (:func:`~mcpilco.agents.mc_pilco.use_fast_rollout`) of the default backend
@@ -162,7 +164,9 @@ def time_opt_step(
     s, a, s1, _ = exploration_data(env_id, n_points, 0)
     task = TaskSpec.for_env(env_id)
     horizon = task.horizon if horizon is None else int(horizon)
-    model = GPDynamicsModel(task, kernel=kernel, adam_iters=30, lbfgs_iters=5, max_points=None)
+    model = GPDynamicsModel(
+        task, kernel=kernel, mpk_degree=mpk_degree, adam_iters=30, lbfgs_iters=5, max_points=None
+    )
     model.fit(s, a, s1)
     policy = SquashedRBFPolicy(
         StateLayout.from_task(task), task.action_low, task.action_high, seed=0
@@ -235,6 +239,8 @@ def time_opt_step(
         "state_dim": dynamics.layout.n,
         "action_dim": policy.action_dim,
         "gp_outputs": dynamics.layout.output_dim,
+        "kernel": kernel,
+        "mpk_degree": mpk_degree if kernel == "rbf+mpk" else None,
         "horizon": horizon,
         "n_points": n_points,
         "num_particles": num_particles,

@@ -28,7 +28,13 @@ from typing import Any
 import numpy as np
 
 from mcpilco.agents.mc_pilco import MCPilcoConfig
-from mcpilco.experiments.mcpilco_bench import bench_runs, load_results, section_key, seed_ranges
+from mcpilco.experiments.mcpilco_bench import (
+    bench_runs,
+    kernel_label,
+    load_results,
+    section_key,
+    seed_ranges,
+)
 from mcpilco.experiments.sweep import SweepRunner
 
 RESULTS_NAME = "mcpilco_tracking"  # stem of the JSON, Markdown and PNG outputs
@@ -191,7 +197,8 @@ def tracking_table(key: str, section: dict[str, Any]) -> str:
         "",
         f"{len(seeds)} seeds ({seed_ranges(seeds)}); M={cfg['num_particles']} particles, "
         f"max {cfg['opt']['max_steps']} opt steps per trial, GP subset N<={cfg['max_points']}, "
-        f"kernel {cfg['kernel']}, rollout {cfg.get('rollout_backend', 'auto')} "
+        f"kernel {kernel_label(cfg['kernel'], cfg.get('mpk_degree', 2))}, "
+        f"rollout {cfg.get('rollout_backend', 'auto')} "
         f"{cfg.get('rollout_dtype', 'float32')}, policy init {cfg.get('policy_init', 'box')}; "
         f"{section['jobs']} parallel jobs x 1 thread; mean wall-clock per run "
         f"{section['wall_s_per_run']:.0f} s.",
@@ -238,6 +245,164 @@ def _push_cell(row: dict[str, Any]) -> str:
     return f"{row.get('n_contact', '-')} / {row.get('n_filtered', '-')}{both}"
 
 
+def kernel_rmse_on_run(
+    ckpt_path: Path, kernels: Sequence[str], num_particles: int = 100
+) -> dict[str, Any]:
+    """The kernels' multi-step prediction error on a finished tracking run's own data: for
+    each kernel label of ``kernels``
+    (:data:`~mcpilco.experiments.mcpilco_rmse.KERNEL_ARGS`) a GP fitted with the run's GP
+    settings on every transition before its last trial (those its push filter left out
+    excluded); ``M`` particles under the policy of that trial from its real initial state
+    over the whole horizon, against its real trajectory. Per kernel and joint: the RMSE of
+    ``q_b`` over particles and steps [rad] (``rmse``), per step (``per_step``), and the
+    seconds of the fit and rollout (``seconds``)."""
+    import torch
+
+    from mcpilco.agents.mc_pilco import SquashedRBFPolicy
+    from mcpilco.agents.mc_pilco.checkpoint import load_checkpoint
+    from mcpilco.agents.mc_pilco.loop import transitions
+    from mcpilco.experiments.mcpilco_rmse import model_particles
+
+    torch.set_num_threads(1)
+    ckpt = load_checkpoint(ckpt_path)
+    cfg = MCPilcoConfig.from_dict(ckpt["config"])
+    task = cfg.task_spec()
+    episodes, arrays = ckpt["episodes"], ckpt["arrays"]
+    if len(episodes) < 2 or not task.joints:
+        raise ValueError(f"{ckpt_path}: needs an arm task's run with a policy trial")
+    policy = SquashedRBFPolicy(**ckpt["policy_settings"])
+    policy.load_state_dict(ckpt["policy"])
+    real = np.asarray(arrays[-1]["real"])
+    idx = [task.state_names.index(j) for j in task.joints]
+    data = transitions(episodes[:-1], task)
+    fit = dict(
+        max_points=cfg.max_points, adam_iters=cfg.gp_adam_iters, lbfgs_iters=cfg.gp_lbfgs_iters,
+        noise_min=cfg.gp_noise_min, min_lengthscale=cfg.gp_min_lengthscale,
+    )  # fmt: skip
+    out: dict[str, Any] = {
+        "run": Path(ckpt_path).parent.name,
+        "seed": cfg.seed,
+        "run_kernel": kernel_label(cfg.kernel, cfg.mpk_degree),
+        "n_data": len(data[1]),
+        "joints": list(task.joints),
+        "kernels": {},
+    }
+    for kernel in kernels:
+        t0 = time.perf_counter()
+        parts = model_particles(
+            task, data, policy, real[0], len(real) - 1, kernel, num_particles, cfg.seed, **fit
+        )
+        err = parts[:, 1:, idx] - real[None, 1:, idx]  # (M, H, joints)
+        out["kernels"][kernel] = {
+            "rmse": np.sqrt(np.mean(err**2, axis=(0, 1))).tolist(),
+            "per_step": np.sqrt(np.mean(err**2, axis=0)).tolist(),
+            "seconds": time.perf_counter() - t0,
+        }
+    return out
+
+
+def summarise_kernel_rmse(per_run: Sequence[dict[str, Any]]) -> dict[str, Any]:
+    """:func:`kernel_rmse_on_run` over runs: per kernel the mean and median over runs of
+    each joint's RMSE, the mean over runs of the all-joint RMSE ``sqrt(mean_b rmse_b^2)``,
+    and per joint the number of runs in which the kernel's RMSE is the lowest."""
+    kernels = list(per_run[0]["kernels"])
+    rm = {k: np.array([r["kernels"][k]["rmse"] for r in per_run]) for k in kernels}
+    best = np.argmin(np.stack([rm[k] for k in kernels]), axis=0)  # (runs, joints)
+    return {
+        "runs": len(per_run),
+        "joints": per_run[0]["joints"],
+        "run_kernel": sorted({r["run_kernel"] for r in per_run}),
+        "n_data": [r["n_data"] for r in per_run],
+        "kernels": {
+            k: {
+                "mean": rm[k].mean(0).tolist(),
+                "median": np.median(rm[k], axis=0).tolist(),
+                "all_joints_mean": float(np.mean(np.sqrt(np.mean(rm[k] ** 2, axis=1)))),
+                "lowest": (best == i).sum(0).tolist(),
+                "seconds_mean": float(np.mean([r["kernels"][k]["seconds"] for r in per_run])),
+            }
+            for i, k in enumerate(kernels)
+        },
+        "per_run": list(per_run),
+    }
+
+
+def kernel_rmse_table(key: str, summary: dict[str, Any]) -> str:
+    """Markdown: per kernel the mean RMSE [mrad] of each joint's predicted trajectory, the
+    all-joint mean, and the runs in which it was lowest per joint."""
+    from mcpilco.experiments.mcpilco_rmse import KERNEL_ARGS
+
+    joints = summary["joints"]
+    lines = [
+        f"### Multi-step prediction error per joint: {key}",
+        "",
+        f"{summary['runs']} runs (learned with {', '.join(summary['run_kernel'])}); each kernel's "
+        "GP fitted on a run's transitions before its last policy trial "
+        f"({min(summary['n_data'])}-{max(summary['n_data'])} transitions), particles under "
+        "that trial's policy from its real initial state over the whole horizon against its "
+        "real trajectory. Per joint: RMSE of q over particles and steps [mrad], mean over runs "
+        "(in brackets: runs in which this kernel's is the lowest). All joints: "
+        "sqrt(mean over joints of RMSE^2), mean over runs.",
+        "",
+        "| kernel | " + " | ".join(joints) + " | all joints | s per fit and rollout |",
+        "|---|" + "---|" * len(joints) + "---|---|",
+    ]
+    for k, v in summary["kernels"].items():
+        cells = [f"{1e3 * m:.1f} ({n})" for m, n in zip(v["mean"], v["lowest"], strict=True)]
+        lines.append(
+            f"| {kernel_label(**KERNEL_ARGS[k])} | " + " | ".join(cells)
+            + f" | {1e3 * v['all_joints_mean']:.1f} | {v['seconds_mean']:.0f} |"
+        )  # fmt: skip
+    return "\n".join(lines) + "\n"
+
+
+def tracking_kernels_part(
+    runs_dirs: Sequence[Path],
+    out_dir: Path,
+    kernels: Sequence[str],
+    num_particles: int = 100,
+    command: str = "",
+    log: Callable[[str], None] = print,
+) -> dict[str, Any]:
+    """Part ``tracking_kernels``: :func:`kernel_rmse_on_run` on every finished run
+    (``checkpoint.pt`` with a policy trial) under each of ``runs_dirs``, summarised
+    (:func:`summarise_kernel_rmse`) under the folder's name in ``kernels`` of
+    ``out_dir/mcpilco_tracking.json``; the report is rewritten.
+
+    Raises:
+        ValueError: a folder without a finished run, an unknown kernel label.
+    """
+    from mcpilco.experiments.mcpilco_rmse import KERNEL_ARGS
+
+    unknown = [k for k in kernels if k not in KERNEL_ARGS]
+    if unknown:
+        raise ValueError(f"unknown kernels {unknown}; choose from {sorted(KERNEL_ARGS)}")
+    results = load_results(out_dir, RESULTS_NAME)
+    for runs_dir in runs_dirs:
+        ckpts = sorted(Path(runs_dir).glob("*/checkpoint.pt"))
+        if not ckpts:
+            raise ValueError(f"no finished run (*/checkpoint.pt) under {runs_dir}")
+        per_run = []
+        for ckpt in ckpts:
+            r = kernel_rmse_on_run(ckpt, kernels, num_particles)
+            log(
+                f"{ckpt.parent.name}: "
+                + ", ".join(
+                    f"{k} {1e3 * np.sqrt(np.mean(np.square(v['rmse']))):.1f} mrad"
+                    for k, v in r["kernels"].items()
+                )
+            )
+            per_run.append(r)
+        key = Path(runs_dir).name
+        results.setdefault("kernels", {})[key] = summarise_kernel_rmse(per_run)
+        if command:
+            results.setdefault("commands", {})[f"kernels {key}"] = command
+        results.setdefault("measured", {})[f"kernels {key}"] = time.strftime("%Y-%m-%d")
+        log(kernel_rmse_table(key, results["kernels"][key]))
+        write_tracking_report(results, out_dir)
+    return results
+
+
 def write_tracking_report(results: dict[str, Any], out_dir: Path) -> None:
     """``mcpilco_tracking.{json,md,png}`` of ``results`` (``{"runs": {key: section}}``)."""
     out_dir = Path(out_dir)
@@ -256,6 +421,11 @@ def write_tracking_report(results: dict[str, Any], out_dir: Path) -> None:
         if results.get("commands", {}).get(key):
             when = results.get("measured", {}).get(key, "undated")
             md += [f"Command: `{results['commands'][key]}` ({when})", ""]
+    for key, summary in results.get("kernels", {}).items():
+        md.append(kernel_rmse_table(key, summary))
+        if results.get("commands", {}).get(f"kernels {key}"):
+            when = results.get("measured", {}).get(f"kernels {key}", "undated")
+            md += [f"Command: `{results['commands'][f'kernels {key}']}` ({when})", ""]
     (out_dir / f"{RESULTS_NAME}.md").write_text("\n".join(md))
     (out_dir / f"{RESULTS_NAME}.json").write_text(json.dumps(results, indent=1))
     if not results.get("runs"):

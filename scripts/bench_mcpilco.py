@@ -31,6 +31,11 @@ Four parts, each optional:
    seeds' runs and the tracking RMS per joint after each policy trial against the env's
    controller alone (:mod:`mcpilco.experiments.tracking_bench`); writes
    ``results/mcpilco_tracking.{json,md,png}``.
+6. ``tracking_kernels`` (only when named): on the finished tracking runs under each
+   ``--rmse-runs`` folder, the GP kernels of ``--kernels`` fitted on each run's data before
+   its last trial; the RMSE per joint of their particles under that trial's policy against
+   its real trajectory (:func:`~mcpilco.experiments.tracking_bench.kernel_rmse_on_run`);
+   added to ``results/mcpilco_tracking.{json,md}``.
 
 Writes ``results/mcpilco_cartpole.json`` (merged with an existing file, one section per
 env), ``results/mcpilco_cartpole.md`` and ``results/mcpilco_cartpole.png``. ``--pool`` merges
@@ -47,6 +52,7 @@ Usage::
     mcpilco-bench-mcpilco --pool bench bench5                  # one section, seeds of both
     mcpilco-bench-mcpilco --parts tracking --env mcpilco/UR10-v0 --seeds 10 --jobs 2
     mcpilco-bench-mcpilco --parts tracking --env mcpilco/UR10-v0 --pushes --seeds 10
+    mcpilco-bench-mcpilco --parts tracking_kernels --rmse-runs runs/bench/UR10-v0
     mcpilco-bench-mcpilco --parts timing --device cuda --timing-particles 400 4000
 """
 
@@ -72,7 +78,7 @@ from mcpilco.experiments.mcpilco_bench import (
     timing_part,
 )
 from mcpilco.experiments.sweep import SweepError, add_sweep_arguments, runner_from_args
-from mcpilco.experiments.tracking_bench import tracking_part
+from mcpilco.experiments.tracking_bench import tracking_kernels_part, tracking_part
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -84,9 +90,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument(
         "--parts",
         nargs="+",
-        choices=(*PARTS, "tracking"),
+        choices=(*PARTS, "tracking", "tracking_kernels"),
         help=f"parts to run (default: all of {', '.join(PARTS)}; none when --pool is given; "
-        "tracking only when named)",
+        "tracking and tracking_kernels only when named)",
     )
     p.add_argument(
         "--pool",
@@ -118,7 +124,12 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument(
         "--kernel",
         choices=KERNEL_CHOICES,
-        help="GP kernel of the runs (override; e.g. rbf for the RBF-only ablation)",
+        help="GP kernel of the runs and the timing (override; e.g. rbf for the RBF-only ablation)",
+    )
+    p.add_argument(
+        "--mpk-degree",
+        type=int,
+        help="degree of the MPK of kernel rbf+mpk in the runs and the timing (override)",
     )
     p.add_argument(
         "--rollout-dtype",
@@ -192,7 +203,15 @@ def build_parser() -> argparse.ArgumentParser:
         nargs="+",
         metavar="DIR",
         help="rmse_runs part: run folders (or folders of them) to use; only runs whose last "
-        "trial swung up count (default: all such runs under --runs-dir)",
+        "trial swung up count (default: all such runs under --runs-dir); tracking_kernels "
+        "part: folders of finished tracking runs (required)",
+    )
+    p.add_argument(
+        "--kernels",
+        nargs="+",
+        default=["rbf", "rbf+mpk", "rbf+mpk1", "rigid_body"],
+        help="tracking_kernels part: GP kernel labels to compare (rbf+mpk: degree-2 MPK, "
+        "rbf+mpk1: degree 1)",
     )
     p.add_argument("--out", type=Path, default=Path("results"))
     p.add_argument("--runs-dir", type=Path, default=Path("runs/bench_mcpilco"))
@@ -222,6 +241,7 @@ def main(argv: list[str] | None = None) -> int:
             num_particles=args.particles,
             num_candidates=args.candidates,
             kernel=args.kernel,
+            mpk_degree=args.mpk_degree,
             rollout_dtype=args.rollout_dtype,
             compile_rollout=args.compile_rollout,
             explore_hold=args.explore_hold,
@@ -234,20 +254,27 @@ def main(argv: list[str] | None = None) -> int:
 
     results = load_results(args.out)
     failed = 0
+    command = shlex.join(["mcpilco-bench-mcpilco", *(sys.argv[1:] if argv is None else argv)])
     if "tracking" in args.parts:
         seeds = range(args.first_seed, args.first_seed + args.seeds)
         try:
-            command = shlex.join(
-                ["mcpilco-bench-mcpilco", *(sys.argv[1:] if argv is None else argv)]
-            )
             failed += tracking_part(
                 configs, seeds, runner, args.runs_dir, args.out, args.label, args.pushes, command
             )
         except ValueError as err:
             parser.error(str(err))
-        if set(args.parts) == {"tracking"}:
-            print(f"wrote {args.out / 'mcpilco_tracking.json'} and its report")
-            return 1 if failed else 0
+    if "tracking_kernels" in args.parts:
+        if not args.rmse_runs:
+            parser.error("tracking_kernels needs --rmse-runs DIR [DIR ...]")
+        try:
+            tracking_kernels_part(
+                args.rmse_runs, args.out, args.kernels, args.particles or 100, command
+            )
+        except ValueError as err:
+            parser.error(str(err))
+    if set(args.parts) <= {"tracking", "tracking_kernels"}:
+        print(f"wrote {args.out / 'mcpilco_tracking.json'} and its report")
+        return 1 if failed else 0
     if "runs" in args.parts:
         seeds = range(args.first_seed, args.first_seed + args.seeds)
         failed += runs_part(results, configs, seeds, runner, args.runs_dir, args.out, args.label)
@@ -256,7 +283,7 @@ def main(argv: list[str] | None = None) -> int:
             results, args.out, args.timing_n, args.timing_threads, args.timing_particles,
             device=args.device, compile_rollout=bool(args.compile_rollout),
             heap_contrast=bool(args.timing_heap_contrast), env_ids=args.timing_env,
-            append=bool(args.timing_append),
+            append=bool(args.timing_append), kernel=args.kernel, mpk_degree=args.mpk_degree,
         )  # fmt: skip
     if "rmse" in args.parts:
         try:

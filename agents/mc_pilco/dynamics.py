@@ -313,13 +313,19 @@ def make_kernel_factory(
     input_dim: int,
     joint_inputs: JointSpaceInputs | None = None,
     min_lengthscale: float | None = None,
+    mpk_degree: int = 2,
 ) -> Callable[[torch.Size], nn.Module]:
-    """Kernel factory for ``GPRegressor``: ``k = k_RBF (+ k_MP^(2))``, eq. (5.10), or the
+    """Kernel factory for ``GPRegressor``: ``k = k_RBF (+ k_MP^(p))``, eq. (5.10), or the
     rigid-body kernel (module glossary).
 
-    ``kernel`` is ``"rbf+mpk"`` (RBF with ARD and output scale, plus a degree-2 MPK),
-    ``"rbf"`` (RBF only) or ``"rigid_body"`` (needs ``joint_inputs``, whose columns it
-    reads; ``input_dim`` must be its ``dim``). ``min_lengthscale``: a lower bound ``l_min``
+    ``kernel`` is ``"rbf+mpk"`` (RBF with ARD and output scale, plus an MPK of degree
+    ``p = mpk_degree``), ``"rbf"`` (RBF only) or ``"rigid_body"`` (needs ``joint_inputs``,
+    whose columns it reads; ``input_dim`` must be its ``dim``). The MPK of degree ``p``
+    spans the monomials of degree ``<= p`` of the ``d`` GP inputs: ``p = 2`` (the thesis's
+    cart-pole) adds the ``(d + 1)(d + 2) / 2`` quadratic features, ``p = 1`` (the MC-PILCO
+    reference's UR5 task) only the ``d + 1`` affine ones, which is what a rigid arm's
+    velocity change is in the torque at a fixed configuration; the rollout's cost of the
+    MPK part grows with that feature count. ``min_lengthscale``: a lower bound ``l_min``
     on the RBF lengthscales (standardised inputs; None: only ``l > 0``). On noise-free
     simulated data the marginal likelihood can shrink a lengthscale towards a delta kernel
     (``1/l^2`` of ``1e12``), which predicts nothing away from the data and whose matmul
@@ -328,6 +334,7 @@ def make_kernel_factory(
     """
     if kernel not in KERNEL_CHOICES:
         raise ValueError(f"kernel must be one of {KERNEL_CHOICES}, got {kernel!r}")
+    check_mpk_degree(mpk_degree)
     if kernel == "rigid_body":
         if joint_inputs is None or joint_inputs.dim != input_dim:
             raise ValueError("the rigid_body kernel needs the task's JointSpaceInputs")
@@ -357,9 +364,15 @@ def make_kernel_factory(
             return rbf
         from mcpilco.models.kernels import MPKernel
 
-        return rbf + MPKernel(degree=2, ard_num_dims=input_dim, batch_shape=batch_shape)
+        return rbf + MPKernel(degree=mpk_degree, ard_num_dims=input_dim, batch_shape=batch_shape)
 
     return factory
+
+
+def check_mpk_degree(mpk_degree: int) -> None:
+    """Raise a ValueError naming ``mpk_degree`` unless it is an integer >= 1."""
+    if isinstance(mpk_degree, bool) or not isinstance(mpk_degree, int) or mpk_degree < 1:
+        raise ValueError(f"mpk_degree must be an integer >= 1, got {mpk_degree!r}")
 
 
 class GPDynamicsModel:
@@ -384,6 +397,7 @@ class GPDynamicsModel:
             variance (:class:`~mcpilco.models.gp.GPRegressor`).
         min_lengthscale: lower bound of the RBF lengthscales on standardised inputs
             (:func:`make_kernel_factory`); None: none.
+        mpk_degree: degree ``p`` of the MPK of ``"rbf+mpk"`` (:func:`make_kernel_factory`).
     """
 
     def __init__(
@@ -399,6 +413,7 @@ class GPDynamicsModel:
         warm_start: bool = False,
         noise_min: float = 1e-8,
         min_lengthscale: float | None = None,
+        mpk_degree: int = 2,
     ) -> None:
         self.task = task
         self.noise_min = float(noise_min)
@@ -414,7 +429,7 @@ class GPDynamicsModel:
             task.gp_input_names() if self.joint_inputs is None else self.joint_inputs.names
         )
         self.kernel_factory = make_kernel_factory(
-            kernel, len(self.input_names), self.joint_inputs, min_lengthscale
+            kernel, len(self.input_names), self.joint_inputs, min_lengthscale, mpk_degree
         )
         self.dt = float(task.dt)
         self.max_points = max_points

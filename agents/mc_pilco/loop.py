@@ -52,7 +52,7 @@ from mcpilco.agents.mc_pilco.checkpoint import (
     set_rng_state,
 )
 from mcpilco.agents.mc_pilco.cost import SaturatingCost
-from mcpilco.agents.mc_pilco.dynamics import KERNEL_CHOICES, GPDynamicsModel
+from mcpilco.agents.mc_pilco.dynamics import KERNEL_CHOICES, GPDynamicsModel, check_mpk_degree
 from mcpilco.agents.mc_pilco.features import StateLayout
 from mcpilco.agents.mc_pilco.filters import CollisionFilter, contact_steps
 from mcpilco.agents.mc_pilco.loss import MCPilcoLoss
@@ -127,6 +127,9 @@ class MCPilcoConfig:
         gp_min_lengthscale: lower bound of the RBF lengthscales on standardised inputs (None:
             none); keeps noise-free simulated data from shrinking one to a delta kernel,
             which overflows a float32 rollout (:func:`~.dynamics.make_kernel_factory`).
+        mpk_degree: degree of the MPK of ``kernel="rbf+mpk"``: 2 (quadratic features of the
+            GP inputs, the thesis's cart-pole) or 1 (affine, the MC-PILCO reference's arm
+            task; far fewer features on many inputs). The native rollout takes 1 and 2.
         num_basis: policy basis functions.
         policy_weight_scale: initial policy weights ``w ~ U(-s, s) u_half``. Small, so that the
             initial policy is close to the middle of the action range.
@@ -196,6 +199,7 @@ class MCPilcoConfig:
     gp_lbfgs_iters: int = 100
     gp_noise_min: float = 1e-8
     gp_min_lengthscale: float | None = None
+    mpk_degree: int = 2
     num_basis: int = 200
     policy_weight_scale: float = 0.01
     policy_centers_box: float = math.pi
@@ -295,6 +299,7 @@ class MCPilcoConfig:
                 f"gp_min_lengthscale must be a finite value > 0 or None, got "
                 f"{self.gp_min_lengthscale!r}"
             )
+        check_mpk_degree(self.mpk_degree)
         if self.max_points is not None and self.max_points < 10:
             raise ValueError(f"max_points must be >= 10 or None, got {self.max_points}")
 
@@ -880,6 +885,7 @@ def run_mcpilco(
             lbfgs_iters=config.gp_lbfgs_iters,
             noise_min=config.gp_noise_min,
             min_lengthscale=config.gp_min_lengthscale,
+            mpk_degree=config.mpk_degree,
         )
         episodes: list[dict[str, Any]] = []
         records: list[dict[str, Any]] = []

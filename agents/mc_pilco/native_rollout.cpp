@@ -459,6 +459,9 @@ void step_forward_tile(const Model &M, const Lay &L, const Pol &P, float *x, con
                 st(psi + fi * TILE + h, za * zc);
             }
         }
+    } else if (M.p == 1) {  // psi = z = [1, x^]
+        for (int h = 0; h < TILE; h += 8) st(psi + h, bc(1.0f));
+        std::memcpy(psi + TILE, xs, sizeof(float) * d * TILE);
     }
     float *xa = W.xa.data();
     for (int b = 0; b < m; ++b) {
@@ -772,6 +775,8 @@ void step_backward_tile(const Model &M, const Lay &L, const Pol &P, const float 
                 if (ic > 0) st(dxs + (ic - 1) * TILE + h, ld(dxs + (ic - 1) * TILE + h) + dp * za);
             }
         }
+    } else if (M.p == 1) {  // dpsi/dx^ of z = [1, x^]: the rows after the first
+        for (int j = 0; j < d * TILE; ++j) dxs[j] += dpsi[TILE + j];
     }
     if (M.p > 0)
         for (int j = 0; j < d * TILE; ++j) dxs[j] += 2.0f * xs[j] * wprior[j];

@@ -33,7 +33,7 @@ Build: a PyTorch C++ extension (:func:`torch.utils.cpp_extension.load`, with nin
 pybind11 binding: ``torch::Tensor`` arguments, the GIL released while a shard runs, so the
 shards run in parallel threads), compiled on first use with ``-O3 -march=native`` into
 :func:`cache_dir` and rebuilt by ninja only when a source changes. Float32 on the CPU, the
-fused RBF (+ degree-2 MPK) posterior and :class:`~.cost.SaturatingCost` only
+fused RBF (+ MPK of degree 1 or 2) posterior and :class:`~.cost.SaturatingCost` only
 (:func:`native_unsupported_reason`); ``use_fast_rollout`` checks the result against the
 eager rollout like every fast path.
 
@@ -195,7 +195,7 @@ def native_unsupported_reason(
     conditions (:func:`~mcpilco.agents.mc_pilco.backends.unsupported_reason`: the
     package's policy, dynamics over the fused GP posterior and
     :class:`~mcpilco.agents.mc_pilco.cost.SaturatingCost`, on the CPU), float32 throughout,
-    an RBF or RBF + degree-2 MPK kernel (the package's two), and a working C++ toolchain.
+    an RBF or RBF + MPK kernel of degree 1 or 2, and a working C++ toolchain.
     Any state layout, number of actions, GP outputs and training points."""
     reason = unsupported_reason(policy, dynamics, cost, device)
     if reason is not None:
@@ -203,8 +203,8 @@ def native_unsupported_reason(
     pred = dynamics.delta_model
     if policy.weights.dtype != torch.float32 or pred.dtype != torch.float32:
         return "it runs in float32 only"
-    if pred.p not in (0, 2):
-        return f"it takes RBF or RBF + degree-2 MPK kernels, not MPK degree {pred.p}"
+    if pred.p not in (0, 1, 2):
+        return f"it takes RBF or RBF + MPK kernels of degree 1 or 2, not MPK degree {pred.p}"
     layout = dynamics.layout
     if policy.layout != layout or cost.state_dim != layout.n:
         return "the policy, dynamics and cost have different state layouts"

@@ -49,7 +49,8 @@ class NativeModel {
         M.p = (int)ints[7];
         M.f = (int)ints[8];
         TORCH_CHECK(M.d == M.fp + M.A, "GP inputs must be the features and the actions");
-        TORCH_CHECK(M.p == 0 || M.p == 2, "MPK degree must be 0 or 2");
+        TORCH_CHECK(M.p >= 0 && M.p <= 2, "MPK degree must be 0, 1 or 2");
+        TORCH_CHECK(M.p != 1 || M.f == M.d + 1, "degree-1 MPK: F must be d + 1");
         auto idx = [&](int i, const char *name) {
             return checked(index_[i], torch::kInt32, -1, name).data_ptr<int32_t>();
         };
@@ -76,8 +77,10 @@ class NativeModel {
             TORCH_CHECK(M.cost_ref[j] >= -1 && M.cost_ref[j] < M.n && M.cost_idx[j] >= 0 &&
                             M.cost_idx[j] < M.n,
                         "cost term ", j, ": state index out of range");
-        const int F = M.p == 2 ? M.f : 0;
-        TORCH_CHECK(index_[7].numel() >= F && index_[8].numel() >= F, "idx_a, idx_c too short");
+        const int F = M.p > 0 ? M.f : 0;  // MPK features (rows of B before L^-1's)
+        const int F_pairs = M.p == 2 ? F : 0;  // monomial index pairs: degree 2 only
+        TORCH_CHECK(index_[7].numel() >= F_pairs && index_[8].numel() >= F_pairs,
+                    "idx_a, idx_c too short");
         M.idx_a = idx(7, "idx_a");
         M.idx_c = idx(8, "idx_c");
         auto flt = [&](int i, int64_t numel, const char *name) -> const float * {
@@ -100,7 +103,7 @@ class NativeModel {
         M.sig2 = M.p ? flt(12, (int64_t)M.p * m, "sig2") : nullptr;
         M.noise_var = floats_[13].numel() ? flt(13, m, "noise_var") : nullptr;
         M.bound = floats_[14].numel() ? flt(14, m, "bound") : nullptr;
-        M.alpha_aug = flt(15, (int64_t)m * ((M.p == 2 ? M.f : 0) + M.N), "alpha_aug");
+        M.alpha_aug = flt(15, (int64_t)m * (F + M.N), "alpha_aug");
         M.n_bar = (int)index_[10].numel();
         M.bar_idx = idx(10, "bar_idx");
         for (int k = 0; k < M.n_bar; ++k)

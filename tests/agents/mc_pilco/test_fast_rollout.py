@@ -66,18 +66,23 @@ def swingup_cost(l_x: float = 1.5, l_theta: float = 1.0, wrap: bool = True) -> S
     )
 
 
-def _gp_model(kernel: str, n: int = 40, seed: int = 0) -> GPDynamicsModel:
+def _gp_model(kernel: str, n: int = 40, seed: int = 0, mpk_degree: int = 2) -> GPDynamicsModel:
     gen = torch.Generator().manual_seed(seed)
     s = torch.randn(n, 4, generator=gen, dtype=f64) * torch.tensor([0.5, 1.0, 2.0, 2.0], dtype=f64)
     a = torch.rand(n, 1, generator=gen, dtype=f64) * 2 - 1
     s1 = s + 0.05 * torch.randn(n, 4, generator=gen, dtype=f64)
-    return GPDynamicsModel(TASK, kernel=kernel, adam_iters=10, lbfgs_iters=0).fit(s, a, s1)
+    model = GPDynamicsModel(
+        TASK, kernel=kernel, adam_iters=10, lbfgs_iters=0, mpk_degree=mpk_degree
+    )
+    return model.fit(s, a, s1)
 
 
 # ---------------------------------------------------------------- gradchecks, float64
-@pytest.mark.parametrize("kernel", ["rbf+mpk", "rbf"])
-def test_fused_posterior_backward_matches_finite_differences(kernel):
-    pred = FusedRBFMPKPredictor.from_cached(_gp_model(kernel).gp_.cached_predictor(dtype=f64))
+@pytest.mark.parametrize(("kernel", "degree"), [("rbf+mpk", 2), ("rbf+mpk", 1), ("rbf", 2)])
+def test_fused_posterior_backward_matches_finite_differences(kernel, degree):
+    model = _gp_model(kernel, mpk_degree=degree)
+    pred = FusedRBFMPKPredictor.from_cached(model.gp_.cached_predictor(dtype=f64))
+    assert pred.p == (degree if kernel == "rbf+mpk" else 0)
     gen = torch.Generator().manual_seed(1)
     x = torch.randn(2, 3, 6, generator=gen, dtype=f64).requires_grad_(True)  # batch dims kept
     assert torch.autograd.gradcheck(lambda z: pred(z), (x,))

@@ -363,3 +363,44 @@ def test_tracking_success_bounds_the_rms_of_each_tracked_joint():
         TaskSpec.from_dict(dict(spec, success={"tracking_rms": {"qd1": 0.1}}))
     with pytest.raises(TaskSpecError, match=r"task\.success\.tracking_rms\.q1: needs a bound"):
         TaskSpec.from_dict(dict(spec, success={"tracking_rms": {"q1": -1}}))
+
+
+@pytest.mark.usefixtures("one_torch_thread")
+def test_kernel_comparison_on_a_tracking_run(tmp_path):
+    """``kernel_rmse_on_run`` on a finished two-link tracking run (one short policy trial):
+    every kernel's GP, refitted on the exploration trial, predicts the policy trial's joint
+    trajectories better than a model that holds the initial state (an independent
+    baseline: the RMS of ``q_b(t) - q_b(0)``); the figures have one value per joint and one
+    row per step, the summary counts one lowest kernel per run and joint, the report has a
+    row per kernel, and an unknown kernel label is refused."""
+    from mcpilco.experiments.tracking_bench import (
+        kernel_rmse_table,
+        summarise_kernel_rmse,
+        tracking_kernels_part,
+    )
+
+    cfg = MCPilcoConfig(
+        env_id=ENV_ID, task=KNOWN_REFERENCE_TASK, num_trials=1, num_particles=16,
+        max_points=None, gp_adam_iters=30, gp_lbfgs_iters=5, num_basis=20, mpk_degree=1,
+        explore_hold=2, sim_obs_noise_std=0.0, torch_threads=1, seed=0,
+        opt=PolicyOptConfig(max_steps=5, min_steps=1, monitor_patience=5),
+    )  # fmt: skip
+    run_mcpilco(cfg, tmp_path / "run0", progress=False, log=None, write_rrd=False)
+    kernels = ["rbf", "rbf+mpk1", "rigid_body"]
+    out = tracking_kernels_part([tmp_path], tmp_path / "results", kernels, 16, log=lambda _m: None)
+    summary = out["kernels"][tmp_path.name]
+    (run,) = summary["per_run"]
+    real = np.asarray(load_checkpoint(tmp_path / "run0" / "checkpoint.pt")["arrays"][-1]["real"])
+    hold = np.sqrt(np.mean((real[1:, :2] - real[:1, :2]) ** 2, axis=0))
+    task = TaskSpec.from_dict(KNOWN_REFERENCE_TASK)
+    for k in kernels:
+        fig = run["kernels"][k]
+        assert np.asarray(fig["per_step"]).shape == (task.horizon, 2)
+        assert np.all(np.asarray(fig["rmse"]) < hold), (k, fig["rmse"], hold)
+    assert [sum(v["lowest"][j] for v in summary["kernels"].values()) for j in (0, 1)] == [1, 1]
+    assert summary == summarise_kernel_rmse([run])
+    table = kernel_rmse_table("arm", summary)
+    assert all(name in table for name in ("| RBF |", "RBF + MPK (p = 1)", "| rigid_body |"))
+    assert "Multi-step prediction error" in (tmp_path / "results/mcpilco_tracking.md").read_text()
+    with pytest.raises(ValueError, match="unknown kernels"):
+        tracking_kernels_part([tmp_path], tmp_path / "results", ["poly"], 16)
