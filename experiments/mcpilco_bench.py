@@ -590,8 +590,11 @@ def timing_spec(t: dict) -> tuple[str, str, int | None]:
 
 
 def kernel_label(kernel: str, mpk_degree: int | None = None) -> str:
-    """``"rbf+mpk"`` with its degree (``"RBF + MPK (p = 1)"``), other kernels by name."""
-    return f"RBF + MPK (p = {mpk_degree})" if kernel == "rbf+mpk" else kernel
+    """A kernel's name in the reports: ``"rbf+mpk"`` with its degree (``"RBF + MPK
+    (p = 1)"``), ``"RBF"``, ``"rigid body"``."""
+    if kernel == "rbf+mpk":
+        return f"RBF + MPK (p = {mpk_degree})"
+    return {"rbf": "RBF", "rigid_body": "rigid body"}.get(kernel, kernel)
 
 
 def timing_row(t: dict) -> str:

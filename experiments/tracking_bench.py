@@ -35,7 +35,7 @@ from mcpilco.experiments.mcpilco_bench import (
     section_key,
     seed_ranges,
 )
-from mcpilco.experiments.sweep import SweepRunner
+from mcpilco.experiments.sweep import Job, SweepRunner
 
 RESULTS_NAME = "mcpilco_tracking"  # stem of the JSON, Markdown and PNG outputs
 HALVED = 0.5  # the goal: every joint's RMS at most this fraction of the controller alone's
@@ -246,7 +246,7 @@ def _push_cell(row: dict[str, Any]) -> str:
 
 
 def kernel_rmse_on_run(
-    ckpt_path: Path, kernels: Sequence[str], num_particles: int = 100
+    ckpt_path: str | Path, kernels: Sequence[str], num_particles: int = 100
 ) -> dict[str, Any]:
     """The kernels' multi-step prediction error on a finished tracking run's own data: for
     each kernel label of ``kernels``
@@ -255,15 +255,13 @@ def kernel_rmse_on_run(
     excluded); ``M`` particles under the policy of that trial from its real initial state
     over the whole horizon, against its real trajectory. Per kernel and joint: the RMSE of
     ``q_b`` over particles and steps [rad] (``rmse``), per step (``per_step``), and the
-    seconds of the fit and rollout (``seconds``)."""
-    import torch
-
+    seconds of the fit and rollout (``seconds``). A sweep job of
+    :func:`tracking_kernels_part`."""
     from mcpilco.agents.mc_pilco import SquashedRBFPolicy
     from mcpilco.agents.mc_pilco.checkpoint import load_checkpoint
     from mcpilco.agents.mc_pilco.loop import transitions
     from mcpilco.experiments.mcpilco_rmse import model_particles
 
-    torch.set_num_threads(1)
     ckpt = load_checkpoint(ckpt_path)
     cfg = MCPilcoConfig.from_dict(ckpt["config"])
     task = cfg.task_spec()
@@ -360,17 +358,19 @@ def tracking_kernels_part(
     runs_dirs: Sequence[Path],
     out_dir: Path,
     kernels: Sequence[str],
+    runner: SweepRunner,
     num_particles: int = 100,
     command: str = "",
     log: Callable[[str], None] = print,
 ) -> dict[str, Any]:
-    """Part ``tracking_kernels``: :func:`kernel_rmse_on_run` on every finished run
-    (``checkpoint.pt`` with a policy trial) under each of ``runs_dirs``, summarised
-    (:func:`summarise_kernel_rmse`) under the folder's name in ``kernels`` of
-    ``out_dir/mcpilco_tracking.json``; the report is rewritten.
+    """Part ``tracking_kernels``: :func:`kernel_rmse_on_run` on every run
+    (``*/checkpoint.pt``) under each of ``runs_dirs`` as sweep jobs of ``runner`` (one torch
+    thread each; results in ``<runs_dir>/kernel_rmse/``, kept for the same runs and
+    arguments), summarised (:func:`summarise_kernel_rmse`) under the folder's name in
+    ``kernels`` of ``out_dir/mcpilco_tracking.json``; the report is rewritten.
 
     Raises:
-        ValueError: a folder without a finished run, an unknown kernel label.
+        ValueError: a folder without a run, an unknown kernel label, a failed job.
     """
     from mcpilco.experiments.mcpilco_rmse import KERNEL_ARGS
 
@@ -382,17 +382,23 @@ def tracking_kernels_part(
         ckpts = sorted(Path(runs_dir).glob("*/checkpoint.pt"))
         if not ckpts:
             raise ValueError(f"no finished run (*/checkpoint.pt) under {runs_dir}")
-        per_run = []
-        for ckpt in ckpts:
-            r = kernel_rmse_on_run(ckpt, kernels, num_particles)
+        args = {"kernels": list(kernels), "num_particles": int(num_particles)}
+        jobs = [
+            Job(c.parent.name, kernel_rmse_on_run, {"ckpt_path": str(c), **args}, threads=1)
+            for c in ckpts
+        ]
+        sweep = runner.run(jobs, Path(runs_dir) / "kernel_rmse", desc=f"kernels {runs_dir}")
+        if sweep.failed:
+            raise ValueError(f"{len(sweep.failed)} runs failed: {sweep.summary()}")
+        per_run = [sweep.results[job.key] for job in jobs]
+        for r in per_run:
             log(
-                f"{ckpt.parent.name}: "
+                f"{r['run']}: "
                 + ", ".join(
                     f"{k} {1e3 * np.sqrt(np.mean(np.square(v['rmse']))):.1f} mrad"
                     for k, v in r["kernels"].items()
                 )
             )
-            per_run.append(r)
         key = Path(runs_dir).name
         results.setdefault("kernels", {})[key] = summarise_kernel_rmse(per_run)
         if command:

@@ -268,11 +268,11 @@ def main(argv: list[str] | None = None) -> int:
             parser.error("tracking_kernels needs --rmse-runs DIR [DIR ...]")
         try:
             tracking_kernels_part(
-                args.rmse_runs, args.out, args.kernels, args.particles or 100, command
+                args.rmse_runs, args.out, args.kernels, runner, args.particles or 100, command
             )
         except ValueError as err:
             parser.error(str(err))
-    if set(args.parts) <= {"tracking", "tracking_kernels"}:
+    if args.parts and set(args.parts) <= {"tracking", "tracking_kernels"}:
         print(f"wrote {args.out / 'mcpilco_tracking.json'} and its report")
         return 1 if failed else 0
     if "runs" in args.parts:

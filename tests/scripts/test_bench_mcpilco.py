@@ -102,7 +102,10 @@ def test_timing_part_reports_each_particle_count(tmp_path, capsys, command):
         2,
         60,
     )
-    assert "#### mcpilco/CartpoleSwingUp-v0 (n = 4, A = 1, m = 2, H = 60)" in md
+    assert (t["kernel"], t["mpk_degree"]) == ("rbf+mpk", 2)  # the cart-pole config's GP
+    assert (
+        "#### mcpilco/CartpoleSwingUp-v0 (n = 4, A = 1, m = 2, H = 60; GP RBF + MPK (p = 2))" in md
+    )
     wall = t["compiled_s_per_step_wall"]
     assert f"| {wall:.3f} | {t['compiled_s_per_step_cpu']:.3f} | {t['floor_s']:.4f} " in md
     assert f"| {0.45 / wall:.0f}-{0.58 / wall:.0f}x |" in md
@@ -119,6 +122,13 @@ def test_timing_part_reports_each_particle_count(tmp_path, capsys, command):
     md = (tmp_path / "mcpilco_cartpole.md").read_text()
     row = next(line for line in md.splitlines() if line.startswith("| 3 | 20 | cpu | no | 1 |"))
     assert row.count("|") == 23 and f"| {t['heap128k_s_per_step_wall']:.3f} |" in row
+    # --mpk-degree with --timing-append: the spec with another kernel, beside the first rows
+    argv1 = [*argv, "--timing-particles", "3", "--mpk-degree", "1", "--timing-append"]
+    assert command("mcpilco-bench-mcpilco", argv1) == 0
+    timing = json.loads((tmp_path / "mcpilco_cartpole.json").read_text())["timing"]
+    assert [t.get("mpk_degree") for t in timing] == [2, 1]
+    md = (tmp_path / "mcpilco_cartpole.md").read_text()
+    assert "H = 60; GP RBF + MPK (p = 1))" in md and "H = 60; GP RBF + MPK (p = 2))" in md
 
 
 def test_rmse_runs_part_uses_only_runs_that_swung_up_and_groups_by_their_kernel(

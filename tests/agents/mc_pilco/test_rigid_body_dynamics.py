@@ -367,12 +367,16 @@ def test_tracking_success_bounds_the_rms_of_each_tracked_joint():
 
 @pytest.mark.usefixtures("one_torch_thread")
 def test_kernel_comparison_on_a_tracking_run(tmp_path):
-    """``kernel_rmse_on_run`` on a finished two-link tracking run (one short policy trial):
-    every kernel's GP, refitted on the exploration trial, predicts the policy trial's joint
-    trajectories better than a model that holds the initial state (an independent
-    baseline: the RMS of ``q_b(t) - q_b(0)``); the figures have one value per joint and one
-    row per step, the summary counts one lowest kernel per run and joint, the report has a
-    row per kernel, and an unknown kernel label is refused."""
+    """``kernel_rmse_on_run`` on a finished two-link tracking run (one short policy trial),
+    each GP refitted on the 40 transitions of the exploration trial: the kernels with an
+    affine part (RBF + degree-1 MPK, rigid body) predict the policy trial's 2 s joint
+    trajectories to less than a third of the error of a model that holds the initial state
+    (an independent baseline: the RMS of ``q_b(t) - q_b(0)``), and better than the RBF
+    alone (measured: 0.09 / 0.05 and 0.11 / 0.05 rad against 0.37 / 0.69 rad for the RBF and
+    0.41 / 0.58 rad for holding). The figures have one value per joint and one row per
+    step, the summary counts one lowest kernel per run and joint, the report has a row per
+    kernel, and an unknown kernel label is refused."""
+    from mcpilco.experiments.sweep import SweepRunner
     from mcpilco.experiments.tracking_bench import (
         kernel_rmse_table,
         summarise_kernel_rmse,
@@ -387,7 +391,10 @@ def test_kernel_comparison_on_a_tracking_run(tmp_path):
     )  # fmt: skip
     run_mcpilco(cfg, tmp_path / "run0", progress=False, log=None, write_rrd=False)
     kernels = ["rbf", "rbf+mpk1", "rigid_body"]
-    out = tracking_kernels_part([tmp_path], tmp_path / "results", kernels, 16, log=lambda _m: None)
+    runner = SweepRunner(progress=False)
+    out = tracking_kernels_part(
+        [tmp_path], tmp_path / "results", kernels, runner, 16, log=lambda _m: None
+    )
     summary = out["kernels"][tmp_path.name]
     (run,) = summary["per_run"]
     real = np.asarray(load_checkpoint(tmp_path / "run0" / "checkpoint.pt")["arrays"][-1]["real"])
@@ -396,11 +403,14 @@ def test_kernel_comparison_on_a_tracking_run(tmp_path):
     for k in kernels:
         fig = run["kernels"][k]
         assert np.asarray(fig["per_step"]).shape == (task.horizon, 2)
-        assert np.all(np.asarray(fig["rmse"]) < hold), (k, fig["rmse"], hold)
+    rmse = {k: np.asarray(run["kernels"][k]["rmse"]) for k in kernels}
+    for k in ("rbf+mpk1", "rigid_body"):
+        assert np.all(rmse[k] < hold / 3), (k, rmse[k], hold)
+        assert np.all(rmse[k] < rmse["rbf"]), rmse
     assert [sum(v["lowest"][j] for v in summary["kernels"].values()) for j in (0, 1)] == [1, 1]
     assert summary == summarise_kernel_rmse([run])
     table = kernel_rmse_table("arm", summary)
-    assert all(name in table for name in ("| RBF |", "RBF + MPK (p = 1)", "| rigid_body |"))
+    assert all(name in table for name in ("| RBF |", "RBF + MPK (p = 1)", "| rigid body |"))
     assert "Multi-step prediction error" in (tmp_path / "results/mcpilco_tracking.md").read_text()
     with pytest.raises(ValueError, match="unknown kernels"):
-        tracking_kernels_part([tmp_path], tmp_path / "results", ["poly"], 16)
+        tracking_kernels_part([tmp_path], tmp_path / "results", ["poly"], runner, 16)
