@@ -338,24 +338,55 @@ def _compare_balance(data: dict[str, Any]) -> str:
     return line + "; TorchRL PILCO not measured"
 
 
-TRACKING_SECTION = "mcpilco/UR10-v0 (fresh300)"  # the UR10 tracking headline's section
+TRACKING_SECTION = "mcpilco/UR10-v0 (mpk1)"  # the UR10 tracking headline's section
+PUSHES_SECTION = "mcpilco/UR10-v0 (mpk1-pushes)"  # the same runs under pushes, no filter
+FILTERED_SECTION = "mcpilco/UR10-v0 (mpk1-pushes-filtered)"  # under pushes, push filter on
+KERNELS_SECTION = "UR10-v0_mpk1"  # the kernel comparison on the tracking headline's runs
 
 
-def _tracking(data: dict[str, Any]) -> str:
-    """The tracking RMS after the last policy trial against the controller alone, per joint."""
+def _tracking_figure(sec: dict[str, Any]) -> str:
+    """The tracking RMS after a section's last policy trial against the controller alone:
+    all joints and per joint."""
     from mcpilco.experiments.tracking_bench import overall
 
-    sec = data["runs"][TRACKING_SECTION]
     last = sec["tracking"][-1]
     tot = overall(sec, len(sec["tracking"]) - 1)
     ratios = " / ".join(f"{q:.2f}" for q in last["ratio_mean"])
     n = len(sec["seeds"])
     return (
-        f"UR10 tracking after {last['experience_s']:.0f} s of experience: all joints "
+        f"after {last['experience_s']:.0f} s of experience: all joints "
         f"{tot['ratio']:.2f} x the PD + gravity controller's error (halved in "
         f"{tot['halved']} of {n} seeds); per joint {ratios}; every joint halved in "
         f"{last['seeds_halved']} of {n} seeds"
     )
+
+
+def _tracking(data: dict[str, Any]) -> str:
+    return "UR10 tracking " + _tracking_figure(data["runs"][TRACKING_SECTION])
+
+
+def _tracking_pushes(data: dict[str, Any]) -> str:
+    from mcpilco.experiments.tracking_bench import overall
+
+    sec, unfiltered = data["runs"][FILTERED_SECTION], data["runs"][PUSHES_SECTION]
+    k = len(unfiltered["tracking"]) - 1
+    return (
+        "UR10 tracking under pushes, push filter on, "
+        + _tracking_figure(sec)
+        + f"; without the filter all joints {overall(unfiltered, k)['ratio']:.2f} x"
+    )
+
+
+def _tracking_kernels(data: dict[str, Any]) -> str:
+    from mcpilco.experiments.mcpilco_bench import kernel_label
+    from mcpilco.experiments.mcpilco_rmse import KERNEL_ARGS
+
+    rows = data["kernels"][KERNELS_SECTION]["kernels"]
+    cells = ", ".join(
+        f"{kernel_label(**KERNEL_ARGS[k])} {1e3 * v['all_joints_mean']:.1f}"
+        for k, v in rows.items()
+    )
+    return f"UR10 multi-step prediction RMSE over 4 s, all joints [mrad]: {cells}"
 
 
 def _gp_speed(data: dict[str, Any]) -> str:
@@ -591,6 +622,22 @@ REGISTRY: tuple[Headline, ...] = (
         "mcpilco_tracking.md",
         key=TRACKING_SECTION,
         seeds=lambda d: seed_ranges(d["runs"][TRACKING_SECTION]["seeds"]),
+    ),
+    Headline(
+        "MC-PILCO, UR10 tracking under pushes",
+        "mcpilco_tracking.json",
+        _tracking_pushes,
+        "mcpilco_tracking.md",
+        key=FILTERED_SECTION,
+        seeds=lambda d: seed_ranges(d["runs"][FILTERED_SECTION]["seeds"]),
+    ),
+    Headline(
+        "MC-PILCO, UR10 GP kernels",
+        "mcpilco_tracking.json",
+        _tracking_kernels,
+        "mcpilco_tracking.md",
+        key=f"kernels {KERNELS_SECTION}",
+        seeds=lambda d: seed_ranges(r["seed"] for r in d["kernels"][KERNELS_SECTION]["per_run"]),
     ),
     Headline(
         "MC-PILCO, speed (CPU)",

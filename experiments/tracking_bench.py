@@ -12,7 +12,8 @@ most half the baseline's (the goal "error at least halved").
 
 Writes ``results/mcpilco_tracking.json`` (one section per env and label),
 ``mcpilco_tracking.md`` and ``mcpilco_tracking.png`` (per joint: RMS against experience,
-mean and the seeds' range, the baseline dashed).
+mean and the seeds' range, the baseline dashed); the kernel comparison
+(:func:`tracking_kernels_part`) adds its table and ``mcpilco_tracking_kernels_<runs>.png``.
 """
 
 from __future__ import annotations
@@ -302,7 +303,9 @@ def kernel_rmse_on_run(
 def summarise_kernel_rmse(per_run: Sequence[dict[str, Any]]) -> dict[str, Any]:
     """:func:`kernel_rmse_on_run` over runs: per kernel the mean and median over runs of
     each joint's RMSE, the mean over runs of the all-joint RMSE ``sqrt(mean_b rmse_b^2)``,
-    and per joint the number of runs in which the kernel's RMSE is the lowest."""
+    per joint the number of runs in which the kernel's RMSE is the lowest, and per step and
+    joint the median over runs (``per_step_median``); the runs' figures without their steps
+    (``per_run``)."""
     kernels = list(per_run[0]["kernels"])
     rm = {k: np.array([r["kernels"][k]["rmse"] for r in per_run]) for k in kernels}
     best = np.argmin(np.stack([rm[k] for k in kernels]), axis=0)  # (runs, joints)
@@ -318,10 +321,22 @@ def summarise_kernel_rmse(per_run: Sequence[dict[str, Any]]) -> dict[str, Any]:
                 "all_joints_mean": float(np.mean(np.sqrt(np.mean(rm[k] ** 2, axis=1)))),
                 "lowest": (best == i).sum(0).tolist(),
                 "seconds_mean": float(np.mean([r["kernels"][k]["seconds"] for r in per_run])),
+                "per_step_median": np.median(
+                    [r["kernels"][k]["per_step"] for r in per_run], axis=0
+                ).tolist(),
             }
             for i, k in enumerate(kernels)
         },
-        "per_run": list(per_run),
+        "per_run": [
+            {
+                **r,
+                "kernels": {
+                    k: {key: v for key, v in fig.items() if key != "per_step"}
+                    for k, fig in r["kernels"].items()
+                },
+            }
+            for r in per_run
+        ],
     }
 
 
@@ -331,12 +346,13 @@ def kernel_rmse_table(key: str, summary: dict[str, Any]) -> str:
     from mcpilco.experiments.mcpilco_rmse import KERNEL_ARGS
 
     joints = summary["joints"]
+    lo, hi = min(summary["n_data"]), max(summary["n_data"])
     lines = [
         f"### Multi-step prediction error per joint: {key}",
         "",
         f"{summary['runs']} runs (learned with {', '.join(summary['run_kernel'])}); each kernel's "
         "GP fitted on a run's transitions before its last policy trial "
-        f"({min(summary['n_data'])}-{max(summary['n_data'])} transitions), particles under "
+        f"({lo if lo == hi else f'{lo}-{hi}'} transitions), particles under "
         "that trial's policy from its real initial state over the whole horizon against its "
         "real trajectory. Per joint: RMSE of q over particles and steps [mrad], mean over runs "
         "(in brackets: runs in which this kernel's is the lowest). All joints: "
@@ -409,6 +425,39 @@ def tracking_kernels_part(
     return results
 
 
+def plot_kernel_rmse(summary: dict[str, Any], path: Path) -> None:
+    """Per joint, the median over runs of each kernel's RMSE of q against time over the
+    horizon (:func:`summarise_kernel_rmse`)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from mcpilco.experiments.mcpilco_rmse import KERNEL_ARGS
+
+    joints = summary["joints"]
+    cols = min(len(joints), 3)
+    rows = -(-len(joints) // cols)
+    fig, axes = plt.subplots(rows, cols, figsize=(3.6 * cols, 2.6 * rows), squeeze=False)
+    for k, v in summary["kernels"].items():
+        per = 1e3 * np.asarray(v["per_step_median"])  # (H, joints)
+        steps = np.arange(1, len(per) + 1)
+        for j, name in enumerate(joints):
+            ax = axes[j // cols][j % cols]
+            ax.plot(steps, per[:, j], label=kernel_label(**KERNEL_ARGS[k]))
+            ax.set_title(f"{name}: RMSE of q [mrad]", fontsize=9)
+            ax.set_xlabel("step")
+    for j in range(len(joints), rows * cols):
+        axes[j // cols][j % cols].axis("off")
+    axes[0][0].legend(fontsize=7)
+    fig.suptitle(
+        f"particles against the real trajectory, median over {summary['runs']} runs", fontsize=9
+    )
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
 def write_tracking_report(results: dict[str, Any], out_dir: Path) -> None:
     """``mcpilco_tracking.{json,md,png}`` of ``results`` (``{"runs": {key: section}}``)."""
     out_dir = Path(out_dir)
@@ -434,6 +483,8 @@ def write_tracking_report(results: dict[str, Any], out_dir: Path) -> None:
             md += [f"Command: `{results['commands'][f'kernels {key}']}` ({when})", ""]
     (out_dir / f"{RESULTS_NAME}.md").write_text("\n".join(md))
     (out_dir / f"{RESULTS_NAME}.json").write_text(json.dumps(results, indent=1))
+    for key, summary in results.get("kernels", {}).items():
+        plot_kernel_rmse(summary, out_dir / f"{RESULTS_NAME}_kernels_{key}.png")
     if not results.get("runs"):
         return
     import matplotlib

@@ -4,6 +4,7 @@ against RBF and RBF + MPK on the arm's transitions, the tracking task through
 
 from __future__ import annotations
 
+import json
 import warnings
 
 import gymnasium as gym
@@ -396,7 +397,7 @@ def test_kernel_comparison_on_a_tracking_run(tmp_path):
         [tmp_path], tmp_path / "results", kernels, runner, 16, log=lambda _m: None
     )
     summary = out["kernels"][tmp_path.name]
-    (run,) = summary["per_run"]
+    run = json.loads((tmp_path / "kernel_rmse" / "run0.json").read_text())["result"]
     real = np.asarray(load_checkpoint(tmp_path / "run0" / "checkpoint.pt")["arrays"][-1]["real"])
     hold = np.sqrt(np.mean((real[1:, :2] - real[:1, :2]) ** 2, axis=0))
     task = TaskSpec.from_dict(KNOWN_REFERENCE_TASK)
@@ -412,5 +413,7 @@ def test_kernel_comparison_on_a_tracking_run(tmp_path):
     table = kernel_rmse_table("arm", summary)
     assert all(name in table for name in ("| RBF |", "RBF + MPK (p = 1)", "| rigid body |"))
     assert "Multi-step prediction error" in (tmp_path / "results/mcpilco_tracking.md").read_text()
+    assert (tmp_path / f"results/mcpilco_tracking_kernels_{tmp_path.name}.png").is_file()
+    assert np.asarray(summary["kernels"]["rbf"]["per_step_median"]).shape == (task.horizon, 2)
     with pytest.raises(ValueError, match="unknown kernels"):
         tracking_kernels_part([tmp_path], tmp_path / "results", ["poly"], runner, 16)
