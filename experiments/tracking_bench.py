@@ -386,10 +386,13 @@ def tracking_kernels_part(
     ``kernels`` of ``out_dir/mcpilco_tracking.json``; the report is rewritten.
 
     Raises:
-        ValueError: a folder without a run, an unknown kernel label, a failed job.
+        ValueError: no folder, a folder without a run, an unknown kernel label, a failed
+            job.
     """
     from mcpilco.experiments.mcpilco_rmse import KERNEL_ARGS
 
+    if not runs_dirs:
+        raise ValueError("tracking_kernels needs the folders of tracking runs (--rmse-runs DIR)")
     unknown = [k for k in kernels if k not in KERNEL_ARGS]
     if unknown:
         raise ValueError(f"unknown kernels {unknown}; choose from {sorted(KERNEL_ARGS)}")

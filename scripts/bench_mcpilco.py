@@ -1,6 +1,6 @@
 """Benchmark MC-PILCO on the cartpole swing-up (console script ``mcpilco-bench-mcpilco``).
 
-Four parts, each optional:
+Parts, each optional (``tracking`` and ``tracking_kernels`` only when named):
 
 1. ``runs``: S seeds of the whole loop (exploration + policy trials) per env; per trial
    (3, 6, 9, 12, 15 s of experience) the success rate, mean time upright, mean ``|x|``,
@@ -26,16 +26,11 @@ Four parts, each optional:
    data before its last trial, particles under the last trial's policy from that trial's real
    initial state, against its real trajectory. Grouped by the kernel each run learned with
    and its env.
-
-5. ``tracking`` (only when named): for a tracking task (``--env mcpilco/UR10-v0``), the
-   seeds' runs and the tracking RMS per joint after each policy trial against the env's
-   controller alone (:mod:`mcpilco.experiments.tracking_bench`); writes
-   ``results/mcpilco_tracking.{json,md,png}``.
-6. ``tracking_kernels`` (only when named): on the finished tracking runs under each
-   ``--rmse-runs`` folder, the GP kernels of ``--kernels`` fitted on each run's data before
-   its last trial; the RMSE per joint of their particles under that trial's policy against
-   its real trajectory (:func:`~mcpilco.experiments.tracking_bench.kernel_rmse_on_run`);
-   added to ``results/mcpilco_tracking.{json,md}``.
+5. ``tracking``: for a tracking task (``--env mcpilco/UR10-v0``), the tracking RMS per joint
+   after each policy trial against the env's controller alone; ``tracking_kernels``: on the
+   tracking runs under ``--rmse-runs``, each GP kernel of ``--kernels`` refitted on a run's
+   data before its last trial, the RMSE per joint of its particles against that trial
+   (:mod:`mcpilco.experiments.tracking_bench`); both write ``results/mcpilco_tracking.*``.
 
 Writes ``results/mcpilco_cartpole.json`` (merged with an existing file, one section per
 env), ``results/mcpilco_cartpole.md`` and ``results/mcpilco_cartpole.png``. ``--pool`` merges
@@ -255,28 +250,22 @@ def main(argv: list[str] | None = None) -> int:
     results = load_results(args.out)
     failed = 0
     command = shlex.join(["mcpilco-bench-mcpilco", *(sys.argv[1:] if argv is None else argv)])
-    if "tracking" in args.parts:
-        seeds = range(args.first_seed, args.first_seed + args.seeds)
-        try:
+    seeds = range(args.first_seed, args.first_seed + args.seeds)
+    try:
+        if "tracking" in args.parts:
             failed += tracking_part(
                 configs, seeds, runner, args.runs_dir, args.out, args.label, args.pushes, command
             )
-        except ValueError as err:
-            parser.error(str(err))
-    if "tracking_kernels" in args.parts:
-        if not args.rmse_runs:
-            parser.error("tracking_kernels needs --rmse-runs DIR [DIR ...]")
-        try:
+        if "tracking_kernels" in args.parts:
             tracking_kernels_part(
-                args.rmse_runs, args.out, args.kernels, runner, args.particles or 100, command
+                args.rmse_runs or [], args.out, args.kernels, runner, args.particles or 100, command
             )
-        except ValueError as err:
-            parser.error(str(err))
+    except ValueError as err:
+        parser.error(str(err))
     if args.parts and set(args.parts) <= {"tracking", "tracking_kernels"}:
         print(f"wrote {args.out / 'mcpilco_tracking.json'} and its report")
         return 1 if failed else 0
     if "runs" in args.parts:
-        seeds = range(args.first_seed, args.first_seed + args.seeds)
         failed += runs_part(results, configs, seeds, runner, args.runs_dir, args.out, args.label)
     if "timing" in args.parts:
         timing_part(
