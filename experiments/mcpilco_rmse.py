@@ -6,6 +6,8 @@ fixed learned swing-up policy from the real initial state, and the RMSE of theta
 particles and the real trajectory of that policy is taken per time step (root mean over the
 particles) and over the horizon. :func:`particle_rmse` fits on random-exploration data,
 :func:`particle_rmse_on_run` on a finished run's own data before its last trial.
+:func:`model_particles` (a GP of any kernel label of :data:`KERNEL_ARGS` fitted and rolled
+out on any task) is the shared step; the tracking bench's kernel comparison uses it too.
 """
 
 from __future__ import annotations
