@@ -289,11 +289,25 @@ def _mcpilco_step(data: dict[str, Any]) -> str:
         for t in data["timing"]
         if t["n_points"] == 100 and t["num_particles"] == 400 and t["threads"] == 2
     )
-    return (
+    line = (
         f"{row['compiled_s_per_step_wall']:.3f} s per policy-optimisation step "
         f"(`{row['compile_backend']}`, 400 particles, N = 100, 2 threads; eager "
         f"{row['s_per_step_wall']:.3f} s)"
     )
+    own = {(m["env_id"], m["n_points"]): m["s_per_step"] for m in data.get("reference_steps", [])}
+    ratios = [
+        own[(t["env_id"], t["n_points"])] / t["compiled_s_per_step_wall"]
+        for t in data["timing"]
+        if (t.get("env_id"), t["n_points"]) in own
+        and t.get("mpk_degree") == 1
+        and "compiled_s_per_step_wall" in t
+    ]
+    if ratios:  # the arm spec against the reference's own arm task, same kernel
+        line += (
+            f"; arm spec (UR10, RBF + MPK p = 1) {min(ratios):.0f}-{max(ratios):.0f}x the "
+            "reference's step on its UR5 task"
+        )
+    return line
 
 
 def _mcpilco_gpu(data: dict[str, Any]) -> str:

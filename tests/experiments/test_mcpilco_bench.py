@@ -166,3 +166,29 @@ def test_pooled_report_names_the_seeds_of_a_trial_only_some_ran():
     assert "Pooled from 2 runs of the same config (2 + 1 seeds" in table
     assert "averages runs of [1, 2] policy trials" in table
     assert "| 6 s (policy) |" in table and "| 9 s (policy, 1 seeds) |" in table
+
+
+def test_reference_table_divides_by_the_references_own_step_where_one_was_timed():
+    """A timed step with the reference's own step on a comparable task (same spec, N,
+    particles and threads) is divided into that step; every other step into the
+    reference's cart-pole range 0.45-0.58 s; rows name their GP kernel."""
+    from mcpilco.experiments.mcpilco_bench import reference_table
+
+    def row(env_id: str, n: int, wall: float, degree: int) -> dict:
+        return {
+            "env_id": env_id, "kernel": "rbf+mpk", "mpk_degree": degree, "n_points": n,
+            "num_particles": 50, "threads": 2, "s_per_step_wall": wall, "s_per_step_cpu": wall,
+        }  # fmt: skip
+
+    measured = [
+        {"env_id": "arm", "task": "UR5", "n_points": 100, "num_particles": 50, "threads": 2,
+         "s_per_step": 2.0},
+    ]  # fmt: skip
+    md = reference_table(
+        [row("arm", 100, 0.1, 1), row("arm", 200, 0.1, 1), row("cp", 100, 0.05, 2)], measured
+    )
+    lines = [line for line in md if line.startswith("| arm") or line.startswith("| cp")]
+    assert lines[0].startswith("| arm (RBF + MPK (p = 1)) | 50 | 100 |")
+    assert lines[0].endswith("| 20x (UR5: 2.00 s) |")
+    assert lines[1].endswith("| 4.5-5.8x |")  # no reference step at N = 200
+    assert lines[2].endswith("| 9-12x |")
