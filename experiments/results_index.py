@@ -650,7 +650,7 @@ REGISTRY: tuple[Headline, ...] = (
         "mcpilco_tracking.json",
         _tracking_kernels,
         "mcpilco_tracking.md",
-        key=f"kernels {KERNELS_SECTION}",
+        key=f"kernels {KERNELS_SECTION}",  # tracking_bench.kernels_entry (not imported here)
         seeds=lambda d: seed_ranges(r["seed"] for r in d["kernels"][KERNELS_SECTION]["per_run"]),
     ),
     Headline(

@@ -421,8 +421,8 @@ def tracking_kernels_part(
         key = Path(runs_dir).name
         results.setdefault("kernels", {})[key] = summarise_kernel_rmse(per_run)
         if command:
-            results.setdefault("commands", {})[f"kernels {key}"] = command
-        results.setdefault("measured", {})[f"kernels {key}"] = time.strftime("%Y-%m-%d")
+            results.setdefault("commands", {})[kernels_entry(key)] = command
+        results.setdefault("measured", {})[kernels_entry(key)] = time.strftime("%Y-%m-%d")
         log(kernel_rmse_table(key, results["kernels"][key]))
         write_tracking_report(results, out_dir)
     return results
@@ -461,6 +461,19 @@ def plot_kernel_rmse(summary: dict[str, Any], path: Path) -> None:
     plt.close(fig)
 
 
+def kernels_entry(key: str) -> str:
+    """The key of a kernel comparison's command and date (``commands``, ``measured``)."""
+    return f"kernels {key}"
+
+
+def _command_lines(results: dict[str, Any], entry: str) -> list[str]:
+    """Markdown lines naming the command of ``entry`` and its date, if recorded."""
+    command = results.get("commands", {}).get(entry)
+    if not command:
+        return []
+    return [f"Command: `{command}` ({results.get('measured', {}).get(entry, 'undated')})", ""]
+
+
 def write_tracking_report(results: dict[str, Any], out_dir: Path) -> None:
     """``mcpilco_tracking.{json,md,png}`` of ``results`` (``{"runs": {key: section}}``)."""
     out_dir = Path(out_dir)
@@ -475,15 +488,9 @@ def write_tracking_report(results: dict[str, Any], out_dir: Path) -> None:
     if results.get("machine"):
         md += [f"Machine: {results['machine']}.", ""]
     for key, section in results.get("runs", {}).items():
-        md.append(tracking_table(key, section))
-        if results.get("commands", {}).get(key):
-            when = results.get("measured", {}).get(key, "undated")
-            md += [f"Command: `{results['commands'][key]}` ({when})", ""]
+        md += [tracking_table(key, section), *_command_lines(results, key)]
     for key, summary in results.get("kernels", {}).items():
-        md.append(kernel_rmse_table(key, summary))
-        if results.get("commands", {}).get(f"kernels {key}"):
-            when = results.get("measured", {}).get(f"kernels {key}", "undated")
-            md += [f"Command: `{results['commands'][f'kernels {key}']}` ({when})", ""]
+        md += [kernel_rmse_table(key, summary), *_command_lines(results, kernels_entry(key))]
     (out_dir / f"{RESULTS_NAME}.md").write_text("\n".join(md))
     (out_dir / f"{RESULTS_NAME}.json").write_text(json.dumps(results, indent=1))
     for key, summary in results.get("kernels", {}).items():
