@@ -652,6 +652,63 @@ def fk_seed_study(
 # ----------------------------------------------------------------------------- (d) controller
 
 
+def reaching_problem(
+    data: dict[str, Any], structure, n_train: int, selection: str, seed: int
+) -> dict[str, Any]:
+    """The start of part (d) and of the MC-PILCO reaching benchmark: ``n_train`` samples of
+    ``D_tr`` (:func:`training_indices`), every marker in chain order (``X`` joints in the
+    model's order ``S_q``, ``Y`` poses ``(N, n + 1, 6)``), and 5 target configurations
+    uniform in the joint box of the waypoints (where every marker is seen, with a visibility
+    cone) with their end-marker poses; ``chain_of_model[k]``: the chain joint of model
+    joint ``k``. Both agents draw the same samples and targets for a seed."""
+    env = data["env"]
+    poses, q, _ = data["train"]
+    ee, joints = structure.markers[-1], list(structure.joints)
+    rng = np.random.default_rng([seed, 4])
+    valid = np.isfinite(poses[:, ee]).all(1)
+    idx = training_indices(q[:, joints], valid, n_train, selection, rng, structure.joint_types)
+    X, Y = q[idx][:, joints], poses[idx][:, list(structure.markers)]
+    wp = data["waypoints"]
+    lo, hi = wp.min(0), wp.max(0)
+    accept = visible_configuration(env)
+    q_targets = (
+        rng.uniform(lo, hi, (5, wp.shape[1]))
+        if accept is None
+        else draw_accepted(lambda: rng.uniform(lo, hi), 5, accept, 5000, "targets")
+    )
+    return dict(
+        idx=idx,
+        X=X,
+        Y=Y,
+        q_targets=q_targets,
+        targets=np.array([env.marker_poses(qt)[-1] for qt in q_targets]),
+        # model joint k is observed slot S_q[k], i.e. chain joint joint_permutation[S_q[k]]
+        chain_of_model=env.joint_permutation[joints],
+    )
+
+
+def trial_frames(obs_rows: list[np.ndarray], structure) -> tuple[list, list]:
+    """The frames of a trial that join the model's data: those showing the end marker, as
+    ``(joints in the model's order (n,), every marker in chain order (n + 1, 6))`` lists."""
+    n = len(structure.joints)
+    joints, markers = list(structure.joints), list(structure.markers)
+    X, Y = [], []
+    for o in obs_rows:
+        y = o[: 6 * (n + 1)].reshape(n + 1, 6)[markers]
+        if np.isfinite(y[-1]).all():
+            X.append(o[6 * (n + 1) : 6 * (n + 1) + n][joints])
+            Y.append(y)
+    return X, Y
+
+
+def geodesic_errors(poses: np.ndarray, targets: np.ndarray) -> np.ndarray:
+    """Rotation angle [rad] between the orientations of ``poses`` and ``targets`` (..., 6)."""
+    R = ypr_to_matrix(poses[..., 3:])
+    R_star = ypr_to_matrix(targets[..., 3:])
+    cos = (np.einsum("...ij,...ij->...", R, R_star) - 1.0) / 2.0
+    return np.arccos(np.clip(cos, -1.0, 1.0))
+
+
 def controller_part(
     data: dict[str, Any],
     structure,
@@ -703,25 +760,11 @@ def controller_part(
     if refine not in REFINE_CHOICES:
         raise ValueError(f"refine must be one of {REFINE_CHOICES}, got {refine!r}")
     env = data["env"]
-    poses, q, _ = data["train"]
-    ee, joints = structure.markers[-1], list(structure.joints)
-    rng = np.random.default_rng([seed, 4])
-    valid = np.isfinite(poses[:, ee]).all(1)
-    idx = training_indices(q[:, joints], valid, n_train, selection, rng, structure.joint_types)
-    markers = list(structure.markers)
-    X, Y = q[idx][:, joints], poses[idx][:, markers]  # every marker, chain order
+    problem = reaching_problem(data, structure, n_train, selection, seed)
+    idx, X, Y, targets = problem["idx"], problem["X"], problem["Y"], problem["targets"]
+    ee = structure.markers[-1]
     q_start = data["waypoints"][0]
-    wp = data["waypoints"]
-    lo, hi = wp.min(0), wp.max(0)
-    accept = visible_configuration(env)
-    q_targets = (
-        rng.uniform(lo, hi, (5, wp.shape[1]))
-        if accept is None
-        else draw_accepted(lambda: rng.uniform(lo, hi), 5, accept, 5000, "targets")
-    )
-    targets = np.array([env.marker_poses(qt)[-1] for qt in q_targets])
-    # model joint k is observed slot S_q[k], i.e. chain joint joint_permutation[S_q[k]]
-    chain_of_model = env.joint_permutation[joints]
+    chain_of_model = problem["chain_of_model"]
     n = env.n_joints
     if fk_model == "chain":
         fk = ChainForwardKinematicsGP(structure.joint_types)
@@ -763,11 +806,9 @@ def controller_part(
             arrival = obs_rows[-1][: 6 * (n + 1)].reshape(n + 1, 6)[ee]
             for _ in range(hold):  # the robot rests at q_des while the camera keeps measuring
                 obs_rows.append(env.step(np.zeros(n, dtype=np.float32))[0])
-            for o in obs_rows:
-                y = o[: 6 * (n + 1)].reshape(n + 1, 6)[markers]
-                if np.isfinite(y[-1]).all():  # frames that show the end marker join the data
-                    new_X.append(o[6 * (n + 1) : 6 * (n + 1) + n][joints])
-                    new_Y.append(y)
+            frames_X, frames_Y = trial_frames(obs_rows, structure)
+            new_X += frames_X
+            new_Y += frames_Y
             reached.append(arrival)
             reached_true.append(env.marker_poses(env.q)[-1])
             if rnd == 0:
@@ -790,6 +831,7 @@ def controller_part(
                 position_error_norm_true=np.linalg.norm(
                     reached_true[:, :3] - targets[:, :3], axis=1
                 ).tolist(),
+                orientation_error_true=geodesic_errors(reached_true, targets).tolist(),
                 predicted_error=predicted,
                 chosen_start=chosen,
             )

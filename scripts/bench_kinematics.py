@@ -4,7 +4,9 @@ Parts (thesis section 2.6; what each does: :mod:`mcpilco.experiments.kinematics_
 (a) Monte Carlo over random noiseless robots (Fig. 2.4), (b) misclassified triplets against
 the number of noisy UR10 samples (Fig. 2.6), (c) the FK GP on the UR10 (Table 2.1), (d) the
 kinematic controller with online refits (Table 2.2). ``--fk-seeds`` runs part (c) alone on
-each seed and writes ``kinematics_c_seeds.{json,md}``.
+each seed and writes ``kinematics_c_seeds.{json,md}``; ``--reaching-seeds`` runs MC-PILCO
+reaching through the learned kinematics against the controller of (d) on each seed
+(:mod:`mcpilco.experiments.reaching_bench`) and writes ``kinematics_reaching.{json,md,png}``.
 
 Outputs (``--out-dir``, default ``results/``; ``--merge`` keeps the parts not run from an
 existing ``kinematics.json``): ``kinematics.json``, ``kinematics_confusion.png``,
@@ -16,6 +18,7 @@ Examples::
     mcpilco-bench-kinematics --quick               # smoke run (1-2 min)
     mcpilco-bench-kinematics --parts a --robots 16
     mcpilco-bench-kinematics --parts cd --merge
+    mcpilco-bench-kinematics --reaching-seeds 300 301 302 --jobs 2
 """
 
 from __future__ import annotations
@@ -38,6 +41,7 @@ from mcpilco.experiments.kinematics_parts import (
     TRAIN_SELECTIONS,
 )
 from mcpilco.experiments.kinematics_report import fk_seed_markdown, markdown_report
+from mcpilco.experiments.reaching_bench import reaching_markdown, reaching_study
 from mcpilco.experiments.sweep import SweepError, add_sweep_arguments, runner_from_args
 
 DEFAULTS = KinematicsBenchSettings()
@@ -136,6 +140,11 @@ def _parser() -> argparse.ArgumentParser:
         "RMSEs, mean and range, seeds meeting the goal) instead of the other outputs",
     )  # fmt: skip
     p.add_argument(
+        "--reaching-seeds", type=int, nargs="+", default=None,
+        help="MC-PILCO reaching vs the gradient controller over these seeds (5 targets, "
+        "--online-rounds refits each): writes kinematics_reaching.{json,md,png}",
+    )  # fmt: skip
+    p.add_argument(
         "--merge", action="store_true",
         help="keep the results of the parts not run from an existing kinematics.json in --out-dir",
     )  # fmt: skip
@@ -145,7 +154,8 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument(
         "--runs-dir",
         default="runs/bench_kinematics",
-        help="--fk-seeds: one result file per seed (reused by a later call, same options)",
+        help="--fk-seeds, --reaching-seeds: one result file per seed (reused by a later call, "
+        "same options)",
     )
     p.add_argument("--no-progress", action="store_true")
     add_sweep_arguments(p)  # --jobs N (local processes), --ray [ADDRESS]: the --fk-seeds seeds
@@ -165,8 +175,9 @@ def main(argv: list[str] | None = None) -> int:
             settings = settings.quick()
     except ValueError as err:
         parser.error(str(err))
-    if args.fk_seeds is not None and (settings.measurement != "ideal" or args.merge):
-        parser.error("--fk-seeds runs part (c) with the noise model alone (no --merge)")
+    seeds_studies = args.fk_seeds is not None or args.reaching_seeds is not None
+    if seeds_studies and (settings.measurement != "ideal" or args.merge):
+        parser.error("--fk-seeds and --reaching-seeds use the noise model alone (no --merge)")
     progress = not args.no_progress
     try:
         runner = runner_from_args(args, progress=progress)
@@ -182,6 +193,18 @@ def main(argv: list[str] | None = None) -> int:
             print(err, file=sys.stderr)
             return 1
         print(fk_seed_markdown(study, command))
+        return 0
+    if args.reaching_seeds is not None:
+        try:
+            study = reaching_study(
+                args.reaching_seeds, args.out_dir, command, runner, args.runs_dir,
+                samples=settings.samples, n_train=settings.ctrl_train,
+                rounds=settings.online_rounds, hold=settings.ctrl_hold,
+            )  # fmt: skip
+        except RuntimeError as err:
+            print(err, file=sys.stderr)
+            return 1
+        print(reaching_markdown(study))
         return 0
     res = run_benchmark(settings, args.out_dir, command, args.merge, progress)
     print(markdown_report(res))
