@@ -36,3 +36,42 @@ def test_both_agents_get_the_same_targets_and_mcpilco_learns_from_its_trials():
     summary = summarise_reaching([dict(mcpilco=res, controller=ctrl)])
     assert summary["mcpilco"][1]["targets"] == 5
     assert "gradient controller" in reaching_markdown(dict(summary=summary))
+
+
+def _rows(errors):
+    """Seed rows whose trials reached the given (position, angle) errors, 5 targets each."""
+    return {
+        "rounds": [
+            {"position_error_norm_true": [p] * 5, "orientation_error_true": [a] * 5}
+            for p, a in errors
+        ]
+    }
+
+
+def fake_seed(seed, **_):
+    """A seed's rows with trial errors known in advance: the study only pools them."""
+    mc = _rows([(0.1, 0.5), (0.002 * (seed + 1), 0.01)])
+    ctrl = _rows([(0.02, 0.1), (0.009, 0.06)])
+    return dict(seed=seed, identification_correct=seed != 2, mcpilco=mc, controller=ctrl)
+
+
+def test_study_pools_seeds_and_targets_and_writes_its_report(tmp_path, monkeypatch):
+    import json
+
+    from mcpilco.experiments import reaching_bench
+    from mcpilco.experiments.sweep import SweepRunner
+
+    monkeypatch.setattr(reaching_bench, "reaching_seed", fake_seed)
+    study = reaching_bench.reaching_study(
+        [0, 1, 2], tmp_path, "cmd", SweepRunner(progress=False), tmp_path / "runs"
+    )
+    mc, ctrl = study["summary"]["mcpilco"], study["summary"]["controller"]
+    assert [t["targets"] for t in mc] == [15, 15]
+    assert mc[1]["position_median"] == 0.004  # seeds 0, 1, 2: 2, 4, 6 mm
+    assert mc[1]["reached"] == 15 and mc[0]["reached"] == 0
+    assert ctrl[1]["reached"] == 0  # 9 mm but 0.06 rad: outside 0.05 rad
+    assert study["identification_correct"] == 2
+    saved = json.loads((tmp_path / "kinematics_reaching.json").read_text())
+    assert saved["summary"] == study["summary"]
+    assert "| 2 | MC-PILCO" in (tmp_path / "kinematics_reaching.md").read_text()
+    assert (tmp_path / "kinematics_reaching.png").stat().st_size > 0

@@ -101,3 +101,12 @@ def test_fk_seed_study_writes_its_table_and_counts_the_goal_from_its_rows(
     assert "| mean |" in (tmp_path / "kinematics_c_seeds.md").read_text()
     assert command(BENCH, ["--fk-seeds", "0", "--merge", *out]) == 2
     assert "--fk-seeds" in capsys.readouterr().err
+
+
+def test_reaching_seeds_refuse_merge_and_rendered_measurement(command, tmp_path, capsys):
+    out = ["--out-dir", str(tmp_path)]
+    assert command(BENCH, ["--reaching-seeds", "0", "--merge", *out]) == 2
+    assert "--reaching-seeds use the noise model alone" in capsys.readouterr().err
+    argv = ["--reaching-seeds", "0", "--parts", "c", "--measurement", "aruco", *out]
+    assert command(BENCH, argv) == 2
+    assert "noise model alone" in capsys.readouterr().err
