@@ -28,6 +28,7 @@ error [rad] of the end marker at the end of each trial, per target, pooled over 
 
 from __future__ import annotations
 
+import datetime
 import time
 import warnings
 from pathlib import Path
@@ -255,6 +256,7 @@ def plot_reaching(study: dict[str, Any], path: Path) -> None:
     axes[1].set_ylabel("true orientation error [rad]")
     for ax in axes:
         ax.set_xlabel("trial")
+        ax.set_xticks([t["trial"] for t in study["summary"]["mcpilco"]])
         ax.set_yscale("log")
         ax.grid(True, which="both", alpha=0.3)
         ax.legend()
@@ -288,6 +290,7 @@ def reaching_study(
     rows = [sweep.results[f"seed{seed}"] for seed in seeds]
     study = dict(
         command=command,
+        measured=datetime.date.today().isoformat(),
         seeds=list(seeds),
         settings=settings,
         identification_correct=sum(r["identification_correct"] for r in rows),

@@ -21,7 +21,8 @@ LINKS = (0.5, 0.4, 0.3)  # link lengths of the planar arm [m]
 
 
 class PlanarArm(torch.nn.Module):
-    """``l = sum_i a_i [cos phi_i, sin phi_i, 0]``, ``R = Rz(phi_3)``, ``phi_i = sum_{j<=i} q_j``."""
+    """A planar three-link arm: ``l = sum_i a_i [cos phi_i, sin phi_i, 0]``,
+    ``R = Rz(phi_3)``, ``phi_i = q_1 + ... + q_i``."""
 
     def position_and_rotation(self, q):
         phi = torch.cumsum(q, -1)
