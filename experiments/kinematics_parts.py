@@ -312,9 +312,7 @@ def noise_vs_samples(
 def _pose_rmse(pred: np.ndarray, true: np.ndarray) -> list[float]:
     """RMSE of ``x, y, z, gamma, beta, alpha`` (wrapped) and of the geodesic angle [rad]."""
     err = np.concatenate([pred[:, :3] - true[:, :3], wrap_angle(pred[:, 3:] - true[:, 3:])], 1)
-    R_err = np.swapaxes(ypr_to_matrix(pred[:, 3:]), -1, -2) @ ypr_to_matrix(true[:, 3:])
-    cos = np.clip((np.trace(R_err, axis1=-2, axis2=-1) - 1.0) / 2.0, -1.0, 1.0)
-    geodesic = float(np.sqrt(np.mean(np.arccos(cos) ** 2)))
+    geodesic = float(np.sqrt(np.mean(geodesic_errors(pred, true) ** 2)))
     return [*np.sqrt((err**2).mean(0)).tolist(), geodesic]
 
 
@@ -687,16 +685,23 @@ def reaching_problem(
     )
 
 
+def measured_joints(obs: np.ndarray, structure) -> np.ndarray:
+    """The measured joint positions of a marker-camera observation, in the model's order
+    ``S_q`` (n,)."""
+    n = len(structure.joints)
+    return obs[6 * (n + 1) : 6 * (n + 1) + n][list(structure.joints)]
+
+
 def trial_frames(obs_rows: list[np.ndarray], structure) -> tuple[list, list]:
     """The frames of a trial that join the model's data: those showing the end marker, as
     ``(joints in the model's order (n,), every marker in chain order (n + 1, 6))`` lists."""
     n = len(structure.joints)
-    joints, markers = list(structure.joints), list(structure.markers)
+    markers = list(structure.markers)
     X, Y = [], []
     for o in obs_rows:
         y = o[: 6 * (n + 1)].reshape(n + 1, 6)[markers]
         if np.isfinite(y[-1]).all():
-            X.append(o[6 * (n + 1) : 6 * (n + 1) + n][joints])
+            X.append(measured_joints(o, structure))
             Y.append(y)
     return X, Y
 

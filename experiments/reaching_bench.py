@@ -11,7 +11,7 @@ random targets (:func:`~mcpilco.experiments.kinematics_parts.reaching_problem`),
 same model class: the chain of one-joint GPs along the identified marker chain
 (:class:`~mcpilco.models.kinematics.ChainForwardKinematicsGP`). Each trial starts at the
 first waypoint; the frames of a trial that show the end marker join that agent's data and
-its model is refitted before the next trial (4 trials: 300 samples, then 3 refits).
+its model is refitted before the next trial (``rounds + 1`` trials).
 
 * **MC-PILCO** (:func:`mcpilco_reaching_part`): per target, a closed-loop joint-increment
   policy optimised through the model (:func:`~mcpilco.agents.mc_pilco.reaching.
@@ -44,6 +44,7 @@ from mcpilco.experiments.kinematics_parts import (
     controller_part,
     geodesic_errors,
     identify_ur10,
+    measured_joints,
     reaching_problem,
     trial_frames,
     true_structure,
@@ -98,8 +99,7 @@ def mcpilco_reaching_part(
         reached_true, predicted, steps, new_X, new_Y = [], [], [], [], []
         t0 = time.perf_counter()
         for k, target in enumerate(targets):
-            obs = drive_to(env, q_start)[-1]
-            q_meas = obs[6 * (n + 1) : 6 * (n + 1) + n][joints]
+            q_meas = measured_joints(drive_to(env, q_start)[-1], structure)
             policy, res = optimise_reaching_policy(
                 model, types, q_meas, target[:3], ypr_to_matrix(target[3:]), increments, X,
                 config=cfg, policy=policies[k], seed=seed * 1000 + 10 * rnd + k,
@@ -115,7 +115,7 @@ def mcpilco_reaching_part(
                 action[joints] = u
                 obs = env.step(action)[0]
                 obs_rows.append(obs)
-                q_meas = obs[6 * (n + 1) : 6 * (n + 1) + n][joints]
+                q_meas = measured_joints(obs, structure)
             for _ in range(hold):  # the camera keeps measuring at rest
                 obs_rows.append(env.step(np.zeros(n, dtype=np.float32))[0])
             frames_X, frames_Y = trial_frames(obs_rows, structure)

@@ -338,14 +338,13 @@ def rollout_error(
     q_limits: ArrayLike | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """The deterministic rollout of ``policy`` (eval mode) through the model from ``q0``:
-    ``(q (H + 1, n), predicted pose error e(q_t) (H + 1,))``."""
-    dyn = IncrementDynamics(increments, q_limits)
+    ``(q (H + 1, n), predicted pose error e(q_t) (H + 1,))`` (:class:`ReachingLoss`'s
+    trajectory of one particle without noise)."""
     cost = PoseErrorCost(model, target_position, target_rotation, orientation_weight)
-    q = torch.as_tensor(np.asarray(q0, dtype=np.float64)).reshape(1, -1)
-    qs, cs = [q], [cost(q)]
+    q0_t = torch.as_tensor(np.asarray(q0, dtype=np.float64)).reshape(1, -1)
+    rollout = ReachingLoss(
+        policy, IncrementDynamics(increments, q_limits), cost, horizon, 1, q0_t, 0.0, 0.0
+    )
     with torch.no_grad():
-        for _ in range(horizon):
-            q = dyn(q, policy(q).to(q.dtype))
-            qs.append(q)
-            cs.append(cost(q))
-    return torch.cat(qs).numpy(), torch.cat(cs).numpy()
+        q = torch.cat([q0_t, rollout.trajectories()[0]])
+        return q.numpy(), cost(q).numpy()
