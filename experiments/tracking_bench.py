@@ -39,6 +39,7 @@ from mcpilco.experiments.mcpilco_bench import (
 from mcpilco.experiments.sweep import Job, SweepRunner
 
 RESULTS_NAME = "mcpilco_tracking"  # stem of the JSON, Markdown and PNG outputs
+PUSH_VARIANTS = ("both", "filtered", "kept")  # push sections: with / without the push filter
 HALVED = 0.5  # the goal: every joint's RMS at most this fraction of the controller alone's
 
 
@@ -538,7 +539,7 @@ def tracking_part(
     runs_dir: Path,
     out_dir: Path,
     label: str = "",
-    pushes: bool = False,
+    pushes: str | None = None,
     command: str = "",
     log: Callable[[str], None] = print,
 ) -> int:
@@ -547,16 +548,19 @@ def tracking_part(
     :func:`section_key` in ``out_dir/mcpilco_tracking.json`` and the report written after
     each env. Returns the number of failed seeds.
 
-    ``pushes``: the env's random pushes on (``env_kwargs: {disturbances: true}``) in
-    learning and evaluation, and two sections per env on the same seeds: the transitions
-    of the pushes kept in the GP data (label ``pushes``) and left out by the push filter
-    (``pushes-filtered``) with a detector of :func:`train_task_detector`, trained once
-    in ``runs_dir``. ``command``: the command line, recorded with each section's date of
+    ``pushes`` (one of :data:`PUSH_VARIANTS`, None: pushes off): the env's random pushes
+    on (``env_kwargs: {disturbances: true}``) in learning and evaluation, with the
+    transitions of the pushes kept in the GP data (``"kept"``, label ``pushes``), left out
+    by the push filter (``"filtered"``, label ``pushes-filtered``) with a detector of
+    :func:`train_task_detector`, trained once in ``runs_dir``, or both sections on the same
+    seeds (``"both"``). ``command``: the command line, recorded with each section's date of
     measurement (``commands`` and ``measured``, keyed by section).
 
     Raises:
-        ValueError: a config whose task tracks no reference state.
+        ValueError: a config whose task tracks no reference state, or an unknown ``pushes``.
     """
+    if pushes is not None and pushes not in PUSH_VARIANTS:
+        raise ValueError(f"pushes must be one of {PUSH_VARIANTS} or None, got {pushes!r}")
     for env_id, cfg in configs.items():
         if not cfg.task_spec().tracked_states():
             raise ValueError(f"{env_id}: the task's cost tracks no reference state")
@@ -571,17 +575,19 @@ def tracking_part(
     failed = 0
     for env_id, cfg in configs.items():
         variants = [(label, cfg)]
-        if pushes:
+        if pushes is not None:
             kwargs = {**(cfg.env_kwargs or {}), "disturbances": True}
             pushed = cfg.with_overrides(env_kwargs=kwargs)
-            name = env_id.split("/")[-1]
-            detector = Path(runs_dir) / f"{name}_{label}_detector.pt"
-            if not detector.is_file():
-                log(f"training the push detector of {env_id} in {detector}")
-                train_task_detector(cfg, detector, seed=10_000)
-            filtered = pushed.with_overrides(push_filter=str(detector))
             prefix = f"{label}-" if label else ""
-            variants = [(f"{prefix}pushes", pushed), (f"{prefix}pushes-filtered", filtered)]
+            variants = [] if pushes == "filtered" else [(f"{prefix}pushes", pushed)]
+            if pushes != "kept":
+                name = env_id.split("/")[-1]
+                detector = Path(runs_dir) / f"{name}_{label}_detector.pt"
+                if not detector.is_file():
+                    log(f"training the push detector of {env_id} in {detector}")
+                    train_task_detector(cfg, detector, seed=10_000)
+                filtered = pushed.with_overrides(push_filter=str(detector))
+                variants.append((f"{prefix}pushes-filtered", filtered))
         for lab, c in variants:
             tag = env_id.split("/")[-1] + (f"_{lab}" if lab else "")
             section, sweep = bench_runs(c, list(seeds), runner, Path(runs_dir) / tag)

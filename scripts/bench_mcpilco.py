@@ -46,7 +46,7 @@ Usage::
     mcpilco-bench-mcpilco --parts timing --compile-rollout --timing-env mcpilco/UR10-v0
     mcpilco-bench-mcpilco --pool bench bench5                  # one section, seeds of both
     mcpilco-bench-mcpilco --parts tracking --env mcpilco/UR10-v0 --seeds 10 --jobs 2
-    mcpilco-bench-mcpilco --parts tracking --env mcpilco/UR10-v0 --pushes --seeds 10
+    mcpilco-bench-mcpilco --parts tracking --env mcpilco/UR10-v0 --pushes [filtered] --seeds 10
     mcpilco-bench-mcpilco --parts tracking_kernels --rmse-runs runs/bench/UR10-v0
     mcpilco-bench-mcpilco --parts timing --device cuda --timing-particles 400 4000
 """
@@ -73,7 +73,7 @@ from mcpilco.experiments.mcpilco_bench import (
     timing_part,
 )
 from mcpilco.experiments.sweep import SweepError, add_sweep_arguments, runner_from_args
-from mcpilco.experiments.tracking_bench import tracking_kernels_part, tracking_part
+from mcpilco.experiments.tracking_bench import PUSH_VARIANTS, tracking_kernels_part, tracking_part
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -108,10 +108,10 @@ def build_parser() -> argparse.ArgumentParser:
         help="timing part: replace only the rows of the --timing-env specs, keep the others",
     )
     p.add_argument(
-        "--pushes",
-        action="store_true",
-        help="tracking part: the env's random pushes on, runs with and without the push filter",
-    )
+        "--pushes", nargs="?", const="both", choices=PUSH_VARIANTS,
+        help="tracking part: the env's random pushes on; runs with the push filter, without it "
+        "or both (default)",
+    )  # fmt: skip
     p.add_argument("--trials", type=int, help="policy trials (override)")
     p.add_argument("--particles", type=int, help="particles (override)")
     p.add_argument("--opt-steps", type=int, help="max opt steps per trial (override)")

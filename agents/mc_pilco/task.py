@@ -16,6 +16,16 @@ angles
     position/velocity pairs: the GP predicts ``Delta q_dot_i`` and ``q_i`` is integrated,
     eq. (5.9) ("speed integration", thesis 5.4.3). Every coordinate in no pair is predicted
     as a change ``Delta x_j`` of its own.
+``speed_integration``
+    True (default): positions are integrated as above, which assumes a constant
+    acceleration over the control period ``T_s``. A held action with a fast inner loop (a
+    stiff PD controller) or a fast reference breaks that assumption: for a joint moving as
+    ``A sin(w t)`` the trapezoid step ``T_s (qd_t + qd_{t+1}) / 2`` misses the true
+    displacement by the factor ``(w T_s / 2) / tan(w T_s / 2)`` (0.8 % at
+    ``w T_s = 0.31``), a per-step error that a tracking task's millirad errors cannot afford.
+    False: the pairs still say which velocity belongs to which position (joints, the
+    rigid-body kernel's inputs), but the GP predicts every position change ``Delta q_i`` as
+    well (twice the outputs).
 ``f(x~) = [x_plain, sin x_angles, cos x_angles]``
     the state features; the GP input is ``[f(x), u]`` (:meth:`TaskSpec.feature_layout`).
 ``c(x) = 1 - exp(-sum_j d_j(x)^2 / l_j^2)``
@@ -129,7 +139,9 @@ class TaskSpec:
         true_state_key: ``info`` key of the noise-free state, used for evaluation (cost,
             success); None: the state read from the observation.
         angles: names of the coordinates that wrap around.
-        pairs: ``(position, velocity)`` name pairs for speed integration.
+        pairs: ``(position, velocity)`` name pairs (speed integration; an arm's joints).
+        speed_integration: integrate the pairs' positions by eq. (5.9) (True) or predict
+            their changes with the GP (False); module glossary.
         action_low, action_high: action bounds (the policy's output range).
         dt: control period [s]. horizon: steps per episode and of the particle rollout.
         action_repeat: env steps each action is held for; then ``dt`` is that many env
@@ -171,8 +183,13 @@ class TaskSpec:
     reference: Mapping[str, Any] | None = None
     action_repeat: int = 1
     limits: Mapping[str, tuple[float, float]] = field(default_factory=dict)
+    speed_integration: bool = True
 
     def __post_init__(self) -> None:
+        if not isinstance(self.speed_integration, bool):
+            raise _fail(
+                "speed_integration", f"expected true or false, got {self.speed_integration!r}"
+            )
         names = tuple(str(n) for n in self.state_names)
         object.__setattr__(self, "state_names", names)
         if not names:
@@ -388,12 +405,20 @@ class TaskSpec:
         return tuple(i for i, n in enumerate(self.state_names) if n not in self.angles)
 
     @property
+    def integrated_pairs(self) -> tuple[tuple[str, str], ...]:
+        """The pairs whose position is integrated, eq. (5.9): all of them, or none without
+        ``speed_integration``."""
+        return self.pairs if self.speed_integration else ()
+
+    @property
     def position_idx(self) -> tuple[int, ...]:
-        return tuple(self.index(p) for p, _ in self.pairs)
+        """Positions of the integrated pairs."""
+        return tuple(self.index(p) for p, _ in self.integrated_pairs)
 
     @property
     def velocity_idx(self) -> tuple[int, ...]:
-        return tuple(self.index(v) for _, v in self.pairs)
+        """Velocities of the integrated pairs."""
+        return tuple(self.index(v) for _, v in self.integrated_pairs)
 
     @property
     def delta_idx(self) -> tuple[int, ...]:
