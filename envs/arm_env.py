@@ -333,6 +333,31 @@ class ArmTrackingEnv(gym.Env):
         qd = np.asarray(qd, dtype=np.float64)
         return self._stribeck * (1.0 - np.exp(-((qd / self._v_s) ** 2))) * np.sign(qd)
 
+    def feedforward_action(self, t0: float, duration: float, samples: int = 4) -> FloatArray:
+        """The action of the known-model feed-forward over ``[t0, t0 + duration]``:
+        ``a = clip(mean_t [ID(q_r, qd_r, qdd_r) - g(q_r)] / action_scale, -1, 1)``, the mean
+        over ``samples`` midpoints per 8 ms sample.
+
+        ``ID`` is MuJoCo's inverse dynamics (``mj_inverse``) of this env's own model on the
+        reference: inertia with the reflected rotor inertia, Coriolis and centrifugal terms,
+        gravity, viscous friction and the dry friction of ``frictionloss`` (not the Stribeck
+        term, nor pushes). On the reference the PD terms vanish, so this is the correction
+        an ideal model would hold over a control period of ``duration``: the reference line
+        of what a learned correction can achieve within the action bounds.
+        """
+        if self.reference is None:
+            raise RuntimeError("call reset() before feedforward_action()")
+        n = max(1, int(round(duration / self.sample_time))) * int(samples)
+        d = self._gdata
+        u = np.zeros(self.n_joints)
+        for t in t0 + duration * (np.arange(n) + 0.5) / n:
+            q, qd, qdd = self.reference(float(t))
+            d.qpos[:], d.qvel[:], d.qacc[:] = q, qd, qdd
+            mujoco.mj_inverse(self.model, d)
+            tau = d.qfrc_inverse.copy()  # gravity_torque reuses the scratch data
+            u += tau - self.gravity_torque(q)
+        return np.clip(u / n / self.action_scale, -1.0, 1.0)
+
     def controller_torque(
         self, q: FloatArray, qd: FloatArray, q_ref: FloatArray, qd_ref: FloatArray, u: FloatArray
     ) -> FloatArray:

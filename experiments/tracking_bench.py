@@ -8,7 +8,10 @@ The baseline is the controller alone: the same episodes (same reset seeds,
 :func:`~mcpilco.agents.mc_pilco.loop.trial_seed`) with the action at the middle of its
 range (a zero torque correction). Reported per policy trial: the mean over seeds of each
 joint's RMS, its ratio to the baseline's, and the number of seeds whose every joint is at
-most half the baseline's (the goal "error at least halved").
+most half the baseline's (the goal "error at least halved"). On an arm env with a known
+model (``feedforward_action`` of :class:`~mcpilco.envs.arm_env.ArmTrackingEnv`) the same
+episodes also run with the simulator's own inverse-dynamics feed-forward held over each
+control period and clipped to the action bounds: what an ideal model achieves within them.
 
 Writes ``results/mcpilco_tracking.json`` (one section per env and label),
 ``mcpilco_tracking.md`` and ``mcpilco_tracking.png`` (per joint: RMS against experience,
@@ -94,19 +97,30 @@ def train_task_detector(
     return path
 
 
-def controller_alone(config: MCPilcoConfig, seed: int, trials: int) -> list[dict[str, float]]:
+def controller_alone(
+    config: MCPilcoConfig, seed: int, trials: int, feedforward: bool = False
+) -> list[dict[str, float]] | None:
     """``tracking_rms`` of the episodes of policy trials ``1..trials`` of run ``seed`` with
-    the action held at the middle of its range (the env's controller alone)."""
+    the action held at the middle of its range (the env's controller alone), or with
+    ``feedforward`` the env's known-model feed-forward held over each control period
+    (``feedforward_action`` of :class:`~mcpilco.envs.arm_env.ArmTrackingEnv`; None for an
+    env without one)."""
     from mcpilco.agents.mc_pilco.loop import make_env, run_episode, trial_seed
 
     task = config.task_spec()
     env = make_env(config.env_id, task.horizon, task, config.env_kwargs)
+    arm = env.unwrapped
+    if feedforward and not hasattr(arm, "feedforward_action"):
+        env.close()
+        return None
     mid = (np.asarray(task.action_low) + np.asarray(task.action_high)) / 2
+
+    def act(_x: np.ndarray) -> np.ndarray:
+        return arm.feedforward_action(arm.time, task.dt) if feedforward else mid
+
     try:
         return [
-            run_episode(env, lambda _x: mid, trial_seed(seed, k), task.horizon, task)[
-                "tracking_rms"
-            ]
+            run_episode(env, act, trial_seed(seed, k), task.horizon, task)["tracking_rms"]
             for k in range(1, trials + 1)
         ]
     finally:
@@ -129,6 +143,7 @@ def tracking_section(
                 "records": recs,
                 "rms": [x["tracking_rms"] for x in recs],
                 "alone": controller_alone(config, r["seed"], len(recs)),
+                "feedforward": controller_alone(config, r["seed"], len(recs), feedforward=True),
                 "experience_s": [x["experience_s"] for x in recs],
             }
         )
@@ -139,8 +154,17 @@ def tracking_section(
         rms = np.array([[s["rms"][k][j] for j in joints] for s in per_seed])
         alone = np.array([[s["alone"][k][j] for j in joints] for s in per_seed])
         ratio = rms / alone
+        ff = {}
+        if all(s["feedforward"] for s in per_seed):
+            ideal = np.array([[s["feedforward"][k][j] for j in joints] for s in per_seed])
+            ff = {
+                "feedforward_mean": ideal.mean(0).tolist(),
+                "feedforward_ratio": (ideal / alone).mean(0).tolist(),
+                "feedforward_halved": int(np.sum(np.all(ideal / alone <= HALVED, axis=1))),
+            }
         rows.append(
             {
+                **ff,
                 "trial": k + 1,
                 "experience_s": per_seed[0]["experience_s"][k],
                 "rms_mean": rms.mean(0).tolist(),
@@ -224,6 +248,13 @@ def tracking_table(key: str, section: dict[str, Any]) -> str:
         + " | ".join(f"{1e3 * v:.1f}" for v in first["alone_mean"])
         + f" | - | {1e3 * overall(section, 0)['alone']:.1f} | - | - |"
     )
+    if "feedforward_mean" in first:
+        cells = zip(first["feedforward_mean"], first["feedforward_ratio"], strict=True)
+        lines.append(
+            "| known-model feed-forward | "
+            + " | ".join(f"{1e3 * m:.1f} ({q:.2f})" for m, q in cells)
+            + f" | {first['feedforward_halved']} / {len(seeds)} | - | - | - |"
+        )
     for k, r in enumerate(section["tracking"]):
         cells = [
             f"{1e3 * m:.1f} ({q:.2f})" for m, q in zip(r["rms_mean"], r["ratio_mean"], strict=True)

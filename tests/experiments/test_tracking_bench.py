@@ -40,10 +40,10 @@ def test_controller_alone_is_the_zero_correction_episode():
 def test_tracking_section_means_ratios_and_halved_counts(tmp_path, monkeypatch):
     """Two seeds, two policy trials, baselines fixed: means, ratios to the baseline, the
     worst ratio and the number of seeds with every joint at most half the baseline's."""
-    alone = {"q1": 0.04, "q2": 0.02}
+    alone, ideal = {"q1": 0.04, "q2": 0.02}, {"q1": 0.004, "q2": 0.004}
     monkeypatch.setattr(
         "mcpilco.experiments.tracking_bench.controller_alone",
-        lambda config, seed, trials: [alone] * trials,
+        lambda config, seed, trials, feedforward=False: [ideal if feedforward else alone] * trials,
     )
 
     def run(seed, rms):
@@ -66,6 +66,8 @@ def test_tracking_section_means_ratios_and_halved_counts(tmp_path, monkeypatch):
     np.testing.assert_allclose(first["ratio_mean"], [(0.75 + 0.25) / 2, (1.0 + 0.25) / 2])
     np.testing.assert_allclose(first["ratio_worst"], [0.75, 1.0])
     assert first["seeds_halved"] == 1  # seed 0 only
+    np.testing.assert_allclose(first["feedforward_ratio"], [0.1, 0.2])
+    assert first["feedforward_halved"] == 2
     assert second["seeds_halved"] == 1  # seed 1 (0.25, 0.5); seed 0 has q2 at 0.6
     assert [s["seed"] for s in out["tracking_per_seed"]] == [0, 1]
     tot = overall(out, 0)  # all joints: sqrt(mean_j rms_j^2) per seed
@@ -77,6 +79,7 @@ def test_tracking_section_means_ratios_and_halved_counts(tmp_path, monkeypatch):
     write_tracking_report({"runs": {"arm": out}}, tmp_path)
     md = (tmp_path / "mcpilco_tracking.md").read_text()
     assert "| controller alone | 40.0 | 20.0 | - |" in md
+    assert "| known-model feed-forward | 4.0 (0.10) | 4.0 (0.20) | 2 / 2 |" in md
     assert "| 4 s (policy 1) | 20.0 (0.50) | 12.5 (0.62) | 1 / 2 |" in md
     assert json.loads((tmp_path / "mcpilco_tracking.json").read_text())["runs"]["arm"]["joints"]
     assert (tmp_path / "mcpilco_tracking.png").stat().st_size > 0
