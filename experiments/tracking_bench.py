@@ -233,7 +233,10 @@ def tracking_table(key: str, section: dict[str, Any]) -> str:
         "controller alone, mean over seeds). Halved: seeds whose every joint is at most "
         f"{HALVED:g} x the controller alone's. All joints: sqrt(mean over joints of RMS^2) "
         "per seed, mean over seeds (ratio: mean of the seeds' ratios); all joints halved: "
-        "seeds whose all-joint error is at most half the controller alone's. "
+        "seeds whose all-joint error is at most half the controller alone's. Known-model "
+        "feed-forward: the simulator's inverse dynamics on the reference, held over each "
+        "control period and clipped to the action bounds, on the same episodes (in brackets "
+        "in a trial's row: its seeds with every joint halved). "
         "Pushed / filtered: the trial's transitions "
         "(40 ms) during an external push (the env's truth) / left out of the GP data by the "
         "push filter (in brackets: both), summed over seeds.",
@@ -260,10 +263,11 @@ def tracking_table(key: str, section: dict[str, Any]) -> str:
             f"{1e3 * m:.1f} ({q:.2f})" for m, q in zip(r["rms_mean"], r["ratio_mean"], strict=True)
         ]
         tot = overall(section, k)
+        ideal = f" (feed-forward {r['feedforward_halved']})" if "feedforward_halved" in r else ""
         lines.append(
             f"| {r['experience_s']:.0f} s (policy {r['trial']}) | "
             + " | ".join(cells)
-            + f" | {r['seeds_halved']} / {len(seeds)} | {1e3 * tot['rms']:.1f} "
+            + f" | {r['seeds_halved']} / {len(seeds)}{ideal} | {1e3 * tot['rms']:.1f} "
             f"({tot['ratio']:.2f}) | {tot['halved']} / {len(seeds)} | {_push_cell(r)} |"
         )
     return "\n".join(lines) + "\n"
