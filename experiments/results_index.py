@@ -340,13 +340,10 @@ def _ratio(data: dict[str, Any], name: str) -> str:
 
 
 def _compare(data: dict[str, Any]) -> str:
-    def ratio(name: str) -> str:
-        return _ratio(data, name)
-
     return (
         f"experience to 90 % success: MC-PILCO {data['headline']['mcpilco_t90_s']:.0f} s; "
-        f"SAC needs {ratio('sac')} as much, TD3 {ratio('td3')}, PPO {ratio('ppo')}, "
-        f"TorchRL PILCO {ratio('pilco')}"
+        f"SAC needs {_ratio(data, 'sac')} as much, TD3 {_ratio(data, 'td3')}, "
+        f"PPO {_ratio(data, 'ppo')}, TorchRL PILCO {_ratio(data, 'pilco')}"
     )
 
 
