@@ -406,12 +406,13 @@ def _tracking(data: dict[str, Any]) -> str:
 def _tracking_pushes(data: dict[str, Any]) -> str:
     from mcpilco.experiments.tracking_bench import overall
 
-    sec, unfiltered = data["runs"][FILTERED_SECTION], data["runs"].get(PUSHES_SECTION)
-    line = "UR10 tracking under pushes, push filter on, " + _tracking_figure(sec)
-    if unfiltered is None:
-        return line
+    sec, unfiltered = data["runs"][FILTERED_SECTION], data["runs"][PUSHES_SECTION]
     k = len(unfiltered["tracking"]) - 1
-    return line + f"; without the filter all joints {overall(unfiltered, k)['ratio']:.2f} x"
+    return (
+        "UR10 tracking under pushes, push filter on, "
+        + _tracking_figure(sec)
+        + f"; without the filter all joints {overall(unfiltered, k)['ratio']:.2f} x"
+    )
 
 
 def _tracking_kernels(data: dict[str, Any]) -> str:

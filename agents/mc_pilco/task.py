@@ -25,7 +25,7 @@ angles
     ``w T_s = 0.31``), a per-step error that a tracking task's millirad errors cannot afford.
     False: the pairs still say which velocity belongs to which position (joints, the
     rigid-body kernel's inputs), but the GP predicts every position change ``Delta q_i`` as
-    well (twice the outputs).
+    well (one more output per pair).
 ``f(x~) = [x_plain, sin x_angles, cos x_angles]``
     the state features; the GP input is ``[f(x), u]`` (:meth:`TaskSpec.feature_layout`).
 ``c(x) = 1 - exp(-sum_j d_j(x)^2 / l_j^2)``
