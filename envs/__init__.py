@@ -33,3 +33,17 @@ gymnasium.register(
     entry_point="mcpilco.envs.marker_camera:MarkerCameraEnv",
     max_episode_steps=100,
 )
+# The marker camera's reaching task for model-free learners: one robot, markers attached once.
+gymnasium.register(
+    id="mcpilco/MarkerCameraReach-v0",
+    entry_point="mcpilco.envs.marker_camera:MarkerCameraEnv",
+    max_episode_steps=20,
+    kwargs=dict(
+        max_increment=0.2,
+        start_centre=(0.0, -1.5707963267948966, 1.5707963267948966, 0.0, 1.5707963267948966, 0.0),
+        start_range=1.0,
+        marker_seed=0,
+        marker_facing_cone=40.0,
+        shuffle=False,
+    ),
+)

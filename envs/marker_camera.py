@@ -195,15 +195,30 @@ class MarkerCameraEnv(gym.Env):
 
     ## Starting State
     At reset: new marker placements and permutations; joint positions and the target's
-    joint configuration drawn uniformly in ``[-start_range, start_range]`` (clipped to the
-    joint ranges; prismatic joints uniformly in their range); the target pose is the
-    end-effector marker pose at the target configuration (always reachable).
+    joint configuration drawn uniformly in ``start_centre +- start_range`` (``start_centre``
+    defaults to zero; clipped to the joint ranges; prismatic joints uniformly in their
+    range); the target pose is the end-effector marker pose at the target configuration
+    (always reachable). With ``marker_seed`` set, the placements and permutations are drawn
+    once from that seed instead (facing the camera at ``start_centre`` with a facing cone) and
+    kept at every reset: one robot with its markers attached, the same in every env made with
+    that seed, whatever the reset seeds.
 
     ## Episode End
-    No termination; ``gym.make`` truncates after 100 steps.
+    No termination; ``gym.make`` truncates after 100 steps (``mcpilco/MarkerCamera-v0``) or
+    20 (``mcpilco/MarkerCameraReach-v0``, below).
+
+    ## Reaching task (``mcpilco/MarkerCameraReach-v0``)
+    The same env registered for model-free learners: the UR10 with its markers attached once
+    (``marker_seed=0``, facing the camera within 40 deg at the camera-facing home
+    ``[0, -pi/2, pi/2, 0, pi/2, 0]``), kept in chain order (``shuffle=False``), every marker
+    seen, start and target configurations uniform in home +- 1 rad, increments of at most
+    0.2 rad per 0.1 s step, 20-step episodes. ``info["success"]`` says the end marker is
+    within ``success_tolerance`` (1 cm and 0.05 rad) of the target pose.
 
     ## Info
-    ``cost``; ``position_error`` [m]; ``orientation_error`` [rad]; ``marker_permutation``
+    ``cost``; ``position_error`` [m]; ``orientation_error`` [rad]; ``success``
+    (``position_error <= success_tolerance[0]`` and ``orientation_error <=
+    success_tolerance[1]``, default 1 cm and 0.05 rad); ``marker_permutation``
     (observed marker slot ``s`` shows chain marker ``marker_permutation[s]``, 0 = base);
     ``joint_permutation`` (observed joint ``s`` is chain joint ``joint_permutation[s]``);
     ``ee_slot`` (the observed slot of the end-effector marker); ``q`` (true joint
@@ -215,9 +230,9 @@ class MarkerCameraEnv(gym.Env):
     ``arm`` (``"ur10"``, ``"scara"``, ``"random"`` or an :class:`ArmSpec`); ``n_joints``,
     ``joint_types``, ``p_prismatic``, ``arm_seed`` (random arms); ``camera_position``,
     ``camera_look_at``; ``marker_offset``; ``max_increment``, ``max_increment_prismatic``;
-    ``start_range``; ``dt``; ``orientation_weight``; the noise arguments above;
-    ``shuffle`` (False keeps chain order); ``render_mode`` (``"rgb_array"``, offscreen);
-    ``measurement``, ``marker_size``, ``image_size``, ``fovy``, ``pixel_noise``,
+    ``start_range``, ``start_centre``; ``dt``; ``orientation_weight``; the noise arguments
+    above; ``shuffle`` (False keeps chain order); ``marker_seed``; ``success_tolerance``;
+    ``render_mode`` (``"rgb_array"``, offscreen); ``measurement``, ``marker_size``, ``image_size``, ``fovy``, ``pixel_noise``,
     ``marker_facing_cone``, ``visibility_cone`` (below, above).
 
     ## Rendered markers (``measurement="aruco"``, optional; needs OpenCV and offscreen GL)
@@ -283,6 +298,9 @@ class MarkerCameraEnv(gym.Env):
         pixel_noise: float = 2.0,
         marker_facing_cone: float | None = None,
         visibility_cone: float | None = None,
+        marker_seed: int | None = None,
+        start_centre: ArrayLike | None = None,
+        success_tolerance: tuple[float, float] = (0.01, 0.05),
     ) -> None:
         if render_mode is not None and render_mode not in self.metadata["render_modes"]:
             raise ValueError(f"render_mode must be one of {self.metadata['render_modes']}")
@@ -339,6 +357,20 @@ class MarkerCameraEnv(gym.Env):
         self.q_low, self.q_high = ranges[:, 0], ranges[:, 1]
         self.max_increment = np.where(self.prismatic, max_increment_prismatic, max_increment)
         self.start_range = float(start_range)
+        centre = np.zeros(n) if start_centre is None else np.asarray(start_centre, dtype=float)
+        if centre.shape != (n,) or not np.all(np.isfinite(centre)):
+            raise ValueError(f"start_centre must be {n} finite joint positions, got {start_centre}")
+        self.start_centre = np.clip(centre, self.q_low, self.q_high)
+        tol = tuple(float(v) for v in success_tolerance)
+        if len(tol) != 2 or not all(v > 0 for v in tol):
+            raise ValueError(
+                f"success_tolerance must be (position [m], angle [rad]) > 0, got {success_tolerance}"
+            )
+        self.success_tolerance = tol
+        if marker_seed is not None and (isinstance(marker_seed, bool) or int(marker_seed) < 0):
+            raise ValueError(f"marker_seed must be an integer >= 0 or None, got {marker_seed!r}")
+        self.marker_seed = None if marker_seed is None else int(marker_seed)
+        self._markers_fixed = False  # placements drawn from marker_seed yet
         self.dt, self.time_offset = float(dt), float(time_offset)
         self.orientation_weight = float(orientation_weight)
         self.marker_offset = float(marker_offset)
@@ -574,6 +606,7 @@ class MarkerCameraEnv(gym.Env):
             cost=cost,
             position_error=d_pos,
             orientation_error=d_ang,
+            success=d_pos <= self.success_tolerance[0] and d_ang <= self.success_tolerance[1],
             marker_permutation=self.marker_permutation.copy(),
             joint_permutation=self.joint_permutation.copy(),
             ee_slot=int(np.nonzero(self.marker_permutation == self.n_joints)[0][0]),
@@ -586,14 +619,27 @@ class MarkerCameraEnv(gym.Env):
 
     def _random_q(self) -> FloatArray:
         rng = self.np_random
-        lo = np.where(self.prismatic, self.q_low, np.maximum(self.q_low, -self.start_range))
-        hi = np.where(self.prismatic, self.q_high, np.minimum(self.q_high, self.start_range))
+        c, r = self.start_centre, self.start_range
+        lo = np.where(self.prismatic, self.q_low, np.maximum(self.q_low, c - r))
+        hi = np.where(self.prismatic, self.q_high, np.minimum(self.q_high, c + r))
         return rng.uniform(lo, hi)
 
-    def _place_markers(self) -> None:
-        """Random marker placements in their body frames (class docstring). With a facing
-        cone, call it with the start configuration set (the normals are chosen there)."""
-        rng = self.np_random
+    def _fix_markers(self) -> None:
+        """Placements and permutations drawn once from ``marker_seed`` (the markers facing
+        the camera at ``start_centre`` with a facing cone), kept at every later reset."""
+        rng = np.random.default_rng(self.marker_seed)
+        self._set_q(self.start_centre)
+        self._place_markers(rng)
+        if self.shuffle:
+            self.marker_permutation = rng.permutation(self.n_markers)
+            self.joint_permutation = rng.permutation(self.n_joints)
+        self._markers_fixed = True
+
+    def _place_markers(self, rng: np.random.Generator | None = None) -> None:
+        """Random marker placements in their body frames (class docstring), drawn from
+        ``rng`` (the env's ``np_random`` by default). With a facing cone, call it with the
+        start configuration set (the normals are chosen there)."""
+        rng = self.np_random if rng is None else rng
         n = self.n_joints
         R = _random_rotations(rng, n + 1)
         along = np.concatenate([[0.0], rng.uniform(0.0, 1.0, n) * self._a])
@@ -666,10 +712,13 @@ class MarkerCameraEnv(gym.Env):
         """
         super().reset(seed=seed)
         rng = self.np_random
+        fixed = self.marker_seed is not None
+        if fixed and not self._markers_fixed:
+            self._fix_markers()
         facing = self.marker_facing_cone is not None  # placed at the start pose (below)
-        if not facing:
+        if not facing and not fixed:
             self._place_markers()
-        if self.shuffle:
+        if self.shuffle and not fixed:
             self.marker_permutation = rng.permutation(self.n_markers)
             self.joint_permutation = rng.permutation(self.n_joints)
         self.target_q = self._random_q()
@@ -679,7 +728,7 @@ class MarkerCameraEnv(gym.Env):
             if q0.shape != (self.n_joints,):
                 raise ValueError(f"options['q'] must have shape ({self.n_joints},)")
             self.q = np.clip(q0, self.q_low, self.q_high)
-        if facing:
+        if facing and not fixed:
             self._set_q(self.q)
             self._place_markers()
         self._q_prev = self.q.copy()

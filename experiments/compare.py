@@ -549,11 +549,19 @@ def covers(curve: dict[str, Any], method: str, opts: dict[str, Any]) -> bool:
 
 
 def curves_from_bench_json(path: Path, env_id: str, label: str = "") -> list[dict[str, Any]]:
-    """MC-PILCO curves from ``mcpilco-bench-mcpilco``'s JSON (per-seed success per trial);
-    ``label``: the section written with ``mcpilco-bench-mcpilco --label LABEL``."""
+    """MC-PILCO curves from ``mcpilco-bench-mcpilco``'s JSON (per-seed success per trial;
+    ``label``: the section written with ``mcpilco-bench-mcpilco --label LABEL``) or from the
+    reaching study of ``mcpilco-bench-kinematics --reaching-seeds``
+    (``kinematics_reaching.json``, :func:`~mcpilco.experiments.reaching_bench.reaching_curves`)."""
     from mcpilco.experiments.mcpilco_bench import section_key
 
     data = json.loads(Path(path).read_text())
+    if isinstance(data.get("rows"), list) and all("mcpilco" in r for r in data["rows"]):
+        from mcpilco.experiments.reaching_bench import reaching_curves
+
+        if label:
+            raise ValueError(f"{path} is a reaching study: it has no sections (drop the label)")
+        return reaching_curves(data, env_id, source=str(path))
     key = section_key(env_id, label)
     section = data.get("runs", {}).get(key)
     if section is None:

@@ -58,6 +58,7 @@ from mcpilco.models.kinematics.rotations import ypr_to_matrix
 __all__ = [
     "AGENTS",
     "mcpilco_reaching_part",
+    "reaching_curves",
     "reaching_markdown",
     "reaching_seed",
     "reaching_study",
@@ -68,6 +69,7 @@ AGENTS = ("mcpilco", "controller")
 """Result keys of the two agents of a seed."""
 
 THRESHOLDS = (0.01, 0.05)  # a target counts as reached within 1 cm and 0.05 rad
+FRAME_DT = 0.1  # seconds per camera frame, the marker-camera env's step
 
 
 def mcpilco_reaching_part(
@@ -208,6 +210,55 @@ def summarise_reaching(rows: list[dict[str, Any]]) -> dict[str, Any]:
             )
         out[agent] = trials
     return out
+
+
+def reaching_curves(study: dict[str, Any], env_id: str, source: str = "") -> list[dict[str, Any]]:
+    """MC-PILCO's learning curves of a study (``kinematics_reaching.json``), one per seed, in
+    the comparison format of :mod:`mcpilco.agents.baselines.common`.
+
+    Trial ``k`` (0-based) of a seed is one point: its success rate is the share of the seed's
+    targets reached within :data:`THRESHOLDS` at the end of the trial; its experience counts
+    every frame the agent saw, ``T_k = (N_id + (k + 1) n_targets (H + hold)) FRAME_DT``, with
+    ``N_id`` the frames of the identification trajectory ``D_tr`` (``settings.samples``) and
+    ``H + hold`` frames per target and trial (the drives back to the start, resets, are not
+    counted).
+    """
+    from mcpilco.agents.baselines.common import make_curve
+
+    samples = int(study["settings"].get("samples", 2100))
+    curves = []
+    for row in study["rows"]:
+        part = row["mcpilco"]
+        per_trial = len(part["targets"]) * (int(part["horizon"]) + int(part["hold"]))
+        points, frames = [], samples
+        for k, rnd in enumerate(part["rounds"]):
+            pos = np.asarray(rnd["position_error_norm_true"])
+            ori = np.asarray(rnd["orientation_error_true"])
+            frames += per_trial
+            points.append(
+                {
+                    "steps": frames,
+                    "experience_s": frames * FRAME_DT,
+                    "success_rate": float(np.mean((pos <= THRESHOLDS[0]) & (ori <= THRESHOLDS[1]))),
+                    "episodes": int(pos.size),
+                    "kind": "policy",
+                    "position_error_median": float(np.median(pos)),
+                    "orientation_error_median": float(np.median(ori)),
+                }
+            )
+        curves.append(
+            make_curve(
+                "mcpilco",
+                env_id,
+                int(row["seed"]),
+                FRAME_DT,
+                points,
+                source=source,
+                wall_s=row.get("seconds"),
+                complete=True,
+            )
+        )
+    return curves
 
 
 def reaching_markdown(study: dict[str, Any]) -> str:

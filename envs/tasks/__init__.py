@@ -19,6 +19,7 @@ TASK_FILES: dict[str, str] = {
     "mcpilco/DMCCartpoleSwingUp-v0": "dmc_cartpole_swingup.yaml",
     "InvertedPendulum-v5": "inverted_pendulum_v5.yaml",
     "mcpilco/UR10-v0": "ur10_tracking.yaml",
+    "mcpilco/MarkerCameraReach-v0": "marker_camera_reaching.yaml",
 }
 """Env id -> task file in :data:`TASK_DIR`."""
 
