@@ -232,8 +232,9 @@ class MarkerCameraEnv(gym.Env):
     ``camera_look_at``; ``marker_offset``; ``max_increment``, ``max_increment_prismatic``;
     ``start_range``, ``start_centre``; ``dt``; ``orientation_weight``; the noise arguments
     above; ``shuffle`` (False keeps chain order); ``marker_seed``; ``success_tolerance``;
-    ``render_mode`` (``"rgb_array"``, offscreen); ``measurement``, ``marker_size``, ``image_size``, ``fovy``, ``pixel_noise``,
-    ``marker_facing_cone``, ``visibility_cone`` (below, above).
+    ``render_mode`` (``"rgb_array"``, offscreen); ``measurement``, ``marker_size``,
+    ``image_size``, ``fovy``, ``pixel_noise``, ``marker_facing_cone``, ``visibility_cone``
+    (below, above).
 
     ## Rendered markers (``measurement="aruco"``, optional; needs OpenCV and offscreen GL)
     Instead of the noise model above, every observation renders the camera image with MuJoCo
@@ -364,7 +365,8 @@ class MarkerCameraEnv(gym.Env):
         tol = tuple(float(v) for v in success_tolerance)
         if len(tol) != 2 or not all(v > 0 for v in tol):
             raise ValueError(
-                f"success_tolerance must be (position [m], angle [rad]) > 0, got {success_tolerance}"
+                "success_tolerance must be (position [m], angle [rad]) > 0, got "
+                f"{success_tolerance}"
             )
         self.success_tolerance = tol
         if marker_seed is not None and (isinstance(marker_seed, bool) or int(marker_seed) < 0):

@@ -36,7 +36,7 @@ from mcpilco.agents.baselines.common import (
     save_curve,
     trial_records_to_points,
 )
-from mcpilco.agents.mc_pilco.loop import load_config
+from mcpilco.agents.mc_pilco.loop import check_dynamics_task, load_config
 from mcpilco.agents.mc_pilco.task import TaskSpec
 from mcpilco.experiments.sweep import Job, SweepRunner
 from mcpilco.models.device import retain_host_memory
@@ -72,7 +72,10 @@ def first_reach(times: np.ndarray, values: np.ndarray, level: float = SUCCESS_LE
 
 def aggregate_method(curves: list[dict[str, Any]]) -> dict[str, Any]:
     """Mean success curve over seeds, its standard error, ``T90``, ``T100`` (every seed's
-    last evaluation a success) and per-seed summaries."""
+    last evaluation a success), per-seed summaries, and ``final_info_median``: per figure
+    that every seed's last point carries (the env's final ``info`` scalars, median over its
+    evaluation episodes, e.g. the marker camera's ``position_error``) the median over
+    seeds."""
     if not curves:
         raise ValueError("aggregate_method needs at least one learning curve")
     curves = [c for c in curves if c["points"]]
@@ -109,6 +112,8 @@ def aggregate_method(curves: list[dict[str, Any]]) -> dict[str, Any]:
         if c.get("cpu_s") and c.get("steps_done")
     ]
     wall = [c["wall_s"] for c in curves if c.get("wall_s")]
+    finals = [c["points"][-1].get("final_info_median") or {} for c in curves]
+    common = set.intersection(*(set(f) for f in finals))
     return {
         "seeds": [c["seed"] for c in curves],
         "experience_s": grid.tolist(),
@@ -124,6 +129,7 @@ def aggregate_method(curves: list[dict[str, Any]]) -> dict[str, Any]:
         "median_seed_t90_s": float(np.median(reached)) if reached else None,
         "cpu_s_per_1k_steps": float(np.mean(cpu)) if cpu else None,
         "wall_s_per_run": float(np.mean(wall)) if wall else None,
+        "final_info_median": {k: float(np.median([f[k] for f in finals])) for k in sorted(common)},
     }
 
 
@@ -258,6 +264,20 @@ def markdown(report: dict[str, Any]) -> str:
             f"| {LABELS.get(f['method'], f['method'])} | seed {f['seed']} FAILED: "
             f"{f['error'][:200]} |||||||||"
         )
+    finals = [set(a["final_info_median"]) for a in aggs.values()]
+    keys = sorted(set.intersection(*finals)) if finals else []
+    if keys:
+        lines += [
+            "",
+            "At each method's last evaluation, the env's final `info` (median over the "
+            "episodes of a seed, then over seeds):",
+            "",
+            "| method | experience | " + " | ".join(keys) + " |",
+            "|---|---|" + "---|" * len(keys),
+        ]
+        for m, a in aggs.items():
+            cells = " | ".join(f"{a['final_info_median'][k]:.4g}" for k in keys)
+            lines.append(f"| {LABELS.get(m, m)} | {_fmt_s(a['budget_s'])} | {cells} |")
     goal = head["goal"]
     lines += ["", "Data-efficiency targets:", ""]
     if "note" in goal:
@@ -685,6 +705,8 @@ def compare(
     curves, runs_dir = list(curves), Path(runs_dir)
     methods = list(methods)
     requested = list(methods)
+    if mcpilco_json is None and "mcpilco" in methods:
+        check_dynamics_task(TaskSpec.for_env(env_id))
     if mcpilco_json is not None and "mcpilco" in methods:
         try:
             curves += curves_from_bench_json(mcpilco_json, env_id, mcpilco_label)

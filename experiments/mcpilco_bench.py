@@ -244,12 +244,17 @@ def pool_sections(sections: list[dict[str, Any]]) -> dict[str, Any]:
 
 # ------------------------------------------------------------------------------ parts
 def bench_configs(
-    env_ids: Sequence[str], preset: str = "bench", **options: Any
+    env_ids: Sequence[str],
+    preset: str = "bench",
+    task_overrides: dict[str, Any] | None = None,
+    **options: Any,
 ) -> dict[str, MCPilcoConfig]:
     """One config per env: the env's file and ``preset``, then ``options``
     (:meth:`MCPilcoConfig.with_overrides` keywords; None keeps the env's value, so an env
     keeps its own exploration hold unless one is given). ``candidate_weight_scales``
-    without ``num_candidates`` sets the number of candidates.
+    without ``num_candidates`` sets the number of candidates. ``task_overrides`` replaces
+    fields of each env's shipped task (a task variant, e.g. ``{"speed_integration": True}``),
+    which the config then carries as its ``task``.
 
     Raises:
         ValueError: an env without a shipped task, an unknown preset, a bad value, a device
@@ -269,6 +274,12 @@ def bench_configs(
     configs = {
         env_id: load_config(env_id, preset=preset).with_overrides(**options) for env_id in env_ids
     }
+    if task_overrides:
+        from mcpilco.envs.tasks import task_data
+
+        for env_id, cfg in configs.items():
+            configs[env_id] = cfg.with_overrides(task={**task_data(env_id), **task_overrides})
+            configs[env_id].task_spec()  # a bad field is an error here, not in every job
     device = options.get("device") or "cpu"
     if options.get("compile_rollout"):
         for config in configs.values():

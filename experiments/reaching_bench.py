@@ -221,7 +221,8 @@ def reaching_curves(study: dict[str, Any], env_id: str, source: str = "") -> lis
     every frame the agent saw, ``T_k = (N_id + (k + 1) n_targets (H + hold)) FRAME_DT``, with
     ``N_id`` the frames of the identification trajectory ``D_tr`` (``settings.samples``) and
     ``H + hold`` frames per target and trial (the drives back to the start, resets, are not
-    counted).
+    counted). ``final_info_median``: the median over the targets of the true end-marker
+    ``position_error`` [m] and ``orientation_error`` [rad], the env's ``info`` keys.
     """
     from mcpilco.agents.baselines.common import make_curve
 
@@ -231,7 +232,7 @@ def reaching_curves(study: dict[str, Any], env_id: str, source: str = "") -> lis
         part = row["mcpilco"]
         per_trial = len(part["targets"]) * (int(part["horizon"]) + int(part["hold"]))
         points, frames = [], samples
-        for k, rnd in enumerate(part["rounds"]):
+        for rnd in part["rounds"]:
             pos = np.asarray(rnd["position_error_norm_true"])
             ori = np.asarray(rnd["orientation_error_true"])
             frames += per_trial
@@ -242,8 +243,10 @@ def reaching_curves(study: dict[str, Any], env_id: str, source: str = "") -> lis
                     "success_rate": float(np.mean((pos <= THRESHOLDS[0]) & (ori <= THRESHOLDS[1]))),
                     "episodes": int(pos.size),
                     "kind": "policy",
-                    "position_error_median": float(np.median(pos)),
-                    "orientation_error_median": float(np.median(ori)),
+                    "final_info_median": {
+                        "position_error": float(np.median(pos)),
+                        "orientation_error": float(np.median(ori)),
+                    },
                 }
             )
         curves.append(

@@ -61,7 +61,7 @@ from pathlib import Path
 from mcpilco.agents.common.cli import console_main
 from mcpilco.agents.mc_pilco import DEFAULT_ENV_ID
 from mcpilco.agents.mc_pilco.dynamics import KERNEL_CHOICES
-from mcpilco.agents.mc_pilco.loop import ROLLOUT_DTYPES
+from mcpilco.agents.mc_pilco.loop import ROLLOUT_DTYPES, parse_set
 from mcpilco.experiments.mcpilco_bench import (
     PARTS,
     bench_configs,
@@ -117,20 +117,21 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--opt-steps", type=int, help="max opt steps per trial (override)")
     p.add_argument("--candidates", type=int, help="K policies side by side (override)")
     p.add_argument(
-        "--kernel",
-        choices=KERNEL_CHOICES,
+        "--kernel", choices=KERNEL_CHOICES,
         help="GP kernel of the runs and the timing (override; e.g. rbf for the RBF-only ablation)",
-    )
+    )  # fmt: skip
     p.add_argument(
-        "--mpk-degree",
-        type=int,
+        "--mpk-degree", type=int,
         help="degree of the MPK of kernel rbf+mpk in the runs and the timing (override)",
-    )
+    )  # fmt: skip
     p.add_argument(
-        "--rollout-dtype",
-        choices=ROLLOUT_DTYPES,
+        "--task-set", nargs="+", metavar="KEY=VALUE",
+        help="replace fields of the env's task (a variant, e.g. speed_integration=true)",
+    )  # fmt: skip
+    p.add_argument(
+        "--rollout-dtype", choices=ROLLOUT_DTYPES,
         help="dtype of the GP posterior in the particle rollouts (override; float32 default)",
-    )
+    )  # fmt: skip
     p.add_argument(
         "--compile-rollout",
         action="store_true",
@@ -147,12 +148,10 @@ def build_parser() -> argparse.ArgumentParser:
         "a section saved without it ran 1)",
     )
     p.add_argument(
-        "--candidate-scales",
-        type=float,
-        nargs="+",
+        "--candidate-scales", type=float, nargs="+",
         help="initial weight scale of each candidate (K values; sets K when --candidates "
         "is not given)",
-    )
+    )  # fmt: skip
     p.add_argument(
         "--label",
         default="",
@@ -232,6 +231,7 @@ def main(argv: list[str] | None = None) -> int:
         configs = bench_configs(
             args.env,
             preset=args.preset,
+            task_overrides=parse_set(args.task_set),
             num_trials=args.trials,
             num_particles=args.particles,
             num_candidates=args.candidates,

@@ -50,6 +50,7 @@ from typing import Any
 
 from mcpilco.agents.baselines.common import check_task_env, load_curves
 from mcpilco.agents.baselines.pilco import OPTIMIZERS
+from mcpilco.agents.baselines.sb3 import HYPERPARAMS
 from mcpilco.agents.common.cli import console_main
 from mcpilco.agents.mc_pilco.loop import DEFAULT_ENV_ID, parse_set
 from mcpilco.experiments.compare import (
@@ -99,7 +100,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--eval-episodes", type=int, default=10, help="episodes per SB3 evaluation")
     p.add_argument(
         "--sb3-preset",
-        choices=("swingup", "pendulum"),
+        choices=sorted(HYPERPARAMS),
         help="rl-baselines3-zoo hyper-parameter set (default: the env's in "
         "agents/baselines/conf/sb3.yaml; SB3's defaults for an env without one)",
     )

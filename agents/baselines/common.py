@@ -86,18 +86,24 @@ def evaluate_success(
 
     Returns:
         ``success_rate`` = (number of successful episodes) / ``len(seeds)``, the mean episode
-        cost, mean time in the goal region, and the per-episode flags.
+        cost, mean time in the goal region, the per-episode flags, and the median over the
+        episodes of each numeric scalar of the env's last ``info`` (``final_info_median``;
+        e.g. the marker camera's final ``position_error``).
     """
     if len(seeds) == 0:
         raise ValueError("evaluate_success needs at least one seed (one evaluation episode)")
     eps = [run_episode(env, act, int(s), horizon, task) for s in seeds]
     flags = [bool(e["success"]) for e in eps]
+    common = set.intersection(*(set(e["final_info"]) for e in eps))
     return {
         "success_rate": float(np.mean(flags)),
         "episodes": len(eps),
         "successes": flags,
         "mean_cost": float(np.mean([e["cost"] for e in eps])),
         "time_in_goal_s": float(np.mean([e["time_in_goal"] for e in eps])),
+        "final_info_median": {
+            k: float(np.median([e["final_info"][k] for e in eps])) for k in sorted(common)
+        },
     }
 
 

@@ -529,7 +529,8 @@ def run_episode(
     Returns the observed states ``obs`` (T+1, n) (read from the observations by the task),
     the true states ``states`` (T+1, n), ``actions`` (T, A), per-step evaluation ``costs``,
     their sum ``cost``, ``success`` (the task's test), ``time_in_goal`` [s] (steps within
-    the task's success bounds times ``T_s``) and, for a task whose cost tracks states,
+    the task's success bounds times ``T_s``), ``final_info`` (the numeric scalars of the last
+    step's ``info``, e.g. the marker camera's pose errors) and, for a task whose cost tracks states,
     ``tracking_rms`` (:meth:`TaskSpec.tracking_rms`).
 
     Raises:
@@ -581,6 +582,11 @@ def run_episode(
         "cost": float(np.sum(costs)),
         "time_in_goal": float(np.sum(task.in_goal(states_arr[1:])) * task.dt),
         "steps": steps,
+        "final_info": {
+            k: float(v)
+            for k, v in info.items()
+            if isinstance(v, int | float | np.number) and not isinstance(v, bool | np.bool_)
+        },
     }
 
 
@@ -798,6 +804,18 @@ def check_compile_toolchain(device: torch.device, backend: str = "auto") -> None
         )
 
 
+def check_dynamics_task(task: TaskSpec) -> None:
+    """Raise ``ValueError`` for a task on which MC-PILCO learns kinematics, not dynamics
+    (``TaskSpec.model``): the agent of this module cannot run it."""
+    if task.model != "dynamics":
+        raise ValueError(
+            f"{task.env_id}: MC-PILCO learns the {task.model} on this task, not GP dynamics; "
+            "run it with mcpilco-bench-kinematics --reaching-seeds (mcpilco.agents.mc_pilco."
+            "reaching), and compare with mcpilco-compare --mcpilco-json "
+            "results/kinematics_reaching.json"
+        )
+
+
 def run_mcpilco(
     config: MCPilcoConfig,
     out_dir: str | Path,
@@ -824,6 +842,7 @@ def run_mcpilco(
             folder is locked and its files listed in ``manifest.json``: :mod:`.run_folder`).
     """
     t_start = time.perf_counter()
+    check_dynamics_task(task if task is not None else config.task_spec())
     out = Path(out_dir)
     run = open_run_folder(out, resume=resume, overwrite=overwrite)
     env = None

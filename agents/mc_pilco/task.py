@@ -85,6 +85,10 @@ ANGLE_MODES = ("wrap", "abs")
 """Distance of an angle cost term to its target: wrapped difference, or ``|x| - |x*|``."""
 
 
+MODELS = ("dynamics", "kinematics")
+"""What MC-PILCO learns on a task: GP dynamics, or the kinematics seen through markers."""
+
+
 class TaskSpecError(ValueError):
     """A task specification field is wrong; the message names the field."""
 
@@ -142,6 +146,11 @@ class TaskSpec:
         pairs: ``(position, velocity)`` name pairs (speed integration; an arm's joints).
         speed_integration: integrate the pairs' positions by eq. (5.9) (True) or predict
             their changes with the GP (False); module glossary.
+        model: what MC-PILCO learns on this task (:data:`MODELS`): ``"dynamics"``, the GP
+            dynamics of the agent of :mod:`.loop` (``mcpilco-train``); ``"kinematics"``, the
+            forward kinematics seen through markers, optimised through by
+            :mod:`.reaching` (``mcpilco-bench-kinematics --reaching-seeds``); such a spec
+            serves the model-free learners and the comparison.
         action_low, action_high: action bounds (the policy's output range).
         dt: control period [s]. horizon: steps per episode and of the particle rollout.
         action_repeat: env steps each action is held for; then ``dt`` is that many env
@@ -184,8 +193,11 @@ class TaskSpec:
     action_repeat: int = 1
     limits: Mapping[str, tuple[float, float]] = field(default_factory=dict)
     speed_integration: bool = True
+    model: str = "dynamics"
 
     def __post_init__(self) -> None:
+        if self.model not in MODELS:
+            raise _fail("model", f"one of {MODELS}, got {self.model!r}")
         if not isinstance(self.speed_integration, bool):
             raise _fail(
                 "speed_integration", f"expected true or false, got {self.speed_integration!r}"

@@ -118,6 +118,12 @@ def test_structure_identification_recovers_the_shuffled_ur10():
 def test_bad_arguments_raise():
     with pytest.raises(ValueError, match="arm must be"):
         MarkerCameraEnv(arm="nope")
+    with pytest.raises(ValueError, match="start_centre must be 6"):
+        MarkerCameraEnv(start_centre=[0.0, 1.0])
+    with pytest.raises(ValueError, match="success_tolerance"):
+        MarkerCameraEnv(success_tolerance=(0.01, 0.0))
+    with pytest.raises(ValueError, match="marker_seed"):
+        MarkerCameraEnv(marker_seed=-1)
     with pytest.raises(ValueError, match="outlier_prob"):
         MarkerCameraEnv(outlier_prob=2.0)
     with pytest.raises(ValueError, match="position_noise"):
@@ -174,3 +180,66 @@ def test_visibility_cone_hides_exactly_the_markers_turned_away_and_keeps_the_dra
         MarkerCameraEnv(visibility_cone=0.0)
     with pytest.raises(ValueError, match="ideal"):
         MarkerCameraEnv(measurement="aruco", visibility_cone=60.0)
+
+
+def _placements(env):
+    pos, R = env.unwrapped.marker_placements()
+    return pos.copy(), R.copy()
+
+
+def test_marker_seed_attaches_the_markers_once_whatever_the_reset_seeds():
+    """With ``marker_seed`` the placements and permutations are the same at every reset and in
+    every env made with that seed; without it each reset draws new ones."""
+    a = MarkerCameraEnv(marker_seed=7, marker_facing_cone=40.0, **NOISELESS)
+    b = MarkerCameraEnv(marker_seed=7, marker_facing_cone=40.0, **NOISELESS)
+    _, info_a = a.reset(seed=1)
+    first = _placements(a)
+    for seed in (2, 3):
+        _, info = a.reset(seed=seed)
+        np.testing.assert_array_equal(info["joint_permutation"], info_a["joint_permutation"])
+        for x, y in zip(_placements(a), first, strict=True):
+            np.testing.assert_array_equal(x, y)
+    _, info_b = b.reset(seed=99)
+    np.testing.assert_array_equal(info_b["marker_permutation"], info_a["marker_permutation"])
+    for x, y in zip(_placements(b), first, strict=True):
+        np.testing.assert_array_equal(x, y)
+    other = MarkerCameraEnv(marker_seed=8, marker_facing_cone=40.0, **NOISELESS)
+    other.reset(seed=1)
+    assert not np.allclose(_placements(other)[0], first[0])
+    free = MarkerCameraEnv(**NOISELESS)
+    free.reset(seed=1)
+    p1 = _placements(free)[0]
+    free.reset(seed=2)
+    assert not np.allclose(_placements(free)[0], p1)
+    # facing the camera at start_centre (the origin here): within the 40 deg cone
+    assert np.all(a.facing_cosines(np.zeros(6)) >= np.cos(np.radians(40.0)) - 1e-9)
+
+
+def test_reach_env_draws_around_its_home_and_flags_success_at_the_target():
+    """``mcpilco/MarkerCameraReach-v0``: 20-step episodes, starts and targets within 1 rad of
+    the camera-facing home, every marker seen; ``info["success"]`` is True exactly when the
+    end marker is within 1 cm and 0.05 rad, checked against the noise-free marker poses."""
+    env = gym.make("mcpilco/MarkerCameraReach-v0")
+    home = np.array([0.0, -np.pi / 2, np.pi / 2, 0.0, np.pi / 2, 0.0])
+    assert env.spec.max_episode_steps == 20
+    for seed in range(20):
+        obs, info = env.reset(seed=seed)
+        assert np.all(np.abs(info["q"] - home) <= 1.0 + 1e-12)
+        assert np.all(np.abs(info["target_q"] - home) <= 1.0 + 1e-12)
+        assert np.isfinite(obs).all()
+        reached = info["position_error"] <= 0.01 and info["orientation_error"] <= 0.05
+        assert info["success"] == reached
+    # drive to the target: increments of at most 0.2 rad, so 10 steps cover the 2 rad box
+    _, info = env.reset(seed=5)
+    target, steps = info["target_q"], 0
+    while not info["success"]:
+        _, _, _, truncated, info = env.step(np.clip((target - info["q"]) / 0.2, -1, 1))
+        steps += 1
+        assert steps <= 10 and not truncated
+    ee, goal = info["marker_poses"][-1], env.unwrapped.target_pose
+    assert np.linalg.norm(ee[:3] - goal[:3]) <= 0.01
+    # 0.06 rad off on the last joint: the marker turns by 0.06 rad and moves by less than
+    # 1 cm (it sits within 0.1 m of the axis), within the position tolerance only
+    _, info = env.reset(seed=5, options={"q": target + np.array([0, 0, 0, 0, 0, 0.06])})
+    assert info["position_error"] < 0.01 and info["orientation_error"] > 0.05
+    assert not info["success"]

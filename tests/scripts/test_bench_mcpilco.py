@@ -5,7 +5,7 @@ from __future__ import annotations
 import pytest
 
 from mcpilco.agents.mc_pilco import DEFAULT_ENV_ID, load_config
-from mcpilco.experiments.mcpilco_bench import run_seed
+from mcpilco.experiments.mcpilco_bench import bench_configs, run_seed
 from tests.experiments.test_mcpilco_bench import _fake_runs
 
 BENCH_CONFIG = load_config(DEFAULT_ENV_ID, preset="bench")
@@ -27,6 +27,23 @@ def test_unknown_preset_or_env_is_an_error(tmp_path, capsys, command):
     err = capsys.readouterr().err
     assert "no task ships for env id 'mcpilco/Nope-v0'" in err
     assert "mcpilco/CartpoleSwingUp-v0" in err
+    assert not (tmp_path / "runs").exists()
+
+
+def test_task_set_runs_a_variant_of_the_shipped_task(tmp_path, capsys, command):
+    """``--task-set``: the configs carry the shipped task with the fields replaced (the UR10
+    task with speed integration, as its earlier sections ran); a bad field or value is a
+    usage error naming it, before any run."""
+    configs = bench_configs(["mcpilco/UR10-v0"], task_overrides={"speed_integration": True})
+    task = configs["mcpilco/UR10-v0"].task_spec()
+    assert task.speed_integration and task.position_idx == tuple(range(6))
+    assert not load_config("mcpilco/UR10-v0").task_spec().speed_integration
+    argv = ["--parts", "tracking", "--env", "mcpilco/UR10-v0", "--out", str(tmp_path)]
+    argv += ["--runs-dir", str(tmp_path / "runs"), "--task-set"]
+    assert command("mcpilco-bench-mcpilco", [*argv, "speed_integration=3"]) == 2
+    assert "speed_integration" in capsys.readouterr().err
+    assert command("mcpilco-bench-mcpilco", [*argv, "colour=red"]) == 2
+    assert "task.colour" in capsys.readouterr().err
     assert not (tmp_path / "runs").exists()
 
 

@@ -14,6 +14,7 @@ import pytest
 
 from mcpilco.agents.baselines.common import make_curve, save_curve, task_env_ids
 from mcpilco.agents.mc_pilco import load_config
+from mcpilco.agents.mc_pilco.task import TaskSpec
 from mcpilco.experiments.compare import aggregate_method
 from mcpilco.experiments.results_index import recorded_command
 
@@ -376,7 +377,11 @@ TINY_MCPILCO = [
 ]
 
 
-@pytest.mark.parametrize("env_id", task_env_ids())
+DYNAMICS_TASKS = [e for e in task_env_ids() if TaskSpec.for_env(e).model == "dynamics"]
+REACH = "mcpilco/MarkerCameraReach-v0"
+
+
+@pytest.mark.parametrize("env_id", DYNAMICS_TASKS)
 def test_every_task_env_runs_through_compare(env_id, tmp_path, command):
     """One exploration and one policy trial of MC-PILCO on every env with a task spec: the
     curve has a point per trial whose experience is every env step taken times the task's
@@ -404,6 +409,63 @@ def test_every_task_env_runs_through_compare(env_id, tmp_path, command):
     assert mc["final_success"] == float(records[-1]["success"])
     assert (mc["t100_s"] is None) == (not any(r["success"] for r in records))
     assert (out / f"compare_{name}.png").is_file()
+
+
+def _reaching_study(path):
+    """A two-seed reaching study in ``kinematics_reaching.json``'s format: 4 targets, H = 10,
+    hold = 2, 100 identification frames; per trial the (position [m], angle [rad]) errors."""
+    errors = {
+        0: [([0.002, 0.02, 0.005, 0.009], [0.01, 0.01, 0.04, 0.049])] * 2,  # 3 of 4 reached
+        1: [([0.002] * 4, [0.01] * 4), ([0.002] * 4, [0.01] * 4)],  # 4 of 4 reached
+    }
+    rows = [
+        {
+            "seed": seed,
+            "mcpilco": {
+                "horizon": 10,
+                "hold": 2,
+                "targets": [[0.0] * 6] * 4,
+                "rounds": [
+                    {"position_error_norm_true": p, "orientation_error_true": a} for p, a in e
+                ],
+            },
+        }
+        for seed, e in errors.items()
+    ]
+    path.write_text(json.dumps({"settings": {"samples": 100, "rounds": 1}, "rows": rows}))
+    return path
+
+
+def test_reaching_task_compares_the_reaching_study_with_sac(tmp_path, command, capsys):
+    """The marker-camera task: MC-PILCO's curves come from the reaching study, one point per
+    trial at ``(100 + (k + 1) 4 (10 + 2)) 0.1`` s = 14.8 s, 19.6 s with success 3/4, 3/4 (seed
+    0) and 1, 1 (seed 1), so the mean 0.875 never reaches 0.9 and T90 is None; SAC's points
+    sit at its evaluation steps times the env's 0.1 s. Without the study, the comparison
+    refuses to run MC-PILCO's dynamics agent on a kinematics task."""
+    study = _reaching_study(tmp_path / "reach.json")
+    runs, out = tmp_path / "runs", tmp_path / "r"
+    argv = ["--env", REACH, "--seeds", "1", "--no-progress", "--runs-dir", str(runs)]
+    argv += ["--out", str(out)]
+    assert command("mcpilco-compare", [*argv, "--methods", "mcpilco"]) == 2
+    assert "learns the kinematics on this task" in capsys.readouterr().err
+    sac = ["--methods", "mcpilco", "sac", "--steps", "sac=60", "--eval-every", "30"]
+    sac += ["--eval-episodes", "2", "--sb3-hp", "sac.learning_starts=20", "sac.train_freq=1"]
+    sac += ["sac.gradient_steps=1", "sac.batch_size=8", "--mcpilco-json", str(study)]
+    assert command("mcpilco-compare", [*argv, *sac]) == 0
+    report = json.loads((out / "compare_MarkerCameraReach-v0.json").read_text())
+    mc, sb = report["methods"]["mcpilco"], report["methods"]["sac"]
+    assert mc["experience_s"] == pytest.approx([14.8, 19.6])
+    assert mc["success_mean"] == pytest.approx([0.875, 0.875])
+    assert mc["t90_s"] is None and mc["seeds"] == [0, 1]
+    # final errors: per seed the median over its targets (7 mm, 2 mm), then over seeds
+    assert mc["final_info_median"]["position_error"] == pytest.approx(0.0045)
+    assert {"position_error", "orientation_error"} <= set(sb["final_info_median"])
+    assert "| position_error |" in (out / "compare_MarkerCameraReach-v0.md").read_text()
+    curve = json.loads((runs / "MarkerCameraReach-v0" / "sac" / "seed0" / "curve.json").read_text())
+    assert [p["steps"] for p in curve["points"]] == [30, 60]
+    assert [p["experience_s"] for p in curve["points"]] == pytest.approx([3.0, 6.0])
+    assert curve["hyperparams"]["gamma"] == 0.98  # the zoo's ReacherBulletEnv-v0 entry
+    assert sb["seeds"] == [0]
 
 
 def test_a_seed_ending_in_a_failure_holds_it_past_its_budget():

@@ -58,6 +58,15 @@ def test_unknown_env_lists_the_envs_with_a_task(tmp_path, error_of):
     assert "mcpilco/CartpoleSwingUp-v0" in err and "mcpilco/DMCCartpoleSwingUp-v0" in err
 
 
+def test_a_kinematics_task_is_refused_before_a_run_folder_exists(tmp_path, error_of):
+    """MC-PILCO reaches through learned kinematics on the marker camera (TaskSpec.model):
+    the GP-dynamics agent says so and where the reaching agent is, and writes nothing."""
+    out = tmp_path / "run"
+    err = error_of(["--env", "mcpilco/MarkerCameraReach-v0", "--out", str(out)])
+    assert "learns the kinematics on this task" in err and "--reaching-seeds" in err
+    assert not out.exists()
+
+
 def test_unknown_env_with_a_task_file_lists_registered_ids(tmp_path, error_of):
     task = tmp_path / "nope.yaml"
     task.write_text(
