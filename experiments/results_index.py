@@ -357,6 +357,18 @@ def _compare_tracking(data: dict[str, Any]) -> str:
     )
 
 
+def _compare_reaching(data: dict[str, Any]) -> str:
+    m, sac = data["methods"]["mcpilco"], data["methods"]["sac"]
+    pos = {k: 1e3 * a["final_info_median"]["position_error"] for k, a in (("m", m), ("s", sac))}
+    return (
+        "experience until 90 % of the targets are reached (1 cm, 0.05 rad), identification "
+        f"frames included: MC-PILCO {data['headline']['mcpilco_t90_s']:.0f} s; SAC needs "
+        f"{_ratio(data, 'sac')} as much (best success rate {100 * sac['best_success']:.0f} % "
+        f"within {sac['budget_s']:,.0f} s; final position error {pos['s']:.0f} mm against "
+        f"MC-PILCO's {pos['m']:.1f} mm)"
+    )
+
+
 def _compare_balance(data: dict[str, Any]) -> str:
     def t100(method: str) -> str:
         t = data["methods"][method]["t100_s"]
@@ -722,6 +734,13 @@ REGISTRY: tuple[Headline, ...] = (
         "compare_UR10-v0_positions.json",
         _compare_tracking,
         "compare_UR10-v0_positions.md",
+        seeds=_per_method_seeds,
+    ),
+    Headline(
+        "Baselines, marker-camera reaching (SB3 SAC)",
+        "compare_MarkerCameraReach-v0.json",
+        _compare_reaching,
+        "compare_MarkerCameraReach-v0.md",
         seeds=_per_method_seeds,
     ),
     Headline(

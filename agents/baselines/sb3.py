@@ -29,6 +29,9 @@ values copied into ``conf/sb3.yaml`` (:data:`HYPERPARAMS`), keyed by env id ther
   (``normalize: true`` = ``VecNormalize`` of observations and rewards).
 * set ``"pendulum"``: the zoo's ``Pendulum-v1`` entries (``sac.yml``, ``ppo.yml`` marked
   "Tuned"; ``td3.yml`` ``Pendulum-v0``), a classic swing-up with short episodes.
+* set ``"reacher"`` (``mcpilco/MarkerCameraReach-v0``): the zoo's SAC entry of
+  ``ReacherBulletEnv-v0``, its arm reaching task (``sac.yml``, marked "Tuned": the
+  ``pybullet-defaults``, the same values as the swing-up's).
 
 Budgets (:data:`DEFAULT_STEPS`): 200k env steps for SAC / TD3 and 1M for PPO (the zoo trains
 the swing-up for 300k / 300k / 2M steps of 1000-step episodes).
@@ -96,8 +99,9 @@ class SB3Config:
         eval_every: ``K``, env steps between evaluations.
         eval_episodes: episodes per evaluation (10).
         checkpoint_every: env steps between checkpoints (None: every 10 evaluations).
-        preset: a set of :data:`HYPERPARAMS` (``"swingup"``, ``"pendulum"``); None: the
-            env's set in :data:`HYPERPARAMS_FILE`, or SB3's defaults for an env without one.
+        preset: a set of :data:`HYPERPARAMS` (``"swingup"``, ``"pendulum"``,
+            ``"reacher"``); None: the env's set in :data:`HYPERPARAMS_FILE`, or SB3's
+            defaults for an env without one.
         overrides: hyper-parameters replacing the set's (zoo keys, e.g.
             ``{"learning_starts": 100}``).
         seed: seeds the algorithm, the training envs and the evaluation reset seeds.
