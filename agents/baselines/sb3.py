@@ -467,7 +467,7 @@ def run_sb3(
         remaining = int(config.steps) - int(model.num_timesteps)
         if remaining > 0:
             model.learn(total_timesteps=remaining, callback=cb, reset_num_timesteps=ckpt is None)
-        if cb.model is None:
+        if getattr(cb, "model", None) is None:  # no training left: learn() never set it
             cb.init_callback(model)
         last = points[-1]["steps"] if points else -config.eval_every
         if model.num_timesteps - last >= max(1, config.eval_every // 2):

@@ -72,6 +72,17 @@ def test_resume_continues_from_the_checkpoint(tmp_path):
     assert sorted(p.name for p in tmp_path.glob("model_*.zip")) == [second["checkpoint"]["model"]]
 
 
+def test_a_run_killed_after_its_last_checkpoint_completes_without_training(tmp_path):
+    """A run stopped after the checkpoint at its budget (curve not marked complete) resumes
+    with no step left: it completes with the same points and no new step."""
+    first = run_method("sac", ENV, 2, tmp_path, _opts("sac", 300))
+    curve = json.loads((tmp_path / "curve.json").read_text())
+    (tmp_path / "curve.json").write_text(json.dumps({**curve, "complete": False}))
+    second = run_method("sac", ENV, 2, tmp_path, _opts("sac", 300))
+    assert second["complete"] and second["points"] == first["points"]
+    assert second["steps_done"] == first["steps_done"]  # 304: the preset trains every 8 steps
+
+
 def test_resume_refuses_a_changed_evaluation_period(tmp_path):
     run_method("td3", ENV, 0, tmp_path, _opts("td3", 300))
     opts = _opts("td3", 450)
