@@ -390,7 +390,6 @@ KERNELS_SECTION = "UR10-v0_positions"  # the kernel comparison on the shipped ta
 CONTROL_SECTIONS = {  # the same seeds learned with each kernel: label -> section
     "RBF + MPK (p = 1)": TRACKING_SECTION,
     "RBF": "mcpilco/UR10-v0 (positions-rbf)",
-    "rigid body": "mcpilco/UR10-v0 (positions-rigid)",
 }
 
 

@@ -87,6 +87,26 @@ def test_rigid_body_kernel_predicts_the_arm_better_than_rbf_and_rbf_mpk():
     assert np.all(rmse["rigid_body"] < 0.5 * rmse["rbf+mpk"]), rmse
 
 
+@pytest.mark.usefixtures("one_torch_thread")
+def test_float32_particles_see_the_rigid_body_posterior_at_float64_accuracy():
+    """The particles' dynamics in float32 give the rigid-body GP's posterior mean and
+    variance as the float64 GP does (its raw-input solve is evaluated in float64), within
+    float32 rounding, on fresh transitions with position changes learned too."""
+    task = TaskSpec.from_dict({**ARM_TASK, "speed_integration": False})
+    train, test = arm_transitions(80, 0), arm_transitions(50, 2)
+    model = GPDynamicsModel(task, "rigid_body", max_points=None, adam_iters=30, lbfgs_iters=15)
+    model.fit(*train)
+    dyn = model.particle_dynamics(dtype=torch.float32)
+    s, a = (torch.as_tensor(v, dtype=torch.float32) for v in test[:2])
+    mean32, var32 = dyn.delta_distribution(s, a)
+    assert mean32.dtype == var32.dtype == torch.float32
+    X = model.joint_inputs(*(torch.as_tensor(v, dtype=torch.float64) for v in test[:2]))
+    mean64, var64 = model.gp_.predict(X)
+    scale = mean64.abs().amax(dim=0)
+    assert torch.all((mean32.double() - mean64).abs().amax(dim=0) <= 1e-4 * scale + 1e-7)
+    assert torch.allclose(var32.double(), var64, rtol=1e-3, atol=1e-9)
+
+
 def tracking_data(seed: int) -> tuple[TaskSpec, list[dict]]:
     task = TaskSpec.from_dict(TASK)
     env = make_env(ENV_ID, task.horizon, task)
