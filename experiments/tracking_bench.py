@@ -283,17 +283,25 @@ def _push_cell(row: dict[str, Any]) -> str:
 
 
 def kernel_rmse_on_run(
-    ckpt_path: str | Path, kernels: Sequence[str], num_particles: int = 100
+    ckpt_path: str | Path,
+    kernels: Sequence[str],
+    num_particles: int = 100,
+    fit_trials: int | None = None,
 ) -> dict[str, Any]:
     """The kernels' multi-step prediction error on a finished tracking run's own data: for
     each kernel label of ``kernels``
     (:data:`~mcpilco.experiments.mcpilco_rmse.KERNEL_ARGS`) a GP fitted with the run's GP
     settings on every transition before its last trial (those its push filter left out
-    excluded); ``M`` particles under the policy of that trial from its real initial state
-    over the whole horizon, against its real trajectory. Per kernel and joint: the RMSE of
-    ``q_b`` over particles and steps [rad] (``rmse``), per step (``per_step``), and the
-    seconds of the fit and rollout (``seconds``). A sweep job of
-    :func:`tracking_kernels_part`."""
+    excluded), or on those of its first ``fit_trials`` trials only (1: the exploration
+    trial's: how well each kernel predicts from the data the first policy is optimised on);
+    ``M`` particles under the policy of the last trial from its real initial state over the
+    whole horizon, against its real trajectory. Per kernel and joint: the RMSE of ``q_b``
+    over particles and steps [rad] (``rmse``), per step (``per_step``), and the seconds of
+    the fit and rollout (``seconds``). A sweep job of :func:`tracking_kernels_part`.
+
+    Raises:
+        ValueError: no policy trial in the run, or ``fit_trials`` not in ``1 .. trials - 1``.
+    """
     from mcpilco.agents.mc_pilco import SquashedRBFPolicy
     from mcpilco.agents.mc_pilco.checkpoint import load_checkpoint
     from mcpilco.agents.mc_pilco.loop import transitions
@@ -307,9 +315,14 @@ def kernel_rmse_on_run(
         raise ValueError(f"{ckpt_path}: needs an arm task's run with a policy trial")
     policy = SquashedRBFPolicy(**ckpt["policy_settings"])
     policy.load_state_dict(ckpt["policy"])
+    if fit_trials is not None and not 1 <= fit_trials < len(episodes):
+        raise ValueError(
+            f"{ckpt_path}: fit_trials must be in 1 .. {len(episodes) - 1} (the trials before "
+            f"the last), got {fit_trials}"
+        )
     real = np.asarray(arrays[-1]["real"])
     idx = [task.state_names.index(j) for j in task.joints]
-    data = transitions(episodes[:-1], task)
+    data = transitions(episodes[: fit_trials or len(episodes) - 1], task)
     fit = dict(
         max_points=cfg.max_points, adam_iters=cfg.gp_adam_iters, lbfgs_iters=cfg.gp_lbfgs_iters,
         noise_min=cfg.gp_noise_min, min_lengthscale=cfg.gp_min_lengthscale,
@@ -319,6 +332,8 @@ def kernel_rmse_on_run(
         "seed": cfg.seed,
         "run_kernel": kernel_label(cfg.kernel, cfg.mpk_degree),
         "n_data": len(data[1]),
+        "fit_trials": fit_trials or len(episodes) - 1,
+        "last_trial": len(episodes) - 1,
         "joints": list(task.joints),
         "kernels": {},
     }
@@ -350,6 +365,8 @@ def summarise_kernel_rmse(per_run: Sequence[dict[str, Any]]) -> dict[str, Any]:
         "joints": per_run[0]["joints"],
         "run_kernel": sorted({r["run_kernel"] for r in per_run}),
         "n_data": [r["n_data"] for r in per_run],
+        "fit_trials": sorted({r.get("fit_trials") for r in per_run} - {None}),
+        "last_trial": sorted({r.get("last_trial") for r in per_run} - {None}),
         "kernels": {
             k: {
                 "mean": rm[k].mean(0).tolist(),
@@ -383,13 +400,18 @@ def kernel_rmse_table(key: str, summary: dict[str, Any]) -> str:
 
     joints = summary["joints"]
     lo, hi = min(summary["n_data"]), max(summary["n_data"])
+    fit, last = summary.get("fit_trials", []), summary.get("last_trial", [])
+    data = (
+        f"its first {'/'.join(map(str, fit))} trial(s), the exploration included,"
+        if fit and fit != last
+        else "its transitions before its last policy trial"
+    )
     lines = [
         f"### Multi-step prediction error per joint: {key}",
         "",
         f"{summary['runs']} runs (learned with {', '.join(summary['run_kernel'])}); each kernel's "
-        "GP fitted on a run's transitions before its last policy trial "
-        f"({lo if lo == hi else f'{lo}-{hi}'} transitions), particles under "
-        "that trial's policy from its real initial state over the whole horizon against its "
+        f"GP fitted on {data} ({lo if lo == hi else f'{lo}-{hi}'} transitions), particles under "
+        "the last trial's policy from its real initial state over the whole horizon against its "
         "real trajectory. Per joint: RMSE of q over particles and steps [mrad], mean over runs "
         "(in brackets: runs in which this kernel's is the lowest). All joints: "
         "sqrt(mean over joints of RMSE^2), mean over runs.",
@@ -414,11 +436,13 @@ def tracking_kernels_part(
     num_particles: int = 100,
     command: str = "",
     log: Callable[[str], None] = print,
+    fit_trials: int | None = None,
 ) -> dict[str, Any]:
     """Part ``tracking_kernels``: :func:`kernel_rmse_on_run` on every run
     (``*/checkpoint.pt``) under each of ``runs_dirs`` as sweep jobs of ``runner`` (one torch
-    thread each; results in ``<runs_dir>/kernel_rmse/``, kept for the same runs and
-    arguments), summarised (:func:`summarise_kernel_rmse`) under the folder's name in
+    thread each; results in ``<runs_dir>/kernel_rmse/``, or ``kernel_rmse_fit<K>/`` with
+    ``fit_trials`` ``K``, kept for the same runs and arguments), summarised
+    (:func:`summarise_kernel_rmse`) under the folder's name (``<name>_fit<K>``) in
     ``kernels`` of ``out_dir/mcpilco_tracking.json``; the report is rewritten.
 
     Raises:
@@ -437,12 +461,17 @@ def tracking_kernels_part(
         ckpts = sorted(Path(runs_dir).glob("*/checkpoint.pt"))
         if not ckpts:
             raise ValueError(f"no finished run (*/checkpoint.pt) under {runs_dir}")
-        args = {"kernels": list(kernels), "num_particles": int(num_particles)}
+        args: dict[str, Any] = {"kernels": list(kernels), "num_particles": int(num_particles)}
+        suffix = "" if fit_trials is None else f"_fit{int(fit_trials)}"
+        if fit_trials is not None:
+            args["fit_trials"] = int(fit_trials)
         jobs = [
             Job(c.parent.name, kernel_rmse_on_run, {"ckpt_path": str(c), **args}, threads=1)
             for c in ckpts
         ]
-        sweep = runner.run(jobs, Path(runs_dir) / "kernel_rmse", desc=f"kernels {runs_dir}")
+        sweep = runner.run(
+            jobs, Path(runs_dir) / f"kernel_rmse{suffix}", desc=f"kernels {runs_dir}"
+        )
         if sweep.failed:
             raise ValueError(f"{len(sweep.failed)} runs failed: {sweep.summary()}")
         per_run = [sweep.results[job.key] for job in jobs]
@@ -454,7 +483,7 @@ def tracking_kernels_part(
                     for k, v in r["kernels"].items()
                 )
             )
-        key = Path(runs_dir).name
+        key = Path(runs_dir).name + suffix
         results.setdefault("kernels", {})[key] = summarise_kernel_rmse(per_run)
         if command:
             results.setdefault("commands", {})[kernels_entry(key)] = command

@@ -29,8 +29,9 @@ Parts, each optional (``tracking`` and ``tracking_kernels`` only when named):
 5. ``tracking``: for a tracking task (``--env mcpilco/UR10-v0``), the tracking RMS per joint
    after each policy trial against the env's controller alone; ``tracking_kernels``: on the
    tracking runs under ``--rmse-runs``, each GP kernel of ``--kernels`` refitted on a run's
-   data before its last trial, the RMSE per joint of its particles against that trial
-   (:mod:`mcpilco.experiments.tracking_bench`); both write ``results/mcpilco_tracking.*``.
+   data before its last trial (``--fit-trials K``: its first K trials'), the RMSE per joint
+   of its particles against that trial (:mod:`mcpilco.experiments.tracking_bench`); both
+   write ``results/mcpilco_tracking.*``.
 
 Writes ``results/mcpilco_cartpole.json`` (merged with an existing file, one section per
 env), ``results/mcpilco_cartpole.md`` and ``results/mcpilco_cartpole.png``. ``--pool`` merges
@@ -47,7 +48,7 @@ Usage::
     mcpilco-bench-mcpilco --pool bench bench5                  # one section, seeds of both
     mcpilco-bench-mcpilco --parts tracking --env mcpilco/UR10-v0 --seeds 10 --jobs 2
     mcpilco-bench-mcpilco --parts tracking --env mcpilco/UR10-v0 --pushes [filtered] --seeds 10
-    mcpilco-bench-mcpilco --parts tracking_kernels --rmse-runs runs/bench/UR10-v0
+    mcpilco-bench-mcpilco --parts tracking_kernels --rmse-runs runs/bench/UR10-v0 [--fit-trials 1]
     mcpilco-bench-mcpilco --parts timing --device cuda --timing-particles 400 4000
 """
 
@@ -133,43 +134,36 @@ def build_parser() -> argparse.ArgumentParser:
         help="dtype of the GP posterior in the particle rollouts (override; float32 default)",
     )  # fmt: skip
     p.add_argument(
-        "--compile-rollout",
-        action="store_true",
-        default=None,
+        "--compile-rollout", action="store_true", default=None,
         help="use the fast rollout in the runs (use_fast_rollout, default backend); the "
         "timing part then also times every setting with the default backend, the torch "
         "backend and torch.compile",
-    )
+    )  # fmt: skip
     p.add_argument(
-        "--explore-hold",
-        type=int,
+        "--explore-hold", type=int,
         help="steps each random exploration action is held (override; default: the env's, 2 "
         "on mcpilco/CartpoleSwingUp-v0, 1 = i.i.d. per step on mcpilco/DMCCartpoleSwingUp-v0; "
         "a section saved without it ran 1)",
-    )
+    )  # fmt: skip
     p.add_argument(
         "--candidate-scales", type=float, nargs="+",
         help="initial weight scale of each candidate (K values; sets K when --candidates "
         "is not given)",
     )  # fmt: skip
     p.add_argument(
-        "--label",
-        default="",
+        "--label", default="",
         help="suffix of the results section and run folder (e.g. 'K2'), to keep variants apart",
-    )
+    )  # fmt: skip
     p.add_argument(
-        "--device",
-        default="cpu",
+        "--device", default="cpu",
         help="where the runs' policy optimisation and the timing part run: cpu or cuda[:index]",
-    )
+    )  # fmt: skip
     p.add_argument("--timing-n", type=int, nargs="+", default=[100, 200, 250, 300])
     p.add_argument(
-        "--timing-env",
-        nargs="+",
-        default=[DEFAULT_ENV_ID],
+        "--timing-env", nargs="+", default=[DEFAULT_ENV_ID],
         help="env ids whose task specs the timing part times (each over its own horizon; "
         "e.g. mcpilco/UR10-v0: 24 states, 6 actions, 12 GP outputs)",
-    )
+    )  # fmt: skip
     p.add_argument("--timing-threads", type=int, nargs="+", default=[1, 2])
     p.add_argument(
         "--timing-particles",
@@ -207,6 +201,10 @@ def build_parser() -> argparse.ArgumentParser:
         help="tracking_kernels part: GP kernel labels to compare (rbf+mpk: degree-2 MPK, "
         "rbf+mpk1: degree 1)",
     )
+    p.add_argument(
+        "--fit-trials", type=int, metavar="K",
+        help="tracking_kernels part: fit on the runs' first K trials (1: exploration only)",
+    )  # fmt: skip
     p.add_argument("--out", type=Path, default=Path("results"))
     p.add_argument("--runs-dir", type=Path, default=Path("runs/bench_mcpilco"))
     return p
@@ -258,8 +256,9 @@ def main(argv: list[str] | None = None) -> int:
             )
         if "tracking_kernels" in args.parts:
             tracking_kernels_part(
-                args.rmse_runs or [], args.out, args.kernels, runner, args.particles or 100, command
-            )
+                args.rmse_runs or [], args.out, args.kernels, runner, args.particles or 100,
+                command, fit_trials=args.fit_trials,
+            )  # fmt: skip
     except ValueError as err:
         parser.error(str(err))
     if args.parts and set(args.parts) <= {"tracking", "tracking_kernels"}:

@@ -399,6 +399,7 @@ def test_kernel_comparison_on_a_tracking_run(tmp_path):
     kernel, and an unknown kernel label is refused."""
     from mcpilco.experiments.sweep import SweepRunner
     from mcpilco.experiments.tracking_bench import (
+        kernel_rmse_on_run,
         kernel_rmse_table,
         summarise_kernel_rmse,
         tracking_kernels_part,
@@ -437,3 +438,15 @@ def test_kernel_comparison_on_a_tracking_run(tmp_path):
     assert np.asarray(summary["kernels"]["rbf"]["per_step_median"]).shape == (task.horizon, 2)
     with pytest.raises(ValueError, match="unknown kernels"):
         tracking_kernels_part([tmp_path], tmp_path / "results", ["poly"], runner, 16)
+    # fit_trials=1 is the exploration trial: here also every trial before the last, so the
+    # same data, fits and random numbers; its own section and job folder
+    out = tracking_kernels_part(
+        [tmp_path], tmp_path / "results", kernels, runner, 16, log=lambda _m: None, fit_trials=1
+    )
+    fit1 = out["kernels"][f"{tmp_path.name}_fit1"]
+    assert (tmp_path / "kernel_rmse_fit1" / "run0.json").is_file()
+    assert fit1["n_data"] == summary["n_data"] and fit1["fit_trials"] == [1]
+    for k in kernels:
+        np.testing.assert_allclose(fit1["kernels"][k]["mean"], summary["kernels"][k]["mean"])
+    with pytest.raises(ValueError, match=r"fit_trials must be in 1 \.\. 1 .*got 2"):
+        kernel_rmse_on_run(tmp_path / "run0" / "checkpoint.pt", ["rbf"], 4, fit_trials=2)
