@@ -401,11 +401,12 @@ def kernel_rmse_table(key: str, summary: dict[str, Any]) -> str:
     joints = summary["joints"]
     lo, hi = min(summary["n_data"]), max(summary["n_data"])
     fit, last = summary.get("fit_trials", []), summary.get("last_trial", [])
-    data = (
-        f"its first {'/'.join(map(str, fit))} trial(s), the exploration included,"
-        if fit and fit != last
-        else "its transitions before its last policy trial"
-    )
+    if fit == [1] and last != [1]:
+        data = "the transitions of a run's exploration trial only"
+    elif fit and fit != last:
+        data = f"a run's transitions of its first {'/'.join(map(str, fit))} trials"
+    else:
+        data = "a run's transitions before its last policy trial"
     lines = [
         f"### Multi-step prediction error per joint: {key}",
         "",
