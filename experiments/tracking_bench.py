@@ -447,8 +447,9 @@ def tracking_kernels_part(
     ``kernels`` of ``out_dir/mcpilco_tracking.json``; the report is rewritten.
 
     Raises:
-        ValueError: no folder, a folder without a run, an unknown kernel label, a failed
-            job.
+        ValueError: no folder, a folder without a run, an unknown kernel label,
+            ``fit_trials < 1``, a failed job (e.g. ``fit_trials`` not before a run's last
+            trial).
     """
     from mcpilco.experiments.mcpilco_rmse import KERNEL_ARGS
 
@@ -457,6 +458,8 @@ def tracking_kernels_part(
     unknown = [k for k in kernels if k not in KERNEL_ARGS]
     if unknown:
         raise ValueError(f"unknown kernels {unknown}; choose from {sorted(KERNEL_ARGS)}")
+    if fit_trials is not None and fit_trials < 1:
+        raise ValueError(f"fit_trials must be >= 1 (1: the exploration trial), got {fit_trials}")
     results = load_results(out_dir, RESULTS_NAME)
     for runs_dir in runs_dirs:
         ckpts = sorted(Path(runs_dir).glob("*/checkpoint.pt"))

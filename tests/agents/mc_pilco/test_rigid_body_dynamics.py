@@ -448,5 +448,7 @@ def test_kernel_comparison_on_a_tracking_run(tmp_path):
     assert fit1["n_data"] == summary["n_data"] and fit1["fit_trials"] == [1]
     for k in kernels:
         np.testing.assert_allclose(fit1["kernels"][k]["mean"], summary["kernels"][k]["mean"])
+    with pytest.raises(ValueError, match="fit_trials must be >= 1"):
+        tracking_kernels_part([tmp_path], tmp_path / "results", kernels, runner, fit_trials=0)
     with pytest.raises(ValueError, match=r"fit_trials must be in 1 \.\. 1 .*got 2"):
         kernel_rmse_on_run(tmp_path / "run0" / "checkpoint.pt", ["rbf"], 4, fit_trials=2)
