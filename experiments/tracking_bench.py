@@ -320,9 +320,10 @@ def kernel_rmse_on_run(
             f"{ckpt_path}: fit_trials must be in 1 .. {len(episodes) - 1} (the trials before "
             f"the last), got {fit_trials}"
         )
+    n_fit = fit_trials or len(episodes) - 1
     real = np.asarray(arrays[-1]["real"])
     idx = [task.state_names.index(j) for j in task.joints]
-    data = transitions(episodes[: fit_trials or len(episodes) - 1], task)
+    data = transitions(episodes[:n_fit], task)
     fit = dict(
         max_points=cfg.max_points, adam_iters=cfg.gp_adam_iters, lbfgs_iters=cfg.gp_lbfgs_iters,
         noise_min=cfg.gp_noise_min, min_lengthscale=cfg.gp_min_lengthscale,
@@ -332,7 +333,7 @@ def kernel_rmse_on_run(
         "seed": cfg.seed,
         "run_kernel": kernel_label(cfg.kernel, cfg.mpk_degree),
         "n_data": len(data[1]),
-        "fit_trials": fit_trials or len(episodes) - 1,
+        "fit_trials": n_fit,
         "last_trial": len(episodes) - 1,
         "joints": list(task.joints),
         "kernels": {},
@@ -401,12 +402,12 @@ def kernel_rmse_table(key: str, summary: dict[str, Any]) -> str:
     joints = summary["joints"]
     lo, hi = min(summary["n_data"]), max(summary["n_data"])
     fit, last = summary.get("fit_trials", []), summary.get("last_trial", [])
-    if fit == [1] and last != [1]:
-        data = "the transitions of a run's exploration trial only"
-    elif fit and fit != last:
-        data = f"a run's transitions of its first {'/'.join(map(str, fit))} trials"
-    else:
+    if not fit or fit == last:
         data = "a run's transitions before its last policy trial"
+    elif fit == [1]:
+        data = "the transitions of a run's exploration trial only"
+    else:
+        data = f"a run's transitions of its first {'/'.join(map(str, fit))} trials"
     lines = [
         f"### Multi-step prediction error per joint: {key}",
         "",
