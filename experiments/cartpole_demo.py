@@ -22,8 +22,10 @@ from pathlib import Path
 
 import torch
 
+from mcpilco.agents.common.records import RunSummary
 from mcpilco.agents.mc_pilco import DEFAULT_ENV_ID, load_config, run_mcpilco
-from mcpilco.agents.mc_pilco.loop import MCPilcoConfig, RunSummary, check_compile_toolchain
+from mcpilco.agents.mc_pilco.config import MCPilcoConfig
+from mcpilco.agents.mc_pilco.trainer import check_compile_toolchain
 from mcpilco.models.device import resolve_device, retain_host_memory
 
 __all__ = ["choose_compile", "demo_config", "demo_report", "rollout_mode", "run_demo"]

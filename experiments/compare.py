@@ -36,8 +36,9 @@ from mcpilco.agents.baselines.common import (
     save_curve,
     trial_records_to_points,
 )
-from mcpilco.agents.mc_pilco.loop import check_dynamics_task, load_config
-from mcpilco.agents.mc_pilco.task import TaskSpec
+from mcpilco.agents.mc_pilco.config import load_config
+from mcpilco.agents.mc_pilco.trainer import check_dynamics_task
+from mcpilco.envs.tasks.spec import TaskSpec
 from mcpilco.experiments.sweep import Job, SweepRunner
 from mcpilco.models.device import retain_host_memory
 
@@ -432,7 +433,7 @@ def mcpilco_preset(env_id: str, preset: str | None = None) -> str | None:
     file's config as it is)."""
     import yaml
 
-    from mcpilco.agents.mc_pilco.loop import config_files
+    from mcpilco.agents.mc_pilco.config import config_files
 
     if preset is not None:
         return preset

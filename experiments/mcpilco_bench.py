@@ -260,7 +260,7 @@ def bench_configs(
         ValueError: an env without a shipped task, an unknown preset, a bad value, a device
             this machine lacks, ``compile_rollout`` without a C++ compiler.
     """
-    from mcpilco.agents.mc_pilco.loop import check_compile_toolchain
+    from mcpilco.agents.mc_pilco.trainer import check_compile_toolchain
     from mcpilco.envs.tasks import task_ids
     from mcpilco.models.device import resolve_device
 

@@ -138,9 +138,10 @@ def particle_rmse(
     over particles), and its mean over the 60 steps."""
     import torch
 
+    from mcpilco.agents.common.checkpoint import load_checkpoint
+    from mcpilco.agents.common.trials import make_env, run_episode
     from mcpilco.agents.mc_pilco import SquashedRBFPolicy
-    from mcpilco.agents.mc_pilco.checkpoint import load_checkpoint
-    from mcpilco.agents.mc_pilco.loop import _policy_act, make_env, run_episode
+    from mcpilco.agents.mc_pilco.policy import policy_act
 
     torch.set_num_threads(1)
     s, a, s1, _ = exploration_data(env_id, 60, 100 + seed, explore_hold)  # 3 s
@@ -149,7 +150,7 @@ def particle_rmse(
     policy = SquashedRBFPolicy(**ckpt["policy_settings"])
     policy.load_state_dict(ckpt["policy"])
     env = make_env(env_id, task.horizon, task)
-    real = run_episode(env, _policy_act(policy), 5000 + seed, task.horizon, task)["states"]
+    real = run_episode(env, policy_act(policy), 5000 + seed, task.horizon, task)["states"]
     env.close()
     out: dict[str, Any] = {"seed": seed, "real_success_theta_end": float(real[-1, 2])}
     first = seed == 0  # the plot shows the particles of seed 0
@@ -166,9 +167,9 @@ def particle_rmse_on_run(ckpt_path: Path, num_particles: int = 400) -> dict[str,
     noise-free states the env recorded). The run's last trial must have swung up."""
     import torch
 
+    from mcpilco.agents.common.checkpoint import load_checkpoint
+    from mcpilco.agents.common.trials import transitions
     from mcpilco.agents.mc_pilco import SquashedRBFPolicy
-    from mcpilco.agents.mc_pilco.checkpoint import load_checkpoint
-    from mcpilco.agents.mc_pilco.loop import transitions
 
     torch.set_num_threads(1)
     ckpt = load_checkpoint(ckpt_path)
@@ -202,7 +203,7 @@ def particle_rmse_on_run(ckpt_path: Path, num_particles: int = 400) -> dict[str,
 
 def swingup_runs(runs_dir: Path) -> list[Path]:
     """Checkpoints under ``runs_dir`` (sorted) whose last trial swung the pole up."""
-    from mcpilco.agents.mc_pilco.checkpoint import load_checkpoint
+    from mcpilco.agents.common.checkpoint import load_checkpoint
 
     found = []
     for ckpt_path in sorted(Path(runs_dir).glob("**/checkpoint.pt")):

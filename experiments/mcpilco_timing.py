@@ -79,8 +79,8 @@ def matmul_rate(threads: int, repeats: int = 20) -> float:
 
 def exploration_data(env_id: str, n_points: int, seed: int, hold: int = 1):
     """``n_points`` transitions of random-exploration episodes (actions held ``hold`` steps,
-    :func:`~mcpilco.agents.mc_pilco.loop.exploration_actions`)."""
-    from mcpilco.agents.mc_pilco.loop import exploration_actions, make_env, run_episode, transitions
+    :func:`~mcpilco.agents.common.trials.exploration_actions`)."""
+    from mcpilco.agents.common.trials import exploration_actions, make_env, run_episode, transitions
 
     task = TaskSpec.for_env(env_id)
     H = task.horizon

@@ -5,7 +5,7 @@ A tracking task's cost terms track reference states (``q_b - q_r,b``; the UR10 t
 ``envs/tasks/ur10_tracking.yaml``). Each seed runs the whole loop (:func:`bench_runs`); its
 trial records carry ``tracking_rms``, the RMS of ``q_b - q_r,b`` over the episode per joint.
 The baseline is the controller alone: the same episodes (same reset seeds,
-:func:`~mcpilco.agents.mc_pilco.loop.trial_seed`) with the action at the middle of its
+:func:`~mcpilco.agents.common.trials.trial_seed`) with the action at the middle of its
 range (a zero torque correction). Reported per policy trial: the mean over seeds of each
 joint's RMS, its ratio to the baseline's, and the number of seeds whose every joint is at
 most half the baseline's (the goal "error at least halved"). On an arm env with a known
@@ -60,7 +60,7 @@ def train_task_detector(
     estimator on the robot's nominal model, thresholds by the maximum rule on the last
     episode, 2-sample persistence. What a user does on the real arm: record the task's
     motion without contacts, train, then filter the learning runs."""
-    from mcpilco.agents.mc_pilco.loop import exploration_actions, make_env, run_episode
+    from mcpilco.agents.common.trials import exploration_actions, make_env, run_episode
     from mcpilco.envs.arm_data import log_from_infos
     from mcpilco.experiments.collision_detection import nominal_model
     from mcpilco.models.collision import train_detector
@@ -105,7 +105,7 @@ def controller_alone(
     ``feedforward`` the env's known-model feed-forward held over each control period
     (``feedforward_action`` of :class:`~mcpilco.envs.arm_env.ArmTrackingEnv`; None for an
     env without one)."""
-    from mcpilco.agents.mc_pilco.loop import make_env, run_episode, trial_seed
+    from mcpilco.agents.common.trials import make_env, run_episode, trial_seed
 
     task = config.task_spec()
     env = make_env(config.env_id, task.horizon, task, config.env_kwargs)
@@ -302,9 +302,9 @@ def kernel_rmse_on_run(
     Raises:
         ValueError: no policy trial in the run, or ``fit_trials`` not in ``1 .. trials - 1``.
     """
+    from mcpilco.agents.common.checkpoint import load_checkpoint
+    from mcpilco.agents.common.trials import transitions
     from mcpilco.agents.mc_pilco import SquashedRBFPolicy
-    from mcpilco.agents.mc_pilco.checkpoint import load_checkpoint
-    from mcpilco.agents.mc_pilco.loop import transitions
     from mcpilco.experiments.mcpilco_rmse import model_particles
 
     ckpt = load_checkpoint(ckpt_path)

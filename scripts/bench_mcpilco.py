@@ -61,8 +61,8 @@ from pathlib import Path
 
 from mcpilco.agents.common.cli import console_main
 from mcpilco.agents.mc_pilco import DEFAULT_ENV_ID
+from mcpilco.agents.mc_pilco.config import ROLLOUT_DTYPES, parse_set
 from mcpilco.agents.mc_pilco.dynamics import KERNEL_CHOICES
-from mcpilco.agents.mc_pilco.loop import ROLLOUT_DTYPES, parse_set
 from mcpilco.experiments.mcpilco_bench import (
     PARTS,
     bench_configs,

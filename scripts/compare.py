@@ -52,7 +52,8 @@ from mcpilco.agents.baselines.common import check_task_env, load_curves
 from mcpilco.agents.baselines.pilco import OPTIMIZERS
 from mcpilco.agents.baselines.sb3 import HYPERPARAMS
 from mcpilco.agents.common.cli import console_main
-from mcpilco.agents.mc_pilco.loop import DEFAULT_ENV_ID, parse_set
+from mcpilco.agents.common.trials import DEFAULT_ENV_ID
+from mcpilco.agents.mc_pilco.config import parse_set
 from mcpilco.experiments.compare import (
     METHODS,
     compare,

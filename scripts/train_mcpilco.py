@@ -26,8 +26,8 @@ from pathlib import Path
 from mcpilco.agents.common.cli import console_main
 from mcpilco.agents.mc_pilco import DEFAULT_ENV_ID
 from mcpilco.agents.mc_pilco.cli import check_config, config_from_options, train
+from mcpilco.agents.mc_pilco.config import ROLLOUT_DTYPES
 from mcpilco.agents.mc_pilco.dynamics import KERNEL_CHOICES
-from mcpilco.agents.mc_pilco.loop import ROLLOUT_DTYPES
 
 
 def _positive_int(text: str) -> int:

@@ -273,7 +273,7 @@ def task_dicts(draw):
 
 
 def _check_task(d) -> None:
-    from mcpilco.agents.mc_pilco.task import TaskSpec, TaskSpecError
+    from mcpilco.envs.tasks.spec import TaskSpec, TaskSpecError
 
     try:
         task = TaskSpec.from_dict(d)

@@ -88,8 +88,8 @@ def test_wheel_declares_satisfied_dependencies(wheel_venv: Path, tmp_path: Path)
 def test_wheel_imports_from_its_own_install(wheel_venv: Path, tmp_path: Path) -> None:
     code = (
         "import gymnasium as gym, mcpilco.envs; "
-        "from mcpilco.agents.mc_pilco.task import TaskSpec; "
-        "from mcpilco.agents.mc_pilco.loop import load_config; "
+        "from mcpilco.envs.tasks.spec import TaskSpec; "
+        "from mcpilco.agents.mc_pilco.config import load_config; "
         "print(mcpilco.envs.__file__); "
         "env = gym.make('mcpilco/CartpoleSwingUp-v0'); env.reset(seed=0); "
         "print(TaskSpec.for_env('mcpilco/CartpoleSwingUp-v0').state_dim); "

@@ -30,7 +30,7 @@ from typing import Any
 
 import numpy as np
 
-from mcpilco.agents.mc_pilco.loop import env_dt, make_env, run_episode
+from mcpilco.agents.common.trials import env_dt, make_env, run_episode
 
 CURVE_FORMAT = "mcpilco-curve/1"
 """Tag of a learning-curve JSON file (one run: method, env, seed, points)."""
@@ -65,7 +65,7 @@ def check_task_env(env_id: str) -> None:
 
 def episode_steps(env_id: str) -> int:
     """Steps per episode of a task env: its task's horizon, where success is scored."""
-    from mcpilco.agents.mc_pilco.task import TaskSpec
+    from mcpilco.envs.tasks.spec import TaskSpec
 
     return TaskSpec.for_env(env_id).horizon
 
@@ -80,8 +80,8 @@ def evaluate_success(
 ) -> dict[str, Any]:
     """Run one episode per reset seed with ``act`` and score it as MC-PILCO's trials are.
 
-    Uses :func:`mcpilco.agents.mc_pilco.loop.run_episode` with the env's ``task``
-    (:class:`~mcpilco.agents.mc_pilco.task.TaskSpec`), so the success flag, cost and time
+    Uses :func:`mcpilco.agents.common.trials.run_episode` with the env's ``task``
+    (:class:`~mcpilco.envs.tasks.spec.TaskSpec`), so the success flag, cost and time
     in the goal region are the same quantities as in MC-PILCO's records.
 
     Returns:
@@ -112,7 +112,7 @@ def task_step_wrapper(env, task: Any):
     task's ``reset_options()`` (its joint reference) unless options are given, and each
     action is held for the task's ``action_repeat`` env steps, the rewards summed, the
     observation after the last returned (stopping early at a termination or truncation).
-    What MC-PILCO's :func:`~mcpilco.agents.mc_pilco.loop.run_episode` does, so that a
+    What MC-PILCO's :func:`~mcpilco.agents.common.trials.run_episode` does, so that a
     model-free learner trains on the same control period and reference it is scored on."""
     import gymnasium as gym
 

@@ -30,7 +30,7 @@ units fix
     ``1 / s_a^2`` (``s_a`` the target's std); :func:`rescale_to_raw_targets` puts
     them back in target units after each fit (tested against botorch's own posterior).
 outer loop
-    exactly MC-PILCO's (:mod:`mcpilco.agents.mc_pilco.loop`): the same exploration trial
+    exactly MC-PILCO's (:mod:`mcpilco.agents.common.trials`): the same exploration trial
     (``u ~ U(-1, 1)`` from the same generator and seed), the same env, reset seeds and
     success flag; the experience is every env step taken so far (exploration included)
     times the control period (``3 (k + 1)`` s after trial ``k`` on the cart-pole, whose
@@ -61,36 +61,34 @@ from typing import Any
 import numpy as np
 import torch
 
-from mcpilco.agents.mc_pilco.checkpoint import (
-    CHECKPOINT_VERSION,
-    atomic_torch_save,
+from mcpilco.agents.common.checkpoint import (
+    CHECKPOINT_NAME,
+    check_resume,
     load_checkpoint,
     rng_state,
+    save_checkpoint,
     set_rng_state,
 )
-from mcpilco.agents.mc_pilco.loop import (
+from mcpilco.agents.common.records import RunSummary, TrialRecord, record_line, write_records
+from mcpilco.agents.common.trials import (
     DEFAULT_ENV_ID,
-    LEGACY_FIELD_VALUES,
-    RunSummary,
-    check_resume,
     env_dt,
     episode_outcome,
     exploration_episodes,
-    load_config,
     make_env,
-    record_line,
     run_episode,
     transitions,
     trial_seed,
-    write_records,
 )
-from mcpilco.agents.mc_pilco.task import TaskSpec
+from mcpilco.agents.mc_pilco.config import load_config
 from mcpilco.agents.mc_pilco.viz import plot_optimisation
+from mcpilco.envs.tasks.spec import TaskSpec
 from mcpilco.models.device import check_device_name, resolve_device
 
-CHECKPOINT_NAME = "checkpoint.pt"  # the run's checkpoint file in its output folder
 OPTIMIZERS = ("lbfgs", "adam")  # choices of PilcoConfig.optimizer
-_RESUME_FIXED = ("env_id", "seed", "horizon", "num_basis", "explore_hold", "explore_steps")
+RESUME_FIXED = ("env_id", "seed", "horizon", "num_basis", "explore_hold", "explore_steps")
+"""PilcoConfig fields that must not change when a run is resumed."""
+_LEGACY_FIELD_VALUES: dict[str, Any] = {"explore_hold": 1}  # fields added after runs were saved
 DTYPE = torch.float64  # dtype of TorchRL's GP world model, controller and cost
 CONF_FILE = Path(__file__).resolve().parent / "conf" / "pilco.yaml"  # settings by env id
 
@@ -199,15 +197,20 @@ class PilcoConfig:
 
     @classmethod
     def from_dict(cls, d: dict[str, Any]) -> PilcoConfig:
-        """Inverse of :meth:`to_dict` (fields added later: ``LEGACY_FIELD_VALUES``; the
-        cart-pole's ``l_x``, ``l_theta`` read as ``cost_length_scales``)."""
+        """Inverse of :meth:`to_dict`; unknown fields are an error that names them. Configs
+        saved before ``explore_hold`` existed read with it 1; the cart-pole's ``l_x``,
+        ``l_theta`` read as ``cost_length_scales``."""
         d = dict(d)
         if "l_x" in d or "l_theta" in d:
             d.setdefault(
                 "cost_length_scales", {"x": d.pop("l_x", 1.0), "theta": d.pop("l_theta", 3.0)}
             )
             d.pop("l_x", None), d.pop("l_theta", None)
-        return cls(**{**LEGACY_FIELD_VALUES, **d})
+        known = {f.name for f in dataclasses.fields(cls)}
+        unknown = sorted(set(d) - known)
+        if unknown:
+            raise ValueError(f"unknown PILCO config fields {unknown} (fields: {sorted(known)})")
+        return cls(**{**_LEGACY_FIELD_VALUES, **d})
 
 
 def env_settings(env_id: str, path: str | Path = CONF_FILE) -> dict[str, Any]:
@@ -587,14 +590,15 @@ def run_pilco(
     )
     cost = make_cost(task, config.cost_length_scales).to(device)
     episodes: list[dict[str, Any]] = []
-    records: list[dict[str, Any]] = []
+    records: list[TrialRecord] = []
     opt_curves: list[list[float]] = []
     start_trial = 0
     resumed_from = None
     if resume:
         ckpt = load_checkpoint(ckpt_path)
-        check_resume(ckpt["config"], config, _RESUME_FIXED)
-        episodes, records = ckpt["episodes"], ckpt["records"]
+        check_resume(ckpt["config"], config, RESUME_FIXED)
+        episodes = ckpt["episodes"]
+        records = [TrialRecord.from_dict(r) for r in ckpt["records"]]
         opt_curves = ckpt["opt_curves"]
         controller.load_state_dict(ckpt["policy"])
         set_rng_state(ckpt["rng"], np_rng)
@@ -611,9 +615,8 @@ def run_pilco(
     try:
         for k in range(start_trial, total):
             t0 = time.perf_counter()
-            rec: dict[str, Any] = {"index": k}
+            rec = TrialRecord(index=k, kind="exploration" if k == 0 else "policy")
             if k == 0:
-                rec["kind"] = "exploration"
                 eps = exploration_episodes(
                     env,
                     np_rng,
@@ -624,9 +627,8 @@ def run_pilco(
                     config.explore_steps,
                 )
                 ep = eps[0]  # its outcome is the record's (MC-PILCO's exploration trial)
-                rec["exploration_episodes"] = len(eps)
+                rec.exploration_episodes = len(eps)
             else:
-                rec["kind"] = "policy"
                 s, a, s1 = transitions(episodes, task)  # the same data as MC-PILCO
                 s, a, s1 = (
                     s[-config.max_points :],
@@ -635,8 +637,7 @@ def run_pilco(
                 )
                 t_fit = time.perf_counter()
                 world_model = fit_world_model(s, a, s1, device)
-                rec["gp_fit_s"] = time.perf_counter() - t_fit
-                rec["gp_points"] = int(s.shape[0])
+                rec.update(gp_fit_s=time.perf_counter() - t_fit, gp_points=int(s.shape[0]))
                 objective = ImaginedCost(
                     world_model,
                     base_env,
@@ -681,24 +682,21 @@ def run_pilco(
                 )
                 eps = [ep]
             episodes += [{"obs": e["obs"], "actions": e["actions"]} for e in eps]
-            rec.update(episode_outcome(ep, t0))
+            rec.update(**episode_outcome(ep, t0))
             if k == 0:  # every step of the exploration counts
-                rec["steps"] = sum(len(e["actions"]) for e in episodes)
-            rec["experience_s"] = sum(len(e["actions"]) for e in episodes) * dt
+                rec.steps = sum(len(e["actions"]) for e in episodes)
+            rec.experience_s = sum(len(e["actions"]) for e in episodes) * dt
             records.append(rec)
             _write_outputs(out, config, records, opt_curves)
-            atomic_torch_save(
-                {
-                    "version": CHECKPOINT_VERSION,
-                    "config": config.to_dict(),
-                    "next_trial": k + 1,
-                    "episodes": episodes,
-                    "records": records,
-                    "opt_curves": opt_curves,
-                    "policy": controller.state_dict(),
-                    "rng": rng_state(np_rng),
-                },
+            save_checkpoint(
                 ckpt_path,
+                config,
+                k + 1,
+                episodes=episodes,
+                records=[r.to_dict() for r in records],
+                opt_curves=opt_curves,
+                policy=controller.state_dict(),
+                rng=rng_state(np_rng),
             )
             if log:
                 log("PILCO " + record_line(rec))
@@ -712,7 +710,7 @@ def run_pilco(
     png = out / "optimisation.png"
     return RunSummary(
         config=config.to_dict(),
-        records=records,
+        records=[r.to_dict() for r in records],
         out_dir=out,
         checkpoint=ckpt_path,
         rrd=None,
@@ -723,7 +721,7 @@ def run_pilco(
 
 
 def _write_outputs(
-    out: Path, config: PilcoConfig, records: list[dict[str, Any]], opt_curves: list[list[float]]
+    out: Path, config: PilcoConfig, records: list[TrialRecord], opt_curves: list[list[float]]
 ) -> None:
     if opt_curves:
         plot_optimisation(

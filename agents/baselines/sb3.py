@@ -59,8 +59,9 @@ from mcpilco.agents.baselines.common import (
     save_curve,
     task_step_wrapper,
 )
-from mcpilco.agents.mc_pilco.loop import DEFAULT_ENV_ID, check_resume, env_dt, make_env
-from mcpilco.agents.mc_pilco.task import TaskSpec
+from mcpilco.agents.common.checkpoint import check_resume
+from mcpilco.agents.common.trials import DEFAULT_ENV_ID, env_dt, make_env
+from mcpilco.envs.tasks.spec import TaskSpec
 
 ALGOS: tuple[str, ...] = ("sac", "td3", "ppo")
 """stable-baselines3 algorithms of the comparison."""
@@ -86,6 +87,8 @@ set of each env id (:data:`HYPERPARAMS_FILE`)."""
 # keys of HYPERPARAMS that are not constructor arguments of the SB3 algorithm
 _RUNNER_KEYS = ("normalize", "n_envs", "noise_type", "noise_std")
 CURVE_NAME = "curve.json"
+RESUME_FIXED = ("algo", "env_id", "seed", "preset", "eval_every", "eval_episodes")
+"""SB3Config fields that must not change when a run is resumed."""
 
 
 @dataclass
@@ -149,6 +152,15 @@ class SB3Config:
 
     def to_dict(self) -> dict[str, Any]:
         return dataclasses.asdict(self)
+
+    @classmethod
+    def from_dict(cls, d: dict[str, Any]) -> SB3Config:
+        """Inverse of :meth:`to_dict`; unknown fields are an error that names them."""
+        known = {f.name for f in dataclasses.fields(cls)}
+        unknown = sorted(set(d) - known)
+        if unknown:
+            raise ValueError(f"unknown SB3 config fields {unknown} (fields: {sorted(known)})")
+        return cls(**d)
 
 
 # ------------------------------------------------------------------------ construction
@@ -373,11 +385,7 @@ def run_sb3(
         if not curve_path.is_file():
             raise FileNotFoundError(f"no {curve_path} to resume; run without resume first")
         prev = json.loads(curve_path.read_text())
-        check_resume(
-            prev["config"],
-            config,
-            ("algo", "env_id", "seed", "preset", "eval_every", "eval_episodes"),
-        )
+        check_resume(prev["config"], config, RESUME_FIXED)
         ckpt = prev.get("checkpoint")
         if ckpt is not None:
             points = [p for p in prev["points"] if p["steps"] <= ckpt["steps"]]

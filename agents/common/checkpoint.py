@@ -1,4 +1,5 @@
-"""Atomic, safe checkpoints of an MC-PILCO run (one file per run, replaced after every trial).
+"""Atomic, safe checkpoints of a run (MC-PILCO, the PILCO baseline; one file per run,
+replaced after every trial), and the check that a resumed run is the run that was started.
 
 A checkpoint is written to ``<path>.tmp`` and moved over ``<path>`` with ``os.replace``,
 which is atomic on POSIX: a run killed while writing leaves the previous checkpoint intact,
@@ -15,6 +16,7 @@ from __future__ import annotations
 
 import os
 import random
+from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
@@ -24,12 +26,18 @@ import torch
 from mcpilco.models.torch_files import atomic_torch_save, load_torch_file
 
 __all__ = [
+    "CHECKPOINT_NAME",
     "CHECKPOINT_VERSION",
     "atomic_torch_save",
+    "check_resume",
     "load_checkpoint",
     "rng_state",
+    "save_checkpoint",
     "set_rng_state",
 ]
+
+CHECKPOINT_NAME = "checkpoint.pt"
+"""The checkpoint file in a run's output folder."""
 
 CHECKPOINT_VERSION = 3
 """Format of the checkpoint dict (3: tensors and plain data only, numpy arrays tagged)."""
@@ -61,7 +69,7 @@ def set_rng_state(state: dict[str, Any], np_rng: np.random.Generator) -> None:
 
 
 def load_checkpoint(path: str | os.PathLike) -> dict[str, Any]:
-    """Load a checkpoint written by an MC-PILCO or PILCO loop (``weights_only=True``);
+    """Load a checkpoint written by :func:`save_checkpoint` (``weights_only=True``);
     checks the format version.
 
     Raises:
@@ -93,3 +101,41 @@ def load_checkpoint(path: str | os.PathLike) -> dict[str, Any]:
             f"{CHECKPOINT_VERSION}; {remedy}"
         )
     return ckpt
+
+
+def save_checkpoint(path: str | os.PathLike, config: Any, next_trial: int, **state: Any) -> None:
+    """Write the checkpoint of a run whose trials ``0 .. next_trial - 1`` are done: the format
+    version, ``config.to_dict()``, ``next_trial`` and ``state`` (tensors and plain data),
+    atomically (the commit point of a trial)."""
+    atomic_torch_save(
+        {
+            "version": CHECKPOINT_VERSION,
+            "config": config.to_dict(),
+            "next_trial": int(next_trial),
+            **state,
+        },
+        path,
+    )
+
+
+def check_resume(saved: Mapping[str, Any], config: Any, keys: tuple[str, ...]) -> None:
+    """Raise ``ValueError`` naming the first of ``keys`` whose value in ``config`` differs
+    from the checkpoint's ``saved`` config (a run resumes only what it started).
+
+    ``saved`` is read as a config of ``config``'s type (``type(config).from_dict``), so that
+    a field added after the checkpoint was written takes the value the run had then.
+    """
+    try:
+        was_config = type(config).from_dict(dict(saved))
+    except (TypeError, ValueError) as err:
+        raise ValueError(
+            f"cannot resume: the checkpoint's config does not read as a "
+            f"{type(config).__name__} ({err}); use a new output folder"
+        ) from None
+    for key in keys:
+        was, now = getattr(was_config, key), getattr(config, key)
+        if was != now:
+            raise ValueError(
+                f"cannot resume: {key}={now!r} differs from the checkpoint's {was!r}; use the "
+                "same value or a new output folder"
+            )

@@ -4,19 +4,25 @@ TorchRL-style parts (Amadio et al., IEEE T-RO 2022) over any task that declares 
 :class:`TaskSpec`:
 
 * task: :class:`TaskSpec` (state layout, angles, speed-integration pairs, action bounds,
-  cost, success test), shipped for the registered envs (:mod:`mcpilco.envs.tasks`);
+  cost, success test; :mod:`mcpilco.envs.tasks.spec`), shipped for the registered envs
+  (:mod:`mcpilco.envs.tasks`);
 * modules: :class:`SquashedRBFPolicy` (a ``TensorDictModule`` via :func:`make_policy_module`),
   :class:`GPDynamicsModel` / :class:`SpeedIntegrationDynamics` (GP changes, speed
   integration), :class:`SaturatingCost`;
 * objective: :class:`MCPilcoLoss` (particle rollout, ``loss_cost``); fast rollouts of it
   (native C++, chained PyTorch, ``torch.compile``) chosen and checked against the eager one
   by :func:`use_fast_rollout`;
-* loop: :func:`optimize_policy` (Adam + monitoring rule) and :func:`run_mcpilco` (trials,
-  checkpoints, PNG and Rerun outputs), configured by :class:`MCPilcoConfig` and per-env
-  YAML files (:func:`load_config`).
+* training: :func:`optimize_policy` (Adam + monitoring rule) and :class:`Trainer` (thesis
+  Algorithm 1: trials, checkpoints, PNG and Rerun outputs; :func:`run_mcpilco` runs one),
+  configured by :class:`MCPilcoConfig` and per-env YAML files (:func:`load_config`). The
+  runtime shared with the baselines (trials, records, checkpoints) is
+  :mod:`mcpilco.agents.common`.
 """
 
+from mcpilco.agents.common.records import RunSummary, TrialRecord
+from mcpilco.agents.common.trials import DEFAULT_ENV_ID, make_env, registered_ids, run_episode
 from mcpilco.agents.mc_pilco.backends import FastRollout, use_fast_rollout
+from mcpilco.agents.mc_pilco.config import MCPilcoConfig, load_config, parse_set
 from mcpilco.agents.mc_pilco.cost import SaturatingCost
 from mcpilco.agents.mc_pilco.dynamics import (
     GPDynamicsModel,
@@ -26,17 +32,6 @@ from mcpilco.agents.mc_pilco.dynamics import (
     transitions_to_dataset,
 )
 from mcpilco.agents.mc_pilco.features import StateLayout, gp_inputs
-from mcpilco.agents.mc_pilco.loop import (
-    DEFAULT_ENV_ID,
-    MCPilcoConfig,
-    RunSummary,
-    load_config,
-    make_env,
-    parse_set,
-    registered_ids,
-    run_episode,
-    run_mcpilco,
-)
 from mcpilco.agents.mc_pilco.loss import MCPilcoLoss, ParticleRollout
 from mcpilco.agents.mc_pilco.optimize import (
     CostMonitor,
@@ -49,7 +44,8 @@ from mcpilco.agents.mc_pilco.policy import (
     SquashedRBFPolicy,
     make_policy_module,
 )
-from mcpilco.agents.mc_pilco.task import TaskSpec, TaskSpecError
+from mcpilco.agents.mc_pilco.trainer import Trainer, run_mcpilco
+from mcpilco.envs.tasks.spec import TaskSpec, TaskSpecError
 
 __all__ = [
     "DEFAULT_ENV_ID",
@@ -69,6 +65,8 @@ __all__ = [
     "StateLayout",
     "TaskSpec",
     "TaskSpecError",
+    "Trainer",
+    "TrialRecord",
     "gp_inputs",
     "load_config",
     "make_env",

@@ -1,7 +1,7 @@
 """MC-PILCO from the command line: a config from options, the checks before a run, the run.
 
 ``mcpilco-train`` parses its arguments and calls these: :func:`config_from_options` builds
-the :class:`~mcpilco.agents.mc_pilco.loop.MCPilcoConfig` the same way for every caller (the
+the :class:`~mcpilco.agents.mc_pilco.config.MCPilcoConfig` the same way for every caller (the
 env's config file and preset, then ``key=value`` overrides, then a task file, then explicit
 options), :func:`check_config` refuses a config that cannot run before any work is done, and
 :func:`train` runs it.
@@ -13,16 +13,10 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
-from mcpilco.agents.mc_pilco.loop import (
-    DEFAULT_ENV_ID,
-    MCPilcoConfig,
-    RunSummary,
-    check_compile_toolchain,
-    load_config,
-    make_env,
-    parse_set,
-    run_mcpilco,
-)
+from mcpilco.agents.common.records import RunSummary
+from mcpilco.agents.common.trials import DEFAULT_ENV_ID, make_env
+from mcpilco.agents.mc_pilco.config import MCPilcoConfig, load_config, parse_set
+from mcpilco.agents.mc_pilco.trainer import check_compile_toolchain, run_mcpilco
 
 __all__ = ["check_config", "config_from_options", "load_task_file", "train"]
 
@@ -49,7 +43,7 @@ def config_from_options(
     **options: Any,
 ) -> MCPilcoConfig:
     """The config of ``env_id``: its config file and ``preset``, then ``set_items``
-    (``["opt.max_steps=500", ...]``, :func:`~mcpilco.agents.mc_pilco.loop.parse_set`), then
+    (``["opt.max_steps=500", ...]``, :func:`~mcpilco.agents.mc_pilco.config.parse_set`), then
     the task of ``task_file``, then ``options`` (:meth:`MCPilcoConfig.with_overrides`
     keywords; a None option keeps the value before it). Validated by :class:`MCPilcoConfig`.
 
@@ -92,7 +86,7 @@ def train(
     log: Callable[[str], None] | None = print,
 ) -> RunSummary:
     """Run (or resume) ``config`` in ``out_dir``
-    (:func:`~mcpilco.agents.mc_pilco.loop.run_mcpilco`; call :func:`check_config` first to
+    (:func:`~mcpilco.agents.mc_pilco.trainer.run_mcpilco`; call :func:`check_config` first to
     refuse a config that cannot run before anything is written). The process keeps the
     memory it frees (:func:`~mcpilco.models.device.retain_host_memory`), so that the
     rollout's freed blocks cause no page faults on reuse."""

@@ -41,7 +41,7 @@ from typing import Any
 import torch
 from torch import Tensor, nn
 
-from mcpilco.agents.mc_pilco.task import ANGLE_MODES
+from mcpilco.envs.tasks.spec import ANGLE_MODES
 
 MODE_PLAIN, MODE_WRAP, MODE_ABS = 0, 1, 2
 """Distance kinds of a term: plain difference, wrapped angle, ``|x| - |x*|``."""

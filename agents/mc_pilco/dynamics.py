@@ -141,7 +141,7 @@ class JointSpaceInputs:
     cosine and sine of a revolute ``q`` itself). Differentiable (index and concatenation).
 
     Args:
-        task: a :class:`~mcpilco.agents.mc_pilco.task.TaskSpec` with ``joints``.
+        task: a :class:`~mcpilco.envs.tasks.spec.TaskSpec` with ``joints``.
     """
 
     def __init__(self, task: Any) -> None:
@@ -397,7 +397,7 @@ class GPDynamicsModel:
     """Fits the ``Delta`` GPs of a task by marginal likelihood and builds particle dynamics.
 
     Args:
-        task: the :class:`~mcpilco.agents.mc_pilco.task.TaskSpec` (state layout, action size,
+        task: the :class:`~mcpilco.envs.tasks.spec.TaskSpec` (state layout, action size,
             control period ``T_s``).
         kernel: one of :data:`KERNEL_CHOICES` (``"rigid_body"`` needs the task's ``joints``,
             with one action per joint).

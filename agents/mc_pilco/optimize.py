@@ -25,7 +25,7 @@ snapshot
     with ``snapshot_every = S > 0``, a copy of the policy parameters after every ``S``-th
     step (:attr:`OptimizationResult.snapshots`, the final parameters always last). The
     caller evaluates them without dropout and applies the best
-    (:func:`~mcpilco.agents.mc_pilco.loop.choose_policy`): Adam on a noisy ``J^`` can leave
+    (:func:`choose_policy`): Adam on a noisy ``J^`` can leave
     a good policy late in the run (a sudden rise of ``J^`` that later steps do not undo),
     and the last parameters are then not the best ones seen.
 NaN restart
@@ -40,14 +40,18 @@ The constants are those of the MC-PILCO reference cart-pole configuration (``a =
 
 from __future__ import annotations
 
+import contextlib
 import math
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import torch
 from torch import Tensor, nn
+
+if TYPE_CHECKING:
+    from mcpilco.agents.mc_pilco.policy import PolicyPopulation, SquashedRBFPolicy
 
 
 @dataclass
@@ -316,3 +320,49 @@ def optimize_policy(
         for p in params:  # release the gradients (a CUDA graph's memory pool with them)
             p.grad = None
     return res
+
+
+@torch.no_grad()
+def choose_policy(
+    loss: Callable[[], dict[str, Tensor]],
+    population: PolicyPopulation,
+    policy: SquashedRBFPolicy,
+    snapshots: Sequence[tuple[int, Sequence[Tensor]]] = (),
+    repeats: int = 4,
+) -> tuple[Tensor, int]:
+    """The policy to apply: the candidate and parameter snapshot with the lowest ``J^``.
+
+    ``J^`` of every candidate in every snapshot (``(steps, parameter copies)`` as in
+    :attr:`OptimizationResult.snapshots`; none: the population's current
+    parameters) is the mean of ``repeats`` rollouts without dropout. With several snapshots,
+    each is evaluated on the same random numbers (particles, noise), so that their
+    difference is the policies' and not the draws'. The population is left at the chosen
+    snapshot and the chosen candidate is copied into ``policy``.
+
+    Returns:
+        ``J^`` per snapshot and candidate ``(S, K)`` and the chosen snapshot's index.
+    """
+    params = [p for p in population.parameters() if p.requires_grad]
+    values = [list(v) for _, v in snapshots] or [[p.detach().clone() for p in params]]
+    population.eval()
+    device = params[0].device
+    seed = int(torch.randint(2**62, ())) if len(values) > 1 else None
+    costs = []
+    for vals in values:
+        for p, v in zip(params, vals, strict=True):
+            p.copy_(v)
+        same_draws = (
+            contextlib.nullcontext()
+            if seed is None
+            else torch.random.fork_rng(devices=[device] if device.type == "cuda" else [])
+        )
+        with same_draws:
+            if seed is not None:
+                torch.manual_seed(seed)
+            costs.append(torch.stack([loss()["candidate_costs"] for _ in range(repeats)]).mean(0))
+    table = torch.stack(costs)
+    s, k = divmod(int(table.argmin()), table.shape[1])
+    for p, v in zip(params, values[s], strict=True):
+        p.copy_(v)
+    population.copy_to(k, policy)
+    return table, s

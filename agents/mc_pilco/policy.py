@@ -28,9 +28,10 @@ dropout
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from typing import Any
 
+import numpy as np
 import torch
 from tensordict.nn import TensorDictModule
 from torch import Tensor, nn
@@ -512,3 +513,17 @@ def make_policy_module(
     elif kwargs:
         raise TypeError("pass either a policy or constructor kwargs, not both")
     return TensorDictModule(policy, in_keys=["observation"], out_keys=["action"])
+
+
+def policy_act(policy: SquashedRBFPolicy) -> Callable[[np.ndarray], np.ndarray]:
+    """The action rule ``state -> u`` of ``policy`` on numpy states (evaluation mode, no
+    gradients; the policy's device), for :func:`~mcpilco.agents.common.trials.run_episode`."""
+    policy.eval()
+    device = policy.weights.device
+
+    @torch.no_grad()
+    def act(state: np.ndarray) -> np.ndarray:
+        x = torch.as_tensor(state, dtype=torch.float32, device=device)[None]
+        return policy(x)[0].cpu().numpy()
+
+    return act

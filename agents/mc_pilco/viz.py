@@ -1,6 +1,6 @@
 """Plots (PNG, matplotlib Agg) and the Rerun recording (``run.rrd``) of an MC-PILCO run.
 
-Per trial ``k`` the loop stores (see :mod:`mcpilco.agents.mc_pilco.loop`):
+Per trial ``k`` the loop stores (see :mod:`mcpilco.agents.mc_pilco.trainer`):
 
 ``particles (M, H+1, n)``
     particle trajectories predicted by the GP model with the final policy of trial ``k``.

@@ -115,7 +115,7 @@ def test_importing_envs_is_light():
 def test_shipped_task_files_state_this_task(env_id):
     """The cart-poles' task files (read by the agents) against the constants and functions
     here: same period, horizon, states, initial distribution, cost and success test."""
-    from mcpilco.agents.mc_pilco.task import TaskSpec
+    from mcpilco.envs.tasks.spec import TaskSpec
 
     task = TaskSpec.for_env(env_id)
     assert (task.dt, task.horizon) == (CARTPOLE_TASK["dt"], CARTPOLE_TASK["horizon"])

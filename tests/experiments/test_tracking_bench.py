@@ -9,8 +9,8 @@ import json
 import numpy as np
 import pytest
 
+from mcpilco.agents.common.trials import make_env, run_episode, trial_seed
 from mcpilco.agents.mc_pilco import MCPilcoConfig, TaskSpec
-from mcpilco.agents.mc_pilco.loop import make_env, run_episode, trial_seed
 from mcpilco.experiments.tracking_bench import (
     controller_alone,
     overall,
@@ -98,9 +98,9 @@ def test_task_detector_is_trained_on_the_tasks_motion_and_alarms_on_a_push(tmp_p
     """:func:`train_task_detector` on two collision-free UR10 tracking episodes: the file
     loads as a 6-joint detector for 8 ms samples; on a third, pushed episode of the task
     (80 N for 0.6 s) it alarms inside the push and nowhere before it."""
+    from mcpilco.agents.common.trials import make_env, run_episode
     from mcpilco.agents.mc_pilco import load_config
     from mcpilco.agents.mc_pilco.filters import CollisionFilter, contact_steps
-    from mcpilco.agents.mc_pilco.loop import make_env, run_episode
     from mcpilco.envs.arm_env import Push
     from mcpilco.experiments.tracking_bench import train_task_detector
     from mcpilco.models.collision import CollisionDetector

@@ -21,7 +21,7 @@ from mcpilco.agents.baselines.common import (
     trial_records_to_points,
 )
 from mcpilco.agents.baselines.sb3 import SB3Config, policy_act
-from mcpilco.agents.mc_pilco.task import TaskSpec
+from mcpilco.envs.tasks.spec import TaskSpec
 
 STEPS = 5
 COIN_TASK = TaskSpec.from_dict(
@@ -183,8 +183,8 @@ def test_task_step_wrapper_holds_actions_and_passes_the_reference():
     task's reference (its observation equals the raw env's reset with the options), each
     step equals two raw steps with the same action (observation; reward = their sum)."""
     from mcpilco.agents.baselines.common import task_step_wrapper
+    from mcpilco.agents.common.trials import make_env
     from mcpilco.agents.mc_pilco import TaskSpec
-    from mcpilco.agents.mc_pilco.loop import make_env
     from tests.agents.mc_pilco.arm_env import ENV_ID, REFERENCE, TASK
 
     far = dict(REFERENCE, centre=[0.5, -0.5])  # not the env's default reference

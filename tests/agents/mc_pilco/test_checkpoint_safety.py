@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 import torch
 
-from mcpilco.agents.mc_pilco.checkpoint import (
+from mcpilco.agents.common.checkpoint import (
     CHECKPOINT_VERSION,
     atomic_torch_save,
     load_checkpoint,

@@ -15,6 +15,7 @@ import pytest
 import torch
 from tensordict import TensorDict
 
+from mcpilco.agents.common.checkpoint import load_checkpoint
 from mcpilco.agents.mc_pilco import (
     GPDynamicsModel,
     MCPilcoConfig,
@@ -26,7 +27,6 @@ from mcpilco.agents.mc_pilco import (
     make_policy_module,
     run_mcpilco,
 )
-from mcpilco.agents.mc_pilco.checkpoint import load_checkpoint
 from mcpilco.agents.mc_pilco.optimize import PolicyOptConfig, loss_and_grad_fn, optimize_policy
 from mcpilco.models.device import check_device_name, resolve_device
 

@@ -341,7 +341,7 @@ def test_a_build_that_raises_leaves_the_eager_step(monkeypatch, backend):
     """A build or compiler failure (here a stand-in step that raises as inductor does without
     a working C++ toolchain) is caught by ``use_fast_rollout``: a warning naming the error,
     the eager rollout, and the error's first line in ``error``; the trial line says so."""
-    from mcpilco.agents.mc_pilco.loop import record_line
+    from mcpilco.agents.common.records import TrialRecord, record_line
 
     model = _gp_model("rbf", n=30, seed=1)
     pol = SquashedRBFPolicy(LAYOUT, num_basis=10, seed=0)
@@ -372,7 +372,7 @@ def test_a_build_that_raises_leaves_the_eager_step(monkeypatch, backend):
         "opt_final_cost": 40.0, "compiled_step": False, "compile_error": used.error,
     }  # fmt: skip
     assert "compiling the step failed (RuntimeError: C++ compile error): ran eagerly" in (
-        record_line(rec)
+        record_line(TrialRecord.from_dict(rec))
     )
 
 

@@ -17,6 +17,8 @@ import numpy as np
 import pytest
 import torch
 
+from mcpilco.agents.common.checkpoint import load_checkpoint
+from mcpilco.agents.common.trials import make_env, run_episode
 from mcpilco.agents.mc_pilco import (
     GPDynamicsModel,
     MCPilcoConfig,
@@ -31,8 +33,6 @@ from mcpilco.agents.mc_pilco import (
     run_mcpilco,
 )
 from mcpilco.agents.mc_pilco.backends import check_against_eager, use_fast_rollout
-from mcpilco.agents.mc_pilco.checkpoint import load_checkpoint
-from mcpilco.agents.mc_pilco.loop import make_env, run_episode
 from tests.agents.mc_pilco.toy_env import ENV_ID, TASK
 
 ROOT = Path(__file__).resolve().parents[3]

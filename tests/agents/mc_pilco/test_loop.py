@@ -8,6 +8,7 @@ import json
 import pytest
 import torch
 
+from mcpilco.agents.common.checkpoint import load_checkpoint
 from mcpilco.agents.mc_pilco import (
     DEFAULT_ENV_ID,
     MCPilcoConfig,
@@ -18,7 +19,6 @@ from mcpilco.agents.mc_pilco import (
     parse_set,
     run_mcpilco,
 )
-from mcpilco.agents.mc_pilco.checkpoint import load_checkpoint
 
 TASK = TaskSpec.for_env(DEFAULT_ENV_ID)
 # the cart-pole's config file (MC-PILCO's cost l_x = 1, l_theta = 3 on |theta| - pi, actions
@@ -221,7 +221,7 @@ def test_config_overrides_keep_unset_fields_and_cap_the_first_trial_steps():
 def test_exploration_actions_hold_each_draw_and_keep_the_iid_stream():
     import numpy as np
 
-    from mcpilco.agents.mc_pilco.loop import exploration_actions
+    from mcpilco.agents.common.trials import exploration_actions
 
     iid = np.random.default_rng(5).uniform(-1.0, 1.0, size=(60, 1))
     np.testing.assert_array_equal(exploration_actions(np.random.default_rng(5), 60, 1), iid)
@@ -261,7 +261,7 @@ DMC_ID = "mcpilco/DMCCartpoleSwingUp-v0"
 def test_explore_hold_comes_from_the_envs_config_file():
     """Held exploration on our cartpole, i.i.d. on the dm-control adapter (whose held pushes
     hit the rail's end stop), in every preset; an explicit value always wins."""
-    from mcpilco.agents.mc_pilco.loop import check_resume
+    from mcpilco.agents.common.checkpoint import check_resume
 
     assert MCPilcoConfig().explore_hold == 1  # no file: i.i.d.
     assert load_config(DEFAULT_ENV_ID).explore_hold == 2

@@ -9,6 +9,7 @@ import pytest
 import torch
 from torch import nn
 
+from mcpilco.agents.common.checkpoint import load_checkpoint
 from mcpilco.agents.mc_pilco import (
     MCPilcoLoss,
     PolicyPopulation,
@@ -20,8 +21,7 @@ from mcpilco.agents.mc_pilco import (
     make_policy_module,
     run_mcpilco,
 )
-from mcpilco.agents.mc_pilco.checkpoint import load_checkpoint
-from mcpilco.agents.mc_pilco.loop import choose_policy
+from mcpilco.agents.mc_pilco.optimize import choose_policy
 
 f64 = torch.float64
 TASK = TaskSpec.for_env("mcpilco/CartpoleSwingUp-v0")

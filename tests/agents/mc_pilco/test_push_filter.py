@@ -10,9 +10,9 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
+from mcpilco.agents.common.trials import make_env, run_episode, transitions
 from mcpilco.agents.mc_pilco import TaskSpec
 from mcpilco.agents.mc_pilco.filters import CollisionFilter, contact_steps, dilate
-from mcpilco.agents.mc_pilco.loop import make_env, run_episode, transitions
 from mcpilco.envs.arm_builder import dh_forward_kinematics
 from mcpilco.envs.arm_data import rollout
 from mcpilco.envs.arm_env import UR10_HOME, Push, UR10Env
@@ -94,8 +94,8 @@ def test_runs_leave_the_filtered_transitions_out_and_count_them(detector, tmp_pa
     each episode and ``push_filter``: the records count the pushed and the filtered
     transitions, the GP of the policy trial saw the exploration's transitions less the
     filtered ones, and the plot arrays mark them."""
+    from mcpilco.agents.common.checkpoint import load_checkpoint
     from mcpilco.agents.mc_pilco import MCPilcoConfig, PolicyOptConfig, run_mcpilco
-    from mcpilco.agents.mc_pilco.checkpoint import load_checkpoint
 
     path = tmp_path / "det.pt"
     detector.save(path)

@@ -12,6 +12,14 @@ import numpy as np
 import pytest
 import torch
 
+from mcpilco.agents.common.checkpoint import load_checkpoint
+from mcpilco.agents.common.trials import (
+    exploration_episodes,
+    make_env,
+    run_episode,
+    transitions,
+    trial_seed,
+)
 from mcpilco.agents.mc_pilco import (
     GPDynamicsModel,
     MCPilcoConfig,
@@ -25,15 +33,7 @@ from mcpilco.agents.mc_pilco import (
     run_mcpilco,
 )
 from mcpilco.agents.mc_pilco.backends import use_fast_rollout
-from mcpilco.agents.mc_pilco.checkpoint import load_checkpoint
-from mcpilco.agents.mc_pilco.loop import (
-    exploration_episodes,
-    make_env,
-    run_episode,
-    transitions,
-    trial_seed,
-)
-from mcpilco.agents.mc_pilco.task import TaskSpecError
+from mcpilco.envs.tasks.spec import TaskSpecError
 from tests.agents.mc_pilco.arm_env import ENV_ID, REFERENCE, TASK, dynamics
 
 ARM_DT = 0.01  # control period of the open-loop transitions [s]

@@ -18,7 +18,7 @@ import torch
 
 from mcpilco.agents.mc_pilco import StateLayout, TaskSpec, TaskSpecError
 from mcpilco.agents.mc_pilco.dynamics import GPDynamicsModel, speed_integration
-from mcpilco.agents.mc_pilco.task import CostTerm, SuccessSpec
+from mcpilco.envs.tasks.spec import CostTerm, SuccessSpec
 
 OMEGA = 6.0  # [rad/s]
 DT = 0.1  # [s]: theta = w T = 0.6 rad per step

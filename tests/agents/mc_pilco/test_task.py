@@ -11,6 +11,7 @@ import pytest
 import torch
 
 import mcpilco.envs  # noqa: F401  (registers the ids)
+from mcpilco.agents.common.trials import exploration_episodes, make_env, run_episode
 from mcpilco.agents.mc_pilco import (
     MCPilcoConfig,
     SaturatingCost,
@@ -20,7 +21,7 @@ from mcpilco.agents.mc_pilco import (
     load_config,
     parse_set,
 )
-from mcpilco.agents.mc_pilco.loop import config_files, exploration_episodes, make_env, run_episode
+from mcpilco.agents.mc_pilco.config import config_files
 from mcpilco.envs.cartpole_task import cartpole_cost
 from mcpilco.envs.tasks import task_ids
 

@@ -1,0 +1,246 @@
+"""Trials on the real system, shared by every agent and benchmark (thesis Algorithm 1, the
+"apply the policy" and "explore" steps).
+
+An *episode* is one run of an env under an action rule, read through a
+:class:`~mcpilco.envs.tasks.spec.TaskSpec`: observed states ``obs`` (T+1, n), true states,
+actions (T, A), the task's evaluation cost, success and time in the goal region
+(:func:`run_episode`). Trial ``k`` of run ``seed`` resets the env with
+:func:`trial_seed`, so that MC-PILCO and its baselines see the same initial states.
+Trial 0 explores with random actions (:func:`exploration_episodes`); the model's data are
+the :func:`transitions` ``(s_t, a_t, s_{t+1})`` of all episodes, less those that touch one of
+the task's limits or that a push filter marked.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable, Mapping
+from typing import Any
+
+import numpy as np
+
+from mcpilco.envs.tasks.spec import TaskSpec
+
+DEFAULT_ENV_ID = "mcpilco/CartpoleSwingUp-v0"
+"""The env of the scripts and configs when none is named (the thesis's cart-pole)."""
+
+
+def registered_ids(prefix: str = "mcpilco/") -> list[str]:
+    """The registered Gymnasium ids that start with ``prefix`` (the package's envs)."""
+    import gymnasium as gym
+
+    import mcpilco.envs  # noqa: F401  (registers the ids)
+
+    return sorted(k for k in gym.registry if k.startswith(prefix))
+
+
+def make_env(
+    env_id: str,
+    horizon: int,
+    task: TaskSpec | None = None,
+    env_kwargs: Mapping[str, Any] | None = None,
+):
+    """``gym.make(env_id, **env_kwargs)`` with episodes of ``horizon`` control steps
+    (``horizon`` times the task's ``action_repeat`` env steps), clear errors for an unknown
+    id, for spaces that do not fit ``task``
+    (:meth:`~mcpilco.envs.tasks.spec.TaskSpec.check_env`), and for a horizon that differs
+    from the env's own episode length when the task's success is the env's ``info`` flag
+    (defined at the env's own last step)."""
+    import gymnasium as gym
+
+    import mcpilco.envs  # noqa: F401  (registers the ids)
+
+    if env_id not in gym.registry:
+        raise ValueError(
+            f"unknown env id {env_id!r}; registered mcpilco ids: {', '.join(registered_ids())}"
+        )
+    steps = gym.spec(env_id).max_episode_steps
+    horizon = int(horizon) * (task.action_repeat if task is not None else 1)
+    if steps is not None and steps != horizon and task is not None and task.success.info_key:
+        raise ValueError(
+            f"horizon mismatch: the config's horizon is {horizon} steps but {env_id} episodes "
+            f"last {steps} steps (its success flag is set at its last step); set horizon={steps}"
+        )
+    env = gym.make(env_id, max_episode_steps=int(horizon), **dict(env_kwargs or {}))
+    if task is not None:
+        try:
+            task.check_env(env)
+        except ValueError:
+            env.close()
+            raise
+    return env
+
+
+def env_dt(env, task: TaskSpec | None = None) -> float:
+    """The control period: the task's, else the env's ``dt``."""
+    if task is not None:
+        return float(task.dt)
+    return float(env.unwrapped.dt)
+
+
+def run_episode(
+    env,
+    act: Callable[[np.ndarray], np.ndarray],
+    seed: int,
+    horizon: int,
+    task: TaskSpec,
+    record_info: bool = False,
+) -> dict[str, Any]:
+    """One episode of at most ``horizon`` control steps under ``act(state)``, each action held
+    for the task's ``action_repeat`` env steps (the observation after the last is the next
+    state). ``record_info``: also return ``infos``, per control step the ``info`` dicts of
+    its env steps (what a push filter reads, :mod:`mcpilco.agents.mc_pilco.filters`).
+
+    Returns the observed states ``obs`` (T+1, n) (read from the observations by the task),
+    the true states ``states`` (T+1, n), ``actions`` (T, A), per-step evaluation ``costs``,
+    their sum ``cost``, ``success`` (the task's test), ``time_in_goal`` [s] (steps within
+    the task's success bounds times ``T_s``), ``final_info`` (the numeric scalars of the last
+    step's ``info``, e.g. the marker camera's pose errors) and, for a task whose cost tracks states,
+    ``tracking_rms`` (:meth:`~mcpilco.envs.tasks.spec.TaskSpec.tracking_rms`).
+
+    Raises:
+        RuntimeError: the env truncated the episode before ``horizon`` steps (a time limit of
+            its own, shorter than the horizon; a termination ends the episode normally).
+    """
+    obs, info = env.reset(seed=seed, options=task.reset_options())
+    observed = [task.state_from_obs(obs)]
+    states = [task.true_state(obs, info)]
+    actions = []
+    infos: list[list[dict[str, Any]]] = []
+    low, high = np.asarray(task.action_low), np.asarray(task.action_high)
+    for _ in range(horizon):
+        a = np.clip(np.asarray(act(observed[-1]), dtype=np.float64).reshape(-1), low, high)
+        step_infos = []
+        for _ in range(task.action_repeat):
+            obs, _, terminated, truncated, info = env.step(a.astype(np.float32))
+            if record_info:
+                step_infos.append(info)
+            if terminated or truncated:
+                break
+        if record_info:
+            infos.append(step_infos)
+        observed.append(task.state_from_obs(obs))
+        states.append(task.true_state(obs, info))
+        actions.append(a)
+        if terminated or truncated:
+            break
+    if truncated and not terminated and len(actions) < horizon:
+        name = env.spec.id if env.spec is not None else type(env.unwrapped).__name__
+        raise RuntimeError(
+            f"{name} truncated the episode after {len(actions)} of the horizon's {horizon} "
+            "control steps (its own episode length is shorter than the horizon): pass the "
+            "env's episode-length argument in the config's env_kwargs"
+        )
+    states_arr = np.stack(states)
+    costs = task.cost(states_arr[1:])
+    steps = len(actions)
+    extra: dict[str, Any] = {"infos": infos} if record_info else {}
+    if task.tracked_states():
+        extra["tracking_rms"] = task.tracking_rms(states_arr)
+    return {
+        **extra,
+        "obs": np.stack(observed),
+        "states": states_arr,
+        "actions": np.stack(actions) if actions else np.zeros((0, task.action_dim)),
+        "costs": np.asarray(costs),
+        "success": task.is_success(states_arr[1:], info, steps),
+        "cost": float(np.sum(costs)),
+        "time_in_goal": float(np.sum(task.in_goal(states_arr[1:])) * task.dt),
+        "steps": steps,
+        "final_info": {
+            k: float(v)
+            for k, v in info.items()
+            if isinstance(v, int | float | np.number) and not isinstance(v, bool | np.bool_)
+        },
+    }
+
+
+def transitions(
+    episodes: list[dict[str, Any]], task: TaskSpec | None = None
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``(s_t, a_t, s_{t+1})`` of all episodes (observed states), stacked. With ``task``, the
+    transitions that touch one of its declared limits are left out
+    (:meth:`~mcpilco.envs.tasks.spec.TaskSpec.touches_limit`), and so are those an
+    episode's ``filtered`` mask marks (a push filter's, :mod:`mcpilco.agents.mc_pilco.filters`):
+    the dynamics data of the free motion."""
+    s = np.concatenate([e["obs"][:-1] for e in episodes])
+    a = np.concatenate([e["actions"] for e in episodes])
+    s1 = np.concatenate([e["obs"][1:] for e in episodes])
+    free = np.ones(len(a), dtype=bool)
+    if task is not None and task.limits:
+        free &= ~task.touches_limit(s, s1)
+    if any(e.get("filtered") is not None for e in episodes):  # a push filter's marks
+        free &= ~np.concatenate(
+            [
+                np.zeros(len(e["actions"]), bool) if e.get("filtered") is None else e["filtered"]
+                for e in episodes
+            ]
+        )
+    return s[free], a[free], s1[free]
+
+
+def trial_seed(seed: int, k: int) -> int:
+    """Env reset seed of trial ``k`` of run ``seed`` (shared by MC-PILCO and its baselines)."""
+    return int(seed) * 10_007 + int(k)
+
+
+def exploration_actions(
+    rng: np.random.Generator, horizon: int, hold: int = 1, low=(-1.0,), high=(1.0,)
+) -> np.ndarray:
+    """``(horizon, A)`` random actions: ``ceil(horizon / hold)`` draws ``u ~ U(low, high)``
+    from ``rng``, each repeated for ``hold`` steps (``hold = 1``: i.i.d. per step)."""
+    if int(hold) != hold or hold < 1:
+        raise ValueError(f"hold must be an integer >= 1, got {hold!r}")
+    low, high = np.asarray(low, dtype=np.float64), np.asarray(high, dtype=np.float64)
+    draws = rng.uniform(low, high, size=(-(-horizon // hold), low.size))
+    return np.repeat(draws, hold, axis=0)[:horizon]
+
+
+def exploration_episodes(
+    env,
+    rng: np.random.Generator,
+    seed: int,
+    horizon: int,
+    task: TaskSpec,
+    hold: int = 1,
+    min_steps: int | None = None,
+    record_info: bool = False,
+) -> list[dict[str, Any]]:
+    """Trial 0: episodes under the random actions of :func:`exploration_actions`.
+
+    The first episode runs ``horizon`` steps from the reset seed ``trial_seed(seed, 0)``
+    (fewer when the env terminates it). With ``min_steps``, further episodes follow, each
+    reset from the env's own generator (seeded by the first reset) and at most ``horizon``
+    steps long, the last one cut so that exactly ``min_steps`` steps are taken in all: a
+    random rollout of ``min_steps`` steps that resets whenever an episode ends, as in
+    TorchRL's PILCO example (``initial_rollout_length``). Returns the episodes in order
+    (:func:`run_episode`'s dicts).
+    """
+    if min_steps is not None and (int(min_steps) != min_steps or min_steps < 1):
+        raise ValueError(f"min_steps must be a positive integer, got {min_steps!r}")
+    episodes: list[dict[str, Any]] = []
+    taken, reset_seed = 0, trial_seed(seed, 0)
+    while not episodes or (min_steps is not None and taken < min_steps):
+        n = horizon if not episodes else min(horizon, int(min_steps) - taken)
+        it = iter(exploration_actions(rng, n, hold, task.action_low, task.action_high))
+        ep = run_episode(env, lambda _o, it=it: next(it), reset_seed, n, task, record_info)
+        episodes.append(ep)
+        taken += ep["steps"]
+        reset_seed = None
+    return episodes
+
+
+def episode_outcome(ep: dict[str, Any], t0: float) -> dict[str, Any]:
+    """The real-system part of a trial record: evaluation cost, ``success``, time in the goal
+    region of episode ``ep``, its ``tracking_rms`` where it has one, and the wall-clock since
+    ``t0`` (``time.perf_counter``)."""
+    out = {
+        "cost": ep["cost"],
+        "success": ep["success"],
+        "time_in_goal": ep["time_in_goal"],
+        "steps": ep["steps"],
+        "wall_s": time.perf_counter() - t0,
+    }
+    if "tracking_rms" in ep:
+        out["tracking_rms"] = ep["tracking_rms"]
+    return out

@@ -1,0 +1,614 @@
+"""MC-PILCO's outer loop (thesis Algorithm 1) as a :class:`Trainer`.
+
+Algorithm 1, one method each::
+
+    set_up()                        task, env, folder, policy, model, cost (or resume)
+    explore()                       trial 0: random actions u ~ U(low, high) for H steps
+    for trial k = 1 .. num_trials:
+        fit_model()                 GP dynamics on all transitions D (marginal likelihood)
+        improve_policy()            minimise the particle estimate J^ (5.8), monitoring rule
+        apply_policy()              run the policy on the system for H steps, D += its data
+        commit_trial()              record, plots, checkpoint (the trial's commit point)
+
+Glossary
+--------
+The task (state layout, cost, success test, action bounds) comes from a
+:class:`~mcpilco.envs.tasks.spec.TaskSpec`, the hyperparameters from an
+:class:`~mcpilco.agents.mc_pilco.config.MCPilcoConfig`.
+
+trial ``k = 0``
+    random exploration for ``H`` steps: actions ``u ~ U(low, high)``, each drawn once per
+    ``explore_hold`` control steps.
+trial ``k >= 1``
+    fit the velocity-change GPs on all transitions ``D`` by marginal likelihood (fresh
+    hyperparameters each trial; subset of data beyond ``max_points``), optimise the policy on
+    the particle estimate ``J^`` (5.8) with the monitoring rule, apply the policy (no dropout)
+    to the env for ``H`` steps, append the transitions to ``D``.
+experience
+    ``H T_s (k + 1)`` seconds after trial ``k`` (3, 6, 9, 12, 15 s ... on the cart-pole).
+record of a trial
+    a :class:`~mcpilco.agents.common.records.TrialRecord`: the task's evaluation cost
+    ``sum_t c(x_t)`` on the true state, ``success``, the time within the task's goal bounds,
+    wall-clock of the GP fit, of the optimisation and of the trial, optimisation steps and
+    seconds per step, the one-step GP error on the trial's data (model fitted before the
+    trial). The particle predictions of the final policy go to the plots and the checkpoint.
+
+After every trial the run is checkpointed atomically
+(:mod:`mcpilco.agents.common.checkpoint`): data, policy, GP state, RNG states, records.
+``resume=True`` continues from it.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import time
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+
+from mcpilco.agents.common.checkpoint import (
+    CHECKPOINT_NAME,
+    check_resume,
+    load_checkpoint,
+    rng_state,
+    save_checkpoint,
+    set_rng_state,
+)
+from mcpilco.agents.common.records import RunSummary, TrialRecord, record_line, write_records
+from mcpilco.agents.common.run_folder import RUN_OUTPUTS, open_run_folder
+from mcpilco.agents.common.trials import (
+    episode_outcome,
+    exploration_episodes,
+    make_env,
+    run_episode,
+    transitions,
+    trial_seed,
+)
+from mcpilco.agents.mc_pilco.backends import use_fast_rollout
+from mcpilco.agents.mc_pilco.config import RESUME_FIXED, MCPilcoConfig
+from mcpilco.agents.mc_pilco.cost import SaturatingCost
+from mcpilco.agents.mc_pilco.dynamics import GPDynamicsModel
+from mcpilco.agents.mc_pilco.features import StateLayout
+from mcpilco.agents.mc_pilco.filters import CollisionFilter, contact_steps
+from mcpilco.agents.mc_pilco.loss import MCPilcoLoss
+from mcpilco.agents.mc_pilco.native_rollout import cpp_compiler, cpp_compiler_names
+from mcpilco.agents.mc_pilco.optimize import choose_policy, optimize_policy
+from mcpilco.agents.mc_pilco.policy import (
+    PolicyPopulation,
+    SquashedRBFPolicy,
+    data_init,
+    make_policy_module,
+    policy_act,
+)
+from mcpilco.agents.mc_pilco.viz import (
+    plot_optimisation,
+    plot_trial_particles,
+    write_rerun_recording,
+)
+from mcpilco.envs.tasks.spec import TaskSpec
+from mcpilco.models.device import resolve_device
+
+CANDIDATE_SEED_STRIDE = 7919
+"""Candidate ``k`` of run ``seed`` is initialised with seed ``seed + 7919 k``."""
+
+
+class Trainer:
+    """Run (or resume) MC-PILCO in one output folder; writes the checkpoint, the PNGs,
+    ``run.rrd`` and ``records.json``.
+
+    Args:
+        config: the experiment.
+        out_dir: output folder (created).
+        resume: continue from ``out_dir/checkpoint.pt``; finished trials are kept and not
+            re-run; ``config.num_trials`` may be larger than in the first call.
+        progress: tqdm bars on trials and optimisation steps.
+        log: called with one line per trial (None: silent).
+        write_rrd: write the Rerun recording.
+        task: the task (None: :meth:`MCPilcoConfig.task_spec`); pass one to use a Python
+            cost function (``TaskSpec.cost_fn``).
+        overwrite: delete another run found in ``out_dir`` first (else it is refused; the
+            folder is locked and its files listed in ``manifest.json``:
+            :mod:`mcpilco.agents.common.run_folder`).
+    """
+
+    def __init__(
+        self,
+        config: MCPilcoConfig,
+        out_dir: str | Path,
+        resume: bool = False,
+        progress: bool = True,
+        log: Callable[[str], None] | None = print,
+        write_rrd: bool = True,
+        task: TaskSpec | None = None,
+        overwrite: bool = False,
+    ) -> None:
+        self.config = config
+        self.out = Path(out_dir)
+        self.checkpoint_path = self.out / CHECKPOINT_NAME
+        self.resume = resume
+        self.progress = progress
+        self.log = log
+        self.write_rrd = write_rrd
+        self.task = task
+        self.overwrite = overwrite
+        self.episodes: list[dict[str, Any]] = []  # D: the observed episodes of every trial
+        self.records: list[TrialRecord] = []
+        self.arrays: list[dict[str, Any]] = []  # per trial: what the plots draw
+        self.pngs: list[Path] = []
+        self.start_trial = 0
+        self.resumed_from: int | None = None
+
+    # ------------------------------------------------------------------------ the loop
+    def run(self) -> RunSummary:
+        """Algorithm 1: set up, then one trial after the other up to ``num_trials``."""
+        t_start = time.perf_counter()
+        self.set_up()
+        total = self.config.num_trials + 1
+        bar = self._progress_bar(total)
+        try:
+            for k in range(self.start_trial, total):
+                self.run_trial(k)
+                if bar is not None:
+                    bar.update(1)
+        finally:
+            if bar is not None:
+                bar.close()
+            self.env.close()
+            self.run_folder.close()
+        return self.summary(time.perf_counter() - t_start)
+
+    def run_trial(self, k: int) -> None:
+        """Trial ``k``: explore (``k = 0``) or fit, improve and apply; then commit it."""
+        t0 = time.perf_counter()
+        rec = TrialRecord(index=k, kind="exploration" if k == 0 else "policy")
+        arr: dict[str, Any] = {"index": k, "particles": None, "opt_costs": None}
+        if k == 0:
+            episode = self.explore()
+        else:
+            self.init_policy_from_data(k)
+            dynamics = self.fit_model(rec)
+            self.improve_policy(k, dynamics, rec, arr)
+            episode = self.apply_policy(k, rec, arr)
+        self.commit_trial(k, episode, rec, arr, t0)
+
+    # ----------------------------------------------------------------------- the steps
+    def set_up(self) -> None:
+        """Open the folder, then build the task, env, policies, model and cost, and load the
+        checkpoint on resume (the folder is released if any of it fails)."""
+        config = self.config
+        check_dynamics_task(self.task if self.task is not None else config.task_spec())
+        self.run_folder = open_run_folder(self.out, resume=self.resume, overwrite=self.overwrite)
+        self.env = None
+        try:
+            self._set_up_task()
+            self.env = make_env(config.env_id, self.horizon, self.task, config.env_kwargs)
+            self._set_up_parts()
+            if self.resume:
+                self._load_checkpoint()
+            self.cost_fn = self._optimised_cost()
+            self.init_std = self._init_std()
+        except BaseException:
+            if self.env is not None:
+                self.env.close()
+            self.run_folder.close()
+            raise
+
+    def explore(self) -> dict[str, Any]:
+        """Trial 0: an episode of random actions held ``explore_hold`` steps each."""
+        config = self.config
+        (episode,) = exploration_episodes(
+            self.env,
+            self.np_rng,
+            config.seed,
+            config.explore_steps or self.horizon,
+            self.task,
+            config.explore_hold,
+            record_info=True,
+        )
+        return episode
+
+    def init_policy_from_data(self, k: int) -> None:
+        """With ``policy_init="data"``: draw the policy's centres and lengthscales from the
+        exploration trial's states (once; the same settings on a resumed run)."""
+        if self.config.policy_init != "data" or self.policy.center_mean is not None:
+            return
+        task = self.task
+        init = data_init(task.features(task.state_from_obs(self.episodes[0]["obs"])))
+        self.population.use_data_init(init)
+        self.policy.use_data_init(init)
+        if k == 1:  # the first policy starts there
+            self.population.reset_parameters(self.config.seed)
+            self.population.copy_to(0, self.policy)
+
+    def fit_model(self, rec: TrialRecord) -> torch.nn.Module:
+        """Model learning: fit the GP dynamics on the transitions of all episodes (less those
+        at the task's limits or marked by a push filter); returns the particle dynamics."""
+        t_fit = time.perf_counter()
+        data = transitions(self.episodes, self.task)
+        self.model.fit(*data)
+        n_data = int(len(data[1]))
+        n_filtered = sum(
+            int(np.sum(e["filtered"])) for e in self.episodes if e.get("filtered") is not None
+        )
+        rec.update(
+            gp_fit_s=time.perf_counter() - t_fit,
+            gp_points=int(self.model.gp_.train_x_.shape[0]),
+            n_data=n_data,
+            n_at_limits=int(sum(len(e["actions"]) for e in self.episodes)) - n_data - n_filtered,
+        )
+        return self.model.particle_dynamics(getattr(torch, self.config.rollout_dtype))
+
+    def improve_policy(
+        self, k: int, dynamics: torch.nn.Module, rec: TrialRecord, arr: dict[str, Any]
+    ) -> None:
+        """Policy update: minimise ``J^`` over the candidates with the monitoring rule, choose
+        the candidate and snapshot to apply, and predict its particles (for the plots)."""
+        config = self.config
+        loss = self._loss(self.policy_module, dynamics)
+        if config.compile_rollout:  # built, then checked against the eager rollout
+            fast = use_fast_rollout(loss, config.rollout_backend, dynamic=False)
+            rec.update(
+                compiled_step=fast.in_use,
+                compile_check=fast.check,
+                compile_error=fast.error,
+                compile_backend=fast.backend,
+                rollout_shards=fast.shards,
+            )
+        opt_cfg = config.opt
+        if k == 1 and config.opt_steps_first is not None:
+            opt_cfg = dataclasses.replace(
+                opt_cfg, max_steps=min(opt_cfg.max_steps, config.opt_steps_first)
+            )
+        obar = self._progress_bar(opt_cfg.max_steps, f"trial {k} policy opt")
+
+        def on_step(i, c, s, lr):
+            if obar is not None:
+                obar.update(1)
+                if i % 10 == 0:
+                    J = c / config.num_candidates
+                    obar.set_postfix(J=f"{J:.2f}", std=f"{s:.2f}", lr=f"{lr:.4f}")
+
+        res = optimize_policy(loss, self.population, opt_cfg, on_step=on_step)
+        if obar is not None:
+            obar.close()
+        snap_costs, snap = choose_policy(loss, self.population, self.policy, res.snapshots)
+        cand_costs = snap_costs[snap]
+        rec.update(
+            opt_steps=res.num_steps,
+            opt_s=res.seconds,
+            s_per_opt_step=res.seconds_per_step,
+            cpu_s_per_opt_step=res.cpu_seconds_per_step,
+            opt_stop=res.stop_reason,
+            opt_lr_reductions=res.num_lr_reductions,
+            opt_reinits=res.num_reinits,
+            opt_final_cost=res.costs[-1] / config.num_candidates if res.costs else math.nan,
+            candidate_costs=cand_costs.tolist(),
+            chosen_candidate=int(cand_costs.argmin()),
+            chosen_cost=float(cand_costs.min()),
+            snapshot_steps=[step for step, _ in res.snapshots],
+            snapshot_costs=snap_costs.min(1).values.tolist(),
+            chosen_step=res.snapshots[snap][0],
+        )
+        # mean J^_k over candidates per step (J^ itself for one candidate)
+        arr["opt_costs"] = np.asarray(res.costs, dtype=np.float32) / config.num_candidates
+        self.policy.eval()  # particle predictions of the applied policy (for the plots)
+        predict = self._loss(make_policy_module(self.policy), dynamics)
+        with torch.no_grad():
+            n_log = min(config.log_particles, config.num_particles)
+            arr["particles"] = predict.rollout(num_particles=n_log).states.cpu().numpy()
+
+    def apply_policy(self, k: int, rec: TrialRecord, arr: dict[str, Any]) -> dict[str, Any]:
+        """Apply the chosen policy (no dropout) to the system for ``H`` steps; record the
+        model's one-step error on the new transitions."""
+        episode = run_episode(
+            self.env,
+            policy_act(self.policy),
+            trial_seed(self.config.seed, k),
+            self.horizon,
+            self.task,
+            True,
+        )
+        free = transitions([episode], self.task)
+        rec.gp_rmse = (
+            self.model.one_step_rmse(*free).tolist()
+            if len(free[1])
+            else [math.nan] * self.layout.output_dim
+        )
+        arr["gp_rmse"] = rec.gp_rmse
+        return episode
+
+    def commit_trial(
+        self,
+        k: int,
+        episode: dict[str, Any],
+        rec: TrialRecord,
+        arr: dict[str, Any],
+        t0: float,
+    ) -> None:
+        """Add the trial's data to ``D``, complete its record, write the plots and
+        ``records.json``, then the checkpoint (last: it is the commit point of the trial)."""
+        task = self.task
+        filtered = None if self.push_filter is None else self.push_filter.excluded(episode["infos"])
+        contact = contact_steps(episode.pop("infos"))
+        if contact is not None:  # the env says when it was pushed (ground truth)
+            rec.n_contact = int(contact.sum())
+            arr["contact"] = contact
+        if filtered is not None:
+            rec.n_filtered = int(filtered.sum())
+            if contact is not None:  # filtered transitions that overlap a push
+                rec.n_filtered_contact = int((filtered & contact).sum())
+        self.episodes.append(
+            {"obs": episode["obs"], "actions": episode["actions"], "filtered": filtered}
+        )
+        rec.update(**episode_outcome(episode, t0))
+        # seconds of interaction so far (episodes that terminate early count what they ran)
+        rec.experience_s = sum(len(e["actions"]) for e in self.episodes) * task.dt
+        arr.update(real=episode["states"], cost=rec.cost, success=rec.success)
+        excluded = (
+            task.touches_limit(episode["obs"][:-1], episode["obs"][1:]) if task.limits else None
+        )
+        if filtered is not None:
+            excluded = filtered | (False if excluded is None else excluded)
+        arr.update(excluded=excluded, time_in_goal=rec.time_in_goal)
+        self.records.append(rec)
+        self.arrays.append(arr)
+        if arr["particles"] is not None:
+            self.pngs.append(
+                plot_trial_particles(
+                    self.out / f"trial_{k:02d}_particles.png",
+                    arr["particles"],
+                    episode["states"],
+                    task.dt,
+                    task.state_names,
+                    title=f"trial {k}: particles (model) vs real, success={episode['success']}",
+                    references=task.tracked_states(),
+                    excluded=excluded,
+                    contact=arr.get("contact"),
+                )
+            )
+        self._write_outputs()
+        self._save_checkpoint(k)
+        self.run_folder.record(*RUN_OUTPUTS)  # the manifest lists every file written so far
+        if self.log:
+            self.log(record_line(rec))
+
+    def summary(self, seconds: float) -> RunSummary:
+        """The run's records and output files."""
+        pngs = self.pngs or sorted(self.out.glob("trial_*_particles.png"))
+        opt_png = self.out / "optimisation.png"
+        return RunSummary(
+            config=self.config.to_dict(),
+            records=[r.to_dict() for r in self.records],
+            out_dir=self.out,
+            checkpoint=self.checkpoint_path,
+            rrd=(self.out / "run.rrd") if self.write_rrd else None,
+            pngs=pngs + ([opt_png] if opt_png.exists() else []),
+            seconds=seconds,
+            resumed_from_trial=self.resumed_from,
+        )
+
+    # --------------------------------------------------------------------- the details
+    def _set_up_task(self) -> None:
+        """Device, threads, the task (the config's horizon replaces the task's)."""
+        config = self.config
+        self.device = resolve_device(config.device)
+        if config.compile_rollout:
+            check_compile_toolchain(self.device, config.rollout_backend)
+        if config.torch_threads is not None:
+            torch.set_num_threads(int(config.torch_threads))
+        if self.task is None:
+            self.task = config.task_spec()
+        elif config.horizon is not None and config.horizon != self.task.horizon:
+            self.task = self.task.replace(horizon=int(config.horizon))
+        self.horizon = self.task.horizon
+        if config.explore_steps is not None and config.explore_steps > self.horizon:
+            raise ValueError(
+                f"explore_steps ({config.explore_steps}) exceeds the horizon ({self.horizon} steps)"
+            )
+
+    def _set_up_parts(self) -> None:
+        """Push filter, seeded generators, candidate policies, the GP dynamics model."""
+        config, task = self.config, self.task
+        self.layout = StateLayout.from_task(task)
+        self.push_filter = None
+        if config.push_filter is not None:
+            if not task.joints:
+                raise ValueError("push_filter needs an arm task (task.joints)")
+            self.push_filter = CollisionFilter(
+                config.push_filter,
+                len(task.joints),
+                task.dt / task.action_repeat,
+                config.push_filter_margin,
+            )
+        torch.manual_seed(config.seed)
+        self.np_rng = np.random.default_rng(config.seed)
+        scales = (
+            config.candidate_weight_scales or [config.policy_weight_scale] * config.num_candidates
+        )
+        candidates = [
+            SquashedRBFPolicy(
+                self.layout,
+                task.action_low,
+                task.action_high,
+                num_basis=config.num_basis,
+                centers_box=config.policy_centers_box,
+                weight_scale=scale,
+                seed=config.seed + CANDIDATE_SEED_STRIDE * k,
+            )
+            for k, scale in enumerate(scales)
+        ]
+        self.policy = candidates[0].to(self.device)  # the policy applied (the chosen one)
+        self.population = PolicyPopulation(candidates).to(self.device)
+        self.policy_module = make_policy_module(self.population)
+        self.model = GPDynamicsModel(
+            task,
+            kernel=config.kernel,
+            max_points=config.max_points,
+            adam_iters=config.gp_adam_iters,
+            lbfgs_iters=config.gp_lbfgs_iters,
+            noise_min=config.gp_noise_min,
+            min_lengthscale=config.gp_min_lengthscale,
+            mpk_degree=config.mpk_degree,
+        )
+
+    def _load_checkpoint(self) -> None:
+        """Continue after the checkpoint's last trial (same data, policy, GP, RNG states)."""
+        ckpt = load_checkpoint(self.checkpoint_path)
+        check_resume(ckpt["config"], self.config, RESUME_FIXED)
+        self.episodes = ckpt["episodes"]
+        self.records = [TrialRecord.from_dict(r) for r in ckpt["records"]]
+        self.arrays = ckpt["arrays"]
+        self.policy.load_state_dict(ckpt["policy"])
+        self.population.load_state_dict(ckpt["population"])
+        if ckpt["gp_file"] is not None:
+            self.model.load(self.out / ckpt["gp_file"])
+        set_rng_state(ckpt["rng"], self.np_rng)
+        self.start_trial = self.resumed_from = int(ckpt["next_trial"])
+        if self.log:
+            self.log(f"resumed {self.checkpoint_path}: trials 0..{self.start_trial - 1} done")
+
+    def _optimised_cost(self) -> torch.nn.Module:
+        """The cost the policy optimisation minimises: the task's cost function, or its
+        saturating cost terms with the config's length scales, angle mode and barriers."""
+        task, config = self.task, self.config
+        if task.cost_fn is not None:
+            if config.cost_limit_widths:
+                raise ValueError(
+                    "cost_limit_widths adds barriers to the task's cost terms; the task has a "
+                    "cost function instead (put the barrier in it)"
+                )
+            return task.cost_fn if isinstance(task.cost_fn, torch.nn.Module) else _CostFn(task)
+        return SaturatingCost.from_task(
+            task, config.cost_length_scales, config.cost_angle_mode, config.cost_limit_widths
+        )
+
+    def _init_std(self) -> np.ndarray:
+        """``sigma_0`` per state of the initial particles (0 on a known reference)."""
+        task, config = self.task, self.config
+        init_std = np.broadcast_to(
+            np.asarray(task.init_std if config.init_std is None else config.init_std, float),
+            (task.state_dim,),
+        ).copy()
+        init_std[list(self.layout.oscillator_idx)] = 0.0  # a known reference starts on it
+        return init_std
+
+    def _loss(self, module: torch.nn.Module, dynamics: torch.nn.Module) -> MCPilcoLoss:
+        """The particle estimate ``J^`` of the policy ``module`` under ``dynamics``."""
+        config, task = self.config, self.task
+        return MCPilcoLoss(
+            module,
+            dynamics,
+            self.cost_fn,
+            horizon=self.horizon,
+            num_particles=config.num_particles,
+            init_mean=task.init_mean,
+            init_std=self.init_std,
+            obs_noise_std=config.sim_obs_noise_std,
+        ).to(self.device)  # with the policy module and the dynamics in it
+
+    def _progress_bar(self, total: int, desc: str | None = None):
+        """A tqdm bar (None without ``progress``): over trials, or an optimisation's steps."""
+        if not self.progress:
+            return None
+        from tqdm.auto import tqdm
+
+        if desc is None:
+            return tqdm(
+                total=total, initial=min(self.start_trial, total), desc="trials", unit="trial"
+            )
+        return tqdm(total=total, desc=desc, leave=False)
+
+    def _write_outputs(self) -> None:
+        """The optimisation plot, the Rerun recording and ``records.json``."""
+        task = self.task
+        curves = [
+            (a["opt_costs"], f"trial {a['index']}")
+            for a in self.arrays
+            if a["opt_costs"] is not None
+        ]
+        if curves:
+            plot_optimisation(
+                self.out / "optimisation.png", [c for c, _ in curves], [n for _, n in curves]
+            )
+        if self.write_rrd:
+            write_rerun_recording(
+                self.out / "run.rrd",
+                self.arrays,
+                task.dt,
+                task.state_names,
+                task.gp_output_names(),
+                references=task.tracked_states(),
+            )
+        write_records(self.out, self.config, self.records)
+
+    def _save_checkpoint(self, k: int) -> None:
+        """The GP file, then the checkpoint of trials ``0 .. k``; older GP files removed."""
+        gp_file = None
+        if self.model.gp_ is not None:
+            gp_file = f"gp_trial{k:02d}.pt"
+            self.model.save(self.out / gp_file)
+        save_checkpoint(
+            self.checkpoint_path,
+            self.config,
+            k + 1,
+            episodes=self.episodes,
+            records=[r.to_dict() for r in self.records],
+            arrays=self.arrays,
+            policy=self.policy.state_dict(),
+            policy_settings=self.policy.settings(),
+            population=self.population.state_dict(),
+            optimizer=None,  # Adam restarts at each trial (MC-PILCO): no state to keep
+            gp_file=gp_file,
+            rng=rng_state(self.np_rng),
+        )
+        for old_gp in self.out.glob("gp_trial*.pt"):
+            if old_gp.name != gp_file:
+                old_gp.unlink(missing_ok=True)
+
+
+class _CostFn(torch.nn.Module):
+    """A task's plain cost function as a module."""
+
+    def __init__(self, task: TaskSpec) -> None:
+        super().__init__()
+        self.fn = task.cost_fn
+
+    def forward(self, state: torch.Tensor) -> torch.Tensor:
+        return self.fn(state)
+
+
+def check_compile_toolchain(device: torch.device, backend: str = "auto") -> None:
+    """Raise ValueError when ``compile_rollout`` with ``backend`` cannot work here: the
+    native rollout and inductor's CPU backend build C++ (``$CXX``, else ``g++`` or
+    ``clang++`` on ``PATH``); the torch backend needs none. Checked before any trial runs,
+    so that a missing compiler does not stop the run inside its first policy trial."""
+    if device.type != "cpu" or backend == "torch":
+        return
+    if cpp_compiler() is None:
+        names = cpp_compiler_names()
+        raise ValueError(
+            f"compile_rollout on the CPU needs a C++ compiler ({' or '.join(names)} not found "
+            "on PATH): install one (e.g. apt install g++), set CXX, use the torch backend "
+            "(--set rollout_backend=torch), or run without --compile-rollout"
+        )
+
+
+def check_dynamics_task(task: TaskSpec) -> None:
+    """Raise ``ValueError`` for a task on which MC-PILCO learns kinematics, not dynamics
+    (``TaskSpec.model``): the trainer cannot run it."""
+    if task.model != "dynamics":
+        raise ValueError(
+            f"{task.env_id}: MC-PILCO learns the {task.model} on this task, not GP dynamics; "
+            "run it with mcpilco-bench-kinematics --reaching-seeds (mcpilco.agents.mc_pilco."
+            "reaching), and compare with mcpilco-compare --mcpilco-json "
+            "results/kinematics_reaching.json"
+        )
+
+
+def run_mcpilco(config: MCPilcoConfig, out_dir: str | Path, **options: Any) -> RunSummary:
+    """``Trainer(config, out_dir, **options).run()``: run (or resume) MC-PILCO."""
+    return Trainer(config, out_dir, **options).run()
