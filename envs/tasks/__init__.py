@@ -3,7 +3,7 @@
 A task file declares what a model-based agent needs to know about an env: state names and
 how the state is read from an observation, angle coordinates, position/velocity pairs,
 action bounds, control period, horizon, initial-state distribution, cost and success test.
-The agent turns it into a :class:`mcpilco.envs.tasks.spec.TaskSpec`.
+It loads as a :class:`~mcpilco.envs.tasks.spec.TaskSpec` (:mod:`.spec`, no torch either).
 """
 
 from __future__ import annotations

@@ -1,4 +1,6 @@
-"""Task specification: what MC-PILCO needs to know about an env, as data.
+"""Task specification: what a model-based agent (MC-PILCO) needs to know about an env, as
+data. Importing this module does not import torch: a task's torch cost function
+(``cost_fn``) is called only when one is given.
 
 A :class:`TaskSpec` turns any Gymnasium env with a continuous action space into an MC-PILCO
 task. Everything shape-dependent in the agent (GP inputs and outputs, speed integration,
@@ -40,7 +42,8 @@ joints (an arm)
     per joint, and the actions are the joint torques (or torque corrections) ``tau_b``, one
     per joint. ``affine_inputs`` names further states in which the accelerations are affine
     at a fixed configuration (the reference of a PD controller in the loop). The rigid-body
-    GP kernel (:mod:`.dynamics`) works on the raw ``[q, qd, tau, w]`` this declares.
+    GP kernel (:mod:`mcpilco.agents.mc_pilco.dynamics`) works on the raw ``[q, qd, tau, w]``
+    this declares.
 reference
     a joint reference the env tracks, passed at every reset as ``options["reference"]``: a
     sum of sinusoids ``q_r,b(t) = c_b + sum_k A_bk sin(w_bk t + phi_bk)`` with a
@@ -57,7 +60,8 @@ limits
     force) that a smooth GP of the free dynamics would blur into its neighbourhood, so a
     transition that touches one is kept out of the dynamics data
     (:meth:`TaskSpec.touches_limit`); the optimised cost can put a barrier at each limit
-    (:mod:`.cost`), which keeps the predicted particles, and so the policy, off the stops.
+    (:mod:`mcpilco.agents.mc_pilco.cost`), which keeps the predicted particles, and so the
+    policy, off the stops.
 success
     the env's ``info[info_key]`` at the last step, else every state of the last ``window``
     steps within ``tol`` of its target (angles by wrapped distance), and with
@@ -147,10 +151,10 @@ class TaskSpec:
         speed_integration: integrate the pairs' positions by eq. (5.9) (True) or predict
             their changes with the GP (False); module glossary.
         model: what MC-PILCO learns on this task (:data:`MODELS`): ``"dynamics"``, the GP
-            dynamics of the agent of :mod:`.loop` (``mcpilco-train``); ``"kinematics"``, the
-            forward kinematics seen through markers, optimised through by
-            :mod:`.reaching` (``mcpilco-bench-kinematics --reaching-seeds``); such a spec
-            serves the model-free learners and the comparison.
+            dynamics of :mod:`mcpilco.agents.mc_pilco.trainer` (``mcpilco-train``);
+            ``"kinematics"``, the forward kinematics seen through markers, optimised through
+            by :mod:`mcpilco.agents.mc_pilco.reaching` (``mcpilco-bench-kinematics
+            --reaching-seeds``); such a spec serves the model-free learners and the comparison.
         action_low, action_high: action bounds (the policy's output range).
         dt: control period [s]. horizon: steps per episode and of the particle rollout.
         action_repeat: env steps each action is held for; then ``dt`` is that many env
@@ -484,7 +488,7 @@ class TaskSpec:
         return [f"delta_{self.state_names[i]}" for i in self.output_idx]
 
     def features(self, x: np.ndarray) -> np.ndarray:
-        """``f(x)`` in numpy (the torch version is :mod:`.features`)."""
+        """``f(x)`` in numpy (the torch version is :mod:`mcpilco.agents.mc_pilco.features`)."""
         x = np.asarray(x, dtype=np.float64)
         ang = x[..., list(self.angle_idx)]
         parts = [x[..., list(self.plain_idx)]]
