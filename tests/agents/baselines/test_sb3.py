@@ -94,3 +94,14 @@ def test_resume_refuses_a_changed_evaluation_period(tmp_path):
 def test_unknown_method_is_an_error(tmp_path):
     with pytest.raises(ValueError, match="valid methods: mcpilco, pilco, sac, td3, ppo"):
         run_method("a2c", ENV, 0, tmp_path, {})
+
+
+def test_config_round_trips_through_to_dict_and_from_dict():
+    """A saved SB3 config (curve.json's) reads back as it was; an unknown field is named."""
+    from mcpilco.agents.baselines.sb3 import SB3Config
+
+    for cfg in (SB3Config("sac"), SB3Config("ppo", steps=5_000, overrides={"n_steps": 64})):
+        assert SB3Config.from_dict(cfg.to_dict()) == cfg
+        assert SB3Config.from_dict(json.loads(json.dumps(cfg.to_dict()))) == cfg
+    with pytest.raises(ValueError, match=r"unknown SB3 config fields \['colour'\]"):
+        SB3Config.from_dict({**SB3Config("td3").to_dict(), "colour": "red"})

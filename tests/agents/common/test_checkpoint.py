@@ -123,3 +123,41 @@ def test_sigkill_after_a_trial_loses_no_finished_trial(tmp_path):
     done = subprocess.run([*cmd, "--resume"], capture_output=True, text=True, env=env)
     assert done.returncode == 0, done.stderr
     assert "trials 0..0 done" in done.stdout or "trials 0..1 done" in done.stdout
+
+
+def test_save_checkpoint_writes_what_load_checkpoint_checks(tmp_path):
+    from mcpilco.agents.common.checkpoint import save_checkpoint
+    from mcpilco.agents.mc_pilco import MCPilcoConfig
+
+    cfg = MCPilcoConfig(seed=4)
+    save_checkpoint(tmp_path / "c.pt", cfg, 3, episodes=[{"obs": np.ones((2, 4))}])
+    ckpt = load_checkpoint(tmp_path / "c.pt")
+    assert ckpt["version"] == CHECKPOINT_VERSION and ckpt["next_trial"] == 3
+    assert MCPilcoConfig.from_dict(ckpt["config"]) == cfg
+    np.testing.assert_array_equal(ckpt["episodes"][0]["obs"], np.ones((2, 4)))
+
+
+def test_check_resume_compares_the_saved_config_as_a_config_of_its_type():
+    """Each agent's config: a fixed field that changed is named; a field the saved config
+    lacks (added later) takes its value of that time; a saved config of another agent is
+    refused."""
+    from mcpilco.agents.baselines.pilco import PilcoConfig
+    from mcpilco.agents.baselines.sb3 import SB3Config
+    from mcpilco.agents.common.checkpoint import check_resume
+    from mcpilco.agents.mc_pilco import MCPilcoConfig
+
+    for cfg, other in (
+        (MCPilcoConfig(seed=1), MCPilcoConfig(seed=2)),
+        (PilcoConfig(seed=1), PilcoConfig(seed=2)),
+        (SB3Config("sac", seed=1), SB3Config("sac", seed=2)),
+    ):
+        check_resume(cfg.to_dict(), cfg, ("env_id", "seed"))
+        with pytest.raises(ValueError, match="cannot resume: seed=2 differs from the .* 1"):
+            check_resume(cfg.to_dict(), other, ("env_id", "seed"))
+    old = MCPilcoConfig().to_dict()
+    del old["explore_hold"]  # saved before the field existed: i.i.d. exploration
+    check_resume(old, MCPilcoConfig(explore_hold=1), ("explore_hold",))
+    with pytest.raises(ValueError, match="explore_hold=2 differs from the checkpoint's 1"):
+        check_resume(old, MCPilcoConfig(explore_hold=2), ("explore_hold",))
+    with pytest.raises(ValueError, match="does not read as a MCPilcoConfig"):
+        check_resume(PilcoConfig().to_dict(), MCPilcoConfig(), ("seed",))

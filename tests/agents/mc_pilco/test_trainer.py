@@ -218,28 +218,6 @@ def test_config_overrides_keep_unset_fields_and_cap_the_first_trial_steps():
         BENCH_CONFIG.with_overrides(num_particles=0)
 
 
-def test_exploration_actions_hold_each_draw_and_keep_the_iid_stream():
-    import numpy as np
-
-    from mcpilco.agents.common.trials import exploration_actions
-
-    iid = np.random.default_rng(5).uniform(-1.0, 1.0, size=(60, 1))
-    np.testing.assert_array_equal(exploration_actions(np.random.default_rng(5), 60, 1), iid)
-    held = exploration_actions(np.random.default_rng(5), 7, 2)
-    assert held.shape == (7, 1)
-    # draws 0..3 of the same stream, each repeated twice, cut at 7 steps
-    np.testing.assert_array_equal(held[:, 0], np.repeat(iid[:4, 0], 2)[:7])
-    with pytest.raises(ValueError, match="hold must be an integer >= 1"):
-        exploration_actions(np.random.default_rng(0), 60, 0)
-    # two actions, each uniform within its own bounds
-    wide = exploration_actions(np.random.default_rng(5), 500, 1, low=(-3.0, 0.0), high=(3.0, 0.5))
-    assert wide.shape == (500, 2)
-    assert wide[:, 0].min() >= -3.0 and wide[:, 0].max() <= 3.0 and wide[:, 0].min() < -2.5
-    assert wide[:, 1].min() >= 0.0 and wide[:, 1].max() <= 0.5 and wide[:, 1].max() > 0.45
-    with pytest.raises(ValueError, match="explore_hold"):
-        MCPilcoConfig(explore_hold=0)
-
-
 def test_config_from_dict_round_trips_and_names_unknown_fields():
     """A saved config reads back as it was; a config saved with the cart-pole's cost fields
     (``l_x``, ``l_theta``, ``cost_wrap_angle``) reads as the same cost; a field no config
