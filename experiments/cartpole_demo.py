@@ -23,7 +23,7 @@ from pathlib import Path
 import torch
 
 from mcpilco.agents.common.records import RunSummary
-from mcpilco.agents.mc_pilco import DEFAULT_ENV_ID, load_config, run_mcpilco
+from mcpilco.agents.mc_pilco import DEFAULT_ENV_ID, Trainer, load_config
 from mcpilco.agents.mc_pilco.config import MCPilcoConfig
 from mcpilco.agents.mc_pilco.trainer import check_compile_toolchain
 from mcpilco.models.device import resolve_device, retain_host_memory
@@ -81,11 +81,11 @@ def demo_config(
 def run_demo(
     config: MCPilcoConfig, out: str | Path, resume: bool = False, overwrite: bool = False
 ) -> tuple[RunSummary, float]:
-    """Run MC-PILCO with ``config`` into ``out`` (:func:`run_mcpilco`); returns its summary
+    """Run MC-PILCO with ``config`` into ``out`` (:class:`~mcpilco.agents.mc_pilco.trainer.Trainer`); returns its summary
     and the wall time [s]."""
     retain_host_memory()  # no page faults on the rollout's freed blocks
     start = time.perf_counter()
-    summary = run_mcpilco(config, Path(out), resume=resume, overwrite=overwrite)
+    summary = Trainer(config, Path(out), resume=resume, overwrite=overwrite).run()
     return summary, time.perf_counter() - start
 
 

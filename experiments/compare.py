@@ -486,7 +486,7 @@ def run_method(
     t_cpu = time.process_time()
     trials = opts.get("trials")
     if method == "mcpilco":
-        from mcpilco.agents.mc_pilco import run_mcpilco
+        from mcpilco.agents.mc_pilco import Trainer
 
         base = load_config(
             env_id,
@@ -497,7 +497,7 @@ def run_method(
         if trials is not None:
             over["num_trials"] = trials
         cfg_m = base.with_overrides(**over)
-        summary = run_mcpilco(
+        summary = Trainer(
             cfg_m,
             out,
             resume=(out / "checkpoint.pt").is_file(),
@@ -505,7 +505,7 @@ def run_method(
             progress=progress,
             log=log,
             write_rrd=False,
-        )
+        ).run()
         horizon = cfg_m.task_spec().horizon
     else:
         from mcpilco.agents.baselines.pilco import pilco_config, run_pilco

@@ -75,12 +75,12 @@ def run_seed(config: dict[str, Any], out: str) -> dict[str, Any]:
     (``--first-seed 0 --seeds 12`` after 6 seeds reruns only seeds 6..11). ``seconds`` is the
     sum of the trials' ``wall_s`` (GP fit, policy optimisation, episode), the same whether the
     trials ran now or in an earlier call. A sweep job of :func:`bench_runs`."""
-    from mcpilco.agents.mc_pilco import run_mcpilco
+    from mcpilco.agents.mc_pilco import Trainer
     from mcpilco.models.device import retain_host_memory
 
     retain_host_memory()
     cfg = MCPilcoConfig.from_dict(config)
-    summary = run_mcpilco(
+    summary = Trainer(
         cfg,
         out,
         resume=(Path(out) / "checkpoint.pt").is_file(),
@@ -88,7 +88,7 @@ def run_seed(config: dict[str, Any], out: str) -> dict[str, Any]:
         progress=False,
         log=None,
         write_rrd=False,
-    )
+    ).run()
     seconds = float(sum(r["wall_s"] for r in summary.records))
     return {"seed": cfg.seed, "records": summary.records, "seconds": seconds}
 

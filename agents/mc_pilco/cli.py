@@ -16,7 +16,7 @@ from typing import Any
 from mcpilco.agents.common.records import RunSummary
 from mcpilco.agents.common.trials import DEFAULT_ENV_ID, make_env
 from mcpilco.agents.mc_pilco.config import MCPilcoConfig, load_config, parse_set
-from mcpilco.agents.mc_pilco.trainer import check_compile_toolchain, run_mcpilco
+from mcpilco.agents.mc_pilco.trainer import Trainer, check_compile_toolchain
 
 __all__ = ["check_config", "config_from_options", "load_task_file", "train"]
 
@@ -86,14 +86,14 @@ def train(
     log: Callable[[str], None] | None = print,
 ) -> RunSummary:
     """Run (or resume) ``config`` in ``out_dir``
-    (:func:`~mcpilco.agents.mc_pilco.trainer.run_mcpilco`; call :func:`check_config` first to
+    (:class:`~mcpilco.agents.mc_pilco.trainer.Trainer`; call :func:`check_config` first to
     refuse a config that cannot run before anything is written). The process keeps the
     memory it frees (:func:`~mcpilco.models.device.retain_host_memory`), so that the
     rollout's freed blocks cause no page faults on reuse."""
     from mcpilco.models.device import retain_host_memory
 
     retain_host_memory()
-    return run_mcpilco(
+    return Trainer(
         config,
         out_dir,
         resume=resume,
@@ -101,4 +101,4 @@ def train(
         log=log,
         write_rrd=write_rrd,
         overwrite=overwrite,
-    )
+    ).run()

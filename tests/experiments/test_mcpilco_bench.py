@@ -15,7 +15,7 @@ BENCH_CONFIG = load_config(DEFAULT_ENV_ID, preset="bench")
 
 
 def test_finished_seed_is_resumed_not_rerun(tmp_path):
-    from tests.agents.mc_pilco.test_loop import SMOKE
+    from tests.agents.mc_pilco.test_trainer import SMOKE
 
     job = (dataclasses.replace(SMOKE, num_trials=0).to_dict(), str(tmp_path / "seed3"))
     first = run_seed(*job)
@@ -28,7 +28,7 @@ def test_finished_seed_is_resumed_not_rerun(tmp_path):
 
 
 def test_seeds_are_sweep_jobs_with_one_result_file_each(tmp_path):
-    from tests.agents.mc_pilco.test_loop import SMOKE
+    from tests.agents.mc_pilco.test_trainer import SMOKE
 
     cfg = dataclasses.replace(SMOKE, num_trials=0)
     runner = SweepRunner(progress=False, log=None)

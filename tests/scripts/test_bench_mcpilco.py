@@ -160,7 +160,7 @@ def test_rmse_runs_part_uses_only_runs_that_swung_up_and_groups_by_their_kernel(
 
     import torch
 
-    from tests.agents.mc_pilco.test_loop import SMOKE
+    from tests.agents.mc_pilco.test_trainer import SMOKE
 
     run_seed(SMOKE.to_dict(), str(tmp_path / "failed" / "seed3"))
     src = tmp_path / "failed" / "seed3" / "checkpoint.pt"

@@ -31,19 +31,23 @@ def config_of(command, monkeypatch, tmp_path):
     replaced by one that records its config)."""
     seen = []
 
-    def fake_run(config, out_dir, **_kwargs):
-        seen.append(config)
-        return SimpleNamespace(
-            seconds=0.0,
-            success=False,
-            first_success_trial=None,
-            out_dir=Path(out_dir),
-            checkpoint=Path(out_dir) / "checkpoint.pt",
-            rrd=None,
-            pngs=[],
-        )
+    class FakeTrainer:
+        def __init__(self, config, out_dir, **_kwargs):
+            seen.append(config)
+            self.out_dir = Path(out_dir)
 
-    monkeypatch.setattr(mc_cli, "run_mcpilco", fake_run)
+        def run(self):
+            return SimpleNamespace(
+                seconds=0.0,
+                success=False,
+                first_success_trial=None,
+                out_dir=self.out_dir,
+                checkpoint=self.out_dir / "checkpoint.pt",
+                rrd=None,
+                pngs=[],
+            )
+
+    monkeypatch.setattr(mc_cli, "Trainer", FakeTrainer)
 
     def config_of(argv):
         assert command("mcpilco-train", [*argv, "--out", str(tmp_path / "run")]) == 0

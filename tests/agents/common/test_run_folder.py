@@ -104,7 +104,7 @@ def test_second_process_fails_at_once_and_a_kill_releases_the_lock(tmp_path):
 
 def test_manifest_lists_every_file_an_mcpilco_run_writes(tmp_path):
     from mcpilco.agents.mc_pilco import run_mcpilco
-    from tests.agents.mc_pilco.test_loop import SMOKE
+    from tests.agents.mc_pilco.test_trainer import SMOKE
 
     cfg = dataclasses.replace(SMOKE, num_trials=0)
     run_mcpilco(cfg, tmp_path, progress=False, log=None)

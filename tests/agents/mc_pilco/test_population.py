@@ -139,7 +139,7 @@ def test_choose_policy_over_snapshots_compares_them_on_the_same_draws():
 
 
 def test_loop_with_two_candidates_applies_the_chosen_one_and_resumes(tmp_path):
-    from tests.agents.mc_pilco.test_loop import SMOKE
+    from tests.agents.mc_pilco.test_trainer import SMOKE
 
     cfg = dataclasses.replace(SMOKE, num_candidates=2)
     summary = run_mcpilco(cfg, tmp_path, progress=False, log=None, write_rrd=False)
@@ -165,7 +165,7 @@ def test_loop_with_two_candidates_applies_the_chosen_one_and_resumes(tmp_path):
 def test_candidates_may_differ_only_in_initial_weight_scale(tmp_path):
     """Weights start as w ~ U(-s_k, s_k): candidate k's initial weights lie within its own s_k
     (and fill most of it); anything but the weight scale must still agree."""
-    from tests.agents.mc_pilco.test_loop import SMOKE
+    from tests.agents.mc_pilco.test_trainer import SMOKE
 
     scales = [0.01, 0.5]
     cfg = dataclasses.replace(SMOKE, num_trials=0, num_candidates=2, candidate_weight_scales=scales)
