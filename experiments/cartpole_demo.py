@@ -81,8 +81,9 @@ def demo_config(
 def run_demo(
     config: MCPilcoConfig, out: str | Path, resume: bool = False, overwrite: bool = False
 ) -> tuple[RunSummary, float]:
-    """Run MC-PILCO with ``config`` into ``out`` (:class:`~mcpilco.agents.mc_pilco.trainer.Trainer`); returns its summary
-    and the wall time [s]."""
+    """Run MC-PILCO with ``config`` into ``out``
+    (:class:`~mcpilco.agents.mc_pilco.trainer.Trainer`); returns its summary and the wall
+    time [s]."""
     retain_host_memory()  # no page faults on the rollout's freed blocks
     start = time.perf_counter()
     summary = Trainer(config, Path(out), resume=resume, overwrite=overwrite).run()
