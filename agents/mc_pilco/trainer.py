@@ -113,6 +113,11 @@ class Trainer:
         overwrite: delete another run found in ``out_dir`` first (else it is refused; the
             folder is locked and its files listed in ``manifest.json``:
             :mod:`mcpilco.agents.common.run_folder`).
+
+    After :meth:`set_up`: ``task``, ``env``, ``policy`` (the applied policy),
+    ``population`` (the ``K`` candidates optimised side by side), ``model`` (the GP
+    dynamics), ``cost_fn`` (the optimised cost), ``episodes`` (the data ``D``), ``records``
+    and ``arrays`` (per trial: the record and what the plots draw).
     """
 
     def __init__(
