@@ -340,8 +340,12 @@ class MCPilcoConfig:
     def task_spec(self) -> TaskSpec:
         """The task: ``task`` when given, else the one that ships for ``env_id``; the
         config's ``horizon`` replaces the task's."""
-        spec = TaskSpec.from_dict(self.task) if self.task else TaskSpec.for_env(self.env_id)
-        if spec.env_id != self.env_id:
+        spec = (
+            TaskSpec.from_dict(self.task)
+            if self.task
+            else TaskSpec.for_env(plain_env_id(self.env_id))
+        )
+        if plain_env_id(spec.env_id) != plain_env_id(self.env_id):
             raise ValueError(f"the task is for {spec.env_id!r}, the config for {self.env_id!r}")
         if self.horizon is not None and self.horizon != spec.horizon:
             spec = spec.replace(horizon=int(self.horizon))
@@ -393,16 +397,45 @@ def config_files(conf_dir: str | Path = CONF_DIR) -> dict[str, Path]:
     return out
 
 
+CONFIG_FILE_KEYS = ("env_id", "config", "presets")  # top-level keys of a config file
+
+
+def read_config_file(path: str | Path) -> dict[str, Any]:
+    """A config file's mapping (:func:`load_config`'s format), its keys checked.
+
+    Raises:
+        ValueError: the file cannot be read, is not YAML, or has other keys; the message
+            names the file.
+    """
+    import yaml
+
+    try:
+        data = yaml.safe_load(Path(path).read_text()) or {}
+    except (OSError, yaml.YAMLError) as err:
+        raise ValueError(f"config file {path}: {err}") from None
+    if not isinstance(data, dict):
+        raise ValueError(f"config file {path}: expected a mapping with {CONFIG_FILE_KEYS}")
+    unknown = sorted(set(data) - set(CONFIG_FILE_KEYS))
+    if unknown:
+        raise ValueError(f"config file {path}: unknown keys {unknown} (keys: {CONFIG_FILE_KEYS})")
+    for key in ("config", "presets"):
+        if not isinstance(data.get(key) or {}, dict):
+            raise ValueError(f"config file {path}: {key} must be a mapping")
+    return data
+
+
 def load_config(
     env_id: str,
     conf_dir: str | Path | None = CONF_DIR,
     preset: str | None = None,
     overrides: dict[str, Any] | None = None,
+    config_file: str | Path | None = None,
 ) -> MCPilcoConfig:
     """The config of ``env_id``: :class:`MCPilcoConfig`'s defaults, then the env's file in
-    ``conf_dir`` (default: the shipped :data:`CONF_DIR`; None: no file): its ``config``
-    mapping, then the named ``preset`` of its ``presets``; then ``overrides`` (nested dicts,
-    e.g. from :func:`parse_set`).
+    ``conf_dir`` (default: the shipped :data:`CONF_DIR`; None: no file), then the user's
+    ``config_file`` (same format; ``mcpilco-train --config``): of each file its ``config``
+    mapping, then the named ``preset`` of its ``presets`` (which must exist in one of
+    them); then ``overrides`` (nested dicts, e.g. from :func:`parse_set`).
 
     A config file (one per env, like the SB3 zoo's ``hyperparams/*.yml``)::
 
@@ -412,23 +445,28 @@ def load_config(
         presets:
           demo: {num_trials: 3}
     """
-    import yaml
-
-    data: dict[str, Any] = {}
-    path = config_files(conf_dir).get(env_id) if conf_dir is not None else None
+    files: list[tuple[str, dict[str, Any]]] = []
+    path = config_files(conf_dir).get(plain_env_id(env_id)) if conf_dir is not None else None
     if path is not None:
-        data = yaml.safe_load(path.read_text()) or {}
+        files.append((path.name, read_config_file(path)))
+    if config_file is not None:
+        data = read_config_file(config_file)
+        named = data.get("env_id")
+        if named is not None and plain_env_id(str(named)) != plain_env_id(env_id):
+            raise ValueError(f"config file {config_file} is for env {named!r}, not {env_id!r}")
+        files.append((str(config_file), data))
+    named = preset is not None and preset != "default"
+    if named and not any(preset in (data.get("presets") or {}) for _, data in files):
+        where = ", ".join(name for name, _ in files) or f"no config file for {env_id}"
+        names = sorted({p for _, data in files for p in data.get("presets") or {}})
+        raise ValueError(
+            f"unknown preset {preset!r} for {env_id} ({where}; presets: {names or 'none'})"
+        )
     merged: dict[str, Any] = {"env_id": env_id}
-    merged = _merge(merged, data.get("config") or {})
-    presets = data.get("presets") or {}
-    if preset is not None and preset != "default":
-        if preset not in presets:
-            where = f"{path.name}" if path else f"no config file for {env_id}"
-            raise ValueError(
-                f"unknown preset {preset!r} for {env_id} ({where}; presets: "
-                f"{sorted(presets) or 'none'})"
-            )
-        merged = _merge(merged, presets[preset])
+    for _, data in files:  # the shipped file, then the user's: each its config, then preset
+        merged = _merge(merged, data.get("config") or {})
+        if named:
+            merged = _merge(merged, (data.get("presets") or {}).get(preset) or {})
     merged = _merge(merged, overrides or {})
     if merged.get("env_id") != env_id:
         raise ValueError(f"the config names env {merged.get('env_id')!r}, not {env_id!r}")
@@ -470,6 +508,51 @@ def registered_ids(prefix: str = "mcpilco/") -> list[str]:
     return sorted(k for k in gym.registry if k.startswith(prefix))
 
 
+def plain_env_id(env_id: str) -> str:
+    """The registered id of ``env_id``: ``"pkg.module:MyEnv-v0"`` -> ``"MyEnv-v0"`` (the
+    ``module:id`` form of ``gymnasium.make``); an id without a module as it is."""
+    return env_id.rpartition(":")[2]
+
+
+def resolve_env_id(env_id: str) -> str:
+    """The registered id of ``env_id`` after importing what registers it: mcpilco's own envs
+    (:mod:`mcpilco.envs`), and for ``"pkg.module:MyEnv-v0"`` the module ``pkg.module``, as
+    ``gymnasium.make`` does. Any id registered by an imported package is found.
+
+    Raises:
+        ValueError: the module cannot be imported, or the id is not registered (the message
+            lists mcpilco's ids and says how to name a module).
+    """
+    import importlib
+
+    import gymnasium as gym
+
+    import mcpilco.envs  # noqa: F401  (registers the ids)
+
+    module, sep, name = env_id.rpartition(":")
+    if sep:
+        if not module or not name:
+            raise ValueError(f"--env {env_id!r}: expected pkg.module:EnvId")
+        try:
+            importlib.import_module(module)
+        except ImportError as err:
+            raise ValueError(
+                f"--env {env_id!r}: cannot import module {module!r} ({err}); is it on the "
+                "Python path or installed?"
+            ) from None
+    if name not in gym.registry:
+        if sep:
+            raise ValueError(
+                f"--env {env_id!r}: module {module!r} registers no env id {name!r} (it must call "
+                f"gymnasium.register(id={name!r}, ...) when imported)"
+            )
+        raise ValueError(
+            f"unknown env id {name!r}; registered mcpilco ids: {', '.join(registered_ids())}; "
+            "for your own env give --env your.module:YourEnv-v0 (the module registers it)"
+        )
+    return name
+
+
 def make_env(
     env_id: str,
     horizon: int,
@@ -478,17 +561,13 @@ def make_env(
 ):
     """``gym.make(env_id, **env_kwargs)`` with episodes of ``horizon`` control steps
     (``horizon`` times the task's ``action_repeat`` env steps), clear errors for an unknown
-    id, for spaces that do not fit ``task`` (:meth:`TaskSpec.check_env`), and for a horizon
-    that differs from the env's own episode length when the task's success is the env's
-    ``info`` flag (defined at the env's own last step)."""
+    id (:func:`resolve_env_id`; ``env_id`` may be ``"pkg.module:MyEnv-v0"``), for spaces
+    that do not fit ``task`` (:meth:`TaskSpec.check_env`), and for a horizon that differs
+    from the env's own episode length when the task's success is the env's ``info`` flag
+    (defined at the env's own last step)."""
     import gymnasium as gym
 
-    import mcpilco.envs  # noqa: F401  (registers the ids)
-
-    if env_id not in gym.registry:
-        raise ValueError(
-            f"unknown env id {env_id!r}; registered mcpilco ids: {', '.join(registered_ids())}"
-        )
+    env_id = resolve_env_id(env_id)
     steps = gym.spec(env_id).max_episode_steps
     horizon = int(horizon) * (task.action_repeat if task is not None else 1)
     if steps is not None and steps != horizon and task is not None and task.success.info_key:
@@ -496,7 +575,10 @@ def make_env(
             f"horizon mismatch: the config's horizon is {horizon} steps but {env_id} episodes "
             f"last {steps} steps (its success flag is set at its last step); set horizon={steps}"
         )
-    env = gym.make(env_id, max_episode_steps=int(horizon), **dict(env_kwargs or {}))
+    try:
+        env = gym.make(env_id, max_episode_steps=int(horizon), **dict(env_kwargs or {}))
+    except TypeError as err:  # an argument the env does not take
+        raise ValueError(f"{env_id}: env_kwargs {dict(env_kwargs or {})}: {err}") from None
     if task is not None:
         try:
             task.check_env(env)
@@ -538,7 +620,7 @@ def run_episode(
             its own, shorter than the horizon; a termination ends the episode normally).
     """
     obs, info = env.reset(seed=seed, options=task.reset_options())
-    observed = [task.state_from_obs(obs)]
+    observed = [task.state_from_obs(obs, info)]
     states = [task.true_state(obs, info)]
     actions = []
     infos: list[list[dict[str, Any]]] = []
@@ -554,7 +636,7 @@ def run_episode(
                 break
         if record_info:
             infos.append(step_infos)
-        observed.append(task.state_from_obs(obs))
+        observed.append(task.state_from_obs(obs, info))
         states.append(task.true_state(obs, info))
         actions.append(a)
         if terminated or truncated:
@@ -977,7 +1059,7 @@ def run_mcpilco(
                 rec["kind"] = "policy"
                 if config.policy_init == "data" and policy.center_mean is None:
                     # from the exploration trial: the same settings on a resumed run
-                    init = data_init(task.features(task.state_from_obs(episodes[0]["obs"])))
+                    init = data_init(task.features(episodes[0]["obs"]))
                     population.use_data_init(init)
                     policy.use_data_init(init)
                     if k == 1:  # the first policy starts there
