@@ -514,6 +514,29 @@ def plain_env_id(env_id: str) -> str:
     return env_id.rpartition(":")[2]
 
 
+def import_user_module(module: str) -> None:
+    """Import ``module`` as ``gymnasium.make("module:id")`` does; a module that is not on the
+    Python path is looked for in the current folder too (appended to ``sys.path``, so that
+    it never shadows an installed package), as ``python -m`` would find it.
+
+    Raises:
+        ImportError: the module is found nowhere, or its import fails.
+    """
+    import importlib
+    import os
+    import sys
+
+    try:
+        importlib.import_module(module)
+    except ModuleNotFoundError as err:
+        cwd = os.getcwd()
+        top = module.partition(".")[0]
+        if err.name != top or cwd in sys.path or "" in sys.path:
+            raise
+        sys.path.append(cwd)
+        importlib.import_module(module)
+
+
 def resolve_env_id(env_id: str) -> str:
     """The registered id of ``env_id`` after importing what registers it: mcpilco's own envs
     (:mod:`mcpilco.envs`), and for ``"pkg.module:MyEnv-v0"`` the module ``pkg.module``, as
@@ -523,8 +546,6 @@ def resolve_env_id(env_id: str) -> str:
         ValueError: the module cannot be imported, or the id is not registered (the message
             lists mcpilco's ids and says how to name a module).
     """
-    import importlib
-
     import gymnasium as gym
 
     import mcpilco.envs  # noqa: F401  (registers the ids)
@@ -534,11 +555,11 @@ def resolve_env_id(env_id: str) -> str:
         if not module or not name:
             raise ValueError(f"--env {env_id!r}: expected pkg.module:EnvId")
         try:
-            importlib.import_module(module)
+            import_user_module(module)
         except ImportError as err:
             raise ValueError(
-                f"--env {env_id!r}: cannot import module {module!r} ({err}); is it on the "
-                "Python path or installed?"
+                f"--env {env_id!r}: cannot import module {module!r} ({err}); is it installed, "
+                "on PYTHONPATH or in the current folder?"
             ) from None
     if name not in gym.registry:
         if sep:
