@@ -493,8 +493,10 @@ class RunSummary:
 
     @property
     def first_success_trial(self) -> int | None:
+        """The first policy trial that succeeded from outside the goal set (a trial that
+        started in it, ``started_in_goal``, is no swing-up)."""
         for r in self.records:
-            if r["kind"] == "policy" and r["success"]:
+            if r["kind"] == "policy" and r["success"] and not r.get("started_in_goal"):
                 return int(r["index"])
         return None
 
@@ -632,7 +634,9 @@ def run_episode(
     Returns the observed states ``obs`` (T+1, n) (read from the observations by the task),
     the true states ``states`` (T+1, n), ``actions`` (T, A), per-step evaluation ``costs``,
     their sum ``cost``, ``success`` (the task's test), ``time_in_goal`` [s] (steps within
-    the task's success bounds times ``T_s``), ``final_info`` (the numeric scalars of the last
+    the task's success bounds times ``T_s``), ``started_in_goal``
+    (:meth:`TaskSpec.starts_in_goal`: the episode started in the set it had to reach),
+    ``final_info`` (the numeric scalars of the last
     step's ``info``, e.g. the marker camera's pose errors) and, for a task whose cost tracks states,
     ``tracking_rms`` (:meth:`TaskSpec.tracking_rms`).
 
@@ -682,6 +686,7 @@ def run_episode(
         "actions": np.stack(actions) if actions else np.zeros((0, task.action_dim)),
         "costs": np.asarray(costs),
         "success": task.is_success(states_arr[1:], info, steps),
+        "started_in_goal": task.starts_in_goal(states_arr[0]),
         "cost": float(np.sum(costs)),
         "time_in_goal": float(np.sum(task.in_goal(states_arr[1:])) * task.dt),
         "steps": steps,
@@ -846,6 +851,8 @@ def record_line(r: dict[str, Any]) -> str:
         f"cost {r['cost']:.2f}, success {r['success']}, in goal {r['time_in_goal']:.2f} s, "
         f"time {r['wall_s']:.1f} s"
     )
+    if r.get("started_in_goal"):
+        line += " [started in the goal set: not counted as a success]"
     if r.get("tracking_rms"):
         line += ", tracking RMS " + " / ".join(f"{v:.4f}" for v in r["tracking_rms"].values())
     if r["kind"] == "policy":
@@ -868,12 +875,14 @@ def record_line(r: dict[str, Any]) -> str:
 
 
 def episode_outcome(ep: dict[str, Any], t0: float) -> dict[str, Any]:
-    """The real-system part of a trial record: evaluation cost, ``success``, time in the goal
-    region of episode ``ep``, its ``tracking_rms`` where it has one, and the wall-clock since
+    """The real-system part of a trial record: evaluation cost, ``success``, whether the
+    episode ``started_in_goal`` (its success then counts as none), time in the goal region of
+    episode ``ep``, its ``tracking_rms`` where it has one, and the wall-clock since
     ``t0`` (``time.perf_counter``)."""
     out = {
         "cost": ep["cost"],
         "success": ep["success"],
+        "started_in_goal": ep["started_in_goal"],
         "time_in_goal": ep["time_in_goal"],
         "steps": ep["steps"],
         "wall_s": time.perf_counter() - t0,

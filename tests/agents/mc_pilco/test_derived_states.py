@@ -191,3 +191,33 @@ def test_a_success_set_every_reset_lies_in_is_refused():
         task.check_reset(env)
     TaskSpec.for_env("Pendulum-v1").check_reset(env)  # from U(-pi, pi): nothing refused
     env.close()
+
+
+def test_a_trial_that_starts_in_the_goal_set_is_no_success():
+    """Pendulum-v1 resets at a random angle: an episode that starts within the success bounds
+    is recorded as ``started_in_goal`` and does not count as the first success; a balance
+    task (judged over the whole episode) starts inside its set by design and is not marked."""
+    from mcpilco.agents.mc_pilco.loop import RunSummary, run_episode
+
+    task = TaskSpec.for_env("Pendulum-v1")
+    assert task.starts_in_goal(np.array([0.1, 0.0])) and task.starts_in_goal([-0.29, 5.0])
+    assert not task.starts_in_goal(np.array([0.31, 0.0]))
+    assert not task.starts_in_goal(np.array([np.pi, 0.0]))
+    balance = TaskSpec.for_env("InvertedPendulum-v5")
+    assert not balance.starts_in_goal(np.zeros(4))
+    env = make_env("Pendulum-v1", task.horizon, task)
+    hold = task.replace(env_reset_options={"x_init": 0.05, "y_init": 0.0})
+    ep = run_episode(env, lambda x: np.zeros(1), seed=0, horizon=5, task=hold)
+    assert ep["started_in_goal"] is True
+    upright = task.replace(env_reset_options={"x_init": 0.0, "y_init": 0.0})  # theta = 0
+    assert run_episode(env, lambda x: np.zeros(1), seed=0, horizon=5, task=upright)[
+        "started_in_goal"
+    ]
+    env.close()
+    records = [
+        {"kind": "exploration", "index": 0, "success": False, "started_in_goal": False},
+        {"kind": "policy", "index": 1, "success": True, "started_in_goal": True},
+        {"kind": "policy", "index": 2, "success": True, "started_in_goal": False},
+    ]
+    summary = RunSummary({}, records, None, None, None, [], 0.0)
+    assert summary.first_success_trial == 2
