@@ -277,3 +277,20 @@ def test_a_task_that_cannot_be_learned_is_refused_before_any_trial(
                    + ["--out", str(out)])  # fmt: skip
     assert field in err and len(err.strip().splitlines()[-1]) > 0
     assert not out.exists()
+
+
+def test_a_module_in_the_current_folder_is_found(tmp_path, monkeypatch, config_of):
+    """``--env my_envs:Id`` with ``my_envs.py`` in the current folder (not on the Python path)
+    imports it, as ``python -m`` would find it."""
+    import sys
+
+    source = (Path(__file__).parents[1] / "user_pendulum.py").read_text()
+    (tmp_path / "my_cwd_envs.py").write_text(source.replace("UserPendulum-v0", "CwdPendulum-v0"))
+    monkeypatch.setattr(sys, "path", [p for p in sys.path if p not in ("", str(tmp_path))])
+    monkeypatch.chdir(tmp_path)
+    task = _user_task(tmp_path)
+    task.write_text(task.read_text().replace("UserPendulum-v0", "CwdPendulum-v0"))
+    cfg = config_of(["--env", "my_cwd_envs:CwdPendulum-v0", "--task", str(task)])
+    assert cfg.env_id == "my_cwd_envs:CwdPendulum-v0"
+    assert "my_cwd_envs" in sys.modules
+    monkeypatch.delitem(sys.modules, "my_cwd_envs")
