@@ -59,8 +59,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument(
         "--env",
         default=DEFAULT_ENV_ID,
-        help="Gymnasium env id: a registered one (mcpilco/..., dm_control/<domain>-<task>-v0, "
-        "Gymnasium's, any installed package's), or pkg.module:EnvId to import the module that "
+        help="Gymnasium env id: mcpilco/..., dm_control/<domain>-<task>-v0, Gymnasium's own, "
+        "or pkg.module:EnvId to import the module (yours or an installed package's) that "
         "registers it",
     )
     p.add_argument(
