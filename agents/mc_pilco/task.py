@@ -97,7 +97,7 @@ MODELS = ("dynamics", "kinematics")
 """What MC-PILCO learns on a task: GP dynamics, or the kinematics seen through markers."""
 
 
-RESET_SAMPLES = 5
+RESET_SAMPLES = 10
 """Env resets :meth:`TaskSpec.check_reset` samples before any trial."""
 
 

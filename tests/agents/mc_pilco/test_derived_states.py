@@ -187,7 +187,7 @@ def test_a_success_set_every_reset_lies_in_is_refused():
     data = {**task_data("Pendulum-v1"), "env_reset_options": {"x_init": 0.1, "y_init": 0.1}}
     task = TaskSpec.from_dict(data)
     env = make_env("Pendulum-v1", task.horizon, task)
-    with pytest.raises(TaskSpecError, match=r"task\.success\.bounds: all 5 sampled resets"):
+    with pytest.raises(TaskSpecError, match=r"task\.success\.bounds: all 10 sampled resets"):
         task.check_reset(env)
     TaskSpec.for_env("Pendulum-v1").check_reset(env)  # from U(-pi, pi): nothing refused
     env.close()
