@@ -379,8 +379,8 @@ class TaskSpec:
         if self.obs_indices is not None:
             raise _fail("state_from", "give obs_indices or state_from, not both")
         if not isinstance(self.state_from, Mapping):
-            raise _fail("state_from", f"expected a mapping state name -> reader, got "
-                        f"{self.state_from!r}")  # fmt: skip
+            got = repr(self.state_from)
+            raise _fail("state_from", f"expected a mapping state name -> reader, got {got}")
         readers = {}
         for key, r in self.state_from.items():
             path = f"state_from.{key}"
@@ -977,8 +977,8 @@ def _parse_reader(r: Any, path: str) -> StateReader:
     for key in ("scale", "offset"):
         v = getattr(r, key)
         if not (_is_number(v) and math.isfinite(v)) or (key == "scale" and v == 0):
-            raise _fail(f"{path}.{key}", f"needs a finite number{' != 0' * (key == 'scale')}, "
-                        f"got {v!r}")  # fmt: skip
+            want = "a finite number != 0" if key == "scale" else "a finite number"
+            raise _fail(f"{path}.{key}", f"needs {want}, got {v!r}")
     if r.info is not None and not (isinstance(r.info, str) and r.info):
         raise _fail(f"{path}.info", f"needs an info key, got {r.info!r}")
     return dataclasses.replace(r, scale=float(r.scale), offset=float(r.offset))
