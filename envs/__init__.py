@@ -6,6 +6,8 @@ MuJoCo model is built and nothing from ``agents``/``models`` is imported at regi
 
 import gymnasium
 
+from mcpilco.envs.dmc import register_dmc_envs
+
 gymnasium.register(
     id="mcpilco/CartpoleSwingUp-v0",
     entry_point="mcpilco.envs.cartpole:CartpoleSwingUpEnv",
@@ -16,6 +18,9 @@ gymnasium.register(
     entry_point="mcpilco.envs.dmc_cartpole:DMCCartpoleSwingUpEnv",
     max_episode_steps=60,
 )
+
+# Every dm-control suite task: dm_control/<domain>-<task>-v0 (dm-control imported when made).
+register_dmc_envs()
 
 # Arms: joint-trajectory tracking behind a PD + gravity controller, 8 ms samples.
 gymnasium.register(

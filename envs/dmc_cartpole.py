@@ -1,24 +1,24 @@
 """Adapter around dm-control's ``cartpole``/``swingup``: ``mcpilco/DMCCartpoleSwingUp-v0``.
 
 An external check of the agents on a cart-pole written by others, seen through the same
-observation, cost and success conventions as ``mcpilco/CartpoleSwingUp-v0``.
+observation, cost and success conventions as ``mcpilco/CartpoleSwingUp-v0``: the suite's
+adapter :class:`~mcpilco.envs.dmc.DMControlEnv` (``dm_control/cartpole-swingup-v0``, which
+keeps dm-control's observation and reward) with this env's state, cost and control period.
 """
 
 from __future__ import annotations
 
-import warnings
-
-import gymnasium as gym
 import numpy as np
 from gymnasium.spaces import Box
 from numpy.typing import ArrayLike, NDArray
 
-from mcpilco.envs.cartpole_task import CARTPOLE_TASK, SwingUpScorer, validate_action
+from mcpilco.envs.cartpole_task import CARTPOLE_TASK, SwingUpScorer
+from mcpilco.envs.dmc import DMControlEnv
 
 __all__ = ["DMCCartpoleSwingUpEnv"]
 
 
-class DMCCartpoleSwingUpEnv(gym.Env):
+class DMCCartpoleSwingUpEnv(DMControlEnv):
     r"""
     ## Description
     dm-control suite task ``cartpole``/``swingup`` (Tassa et al., 2018) behind the Gymnasium
@@ -86,8 +86,6 @@ class DMCCartpoleSwingUpEnv(gym.Env):
     * v0: Initial version (dm-control 1.0.x, MuJoCo 3.x).
     """
 
-    metadata = {"render_modes": ["rgb_array"], "render_fps": 20}
-
     def __init__(
         self,
         obs_noise_std: float = CARTPOLE_TASK["obs_noise_std"],
@@ -97,21 +95,14 @@ class DMCCartpoleSwingUpEnv(gym.Env):
         control_dt: float = CARTPOLE_TASK["dt"],
         render_mode: str | None = None,
     ) -> None:
-        if not obs_noise_std >= 0:
-            raise ValueError(f"obs_noise_std must be >= 0, got {obs_noise_std}")
-        if render_mode not in (None, "rgb_array"):
-            raise ValueError(f"render_mode must be None or 'rgb_array', got {render_mode!r}")
-        with warnings.catch_warnings():  # glfw warns about a missing X display on import
-            warnings.simplefilter("ignore")
-            from dm_control import suite
-
-        self._random = np.random.RandomState()
-        self._dmc = suite.load(
+        super().__init__(
             "cartpole",
             "swingup",
-            task_kwargs={"random": self._random, "time_limit": float("inf")},
+            episode_steps=episode_steps,
+            obs_noise_std=obs_noise_std,
+            render_mode=render_mode,
         )
-        dmc_dt = float(self._dmc.control_timestep())
+        dmc_dt = self.dt  # one dm-control control step
         repeat = int(round(control_dt / dmc_dt))
         if repeat < 1 or abs(repeat * dmc_dt - control_dt) > 1e-9:
             raise ValueError(
@@ -121,16 +112,8 @@ class DMCCartpoleSwingUpEnv(gym.Env):
         self.action_repeat = repeat
         self.dt = repeat * dmc_dt
         self.metadata = {"render_modes": ["rgb_array"], "render_fps": int(round(1.0 / self.dt))}
-        self.render_mode = render_mode
-        self._obs_noise_std = float(obs_noise_std)
         self._scorer = SwingUpScorer(l_theta, l_x, episode_steps)
-        self.action_space = Box(-1.0, 1.0, shape=(1,), dtype=np.float32)
         self.observation_space = Box(-np.inf, np.inf, shape=(4,), dtype=np.float64)
-
-    @property
-    def physics(self):
-        """dm-control ``Physics`` of the wrapped task."""
-        return self._dmc.physics
 
     @property
     def state(self) -> NDArray[np.float64]:
@@ -141,30 +124,20 @@ class DMCCartpoleSwingUpEnv(gym.Env):
         )
 
     def reset(self, *, seed: int | None = None, options: dict | None = None):
-        super().reset(seed=seed)
-        if seed is not None:
-            self._random.seed(seed)
-        self._dmc.reset()
+        super().reset(seed=seed, options=options)
         self._scorer.reset()
         state = self.state
-        return self._get_obs(state), self._scorer.score(state)[1]
+        return self._state_obs(state), self._scorer.score(state)[1]
 
     def step(self, action: ArrayLike):
-        a = np.clip(validate_action(action, 1), -1.0, 1.0)
-        for _ in range(self.action_repeat):
-            self._dmc.step(a)
+        self._advance(action)
         state = self.state
         if not np.all(np.isfinite(state)):
             raise RuntimeError(f"simulation diverged: state {state}; reset the env")
         cost, truncated, info = self._scorer.step(state)
-        return self._get_obs(state), -cost, False, truncated, info
+        return self._state_obs(state), -cost, False, truncated, info
 
-    def render(self):
-        if self.render_mode == "rgb_array":
-            return self.physics.render(height=240, width=320, camera_id=0)
-        return None
-
-    def _get_obs(self, state: NDArray[np.float64]) -> NDArray[np.float64]:
+    def _state_obs(self, state: NDArray[np.float64]) -> NDArray[np.float64]:
         if self._obs_noise_std > 0:
             return state + self._obs_noise_std * self.np_random.standard_normal(4)
         return state.copy()

@@ -14,7 +14,9 @@ Usage::
     mcpilco-train --preset demo --out runs/demo            # make demo's budget (12 s)
     mcpilco-train --env mcpilco/DMCCartpoleSwingUp-v0 --kernel rbf --seed 3
     mcpilco-train --env InvertedPendulum-v5 --set num_particles=100 --set opt.max_steps=300
-    mcpilco-train --env MyEnv-v0 --task my_task.yaml       # your own env and task file
+    mcpilco-train --env my_pkg.envs:MyArm-v0 --task my_task.yaml   # your own env, registered
+                                            # by my_pkg.envs; the task file says what to learn
+    mcpilco-train --env Pendulum-v1 --env-kwargs "{g: 9.81}" --config my.yaml
 """
 
 from __future__ import annotations
@@ -54,9 +56,28 @@ def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(
         prog="mcpilco-train", description=__doc__, formatter_class=argparse.RawTextHelpFormatter
     )
-    p.add_argument("--env", default=DEFAULT_ENV_ID, help="registered Gymnasium env id")
     p.add_argument(
-        "--preset", default="default", help="a preset of the env's config file (e.g. bench, demo)"
+        "--env",
+        default=DEFAULT_ENV_ID,
+        help="Gymnasium env id: mcpilco/..., dm_control/<domain>-<task>-v0, Gymnasium's own, "
+        "or pkg.module:EnvId to import the module (yours or an installed package's) that "
+        "registers it",
+    )
+    p.add_argument(
+        "--env-kwargs",
+        metavar="YAML",
+        help="keyword arguments of gym.make: a YAML mapping ('{g: 9.81}') or a YAML file",
+    )
+    p.add_argument(
+        "--config",
+        type=Path,
+        help="your own config file, in the format of the shipped ones (config + presets); "
+        "merged over the env's shipped file and under --set",
+    )
+    p.add_argument(
+        "--preset",
+        default="default",
+        help="a preset of the env's config file or of --config (e.g. bench, demo)",
     )
     p.add_argument(
         "--set",
@@ -120,12 +141,14 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
-    try:  # unknown env id, task, preset or field; no such device; no compiler
+    try:  # unknown env id, task, preset or field; a task not learnable; no device; no compiler
         config = config_from_options(
             args.env,
             preset=args.preset,
             set_items=args.set,
             task_file=args.task,
+            config_file=args.config,
+            env_kwargs=args.env_kwargs,
             seed=args.seed,
             num_trials=args.trials,
             num_particles=args.particles,

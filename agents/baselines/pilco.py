@@ -570,6 +570,7 @@ def run_pilco(
     half = {(hi - lo) / 2 for lo, hi in zip(task.action_low, task.action_high, strict=True)}
     if (
         task.obs_indices is not None
+        or task.state_from is not None
         or len(half) != 1
         or task.cost_fn is not None
         or any(lo != -hi for lo, hi in zip(task.action_low, task.action_high, strict=True))

@@ -34,6 +34,8 @@ class TrialRecord:
         kind: ``"exploration"`` (trial 0, random actions) or ``"policy"``.
         cost: the task's evaluation cost ``sum_t c(x_t)`` on the true states.
         success: the task's success test.
+        started_in_goal: the trial started in the set it had to reach (its success is then
+            no swing-up and counts as none).
         time_in_goal: seconds within the task's goal bounds.
         steps: control steps of the trial (a PILCO exploration: of all its episodes).
         wall_s: wall-clock seconds of the whole trial.
@@ -68,6 +70,7 @@ class TrialRecord:
     kind: str
     cost: float | None = None
     success: bool | None = None
+    started_in_goal: bool | None = None
     time_in_goal: float | None = None
     steps: int | None = None
     wall_s: float | None = None
@@ -186,6 +189,8 @@ def record_line(r: TrialRecord) -> str:
         f"cost {r.cost:.2f}, success {r.success}, in goal {r.time_in_goal:.2f} s, "
         f"time {r.wall_s:.1f} s"
     )
+    if r.started_in_goal:
+        line += " [started in the goal set: not counted as a success]"
     if r.tracking_rms:
         line += ", tracking RMS " + " / ".join(f"{v:.4f}" for v in r.tracking_rms.values())
     if r.kind == "policy":
@@ -233,8 +238,9 @@ class RunSummary:
 
     @property
     def first_success_trial(self) -> int | None:
-        """Index of the first policy trial that succeeded (None: none did)."""
+        """Index of the first policy trial that succeeded from outside the goal set (a trial
+        that started in it, ``started_in_goal``, is no swing-up; None: none did)."""
         for r in self.records:
-            if r["kind"] == "policy" and r["success"]:
+            if r["kind"] == "policy" and r["success"] and not r.get("started_in_goal"):
                 return int(r["index"])
         return None

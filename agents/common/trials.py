@@ -34,6 +34,72 @@ def registered_ids(prefix: str = "mcpilco/") -> list[str]:
     return sorted(k for k in gym.registry if k.startswith(prefix))
 
 
+def plain_env_id(env_id: str) -> str:
+    """The registered id of ``env_id``: ``"pkg.module:MyEnv-v0"`` -> ``"MyEnv-v0"`` (the
+    ``module:id`` form of ``gymnasium.make``); an id without a module as it is."""
+    return env_id.rpartition(":")[2]
+
+
+def import_user_module(module: str) -> None:
+    """Import ``module`` as ``gymnasium.make("module:id")`` does; a module that is not on the
+    Python path is looked for in the current folder too (appended to ``sys.path``, so that
+    it never shadows an installed package), as ``python -m`` would find it.
+
+    Raises:
+        ImportError: the module is found nowhere, or its import fails.
+    """
+    import importlib
+    import os
+    import sys
+
+    try:
+        importlib.import_module(module)
+    except ModuleNotFoundError as err:
+        cwd = os.getcwd()
+        top = module.partition(".")[0]
+        if err.name != top or cwd in sys.path or "" in sys.path:
+            raise
+        sys.path.append(cwd)
+        importlib.import_module(module)
+
+
+def resolve_env_id(env_id: str) -> str:
+    """The registered id of ``env_id`` after importing what registers it: mcpilco's own envs
+    (:mod:`mcpilco.envs`), and for ``"pkg.module:MyEnv-v0"`` the module ``pkg.module``, as
+    ``gymnasium.make`` does. Any id registered by an imported package is found.
+
+    Raises:
+        ValueError: the module cannot be imported, or the id is not registered (the message
+            lists mcpilco's ids and says how to name a module).
+    """
+    import gymnasium as gym
+
+    import mcpilco.envs  # noqa: F401  (registers the ids)
+
+    module, sep, name = env_id.rpartition(":")
+    if sep:
+        if not module or not name:
+            raise ValueError(f"--env {env_id!r}: expected pkg.module:EnvId")
+        try:
+            import_user_module(module)
+        except ImportError as err:
+            raise ValueError(
+                f"--env {env_id!r}: cannot import module {module!r} ({err}); is it installed, "
+                "on PYTHONPATH or in the current folder?"
+            ) from None
+    if name not in gym.registry:
+        if sep:
+            raise ValueError(
+                f"--env {env_id!r}: module {module!r} registers no env id {name!r} (it must call "
+                f"gymnasium.register(id={name!r}, ...) when imported)"
+            )
+        raise ValueError(
+            f"unknown env id {name!r}; registered mcpilco ids: {', '.join(registered_ids())}; "
+            "for your own env give --env your.module:YourEnv-v0 (the module registers it)"
+        )
+    return name
+
+
 def make_env(
     env_id: str,
     horizon: int,
@@ -42,18 +108,14 @@ def make_env(
 ):
     """``gym.make(env_id, **env_kwargs)`` with episodes of ``horizon`` control steps
     (``horizon`` times the task's ``action_repeat`` env steps), clear errors for an unknown
-    id, for spaces that do not fit ``task``
+    id (:func:`resolve_env_id`; ``env_id`` may be ``"pkg.module:MyEnv-v0"``), for spaces
+    that do not fit ``task``
     (:meth:`~mcpilco.envs.tasks.spec.TaskSpec.check_env`), and for a horizon that differs
     from the env's own episode length when the task's success is the env's ``info`` flag
     (defined at the env's own last step)."""
     import gymnasium as gym
 
-    import mcpilco.envs  # noqa: F401  (registers the ids)
-
-    if env_id not in gym.registry:
-        raise ValueError(
-            f"unknown env id {env_id!r}; registered mcpilco ids: {', '.join(registered_ids())}"
-        )
+    env_id = resolve_env_id(env_id)
     steps = gym.spec(env_id).max_episode_steps
     horizon = int(horizon) * (task.action_repeat if task is not None else 1)
     if steps is not None and steps != horizon and task is not None and task.success.info_key:
@@ -61,7 +123,10 @@ def make_env(
             f"horizon mismatch: the config's horizon is {horizon} steps but {env_id} episodes "
             f"last {steps} steps (its success flag is set at its last step); set horizon={steps}"
         )
-    env = gym.make(env_id, max_episode_steps=int(horizon), **dict(env_kwargs or {}))
+    try:
+        env = gym.make(env_id, max_episode_steps=int(horizon), **dict(env_kwargs or {}))
+    except TypeError as err:  # an argument the env does not take
+        raise ValueError(f"{env_id}: env_kwargs {dict(env_kwargs or {})}: {err}") from None
     if task is not None:
         try:
             task.check_env(env)
@@ -94,7 +159,9 @@ def run_episode(
     Returns the observed states ``obs`` (T+1, n) (read from the observations by the task),
     the true states ``states`` (T+1, n), ``actions`` (T, A), per-step evaluation ``costs``,
     their sum ``cost``, ``success`` (the task's test), ``time_in_goal`` [s] (steps within
-    the task's success bounds times ``T_s``), ``final_info`` (the numeric scalars of the last
+    the task's success bounds times ``T_s``), ``started_in_goal``
+    (:meth:`~mcpilco.envs.tasks.spec.TaskSpec.starts_in_goal`: the episode started in the set
+    it had to reach), ``final_info`` (the numeric scalars of the last
     step's ``info``, e.g. the marker camera's pose errors) and, for a task whose cost tracks states,
     ``tracking_rms`` (:meth:`~mcpilco.envs.tasks.spec.TaskSpec.tracking_rms`).
 
@@ -103,7 +170,7 @@ def run_episode(
             its own, shorter than the horizon; a termination ends the episode normally).
     """
     obs, info = env.reset(seed=seed, options=task.reset_options())
-    observed = [task.state_from_obs(obs)]
+    observed = [task.state_from_obs(obs, info)]
     states = [task.true_state(obs, info)]
     actions = []
     infos: list[list[dict[str, Any]]] = []
@@ -119,7 +186,7 @@ def run_episode(
                 break
         if record_info:
             infos.append(step_infos)
-        observed.append(task.state_from_obs(obs))
+        observed.append(task.state_from_obs(obs, info))
         states.append(task.true_state(obs, info))
         actions.append(a)
         if terminated or truncated:
@@ -144,6 +211,7 @@ def run_episode(
         "actions": np.stack(actions) if actions else np.zeros((0, task.action_dim)),
         "costs": np.asarray(costs),
         "success": task.is_success(states_arr[1:], info, steps),
+        "started_in_goal": task.starts_in_goal(states_arr[0]),
         "cost": float(np.sum(costs)),
         "time_in_goal": float(np.sum(task.in_goal(states_arr[1:])) * task.dt),
         "steps": steps,
@@ -231,12 +299,14 @@ def exploration_episodes(
 
 
 def episode_outcome(ep: dict[str, Any], t0: float) -> dict[str, Any]:
-    """The real-system part of a trial record: evaluation cost, ``success``, time in the goal
-    region of episode ``ep``, its ``tracking_rms`` where it has one, and the wall-clock since
+    """The real-system part of a trial record: evaluation cost, ``success``, whether the
+    episode ``started_in_goal`` (its success then counts as none), time in the goal region of
+    episode ``ep``, its ``tracking_rms`` where it has one, and the wall-clock since
     ``t0`` (``time.perf_counter``)."""
     out = {
         "cost": ep["cost"],
         "success": ep["success"],
+        "started_in_goal": ep["started_in_goal"],
         "time_in_goal": ep["time_in_goal"],
         "steps": ep["steps"],
         "wall_s": time.perf_counter() - t0,

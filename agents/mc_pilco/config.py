@@ -288,8 +288,12 @@ class MCPilcoConfig:
     def task_spec(self) -> TaskSpec:
         """The task: ``task`` when given, else the one that ships for ``env_id``; the
         config's ``horizon`` replaces the task's."""
-        spec = TaskSpec.from_dict(self.task) if self.task else TaskSpec.for_env(self.env_id)
-        if spec.env_id != self.env_id:
+        spec = (
+            TaskSpec.from_dict(self.task)
+            if self.task
+            else TaskSpec.for_env(plain_env_id(self.env_id))
+        )
+        if plain_env_id(spec.env_id) != plain_env_id(self.env_id):
             raise ValueError(f"the task is for {spec.env_id!r}, the config for {self.env_id!r}")
         if self.horizon is not None and self.horizon != spec.horizon:
             spec = spec.replace(horizon=int(self.horizon))
@@ -341,16 +345,45 @@ def config_files(conf_dir: str | Path = CONF_DIR) -> dict[str, Path]:
     return out
 
 
+CONFIG_FILE_KEYS = ("env_id", "config", "presets")  # top-level keys of a config file
+
+
+def read_config_file(path: str | Path) -> dict[str, Any]:
+    """A config file's mapping (:func:`load_config`'s format), its keys checked.
+
+    Raises:
+        ValueError: the file cannot be read, is not YAML, or has other keys; the message
+            names the file.
+    """
+    import yaml
+
+    try:
+        data = yaml.safe_load(Path(path).read_text()) or {}
+    except (OSError, yaml.YAMLError) as err:
+        raise ValueError(f"config file {path}: {err}") from None
+    if not isinstance(data, dict):
+        raise ValueError(f"config file {path}: expected a mapping with {CONFIG_FILE_KEYS}")
+    unknown = sorted(set(data) - set(CONFIG_FILE_KEYS))
+    if unknown:
+        raise ValueError(f"config file {path}: unknown keys {unknown} (keys: {CONFIG_FILE_KEYS})")
+    for key in ("config", "presets"):
+        if not isinstance(data.get(key) or {}, dict):
+            raise ValueError(f"config file {path}: {key} must be a mapping")
+    return data
+
+
 def load_config(
     env_id: str,
     conf_dir: str | Path | None = CONF_DIR,
     preset: str | None = None,
     overrides: dict[str, Any] | None = None,
+    config_file: str | Path | None = None,
 ) -> MCPilcoConfig:
     """The config of ``env_id``: :class:`MCPilcoConfig`'s defaults, then the env's file in
-    ``conf_dir`` (default: the shipped :data:`CONF_DIR`; None: no file): its ``config``
-    mapping, then the named ``preset`` of its ``presets``; then ``overrides`` (nested dicts,
-    e.g. from :func:`parse_set`).
+    ``conf_dir`` (default: the shipped :data:`CONF_DIR`; None: no file), then the user's
+    ``config_file`` (same format; ``mcpilco-train --config``): of each file its ``config``
+    mapping, then the named ``preset`` of its ``presets`` (which must exist in one of
+    them); then ``overrides`` (nested dicts, e.g. from :func:`parse_set`).
 
     A config file (one per env, like the SB3 zoo's ``hyperparams/*.yml``)::
 
@@ -360,23 +393,28 @@ def load_config(
         presets:
           demo: {num_trials: 3}
     """
-    import yaml
-
-    data: dict[str, Any] = {}
-    path = config_files(conf_dir).get(env_id) if conf_dir is not None else None
+    files: list[tuple[str, dict[str, Any]]] = []
+    path = config_files(conf_dir).get(plain_env_id(env_id)) if conf_dir is not None else None
     if path is not None:
-        data = yaml.safe_load(path.read_text()) or {}
+        files.append((path.name, read_config_file(path)))
+    if config_file is not None:
+        data = read_config_file(config_file)
+        named = data.get("env_id")
+        if named is not None and plain_env_id(str(named)) != plain_env_id(env_id):
+            raise ValueError(f"config file {config_file} is for env {named!r}, not {env_id!r}")
+        files.append((str(config_file), data))
+    named = preset is not None and preset != "default"
+    if named and not any(preset in (data.get("presets") or {}) for _, data in files):
+        where = ", ".join(name for name, _ in files) or f"no config file for {env_id}"
+        names = sorted({p for _, data in files for p in data.get("presets") or {}})
+        raise ValueError(
+            f"unknown preset {preset!r} for {env_id} ({where}; presets: {names or 'none'})"
+        )
     merged: dict[str, Any] = {"env_id": env_id}
-    merged = _merge(merged, data.get("config") or {})
-    presets = data.get("presets") or {}
-    if preset is not None and preset != "default":
-        if preset not in presets:
-            where = f"{path.name}" if path else f"no config file for {env_id}"
-            raise ValueError(
-                f"unknown preset {preset!r} for {env_id} ({where}; presets: "
-                f"{sorted(presets) or 'none'})"
-            )
-        merged = _merge(merged, presets[preset])
+    for _, data in files:  # the shipped file, then the user's: each its config, then preset
+        merged = _merge(merged, data.get("config") or {})
+        if named:
+            merged = _merge(merged, (data.get("presets") or {}).get(preset) or {})
     merged = _merge(merged, overrides or {})
     if merged.get("env_id") != env_id:
         raise ValueError(f"the config names env {merged.get('env_id')!r}, not {env_id!r}")

@@ -222,7 +222,7 @@ class Trainer:
         if self.config.policy_init != "data" or self.policy.center_mean is not None:
             return
         task = self.task
-        init = data_init(task.features(task.state_from_obs(self.episodes[0]["obs"])))
+        init = data_init(task.features(self.episodes[0]["obs"]))
         self.population.use_data_init(init)
         self.policy.use_data_init(init)
         if k == 1:  # the first policy starts there

@@ -10,7 +10,15 @@ Glossary (thesis sections 5.3-5.5)
 ----------------------------------
 ``x = [x_0 .. x_{n-1}]``
     the state, named by ``state_names``, read from the observation (``obs[obs_indices]``, or
-    the observation itself).
+    the observation itself), or per state by ``state_from`` (derived states below).
+derived states (``state_from``)
+    per state name, how it is read: ``x_j = scale * v + offset`` with ``v = o[index]``
+    (selection and scaling) or ``v = atan2(o[sin], o[cos])`` (an angle from the
+    ``(cos, sin)`` pair an env observes, e.g. Gymnasium's ``Pendulum-v1``), where ``o`` is
+    the observation, or the vector ``info[info]`` when ``info`` names an ``info`` key (e.g.
+    the physics state of a dm-control env). An entry is an index or a name: the env's
+    ``observation_names`` (or ``<info>_names``) name its entries
+    (:class:`mcpilco.envs.dmc.DMControlEnv`).
 angles
     coordinates that wrap around: the GP and the policy see ``(sin x_j, cos x_j)`` instead of
     ``x_j`` (thesis 5.5.1, "x_ext").
@@ -93,6 +101,10 @@ MODELS = ("dynamics", "kinematics")
 """What MC-PILCO learns on a task: GP dynamics, or the kinematics seen through markers."""
 
 
+RESET_SAMPLES = 10
+"""Env resets :meth:`TaskSpec.check_reset` samples before any trial."""
+
+
 class TaskSpecError(ValueError):
     """A task specification field is wrong; the message names the field."""
 
@@ -126,6 +138,30 @@ class Bound:
 
 
 @dataclass(frozen=True)
+class StateReader:
+    """How one state is read (module glossary, derived states): ``scale * v + offset`` with
+    ``v = o[index]``, or ``v = atan2(o[sin], o[cos])`` when ``cos`` and ``sin`` are given;
+    ``o`` is the observation, or ``info[info]`` when ``info`` is given. Each entry is an
+    index or a name of the env's ``observation_names`` (``<info>_names``)."""
+
+    index: int | str | None = None
+    cos: int | str | None = None
+    sin: int | str | None = None
+    scale: float = 1.0
+    offset: float = 0.0
+    info: str | None = None
+
+    def entries(self) -> tuple[tuple[str, int | str], ...]:
+        """``(key, entry)`` of each entry this reader reads."""
+        keys = ("index",) if self.index is not None else ("cos", "sin")
+        return tuple((k, getattr(self, k)) for k in keys)
+
+
+READER_KEYS = ("index", "cos", "sin", "scale", "offset", "info")
+"""Keys of a ``state_from`` entry (:class:`StateReader`)."""
+
+
+@dataclass(frozen=True)
 class SuccessSpec:
     """Success of an episode; see the module glossary."""
 
@@ -144,6 +180,11 @@ class TaskSpec:
         env_id: the Gymnasium id the task belongs to.
         state_names: names of the state coordinates, in order.
         obs_indices: ``state = obs[obs_indices]``; None: the observation is the state.
+        state_from: state name -> :class:`StateReader` (derived states, module glossary),
+            every state listed; instead of ``obs_indices``. Entries given by name are
+            resolved against the env by :meth:`check_env`.
+        env_reset_options: ``options`` passed to every ``env.reset`` (an env's own reset
+            distribution, e.g. Pendulum-v1's ``{x_init, y_init}``).
         true_state_key: ``info`` key of the noise-free state, used for evaluation (cost,
             success); None: the state read from the observation.
         angles: names of the coordinates that wrap around.
@@ -198,8 +239,11 @@ class TaskSpec:
     limits: Mapping[str, tuple[float, float]] = field(default_factory=dict)
     speed_integration: bool = True
     model: str = "dynamics"
+    state_from: Mapping[str, StateReader] | None = None
+    env_reset_options: Mapping[str, Any] | None = None
 
     def __post_init__(self) -> None:
+        object.__setattr__(self, "_entry_names", {})  # source -> entry names, by check_env
         if self.model not in MODELS:
             raise _fail("model", f"one of {MODELS}, got {self.model!r}")
         if not isinstance(self.speed_integration, bool):
@@ -326,6 +370,34 @@ class TaskSpec:
             raise _fail("success", "needs an info_key, bounds, full_horizon or tracking_rms")
         self._check_limits()
         self._check_arm()
+        self._check_state_from()
+        if self.env_reset_options is not None and not isinstance(self.env_reset_options, Mapping):
+            raise _fail("env_reset_options", f"expected a mapping, got {self.env_reset_options!r}")
+
+    def _check_state_from(self) -> None:
+        """``state_from``: one :class:`StateReader` per state (a mapping from a task file is
+        parsed), each with an entry (``index``, or both ``cos`` and ``sin``) and a finite
+        nonzero ``scale`` and finite ``offset``; not together with ``obs_indices``."""
+        if self.state_from is None:
+            return
+        if self.obs_indices is not None:
+            raise _fail("state_from", "give obs_indices or state_from, not both")
+        if not isinstance(self.state_from, Mapping):
+            got = repr(self.state_from)
+            raise _fail("state_from", f"expected a mapping state name -> reader, got {got}")
+        readers = {}
+        for key, r in self.state_from.items():
+            path = f"state_from.{key}"
+            if key not in self.state_names:
+                raise _fail(path, f"unknown state name (states: {self.state_names})")
+            readers[str(key)] = _parse_reader(r, path)
+        for name in self.state_names:
+            if name not in readers:
+                raise _fail(
+                    f"state_from.{name}",
+                    "missing: with state_from every state needs its reader (index, or cos and sin)",
+                )
+        object.__setattr__(self, "state_from", readers)
 
     def _check_limits(self) -> None:
         """``limits``: known, non-angle state names, each with finite ``lo < hi``."""
@@ -497,9 +569,13 @@ class TaskSpec:
         return np.concatenate(parts, axis=-1)
 
     # ------------------------------------------------------------------ the env side
-    def state_from_obs(self, obs: np.ndarray) -> np.ndarray:
-        """The state read from an observation (``obs[obs_indices]`` or ``obs``)."""
+    def state_from_obs(self, obs: np.ndarray, info: Mapping[str, Any] | None = None) -> np.ndarray:
+        """The state read from an observation (``obs[obs_indices]``, ``obs``, or the derived
+        states of ``state_from``; those that read ``info`` need the step's ``info``)."""
         obs = np.asarray(obs, dtype=np.float64)
+        if self.state_from is not None:
+            readers = self.state_from
+            return np.stack([self._read(n, readers[n], obs, info) for n in self.state_names], -1)
         state = obs if self.obs_indices is None else obs[..., list(self.obs_indices)]
         if state.shape[-1] != self.state_dim:
             raise ValueError(
@@ -508,30 +584,104 @@ class TaskSpec:
             )
         return state
 
+    def _read(
+        self, name: str, r: StateReader, obs: np.ndarray, info: Mapping[str, Any] | None
+    ) -> np.ndarray:
+        """State ``name`` by its reader ``r`` (module glossary, derived states)."""
+        path = f"state_from.{name}"
+        if r.info is None:
+            src = obs
+        else:
+            if info is None or r.info not in info:
+                raise _fail(f"{path}.info", f"the env's info has no {r.info!r}")
+            src = np.asarray(info[r.info], dtype=np.float64)
+        cols = {}
+        for key, entry in r.entries():
+            j = self._entry_index(path, key, entry, r.info)
+            if j >= src.shape[-1]:
+                where = "observation" if r.info is None else f"info[{r.info!r}]"
+                raise _fail(
+                    f"{path}.{key}",
+                    f"entry {j} is beyond the {where}'s {src.shape[-1]} entries: this state is "
+                    "not observed",
+                )
+            cols[key] = src[..., j]
+        v = cols["index"] if r.index is not None else np.arctan2(cols["sin"], cols["cos"])
+        return r.scale * v + r.offset
+
+    def _entry_index(self, path: str, key: str, entry: int | str, source: str | None) -> int:
+        """The position of a reader's ``entry``: an index as it is, a name looked up in the
+        entry names :meth:`check_env` read from the env."""
+        if not isinstance(entry, str):
+            return int(entry)
+        names = self._entry_names.get(source or "obs")
+        attr = "observation_names" if source is None else f"{source}_names"
+        if names is None:
+            raise _fail(
+                f"{path}.{key}",
+                f"{entry!r} is a name, but the env names no entries (no attribute {attr}); "
+                "give an index",
+            )
+        if entry not in names:
+            raise _fail(f"{path}.{key}", f"unknown entry {entry!r} (the env's {attr}: {names})")
+        return names.index(entry)
+
     def true_state(self, obs: np.ndarray, info: Mapping[str, Any]) -> np.ndarray:
         """The state used for evaluation: ``info[true_state_key]`` or the observed state."""
         if self.true_state_key is not None and self.true_state_key in info:
             return np.asarray(info[self.true_state_key], dtype=np.float64)
-        return self.state_from_obs(obs)
+        return self.state_from_obs(obs, info)
 
     def check_env(self, env: Any) -> None:
-        """Raise :class:`TaskSpecError` when the env's spaces do not fit the task."""
+        """Raise :class:`TaskSpecError` when the env's spaces do not fit the task: an action
+        space that is not a flat Box, a state beyond the observation (or an entry name the
+        env does not have), actions or a control period that differ. Reads the env's entry
+        names for the derived states (``state_from``)."""
+        from gymnasium.spaces import Box
+
         obs_shape = getattr(env.observation_space, "shape", None)
         act_shape = getattr(env.action_space, "shape", None)
+        if not isinstance(env.action_space, Box):
+            raise _fail(
+                "action_low",
+                f"{self.env_id}'s action space is {env.action_space}, not a Box: MC-PILCO's "
+                "policy outputs continuous actions",
+            )
         if obs_shape is None or len(obs_shape) != 1:
             raise _fail("env_id", f"{self.env_id} needs a flat Box observation, got {obs_shape}")
         if act_shape is None or len(act_shape) != 1:
             raise _fail("env_id", f"{self.env_id} needs a flat Box action space, got {act_shape}")
         n_obs = obs_shape[0]
-        if self.obs_indices is None and n_obs != self.state_dim:
+        if self.obs_indices is None and self.state_from is None and n_obs != self.state_dim:
             raise _fail(
                 "state_names",
                 f"{self.state_dim} states but {self.env_id} observes {n_obs} values; "
-                "set obs_indices",
+                "set obs_indices or state_from",
             )
         for i, j in enumerate(self.obs_indices or ()):
             if j >= n_obs:
-                raise _fail(f"obs_indices[{i}]", f"index {j} out of range for {n_obs} observations")
+                raise _fail(
+                    f"obs_indices[{i}]",
+                    f"index {j} out of range for {n_obs} observations: this state is not observed",
+                )
+        if self.state_from is not None:
+            base = getattr(env, "unwrapped", env)
+            names = {}
+            for src in {r.info for r in self.state_from.values()}:
+                attr = "observation_names" if src is None else f"{src}_names"
+                if getattr(base, attr, None) is not None:
+                    names[src or "obs"] = tuple(str(n) for n in getattr(base, attr))
+            self._entry_names.clear()
+            self._entry_names.update(names)
+            for name, r in self.state_from.items():
+                for key, entry in r.entries():
+                    j = self._entry_index(f"state_from.{name}", key, entry, r.info)
+                    if r.info is None and j >= n_obs:
+                        raise _fail(
+                            f"state_from.{name}.{key}",
+                            f"entry {j} is beyond the observation's {n_obs} entries: this "
+                            "state is not observed",
+                        )
         env_dt = getattr(getattr(env, "unwrapped", env), "dt", None)
         if self.action_repeat > 1 and env_dt is not None:
             if abs(float(env_dt) * self.action_repeat - self.dt) > 1e-9:
@@ -562,15 +712,43 @@ class TaskSpec:
             )
 
     def reset_options(self) -> dict[str, Any] | None:
-        """``options`` of ``env.reset``: ``{"reference": SumOfSinusoids}`` for a task with a
-        reference (:class:`mcpilco.envs.arm_env.SumOfSinusoids`), else None."""
+        """``options`` of ``env.reset``: ``env_reset_options``, and ``{"reference":
+        SumOfSinusoids}`` for a task with a reference
+        (:class:`mcpilco.envs.arm_env.SumOfSinusoids`); None when neither is given."""
+        options = dict(self.env_reset_options) if self.env_reset_options is not None else None
         if self.reference is None:
-            return None
+            return options
         from mcpilco.envs.arm_env import SumOfSinusoids
 
         ref = self.reference
         arrays = (np.asarray(ref[k], dtype=np.float64) for k in REFERENCE_KEYS[:4])
-        return {"reference": SumOfSinusoids(*arrays, duration=float(ref["duration"]))}
+        reference = SumOfSinusoids(*arrays, duration=float(ref["duration"]))
+        return {**(options or {}), "reference": reference}
+
+    def check_reset(self, env: Any, samples: int = RESET_SAMPLES, seed: int = 0) -> None:
+        """Refuse, before any trial, a task that cannot be learned as declared, from
+        ``samples`` resets of ``env`` (seeds ``seed, seed + 1, ...``): every state must be
+        readable from a reset's observation and ``info`` (the derived states), and when
+        every sampled initial state already lies in the success set (``success.bounds``)
+        of a task judged at the episode's end (a ``window``, no ``full_horizon``), there is
+        nothing to learn. A balance task, whose success asks to stay in the set for the
+        whole episode, starts inside it by design.
+
+        Raises:
+            TaskSpecError: naming the field.
+        """
+        starts = []
+        for k in range(samples):
+            obs, info = env.reset(seed=seed + k, options=self.reset_options())
+            self.state_from_obs(obs, info)
+            starts.append(self.true_state(obs, info))
+        if all(self.starts_in_goal(x0) for x0 in starts):
+            raise _fail(
+                "success.bounds",
+                f"all {samples} sampled resets of {self.env_id} already lie in the success set: "
+                "nothing to learn as declared (narrow the bounds, check their targets, or for "
+                "a balance task set success.full_horizon: true)",
+            )
 
     # ------------------------------------------------------------------ evaluation
     def cost(self, x: np.ndarray) -> np.ndarray:
@@ -639,6 +817,17 @@ class TaskSpec:
             d = self.distance(name, states[..., self.index(name)], b.target)
             ok &= np.abs(d) <= b.tol
         return ok
+
+    def starts_in_goal(self, x0: np.ndarray) -> bool:
+        """Whether an episode starting at ``x0`` starts where it should end: the success is
+        judged by ``success.bounds`` over the last ``window`` steps (a swing-up, not a balance
+        task's whole episode) and ``x0`` already lies within them. Such an episode's success
+        is not a success of the policy (an env that resets at a random angle sometimes starts
+        upright)."""
+        s = self.success
+        if not s.bounds or s.window is None or s.full_horizon:
+            return False
+        return bool(self.in_goal(np.asarray(x0, dtype=np.float64)))
 
     def is_success(self, states: np.ndarray, last_info: Mapping[str, Any], steps: int) -> bool:
         """Success of one episode from its true states after each step ``(T, n)``, the last
@@ -765,6 +954,38 @@ def _check_types(d: Mapping[str, Any]) -> None:
         seq("init_std", _is_number, "numbers")
     if not isinstance(d.get("success") or {}, Mapping):
         raise _fail("success", f"expected a mapping, got {d['success']!r}")
+
+
+def _parse_reader(r: Any, path: str) -> StateReader:
+    """A ``state_from`` entry (:class:`StateReader`, or its mapping in a task file)."""
+    if isinstance(r, Mapping):
+        extra = set(r) - set(READER_KEYS)
+        if extra:
+            raise _fail(path, f"unknown keys {sorted(extra)} (keys: {READER_KEYS})")
+        r = StateReader(**{str(k): v for k, v in r.items()})
+    if not isinstance(r, StateReader):
+        raise _fail(path, f"expected a mapping {{index}} or {{cos, sin}}, got {r!r}")
+    has_pair = (r.cos is not None, r.sin is not None)
+    if r.index is not None and any(has_pair):
+        raise _fail(path, "give index, or cos and sin, not both")
+    if r.index is None and not all(has_pair):
+        missing = "sin" if r.cos is not None else "cos" if r.sin is not None else "index"
+        raise _fail(
+            f"{path}.{missing}",
+            "missing: a state needs an index, or an angle both its cos and its sin entries",
+        )
+    for key, entry in r.entries():
+        is_index = isinstance(entry, int) and not isinstance(entry, bool)
+        if not (is_index and entry >= 0) and not (isinstance(entry, str) and entry):
+            raise _fail(f"{path}.{key}", f"needs an index >= 0 or an entry name, got {entry!r}")
+    for key in ("scale", "offset"):
+        v = getattr(r, key)
+        if not (_is_number(v) and math.isfinite(v)) or (key == "scale" and v == 0):
+            want = "a finite number != 0" if key == "scale" else "a finite number"
+            raise _fail(f"{path}.{key}", f"needs {want}, got {v!r}")
+    if r.info is not None and not (isinstance(r.info, str) and r.info):
+        raise _fail(f"{path}.info", f"needs an info key, got {r.info!r}")
+    return dataclasses.replace(r, scale=float(r.scale), offset=float(r.offset))
 
 
 def _parse_term(t: Any, path: str) -> CostTerm:

@@ -1,4 +1,5 @@
-"""Contract test over every ``mcpilco/*`` environment that ``import mcpilco.envs`` registers."""
+"""Contract test over every environment that ``import mcpilco.envs`` registers: the
+``mcpilco/*`` envs and the dm-control suite's ``dm_control/<domain>-<task>-v0``."""
 
 import warnings
 
@@ -12,6 +13,9 @@ import mcpilco.envs  # noqa: F401  (registers the ids)
 from tests.conftest import run_python
 
 ENV_IDS = sorted(i for i in gym.registry if i.startswith("mcpilco/"))
+DMC_IDS = sorted(i for i in gym.registry if i.startswith("dm_control/"))
+# dm-control tasks that build their scene through OpenGL (quadruped/escape uploads its terrain)
+DMC_NEEDS_GL = {"dm_control/quadruped-escape-v0"}
 
 
 def test_cartpole_ids_registered():
@@ -108,9 +112,46 @@ print("RENDER_OK")
 """
 
 
-@pytest.mark.parametrize("env_id", ENV_IDS)
+@pytest.mark.parametrize("env_id", [*ENV_IDS, "dm_control/pendulum-swingup-v0"])
 def test_rgb_array_render_headless(env_id, gl_backend):
     """Offscreen rendering of every env in a subprocess, with a backend that works: a lit
     image, not a black frame. Any failure here is the env's, so the test fails."""
     proc = run_python(_RENDER_CODE.format(env_id=env_id), gl_backend)
     assert "RENDER_OK" in proc.stdout, proc.stderr[-3000:]
+
+
+def test_every_dm_control_suite_task_is_registered():
+    from dm_control import suite
+
+    assert DMC_IDS == sorted(f"dm_control/{d}-{t}-v0" for d, t in suite.ALL_TASKS)
+
+
+@pytest.mark.parametrize("env_id", DMC_IDS)
+def test_dm_control_contract(env_id, request):
+    """Each dm-control id: the Gymnasium and SB3 checkers pass; observations, actions, the
+    named entries and the physics state have their declared shapes; a seed fixes the
+    trajectory; a bad action is a ValueError."""
+    if env_id in DMC_NEEDS_GL:
+        request.getfixturevalue("gl_in_process")
+    env = gym.make(env_id)
+    base = env.unwrapped
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", UserWarning)
+        gym_check_env(base, skip_render_check=True)
+        sb3_check_env(base, warn=False)
+    obs, info = env.reset(seed=3)
+    assert env.observation_space.contains(obs) and len(base.observation_names) == obs.size
+    assert info["physics"].shape == (len(base.physics_names),)
+    assert len(set(base.physics_names)) == len(base.physics_names)
+    ta = _rollout(env, 11, 5)
+    np.testing.assert_array_equal(ta, _rollout(env, 11, 5))
+    for _ in range(3):
+        obs, reward, terminated, truncated, info = env.step(env.action_space.sample())
+        assert isinstance(reward, float) and np.isfinite(reward)
+        assert obs.dtype == np.float64 and info["physics"].dtype == np.float64
+    dim = env.action_space.shape[0]
+    with pytest.raises(ValueError, match="shape"):
+        env.step(np.zeros(dim + 1, dtype=np.float32))
+    with pytest.raises(ValueError, match="NaN"):
+        env.step(np.full(dim, np.nan, dtype=np.float32))
+    env.close()

@@ -215,8 +215,8 @@ def test_unknown_env_lists_task_envs(tmp_path, error_of):
 def test_env_without_task_is_refused(tmp_path, error_of):
     err = error_of(["--env", "mcpilco/MarkerCamera-v0", "--out", str(tmp_path)])
     assert "env 'mcpilco/MarkerCamera-v0' has no task specification" in err
-    valid = "valid env ids: InvertedPendulum-v5, mcpilco/CartpoleSwingUp-v0, "
-    assert valid + "mcpilco/DMCCartpoleSwingUp-v0" in err
+    valid = "valid env ids: InvertedPendulum-v5, Pendulum-v1, dm_control/cartpole-swingup-v0, "
+    assert valid + "dm_control/pendulum-swingup-v0, mcpilco/CartpoleSwingUp-v0" in err
 
 
 @pytest.mark.parametrize(
