@@ -16,7 +16,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from mcpilco.agents.common.trials import DEFAULT_ENV_ID
+from mcpilco.agents.common.trials import DEFAULT_ENV_ID, plain_env_id
 from mcpilco.agents.mc_pilco.backends import BACKENDS
 from mcpilco.agents.mc_pilco.dynamics import KERNEL_CHOICES, check_mpk_degree
 from mcpilco.agents.mc_pilco.optimize import PolicyOptConfig

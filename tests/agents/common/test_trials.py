@@ -105,7 +105,7 @@ def test_transitions_leave_out_limits_and_filtered_steps():
 def test_trial_seeds_differ_between_trials_and_runs_and_outcome_reads_the_episode():
     seeds = {trial_seed(s, k) for s in range(20) for k in range(20)}
     assert len(seeds) == 400 and trial_seed(0, 0) == 0 and trial_seed(1, 2) == 10_009
-    ep = {"cost": 3.0, "success": True, "time_in_goal": 0.5, "steps": 30}
+    ep = {"cost": 3.0, "success": True, "started_in_goal": False, "time_in_goal": 0.5, "steps": 30}
     out = episode_outcome({**ep, "tracking_rms": {"q": 0.1}}, t0=0.0)
     assert {k: out[k] for k in ep} == ep and out["tracking_rms"] == {"q": 0.1}
     assert out["wall_s"] > 0 and "tracking_rms" not in episode_outcome(ep, 0.0)
