@@ -140,7 +140,7 @@ def particle_rmse(
 
     from mcpilco.agents.mc_pilco import SquashedRBFPolicy
     from mcpilco.agents.mc_pilco.checkpoint import load_checkpoint
-    from mcpilco.agents.mc_pilco.loop import _policy_act, make_env, run_episode
+    from mcpilco.agents.mc_pilco.loop import make_env, policy_act, run_episode
 
     torch.set_num_threads(1)
     s, a, s1, _ = exploration_data(env_id, 60, 100 + seed, explore_hold)  # 3 s
@@ -149,7 +149,7 @@ def particle_rmse(
     policy = SquashedRBFPolicy(**ckpt["policy_settings"])
     policy.load_state_dict(ckpt["policy"])
     env = make_env(env_id, task.horizon, task)
-    real = run_episode(env, _policy_act(policy), 5000 + seed, task.horizon, task)["states"]
+    real = run_episode(env, policy_act(policy), 5000 + seed, task.horizon, task)["states"]
     env.close()
     out: dict[str, Any] = {"seed": seed, "real_success_theta_end": float(real[-1, 2])}
     first = seed == 0  # the plot shows the particles of seed 0

@@ -16,7 +16,6 @@ TorchRL-style parts (Amadio et al., IEEE T-RO 2022) over any task that declares 
   YAML files (:func:`load_config`).
 """
 
-from mcpilco.agents.mc_pilco.backends import FastRollout, use_fast_rollout
 from mcpilco.agents.mc_pilco.cost import SaturatingCost
 from mcpilco.agents.mc_pilco.dynamics import (
     GPDynamicsModel,
@@ -25,6 +24,7 @@ from mcpilco.agents.mc_pilco.dynamics import (
     speed_integration,
     transitions_to_dataset,
 )
+from mcpilco.agents.mc_pilco.fast import FastRollout, use_fast_rollout
 from mcpilco.agents.mc_pilco.features import StateLayout, gp_inputs
 from mcpilco.agents.mc_pilco.loop import (
     DEFAULT_ENV_ID,

@@ -43,7 +43,6 @@ import numpy as np
 import torch
 
 from mcpilco.agents.common.run_folder import RUN_OUTPUTS, open_run_folder
-from mcpilco.agents.mc_pilco.backends import BACKENDS, use_fast_rollout
 from mcpilco.agents.mc_pilco.checkpoint import (
     CHECKPOINT_VERSION,
     atomic_torch_save,
@@ -53,10 +52,15 @@ from mcpilco.agents.mc_pilco.checkpoint import (
 )
 from mcpilco.agents.mc_pilco.cost import SaturatingCost
 from mcpilco.agents.mc_pilco.dynamics import KERNEL_CHOICES, GPDynamicsModel, check_mpk_degree
+from mcpilco.agents.mc_pilco.fast import (
+    BACKENDS,
+    cpp_compiler,
+    cpp_compiler_names,
+    use_fast_rollout,
+)
 from mcpilco.agents.mc_pilco.features import StateLayout
 from mcpilco.agents.mc_pilco.filters import CollisionFilter, contact_steps
 from mcpilco.agents.mc_pilco.loss import MCPilcoLoss
-from mcpilco.agents.mc_pilco.native_rollout import cpp_compiler, cpp_compiler_names
 from mcpilco.agents.mc_pilco.optimize import OptimizationResult, PolicyOptConfig, optimize_policy
 from mcpilco.agents.mc_pilco.policy import (
     PolicyPopulation,
@@ -172,7 +176,7 @@ class MCPilcoConfig:
         seed: seeds torch, numpy and the env resets.
         torch_threads: ``torch.set_num_threads`` (None: leave as is).
         compile_rollout: use a fast rollout with its backward
-            (:func:`~mcpilco.agents.mc_pilco.backends.use_fast_rollout`, backend
+            (:func:`~mcpilco.agents.mc_pilco.fast.use_fast_rollout`, backend
             ``rollout_backend``); each trial checks it against the eager rollout (``J^`` and
             its gradient) and runs eagerly if they disagree (the trial record's
             ``compiled_step``, ``compile_backend``, ``rollout_shards`` and ``compile_check``).
@@ -591,7 +595,8 @@ def run_episode(
 
 
 # ------------------------------------------------------------------------------- helpers
-def _policy_act(policy: SquashedRBFPolicy) -> Callable[[np.ndarray], np.ndarray]:
+def policy_act(policy: SquashedRBFPolicy) -> Callable[[np.ndarray], np.ndarray]:
+    """The policy in evaluation mode as a function of one state (NumPy in, NumPy out)."""
     policy.eval()
     device = policy.weights.device
 
@@ -1073,7 +1078,7 @@ def run_mcpilco(
                 arr["particles"] = ro.states.cpu().numpy()
                 # 3. apply the policy
                 ep = run_episode(
-                    env, _policy_act(policy), trial_seed(config.seed, k), horizon, task, True
+                    env, policy_act(policy), trial_seed(config.seed, k), horizon, task, True
                 )
                 free = transitions([ep], task)
                 rec["gp_rmse"] = (
