@@ -30,8 +30,8 @@ from mcpilco.agents.mc_pilco import (
     make_policy_module,
     run_mcpilco,
 )
-from mcpilco.agents.mc_pilco.fast import check_against_eager, use_fast_rollout
 from mcpilco.agents.mc_pilco.checkpoint import load_checkpoint
+from mcpilco.agents.mc_pilco.fast import check_against_eager, use_fast_rollout
 from mcpilco.agents.mc_pilco.loop import make_env, run_episode
 from tests.agents.mc_pilco.toy_env import ENV_ID, TASK
 

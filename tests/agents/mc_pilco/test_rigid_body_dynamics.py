@@ -24,8 +24,8 @@ from mcpilco.agents.mc_pilco import (
     make_policy_module,
     run_mcpilco,
 )
-from mcpilco.agents.mc_pilco.fast import use_fast_rollout
 from mcpilco.agents.mc_pilco.checkpoint import load_checkpoint
+from mcpilco.agents.mc_pilco.fast import use_fast_rollout
 from mcpilco.agents.mc_pilco.loop import (
     exploration_episodes,
     make_env,
