@@ -37,6 +37,12 @@ fused RBF (+ MPK of degree 1 or 2) posterior and :class:`~.cost.SaturatingCost` 
 (:func:`native_unsupported_reason`); ``use_fast_rollout`` checks the result against the
 eager rollout like every fast path.
 
+The engine sees a loss only through :func:`native_model`: the task spec's sizes, index
+arrays and the GP's constants, read from the parts' public attributes. A kernel specialised
+for some specs (sizes of ``n``, ``m``, ``N``, ``F``; an instruction set) is chosen there or
+in the C++ from those sizes; the parts and their step protocols do not change, and the
+check against the eager rollout guards every variant alike.
+
 Glossary: as in :mod:`~mcpilco.agents.mc_pilco.fast.base` (``K`` candidates, ``M``
 particles, ``S`` shards, ``H`` horizon) and :mod:`~mcpilco.models.gp.fused` (``N`` training
 points, ``F`` MPK features, ``m`` outputs, ``d`` GP inputs).
