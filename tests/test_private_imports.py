@@ -184,6 +184,12 @@ def test_fast_rollouts_import_only_public_names_and_no_part_imports_them() -> No
             if isinstance(node, ast.ImportFrom) and (node.module or "").startswith("mcpilco"):
                 private = [a.name for a in node.names if is_private(a.name)]
                 assert not private, f"{path.relative_to(ROOT)} imports {private}"
+            # nor a private attribute of another object (the loss's, a part's): own ones only
+            if isinstance(node, ast.Attribute) and is_private(node.attr):
+                owner = ast.unparse(node.value)
+                assert owner in ("self", "cls"), (
+                    f"{path.relative_to(ROOT)}:{node.lineno} reads {owner}.{node.attr}"
+                )
     for path in package_files():
         module = module_name(path)
         if module in PARTS:
