@@ -580,7 +580,7 @@ def stage_breakdown(case: dict[str, Any], start: str, auto: int = 3) -> list[dic
     """Where the time of :func:`time_diagnosis` goes: the run repeated under ``cProfile``,
     its seconds split into :data:`SPEED_STAGES` by the cumulative time of the functions that
     do each (the start model's ``fit`` and ``refit``, ``score_candidates`` less the shared
-    rigid-body scoring ``_score_shared``, ``diagnose`` less the scoring and its floor
+    rigid-body scoring ``score_shared_variant``, ``diagnose`` less the scoring and its floor
     checks, ``heldout_floor``, ``next_version`` less the start refits; the rest is loading,
     the first fit of the effect GPs, metrics and the report). The profiler slows the run
     down: the shares, not the seconds, carry over to the timed run.
@@ -613,7 +613,7 @@ def stage_breakdown(case: dict[str, Any], start: str, auto: int = 3) -> list[dic
         "fit": start_models.LearnedStart.fit,
         "refit": start_models.LearnedStart.refit,
         "score": search.score_candidates,
-        "shared": search._score_shared,
+        "shared": search.score_shared_variant,
         "diagnose": unwrap(search.diagnose),
         "floor_check": search.floor_check,
         "floor": search.heldout_floor,

@@ -101,6 +101,19 @@ def test_wheel_imports_from_its_own_install(wheel_venv: Path, tmp_path: Path) ->
     assert int(out[2]) > 0  # the cart-pole's config file (package data) was found and read
 
 
+def test_wheel_ships_the_native_rollouts_sources(wheel_venv: Path, tmp_path: Path) -> None:
+    """The C++ sources the native rollout compiles on first use are package data of the
+    installed wheel, beside their module."""
+    code = (
+        "from mcpilco.agents.mc_pilco.fast import native; "
+        "paths = (*native.SOURCES, native.HEADER); "
+        "print(native.__file__); print(sum(p.is_file() for p in paths), len(paths))"
+    )
+    out = _run([str(wheel_venv / "python"), "-c", code], tmp_path).stdout.splitlines()
+    assert str(ROOT) not in out[0] and "site-packages" in out[0], out[0]
+    assert out[1] == "3 3"
+
+
 @pytest.mark.parametrize("command", ["mcpilco-train", "mcpilco-diagnose", "mcpilco-compare"])
 def test_wheel_commands_run(wheel_venv: Path, tmp_path: Path, command: str) -> None:
     out = _run([str(wheel_venv / command), "--help"], tmp_path).stdout

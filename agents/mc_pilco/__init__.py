@@ -21,7 +21,6 @@ TorchRL-style parts (Amadio et al., IEEE T-RO 2022) over any task that declares 
 
 from mcpilco.agents.common.records import RunSummary, TrialRecord
 from mcpilco.agents.common.trials import DEFAULT_ENV_ID, make_env, registered_ids, run_episode
-from mcpilco.agents.mc_pilco.backends import FastRollout, use_fast_rollout
 from mcpilco.agents.mc_pilco.config import MCPilcoConfig, load_config, parse_set
 from mcpilco.agents.mc_pilco.cost import SaturatingCost
 from mcpilco.agents.mc_pilco.dynamics import (
@@ -31,6 +30,7 @@ from mcpilco.agents.mc_pilco.dynamics import (
     speed_integration,
     transitions_to_dataset,
 )
+from mcpilco.agents.mc_pilco.fast import FastRollout, use_fast_rollout
 from mcpilco.agents.mc_pilco.features import StateLayout, gp_inputs
 from mcpilco.agents.mc_pilco.loss import MCPilcoLoss, ParticleRollout
 from mcpilco.agents.mc_pilco.optimize import (

@@ -17,8 +17,8 @@ from pathlib import Path
 from typing import Any
 
 from mcpilco.agents.common.trials import DEFAULT_ENV_ID, plain_env_id
-from mcpilco.agents.mc_pilco.backends import BACKENDS
 from mcpilco.agents.mc_pilco.dynamics import KERNEL_CHOICES, check_mpk_degree
+from mcpilco.agents.mc_pilco.fast import BACKENDS
 from mcpilco.agents.mc_pilco.optimize import PolicyOptConfig
 from mcpilco.envs.tasks.spec import ANGLE_MODES, TaskSpec
 from mcpilco.models.device import check_device_name
@@ -120,7 +120,7 @@ class MCPilcoConfig:
         seed: seeds torch, numpy and the env resets.
         torch_threads: ``torch.set_num_threads`` (None: leave as is).
         compile_rollout: use a fast rollout with its backward
-            (:func:`~mcpilco.agents.mc_pilco.backends.use_fast_rollout`, backend
+            (:func:`~mcpilco.agents.mc_pilco.fast.use_fast_rollout`, backend
             ``rollout_backend``); each trial checks it against the eager rollout (``J^`` and
             its gradient) and runs eagerly if they disagree (the trial record's
             ``compiled_step``, ``compile_backend``, ``rollout_shards`` and ``compile_check``).

@@ -36,7 +36,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Mapping, Sequence
-from typing import Any
+from typing import Any, NamedTuple
 
 import torch
 from torch import Tensor, nn
@@ -177,59 +177,92 @@ def _distance(v: Tensor, target: float, mode: int) -> tuple[Tensor, Tensor | Non
     return v.abs() - abs(target), torch.sign(v)
 
 
+class SaturatingCostSaved(NamedTuple):
+    """What :func:`saturating_cost_backward` needs: ``E`` (...), ``d_j`` per term, ``d'_j``
+    per ``abs`` term (the others have ``d'_j = 1``) and ``dc_b/dx_k`` per barrier."""
+
+    E: Tensor
+    ds: tuple[Tensor, ...]
+    slopes: tuple[Tensor, ...]
+    dbar: tuple[Tensor, ...]
+
+    def flat(self) -> tuple[Tensor, ...]:
+        """All tensors in one tuple (for ``save_for_backward``)."""
+        return (self.E, *self.ds, *self.slopes, *self.dbar)
+
+    @classmethod
+    def from_flat(cls, tensors: tuple[Tensor, ...], cost: SaturatingCost) -> SaturatingCostSaved:
+        """The inverse of :meth:`flat` for ``cost``'s terms and barriers."""
+        k, n_slopes = len(cost.idx), sum(m == MODE_ABS for m in cost.modes)
+        E, *rest = tensors
+        return cls(E, tuple(rest[:k]), tuple(rest[k : k + n_slopes]), tuple(rest[k + n_slopes :]))
+
+
+def saturating_cost_forward(
+    state: Tensor, cost: SaturatingCost
+) -> tuple[Tensor, SaturatingCostSaved]:
+    """``c = 1 - E + c_b`` (...) of ``state (..., n)``, ``E = exp(-sum_j (d_j / l_j)^2)``, and
+    what its backward needs (the cost's step protocol, with :func:`saturating_cost_backward`).
+    """
+    s = None
+    ds, slopes = [], []
+    for i, target, ls, mode, r in zip(
+        cost.idx, cost.targets, cost.length_scales, cost.modes, cost.refs, strict=True
+    ):
+        v = state[..., i] if r < 0 else state[..., i] - state[..., r]
+        d, slope = _distance(v, target, mode)
+        term = (d / ls) ** 2
+        s = term if s is None else s + term
+        ds.append(d)
+        if slope is not None:
+            slopes.append(slope)
+    E = torch.exp(-s)
+    c = 1.0 - E
+    dbar = []  # dc_b / dx_k per barrier
+    for k, lo, hi, w in cost.barriers:
+        a = torch.sigmoid((state[..., k] - hi) / w)
+        b = torch.sigmoid((lo - state[..., k]) / w)
+        c = c + (a + b)
+        dbar.append((a * (1.0 - a) - b * (1.0 - b)) / w)
+    return c, SaturatingCostSaved(E, tuple(ds), tuple(slopes), tuple(dbar))
+
+
+def saturating_cost_backward(saved: SaturatingCostSaved, g: Tensor, cost: SaturatingCost) -> Tensor:
+    """``dJ/dx`` (..., n) from ``g = dJ/dc`` (...): ``dc/dx_j = 2 E d_j d'_j / l_j^2`` with
+    ``d'_j = 1`` (plain, wrap) or ``sign(x_j)`` (``abs``; ``sign(0) = 0``, the subgradient of
+    ``abs`` in torch), and the same with the opposite sign on the tracked state ``x_r`` of a
+    term that has one; each barrier adds ``dc_b/dx_k = (a (1 - a) - b (1 - b)) / s_k``,
+    ``a = sigma((x_k - hi_k) / s_k)``, ``b = sigma((lo_k - x_k) / s_k)``."""
+    E, ds, slopes = saved.E, saved.ds, iter(saved.slopes)
+    gE2 = 2.0 * g * E
+    cols = [None] * cost.state_dim
+    for j, (i, ls, r, mode) in enumerate(
+        zip(cost.idx, cost.length_scales, cost.refs, cost.modes, strict=True)
+    ):
+        gj = gE2 * ds[j] / (ls * ls)
+        if mode == MODE_ABS:
+            gj = gj * next(slopes)
+        cols[i] = gj if cols[i] is None else cols[i] + gj
+        if r >= 0:
+            cols[r] = -gj if cols[r] is None else cols[r] - gj
+    for (i, *_), db in zip(cost.barriers, saved.dbar, strict=True):
+        cols[i] = g * db if cols[i] is None else cols[i] + g * db
+    zero = torch.zeros_like(E)
+    return torch.stack([zero if c is None else c for c in cols], dim=-1)
+
+
 class _SaturatingCostFn(torch.autograd.Function):
-    """``c = 1 - E + c_b``, ``E = exp(-sum_j (d_j / l_j)^2)``; one autograd node. Backward:
-    ``dc/dx_j = 2 E d_j d'_j / l_j^2`` with ``d'_j = 1`` (plain, wrap) or ``sign(x_j)``
-    (``abs``; ``sign(0) = 0``, the subgradient of ``abs`` in torch), and the same with the
-    opposite sign on the tracked state ``x_r`` of a term that has one; each barrier adds
-    ``dc_b/dx_k = (a (1 - a) - b (1 - b)) / s_k``, ``a = sigma((x_k - hi_k) / s_k)``,
-    ``b = sigma((lo_k - x_k) / s_k)``."""
+    """:func:`saturating_cost_forward` and :func:`saturating_cost_backward` as one autograd
+    node."""
 
     @staticmethod
     def forward(ctx, state: Tensor, cost: SaturatingCost) -> Tensor:  # noqa: D102
-        s = None
-        ds, slopes = [], []
-        for i, target, ls, mode, r in zip(
-            cost.idx, cost.targets, cost.length_scales, cost.modes, cost.refs, strict=True
-        ):
-            v = state[..., i] if r < 0 else state[..., i] - state[..., r]
-            d, slope = _distance(v, target, mode)
-            term = (d / ls) ** 2
-            s = term if s is None else s + term
-            ds.append(d)
-            slopes.append(slope)
-        E = torch.exp(-s)
-        c = 1.0 - E
-        dbar = []  # dc_b / dx_k per barrier
-        for k, lo, hi, w in cost.barriers:
-            a = torch.sigmoid((state[..., k] - hi) / w)
-            b = torch.sigmoid((lo - state[..., k]) / w)
-            c = c + (a + b)
-            dbar.append((a * (1.0 - a) - b * (1.0 - b)) / w)
-        ctx.save_for_backward(E, *ds, *(sl for sl in slopes if sl is not None), *dbar)
+        c, saved = saturating_cost_forward(state, cost)
+        ctx.save_for_backward(*saved.flat())
         ctx.cost = cost
-        ctx.has_slope = tuple(sl is not None for sl in slopes)
-        ctx.shape = state.shape
         return c
 
     @staticmethod
     def backward(ctx, g: Tensor) -> tuple[Tensor, None]:  # noqa: D102
-        cost = ctx.cost
-        E, *rest = ctx.saved_tensors
-        k = len(cost.idx)
-        n_slopes = sum(ctx.has_slope)
-        ds, slopes = rest[:k], iter(rest[k : k + n_slopes])
-        dbar = rest[k + n_slopes :]
-        gE2 = 2.0 * g * E
-        cols = [None] * cost.state_dim
-        for j, (i, ls, r) in enumerate(zip(cost.idx, cost.length_scales, cost.refs, strict=True)):
-            gj = gE2 * ds[j] / (ls * ls)
-            if ctx.has_slope[j]:
-                gj = gj * next(slopes)
-            cols[i] = gj if cols[i] is None else cols[i] + gj
-            if r >= 0:
-                cols[r] = -gj if cols[r] is None else cols[r] - gj
-        for (i, *_), db in zip(cost.barriers, dbar, strict=True):
-            cols[i] = g * db if cols[i] is None else cols[i] + g * db
-        zero = torch.zeros_like(E)
-        return torch.stack([zero if c is None else c for c in cols], dim=-1), None
+        saved = SaturatingCostSaved.from_flat(ctx.saved_tensors, ctx.cost)
+        return saturating_cost_backward(saved, g, ctx.cost), None

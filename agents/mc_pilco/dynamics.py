@@ -60,7 +60,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable
-from typing import Any, Literal
+from typing import Any, Literal, NamedTuple
 
 import numpy as np
 import torch
@@ -93,7 +93,7 @@ def speed_integration(state: Tensor, delta: Tensor, dt: float, layout: StateLayo
         dt: control period ``T_s`` [s].
         layout: the task's state layout.
     """
-    A, S, z = _integration_matrices(dt, layout, state.dtype, state.device)
+    A, S, z = integration_matrices(dt, layout, state.dtype, state.device)
     nxt = state @ A + delta @ S
     return nxt if z is None else nxt + z
 
@@ -101,7 +101,7 @@ def speed_integration(state: Tensor, delta: Tensor, dt: float, layout: StateLayo
 _INTEGRATION_CACHE: dict = {}
 
 
-def _integration_matrices(
+def integration_matrices(
     dt: float, layout: StateLayout, dtype: torch.dtype, device
 ) -> tuple[Tensor, Tensor, Tensor | None]:
     """``A^T`` (n, n), ``S^T`` (m, n) and ``z`` (n,) or None (no oscillators) of
@@ -284,46 +284,86 @@ VAR_FLOOR = 1e-12
 """``var`` is clamped to at least this before the square root of the reparameterised sample."""
 
 
-class _SampleClipIntegrate(torch.autograd.Function):
+class SampleClipIntegrateSaved(NamedTuple):
+    """What :func:`sample_clip_integrate_backward` needs: ``eps``, ``sqrt(max(var,
+    VAR_FLOOR))`` and ``1[var >= VAR_FLOOR]`` (None for the mean prediction), ``1[|Delta| <=
+    b]`` (None without a bound) and the integration's ``A^T``, ``S^T``."""
+
+    eps: Tensor | None
+    sd: Tensor | None
+    var_on: Tensor | None
+    inside: Tensor | None
+    A: Tensor
+    S: Tensor
+
+
+def sample_clip_integrate_forward(
+    state: Tensor,
+    mean: Tensor,
+    var: Tensor,
+    eps: Tensor | None,
+    bound: Tensor | None,
+    dt: float,
+    layout: StateLayout,
+) -> tuple[Tensor, SampleClipIntegrateSaved]:
     """``Delta = clip(mean + sqrt(max(var, VAR_FLOOR)) eps, -b, b)``, ``x+ = x A^T + Delta S^T``
-    (+ the oscillators' constant offset; eq. 5.9, :func:`speed_integration`), one autograd
-    node. Backward: ``g_x = g A``, ``g_Delta = (g S) 1[|Delta| <= b]``,
-    ``g_mean = g_Delta``, ``g_var = g_Delta eps / (2 sqrt(var)) 1[var >= VAR_FLOOR]`` (the
-    subgradients torch's ``clamp`` and ``sqrt`` use). ``eps = None``: ``Delta = mean``."""
+    (+ the oscillators' constant offset; eq. 5.9, :func:`speed_integration`), and what its
+    backward needs (the sampling step's protocol, with
+    :func:`sample_clip_integrate_backward`). ``eps = None``: ``Delta = mean``; ``bound = None``:
+    no clip."""
+    A, S, z = integration_matrices(dt, layout, state.dtype, state.device)
+    if eps is None:
+        delta, sd, var_on = mean, None, None
+    else:
+        var_on = var >= VAR_FLOOR
+        sd = var.clamp_min(VAR_FLOOR).sqrt()
+        delta = torch.addcmul(mean, sd, eps)
+    inside = None
+    if bound is not None:
+        b = bound.to(delta.dtype)
+        inside = (delta >= -b) & (delta <= b)
+        delta = torch.clamp(delta, -b, b)
+    lead, n = state.shape[:-1], state.shape[-1]
+    nxt = torch.addmm(state.reshape(-1, n) @ A, delta.reshape(-1, S.shape[0]), S)
+    if z is not None:
+        nxt = nxt + z
+    return nxt.reshape(*lead, n), SampleClipIntegrateSaved(eps, sd, var_on, inside, A, S)
+
+
+def sample_clip_integrate_backward(
+    saved: SampleClipIntegrateSaved, g: Tensor, need_var: bool = True
+) -> tuple[Tensor, Tensor, Tensor | None]:
+    """``(dJ/dx, dJ/dmean, dJ/dvar)`` from ``g = dJ/dx+``: ``g_x = g A``,
+    ``g_Delta = (g S) 1[|Delta| <= b]``, ``g_mean = g_Delta``,
+    ``g_var = g_Delta eps / (2 sqrt(var)) 1[var >= VAR_FLOOR]`` (the subgradients torch's
+    ``clamp`` and ``sqrt`` use; None for the mean prediction or unless ``need_var``)."""
+    eps, sd, var_on, inside, A, S = saved
+    g2 = g.reshape(-1, g.shape[-1])
+    g_state = (g2 @ A.T).reshape(g.shape)
+    g_delta = (g2 @ S.T).reshape(*g.shape[:-1], S.shape[0])
+    if inside is not None:
+        g_delta = g_delta * inside
+    g_var = None
+    if eps is not None and need_var:
+        g_var = g_delta * eps / (2.0 * sd) * var_on
+    return g_state, g_delta, g_var
+
+
+class _SampleClipIntegrate(torch.autograd.Function):
+    """:func:`sample_clip_integrate_forward` and :func:`sample_clip_integrate_backward` as one
+    autograd node."""
 
     @staticmethod
     def forward(ctx, state, mean, var, eps, bound, dt, layout):  # noqa: D102
-        A, S, z = _integration_matrices(dt, layout, state.dtype, state.device)
-        if eps is None:
-            delta, sd, var_on = mean, None, None
-        else:
-            var_on = var >= VAR_FLOOR
-            sd = var.clamp_min(VAR_FLOOR).sqrt()
-            delta = torch.addcmul(mean, sd, eps)
-        inside = None
-        if bound is not None:
-            b = bound.to(delta.dtype)
-            inside = (delta >= -b) & (delta <= b)
-            delta = torch.clamp(delta, -b, b)
-        lead, n = state.shape[:-1], state.shape[-1]
-        nxt = torch.addmm(state.reshape(-1, n) @ A, delta.reshape(-1, S.shape[0]), S)
-        if z is not None:
-            nxt = nxt + z
-        ctx.save_for_backward(eps, sd, var_on, inside, A, S)
-        return nxt.reshape(*lead, n)
+        nxt, saved = sample_clip_integrate_forward(state, mean, var, eps, bound, dt, layout)
+        ctx.save_for_backward(*saved)
+        return nxt
 
     @staticmethod
     def backward(ctx, g):  # noqa: D102
-        eps, sd, var_on, inside, A, S = ctx.saved_tensors
-        g2 = g.reshape(-1, g.shape[-1])
-        g_state = (g2 @ A.T).reshape(g.shape)
-        g_delta = (g2 @ S.T).reshape(*g.shape[:-1], S.shape[0])
-        if inside is not None:
-            g_delta = g_delta * inside
-        g_var = None
-        if eps is not None and ctx.needs_input_grad[2]:
-            g_var = g_delta * eps / (2.0 * sd) * var_on
-        return g_state, g_delta, g_var, None, None, None, None
+        saved = SampleClipIntegrateSaved(*ctx.saved_tensors)
+        grads = sample_clip_integrate_backward(saved, g, ctx.needs_input_grad[2])
+        return (*grads, None, None, None, None)
 
 
 def make_kernel_factory(

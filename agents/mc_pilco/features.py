@@ -11,7 +11,7 @@ policy and the GP inputs (one autograd node each).
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, NamedTuple
 
 import torch
 from torch import Tensor
@@ -133,22 +133,44 @@ def take(x: Tensor, idx: tuple[int, ...]) -> Tensor:
     return torch.stack([x[..., i] for i in idx], dim=-1)
 
 
+class GPInputsSaved(NamedTuple):
+    """What :func:`gp_inputs_backward` needs: the angles' ``sin`` and ``cos`` (None without
+    angles)."""
+
+    s: Tensor | None
+    c: Tensor | None
+
+
+def gp_inputs_forward(
+    state: Tensor, action: Tensor, layout: StateLayout
+) -> tuple[Tensor, GPInputsSaved]:
+    """``x~ = [f(x), u]``: (..., n), (..., A) -> (..., F + A), and what its backward needs (the
+    GP inputs' step protocol, with :func:`gp_inputs_backward`)."""
+    f, s, c = layout.features(state)
+    return torch.cat([f, action], dim=-1), GPInputsSaved(s, c)
+
+
+def gp_inputs_backward(
+    saved: GPInputsSaved, g: Tensor, layout: StateLayout
+) -> tuple[Tensor, Tensor]:
+    """``(dJ/dx, dJ/du)`` from ``g = dJ/dx~`` (..., F + A)."""
+    F = layout.feature_dim
+    return layout.features_backward(g[..., :F], saved.s, saved.c), g[..., F:]
+
+
 class _GPInputs(torch.autograd.Function):
-    """``x~ = [f(x), u]``: (..., n), (..., A) -> (..., F + A), one autograd node."""
+    """:func:`gp_inputs_forward` and :func:`gp_inputs_backward` as one autograd node."""
 
     @staticmethod
     def forward(ctx, state: Tensor, action: Tensor, layout: StateLayout) -> Tensor:  # noqa: D102
-        f, s, c = layout.features(state)
-        ctx.save_for_backward(s, c)
+        out, saved = gp_inputs_forward(state, action, layout)
+        ctx.save_for_backward(*saved)
         ctx.layout = layout
-        ctx.feature_dim = f.shape[-1]
-        return torch.cat([f, action], dim=-1)
+        return out
 
     @staticmethod
     def backward(ctx, g: Tensor) -> tuple[Tensor, Tensor, None]:  # noqa: D102
-        s, c = ctx.saved_tensors
-        F = ctx.feature_dim
-        return ctx.layout.features_backward(g[..., :F], s, c), g[..., F:], None
+        return (*gp_inputs_backward(GPInputsSaved(*ctx.saved_tensors), g, ctx.layout), None)
 
 
 def gp_inputs(state: Tensor, action: Tensor, layout: StateLayout) -> Tensor:

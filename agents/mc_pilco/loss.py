@@ -32,8 +32,9 @@ over ``(M, .)``; there is no Python loop over particles.
 from __future__ import annotations
 
 from collections.abc import Callable, Sequence
+from contextlib import AbstractContextManager
 from dataclasses import dataclass
-from typing import TYPE_CHECKING
+from typing import Protocol
 
 import torch
 from tensordict import TensorDict, TensorDictBase
@@ -41,8 +42,21 @@ from tensordict.nn import TensorDictModule
 from torch import Tensor, nn
 from torchrl.objectives import LossModule
 
-if TYPE_CHECKING:
-    from mcpilco.agents.mc_pilco.backends import ShardedRollout
+
+class RolloutEngine(Protocol):
+    """What the loss needs of a fast rollout engine it is given
+    (:meth:`MCPilcoLoss.set_fast_rollout`; built by the trainer's choice of backend):
+    ``rows`` (the particle rows ``K M`` it was built for), ``shards`` (threads it splits a
+    rollout over), ``serial_caller()`` (a context for the caller's own tensor ops while it
+    runs) and ``costs(x_0, eps, nu)``, the per-step costs ``(H, K M)``, differentiable with
+    respect to the policy parameters."""
+
+    rows: int
+    shards: int
+
+    def serial_caller(self) -> AbstractContextManager[None]: ...
+
+    def costs(self, x: Tensor, noise: Tensor, nu: Tensor | None) -> Tensor: ...
 
 
 @dataclass
@@ -132,10 +146,10 @@ class MCPilcoLoss(LossModule):
         else:
             self._policy_fn = policy
         self.num_candidates = int(getattr(self._policy_fn, "num_candidates", 1))
-        self._engine: ShardedRollout | None = None  # a chained rollout (backends module)
-        self._step_fn: Callable | None = None  # a replacement of _step (e.g. compiled)
+        self._engine: RolloutEngine | None = None  # a chained rollout (fast package)
+        self._step_fn: Callable | None = None  # a replacement of step (e.g. compiled)
 
-    def _step(
+    def step(
         self, x: Tensor, eps: Tensor, nu: Tensor | None, mask: Tensor | None = None
     ) -> tuple[Tensor, Tensor, Tensor]:
         """One time step for all particles: ``u = pi(x + nu)``, ``x+ = f(x, u, eps)``, ``c(x+)``
@@ -146,18 +160,23 @@ class MCPilcoLoss(LossModule):
         return x_next, u, self.cost(x_next)
 
     def set_fast_rollout(
-        self, engine: ShardedRollout | None = None, step_fn: Callable | None = None
+        self, engine: RolloutEngine | None = None, step_fn: Callable | None = None
     ) -> None:
         """Roll out with ``engine`` (a chained rollout of this loss's parts, used by
         :meth:`forward` for rollouts of ``num_particles`` per candidate) and/or ``step_fn``
-        (a function with :meth:`_step`'s signature and results, e.g. ``torch.compile`` of it,
+        (a function with :meth:`step`'s signature and results, e.g. ``torch.compile`` of it,
         used by :meth:`rollout`); None for both: the eager rollout. The loss does not build
-        or choose them: :func:`~mcpilco.agents.mc_pilco.backends.use_fast_rollout` does,
+        or choose them: :func:`~mcpilco.agents.mc_pilco.fast.use_fast_rollout` does,
         and checks them against the eager rollout first."""
         self._engine, self._step_fn = engine, step_fn
 
     @property
-    def fast_rollout(self) -> tuple[ShardedRollout | None, Callable | None]:
+    def policy_module(self) -> nn.Module:
+        """The policy the rollout calls (a ``TensorDictModule``'s wrapped module)."""
+        return self._policy_fn
+
+    @property
+    def fast_rollout(self) -> tuple[RolloutEngine | None, Callable | None]:
         """``(engine, step_fn)`` as set by :meth:`set_fast_rollout`."""
         return self._engine, self._step_fn
 
@@ -230,7 +249,7 @@ class MCPilcoLoss(LossModule):
         states = [x]
         actions = []
         costs = []
-        step = self._step_fn if self._step_fn is not None else self._step
+        step = self._step_fn if self._step_fn is not None else self.step
         # the policy's dropout masks are drawn here, step by step, outside the (possibly
         # compiled) step: the same random stream as a policy drawing its own
         draw_mask = getattr(self._policy_fn, "draw_dropout_mask", None)

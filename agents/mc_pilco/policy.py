@@ -29,7 +29,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable, Sequence
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 import torch
@@ -448,57 +448,106 @@ def _log_basis(feats: Tensor, centers: Tensor, log_l: Tensor) -> tuple[Tensor, .
     return a, b, inv_l, log_phi
 
 
-class _SquashedRBF(torch.autograd.Function):
-    """``u = u_mid + u_half tanh((D o phi(f(obs))) w / u_half)`` for ``K`` policies at once,
-    with an analytic backward (one autograd node per call instead of about fifteen; the
-    rollout calls the policy at every time step). Shapes: ``obs (K, k, n)``,
-    ``c (K, n_b, F)``, ``log l (K, F)``, ``w (K, n_b, A)``, ``D (K, k, n_b)`` the dropout mask
-    (None: all ones). Below ``phi`` stands for ``D o phi``, which is also
-    ``d(D o phi) / d log phi``, and the products are per policy (batched).
+class PolicyStepSaved(NamedTuple):
+    """What :func:`squashed_rbf_backward` needs from :func:`squashed_rbf_forward`, all
+    tensors (``K`` policies, ``k`` inputs each): ``a = x~ / l`` (K, k, F), ``b = c / l``
+    (K, n_b, F), ``phi`` the (masked) basis (K, k, n_b), ``t = tanh(.)`` (K, k, A), the
+    weights ``w``, the angles' ``s = sin``, ``c = cos`` (None without angles), ``inv_l = 1 / l``
+    (K, 1, F) and ``u_half``."""
 
-    With ``a = x~ / l``, ``b = c / l``, ``log phi = a b^T - |a|^2/2 - |b|^2/2`` and
-    ``G = dJ/d log phi = ((g_u (1 - tanh^2)) w^T) o phi``:
-    ``dJ/da = G b - a o rowsum(G)``, ``dJ/db = G^T a - b o colsum(G)``,
+    a: Tensor
+    b: Tensor
+    phi: Tensor
+    t: Tensor
+    w: Tensor
+    s: Tensor | None
+    c: Tensor | None
+    inv_l: Tensor
+    u_half: Tensor
+
+
+def squashed_rbf_forward(
+    obs: Tensor,
+    centers: Tensor,
+    log_l: Tensor,
+    w: Tensor,
+    bounds: tuple[Tensor, Tensor],
+    mask: Tensor | None,
+    layout: StateLayout,
+) -> tuple[Tensor, PolicyStepSaved]:
+    """``u = u_mid + u_half tanh((D o phi(f(obs))) w / u_half)`` for ``K`` policies at once,
+    and what its backward needs (the policy's step protocol: :func:`squashed_rbf_backward`
+    is its exact derivative; its autograd node and the chained rollouts of
+    :mod:`mcpilco.agents.mc_pilco.fast` both call this pair).
+
+    Shapes: ``obs (K, k, n)``, ``centers c (K, n_b, F)``, ``log l (K, F)``,
+    ``w (K, n_b, A)``, ``bounds = (u_mid, u_half)`` (A,) each, ``D (K, k, n_b)`` the dropout
+    mask (None: all ones); ``u (K, k, A)``."""
+    u_mid, u_half = bounds
+    feats, s, c = layout.features(obs)  # (K, k, F)
+    a, b, inv_l, log_phi = _log_basis(feats, centers, log_l)
+    phi = exp_floor_(log_phi)  # (K, k, n_b)
+    if mask is not None:
+        phi.mul_(mask)
+    t = torch.tanh(torch.bmm(phi, w).div_(u_half))  # (K, k, A)
+    return torch.addcmul(u_mid, u_half, t), PolicyStepSaved(a, b, phi, t, w, s, c, inv_l, u_half)
+
+
+def squashed_rbf_backward(
+    saved: PolicyStepSaved,
+    g_u: Tensor,
+    layout: StateLayout,
+    needs: tuple[bool, bool, bool, bool] = (True, True, True, True),
+) -> tuple[Tensor | None, Tensor | None, Tensor | None, Tensor | None]:
+    """``(dJ/dobs, dJ/dc, dJ/dlog l, dJ/dw)`` from ``g_u = dJ/du`` (K, k, A) and the forward's
+    ``saved``; ``needs`` says which of the four are wanted (None for the others).
+
+    Below ``phi`` stands for ``D o phi``, which is also ``d(D o phi) / d log phi``, and the
+    products are per policy (batched). With ``a = x~ / l``, ``b = c / l``,
+    ``log phi = a b^T - |a|^2/2 - |b|^2/2`` and ``G = dJ/d log phi = ((g_u (1 - tanh^2)) w^T)
+    o phi``: ``dJ/da = G b - a o rowsum(G)``, ``dJ/db = G^T a - b o colsum(G)``,
     ``dJ/dw = phi^T (g_u (1 - tanh^2))``, ``dJ/dx~ = dJ/da / l``, ``dJ/dc = dJ/db / l``,
     ``dJ/dlog l = -(sum (dJ/da o a) + sum (dJ/db o b))``; ``x~ -> obs`` through the feature
-    map's backward (:meth:`~.features.StateLayout.features_backward`).
-    """
+    map's backward (:meth:`~.features.StateLayout.features_backward`)."""
+    a, b, phi, t, w, s, c, inv_l, _ = saved
+    need_obs, need_c, need_l, need_w = needs
+    gs = g_u * (1.0 - t * t)  # (K, k, A), dJ/d(phi w)
+    g_w = torch.bmm(phi.transpose(1, 2), gs) if need_w else None
+    g_obs = g_c = g_l = None
+    if need_obs or need_c or need_l:
+        G = torch.bmm(gs, w.transpose(1, 2)).mul_(phi)  # (K, k, n_b), dJ/d log phi
+        Gt = G.transpose(1, 2)
+        # (b^T G^T)^T and (a^T G)^T: the wide-output products are faster than G b, G^T a
+        g_a = torch.bmm(b.transpose(1, 2), Gt).transpose(1, 2)
+        g_a = g_a.addcmul(a, G.sum(2, keepdim=True), value=-1.0)
+        g_b = torch.bmm(a.transpose(1, 2), G).transpose(1, 2)
+        g_b = g_b.addcmul(b, Gt.sum(2, keepdim=True), value=-1.0)
+        if need_l:
+            g_l = -((g_a * a).sum(1) + (g_b * b).sum(1))
+        if need_c:
+            g_c = g_b * inv_l
+        if need_obs:
+            g_obs = layout.features_backward(g_a * inv_l, s, c)
+    return g_obs, g_c, g_l, g_w
+
+
+class _SquashedRBF(torch.autograd.Function):
+    """The policy's step protocol (:func:`squashed_rbf_forward`, :func:`squashed_rbf_backward`)
+    as one autograd node per call instead of about fifteen (the rollout calls the policy at
+    every time step). ``apply(obs, centers, log_l, w, bounds, mask, layout)``."""
 
     @staticmethod
     def forward(ctx, obs, centers, log_l, w, bounds, mask, layout):  # noqa: D102
-        u_mid, u_half = bounds
-        feats, s, c = layout.features(obs)  # (K, k, F)
-        a, b, inv_l, log_phi = _log_basis(feats, centers, log_l)
-        phi = exp_floor_(log_phi)  # (K, k, n_b)
-        if mask is not None:
-            phi.mul_(mask)
-        t = torch.tanh(torch.bmm(phi, w).div_(u_half))  # (K, k, A)
-        ctx.save_for_backward(a, b, phi, t, w, s, c, inv_l, u_half)
+        u, saved = squashed_rbf_forward(obs, centers, log_l, w, bounds, mask, layout)
+        ctx.save_for_backward(*saved)
         ctx.layout = layout
-        return torch.addcmul(u_mid, u_half, t)
+        return u
 
     @staticmethod
     def backward(ctx, g_u):  # noqa: D102
-        a, b, phi, t, w, s, c, inv_l, u_half = ctx.saved_tensors
-        need_obs, need_c, need_l, need_w = ctx.needs_input_grad[:4]
-        gs = g_u * (1.0 - t * t)  # (K, k, A), dJ/d(phi w)
-        g_w = torch.bmm(phi.transpose(1, 2), gs) if need_w else None
-        g_obs = g_c = g_l = None
-        if need_obs or need_c or need_l:
-            G = torch.bmm(gs, w.transpose(1, 2)).mul_(phi)  # (K, k, n_b), dJ/d log phi
-            Gt = G.transpose(1, 2)
-            # (b^T G^T)^T and (a^T G)^T: the wide-output products are faster than G b, G^T a
-            g_a = torch.bmm(b.transpose(1, 2), Gt).transpose(1, 2)
-            g_a = g_a.addcmul(a, G.sum(2, keepdim=True), value=-1.0)
-            g_b = torch.bmm(a.transpose(1, 2), G).transpose(1, 2)
-            g_b = g_b.addcmul(b, Gt.sum(2, keepdim=True), value=-1.0)
-            if need_l:
-                g_l = -((g_a * a).sum(1) + (g_b * b).sum(1))
-            if need_c:
-                g_c = g_b * inv_l
-            if need_obs:
-                g_obs = ctx.layout.features_backward(g_a * inv_l, s, c)
-        return g_obs, g_c, g_l, g_w, None, None, None
+        saved = PolicyStepSaved(*ctx.saved_tensors)
+        grads = squashed_rbf_backward(saved, g_u, ctx.layout, tuple(ctx.needs_input_grad[:4]))
+        return (*grads, None, None, None)
 
 
 def make_policy_module(

@@ -68,14 +68,13 @@ from mcpilco.agents.common.trials import (
     transitions,
     trial_seed,
 )
-from mcpilco.agents.mc_pilco.backends import use_fast_rollout
 from mcpilco.agents.mc_pilco.config import RESUME_FIXED, MCPilcoConfig
 from mcpilco.agents.mc_pilco.cost import SaturatingCost
 from mcpilco.agents.mc_pilco.dynamics import GPDynamicsModel
+from mcpilco.agents.mc_pilco.fast import cpp_compiler, cpp_compiler_names, use_fast_rollout
 from mcpilco.agents.mc_pilco.features import StateLayout
 from mcpilco.agents.mc_pilco.filters import CollisionFilter, contact_steps
 from mcpilco.agents.mc_pilco.loss import MCPilcoLoss
-from mcpilco.agents.mc_pilco.native_rollout import cpp_compiler, cpp_compiler_names
 from mcpilco.agents.mc_pilco.optimize import choose_policy, optimize_policy
 from mcpilco.agents.mc_pilco.policy import (
     PolicyPopulation,

@@ -291,7 +291,7 @@ def _judged_estimates(model: DiagnosisModel, cand: Candidate) -> list[ParamEstim
     return cand.estimates if best is None else best[1]
 
 
-def _score_shared(
+def score_shared_variant(
     model: DiagnosisModel, effect: Effect
 ) -> tuple[float, list[ParamEstimate], dict[int, FloatArray], Effect]:
     """``(Delta, estimates, contributions, effect)`` of a complete shared (rigid-body)
@@ -344,7 +344,7 @@ def score_effect(
     shared_contribs: dict[int, dict[int, FloatArray]] = {}
     for i, v in enumerate(variants):
         if v.shared:  # one weight vector for all its joints
-            total, best_est, con, variants[i] = _score_shared(model, v)
+            total, best_est, con, variants[i] = score_shared_variant(model, v)
             deltas.append(total)
             ests.append(best_est)
             posts.append({})

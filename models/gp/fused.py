@@ -55,7 +55,7 @@ import gpytorch
 import torch
 from torch import Tensor, nn
 
-from mcpilco.models.gp.linalg import LowerTriangularBlocks, _panel_product
+from mcpilco.models.gp.linalg import LowerTriangularBlocks, panel_product
 from mcpilco.models.numerics import exp_floor_
 
 INV_L2_MAX = 1e12
@@ -134,84 +134,114 @@ class RowBlocks(NamedTuple):
         return cls(f, alpha_aug.contiguous(), forward, backward)
 
 
+class FusedPosteriorSaved(NamedTuple):
+    """What :func:`fused_posterior_backward` needs (module glossary; ``k`` test points):
+    ``x^ (k, d)``, ``z = [1, x^]`` (None without MPK), ``R = [psi; r]`` (m, F + N, k), ``V``
+    (m, N, k), ``1[v >= 0]`` (m, k) and the MPK factors ``sigma_bs^2 + x^^T Sigma_bs x^``
+    (p, m, k) (None without MPK)."""
+
+    xs: Tensor
+    z: Tensor | None
+    R: Tensor
+    V: Tensor
+    active: Tensor
+    fac: Tensor | None
+
+
+def fused_posterior_forward(
+    x: Tensor, pred: FusedRBFMPKPredictor
+) -> tuple[tuple[Tensor, Tensor], FusedPosteriorSaved]:
+    """``(mean, var)`` (..., m) of ``pred`` at ``x (..., d)`` (original units, ``x``'s dtype)
+    and what the backward needs: the fused posterior's step protocol, with
+    :func:`fused_posterior_backward` (module glossary)."""
+    m, d = pred.m, pred.input_dim
+    lead = x.shape[:-1]
+    xs = ((x.to(pred.W_aug.dtype) - pred.x_mean) / pred.x_scale).reshape(-1, d)  # (k, d)
+    k = xs.shape[0]
+    opts = {"dtype": xs.dtype, "device": xs.device}
+    sq = xs * xs
+    # [x^ ; 1 ; -||x^/l_b||^2 / 2] per output b (built by cat, which torch.compile traces)
+    xaug = torch.cat(
+        [
+            xs.T.expand(m, d, k),
+            torch.ones(m, 1, k, **opts),
+            torch.mm(pred.inv_l2, sq.T).mul_(-0.5).unsqueeze(1),
+        ],
+        dim=1,
+    )
+    blocks = pred.row_blocks
+    F = blocks.features
+    r = exp_floor_(torch.bmm(pred.W_aug, xaug))  # (m, N, k)
+    prior = pred.outputscale.expand(m, k)
+    z = fac = None
+    if pred.p:
+        z = torch.cat([torch.ones(1, k, **opts), xs.T], dim=0)
+        psi = z if pred.p == 1 else z[pred.idx_a] * z[pred.idx_c]  # (F, k), row gathers
+        R = torch.cat([psi.expand(m, F, k), r], dim=1)  # (m, F + N, k)
+        fac = torch.matmul(pred.mp_sigma_diag, sq.T) + pred.mp_sigma2  # (p, m, k)
+        prior = prior + fac.prod(0)
+    else:
+        R = r
+    mean = torch.bmm(blocks.alpha, R).view(m, k)  # (m, k)
+    # V = L^{-1} k(X, x^), row block by row block (module glossary)
+    V = torch.cat([torch.bmm(B, R[:, :c]) for B, c in blocks.forward], dim=1)
+    v = prior - torch.linalg.vecdot(V, V, dim=1)  # (m, k)
+    active = v >= 0  # clamp_min passes the gradient where v >= 0
+    v = v.clamp_min(0.0)
+    saved = FusedPosteriorSaved(xs, z, R, V, active, fac)
+    mean_out = (mean.T * pred.y_scale + pred.y_mean).reshape(*lead, m)
+    var_out = (v.T * pred.y_scale.pow(2)).reshape(*lead, m)
+    return (mean_out.to(x.dtype), var_out.to(x.dtype)), saved
+
+
+def fused_posterior_backward(
+    saved: FusedPosteriorSaved, g_mean: Tensor, g_var: Tensor, pred: FusedRBFMPKPredictor
+) -> Tensor:
+    """``dJ/dx`` (..., d) from ``g_mean``, ``g_var`` (..., m) (module glossary, backward); in
+    the gradients' dtype (that of the forward's ``x``)."""
+    xs, z, R, V, active, fac = saved
+    m, d = pred.m, pred.input_dim
+    blocks = pred.row_blocks
+    F = blocks.features
+    k = xs.shape[0]
+    dt = xs.dtype
+    gm = (g_mean.to(dt).reshape(k, m) * pred.y_scale).T  # (m, k), standardised
+    gv = (g_var.to(dt).reshape(k, m) * pred.y_scale.pow(2)).T.contiguous() * active
+    # [dV; g_m^T] (m, N + 1, k), dV = -2 g_v V
+    dVg = torch.cat([V * (-2.0 * gv).unsqueeze(1), gm.unsqueeze(1)], dim=1)
+    dR = torch.cat([torch.bmm(B, dVg[:, s:]) for B, s in blocks.backward], dim=1)
+    dE = dR[:, F:] * R[:, F:]  # dr o r
+    dx = torch.bmm(pred.W_t, dE)  # (m, d + 1, k): [(X/l^2)^T dE ; 1^T dE]
+    dxs = dx[:, :d].sum(0).T - xs * (dx[:, d].T @ pred.inv_l2)  # (k, d)
+    if pred.p:
+        dpsi = dR[:, :F].sum(0)  # (F, k)
+        if pred.p == 1:
+            dz = dpsi
+        else:  # psi_f = z_a(f) z_c(f): dz = S_a (dpsi o z_c) + S_c (dpsi o z_a)
+            dz = pred.psi_select @ torch.cat([dpsi * z[pred.idx_c], dpsi * z[pred.idx_a]])
+        dxs = dxs + dz[1:].T
+        # prior: d/dx^ prod_s f_s = sum_s prod_{s' != s} f_s' 2 Sigma_s x^
+        others = torch.ones_like(fac) if pred.p == 1 else fac.flip(0)  # p <= 2
+        w = gv * others  # (p, m, k)
+        dxs = dxs + 2.0 * xs * (w.view(-1, k).T @ pred.mp_sigma_diag.view(-1, d))
+    return (dxs / pred.x_scale).reshape(*g_mean.shape[:-1], d).to(g_mean.dtype)
+
+
 class _FusedPosterior(torch.autograd.Function):
-    """``(mean, var) = posterior(x)`` of a :class:`FusedRBFMPKPredictor`; analytic backward
-    (module glossary). Differentiable once, w.r.t. ``x`` only."""
+    """:func:`fused_posterior_forward` and :func:`fused_posterior_backward` as one autograd
+    node. Differentiable once, w.r.t. ``x`` only."""
 
     @staticmethod
-    def forward(ctx, x: Tensor, pred: FusedRBFMPKPredictor) -> tuple[Tensor, Tensor]:
-        m, d = pred.m, pred.input_dim
-        lead = x.shape[:-1]
-        xs = ((x.to(pred.W_aug.dtype) - pred.x_mean) / pred.x_scale).reshape(-1, d)  # (k, d)
-        k = xs.shape[0]
-        opts = {"dtype": xs.dtype, "device": xs.device}
-        sq = xs * xs
-        # [x^ ; 1 ; -||x^/l_b||^2 / 2] per output b (built by cat, which torch.compile traces)
-        xaug = torch.cat(
-            [
-                xs.T.expand(m, d, k),
-                torch.ones(m, 1, k, **opts),
-                torch.mm(pred.inv_l2, sq.T).mul_(-0.5).unsqueeze(1),
-            ],
-            dim=1,
-        )
-        blocks = pred.row_blocks
-        F = blocks.features
-        r = exp_floor_(torch.bmm(pred.W_aug, xaug))  # (m, N, k)
-        prior = pred.outputscale.expand(m, k)
-        z = fac = None
-        if pred.p:
-            z = torch.cat([torch.ones(1, k, **opts), xs.T], dim=0)
-            psi = z if pred.p == 1 else z[pred.idx_a] * z[pred.idx_c]  # (F, k), row gathers
-            R = torch.cat([psi.expand(m, F, k), r], dim=1)  # (m, F + N, k)
-            fac = torch.matmul(pred.mp_sigma_diag, sq.T) + pred.mp_sigma2  # (p, m, k)
-            prior = prior + fac.prod(0)
-        else:
-            R = r
-        mean = torch.bmm(blocks.alpha, R).view(m, k)  # (m, k)
-        # V = L^{-1} k(X, x^), row block by row block (module glossary)
-        V = torch.cat([torch.bmm(B, R[:, :c]) for B, c in blocks.forward], dim=1)
-        v = prior - torch.linalg.vecdot(V, V, dim=1)  # (m, k)
-        active = v >= 0  # clamp_min passes the gradient where v >= 0
-        v = v.clamp_min(0.0)
+    def forward(ctx, x: Tensor, pred: FusedRBFMPKPredictor) -> tuple[Tensor, Tensor]:  # noqa: D102
+        out, saved = fused_posterior_forward(x, pred)
         ctx.pred = pred
-        ctx.x_dtype = x.dtype
-        ctx.lead = lead
-        ctx.save_for_backward(xs, z, R, V, active, fac)
-        mean_out = (mean.T * pred.y_scale + pred.y_mean).reshape(*lead, m)
-        var_out = (v.T * pred.y_scale.pow(2)).reshape(*lead, m)
-        return mean_out.to(x.dtype), var_out.to(x.dtype)
+        ctx.save_for_backward(*saved)
+        return out
 
     @staticmethod
-    def backward(ctx, g_mean: Tensor, g_var: Tensor) -> tuple[Tensor, None]:
-        pred = ctx.pred
-        xs, z, R, V, active, fac = ctx.saved_tensors
-        m, d = pred.m, pred.input_dim
-        blocks = pred.row_blocks
-        F = blocks.features
-        k = xs.shape[0]
-        dt = xs.dtype
-        gm = (g_mean.to(dt).reshape(k, m) * pred.y_scale).T  # (m, k), standardised
-        gv = (g_var.to(dt).reshape(k, m) * pred.y_scale.pow(2)).T.contiguous() * active
-        # [dV; g_m^T] (m, N + 1, k), dV = -2 g_v V
-        dVg = torch.cat([V * (-2.0 * gv).unsqueeze(1), gm.unsqueeze(1)], dim=1)
-        dR = torch.cat([torch.bmm(B, dVg[:, s:]) for B, s in blocks.backward], dim=1)
-        dE = dR[:, F:] * R[:, F:]  # dr o r
-        dx = torch.bmm(pred.W_t, dE)  # (m, d + 1, k): [(X/l^2)^T dE ; 1^T dE]
-        dxs = dx[:, :d].sum(0).T - xs * (dx[:, d].T @ pred.inv_l2)  # (k, d)
-        if pred.p:
-            dpsi = dR[:, :F].sum(0)  # (F, k)
-            if pred.p == 1:
-                dz = dpsi
-            else:  # psi_f = z_a(f) z_c(f): dz = S_a (dpsi o z_c) + S_c (dpsi o z_a)
-                dz = pred.psi_select @ torch.cat([dpsi * z[pred.idx_c], dpsi * z[pred.idx_a]])
-            dxs = dxs + dz[1:].T
-            # prior: d/dx^ prod_s f_s = sum_s prod_{s' != s} f_s' 2 Sigma_s x^
-            others = torch.ones_like(fac) if pred.p == 1 else fac.flip(0)  # p <= 2
-            w = gv * others  # (p, m, k)
-            dxs = dxs + 2.0 * xs * (w.view(-1, k).T @ pred.mp_sigma_diag.view(-1, d))
-        dx_out = (dxs / pred.x_scale).reshape(*ctx.lead, d).to(ctx.x_dtype)
-        return dx_out, None
+    def backward(ctx, g_mean: Tensor, g_var: Tensor) -> tuple[Tensor, None]:  # noqa: D102
+        saved = FusedPosteriorSaved(*ctx.saved_tensors)
+        return fused_posterior_backward(saved, g_mean, g_var, ctx.pred), None
 
 
 class FusedRBFMPKPredictor(nn.Module):
@@ -318,7 +348,7 @@ class FusedRBFMPKPredictor(nn.Module):
             extra = {
                 "mp_sigma_diag": Sig.transpose(0, 1),
                 "mp_sigma2": s2.T[..., None],
-                "linv_phi": _panel_product(linv64, Phi),
+                "linv_phi": panel_product(linv64, Phi),
                 "alpha_phi": (pred.alpha.to(f64) @ Phi)[:, 0],
             }
         cast = lambda t: t.to(dtype).contiguous()  # noqa: E731

@@ -15,6 +15,7 @@ __all__ = [
     "TRI_PANEL_WIDTH",
     "LowerTriangularBlocks",
     "jittered_cholesky",
+    "panel_product",
 ]
 
 JITTER_START = 1e-8
@@ -87,7 +88,7 @@ TRI_PANEL_WIDTH = 64
 ones make larger matmuls)."""
 
 
-def _panel_product(panels: Sequence[Tensor], B: Tensor) -> Tensor:
+def panel_product(panels: Sequence[Tensor], B: Tensor) -> Tensor:
     """:math:`M B = \\sum_i [0; P_i] B_{[i]}`, accumulated in place (no autograd graph)."""
     starts = [P.shape[-1] for P in panels]
     starts = [sum(starts[:i]) for i in range(len(panels))]
@@ -118,7 +119,7 @@ class _TriangularMatmul(torch.autograd.Function):
     def forward(ctx, B: Tensor, *panels: Tensor) -> Tensor:
         ctx.save_for_backward(*panels)
         ctx.batch_b = B.shape[:-2]
-        return _panel_product(panels, B)
+        return panel_product(panels, B)
 
     @staticmethod
     def backward(ctx, grad: Tensor) -> tuple[Tensor | None, ...]:

@@ -13,7 +13,7 @@ import torch
 from gpytorch.constraints import Interval, Positive
 from torch import Tensor
 
-from mcpilco.models.kernels._base import (
+from mcpilco.models.kernels import (
     NO_BATCH,
     DenseKernel,
     check_positive_int,

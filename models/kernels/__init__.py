@@ -4,6 +4,7 @@ All are ``gpytorch.kernels.Kernel`` subclasses with a dense matmul-form ``forwar
 class for the maths (thesis chapters 3 and 6).
 """
 
+from mcpilco.models.kernels._base import NO_BATCH, DenseKernel, check_positive_int, weighted_inner
 from mcpilco.models.kernels.gip import (
     GIPKernel,
     check_joint_types,
@@ -24,6 +25,8 @@ from mcpilco.models.kernels.sed_mpk import SEDMPKernel, TiedSEDMPKernel, sed_mat
 from mcpilco.models.kernels.volterra import VOLTERRA_KINDS, volterra_kernel
 
 __all__ = [
+    "NO_BATCH",
+    "DenseKernel",
     "GIPKernel",
     "LinearKernel",
     "MPKernel",
@@ -33,6 +36,7 @@ __all__ = [
     "TiedSEDMPKernel",
     "VOLTERRA_KINDS",
     "check_joint_types",
+    "check_positive_int",
     "gip_feature_dim",
     "gip_feature_names",
     "gip_features",
@@ -41,4 +45,5 @@ __all__ = [
     "rigid_body_features",
     "sed_matrix",
     "volterra_kernel",
+    "weighted_inner",
 ]

@@ -51,10 +51,10 @@ from torch import Tensor, nn
 
 from mcpilco.models.gp.linear_gp import JointGP
 from mcpilco.models.kinematics.forward import (
-    _check_types,
     check_joint_positions,
     five_elements,
     fk_features,
+    joint_type_indices,
 )
 from mcpilco.models.kinematics.rotations import (
     elements_to_ypr_torch,
@@ -162,7 +162,7 @@ class ChainForwardKinematicsGP:
     """
 
     def __init__(self, joint_types: str, *, maxiter: int = 200) -> None:
-        _check_types(joint_types)
+        joint_type_indices(joint_types)
         self.joint_types = joint_types
         self.maxiter = int(maxiter)
         self.link_weights_: list[FloatArray] = []

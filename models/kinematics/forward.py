@@ -90,7 +90,9 @@ ROTATION_CHOICES = ("five", "nine")
 POSITION_OUTPUTS = ("x", "y", "z")
 
 
-def _check_types(joint_types: str) -> tuple[list[int], list[int]]:
+def joint_type_indices(joint_types: str) -> tuple[list[int], list[int]]:
+    """The indices of the revolute and of the prismatic joints of ``joint_types`` (a string of
+    ``R`` / ``P``); a ``ValueError`` for anything else."""
     if not isinstance(joint_types, str) or not joint_types or set(joint_types) - {"R", "P"}:
         raise ValueError(f"joint_types must be a non-empty string of 'R'/'P', got {joint_types!r}")
     rev = [i for i, c in enumerate(joint_types) if c == "R"]
@@ -117,7 +119,7 @@ def fk_features(q: ArrayLike | Tensor, joint_types: str) -> Tensor:
 
     Differentiable (torch in, torch out); numpy input gives a float64 tensor.
     """
-    rev, pri = _check_types(joint_types)
+    rev, pri = joint_type_indices(joint_types)
     q = q if isinstance(q, Tensor) else torch.as_tensor(np.asarray(q), dtype=torch.float64)
     if q.shape[-1] != len(joint_types):
         raise ValueError(
@@ -130,7 +132,7 @@ def fk_features(q: ArrayLike | Tensor, joint_types: str) -> Tensor:
 
 def rotation_kernel_factory(joint_types: str) -> KernelFactory:
     """Factory of ``k_R`` (eq. 2.22) on the features of :func:`fk_features`."""
-    rev, pri = _check_types(joint_types)
+    rev, pri = joint_type_indices(joint_types)
     n_r, n_p = len(rev), len(pri)
 
     def factory(batch_shape: torch.Size) -> LinearKernel:
@@ -147,7 +149,7 @@ def rotation_kernel_factory(joint_types: str) -> KernelFactory:
 
 def position_kernel_factory(joint_types: str) -> KernelFactory:
     """Factory of ``k_l = k_R [1, q_p]^T Sigma_l [1, q_p]`` (eq. 2.23)."""
-    rev, pri = _check_types(joint_types)
+    rev, pri = joint_type_indices(joint_types)
     n_r, n_p = len(rev), len(pri)
     k_r = rotation_kernel_factory(joint_types)
 
@@ -186,7 +188,7 @@ def design_subset(q: ArrayLike, joint_types: str, k: int) -> NDArray[np.int64]:
     Returns:
         ``(k,)`` int64 row indices in selection order, no duplicates.
     """
-    _check_types(joint_types)
+    joint_type_indices(joint_types)
     q = np.asarray(q, dtype=np.float64)
     if q.ndim != 2 or q.shape[1] != len(joint_types) or len(q) == 0:
         raise ValueError(
@@ -317,7 +319,7 @@ class ForwardKinematicsGP:
         standardize_x: bool = False,
         rotation_outputs: str = "five",
     ) -> None:
-        _check_types(joint_types)
+        joint_type_indices(joint_types)
         if rotation_outputs not in ROTATION_CHOICES:
             raise ValueError(
                 f"rotation_outputs must be one of {ROTATION_CHOICES}, got {rotation_outputs!r}"

@@ -9,8 +9,8 @@ import numpy as np
 import pytest
 
 from mcpilco.agents.common.trials import make_env
-from mcpilco.envs.tasks.spec import TaskSpec, TaskSpecError, wrap
 from mcpilco.envs.tasks import task_data
+from mcpilco.envs.tasks.spec import TaskSpec, TaskSpecError, wrap
 
 
 def _random_episode(env, task: TaskSpec, seed: int, steps: int):

@@ -32,7 +32,7 @@ from mcpilco.agents.mc_pilco import (
     gp_inputs,
     make_policy_module,
 )
-from mcpilco.agents.mc_pilco.backends import (
+from mcpilco.agents.mc_pilco.fast import (
     FastRollout,
     ShardedRollout,
     TorchRollout,
@@ -254,7 +254,7 @@ def test_fast_rollout_is_one_graph_and_matches_the_eager_rollout(backend):
     mask = pol.draw_dropout_mask(x0)
     assert mask is not None and (mask == 0).any()
     torch.compiler.reset()
-    whole = torch.compile(loss._step, fullgraph=True, dynamic=False)
+    whole = torch.compile(loss.step, fullgraph=True, dynamic=False)
     whole(x0, torch.zeros(16, 2), torch.zeros(16, 4), mask)  # raises on a graph break
     out = []
     for fast in (False, True):
@@ -559,7 +559,7 @@ def test_native_backend_knows_its_limits_and_drops_a_wrong_gradient(monkeypatch)
     ``"auto"`` then picks dynamo), runs asymmetric bounds and any cost terms, and
     a native rollout whose gradient disagrees with the eager one is dropped for the eager
     step, with a warning."""
-    from mcpilco.agents.mc_pilco import native_rollout
+    from mcpilco.agents.mc_pilco.fast import native as native_rollout
 
     model = _gp_model("rbf+mpk", n=30, seed=1)
     pol = SquashedRBFPolicy(LAYOUT, num_basis=16, weight_scale=1.0, seed=0)
@@ -619,7 +619,7 @@ def test_native_library_builds_once_and_its_failures_are_clear_errors(tmp_path, 
     there after, in this process and in a new one (nothing rebuilt); a compiler that fails
     gives its message, an unwritable cache folder an error, both remembered for the process
     (no rebuild at every trial)."""
-    from mcpilco.agents.mc_pilco import native_rollout as nr
+    from mcpilco.agents.mc_pilco.fast import native as nr
 
     lib = nr.load_library()
     assert nr.load_library() is lib and lib.tile() == 16 and lib.row_block() == 6
@@ -627,7 +627,7 @@ def test_native_library_builds_once_and_its_failures_are_clear_errors(tmp_path, 
     (built,) = folder.glob("mcpilco_native_rollout_*.so")
     mtime = built.stat().st_mtime_ns
     code = (
-        "from mcpilco.agents.mc_pilco import native_rollout as nr;"
+        "from mcpilco.agents.mc_pilco.fast import native as nr;"
         "assert nr.load_library().tile() == 16"
     )
     subprocess.run([sys.executable, "-c", code], check=True, timeout=300)

@@ -32,7 +32,7 @@ from mcpilco.agents.mc_pilco import (
     make_policy_module,
     run_mcpilco,
 )
-from mcpilco.agents.mc_pilco.backends import check_against_eager, use_fast_rollout
+from mcpilco.agents.mc_pilco.fast import check_against_eager, use_fast_rollout
 from tests.agents.mc_pilco.toy_env import ENV_ID, TASK
 
 ROOT = Path(__file__).resolve().parents[3]
@@ -233,7 +233,7 @@ def test_native_rollout_matches_autograd_on_task_layouts(name, kernel, candidate
     layouts, RBF and RBF + MPK of degree 2 or 1, 1 or 2 candidates, 1 or 2 shards (20
     particles per candidate: a
     full tile and a part-filled one, or two part-filled ones)."""
-    from mcpilco.agents.mc_pilco.native_rollout import build_error
+    from mcpilco.agents.mc_pilco.fast import build_error
 
     if name.startswith("random"):
         rng = np.random.default_rng(100 + int(name[6:]))

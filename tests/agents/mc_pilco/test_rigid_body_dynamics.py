@@ -32,7 +32,7 @@ from mcpilco.agents.mc_pilco import (
     make_policy_module,
     run_mcpilco,
 )
-from mcpilco.agents.mc_pilco.backends import use_fast_rollout
+from mcpilco.agents.mc_pilco.fast import use_fast_rollout
 from mcpilco.envs.tasks.spec import TaskSpecError
 from tests.agents.mc_pilco.arm_env import ENV_ID, REFERENCE, TASK, dynamics
 

@@ -1,8 +1,8 @@
 r"""The particle rollout written by hand in C++: ``backend="native"`` of
-:func:`~mcpilco.agents.mc_pilco.backends.use_fast_rollout`, for any task layout.
+:func:`~mcpilco.agents.mc_pilco.fast.use_fast_rollout`, for any task layout.
 
-The same maths as :class:`~mcpilco.agents.mc_pilco.backends.TorchRollout` (the parts' analytic
-backward passes, chained by hand through time), evaluated by one C++ function per shard for
+The same maths as :class:`~mcpilco.agents.mc_pilco.fast.chained.TorchRollout` (the parts'
+step protocols, chained by hand through time), evaluated by one C++ function per shard for
 the whole forward loop and one for the whole backward loop (``native_rollout.cpp``), instead
 of ``2 H`` steps of tensor ops per shard. The task is data, not code: the state layout
 (``n`` coordinates; plain ones and angles, which enter the policy and the GP as ``(sin,
@@ -37,7 +37,13 @@ fused RBF (+ MPK of degree 1 or 2) posterior and :class:`~.cost.SaturatingCost` 
 (:func:`native_unsupported_reason`); ``use_fast_rollout`` checks the result against the
 eager rollout like every fast path.
 
-Glossary: as in :mod:`~mcpilco.agents.mc_pilco.backends` (``K`` candidates, ``M``
+The engine sees a loss only through :func:`native_model`: the task spec's sizes, index
+arrays and the GP's constants, read from the parts' public attributes. A kernel specialised
+for some specs (sizes of ``n``, ``m``, ``N``, ``F``; an instruction set) is chosen there or
+in the C++ from those sizes; the parts and their step protocols do not change, and the
+check against the eager rollout guards every variant alike.
+
+Glossary: as in :mod:`~mcpilco.agents.mc_pilco.fast.base` (``K`` candidates, ``M``
 particles, ``S`` shards, ``H`` horizon) and :mod:`~mcpilco.models.gp.fused` (``N`` training
 points, ``F`` MPK features, ``m`` outputs, ``d`` GP inputs).
 """
@@ -57,8 +63,8 @@ from typing import Any
 import torch
 from torch import Tensor
 
-from mcpilco.agents.mc_pilco.backends import ShardedRollout, unsupported_reason
-from mcpilco.agents.mc_pilco.dynamics import _integration_matrices
+from mcpilco.agents.mc_pilco.dynamics import integration_matrices
+from mcpilco.agents.mc_pilco.fast.base import ShardedRollout, unsupported_reason
 
 SOURCES = tuple(
     Path(__file__).with_name(name) for name in ("native_rollout_ext.cpp", "native_rollout.cpp")
@@ -192,7 +198,7 @@ def native_unsupported_reason(
     policy: Any, dynamics: Any, cost: Any, device: torch.device
 ) -> str | None:
     """Why the native rollout cannot run this loss (None: it can): the chained rollout's
-    conditions (:func:`~mcpilco.agents.mc_pilco.backends.unsupported_reason`: the
+    conditions (:func:`~mcpilco.agents.mc_pilco.fast.base.unsupported_reason`: the
     package's policy, dynamics over the fused GP posterior and
     :class:`~mcpilco.agents.mc_pilco.cost.SaturatingCost`, on the CPU), float32 throughout,
     an RBF or RBF + MPK kernel of degree 1 or 2, and a working C++ toolchain.
@@ -226,7 +232,7 @@ def oscillator_coefficients(layout: Any, dt: float) -> Tensor:
     (:func:`~mcpilco.agents.mc_pilco.dynamics.speed_integration`)."""
     if not layout.oscillators:
         return torch.empty(0, dtype=torch.float64)
-    A_t, _, z = _integration_matrices(dt, layout, torch.float64, "cpu")
+    A_t, _, z = integration_matrices(dt, layout, torch.float64, "cpu")
     A = A_t.T
     return torch.tensor(
         [[A[p, p], A[p, v], A[v, p], A[v, v], z[p], z[v]] for p, v, _, _ in layout.oscillators],
@@ -353,7 +359,7 @@ def native_model(lib: ModuleType, policy: Any, dynamics: Any, cost: Any) -> Any:
 
 
 class NativeRollout(ShardedRollout):
-    """A :class:`~mcpilco.agents.mc_pilco.backends.ShardedRollout` (shards, split and join,
+    """A :class:`~mcpilco.agents.mc_pilco.fast.base.ShardedRollout` (shards, split and join,
     the dropout inputs) with each shard's forward and backward loops run by
     the C++ extension. Each forward keeps its saved tensors in a float32 buffer of
     ``H x K x ceil(M / (S K 16)) x record`` floats (about ``2 m N + F + n_b`` floats per
