@@ -397,7 +397,7 @@ CONTROL_SECTIONS = {  # the same seeds learned with each kernel: label -> sectio
 def _tracking_figure(sec: dict[str, Any]) -> str:
     """The tracking RMS after a section's last policy trial against the controller alone:
     all joints and per joint."""
-    from mcpilco.experiments.tracking_bench import overall
+    from mcpilco.experiments.mcpilco.tracking import overall
 
     last = sec["tracking"][-1]
     tot = overall(sec, len(sec["tracking"]) - 1)
@@ -421,7 +421,7 @@ def _tracking(data: dict[str, Any]) -> str:
 
 
 def _tracking_pushes(data: dict[str, Any]) -> str:
-    from mcpilco.experiments.tracking_bench import overall
+    from mcpilco.experiments.mcpilco.tracking import overall
 
     sec, unfiltered = data["runs"][FILTERED_SECTION], data["runs"][PUSHES_SECTION]
     k = len(unfiltered["tracking"]) - 1
@@ -433,8 +433,8 @@ def _tracking_pushes(data: dict[str, Any]) -> str:
 
 
 def _tracking_kernels(data: dict[str, Any]) -> str:
-    from mcpilco.experiments.mcpilco_bench import kernel_label
-    from mcpilco.experiments.mcpilco_rmse import KERNEL_ARGS
+    from mcpilco.experiments.mcpilco.bench import kernel_label
+    from mcpilco.experiments.mcpilco.rmse import KERNEL_ARGS
 
     rows = data["kernels"][KERNELS_SECTION]["kernels"]
     cells = ", ".join(

@@ -2,7 +2,7 @@
 
 Times one posterior call (mean and variance) of GPyTorch, of the cached and fused predictors
 in float64 and float32, and of the variance term alone (the ceiling of any exact float64
-predictor); what each path is and how it is timed: :mod:`mcpilco.experiments.gp_predictor_bench`.
+predictor); what each path is and how it is timed: :mod:`mcpilco.experiments.mcpilco.gp_predictor`.
 Writes ``--out`` (JSON) and prints a Markdown table and the speed ratios.
 
 Usage::
@@ -21,7 +21,7 @@ from pathlib import Path
 import torch
 
 from mcpilco.agents.common.cli import console_main
-from mcpilco.experiments.gp_predictor_bench import markdown_table, run, summary
+from mcpilco.experiments.mcpilco.gp_predictor import markdown_table, run, summary
 from mcpilco.models.device import resolve_device, retain_host_memory
 
 

@@ -6,7 +6,7 @@ message), ``crash`` (a traceback, another exception or exit status) or ``silent 
 answer, exit 0 or a NaN, on input that cannot support one). The kills start a small
 ``mcpilco-train`` run, SIGKILL it after a given time, then continue it with ``--resume``
 (``--overwrite`` when no trial had finished) and count the finished trials lost. See
-:mod:`mcpilco.experiments.robustness`.
+:mod:`mcpilco.experiments.infra.robustness`.
 
 Usage::
 
@@ -22,7 +22,12 @@ from collections.abc import Sequence
 from pathlib import Path
 
 from mcpilco.agents.common.cli import console_main
-from mcpilco.experiments.robustness import markdown, outcome_lines, run_robustness, write_result
+from mcpilco.experiments.infra.robustness import (
+    markdown,
+    outcome_lines,
+    run_robustness,
+    write_result,
+)
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -1,6 +1,6 @@
 """The collision-detection benchmark on the simulated UR10 (thesis section 4.6).
 
-Data: :mod:`mcpilco.experiments.collision_data`. Estimators
+Data: :mod:`mcpilco.experiments.collision.data`. Estimators
 (:mod:`mcpilco.models.collision`): PP (eq. 4.7), SP (eq. 3.7), FC (eqs. 4.8-4.10) with
 ``sigma_v`` chosen by hold-out cross-validation among ``sigma_v_candidates`` (train on the
 first 80% of the training run, score on the last 20%), and "PP-sign": PP with the exact
@@ -18,7 +18,7 @@ for every ``m`` in ``roc_persistence``.
 
 Jobs: the simulated data are kept in ``runs_dir/data.pkl``; the ``sigma_v``
 cross-validation and each estimator's fit and evaluation are sweep jobs
-(:mod:`mcpilco.experiments.sweep`) that read it (a multi-node Ray cluster needs ``runs_dir``
+(:mod:`mcpilco.experiments.infra.sweep`) that read it (a multi-node Ray cluster needs ``runs_dir``
 on a shared file system), FC after the cross-validation. Each writes
 ``runs_dir/<label>.json``: a rerun computes only the jobs without one. The cost is dominated
 by the FC predictive variance on every evaluation row.
@@ -26,7 +26,7 @@ by the FC predictive variance on every evaluation row.
 :func:`run_benchmark` takes the options of ``mcpilco-bench-collision`` (an
 ``argparse.Namespace`` or any object with those attributes, lists already parsed) and writes
 ``collision.json``, ``collision.md`` and the figures of
-:mod:`mcpilco.experiments.collision_report` to ``out_dir``.
+:mod:`mcpilco.experiments.collision.report` to ``out_dir``.
 """
 
 from __future__ import annotations
@@ -46,9 +46,9 @@ import torch
 from tqdm.auto import tqdm
 
 from mcpilco.envs.arm_env import Push
-from mcpilco.experiments.collision_data import DATA_OPTIONS, load_sets, simulated_sets
-from mcpilco.experiments.collision_detection import nominal_model
-from mcpilco.experiments.collision_report import (
+from mcpilco.experiments.collision.data import DATA_OPTIONS, load_sets, simulated_sets
+from mcpilco.experiments.collision.nominal import nominal_model
+from mcpilco.experiments.collision.report import (
     goals,
     markdown,
     plot_rmse,
@@ -56,7 +56,7 @@ from mcpilco.experiments.collision_report import (
     plot_scenario,
     strip,
 )
-from mcpilco.experiments.sweep import Job, SweepRunner
+from mcpilco.experiments.infra.sweep import Job, SweepRunner
 from mcpilco.models.collision import (
     CollisionDetector,
     CollisionInputs,

@@ -3,7 +3,7 @@
 :func:`plot_rmse` (thesis Fig. 4.2), :func:`plot_scenario` (thesis Fig. 4.3),
 :func:`plot_roc` (detection rate against false alarms per minute), :func:`goals` (the
 benchmark's targets, recorded, not asserted) and :func:`markdown`, all on the results dict
-of :func:`mcpilco.experiments.collision_bench.run_benchmark`.
+of :func:`mcpilco.experiments.collision.bench.run_benchmark`.
 """
 
 from __future__ import annotations

@@ -38,7 +38,7 @@ library, each kind in turn), ``multi`` (two effects of the library, different ki
 answer is an "unexplained" verdict). A start model (nominal physics from the arm's table, or
 a learned GIP / RBF GP) is fitted and the loop runs
 (:func:`~mcpilco.models.diagnosis.auto_improve`: diagnose, add the lead, refit, until nothing
-is significant); :mod:`mcpilco.experiments.diagnosis_scoring` scores the answer against the
+is significant); :mod:`mcpilco.experiments.diagnosis.scoring` scores the answer against the
 truth. :func:`run_benchmark` runs the cases as sweep jobs and writes JSON, Markdown and a PNG
 (confusion of the hidden effect against the effect named first).
 
@@ -61,14 +61,14 @@ from typing import Any
 
 import numpy as np
 
-from mcpilco.experiments.diagnosis_scoring import (
+from mcpilco.experiments.diagnosis.scoring import (
     CORRECT_CANDIDATES,
     markdown,
     plot_confusion,
     score_case,
     summarise,
 )
-from mcpilco.experiments.sweep import Job, SweepRunner
+from mcpilco.experiments.infra.sweep import Job, SweepRunner
 
 DEVELOPMENT_SEEDS = range(0, 100)
 """Case seeds that may be looked at while developing the loop."""

@@ -34,7 +34,7 @@ from typing import Any
 
 import numpy as np
 
-from mcpilco.experiments.sweep import Job, SweepRunner
+from mcpilco.experiments.infra.sweep import Job, SweepRunner
 
 CURRENT_NOISE = 0.01
 """Standard deviation of the logged currents' noise [A]."""

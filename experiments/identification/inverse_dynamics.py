@@ -11,7 +11,7 @@ Parts (the names in double backquotes are attributes of the options object):
     ``[-2, 2]`` rad/s; torques from the exact inverse dynamics (``mj_inverse``, rotor inertia
     included, no friction) plus Gaussian noise of std ``noise`` N m; ``n_train`` training
     and ``n_test`` test samples, ``dt`` s apart. Output: nMSE per joint per estimator
-    (boxplot PNG + table). Each run is a sweep job (:mod:`mcpilco.experiments.sweep`) in
+    (boxplot PNG + table). Each run is a sweep job (:mod:`mcpilco.experiments.infra.sweep`) in
     the sweep runner's processes or on Ray, its result kept in
     ``runs_dir/scara/run<i>.json``: a rerun computes only the runs without one.
 ``efficiency``
@@ -42,8 +42,8 @@ on a random subset of ``hyper_points`` rows, then the GP is conditioned on all r
 :func:`run_benchmark` takes the options of ``mcpilco-bench-inverse-dynamics`` (an
 ``argparse.Namespace`` or any object with those attributes, lists already parsed) and
 writes, after every part, ``inverse_dynamics.json``, ``inverse_dynamics.md`` and the
-figures of :mod:`mcpilco.experiments.inverse_dynamics_report`; with ``append`` the parts of
-an earlier JSON that this call does not run are kept.
+figures of :mod:`mcpilco.experiments.identification.inverse_dynamics_report`; with
+``append`` the parts of an earlier JSON that this call does not run are kept.
 """
 
 from __future__ import annotations
@@ -69,14 +69,14 @@ from mcpilco.envs.arm_builder import ArmSpec, LinkInertia, arm_to_xml, solid_cyl
 from mcpilco.envs.arm_data import collect, inverse_dynamics_samples, make_arm_env
 from mcpilco.envs.arm_env import SumOfSinusoids
 from mcpilco.envs.arms import scara, ur10
-from mcpilco.experiments.inverse_dynamics_report import (
+from mcpilco.experiments.identification.inverse_dynamics_report import (
     goals,
     markdown,
     plot_efficiency,
     plot_scara,
     plot_ur10,
 )
-from mcpilco.experiments.sweep import Job, SweepRunner
+from mcpilco.experiments.infra.sweep import Job, SweepRunner
 from mcpilco.models.inverse_dynamics import (
     FisherianEstimator,
     GIPEstimator,

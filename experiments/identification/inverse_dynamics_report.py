@@ -4,7 +4,7 @@
 (test GMSE against the training-set size), :func:`plot_ur10` (nMSE per joint on the UR10
 motor currents), :func:`goals` (the benchmark's targets, recorded, not asserted) and
 :func:`markdown`, on the results dict of
-:func:`mcpilco.experiments.inverse_dynamics_bench.run_benchmark`.
+:func:`mcpilco.experiments.identification.inverse_dynamics.run_benchmark`.
 """
 
 from __future__ import annotations

@@ -43,14 +43,14 @@ Protocol and compute-saving choices:
   draw, the orders of experiment 2 share the input), the noise from
   ``SeedSequence(seed, spawn_key=(experiment, 2, config))``; the three (two) estimators of a
   run see the same data. Results are reproducible for a given ``base_seed``;
-* every run is a sweep job (:mod:`mcpilco.experiments.sweep`) with one torch thread; its
+* every run is a sweep job (:mod:`mcpilco.experiments.infra.sweep`) with one torch thread; its
   result is kept in ``volterra_runs/exp<e>/<config>/seed<s>.json``, so that a killed or
   extended benchmark recomputes only the runs without one (``rerun``: all).
 
 :func:`run_benchmark` writes ``volterra.json`` (config, every per-run Fit, timings),
 ``volterra_exp1.png`` and ``volterra_exp2.png`` (boxplots) and ``volterra.md`` (median /
 mean Fit per kernel and setup, with the run counts actually used;
-:mod:`mcpilco.experiments.volterra_report`).
+:mod:`mcpilco.experiments.identification.volterra_report`).
 """
 
 from __future__ import annotations
@@ -65,8 +65,7 @@ from typing import Any
 
 import numpy as np
 
-from mcpilco.experiments.sweep import InProcessBackend, Job, LocalBackend, SweepRunner
-from mcpilco.experiments.volterra_report import (
+from mcpilco.experiments.identification.volterra_report import (
     ORACLE,
     collect,
     markdown_table,
@@ -74,6 +73,7 @@ from mcpilco.experiments.volterra_report import (
     plot_exp2,
     result_order,
 )
+from mcpilco.experiments.infra.sweep import InProcessBackend, Job, LocalBackend, SweepRunner
 
 # one config per experiment: every default of the benchmark lives here
 EXP1 = {

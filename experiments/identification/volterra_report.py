@@ -3,7 +3,7 @@
 :func:`collect` groups the per-run Fit% by experiment, configuration and kernel and
 summarises them (runs, failures, median, mean, quartiles); :func:`markdown_table` and
 :func:`plot_exp1` / :func:`plot_exp2` present them
-(:func:`mcpilco.experiments.volterra_bench.run_benchmark` writes them).
+(:func:`mcpilco.experiments.identification.volterra.run_benchmark` writes them).
 """
 
 from __future__ import annotations
@@ -14,7 +14,7 @@ import numpy as np
 
 ORACLE = "ls_oracle"
 """Key of the experiment-1 reference estimator (least squares on the true monomials,
-:func:`mcpilco.experiments.volterra_bench.oracle_prediction`) in the results."""
+:func:`mcpilco.experiments.identification.volterra.oracle_prediction`) in the results."""
 
 
 def result_order(res: dict) -> tuple:

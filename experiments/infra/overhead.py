@@ -2,10 +2,10 @@
 
 The same sweep (``n`` probe jobs of ``seconds`` each, one CPU each) runs on each backend with
 the same CPUs; the ideal wall time is ``ceil(n / cpus) * seconds``. Reported per backend and
-job kind (:data:`~mcpilco.experiments.probe.KINDS`):
+job kind (:data:`~mcpilco.experiments.infra.probe.KINDS`):
 
 ``wall_s``
-    the whole :meth:`~mcpilco.experiments.sweep.SweepRunner.run` call: backend start (worker
+    the whole :meth:`~mcpilco.experiments.infra.sweep.SweepRunner.run` call: backend start (worker
     processes or the Ray instance), the jobs, result files, shutdown.
 ``startup_s``
     from the call to the start of the first job (worker start, imports, Ray start).
@@ -39,8 +39,8 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
-from mcpilco.experiments.probe import probe_jobs, spin_rounds
-from mcpilco.experiments.sweep import (
+from mcpilco.experiments.infra.probe import probe_jobs, spin_rounds
+from mcpilco.experiments.infra.sweep import (
     InProcessBackend,
     LocalBackend,
     RayBackend,

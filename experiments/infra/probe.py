@@ -6,8 +6,8 @@ same jobs on any backends write the same results. :func:`probe_jobs` builds a sw
 
 Command line (a smoke test of a backend, e.g. a Ray cluster)::
 
-    python -m mcpilco.experiments.probe --out runs/probe --n 8 --seconds 1 --jobs 2
-    python -m mcpilco.experiments.probe --out runs/probe --n 8 --seconds 1 --ray auto
+    python -m mcpilco.experiments.infra.probe --out runs/probe --n 8 --seconds 1 --jobs 2
+    python -m mcpilco.experiments.infra.probe --out runs/probe --n 8 --seconds 1 --ray auto
 """
 
 from __future__ import annotations
@@ -18,7 +18,7 @@ import sys
 import time
 from typing import Any
 
-from mcpilco.experiments.sweep import Job, SweepError, add_sweep_arguments, runner_from_args
+from mcpilco.experiments.infra.sweep import Job, SweepError, add_sweep_arguments, runner_from_args
 
 KINDS = ("sleep", "spin")
 """Probe job kinds: waiting (no CPU) and CPU work."""
@@ -81,7 +81,9 @@ def probe_jobs(
 
 def main(argv: list[str] | None = None) -> int:
     """Run a probe sweep into ``--out``; exit code 1 when a job failed."""
-    p = argparse.ArgumentParser(prog="python -m mcpilco.experiments.probe", description=__doc__)
+    p = argparse.ArgumentParser(
+        prog="python -m mcpilco.experiments.infra.probe", description=__doc__
+    )
     p.add_argument("--out", required=True, help="results folder of the sweep")
     p.add_argument("--n", type=int, default=8, help="number of jobs")
     p.add_argument("--seconds", type=float, default=1.0, help="seconds per job")

@@ -1,10 +1,10 @@
 """The kinematics learning benchmark (thesis chapter 2): runs its parts and writes the report.
 
 :class:`KinematicsBenchSettings` holds the options of ``mcpilco-bench-kinematics`` (their
-meaning: :mod:`mcpilco.experiments.kinematics_parts`). :func:`run_benchmark` runs the parts
+meaning: :mod:`mcpilco.experiments.kinematics.parts`). :func:`run_benchmark` runs the parts
 asked for, keeps the others from an earlier ``kinematics.json`` when merging, and writes
 ``kinematics.json``, ``kinematics.md`` and the PNG plots
-(:mod:`mcpilco.experiments.kinematics_report`). :func:`run_fk_seed_study` runs part (c)
+(:mod:`mcpilco.experiments.kinematics.report`). :func:`run_fk_seed_study` runs part (c)
 alone over several seeds and writes ``kinematics_c_seeds.{json,md}``.
 """
 
@@ -18,7 +18,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from mcpilco.experiments.kinematics_parts import (
+from mcpilco.experiments.infra.sweep import SweepRunner
+from mcpilco.experiments.kinematics.parts import (
     FACING_CONE,
     VISIBILITY_CONE,
     controller_part,
@@ -30,8 +31,7 @@ from mcpilco.experiments.kinematics_parts import (
     true_structure,
     ur10_datasets,
 )
-from mcpilco.experiments.kinematics_report import fk_seed_markdown, markdown_report, plot_results
-from mcpilco.experiments.sweep import SweepRunner
+from mcpilco.experiments.kinematics.report import fk_seed_markdown, markdown_report, plot_results
 
 __all__ = [
     "PART_KEYS",
@@ -227,7 +227,7 @@ def run_fk_seed_study(
     runs_dir: str | Path = "runs/bench_kinematics",
     progress: bool = True,
 ) -> dict[str, Any]:
-    """Part (c) on each of ``seeds`` (:func:`~mcpilco.experiments.kinematics_parts.fk_seed_study`,
+    """Part (c) on each of ``seeds`` (:func:`~mcpilco.experiments.kinematics.parts.fk_seed_study`,
     one result file per seed under ``runs_dir``), written to ``kinematics_c_seeds.json`` and
     ``.md`` under ``out_dir``; returns the study.
 

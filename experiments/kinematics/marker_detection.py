@@ -2,7 +2,7 @@ r"""Marker poses from rendered images + ArUco detection, against the truth.
 
 The UR10 of ``mcpilco/MarkerCamera-v0`` with ``measurement="aruco"`` follows a trajectory
 through 25 random waypoints (``UR10_HOME + U(-span, span)`` per joint, as part (b) of the
-kinematics benchmark, :mod:`mcpilco.experiments.marker_trajectories`); every frame is
+kinematics benchmark, :mod:`mcpilco.experiments.kinematics.trajectories`); every frame is
 rendered by MuJoCo and the marker poses are estimated by OpenCV
 (:mod:`mcpilco.envs.marker_detection`). The time offset is set to 0, so the truth is MuJoCo's
 marker pose at the rendered configuration.
@@ -34,7 +34,7 @@ import numpy as np
 
 from mcpilco.envs.marker_camera import MarkerCameraEnv, ypr_to_matrix
 from mcpilco.envs.marker_detection import camera_matrix
-from mcpilco.experiments.marker_trajectories import ur10_waypoints, waypoint_trajectory
+from mcpilco.experiments.kinematics.trajectories import ur10_waypoints, waypoint_trajectory
 
 __all__ = [
     "FACING_BINS",
@@ -93,7 +93,7 @@ def collect(
     env: MarkerCameraEnv, seed: int, frames: int, span: float, progress: bool
 ) -> dict[str, np.ndarray]:
     """Drive ``env`` through the 25 random waypoints of
-    :func:`~mcpilco.experiments.marker_trajectories.ur10_waypoints` in about ``frames`` frames;
+    :func:`~mcpilco.experiments.kinematics.trajectories.ur10_waypoints` in about ``frames`` frames;
     returns the measured and true poses ``(T, n + 1, 6)`` (chain order), the detection mask
     and the configurations ``(T, n)``."""
     waypoints = ur10_waypoints(np.random.default_rng([seed, 1]), span)

@@ -11,7 +11,7 @@ r"""The four parts of the kinematics learning benchmark (thesis chapter 2, secti
     algorithm is also run on every robot with shuffled markers and joints.
 
 Marker protocol of parts (b)-(d) (:data:`FACING_CONE`, :data:`VISIBILITY_CONE`): the markers
-are attached facing the camera at :data:`~mcpilco.experiments.marker_trajectories.UR10_HOME`,
+are attached facing the camera at :data:`~mcpilco.experiments.kinematics.trajectories.UR10_HOME`,
 a marker turned more than the visibility cone from its line of sight to the camera is not
 seen (NaN), and the waypoints and the controller's targets are drawn only where every marker
 is seen, as in the thesis' data, where every marker was detected in every frame. With both
@@ -63,8 +63,8 @@ side.
     round-0 starts. No extra starts and no clipping is the thesis' plain controller; the
     thesis trains on all of ``D_tr``, a random subset keeps the run short.
 
-Reports: :mod:`mcpilco.experiments.kinematics_report`; the command that runs the parts:
-:mod:`mcpilco.experiments.kinematics_bench`.
+Reports: :mod:`mcpilco.experiments.kinematics.report`; the command that runs the parts:
+:mod:`mcpilco.experiments.kinematics.bench`.
 """
 
 from __future__ import annotations
@@ -78,7 +78,8 @@ import numpy as np
 from tqdm.auto import tqdm
 
 from mcpilco.envs.marker_camera import NOISE_DEFAULTS, MarkerCameraEnv
-from mcpilco.experiments.marker_trajectories import (
+from mcpilco.experiments.infra.sweep import Job, SweepRunner
+from mcpilco.experiments.kinematics.trajectories import (
     UR10_HOME,
     draw_accepted,
     drive_to,
@@ -86,7 +87,6 @@ from mcpilco.experiments.marker_trajectories import (
     visible_configuration,
     waypoint_trajectory,
 )
-from mcpilco.experiments.sweep import Job, SweepRunner
 from mcpilco.models.gp import GPRegressor
 from mcpilco.models.kinematics import (
     ChainForwardKinematicsGP,

@@ -4,10 +4,10 @@ gradient kinematic controller of thesis chapter 2 on the same data.
 Per seed (:func:`reaching_seed`, a sweep job): the UR10 of ``mcpilco/MarkerCamera-v0``
 (markers facing the camera at home, a 70 deg visibility cone, the env's AprilTag-like
 noise) follows the training trajectory ``D_tr`` through 25 random waypoints
-(:func:`~mcpilco.experiments.kinematics_parts.ur10_datasets`); the kinematic structure is
+(:func:`~mcpilco.experiments.kinematics.parts.ur10_datasets`); the kinematic structure is
 identified from its frames (the true one replaces a wrong identification, which is
 recorded). Both agents then get the same 300 random samples of ``D_tr`` and the same 5
-random targets (:func:`~mcpilco.experiments.kinematics_parts.reaching_problem`), and the
+random targets (:func:`~mcpilco.experiments.kinematics.parts.reaching_problem`), and the
 same model class: the chain of one-joint GPs along the identified marker chain
 (:class:`~mcpilco.models.kinematics.ChainForwardKinematicsGP`). Each trial starts at the
 first waypoint; the frames of a trial that show the end marker join that agent's data and
@@ -17,7 +17,7 @@ its model is refitted before the next trial (``rounds + 1`` trials).
   policy optimised through the model (:func:`~mcpilco.agents.mc_pilco.reaching.
   optimise_reaching_policy`; from the previous trial's policy for the same target), then run
   on the env for ``H`` steps from the measured joints; 5 more frames at rest.
-* **Gradient controller** (:func:`~mcpilco.experiments.kinematics_parts.controller_part`,
+* **Gradient controller** (:func:`~mcpilco.experiments.kinematics.parts.controller_part`,
   ``fk_model="chain"``): eq. 2.24 on the model from the start and the 4 data configurations
   nearest to the target, the reference clipped to the data's joint box; the env tracks it.
 
@@ -38,7 +38,8 @@ import numpy as np
 import torch
 
 from mcpilco.agents.mc_pilco.reaching import ReachingConfig, optimise_reaching_policy
-from mcpilco.experiments.kinematics_parts import (
+from mcpilco.experiments.infra.sweep import Job, SweepRunner
+from mcpilco.experiments.kinematics.parts import (
     FACING_CONE,
     VISIBILITY_CONE,
     controller_part,
@@ -50,8 +51,7 @@ from mcpilco.experiments.kinematics_parts import (
     true_structure,
     ur10_datasets,
 )
-from mcpilco.experiments.marker_trajectories import drive_to
-from mcpilco.experiments.sweep import Job, SweepRunner
+from mcpilco.experiments.kinematics.trajectories import drive_to
 from mcpilco.models.kinematics import ChainForwardKinematicsGP
 from mcpilco.models.kinematics.rotations import ypr_to_matrix
 

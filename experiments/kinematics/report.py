@@ -1,8 +1,8 @@
 """Tables and plots of the kinematics learning benchmark
-(:mod:`mcpilco.experiments.kinematics_bench`).
+(:mod:`mcpilco.experiments.kinematics.bench`).
 
 :func:`markdown_report` and :func:`plot_results` render the result dictionary of a run (the
-parts of :mod:`mcpilco.experiments.kinematics_parts` that it holds, each with the command that
+parts of :mod:`mcpilco.experiments.kinematics.parts` that it holds, each with the command that
 produced it); :func:`fk_seed_markdown` renders the seed study of part (c).
 """
 
@@ -13,7 +13,7 @@ from typing import Any
 
 import numpy as np
 
-from mcpilco.experiments.kinematics_parts import ERR_NAMES, POSE_NAMES, PROPS
+from mcpilco.experiments.kinematics.parts import ERR_NAMES, POSE_NAMES, PROPS
 
 __all__ = ["THESIS_TABLE_2_1", "fk_seed_markdown", "markdown_report", "plot_results"]
 

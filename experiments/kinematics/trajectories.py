@@ -1,7 +1,7 @@
 """Joint trajectories of the UR10 of ``mcpilco/MarkerCamera-v0`` through random waypoints.
 
-The kinematics benchmark (:mod:`mcpilco.experiments.kinematics_parts`) and the marker
-detection benchmark (:mod:`mcpilco.experiments.marker_detection_bench`) collect their data
+The kinematics benchmark (:mod:`mcpilco.experiments.kinematics.parts`) and the marker
+detection benchmark (:mod:`mcpilco.experiments.kinematics.marker_detection`) collect their data
 the same way: waypoints drawn uniformly in a box around :data:`UR10_HOME` (optionally kept
 only where every marker is seen, by rejection sampling), visited by equal joint increments
 of :class:`~mcpilco.envs.marker_camera.MarkerCameraEnv`.

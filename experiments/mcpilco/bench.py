@@ -3,13 +3,13 @@
 1. ``runs``: S seeds of the whole loop (exploration + policy trials) per env; per trial the
    success rate, mean time in the goal region, cost, wall-clock per trial and per
    optimisation step (:func:`bench_runs`). Seeds are sweep jobs
-   (:mod:`mcpilco.experiments.sweep`) with one torch thread each; a finished seed is read
+   (:mod:`mcpilco.experiments.infra.sweep`) with one torch thread each; a finished seed is read
    back, not rerun. :func:`pool_sections` merges sections of the same config run on other
    seeds into one section over all of them.
 2. ``timing``: seconds per policy optimisation step for several GP sizes, particle counts
-   and thread counts (:func:`timing_part`, :mod:`mcpilco.experiments.mcpilco_timing`).
+   and thread counts (:func:`timing_part`, :mod:`mcpilco.experiments.mcpilco.timing`).
 3. ``rmse``: RBF+MPK vs RBF-only particle RMSE of theta on exploration data (thesis
-   Fig. 5.5; :func:`rmse_part`, :mod:`mcpilco.experiments.mcpilco_rmse`).
+   Fig. 5.5; :func:`rmse_part`, :mod:`mcpilco.experiments.mcpilco.rmse`).
 4. ``rmse_runs``: the same comparison on the data of finished runs (:func:`rmse_runs_part`).
 
 Results live in one JSON file, ``mcpilco_cartpole.json`` (one runs section per env and
@@ -29,7 +29,7 @@ from typing import Any
 import numpy as np
 
 from mcpilco.agents.mc_pilco import DEFAULT_ENV_ID, MCPilcoConfig, load_config
-from mcpilco.experiments.sweep import Job, SweepReport, SweepRunner
+from mcpilco.experiments.infra.sweep import Job, SweepReport, SweepRunner
 
 PARTS = ("runs", "timing", "rmse", "rmse_runs")  # the parts, in the order they run
 RESULTS_NAME = "mcpilco_cartpole"  # stem of the JSON, Markdown and PNG outputs
@@ -340,13 +340,13 @@ def timing_part(
     kernel: str | None = None,
     mpk_degree: int | None = None,
 ) -> list[dict[str, Any]]:
-    """Part ``timing``: :func:`~mcpilco.experiments.mcpilco_timing.time_opt_step` for every
+    """Part ``timing``: :func:`~mcpilco.experiments.mcpilco.timing.time_opt_step` for every
     task spec (``env_ids``, each over its own horizon and with its config's GP kernel), GP
     size, thread count and particle count (on a CUDA device both with and without a CUDA
     graph; ``kernel``, ``mpk_degree``: instead of the config's); replaces
     ``results["timing"]`` (``append``: only the rows of the task specs and kernels timed
     now) and writes the report."""
-    from mcpilco.experiments.mcpilco_timing import time_opt_step
+    from mcpilco.experiments.mcpilco.timing import time_opt_step
 
     rows = []
     graphs = (True, False) if device.startswith("cuda") else (False,)
@@ -401,7 +401,7 @@ def rmse_part(
     explore_hold: int | None = None,
     log: Callable[[str], None] = print,
 ) -> dict[str, Any]:
-    """Part ``rmse``: :func:`~mcpilco.experiments.mcpilco_rmse.particle_rmse` on ``seeds``
+    """Part ``rmse``: :func:`~mcpilco.experiments.mcpilco.rmse.particle_rmse` on ``seeds``
     exploration seeds of the default env (actions held ``explore_hold`` steps, default: its
     config's), under the policy of ``policy_ckpt`` (default: the first run under
     ``runs_dir`` whose last trial swung up); writes the plot ``mcpilco_cartpole_rmse.png``
@@ -411,7 +411,7 @@ def rmse_part(
     Raises:
         FileNotFoundError: no policy given and no run under ``runs_dir`` swung up.
     """
-    from mcpilco.experiments.mcpilco_rmse import (
+    from mcpilco.experiments.mcpilco.rmse import (
         find_swingup_policy,
         particle_rmse,
         plot_rmse,
@@ -444,7 +444,7 @@ def rmse_runs_part(
     run_dirs: Sequence[Path],
     log: Callable[[str], None] = print,
 ) -> dict[str, Any]:
-    """Part ``rmse_runs``: :func:`~mcpilco.experiments.mcpilco_rmse.particle_rmse_on_run` on
+    """Part ``rmse_runs``: :func:`~mcpilco.experiments.mcpilco.rmse.particle_rmse_on_run` on
     every run under ``run_dirs`` whose last trial swung up, summarised per group (the kernel
     a run learned with, its env); writes ``mcpilco_cartpole_rmse_runs.png`` (which alone
     keeps the per-step curves), stores ``results["rmse_runs"]`` and writes the report.
@@ -454,7 +454,7 @@ def rmse_runs_part(
     """
     from tqdm.auto import tqdm
 
-    from mcpilco.experiments.mcpilco_rmse import (
+    from mcpilco.experiments.mcpilco.rmse import (
         particle_rmse_on_run,
         plot_rmse_runs,
         summarise_rmse_runs,
@@ -610,7 +610,7 @@ def kernel_label(kernel: str, mpk_degree: int | None = None) -> str:
 
 def timing_row(t: dict) -> str:
     """One row of a spec's timing table (:func:`write_report`) for a result of
-    :func:`~mcpilco.experiments.mcpilco_timing.time_opt_step`."""
+    :func:`~mcpilco.experiments.mcpilco.timing.time_opt_step`."""
     graph = "yes" if t.get("cuda_graph") else "no"
     comp = "| - | - | - | - | - | -"
     backend = t.get("compile_backend") or "-"
@@ -661,8 +661,8 @@ def reference_table(timing: list[dict], measured: Sequence[dict] = ()) -> list[s
     (``env_id`` of the package's spec, ``task``: the reference's, ``n_points``,
     ``num_particles``, ``threads``, ``s_per_step``); a row with the same spec, N, M and
     threads is divided into that step, any other into the cart-pole range
-    (:data:`~mcpilco.experiments.mcpilco_timing.REFERENCE_S_PER_STEP`)."""
-    from mcpilco.experiments.mcpilco_timing import REFERENCE_S_PER_STEP, reference_speedup
+    (:data:`~mcpilco.experiments.mcpilco.timing.REFERENCE_S_PER_STEP`)."""
+    from mcpilco.experiments.mcpilco.timing import REFERENCE_S_PER_STEP, reference_speedup
 
     lo, hi = REFERENCE_S_PER_STEP
     own = {(m["env_id"], m["n_points"], m["num_particles"], m["threads"]): m for m in measured}

@@ -38,7 +38,7 @@ from mcpilco.agents.baselines.common import (
 )
 from mcpilco.agents.mc_pilco.loop import check_dynamics_task, load_config
 from mcpilco.agents.mc_pilco.task import TaskSpec
-from mcpilco.experiments.sweep import Job, SweepRunner
+from mcpilco.experiments.infra.sweep import Job, SweepRunner
 from mcpilco.models.device import retain_host_memory
 
 SB3_METHODS = ("sac", "td3", "ppo")
@@ -572,12 +572,13 @@ def curves_from_bench_json(path: Path, env_id: str, label: str = "") -> list[dic
     """MC-PILCO curves from ``mcpilco-bench-mcpilco``'s JSON (per-seed success per trial;
     ``label``: the section written with ``mcpilco-bench-mcpilco --label LABEL``) or from the
     reaching study of ``mcpilco-bench-kinematics --reaching-seeds``
-    (``kinematics_reaching.json``, :func:`~mcpilco.experiments.reaching_bench.reaching_curves`)."""
-    from mcpilco.experiments.mcpilco_bench import section_key
+    (``kinematics_reaching.json``,
+    :func:`~mcpilco.experiments.kinematics.reaching.reaching_curves`)."""
+    from mcpilco.experiments.mcpilco.bench import section_key
 
     data = json.loads(Path(path).read_text())
     if isinstance(data.get("rows"), list) and all("mcpilco" in r for r in data["rows"]):
-        from mcpilco.experiments.reaching_bench import reaching_curves
+        from mcpilco.experiments.kinematics.reaching import reaching_curves
 
         if label:
             raise ValueError(f"{path} is a reaching study: it has no sections (drop the label)")

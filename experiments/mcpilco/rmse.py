@@ -18,7 +18,7 @@ from typing import Any
 import numpy as np
 
 from mcpilco.agents.mc_pilco import DEFAULT_ENV_ID, MCPilcoConfig, TaskSpec
-from mcpilco.experiments.mcpilco_timing import exploration_data
+from mcpilco.experiments.mcpilco.timing import exploration_data
 
 __all__ = [
     "KERNEL_ARGS",

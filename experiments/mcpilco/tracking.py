@@ -32,14 +32,14 @@ from typing import Any
 import numpy as np
 
 from mcpilco.agents.mc_pilco import MCPilcoConfig
-from mcpilco.experiments.mcpilco_bench import (
+from mcpilco.experiments.infra.sweep import Job, SweepRunner
+from mcpilco.experiments.mcpilco.bench import (
     bench_runs,
     kernel_label,
     load_results,
     section_key,
     seed_ranges,
 )
-from mcpilco.experiments.sweep import Job, SweepRunner
 
 RESULTS_NAME = "mcpilco_tracking"  # stem of the JSON, Markdown and PNG outputs
 PUSH_VARIANTS = ("both", "filtered", "kept")  # push sections: with / without the push filter
@@ -62,7 +62,7 @@ def train_task_detector(
     motion without contacts, train, then filter the learning runs."""
     from mcpilco.agents.mc_pilco.loop import exploration_actions, make_env, run_episode
     from mcpilco.envs.arm_data import log_from_infos
-    from mcpilco.experiments.collision_detection import nominal_model
+    from mcpilco.experiments.collision.nominal import nominal_model
     from mcpilco.models.collision import train_detector
     from mcpilco.models.robot_data import save_dataset
 
@@ -131,7 +131,7 @@ def tracking_section(
     config: MCPilcoConfig, runs: Sequence[dict[str, Any]], section: dict[str, Any]
 ) -> dict[str, Any]:
     """``section`` (:func:`bench_runs`) with the tracking figures of ``runs`` (the seeds'
-    :func:`~mcpilco.experiments.mcpilco_bench.run_seed` results): per seed the RMS per joint
+    :func:`~mcpilco.experiments.mcpilco.bench.run_seed` results): per seed the RMS per joint
     after each trial and the controller alone's; per policy trial the means, ratios and
     the count of seeds with every joint halved."""
     per_seed = []
@@ -290,7 +290,7 @@ def kernel_rmse_on_run(
 ) -> dict[str, Any]:
     """The kernels' multi-step prediction error on a finished tracking run's own data: for
     each kernel label of ``kernels``
-    (:data:`~mcpilco.experiments.mcpilco_rmse.KERNEL_ARGS`) a GP fitted with the run's GP
+    (:data:`~mcpilco.experiments.mcpilco.rmse.KERNEL_ARGS`) a GP fitted with the run's GP
     settings on every transition before its last trial (those its push filter left out
     excluded), or on those of its first ``fit_trials`` trials only (1: the exploration
     trial's: how well each kernel predicts from the data the first policy is optimised on);
@@ -305,7 +305,7 @@ def kernel_rmse_on_run(
     from mcpilco.agents.mc_pilco import SquashedRBFPolicy
     from mcpilco.agents.mc_pilco.checkpoint import load_checkpoint
     from mcpilco.agents.mc_pilco.loop import transitions
-    from mcpilco.experiments.mcpilco_rmse import model_particles
+    from mcpilco.experiments.mcpilco.rmse import model_particles
 
     ckpt = load_checkpoint(ckpt_path)
     cfg = MCPilcoConfig.from_dict(ckpt["config"])
@@ -397,7 +397,7 @@ def summarise_kernel_rmse(per_run: Sequence[dict[str, Any]]) -> dict[str, Any]:
 def kernel_rmse_table(key: str, summary: dict[str, Any]) -> str:
     """Markdown: per kernel the mean RMSE [mrad] of each joint's predicted trajectory, the
     all-joint mean, and the runs in which it was lowest per joint."""
-    from mcpilco.experiments.mcpilco_rmse import KERNEL_ARGS
+    from mcpilco.experiments.mcpilco.rmse import KERNEL_ARGS
 
     joints = summary["joints"]
     lo, hi = min(summary["n_data"]), max(summary["n_data"])
@@ -452,7 +452,7 @@ def tracking_kernels_part(
             ``fit_trials < 1``, a failed job (e.g. ``fit_trials`` not before a run's last
             trial).
     """
-    from mcpilco.experiments.mcpilco_rmse import KERNEL_ARGS
+    from mcpilco.experiments.mcpilco.rmse import KERNEL_ARGS
 
     if not runs_dirs:
         raise ValueError("tracking_kernels needs the folders of tracking runs (--rmse-runs DIR)")
@@ -506,7 +506,7 @@ def plot_kernel_rmse(summary: dict[str, Any], path: Path) -> None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from mcpilco.experiments.mcpilco_rmse import KERNEL_ARGS
+    from mcpilco.experiments.mcpilco.rmse import KERNEL_ARGS
 
     joints = summary["joints"]
     cols = min(len(joints), 3)

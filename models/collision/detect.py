@@ -2,8 +2,9 @@
 
 The detector is either loaded (a file written by ``CollisionDetector.save``, e.g. by
 ``mcpilco-bench-collision --save-detector FILE``) or trained on a collision-free log of the
-same robot (:func:`mcpilco.models.collision.train_detector`) with a nominal model: a robot
-file, or a nominal arm of :mod:`mcpilco.envs.arms` (:func:`nominal_model`). The log is
+same robot (:func:`mcpilco.models.collision.train_detector`) with a nominal model (MJCF/URDF
+text or path; the console script defaults it to a nominal arm,
+:func:`mcpilco.experiments.collision.nominal.nominal_model`). The log is
 checked against the detector (:mod:`mcpilco.models.collision.files`: current groups,
 controller groups for FC, joint count, sampling time).
 
@@ -16,7 +17,6 @@ the detection is also scored against it.
 
 from __future__ import annotations
 
-import dataclasses
 from pathlib import Path
 from typing import Any
 
@@ -35,20 +35,6 @@ from mcpilco.models.collision import (
 )
 
 
-def nominal_model(robot: str = "ur10") -> str:
-    """MJCF text of a nominal arm of :mod:`mcpilco.envs.arms` for the rigid-body features
-    (no joint limits, no friction: the estimators learn the friction)."""
-    from mcpilco.envs import arms
-    from mcpilco.envs.arm_builder import arm_to_xml
-
-    factories = {"ur10": arms.ur10, "scara": arms.scara}
-    if robot not in factories:
-        raise InputError(f"--robot must be one of {sorted(factories)}, got {robot!r}")
-    arm = factories[robot]()
-    joints = tuple(dataclasses.replace(j, range=None) for j in arm.joints)
-    return arm_to_xml(dataclasses.replace(arm, joints=joints).without_friction())
-
-
 def detect_collisions(
     data: str | Path,
     *,
@@ -56,7 +42,6 @@ def detect_collisions(
     train: str | Path | None = None,
     estimator: str = "FC",
     model: str | None = None,
-    robot: str = "ur10",
     calibrate: str | Path | None = None,
     calibration_fraction: float = 0.2,
     gp_points: int = 2000,
@@ -77,8 +62,8 @@ def detect_collisions(
     Exactly one of ``detector`` (a saved detector; ``persistence`` overrides its own) and
     ``train`` (a collision-free log to train one on, see
     :func:`~mcpilco.models.collision.train_detector` for ``estimator`` ... ``save``;
-    ``persistence`` defaults to 1) is given; ``model`` is the nominal robot file, by default
-    :func:`nominal_model` of ``robot``. ``joint``: the joint plotted (1-based; default the one
+    ``persistence`` defaults to 1) is given; ``model`` is the nominal robot (MJCF/URDF text or
+    path), required with ``train``. ``joint``: the joint plotted (1-based; default the one
     with the largest monitoring ratio); ``out_dir``: default the folder of ``data``.
 
     Returns ``{"intervals", "csv", "png", "detector"}`` and, when the log has a ``contact``
@@ -89,9 +74,11 @@ def detect_collisions(
     if (detector is None) == (train is None):
         raise InputError("give either a detector file or a collision-free log to train one on")
     if train is not None:
+        if not model:
+            raise InputError("training a detector needs the nominal robot model (--model)")
         det = train_detector(
             train,
-            model if model else nominal_model(robot),
+            model,
             estimator=estimator,
             calibrate=calibrate,
             calibration_fraction=calibration_fraction,

@@ -7,7 +7,7 @@ import json
 import numpy as np
 import torch
 
-from mcpilco.experiments.inverse_dynamics_bench import ESTIMATORS
+from mcpilco.experiments.identification.inverse_dynamics import ESTIMATORS
 
 
 def test_tiny_benchmark_writes_outputs(tmp_path, command) -> None:

@@ -5,8 +5,8 @@ from __future__ import annotations
 import pytest
 
 from mcpilco.agents.mc_pilco import DEFAULT_ENV_ID, load_config
-from mcpilco.experiments.mcpilco_bench import bench_configs, run_seed
-from tests.experiments.test_mcpilco_bench import _fake_runs
+from mcpilco.experiments.mcpilco.bench import bench_configs, run_seed
+from tests.experiments.mcpilco.test_bench import _fake_runs
 
 BENCH_CONFIG = load_config(DEFAULT_ENV_ID, preset="bench")
 
@@ -52,7 +52,7 @@ def test_pool_option_adds_a_pooled_section(tmp_path, capsys, command):
 
     import numpy as np
 
-    from mcpilco.experiments.mcpilco_bench import make_section, section_key
+    from mcpilco.experiments.mcpilco.bench import make_section, section_key
 
     rng = np.random.default_rng(3)
     cfg = BENCH_CONFIG.to_dict()

@@ -7,7 +7,7 @@ import json
 import numpy as np
 import pytest
 
-from mcpilco.experiments import volterra_bench as bench
+from mcpilco.experiments.identification import volterra as bench
 
 pytestmark = pytest.mark.usefixtures("one_torch_thread")  # tiny GP fits
 

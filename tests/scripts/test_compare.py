@@ -15,7 +15,7 @@ import pytest
 from mcpilco.agents.baselines.common import make_curve, save_curve, task_env_ids
 from mcpilco.agents.mc_pilco import load_config
 from mcpilco.agents.mc_pilco.task import TaskSpec
-from mcpilco.experiments.compare import aggregate_method
+from mcpilco.experiments.mcpilco.compare import aggregate_method
 from mcpilco.experiments.results_index import recorded_command
 
 ENV = "mcpilco/CartpoleSwingUp-v0"

@@ -1,5 +1,6 @@
-"""The quasi-static friction experiment (:mod:`mcpilco.experiments.quasi_static_friction`): its
-program, a short run and the files it writes."""
+"""The quasi-static friction experiment
+(:mod:`mcpilco.experiments.collision.quasi_static_friction`): its program, a short run and
+the files it writes."""
 
 from __future__ import annotations
 
@@ -9,7 +10,7 @@ import math
 import numpy as np
 import pytest
 
-from mcpilco.experiments.quasi_static_friction import (
+from mcpilco.experiments.collision.quasi_static_friction import (
     MOVE_SECONDS,
     REST_POSES,
     reference,

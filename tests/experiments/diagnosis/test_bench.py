@@ -9,7 +9,7 @@ import math
 import numpy as np
 import pytest
 
-from mcpilco.experiments.diagnosis_bench import (
+from mcpilco.experiments.diagnosis.bench import (
     LIBRARY_KINDS,
     SPEED_STAGES,
     case_plan,
@@ -17,7 +17,7 @@ from mcpilco.experiments.diagnosis_bench import (
     run_speed,
     score_record,
 )
-from mcpilco.experiments.diagnosis_scoring import (
+from mcpilco.experiments.diagnosis.scoring import (
     confusion_counts,
     matches,
     score_case,

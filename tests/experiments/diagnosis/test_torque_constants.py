@@ -4,7 +4,7 @@ hand), and one short case against the generator's truth."""
 import numpy as np
 import pytest
 
-from mcpilco.experiments.torque_constants_bench import run_case, summarise
+from mcpilco.experiments.diagnosis.torque_constants import run_case, summarise
 
 
 def _case(seed, z, k_hat, ci95, refused=(), truth=(), missing=None, unit=(), ratio=1.0, **kw):

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from mcpilco.experiments import inverse_dynamics_bench as bench
+from mcpilco.experiments.identification import inverse_dynamics as bench
 
 
 def test_perturbation_stays_in_the_thesis_ranges() -> None:

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from mcpilco.experiments import volterra_bench as bench
+from mcpilco.experiments.identification import volterra as bench
 from mcpilco.models.volterra import fit_percent, lag_matrix, spinelli_system, wiener_system
 
 pytestmark = pytest.mark.usefixtures("one_torch_thread")  # tiny GP fits

@@ -7,7 +7,7 @@ import sys
 
 import pytest
 
-from mcpilco.experiments.robustness import (
+from mcpilco.experiments.infra.robustness import (
     OUTCOMES,
     TRAIN_ARGS,
     classify_exit,

@@ -14,8 +14,8 @@ from pathlib import Path
 
 import pytest
 
-from mcpilco.experiments.probe import probe_jobs, sleep_job
-from mcpilco.experiments.sweep import (
+from mcpilco.experiments.infra.probe import probe_jobs, sleep_job
+from mcpilco.experiments.infra.sweep import (
     InProcessBackend,
     Job,
     LocalBackend,
@@ -43,7 +43,7 @@ def test_one_file_per_job_and_a_second_run_reuses_them(tmp_path):
     assert first.ran == [f"probe{i}" for i in range(4)] and not first.skipped
     assert first.results == _expected(4) == _results(tmp_path)
     record = json.loads(result_path(tmp_path, "probe2").read_text())
-    assert record["function"] == "mcpilco.experiments.probe:sleep_job"
+    assert record["function"] == "mcpilco.experiments.infra.probe:sleep_job"
     assert record["kwargs"] == {"index": 2, "seconds": 0.0, "fail": False}
     assert record["threads"] == record["cpus"] == 1
     assert not list(tmp_path.glob(".*.tmp"))  # no temporary file left behind
@@ -126,7 +126,15 @@ def _kill_and_resume(tmp_path: Path, backend: list[str], n: int = 8, seconds: fl
     """Start a probe sweep in a subprocess, SIGKILL its process group once 3 results are
     written, resume it; returns (files at the kill, their mtimes, the resumed run's stdout)."""
     out = tmp_path / "sweep"
-    cmd = [sys.executable, "-m", "mcpilco.experiments.probe", "--out", str(out), "--n", str(n)]
+    cmd = [
+        sys.executable,
+        "-m",
+        "mcpilco.experiments.infra.probe",
+        "--out",
+        str(out),
+        "--n",
+        str(n),
+    ]
     cmd += ["--seconds", str(seconds), "--no-progress", *backend]
     proc = subprocess.Popen(
         cmd, start_new_session=True, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True
@@ -160,7 +168,7 @@ def test_local_workers_exit_when_the_sweep_process_is_killed(tmp_path):
     """SIGKILL of the sweep process alone (not its group): its workers, each in a 60 s job,
     are gone within seconds instead of running their jobs to the end unseen."""
     out = tmp_path / "sweep"
-    cmd = [sys.executable, "-m", "mcpilco.experiments.probe", "--out", str(out), "--n", "2"]
+    cmd = [sys.executable, "-m", "mcpilco.experiments.infra.probe", "--out", str(out), "--n", "2"]
     cmd += ["--seconds", "60", "--no-progress", "--jobs", "2"]
     proc = subprocess.Popen(cmd, start_new_session=True, stdout=subprocess.DEVNULL)
     try:
@@ -221,7 +229,7 @@ def test_a_local_ray_instance_is_refused_where_it_would_not_be_loopback_only():
     pytest.importorskip("ray")
     code = (
         "import ray\n"
-        "from mcpilco.experiments.sweep import RayBackend, SweepError\n"
+        "from mcpilco.experiments.infra.sweep import RayBackend, SweepError\n"
         "try:\n"
         "    RayBackend(None, num_cpus=1).__enter__()\n"
         "except SweepError as err:\n"

@@ -1,8 +1,8 @@
-"""Settings of the kinematics benchmark (:mod:`mcpilco.experiments.kinematics_bench`)."""
+"""Settings of the kinematics benchmark (:mod:`mcpilco.experiments.kinematics.bench`)."""
 
 import pytest
 
-from mcpilco.experiments.kinematics_bench import QUICK, KinematicsBenchSettings
+from mcpilco.experiments.kinematics.bench import QUICK, KinematicsBenchSettings
 
 
 def test_settings_refuse_unknown_parts_and_rendered_measurement_outside_a_and_c():

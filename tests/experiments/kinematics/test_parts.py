@@ -1,12 +1,12 @@
 """The parts of the kinematics benchmark at tiny sizes
-(:mod:`mcpilco.experiments.kinematics_parts`): the data sets, the training-sample selection,
+(:mod:`mcpilco.experiments.kinematics.parts`): the data sets, the training-sample selection,
 the feature rank, the FK and controller parts."""
 
 import numpy as np
 import pytest
 
 from mcpilco.envs.marker_camera import ypr_to_matrix
-from mcpilco.experiments.kinematics_parts import (
+from mcpilco.experiments.kinematics.parts import (
     controller_part,
     feature_rank,
     fk_gp_part,
@@ -14,7 +14,7 @@ from mcpilco.experiments.kinematics_parts import (
     true_structure,
     ur10_datasets,
 )
-from mcpilco.experiments.marker_trajectories import UR10_HOME
+from mcpilco.experiments.kinematics.trajectories import UR10_HOME
 
 
 def test_feature_rank_of_a_straight_segment_is_that_of_its_trig_polynomials():

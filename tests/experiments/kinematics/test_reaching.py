@@ -1,17 +1,17 @@
 """MC-PILCO reaching on the marker camera against the gradient controller, at tiny sizes
-(:mod:`mcpilco.experiments.reaching_bench`)."""
+(:mod:`mcpilco.experiments.kinematics.reaching`)."""
 
 import numpy as np
 
 from mcpilco.agents.mc_pilco.optimize import PolicyOptConfig
 from mcpilco.agents.mc_pilco.reaching import ReachingConfig
-from mcpilco.experiments.kinematics_parts import (
+from mcpilco.experiments.kinematics.parts import (
     controller_part,
     reaching_problem,
     true_structure,
     ur10_datasets,
 )
-from mcpilco.experiments.reaching_bench import (
+from mcpilco.experiments.kinematics.reaching import (
     mcpilco_reaching_part,
     reaching_markdown,
     summarise_reaching,
@@ -58,8 +58,8 @@ def fake_seed(seed, **_):
 def test_study_pools_seeds_and_targets_and_writes_its_report(tmp_path, monkeypatch):
     import json
 
-    from mcpilco.experiments import reaching_bench
-    from mcpilco.experiments.sweep import SweepRunner
+    from mcpilco.experiments.infra.sweep import SweepRunner
+    from mcpilco.experiments.kinematics import reaching as reaching_bench
 
     monkeypatch.setattr(reaching_bench, "reaching_seed", fake_seed)
     study = reaching_bench.reaching_study(

@@ -1,9 +1,9 @@
-"""Waypoints of the marker-camera UR10 (:mod:`mcpilco.experiments.marker_trajectories`)."""
+"""Waypoints of the marker-camera UR10 (:mod:`mcpilco.experiments.kinematics.trajectories`)."""
 
 import numpy as np
 import pytest
 
-from mcpilco.experiments.marker_trajectories import UR10_HOME, ur10_waypoints
+from mcpilco.experiments.kinematics.trajectories import UR10_HOME, ur10_waypoints
 
 
 def test_waypoint_rejection_sampling_keeps_accepted_draws_and_gives_up_clearly():

@@ -8,8 +8,8 @@ import dataclasses
 import pytest
 
 from mcpilco.agents.mc_pilco import DEFAULT_ENV_ID, load_config
-from mcpilco.experiments.mcpilco_bench import bench_runs, run_seed
-from mcpilco.experiments.sweep import SweepRunner
+from mcpilco.experiments.infra.sweep import SweepRunner
+from mcpilco.experiments.mcpilco.bench import bench_runs, run_seed
 
 BENCH_CONFIG = load_config(DEFAULT_ENV_ID, preset="bench")
 
@@ -77,7 +77,7 @@ def test_pooled_sections_equal_the_aggregate_over_all_seeds():
     the mean over that set alone."""
     import numpy as np
 
-    from mcpilco.experiments.mcpilco_bench import aggregate_runs, make_section, pool_sections
+    from mcpilco.experiments.mcpilco.bench import aggregate_runs, make_section, pool_sections
 
     rng = np.random.default_rng(0)
     runs_a, runs_b = _fake_runs(range(0, 7), 4, rng), _fake_runs(range(7, 12), 5, rng)
@@ -102,7 +102,7 @@ def test_pooled_sections_equal_the_aggregate_over_all_seeds():
 def test_pooling_refuses_other_configs_and_repeated_seeds():
     import numpy as np
 
-    from mcpilco.experiments.mcpilco_bench import make_section, pool_sections
+    from mcpilco.experiments.mcpilco.bench import make_section, pool_sections
 
     rng = np.random.default_rng(1)
     cfg = BENCH_CONFIG.to_dict()
@@ -117,7 +117,7 @@ def test_pooling_refuses_other_configs_and_repeated_seeds():
 def test_report_states_what_each_policy_was_trained_on(tmp_path):
     import numpy as np
 
-    from mcpilco.experiments.mcpilco_bench import make_section, section_table
+    from mcpilco.experiments.mcpilco.bench import make_section, section_table
 
     section = make_section(
         BENCH_CONFIG.to_dict(), _fake_runs([0, 1, 2, 5], 2, np.random.default_rng(2)), 1, 1.0
@@ -139,7 +139,7 @@ def test_sections_saved_before_explore_hold_are_kept_apart_and_labelled_iid():
     says 1 step, and pooling it with a held-exploration section is refused."""
     import numpy as np
 
-    from mcpilco.experiments.mcpilco_bench import make_section, pool_sections, section_table
+    from mcpilco.experiments.mcpilco.bench import make_section, pool_sections, section_table
 
     rng = np.random.default_rng(3)
     old_cfg = BENCH_CONFIG.to_dict()
@@ -155,7 +155,7 @@ def test_sections_saved_before_explore_hold_are_kept_apart_and_labelled_iid():
 def test_pooled_report_names_the_seeds_of_a_trial_only_some_ran():
     import numpy as np
 
-    from mcpilco.experiments.mcpilco_bench import make_section, pool_sections, section_table
+    from mcpilco.experiments.mcpilco.bench import make_section, pool_sections, section_table
 
     rng = np.random.default_rng(4)
     cfg_a = dataclasses.replace(BENCH_CONFIG, num_trials=1).to_dict()
@@ -172,7 +172,7 @@ def test_reference_table_divides_by_the_references_own_step_where_one_was_timed(
     """A timed step with the reference's own step on a comparable task (same spec, N,
     particles and threads) is divided into that step; every other step into the
     reference's cart-pole range 0.45-0.58 s; rows name their GP kernel."""
-    from mcpilco.experiments.mcpilco_bench import reference_table
+    from mcpilco.experiments.mcpilco.bench import reference_table
 
     def row(env_id: str, n: int, wall: float, degree: int) -> dict:
         return {

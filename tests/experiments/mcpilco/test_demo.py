@@ -1,4 +1,4 @@
-"""The demo's library parts (:mod:`mcpilco.experiments.cartpole_demo`): its preset, when it
+"""The demo's library parts (:mod:`mcpilco.experiments.mcpilco.demo`): its preset, when it
 compiles the rollout, and how it reports the rollout mode."""
 
 from __future__ import annotations
@@ -8,7 +8,7 @@ import dataclasses
 import torch
 
 from mcpilco.agents.mc_pilco import DEFAULT_ENV_ID, load_config
-from mcpilco.experiments.cartpole_demo import choose_compile, rollout_mode
+from mcpilco.experiments.mcpilco.demo import choose_compile, rollout_mode
 
 
 def test_demo_preset_is_the_bench_budget_stopped_after_three_policy_trials():

@@ -11,7 +11,7 @@ import pytest
 
 from mcpilco.agents.mc_pilco import MCPilcoConfig, TaskSpec
 from mcpilco.agents.mc_pilco.loop import make_env, run_episode, trial_seed
-from mcpilco.experiments.tracking_bench import (
+from mcpilco.experiments.mcpilco.tracking import (
     controller_alone,
     overall,
     tracking_part,
@@ -42,7 +42,7 @@ def test_tracking_section_means_ratios_and_halved_counts(tmp_path, monkeypatch):
     worst ratio and the number of seeds with every joint at most half the baseline's."""
     alone, ideal = {"q1": 0.04, "q2": 0.02}, {"q1": 0.004, "q2": 0.004}
     monkeypatch.setattr(
-        "mcpilco.experiments.tracking_bench.controller_alone",
+        "mcpilco.experiments.mcpilco.tracking.controller_alone",
         lambda config, seed, trials, feedforward=False: [ideal if feedforward else alone] * trials,
     )
 
@@ -102,7 +102,7 @@ def test_task_detector_is_trained_on_the_tasks_motion_and_alarms_on_a_push(tmp_p
     from mcpilco.agents.mc_pilco.filters import CollisionFilter, contact_steps
     from mcpilco.agents.mc_pilco.loop import make_env, run_episode
     from mcpilco.envs.arm_env import Push
-    from mcpilco.experiments.tracking_bench import train_task_detector
+    from mcpilco.experiments.mcpilco.tracking import train_task_detector
     from mcpilco.models.collision import CollisionDetector
 
     cfg = load_config("mcpilco/UR10-v0")
