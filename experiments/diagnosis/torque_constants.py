@@ -35,6 +35,7 @@ from typing import Any
 import numpy as np
 
 from mcpilco.experiments.infra.sweep import Job, SweepRunner
+from mcpilco.models.stats import Z95
 
 CURRENT_NOISE = 0.01
 """Standard deviation of the logged currents' noise [A]."""
@@ -139,7 +140,7 @@ def summarise(records: list[dict[str, Any]]) -> dict[str, Any]:
     return {
         "cases": len(records),
         "estimated_joints": int(z.size),
-        "ci95_coverage": float(np.mean(np.abs(z) <= 1.96)) if z.size else None,
+        "ci95_coverage": float(np.mean(np.abs(z) <= Z95)) if z.size else None,
         "z_rms": float(np.sqrt(np.mean(z**2))) if z.size else None,
         "median_relative_ci95": float(np.median(rel)) if rel.size else None,
         "refused_joints": f"{sum(len(r['refused']) for r in records)}/{joints}",
