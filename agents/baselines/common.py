@@ -31,6 +31,7 @@ from typing import Any
 import numpy as np
 
 from mcpilco.agents.mc_pilco.loop import env_dt, make_env, run_episode
+from mcpilco.models.files import write_atomic
 
 CURVE_FORMAT = "mcpilco-curve/1"
 """Tag of a learning-curve JSON file (one run: method, env, seed, points)."""
@@ -219,13 +220,10 @@ def validate_curve(curve: dict[str, Any], source: str = "curve") -> None:
 
 
 def save_curve(path: str | os.PathLike, curve: dict[str, Any]) -> Path:
-    """Write a learning curve atomically (``.tmp`` then ``os.replace``)."""
+    """Write a learning curve atomically (:func:`~mcpilco.models.files.write_atomic`)."""
     validate_curve(curve, str(path))
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(path.name + ".tmp")
-    tmp.write_text(json.dumps(curve, indent=1))
-    os.replace(tmp, path)
+    write_atomic(path, json.dumps(curve, indent=1))
     return path
 
 

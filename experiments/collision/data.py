@@ -44,7 +44,7 @@ from mcpilco.envs.arm_data import (
     rollout,
 )
 from mcpilco.envs.arm_env import PUSH_RANGES, UR10_HOME, Push, UR10Env
-from mcpilco.experiments.infra.sweep import write_atomic
+from mcpilco.models.files import write_atomic
 
 FloatArray = np.ndarray
 

@@ -46,7 +46,6 @@ import os
 import re
 import socket
 import sys
-import tempfile
 import time
 import traceback
 from collections.abc import Callable, Iterator, Mapping, Sequence
@@ -54,6 +53,8 @@ from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wai
 from concurrent.futures.process import BrokenProcessPool
 from pathlib import Path
 from typing import Any, Protocol
+
+from mcpilco.models.files import write_atomic
 
 LOCAL_RAY = "local"
 """Value of ``--ray`` without an address: start a local Ray instance (loopback only)."""
@@ -216,26 +217,6 @@ def result_path(results_dir: Path, key: str) -> Path:
 def error_path(results_dir: Path, key: str) -> Path:
     """Where the traceback of a failed job ``key`` is written."""
     return Path(results_dir) / f"{key}{ERROR_SUFFIX}"
-
-
-def write_atomic(path: Path, content: str | bytes) -> None:
-    """Write ``content`` to ``path`` through a temporary file in the same folder and a rename:
-    a reader (or a resumed sweep) sees the old file or the whole new one, never a part. The
-    file gets the permissions of the process's umask, as with :func:`open`."""
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-    try:
-        with os.fdopen(fd, "wb" if isinstance(content, bytes) else "w") as fh:
-            fh.write(content)
-            fh.flush()
-            os.fsync(fh.fileno())
-        umask = os.umask(0)
-        os.umask(umask)
-        os.chmod(tmp, 0o666 & ~umask)
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
 
 
 def load_result(results_dir: Path, job: Job) -> dict[str, Any] | None:
