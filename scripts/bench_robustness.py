@@ -17,7 +17,6 @@ Usage::
 from __future__ import annotations
 
 import argparse
-import json
 from collections.abc import Sequence
 from pathlib import Path
 
@@ -28,6 +27,7 @@ from mcpilco.experiments.infra.robustness import (
     run_robustness,
     write_result,
 )
+from mcpilco.experiments.results import read_result
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -52,7 +52,7 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv: Sequence[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     if args.table_from is not None:
-        result = json.loads(args.table_from.read_text())
+        result = read_result(args.table_from).payload()
         (args.table_from.with_suffix(".md")).write_text(markdown(result))
         print(markdown(result))
         return 0

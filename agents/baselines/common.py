@@ -228,11 +228,14 @@ def save_curve(path: str | os.PathLike, curve: dict[str, Any]) -> Path:
 
 
 def load_curves(path: str | os.PathLike) -> list[dict[str, Any]]:
-    """Learning curves of a JSON file: one curve, a list of curves, or ``{"curves": [...]}``."""
+    """Learning curves of a JSON file: one curve, a list of curves, ``{"curves": [...]}`` or a
+    comparison's result file (its ``curves`` case entry, :mod:`mcpilco.experiments.results`)."""
     path = Path(path)
     if not path.is_file():
         raise FileNotFoundError(f"no result file at {path}")
     data = json.loads(path.read_text())
+    if isinstance(data, dict) and isinstance(data.get("cases"), dict) and "schema" in data:
+        data = data["cases"]
     if isinstance(data, dict) and "curves" in data:
         data = data["curves"]
     curves = data if isinstance(data, list) else [data]

@@ -33,7 +33,6 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
-import json
 import os
 import platform
 import time
@@ -57,6 +56,7 @@ from mcpilco.experiments.collision.report import (
     strip,
 )
 from mcpilco.experiments.infra.sweep import Job, SweepRunner
+from mcpilco.experiments.results import Headline, Result, ResultLayout, write_result
 from mcpilco.models.collision import (
     CollisionDetector,
     CollisionInputs,
@@ -418,7 +418,48 @@ def run_benchmark(args: argparse.Namespace, runner: SweepRunner) -> dict[str, An
     if "FC" in estimators or "SP" in estimators:
         plot_scenario(results, sets, out_dir / "collision_detection.png")
     plot_roc(results, out_dir / "collision_roc.png")
-    (out_dir / "collision.json").write_text(json.dumps(strip(results), indent=1, default=str))
+    write_result(out_dir / "collision.json", RESULT_LAYOUTS[0], strip(results))
     text = markdown(results)
     (out_dir / "collision.md").write_text(text)
     return {"results": results, "markdown": text, "failed": [f.key for f in failed]}
+
+
+# -- result file and headline rows of the results index -----------------------------------
+
+RESULT_LAYOUTS = (
+    ResultLayout(
+        "collision", config=("config", "goals"), cases=("push_records", "scenario_pushes")
+    ),
+)
+"""The layout of ``collision.json`` (:mod:`mcpilco.experiments.results`)."""
+
+
+def _collision_row(r: Result) -> str:
+    est = r["estimators"]
+    fc = est["FC"]["rmse"]["quasi_static"]
+    sp = max(est["SP"]["thresholds"]["max"])
+    return (
+        f"FC quasi-static RMSE {min(fc):.2f}-{max(fc):.2f} A; largest threshold "
+        f"FC {max(est['FC']['thresholds']['max']):.2f} A against SP {sp:.2f} A"
+    )
+
+
+HEADLINES = (
+    Headline(
+        "Collision detection",
+        "collision_5000/collision.json",
+        _collision_row,
+        "collision_5000/collision.md",
+        seeds=lambda r: f"seed {r['config']['seed']}",
+    ),
+)
+"""The collision benchmark's row of the results index."""
+
+
+def replot(result: Result, json_path: Path) -> list[Path]:
+    """Redraw ``collision_rmse.png`` and ``collision_roc.png`` next to the result file (the
+    scenario figure needs the simulated data, which the file does not hold)."""
+    out, payload = Path(json_path).parent, result.payload()
+    plot_rmse(payload, out / "collision_rmse.png")
+    plot_roc(payload, out / "collision_roc.png")
+    return [out / "collision_rmse.png", out / "collision_roc.png"]

@@ -16,7 +16,6 @@ joint arrived: the same configuration ``x = (q, 0, 0)`` gives different currents
 
 from __future__ import annotations
 
-import json
 import math
 from pathlib import Path
 from typing import Any
@@ -25,6 +24,7 @@ import numpy as np
 
 from mcpilco.envs.arm_data import PiecewiseTrajectory, QuinticMove, rollout
 from mcpilco.envs.arm_env import UR10Env
+from mcpilco.experiments.results import Headline, ResultLayout, write_result
 
 __all__ = ["MOVE_SECONDS", "POSE", "REST_POSES", "markdown", "plot", "reference", "run",
            "write_outputs"]  # fmt: skip
@@ -155,7 +155,30 @@ def write_outputs(res: dict[str, Any], out_dir: str | Path) -> str:
     out.mkdir(parents=True, exist_ok=True)
     plot(res, out / "collision_quasi_static.png")
     summary = {k: v for k, v in res.items() if k != "arrays"}
-    (out / "collision_quasi_static.json").write_text(json.dumps(summary, indent=1))
+    write_result(out / "collision_quasi_static.json", RESULT_LAYOUTS[0], summary)
     text = markdown(res)
     (out / "collision_quasi_static.md").write_text(text)
     return text
+
+
+# -- result file and headline rows of the results index -----------------------------------
+
+RESULT_LAYOUTS = (
+    ResultLayout(
+        "quasi_static_friction",
+        config=("seed", "kp1", "current_gain1", "static_friction1", "current_noise_std"),
+        cases=("phases",),
+    ),
+)
+"""The layout of ``collision_quasi_static.json`` (:mod:`mcpilco.experiments.results`)."""
+
+HEADLINES = (
+    Headline(
+        "Collision detection, stiction",
+        "collision_quasi_static.json",
+        lambda r: f"stiction band of the rest current at one pose: {r['stiction_band_A']:.2f} A",
+        "collision_quasi_static.md",
+        seeds=lambda r: f"seed {r['seed']}",
+    ),
+)
+"""The quasi-static friction experiment's row of the results index."""

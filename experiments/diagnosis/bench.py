@@ -50,7 +50,6 @@ from __future__ import annotations
 
 import dataclasses
 import datetime
-import json
 import math
 import os
 import time
@@ -69,6 +68,7 @@ from mcpilco.experiments.diagnosis.scoring import (
     summarise,
 )
 from mcpilco.experiments.infra.sweep import Job, SweepRunner
+from mcpilco.experiments.results import Headline, Result, ResultLayout, write_result
 
 DEVELOPMENT_SEEDS = range(0, 100)
 """Case seeds that may be looked at while developing the loop."""
@@ -466,7 +466,7 @@ def run_benchmark(
     }
     if sweep.failed:
         payload["failed"] = [f.key for f in sweep.failed]
-    out.with_suffix(".json").write_text(json.dumps(payload, indent=1, default=str))
+    write_result(out.with_suffix(".json"), RESULT_LAYOUTS[0], payload)
     intro = (
         f"Random arms ({min_joints}-{max_joints} joints) simulated in MuJoCo under PD + gravity "
         f"compensation; {train_files} training logs and 1 held-out log of {duration:g} s each, "
@@ -695,7 +695,7 @@ def run_speed(
         "case": info,
         "records": records,
     }
-    out.with_suffix(".json").write_text(json.dumps(payload, indent=1, default=float))
+    write_result(out.with_suffix(".json"), RESULT_LAYOUTS[1], payload)
     out.with_suffix(".md").write_text(text)
     return {"case": info, "records": records, "markdown": text}
 
@@ -740,3 +740,56 @@ def speed_markdown(info: dict[str, Any], records: list[dict[str, Any]]) -> str:
             ]
             lines.append(f"| {stage} | " + " | ".join(cells) + " |")
     return "\n".join(lines) + "\n"
+
+
+# -- result files and headline rows of the results index ----------------------------------
+
+RESULT_LAYOUTS = (
+    ResultLayout("diagnosis", config=("config", "seeds"), cases=("cases",)),
+    ResultLayout("diagnosis_speed", config=("case", "seeds"), cases=("records",)),
+)
+"""The layouts of ``diagnosis_robot_logs.json`` and ``diagnosis_speed.json``
+(:mod:`mcpilco.experiments.results`)."""
+
+
+def _diagnosis_row(r: Result) -> str:
+    s = r["summary"]
+    return (
+        f"effect ranked first in {s['top1_counts']} single-effect cases (top-3: "
+        f"{s['top3_counts']}); position-dependent friction said unexplained in "
+        f"{s['off_library_unexplained_counts']}; false alarms {s['false_alarm_counts']} controls"
+    )
+
+
+def _speed_row(r: Result) -> str:
+    rows = r["case"].get("training_rows", "?")
+    times = ", ".join(
+        f"{x['start']} {x['wall_s']:.0f} s wall ({x['cpu_s']:.0f} s CPU)" for x in r["records"]
+    )
+    return f"3 joints, {rows} training rows: {times}"
+
+
+HEADLINES = (
+    Headline(
+        "Diagnosis on simulated robot logs, nominal start",
+        "diagnosis_robot_logs.json",
+        _diagnosis_row,
+        "diagnosis_robot_logs.md",
+    ),
+    Headline("Diagnosis speed", "diagnosis_speed.json", _speed_row, "diagnosis_speed.md"),
+)
+"""The diagnosis benchmark's rows of the results index."""
+
+
+def replot(result: Result, json_path: Path) -> list[Path]:
+    """Redraw the confusion figure of a diagnosis result file next to it (a speed file has
+    no figure)."""
+    if result.kind != "diagnosis":
+        return []
+    records, seeds = result["cases"], result["seeds"]
+    title = (
+        f"Diagnosis on simulated robot logs ({len(records)} cases, seeds "
+        f"{seeds[0]}..{seeds[-1]}, {result['config']['start']} start)"
+    )
+    json_path = Path(json_path)
+    return [plot_confusion(records, json_path.with_name(json_path.stem + "_confusion.png"), title)]

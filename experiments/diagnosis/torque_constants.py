@@ -24,7 +24,6 @@ the JSON and Markdown report.
 
 from __future__ import annotations
 
-import json
 import re
 import tempfile
 import time
@@ -35,6 +34,7 @@ from typing import Any
 import numpy as np
 
 from mcpilco.experiments.infra.sweep import Job, SweepRunner
+from mcpilco.experiments.results import Headline, Result, ResultLayout, write_result
 from mcpilco.models.stats import Z95
 
 CURRENT_NOISE = 0.01
@@ -237,7 +237,7 @@ def run_benchmark(
     }
     if sweep.failed:
         payload["failed"] = [f.key for f in sweep.failed]
-    out.with_suffix(".json").write_text(json.dumps(payload, indent=1, default=str))
+    write_result(out.with_suffix(".json"), RESULT_LAYOUTS[0], payload)
     title = (
         f"Torque constants of motor-current logs ({len(records)} random 3-joint arms, seeds "
         f"{seeds[0]}..{seeds[-1]}, {duration:g} s logs)"
@@ -245,3 +245,30 @@ def run_benchmark(
     text = markdown(records, summary, title)
     out.with_suffix(".md").write_text(text)
     return {"summary": summary, "records": records, "markdown": text, "sweep": sweep}
+
+
+# -- result file and headline rows of the results index -----------------------------------
+
+RESULT_LAYOUTS = (ResultLayout("torque_constants", config=("config", "seeds"), cases=("cases",)),)
+"""The layout of ``torque_constants.json`` (:mod:`mcpilco.experiments.results`)."""
+
+
+def _torque_constants_row(r: Result) -> str:
+    s = r["summary"]
+    covered = round(s["ci95_coverage"] * s["estimated_joints"])
+    return (
+        f"k_t 95% intervals hold the truth on {covered}/{s['estimated_joints']} joints; "
+        f"{s['controls_missing_effect_named']}/{s['controls']} controls name an effect; "
+        f"damping named in {s['damping_named']}/{s['damping_cases']}"
+    )
+
+
+HEADLINES = (
+    Headline(
+        "Diagnosis of motor-current logs (torque constants)",
+        "torque_constants.json",
+        _torque_constants_row,
+        "torque_constants.md",
+    ),
+)
+"""The torque-constant benchmark's row of the results index."""

@@ -50,7 +50,6 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
-import json
 import math
 import os
 import platform
@@ -77,6 +76,7 @@ from mcpilco.experiments.identification.inverse_dynamics_report import (
     plot_ur10,
 )
 from mcpilco.experiments.infra.sweep import Job, SweepRunner
+from mcpilco.experiments.results import Headline, Result, ResultLayout, read_result, write_result
 from mcpilco.models.inverse_dynamics import (
     FisherianEstimator,
     GIPEstimator,
@@ -462,27 +462,29 @@ def part_timing(args: argparse.Namespace, bar: tqdm) -> dict[str, Any]:
     }
 
 
+PLOTS = {  # part -> its figure's file name and plot function
+    "scara": ("inverse_dynamics_scara_nmse.png", plot_scara),
+    "efficiency": ("inverse_dynamics_efficiency.png", plot_efficiency),
+    "ur10": ("inverse_dynamics_ur10_nmse.png", plot_ur10),
+}
+
+
 def write_outputs(results: dict[str, Any], out_dir: Path, append: bool) -> str:
     """Write the JSON, PNGs and Markdown of ``results``; with ``append`` the parts of an
     existing JSON that ``results`` lacks are kept. Returns the Markdown."""
     json_path = out_dir / "inverse_dynamics.json"
     merged = dict(results)
     if append and json_path.exists():
-        earlier = json.loads(json_path.read_text())
+        earlier = read_result(json_path).payload()
         for part in PARTS:
             if part not in merged and part in earlier:
                 merged[part] = earlier[part]
     merged["goals"] = goals(merged)
-    plots = {
-        "scara": ("inverse_dynamics_scara_nmse.png", plot_scara),
-        "efficiency": ("inverse_dynamics_efficiency.png", plot_efficiency),
-        "ur10": ("inverse_dynamics_ur10_nmse.png", plot_ur10),
-    }
-    for part, (fname, fn) in plots.items():
+    for part, (fname, fn) in PLOTS.items():
         if part in merged:
             fn(merged[part], out_dir / fname)
             merged[part]["png"] = fname
-    json_path.write_text(json.dumps(merged, indent=1))
+    write_result(json_path, RESULT_LAYOUTS[0], merged)
     text = markdown(merged)
     (out_dir / "inverse_dynamics.md").write_text(text)
     return text
@@ -537,3 +539,63 @@ def run_benchmark(
     bar.close()
     failed = results.get("scara", {}).get("failed_runs", [])
     return {"results": results, "markdown": text, "failed": failed}
+
+
+# -- result file and headline rows of the results index -----------------------------------
+
+RESULT_LAYOUTS = (ResultLayout("inverse_dynamics", config=("config", "goals")),)
+"""The layout of ``inverse_dynamics.json`` (:mod:`mcpilco.experiments.results`)."""
+
+
+def _scara_row(r: Result) -> str:
+    nmse = r["scara"]["nmse"]
+    med = {k: [statistics.median(col) for col in zip(*v, strict=True)] for k, v in nmse.items()}
+    gip = med["GIP"]
+    rbf = min(a / g for a, g in zip(med["RBF"], gip, strict=True))
+    nn = min(a / g for a, g in zip(med["NN"], gip, strict=True))
+    return (
+        f"SCARA: GIP median nMSE {min(gip):.1e}-{max(gip):.1e} per joint, "
+        f">= {rbf:.0f}x below RBF and >= {nn:.0f}x below NN"
+    )
+
+
+def _ur10_row(r: Result) -> str:
+    u = r["ur10"]
+    ratio = [a / b for a, b in zip(u["nmse"]["GIP+F"], u["noise_floor"], strict=True)]
+    return (
+        f"UR10 from motor currents: GIP+F within {min(ratio[:4]):.1f}-{max(ratio[:4]):.1f}x "
+        "of the noise floor on joints 1-4"
+    )
+
+
+HEADLINES = (
+    Headline(
+        "Inverse dynamics",
+        "inverse_dynamics.json",
+        _scara_row,
+        "inverse_dynamics.md",
+        part="scara",
+        seeds=lambda r: (
+            f"seed {r['config'].get('seed', 0)}, {r['config']['runs']} Monte Carlo runs"
+        ),
+    ),
+    Headline(
+        "Inverse dynamics",
+        "inverse_dynamics.json",
+        _ur10_row,
+        "inverse_dynamics.md",
+        part="ur10_gip_f",
+        seeds=lambda r: f"seed {r['config'].get('seed', 0)}",
+    ),
+)
+"""The inverse-dynamics benchmark's rows of the results index."""
+
+
+def replot(result: Result, json_path: Path) -> list[Path]:
+    """Redraw the inverse-dynamics figures next to the result file, from the file."""
+    out, paths = Path(json_path).parent, []
+    for part, (fname, fn) in PLOTS.items():
+        if part in result:
+            fn(result[part], out / fname)
+            paths.append(out / fname)
+    return paths

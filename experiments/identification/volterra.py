@@ -55,8 +55,6 @@ mean Fit per kernel and setup, with the run counts actually used;
 
 from __future__ import annotations
 
-import json
-import math
 import sys
 import time
 from dataclasses import asdict, dataclass, field
@@ -74,6 +72,7 @@ from mcpilco.experiments.identification.volterra_report import (
     result_order,
 )
 from mcpilco.experiments.infra.sweep import InProcessBackend, Job, LocalBackend, SweepRunner
+from mcpilco.experiments.results import Headline, Result, ResultLayout, write_result
 
 # one config per experiment: every default of the benchmark lives here
 EXP1 = {
@@ -409,18 +408,13 @@ def run_benchmark(
         "fit_definition": "100 (1 - ||z - z_hat||_1 / ||z - mean(z)||_1), noiseless test output",
     }
     paths = {"json": str(out / "volterra.json"), "markdown": str(out / "volterra.md")}
-    with open(paths["json"], "w") as fh:
-        json.dump(
-            {
-                "meta": meta,
-                "summary": coll["summary"],
-                "fits": coll["fits"],
-                "runs": sorted(results, key=result_order),
-            },
-            fh,
-            indent=1,
-            default=_json_default,
-        )
+    payload = {
+        "meta": meta,
+        "summary": coll["summary"],
+        "fits": coll["fits"],
+        "runs": sorted(results, key=result_order),
+    }
+    write_result(paths["json"], RESULT_LAYOUTS[0], payload, command=meta.get("command"))
     Path(paths["markdown"]).write_text(markdown_table(coll["summary"], meta) + "\n")
     if "exp1" in coll["fits"]:
         paths["exp1_png"] = str(out / "volterra_exp1.png")
@@ -453,9 +447,45 @@ def quick_benchmark(out_dir: str | Path = "results/volterra_quick", jobs: int = 
     )
 
 
-def _json_default(obj: Any) -> Any:
-    if isinstance(obj, np.generic):
-        return obj.item()
-    if isinstance(obj, float) and not math.isfinite(obj):
-        return None
-    raise TypeError(f"not JSON serialisable: {type(obj)}")
+# -- result file and headline rows of the results index -----------------------------------
+
+RESULT_LAYOUTS = (ResultLayout("volterra", config=("meta",), cases=("fits", "runs")),)
+"""The layout of ``volterra.json`` (:mod:`mcpilco.experiments.results`)."""
+
+
+def _volterra_row(r: Result) -> str:
+    exp2 = r["summary"]["exp2"]
+    fits = " / ".join(f"{exp2[f'r{k}_snr20']['sed_mpk_tied']['mean']:.1f}" for k in (3, 4, 5))
+    s2 = r["summary"]["exp1"]["setup2"]
+    return (
+        f"SED-MPK mean Fit {fits} % at r = 3 / 4 / 5, 20 dB; Setup 2 median Fit MPK "
+        f"{s2['mpk']['median']:.1f} %, PK {s2['pk']['median']:.1f} %"
+    )
+
+
+def _volterra_seeds(r: Result) -> str:
+    m = r["meta"]
+    b = m["base_seed"]
+    return f"{b}-{b + m['runs_exp1'] - 1} (exp. 1), {b}-{b + m['runs_exp2'] - 1} (exp. 2)"
+
+
+HEADLINES = (
+    Headline(
+        "Kernels: Volterra identification",
+        "volterra.json",
+        _volterra_row,
+        "volterra.md",
+        seeds=_volterra_seeds,
+    ),
+)
+"""The Volterra benchmark's row of the results index."""
+
+
+def replot(result: Result, json_path: Path) -> list[Path]:
+    """Redraw ``volterra_exp1.png`` / ``volterra_exp2.png`` next to the result file."""
+    out, paths = Path(json_path).parent, []
+    for exp, fn in (("exp1", plot_exp1), ("exp2", plot_exp2)):
+        if exp in result["fits"]:
+            fn(result["fits"][exp], out / f"volterra_{exp}.png")
+            paths.append(out / f"volterra_{exp}.png")
+    return paths

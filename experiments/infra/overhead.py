@@ -47,6 +47,7 @@ from mcpilco.experiments.infra.sweep import (
     SweepRunner,
     result_path,
 )
+from mcpilco.experiments.results import Headline, Result, ResultLayout, write_result
 
 BACKENDS = ("local", "ray")
 """Backends the overhead benchmark can compare."""
@@ -111,7 +112,6 @@ def measure_sweep(
 
 
 def _read(path: Path) -> dict[str, Any]:
-    import json
 
     return json.loads(path.read_text())
 
@@ -214,7 +214,38 @@ def write_report(result: dict[str, Any], out_dir: Path) -> str:
     ``result["command"]``) in ``out_dir``; returns the Markdown."""
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
-    (out_dir / "sweep_overhead.json").write_text(json.dumps(result, indent=1) + "\n")
+    write_result(out_dir / "sweep_overhead.json", RESULT_LAYOUTS[0], result)
     text = markdown(result, result["command"])
     (out_dir / "sweep_overhead.md").write_text(text)
     return text
+
+
+# -- result file and headline rows of the results index -----------------------------------
+
+RESULT_LAYOUTS = (
+    ResultLayout(
+        "sweep_overhead", config=("jobs", "cpus", "seconds_per_job", "spin_rounds"), cases=("runs",)
+    ),
+)
+"""The layout of ``sweep_overhead.json`` (:mod:`mcpilco.experiments.results`)."""
+
+
+def _sweep_row(r: Result) -> str:
+    by: dict[str, list[dict[str, Any]]] = {}
+    for s in r["summary"]:
+        by.setdefault(s["backend"], []).append(s)
+    parts = []
+    for backend, rows in by.items():
+        start = [x["startup_s"] for x in rows]
+        gap = [x["dispatch_gap_s"] for x in rows]
+        parts.append(
+            f"{backend}: start {min(start):.0f}-{max(start):.0f} s, "
+            f"{1e3 * min(gap):.0f}-{1e3 * max(gap):.0f} ms between jobs"
+        )
+    return "sweep runner overhead, " + "; ".join(parts)
+
+
+HEADLINES = (
+    Headline("Sweeps", "sweep_overhead.json", _sweep_row, "sweep_overhead.md", seeds=lambda r: "-"),
+)
+"""The sweep runner's row of the results index."""

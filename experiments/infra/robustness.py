@@ -22,7 +22,6 @@ the tables of :func:`markdown` in ``robustness.md``.
 from __future__ import annotations
 
 import importlib.metadata
-import json
 import os
 import re
 import signal
@@ -38,6 +37,9 @@ from typing import Any
 
 import numpy as np
 import pandas as pd
+
+from mcpilco.experiments import results as result_files
+from mcpilco.experiments.results import Headline, Result, ResultLayout
 
 __all__ = [
     "OUTCOMES",
@@ -461,7 +463,7 @@ def write_result(result: dict[str, Any], out_dir: Path) -> tuple[Path, Path]:
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     json_path, md_path = out_dir / "robustness.json", out_dir / "robustness.md"
-    json_path.write_text(json.dumps(result, indent=1))
+    result_files.write_result(json_path, RESULT_LAYOUTS[0], result)
     md_path.write_text(markdown(result))
     return json_path, md_path
 
@@ -472,3 +474,28 @@ def outcome_lines(result: dict[str, Any]) -> list[str]:
     by = Counter((c["tool"], c["kind"], c["outcome"]) for c in result["cases"])
     lines = ["\t".join(map(str, (*key, count))) for key, count in sorted(by.items())]
     return lines + [str(row) for row in (*result["fuzz"], *result["kills"])]
+
+
+# -- result file and headline rows of the results index -----------------------------------
+
+RESULT_LAYOUTS = (ResultLayout("robustness", cases=("cases", "fuzz", "kills")),)
+"""The layout of ``robustness.json`` (:mod:`mcpilco.experiments.results`)."""
+
+
+def _robustness_row(r: Result) -> str:
+    outcomes = [c["outcome"] for c in r["cases"]]
+    fuzz = sum(f["inputs"] for f in r["fuzz"])
+    crash = outcomes.count("crash") + sum(f.get("crash", 0) for f in r["fuzz"])
+    silent = outcomes.count("silent wrong") + sum(f.get("silent wrong", 0) for f in r["fuzz"])
+    return (
+        f"{len(outcomes)} bad inputs to the console scripts and {fuzz} fuzzed inputs: "
+        f"{crash} crashes, {silent} silent wrong answers"
+    )
+
+
+HEADLINES = (
+    Headline(
+        "Robustness", "robustness.json", _robustness_row, "robustness.md", seeds=lambda r: "-"
+    ),
+)
+"""The robustness figures' row of the results index."""

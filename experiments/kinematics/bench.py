@@ -11,7 +11,6 @@ alone over several seeds and writes ``kinematics_c_seeds.{json,md}``.
 from __future__ import annotations
 
 import dataclasses
-import json
 import time
 import warnings
 from dataclasses import dataclass
@@ -32,6 +31,7 @@ from mcpilco.experiments.kinematics.parts import (
     ur10_datasets,
 )
 from mcpilco.experiments.kinematics.report import fk_seed_markdown, markdown_report, plot_results
+from mcpilco.experiments.results import Headline, Result, ResultLayout, read_result, write_result
 
 __all__ = [
     "PART_KEYS",
@@ -152,7 +152,7 @@ def run_benchmark(
     )  # fmt: skip
     old_json = out / "kinematics.json"
     if merge and old_json.exists():
-        old = json.loads(old_json.read_text())
+        old = read_result(old_json).payload()
         for key in (*PART_KEYS, "identification"):
             if key in old:
                 if key != "identification":
@@ -213,7 +213,7 @@ def run_benchmark(
     res["paths"] = plot_results(res, out)
     res["paths"]["json"] = str(out / "kinematics.json")
     res["paths"]["markdown"] = str(out / "kinematics.md")
-    Path(res["paths"]["json"]).write_text(json.dumps(res, indent=1))
+    write_result(res["paths"]["json"], RESULT_LAYOUTS[0], res)
     Path(res["paths"]["markdown"]).write_text(markdown_report(res))
     return res
 
@@ -242,6 +242,94 @@ def run_fk_seed_study(
     study["command"] = command
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
-    (out / "kinematics_c_seeds.json").write_text(json.dumps(study, indent=1))
+    write_result(out / "kinematics_c_seeds.json", RESULT_LAYOUTS[1], study)
     (out / "kinematics_c_seeds.md").write_text(fk_seed_markdown(study, command))
     return study
+
+
+# -- result files and headline rows of the results index ----------------------------------
+
+RESULT_LAYOUTS = (
+    ResultLayout("kinematics", config=("seed", "span", "noise_scale", "measurement", "paths")),
+    ResultLayout(
+        "kinematics_seeds",
+        config=("seeds", "n_train", "train_selection", "marker_protocol", "goal"),
+        cases=("rows",),
+    ),
+)
+"""The layouts of ``kinematics.json`` and ``kinematics_c_seeds.json``
+(:mod:`mcpilco.experiments.results`)."""
+
+
+def _mm(xs: list[float]) -> str:
+    return " / ".join(f"{1e3 * x:.1f}" for x in xs) + " mm"
+
+
+def _structure_row(r: Result) -> str:
+    mc = r["monte_carlo"]
+    return (
+        f"structure identification: {mc['percent_correct']:.0f} % of {mc['triplets']} "
+        f"triplets correct on {mc['robots']} random robots"
+    )
+
+
+def _fk_seeds_row(r: Result) -> str:
+    met = r["goal"]["met_all"]
+    chain = r["summary"]["chain"]["mean"][:3]
+    poly = r["summary"]["polynomial"]["mean"][:3]
+    n = len(r["seeds"])
+    return (
+        f"FK from 100 designed samples, mean RMSE: chain model {_mm(chain)} "
+        f"(goal met on {met['chain']} of {n} seeds), one GP {_mm(poly)} "
+        f"({met['polynomial']} of {n})"
+    )
+
+
+def _controller_row(r: Result) -> str:
+    last = r["controller"]["rounds"][-1]
+    t = last["rmse_true"]
+    return (
+        f"kinematic controller after {last['round']} online refits: {_mm(t[:3])}, {t[-1]:.3f} rad"
+    )
+
+
+def _controller_chain_row(r: Result) -> str:
+    t = r["controller"]["rounds"][0]["rmse_true"]
+    return f"controller on the chain model, before any refit: {_mm(t[:3])}, {t[-1]:.3f} rad"
+
+
+def _seed(r: Result) -> str:
+    return f"seed {r['seed']}"
+
+
+HEADLINES = (
+    Headline(
+        "Kinematics from markers",
+        "kinematics.json",
+        _structure_row,
+        "kinematics.md",
+        seeds=lambda r: f"random robots from seed {r['seed']}",
+    ),
+    Headline(
+        "Kinematics from markers", "kinematics_c_seeds.json", _fk_seeds_row, "kinematics_c_seeds.md"
+    ),
+    Headline(
+        "Kinematics from markers", "kinematics.json", _controller_row, "kinematics.md", seeds=_seed
+    ),
+    Headline(
+        "Kinematics from markers",
+        "kinematics_d_chain/kinematics.json",
+        _controller_chain_row,
+        "kinematics_d_chain/kinematics.md",
+        seeds=_seed,
+    ),
+)
+"""The kinematics benchmark's rows of the results index."""
+
+
+def replot(result: Result, json_path: Path) -> list[Path]:
+    """Redraw the kinematics figures next to a ``kinematics.json`` result file (a seed study
+    has no figure)."""
+    if result.kind != "kinematics":
+        return []
+    return [Path(p) for p in plot_results(result.payload(), Path(json_path).parent).values()]

@@ -24,7 +24,6 @@ offscreen OpenGL (``MUJOCO_GL=egl`` or ``osmesa``).
 
 from __future__ import annotations
 
-import json
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -35,6 +34,7 @@ import numpy as np
 from mcpilco.envs.marker_camera import MarkerCameraEnv, ypr_to_matrix
 from mcpilco.envs.marker_detection import camera_matrix
 from mcpilco.experiments.kinematics.trajectories import ur10_waypoints, waypoint_trajectory
+from mcpilco.experiments.results import Headline, Result, ResultLayout, percent, write_result
 
 __all__ = [
     "FACING_BINS",
@@ -349,6 +349,36 @@ def write_outputs(res: dict[str, Any], out_dir: str | Path, command: str) -> str
     text = markdown(res, command)
     res.pop("_arrays")
     res["command"] = command
-    (out / "marker_detection.json").write_text(json.dumps(res, indent=1))
+    write_result(out / "marker_detection.json", RESULT_LAYOUTS[0], res)
     (out / "marker_detection.md").write_text(text)
     return text
+
+
+# -- result file and headline rows of the results index -----------------------------------
+
+RESULT_LAYOUTS = (
+    ResultLayout("marker_detection", config=("config",), cases=("per_marker", "by_facing_angle")),
+)
+"""The layout of ``marker_detection.json`` (:mod:`mcpilco.experiments.results`)."""
+
+
+def _markers_row(r: Result) -> str:
+    o = r["overall"]
+    xyz = " / ".join(f"{x:.1f}" for x in o["position_rmse_per_axis_mm_without_gross"])
+    return (
+        f"rendered ArUco markers: {percent(o['detection_rate'])} detected, {xyz} mm and "
+        f"{o['geodesic_rms_without_gross']:.3f} rad without gross errors "
+        f"({percent(o['gross_fraction'])} gross)"
+    )
+
+
+HEADLINES = (
+    Headline(
+        "Kinematics: rendered markers",
+        "marker_detection.json",
+        _markers_row,
+        "marker_detection.md",
+        seeds=lambda r: f"seed {r['config']['seed']}",
+    ),
+)
+"""The marker detection benchmark's row of the results index."""

@@ -52,6 +52,7 @@ from mcpilco.experiments.kinematics.parts import (
     ur10_datasets,
 )
 from mcpilco.experiments.kinematics.trajectories import drive_to
+from mcpilco.experiments.results import Headline, Result, ResultLayout, write_result
 from mcpilco.models.kinematics import ChainForwardKinematicsGP
 from mcpilco.models.kinematics.rotations import ypr_to_matrix
 
@@ -334,7 +335,6 @@ def reaching_study(
     Raises:
         RuntimeError: when a seed failed (its traceback is in ``runs_dir/reaching``).
     """
-    import json
 
     runner = runner if runner is not None else SweepRunner(progress=True)
     jobs = [Job(f"seed{seed}", reaching_seed, {"seed": seed, **settings}) for seed in seeds]
@@ -353,7 +353,7 @@ def reaching_study(
     )
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
-    (out / "kinematics_reaching.json").write_text(json.dumps(study, indent=1))
+    write_result(out / "kinematics_reaching.json", RESULT_LAYOUTS[0], study)
     plot_reaching(study, out / "kinematics_reaching.png")
     (out / "kinematics_reaching.md").write_text(
         "# MC-PILCO reaching through the learned kinematics vs the gradient controller\n\n"
@@ -361,3 +361,44 @@ def reaching_study(
         "![errors per trial](kinematics_reaching.png)\n"
     )
     return study
+
+
+# -- result file and headline rows of the results index -----------------------------------
+
+RESULT_LAYOUTS = (
+    ResultLayout("kinematics_reaching", config=("seeds", "settings"), cases=("rows",)),
+)
+"""The layout of ``kinematics_reaching.json`` (:mod:`mcpilco.experiments.results`)."""
+
+
+def _reaching_row(r: Result) -> str:
+    mc, ctrl = r["summary"]["mcpilco"][-1], r["summary"]["controller"][-1]
+
+    def one(t: dict[str, Any]) -> str:
+        return (
+            f"{1000 * t['position_median']:.1f} mm, {t['orientation_median']:.3f} rad "
+            f"({t['reached']} / {t['targets']} within 1 cm and 0.05 rad)"
+        )
+
+    return (
+        f"MC-PILCO reaching through the learned kinematics, median after trial {mc['trial']}: "
+        f"{one(mc)}; gradient controller on the same data: {one(ctrl)}"
+    )
+
+
+HEADLINES = (
+    Headline(
+        "Kinematics: MC-PILCO reaching",
+        "kinematics_reaching.json",
+        _reaching_row,
+        "kinematics_reaching.md",
+    ),
+)
+"""The reaching study's row of the results index."""
+
+
+def replot(result: Result, json_path: Path) -> list[Path]:
+    """Redraw ``kinematics_reaching.png`` next to the result file, from the file."""
+    path = Path(json_path).with_suffix(".png")
+    plot_reaching(result.payload(), path)
+    return [path]

@@ -20,7 +20,6 @@ label, merged with the file found), with a Markdown report and plots next to it
 from __future__ import annotations
 
 import dataclasses
-import json
 import time
 from collections.abc import Callable, Sequence
 from pathlib import Path
@@ -30,6 +29,15 @@ import numpy as np
 
 from mcpilco.agents.mc_pilco import DEFAULT_ENV_ID, MCPilcoConfig, load_config
 from mcpilco.experiments.infra.sweep import Job, SweepReport, SweepRunner
+from mcpilco.experiments.results import (
+    Headline,
+    Result,
+    ResultLayout,
+    percent,
+    read_result,
+    seed_ranges,
+    write_result,
+)
 
 PARTS = ("runs", "timing", "rmse", "rmse_runs")  # the parts, in the order they run
 RESULTS_NAME = "mcpilco_cartpole"  # stem of the JSON, Markdown and PNG outputs
@@ -51,7 +59,6 @@ __all__ = [
     "section_key",
     "section_table",
     "reference_table",
-    "seed_ranges",
     "timing_part",
     "timing_row",
     "write_report",
@@ -292,7 +299,7 @@ def load_results(out_dir: Path, name: str = RESULTS_NAME) -> dict[str, Any]:
     """The results in ``out_dir/<name>.json`` (default ``mcpilco_cartpole.json``; empty when
     there is none yet)."""
     path = Path(out_dir) / f"{name}.json"
-    return json.loads(path.read_text()) if path.is_file() else {}
+    return read_result(path).payload() if path.is_file() else {}
 
 
 def runs_part(
@@ -574,17 +581,6 @@ def section_table(env_id: str, section: dict) -> str:
     return "\n".join(lines) + "\n"
 
 
-def seed_ranges(seeds: list[int]) -> str:
-    """``[0, 1, 2, 5, 6]`` -> ``"0-2, 5-6"``."""
-    runs: list[list[int]] = []  # [first, last] of each run of consecutive seeds
-    for s in sorted(seeds):
-        if runs and runs[-1][1] == s - 1:
-            runs[-1][1] = s
-        else:
-            runs.append([s, s])
-    return ", ".join(str(a) if a == b else f"{a}-{b}" for a, b in runs)
-
-
 CONVENTION_NOTE = (
     "Rows: `experience` counts the seconds of interaction up to the end of that trial (the "
     "trial included); `policy trained on` is the data the trial's policy was optimised on. "
@@ -706,9 +702,10 @@ def reference_table(timing: list[dict], measured: Sequence[dict] = ()) -> list[s
 
 
 def write_report(results: dict, out_dir: Path) -> None:
-    """``mcpilco_cartpole.md``, ``.json`` and (with runs) ``.png`` of ``results`` in
-    ``out_dir``: one table per runs section, the timing table, the two RMSE tables; the
-    plot shows success rate and time in goal against experience, one curve per section."""
+    """``mcpilco_cartpole.md``, ``.json`` and (with runs) the figures of ``results`` in
+    ``out_dir``: one table per runs section, the timing table, the two RMSE tables;
+    ``mcpilco_cartpole_sections.png`` shows every section's success rate and time in goal
+    against experience, ``mcpilco_cartpole.png`` the headline (:func:`replot`)."""
     out_dir.mkdir(parents=True, exist_ok=True)
     md = ["# MC-PILCO on the cartpole swing-up", "", CONVENTION_NOTE, ""]
     if results.get("machine"):
@@ -806,30 +803,213 @@ def write_report(results: dict, out_dir: Path) -> None:
             )
         md.append("")
     (out_dir / f"{RESULTS_NAME}.md").write_text("\n".join(md))
-    with open(out_dir / f"{RESULTS_NAME}.json", "w") as fh:
-        json.dump(results, fh, indent=1)
+    write_result(out_dir / f"{RESULTS_NAME}.json", RESULT_LAYOUTS[0], results)
     if results.get("runs"):
-        import matplotlib
+        json_path = out_dir / f"{RESULTS_NAME}.json"
+        replot(read_result(json_path), json_path)
 
-        matplotlib.use("Agg")
-        import matplotlib.pyplot as plt
 
-        n_sections = len(results["runs"])
-        fig, axes = plt.subplots(1, 2, figsize=(9, 3.5 + 0.25 * -(-n_sections // 3)))
-        for env_id, section in results["runs"].items():
-            rows = section["per_trial"]
-            t = [r["experience_s"] for r in rows]
-            axes[0].plot(t, [100 * r["success_rate"] for r in rows], "o-", label=env_id)
-            goal = [r.get("time_in_goal_s", float("nan")) for r in rows]
-            axes[1].plot(t, goal, "o-", label=env_id)
-        for ax, lab in zip(axes, ["success rate [%]", "time in goal [s]"], strict=True):
-            ax.set_xlabel("experience [s]")
-            ax.set_ylabel(lab)
-            ax.grid(alpha=0.3)
-        handles, labels = axes[0].get_legend_handles_labels()
-        ncol = 3
-        fig.legend(handles, labels, loc="lower center", ncol=ncol, fontsize=8, frameon=False)
-        legend_rows = -(-len(labels) // ncol)
-        fig.tight_layout(rect=(0, 0.06 * legend_rows, 1, 1))  # the legend below the panels
-        fig.savefig(out_dir / f"{RESULTS_NAME}.png", dpi=110)
-        plt.close(fig)
+def plot_sections(results: dict[str, Any], path: Path) -> Path:
+    """Success rate and time in goal against experience, one curve per runs section (the lab
+    figure of the Markdown report; the headline is :mod:`mcpilco.experiments.mcpilco.figures`)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    n_sections = len(results["runs"])
+    fig, axes = plt.subplots(1, 2, figsize=(9, 3.5 + 0.25 * -(-n_sections // 3)))
+    for env_id, section in results["runs"].items():
+        rows = section["per_trial"]
+        t = [r["experience_s"] for r in rows]
+        axes[0].plot(t, [100 * r["success_rate"] for r in rows], "o-", label=env_id)
+        goal = [r.get("time_in_goal_s", float("nan")) for r in rows]
+        axes[1].plot(t, goal, "o-", label=env_id)
+    for ax, lab in zip(axes, ["success rate [%]", "time in goal [s]"], strict=True):
+        ax.set_xlabel("experience [s]")
+        ax.set_ylabel(lab)
+        ax.grid(alpha=0.3)
+    handles, labels = axes[0].get_legend_handles_labels()
+    ncol = 3
+    fig.legend(handles, labels, loc="lower center", ncol=ncol, fontsize=8, frameon=False)
+    legend_rows = -(-len(labels) // ncol)
+    fig.tight_layout(rect=(0, 0.06 * legend_rows, 1, 1))  # the legend below the panels
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path
+
+
+def replot(result: Result, json_path: Path) -> list[Path]:
+    """Redraw the figures of an MC-PILCO result file next to it: the sections figure and,
+    when the headline's sections are there, the headline figure (the RMSE parts' figures
+    need the particles and per-step errors, which the file does not hold)."""
+    from mcpilco.experiments.mcpilco.figures import HEADLINE_SECTIONS, replot_headline
+
+    out_dir = Path(json_path).parent
+    stem = Path(json_path).stem
+    paths = []
+    if result.get("runs"):
+        paths.append(plot_sections(result.payload(), out_dir / f"{stem}_sections.png"))
+        if all(key in result["runs"] for key, _, _ in HEADLINE_SECTIONS):
+            paths.append(replot_headline(out_dir))
+    return paths
+
+
+# -- result file and headline rows of the results index -----------------------------------
+
+RESULT_LAYOUTS = (
+    ResultLayout("mcpilco", config=("note", "reference_steps_note"), cases=("runs", "rmse_runs")),
+)
+"""The layout of ``mcpilco_cartpole.json`` (:mod:`mcpilco.experiments.results`)."""
+
+DEFAULT_LABEL = "hold2"  # the runs of the bench preset with held exploration (the default)
+NATIVE_LABEL = "native"  # the same runs with the compiled rollout
+FRESH_LABEL = "fresh100"  # seeds 100-119, on which no setting was chosen
+DMC_SECTION = "mcpilco/DMCCartpoleSwingUp-v0 (snap140)"  # the dm-control headline's section
+
+
+def run_section(result: Result, label: str) -> dict[str, Any]:
+    """The cart-pole runs section written with ``--label label``."""
+    return result["runs"][section_key(DEFAULT_ENV_ID, label)]
+
+
+def success_at(section: dict[str, Any]) -> dict[float, float]:
+    """Experience [s] -> success rate of a runs section."""
+    return {r["experience_s"]: r["success_rate"] for r in section["per_trial"]}
+
+
+def _default_row(r: Result) -> str:
+    s = success_at(run_section(r, DEFAULT_LABEL))
+    return (
+        f"swing-up success {percent(s[12.0])} after 12 s and {percent(s[15.0])} after 15 s of "
+        "experience (bench preset, held exploration)"
+    )
+
+
+def _native_row(r: Result) -> str:
+    s = success_at(run_section(r, NATIVE_LABEL))
+    return f"rollout compiled (`native`): success {percent(s[12.0])} after 12 s of experience"
+
+
+def _fresh_row(r: Result) -> str:
+    s = success_at(run_section(r, FRESH_LABEL))
+    return (
+        f"on seeds no setting was chosen on (`native` rollout): success {percent(s[9.0])} / "
+        f"{percent(s[12.0])} / {percent(s[15.0])} after 9 / 12 / 15 s of experience"
+    )
+
+
+def _dmc_row(r: Result) -> str:
+    s = success_at(r["runs"][DMC_SECTION])
+    return (
+        f"dm-control's cart-pole (end stops declared), seeds no setting was chosen on: success "
+        f"{percent(s[7.0])} / {percent(s[11.0])} / {percent(s[15.0])} after 7 / 11 / 15 s of "
+        "experience"
+    )
+
+
+def _step_row(r: Result) -> str:
+    timing = r["timing"]
+    row = next(
+        t
+        for t in timing
+        if t["n_points"] == 100 and t["num_particles"] == 400 and t["threads"] == 2
+    )
+    line = (
+        f"{row['compiled_s_per_step_wall']:.3f} s per policy-optimisation step "
+        f"(`{row['compile_backend']}`, 400 particles, N = 100, 2 threads; eager "
+        f"{row['s_per_step_wall']:.3f} s)"
+    )
+    large = [  # the cart-pole at the bench preset's largest GP
+        t
+        for t in timing
+        if t["n_points"] == 250 and t["num_particles"] == 400 and t["threads"] == 2
+        and t.get("env_id", row.get("env_id")) == row.get("env_id")
+        and "compiled_s_per_step_wall" in t
+    ]  # fmt: skip
+    if large:
+        line += f", {large[0]['compiled_s_per_step_wall']:.3f} s at N = 250"
+    own = {(m["env_id"], m["n_points"]): m["s_per_step"] for m in r.get("reference_steps", [])}
+    ratios = [
+        own[(t["env_id"], t["n_points"])] / t["compiled_s_per_step_wall"]
+        for t in timing
+        if (t.get("env_id"), t["n_points"]) in own
+        and t.get("mpk_degree") == 1
+        and "compiled_s_per_step_wall" in t
+    ]
+    if ratios:  # the arm spec against the reference's own arm task, same kernel
+        line += (
+            f"; arm spec (UR10, RBF + MPK p = 1) {min(ratios):.0f}-{max(ratios):.0f}x the "
+            "reference's step on its UR5 task"
+        )
+    return line
+
+
+def _gpu_row(r: Result) -> str:
+    steps = [t["s_per_step_wall"] for t in r["timing"] if t.get("cuda_graph")]
+    return f"{min(steps):.3f}-{max(steps):.3f} s per step on an H100 (400-4,000 particles)"
+
+
+def _runs_seeds(label: str) -> Callable[[Result], str]:
+    return lambda r: seed_ranges(run_section(r, label)["seeds"])
+
+
+def _no_seeds(r: Result) -> str:
+    return "-"
+
+
+def _runs_part(label: str) -> str:
+    return f"runs ({label})"
+
+
+JSON_NAME = f"{RESULTS_NAME}.json"  # the bench's result file
+HEADLINES = (
+    Headline(
+        "MC-PILCO, cart-pole swing-up",
+        JSON_NAME,
+        _default_row,
+        f"{RESULTS_NAME}.md",
+        part=_runs_part(DEFAULT_LABEL),
+        seeds=_runs_seeds(DEFAULT_LABEL),
+    ),
+    Headline(
+        "MC-PILCO, compiled rollout",
+        JSON_NAME,
+        _native_row,
+        f"{RESULTS_NAME}.md",
+        part=_runs_part(NATIVE_LABEL),
+        seeds=_runs_seeds(NATIVE_LABEL),
+    ),
+    Headline(
+        "MC-PILCO, fresh seeds",
+        JSON_NAME,
+        _fresh_row,
+        f"{RESULTS_NAME}.md",
+        part=_runs_part(FRESH_LABEL),
+        seeds=_runs_seeds(FRESH_LABEL),
+    ),
+    Headline(
+        "MC-PILCO, dm-control cart-pole",
+        JSON_NAME,
+        _dmc_row,
+        f"{RESULTS_NAME}.md",
+        part="runs (DMC snap140)",
+        seeds=lambda r: seed_ranges(r["runs"][DMC_SECTION]["seeds"]),
+    ),
+    Headline(
+        "MC-PILCO, speed (CPU)",
+        JSON_NAME,
+        _step_row,
+        f"{RESULTS_NAME}.md",
+        part="timing",
+        seeds=_no_seeds,
+    ),
+    Headline(
+        "MC-PILCO, speed (GPU)",
+        f"h100/{JSON_NAME}",
+        _gpu_row,
+        f"h100/{RESULTS_NAME}.md",
+        seeds=_no_seeds,
+    ),
+)
+"""The MC-PILCO benchmark's rows of the results index."""

@@ -39,6 +39,14 @@ from mcpilco.agents.baselines.common import (
 from mcpilco.agents.mc_pilco.loop import check_dynamics_task, load_config
 from mcpilco.agents.mc_pilco.task import TaskSpec
 from mcpilco.experiments.infra.sweep import Job, SweepRunner
+from mcpilco.experiments.results import (
+    Headline,
+    Result,
+    ResultLayout,
+    read_result,
+    seed_ranges,
+    write_result,
+)
 from mcpilco.models.device import retain_host_memory
 
 SB3_METHODS = ("sac", "td3", "ppo")
@@ -414,7 +422,7 @@ def write_report(report: dict[str, Any], out_dir: Path) -> dict[str, Path]:
         "md": out_dir / f"{stem}.md",
         "png": out_dir / f"{stem}.png",
     }
-    paths["json"].write_text(json.dumps(report, indent=1))
+    write_result(paths["json"], RESULT_LAYOUTS[0], report)
     paths["md"].write_text(markdown(report))
     plot(report, paths["png"])
     return paths
@@ -576,7 +584,7 @@ def curves_from_bench_json(path: Path, env_id: str, label: str = "") -> list[dic
     :func:`~mcpilco.experiments.kinematics.reaching.reaching_curves`)."""
     from mcpilco.experiments.mcpilco.bench import section_key
 
-    data = json.loads(Path(path).read_text())
+    data = read_result(path).payload()
     if isinstance(data.get("rows"), list) and all("mcpilco" in r for r in data["rows"]):
         from mcpilco.experiments.kinematics.reaching import reaching_curves
 
@@ -768,3 +776,99 @@ def compare(
         "wall_s_this_call": time.perf_counter() - t0,
     }
     return report
+
+
+# -- result file and headline rows of the results index -----------------------------------
+
+RESULT_LAYOUTS = (
+    ResultLayout(
+        "compare", config=("env_id", "tag", "note", "settings"), cases=("curves",),
+        failures=("failed",),
+    ),
+)  # fmt: skip
+"""The layout of ``compare_<env>[_<tag>].json`` (:mod:`mcpilco.experiments.results`)."""
+
+
+def _per_method_seeds(r: Result) -> str:
+    return "; ".join(
+        f"{name} {seed_ranges(m['seeds'])}" for name, m in r["methods"].items() if m["seeds"]
+    )
+
+
+def _ratio_text(r: Result, name: str) -> str:
+    """Method ``name``'s experience to 90 % success over MC-PILCO's, or its lower bound."""
+    x = r["headline"]["ratios"][name]
+    value, bound = x["value"], x["lower_bound"]
+    if value is not None:
+        return f"{value:,.0f}x"
+    return f"> {bound:,.0f}x" if bound >= 10 else f"> {bound:.2f}x"
+
+
+def _cartpole_row(r: Result) -> str:
+    return (
+        f"experience to 90 % success: MC-PILCO {r['headline']['mcpilco_t90_s']:.0f} s; "
+        f"SAC needs {_ratio_text(r, 'sac')} as much, TD3 {_ratio_text(r, 'td3')}, "
+        f"PPO {_ratio_text(r, 'ppo')}, TorchRL PILCO {_ratio_text(r, 'pilco')}"
+    )
+
+
+def _tracking_row(r: Result) -> str:
+    sac = r["methods"]["sac"]
+    return (
+        "experience until every joint's tracking error is halved in 90 % of the seeds: "
+        f"MC-PILCO {r['headline']['mcpilco_t90_s']:.0f} s; SAC needs {_ratio_text(r, 'sac')} "
+        f"as much (best success rate {100 * sac['best_success']:.0f} % within "
+        f"{sac['budget_s']:,.0f} s)"
+    )
+
+
+def _reaching_row(r: Result) -> str:
+    m, sac = r["methods"]["mcpilco"], r["methods"]["sac"]
+    pos = {k: 1e3 * a["final_info_median"]["position_error"] for k, a in (("m", m), ("s", sac))}
+    return (
+        "experience until 90 % of the targets are reached (1 cm, 0.05 rad), identification "
+        f"frames included: MC-PILCO {r['headline']['mcpilco_t90_s']:.0f} s; SAC needs "
+        f"{_ratio_text(r, 'sac')} as much (best success rate {100 * sac['best_success']:.0f} % "
+        f"within {sac['budget_s']:,.0f} s; final position error {pos['s']:.0f} mm against "
+        f"MC-PILCO's {pos['m']:.1f} mm)"
+    )
+
+
+def _balance_row(r: Result) -> str:
+    def t100(method: str) -> str:
+        t = r["methods"][method]["t100_s"]
+        return "not reached" if t is None else f"{t:.1f} s"
+
+    m = r["methods"]["mcpilco"]
+    line = (
+        f"experience until all {len(m['seeds'])} seeds balance at once: MC-PILCO {t100('mcpilco')}"
+    )
+    if "pilco" in r["methods"]:
+        return line + f", TorchRL PILCO {t100('pilco')} (its example's settings)"
+    return line + "; TorchRL PILCO not measured"
+
+
+def _row(capability: str, stem: str, figure: Callable[[Result], str]) -> Headline:
+    return Headline(capability, f"{stem}.json", figure, f"{stem}.md", seeds=_per_method_seeds)
+
+
+HEADLINES = (
+    _row(
+        "MC-PILCO, Gymnasium InvertedPendulum-v5",
+        "compare_InvertedPendulum-v5_noisefloor110",
+        _balance_row,
+    ),
+    _row("Baselines (SB3, TorchRL PILCO)", "compare_CartpoleSwingUp-v0_hold2_sb3", _cartpole_row),
+    _row("Baselines, UR10 tracking (SB3 SAC)", "compare_UR10-v0_positions", _tracking_row),
+    _row(
+        "Baselines, marker-camera reaching (SB3 SAC)",
+        "compare_MarkerCameraReach-v0",
+        _reaching_row,
+    ),
+)
+"""The comparison's rows of the results index."""
+
+
+def replot(result: Result, json_path: Path) -> list[Path]:
+    """Redraw a comparison's figure (``.png`` next to its result file) from the file."""
+    return [plot(result.payload(), Path(json_path).with_suffix(".png"))]

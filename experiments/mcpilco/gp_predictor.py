@@ -32,6 +32,7 @@ from collections.abc import Callable
 import gpytorch
 import torch
 
+from mcpilco.experiments.results import Headline, Result, ResultLayout
 from mcpilco.models.device import resolve_device
 from mcpilco.models.gp import GPRegressor, exact_gp_settings
 from mcpilco.models.gp.dense import dense_covar
@@ -260,3 +261,41 @@ def summary(result: dict) -> str:
         f"{vt['ceiling_speedup_vs_gpytorch']:.1f}x below gpytorch: the speed-up an exact "
         "float64 predictor that forms L^-1 k with this product cannot exceed here"
     )
+
+
+# -- result file and headline rows of the results index -----------------------------------
+
+RESULT_LAYOUTS = (ResultLayout("gp_predictor", config=("config", "clock")),)
+"""The layout of ``bench_gp_predictor.json`` (:mod:`mcpilco.experiments.results`)."""
+
+
+def _speed_row(r: Result) -> str:
+    s = r["speedup_vs_gpytorch"]
+    return (
+        f"cached predictor {s['cached32']:.1f}x (float32) / {s['cached64']:.1f}x (float64) "
+        f"faster than GPyTorch, within {r['max_abs_diff_cached64_vs_gpytorch']:.0e}"
+    )
+
+
+def _gpu_row(r: Result) -> str:
+    s = r["speedup_vs_gpytorch"]
+    return f"on an H100: {s['cached32']:.1f}x (float32) / {s['cached64']:.1f}x (float64)"
+
+
+HEADLINES = (
+    Headline(
+        "GP core, predictor speed (CPU)",
+        "bench_gp_predictor.json",
+        _speed_row,
+        "bench_gp_predictor.json",
+        seeds=lambda r: "-",
+    ),
+    Headline(
+        "GP core, predictor speed (GPU)",
+        "h100/bench_gp_predictor.json",
+        _gpu_row,
+        "h100/bench_gp_predictor.json",
+        seeds=lambda r: "-",
+    ),
+)
+"""The GP predictor benchmark's rows of the results index."""

@@ -21,7 +21,6 @@ mean and the seeds' range, the baseline dashed); the kernel comparison
 
 from __future__ import annotations
 
-import json
 import os
 import platform
 import time
@@ -38,7 +37,14 @@ from mcpilco.experiments.mcpilco.bench import (
     kernel_label,
     load_results,
     section_key,
+)
+from mcpilco.experiments.results import (
+    Headline,
+    Result,
+    ResultLayout,
+    read_result,
     seed_ranges,
+    write_result,
 )
 
 RESULTS_NAME = "mcpilco_tracking"  # stem of the JSON, Markdown and PNG outputs
@@ -562,11 +568,27 @@ def write_tracking_report(results: dict[str, Any], out_dir: Path) -> None:
     for key, summary in results.get("kernels", {}).items():
         md += [kernel_rmse_table(key, summary), *_command_lines(results, kernels_entry(key))]
     (out_dir / f"{RESULTS_NAME}.md").write_text("\n".join(md))
-    (out_dir / f"{RESULTS_NAME}.json").write_text(json.dumps(results, indent=1))
-    for key, summary in results.get("kernels", {}).items():
-        plot_kernel_rmse(summary, out_dir / f"{RESULTS_NAME}_kernels_{key}.png")
-    if not results.get("runs"):
-        return
+    write_result(out_dir / f"{RESULTS_NAME}.json", RESULT_LAYOUTS[0], results)
+    replot(read_result(out_dir / f"{RESULTS_NAME}.json"), out_dir / f"{RESULTS_NAME}.json")
+
+
+def replot(result: Result, json_path: Path) -> list[Path]:
+    """Redraw the figures of a tracking result file next to it: one kernel RMSE plot per
+    kernel comparison and (with runs) the tracking RMS per joint (:func:`plot_tracking`)."""
+    out_dir = Path(json_path).parent
+    paths = []
+    for key, summary in result.get("kernels", {}).items():
+        path = out_dir / f"{RESULTS_NAME}_kernels_{key}.png"
+        plot_kernel_rmse(summary, path)
+        paths.append(path)
+    if result.get("runs"):
+        paths.append(plot_tracking(result.payload(), out_dir / f"{RESULTS_NAME}.png"))
+    return paths
+
+
+def plot_tracking(results: dict[str, Any], path: Path) -> Path:
+    """Tracking RMS per joint against experience, one curve per runs section, the controller
+    alone dashed and half of it dotted."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -597,8 +619,9 @@ def write_tracking_report(results: dict[str, Any], out_dir: Path) -> None:
     axes[0][0].legend(fontsize=7)
     fig.suptitle("dashed: controller alone; dotted: half of it; band: seeds' range", fontsize=9)
     fig.tight_layout()
-    fig.savefig(out_dir / f"{RESULTS_NAME}.png", dpi=120)
+    fig.savefig(path, dpi=120)
     plt.close(fig)
+    return path
 
 
 def tracking_part(
@@ -672,3 +695,107 @@ def tracking_part(
             log(tracking_table(key, results["runs"][key]))
             write_tracking_report(results, out_dir)
     return failed
+
+
+# -- result file and headline rows of the results index -----------------------------------
+
+RESULT_LAYOUTS = (ResultLayout("mcpilco_tracking", cases=("runs",)),)
+"""The layout of ``mcpilco_tracking.json`` (:mod:`mcpilco.experiments.results`)."""
+
+TRACKING_SECTION = "mcpilco/UR10-v0 (positions)"  # the UR10 tracking headline's section
+PUSHES_SECTION = "mcpilco/UR10-v0 (positions-pushes)"  # the same seeds under pushes, no filter
+FILTERED_SECTION = "mcpilco/UR10-v0 (positions-pushes-filtered)"  # pushes, push filter on
+KERNELS_SECTION = "UR10-v0_positions"  # the kernel comparison on the shipped task's runs
+CONTROL_SECTIONS = {  # the same seeds learned with each kernel: label -> section
+    "RBF + MPK (p = 1)": TRACKING_SECTION,
+    "RBF": "mcpilco/UR10-v0 (positions-rbf)",
+    "rigid body": "mcpilco/UR10-v0 (positions-rigid)",
+}
+
+
+def tracking_figure(sec: dict[str, Any]) -> str:
+    """The tracking RMS after a section's last policy trial against the controller alone:
+    all joints and per joint."""
+    last = sec["tracking"][-1]
+    tot = overall(sec, len(sec["tracking"]) - 1)
+    ratios = " / ".join(f"{q:.2f}" for q in last["ratio_mean"])
+    n = len(sec["seeds"])
+    ideal = (
+        f" (the known-model feed-forward: {last['feedforward_halved']})"
+        if "feedforward_halved" in last
+        else ""
+    )
+    return (
+        f"after {last['experience_s']:.0f} s of experience: all joints "
+        f"{tot['ratio']:.2f} x the PD + gravity controller's error (halved in "
+        f"{tot['halved']} of {n} seeds); per joint {ratios}; every joint halved in "
+        f"{last['seeds_halved']} of {n} seeds{ideal}"
+    )
+
+
+def _tracking_row(r: Result) -> str:
+    return "UR10 tracking " + tracking_figure(r["runs"][TRACKING_SECTION])
+
+
+def _pushes_row(r: Result) -> str:
+    sec, unfiltered = r["runs"][FILTERED_SECTION], r["runs"][PUSHES_SECTION]
+    k = len(unfiltered["tracking"]) - 1
+    return (
+        "UR10 tracking under pushes, push filter on, "
+        + tracking_figure(sec)
+        + f"; without the filter all joints {overall(unfiltered, k)['ratio']:.2f} x"
+    )
+
+
+def _kernels_row(r: Result) -> str:
+    from mcpilco.experiments.mcpilco.rmse import KERNEL_ARGS
+
+    rows = r["kernels"][KERNELS_SECTION]["kernels"]
+    cells = ", ".join(
+        f"{kernel_label(**KERNEL_ARGS[k])} {1e3 * v['all_joints_mean']:.1f}"
+        for k, v in rows.items()
+    )
+    halved = ", ".join(
+        f"{name} "
+        + " / ".join(str(row["seeds_halved"]) for row in r["runs"][key]["tracking"])
+        + f" of {len(r['runs'][key]['seeds'])}"
+        for name, key in CONTROL_SECTIONS.items()
+    )
+    return (
+        "UR10 multi-step prediction RMSE over 4 s, all joints [mrad], GPs of the position and "
+        f"velocity changes: {cells}; control, seeds with every joint's tracking error halved "
+        f"after policy trials 1 / 2 / 3: {halved}"
+    )
+
+
+def _section_seeds(key: str) -> Callable[[Result], str]:
+    return lambda r: seed_ranges(r["runs"][key]["seeds"])
+
+
+HEADLINES = (
+    Headline(
+        "MC-PILCO, UR10 tracking",
+        f"{RESULTS_NAME}.json",
+        _tracking_row,
+        f"{RESULTS_NAME}.md",
+        part=TRACKING_SECTION,
+        seeds=_section_seeds(TRACKING_SECTION),
+    ),
+    Headline(
+        "MC-PILCO, UR10 tracking under pushes",
+        f"{RESULTS_NAME}.json",
+        _pushes_row,
+        f"{RESULTS_NAME}.md",
+        part=FILTERED_SECTION,
+        seeds=_section_seeds(FILTERED_SECTION),
+    ),
+    Headline(
+        "MC-PILCO, UR10 GP kernels",
+        f"{RESULTS_NAME}.json",
+        _kernels_row,
+        f"{RESULTS_NAME}.md",
+        part=kernels_entry(KERNELS_SECTION),
+        seeds=lambda r: seed_ranges(x["seed"] for x in r["kernels"][KERNELS_SECTION]["per_run"]),
+    ),
+)
+"""The tracking benchmark's rows of the results index."""

@@ -4,7 +4,6 @@ the files it writes."""
 
 from __future__ import annotations
 
-import json
 import math
 
 import numpy as np
@@ -17,6 +16,7 @@ from mcpilco.experiments.collision.quasi_static_friction import (
     run,
     write_outputs,
 )
+from mcpilco.experiments.results import read_result
 
 
 def test_reference_rests_at_each_pose_between_the_moves():
@@ -36,7 +36,7 @@ def test_short_run_rests_still_and_writes_its_outputs(tmp_path):
     text = write_outputs(res, tmp_path)
     assert text == (tmp_path / "collision_quasi_static.md").read_text()
     assert text.count("\n| ") == 1 + len(REST_POSES)  # header + one row per rest phase
-    saved = json.loads((tmp_path / "collision_quasi_static.json").read_text())
+    saved = read_result(tmp_path / "collision_quasi_static.json").payload()
     assert "arrays" not in saved and len(saved["phases"]) == len(REST_POSES)
     assert (tmp_path / "collision_quasi_static.png").stat().st_size > 0
     assert math.isclose(saved["phases"][1]["q1_ref"], math.pi / 2)

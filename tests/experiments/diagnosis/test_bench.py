@@ -3,7 +3,6 @@ scores worked out by hand), its case plan, and one tiny simulated case end to en
 
 from __future__ import annotations
 
-import json
 import math
 
 import numpy as np
@@ -24,6 +23,7 @@ from mcpilco.experiments.diagnosis.scoring import (
     summarise,
     verdict_category,
 )
+from mcpilco.experiments.results import read_result
 
 AT_FLOOR = "v1: no significant missing effect (no candidate ...); the held-out RMSE is at the floor"
 UNEXPLAINED = "v1: unexplained: joint 2 at 1.40x the noise floor (held-out RMSE 0.07, floor 0.05)"
@@ -261,7 +261,7 @@ def test_speed_part_times_the_loop_and_writes_its_report(tmp_path):
     assert out["case"]["training_rows"] == 501
     assert rec["cpu_s"] > 0 and rec["wall_s"] > 0
     assert "viscous:2" in rec["versions"][-1], rec["versions"]
-    data = json.loads((tmp_path / "speed.json").read_text())
+    data = read_result(tmp_path / "speed.json").payload()
     assert data["records"][0]["verdict"] == rec["verdict"]
     assert "| nominal |" in (tmp_path / "speed.md").read_text()
 

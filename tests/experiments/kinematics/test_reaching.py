@@ -16,6 +16,7 @@ from mcpilco.experiments.kinematics.reaching import (
     reaching_markdown,
     summarise_reaching,
 )
+from mcpilco.experiments.results import read_result
 
 
 def test_both_agents_get_the_same_targets_and_mcpilco_learns_from_its_trials():
@@ -56,7 +57,6 @@ def fake_seed(seed, **_):
 
 
 def test_study_pools_seeds_and_targets_and_writes_its_report(tmp_path, monkeypatch):
-    import json
 
     from mcpilco.experiments.infra.sweep import SweepRunner
     from mcpilco.experiments.kinematics import reaching as reaching_bench
@@ -71,7 +71,7 @@ def test_study_pools_seeds_and_targets_and_writes_its_report(tmp_path, monkeypat
     assert mc[1]["reached"] == 15 and mc[0]["reached"] == 0
     assert ctrl[1]["reached"] == 0  # 9 mm but 0.06 rad: outside 0.05 rad
     assert study["identification_correct"] == 2
-    saved = json.loads((tmp_path / "kinematics_reaching.json").read_text())
+    saved = read_result(tmp_path / "kinematics_reaching.json").payload()
     assert saved["summary"] == study["summary"]
     assert "| 2 | MC-PILCO" in (tmp_path / "kinematics_reaching.md").read_text()
     assert (tmp_path / "kinematics_reaching.png").stat().st_size > 0

@@ -4,8 +4,6 @@ and the report files."""
 
 from __future__ import annotations
 
-import json
-
 import numpy as np
 import pytest
 
@@ -18,6 +16,7 @@ from mcpilco.experiments.mcpilco.tracking import (
     tracking_section,
     write_tracking_report,
 )
+from mcpilco.experiments.results import read_result
 from tests.agents.mc_pilco.arm_env import ENV_ID, TASK
 
 
@@ -81,7 +80,7 @@ def test_tracking_section_means_ratios_and_halved_counts(tmp_path, monkeypatch):
     assert "| controller alone | 40.0 | 20.0 | - |" in md
     assert "| known-model feed-forward | 4.0 (0.10) | 4.0 (0.20) | 2 / 2 |" in md
     assert "| 4 s (policy 1) | 20.0 (0.50) | 12.5 (0.62) | 1 / 2 (feed-forward 2) |" in md
-    assert json.loads((tmp_path / "mcpilco_tracking.json").read_text())["runs"]["arm"]["joints"]
+    assert read_result(tmp_path / "mcpilco_tracking.json").payload()["runs"]["arm"]["joints"]
     assert (tmp_path / "mcpilco_tracking.png").stat().st_size > 0
 
 
