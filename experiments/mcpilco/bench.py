@@ -34,6 +34,7 @@ from mcpilco.experiments.results import (
     Result,
     ResultLayout,
     percent,
+    rate,
     read_result,
     seed_ranges,
     write_result,
@@ -101,7 +102,8 @@ def run_seed(config: dict[str, Any], out: str) -> dict[str, Any]:
 
 
 def aggregate_runs(runs: list[dict[str, Any]]) -> list[dict[str, Any]]:
-    """Per trial index: success rate, mean time in the goal region, timings over seeds."""
+    """Per trial index: success rate (with its 95 % Wilson interval over the seeds), mean
+    time in the goal region, timings over seeds."""
     rows = []
     n_trials = min(len(r["records"]) for r in runs)
     for k in range(n_trials):
@@ -112,6 +114,7 @@ def aggregate_runs(runs: list[dict[str, Any]]) -> list[dict[str, Any]]:
             "kind": recs[0]["kind"],
             "seeds": len(recs),
             "success_rate": float(np.mean([r["success"] for r in recs])),
+            "success_ci95": rate(sum(bool(r["success"]) for r in recs), len(recs))["ci95"],
             "time_in_goal_s": float(np.mean([r["time_in_goal"] for r in recs])),
             "cost": float(np.mean([r["cost"] for r in recs])),
             "wall_s_per_trial": float(np.mean([r["wall_s"] for r in recs])),
@@ -229,6 +232,8 @@ def pool_sections(sections: list[dict[str, Any]]) -> dict[str, Any]:
         for key in POOLED_MEANS:
             if all(key in r for r in have):
                 row[key] = float(sum(r["seeds"] * r[key] for r in have) / total)
+        if "success_rate" in row:  # the pooled count of successes, exact as the mean is
+            row["success_ci95"] = rate(round(row["success_rate"] * total), total)["ci95"]
         rows.append(row)
     config = dict(sections[0]["config"])
     config["num_trials"] = max(sec["config"]["num_trials"] for sec in sections)
@@ -558,7 +563,7 @@ def section_table(env_id: str, section: dict) -> str:
             goal_key, goal_name = "time_upright_s", "time upright"
     lines += [
         "",
-        f"| experience | policy trained on | success rate | {goal_name} [s] "
+        f"| experience | policy trained on | success rate [95 % Wilson] | {goal_name} [s] "
         "| wall per trial [s] | opt steps | s / opt step (wall) | s / opt step (CPU) |",
         "|---|---|---|---|---|---|---|---|",
     ]
@@ -571,9 +576,11 @@ def section_table(env_id: str, section: dict) -> str:
             if r.get("seeds", len(seeds)) == len(seeds)
             else f"{r['kind']}, {r['seeds']} seeds"
         )
+        n = r.get("seeds", len(seeds))
+        lo, hi = rate(round(r["success_rate"] * n), n)["ci95"]
         lines.append(
             f"| {r['experience_s']:.0f} s ({kind}) | {trained} "
-            f"| {100 * r['success_rate']:.0f}% "
+            f"| {100 * r['success_rate']:.0f}% [{100 * lo:.0f}-{100 * hi:.0f}] "
             f"| {_fmt(r.get(goal_key))} | {r['wall_s_per_trial']:.1f} "
             f"| {r.get('opt_steps', 0):.0f} | {r.get('s_per_opt_step', float('nan')):.3f} "
             f"| {r.get('cpu_s_per_opt_step', float('nan')):.3f} |"

@@ -124,7 +124,9 @@ def test_report_states_what_each_policy_was_trained_on(tmp_path):
     )
     table = section_table("env", section)
     assert "4 seeds (0-2, 5)" in table
-    assert "| success rate | time in goal [s] |" in table
+    assert "| success rate [95 % Wilson] | time in goal [s] |" in table
+    # exploration: 0 of 4 seeds, Wilson upper end z^2 / (n + z^2) = 3.8416 / 7.8416 = 49 %
+    assert "| 3 s (exploration) | - | 0% [0-49] |" in table
     assert "time upright" not in table and "mean abs x" not in table
     rows = [line for line in table.splitlines() if line.startswith("| ") and " s (" in line]
     assert [r.split("|")[1:3] for r in rows] == [
