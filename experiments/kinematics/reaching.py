@@ -52,7 +52,7 @@ from mcpilco.experiments.kinematics.parts import (
     ur10_datasets,
 )
 from mcpilco.experiments.kinematics.trajectories import drive_to
-from mcpilco.experiments.results import Headline, Result, ResultLayout, write_result
+from mcpilco.experiments.results import Headline, Result, ResultLayout, seed_ranges, write_result
 from mcpilco.models.kinematics import ChainForwardKinematicsGP
 from mcpilco.models.kinematics.rotations import ypr_to_matrix
 
@@ -291,12 +291,18 @@ def reaching_markdown(study: dict[str, Any]) -> str:
 
 
 def plot_reaching(study: dict[str, Any], path: Path) -> None:
-    """Median and quartiles of both errors per trial, both agents."""
+    """Median and quartiles (over every seed's targets) of both errors per trial, both
+    agents, legends in words."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
+    seeds = seed_ranges(study["seeds"])
+    words = {  # legend words of the agents
+        "mcpilco": f"MC-PILCO through the learned kinematics, seeds {seeds}",
+        "controller": "gradient kinematic controller (thesis ch. 2), same data",
+    }
     fig, axes = plt.subplots(1, 2, figsize=(10, 4))
     for agent, colour in zip(AGENTS, ("C0", "C1"), strict=True):
         trials = study["summary"][agent]
@@ -305,7 +311,7 @@ def plot_reaching(study: dict[str, Any], path: Path) -> None:
             med = [t[f"{key}_median"] for t in trials]
             lo = [t[f"{key}_quartiles"][0] for t in trials]
             hi = [t[f"{key}_quartiles"][1] for t in trials]
-            ax.plot(x, med, "o-", color=colour, label=agent)
+            ax.plot(x, med, "o-", color=colour, label=words.get(agent, agent))
             ax.fill_between(x, lo, hi, color=colour, alpha=0.2)
     axes[0].set_ylabel("true position error [m]")
     axes[1].set_ylabel("true orientation error [rad]")
@@ -314,8 +320,12 @@ def plot_reaching(study: dict[str, Any], path: Path) -> None:
         ax.set_xticks([t["trial"] for t in study["summary"]["mcpilco"]])
         ax.set_yscale("log")
         ax.grid(True, which="both", alpha=0.3)
-        ax.legend()
-    fig.suptitle(f"UR10 marker-camera reaching, {len(study['seeds'])} seeds x 5 targets")
+        ax.legend(fontsize=8)
+    fig.suptitle(
+        f"UR10 marker-camera reaching, {len(study['seeds'])} seeds x 5 targets: median "
+        "(band: quartiles over the targets)",
+        fontsize=10,
+    )
     fig.tight_layout()
     fig.savefig(path, dpi=120)
     plt.close(fig)
