@@ -43,6 +43,8 @@ from mcpilco.experiments.results import (
     Headline,
     Result,
     ResultLayout,
+    over_seeds,
+    rate,
     read_result,
     seed_ranges,
     write_result,
@@ -83,7 +85,8 @@ def aggregate_method(curves: list[dict[str, Any]]) -> dict[str, Any]:
     last evaluation a success), per-seed summaries, and ``final_info_median``: per figure
     that every seed's last point carries (the env's final ``info`` scalars, median over its
     evaluation episodes, e.g. the marker camera's ``position_error``) the median over
-    seeds."""
+    seeds. The share of seeds reaching 90 % comes with its 95 % Wilson interval, the median
+    seed's ``T90`` with its 95 % bootstrap interval over those seeds."""
     if not curves:
         raise ValueError("aggregate_method needs at least one learning curve")
     curves = [c for c in curves if c["points"]]
@@ -135,6 +138,8 @@ def aggregate_method(curves: list[dict[str, Any]]) -> dict[str, Any]:
         "per_seed": per_seed,
         "seeds_reaching_90": len(reached),
         "median_seed_t90_s": float(np.median(reached)) if reached else None,
+        "median_seed_t90_ci95": over_seeds(reached)["ci95"] if reached else None,
+        "seeds_reaching_90_ci95": rate(len(reached), len(curves))["ci95"],
         "cpu_s_per_1k_steps": float(np.mean(cpu)) if cpu else None,
         "wall_s_per_run": float(np.mean(wall)) if wall else None,
         "final_info_median": {k: float(np.median([f[k] for f in finals])) for k in sorted(common)},

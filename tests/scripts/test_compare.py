@@ -102,6 +102,10 @@ def test_two_fake_files_give_table_plot_and_ratios(fake_files, tmp_path, capsys,
     assert report["headline"]["goal"]["sb3"]["status"] == "met"
     # per seed: MC-PILCO seeds reach 90% at 9 s and 12 s, SAC seeds at 2000 s and 3000 s
     assert [s["t90_s"] for s in mc["per_seed"]] == [9.0, 12.0]
+    # bootstrap over two seeds: medians 9, 10.5, 12 with chances 1/4, 1/2, 1/4
+    assert mc["median_seed_t90_s"] == 10.5 and mc["median_seed_t90_ci95"] == [9.0, 12.0]
+    # Wilson, 2 of 2: (1 + z^2/4 - z^2/4) / (1 + z^2/2) = 1 / 2.9208
+    assert mc["seeds_reaching_90_ci95"] == pytest.approx([1 / 2.9208, 1.0], abs=1e-4)
     assert [s["t90_s"] for s in sac["per_seed"]] == [2000.0, 3000.0]
     # s.e.m. of SAC at 1000 s: values 0.2, 0.0 -> std (ddof 1) 0.1414 / sqrt(2) = 0.1
     assert sac["success_sem"][0] == pytest.approx(0.1)
