@@ -60,12 +60,15 @@ NOT_RECORDED = "not recorded"  # what a report says where a file does not record
 
 @dataclass(frozen=True)
 class ResultLayout:
-    """Which payload entries of a bench go to which section (the rest go to ``summary``)."""
+    """Which payload entries of a bench go to which section (the rest go to ``summary``), and
+    where the seeds are when they are not the payload's ``seeds`` list (``seeds``: a function
+    of the payload)."""
 
     kind: str
     config: tuple[str, ...] = ()
     cases: tuple[str, ...] = ()
     failures: tuple[str, ...] = ()
+    seeds: Callable[[Mapping[str, Any]], Iterable[int]] | None = None  # the payload's seeds
 
     def section_of(self, key: str) -> str:
         """The section of payload entry ``key`` (``seed`` / ``seeds``: ``config``)."""
@@ -284,7 +287,9 @@ def build_result(
             res.parts.setdefault(part, {})["command"] = cmd
     res.command = command or (payload.get("command") if "command" in payload else None)
     res.machine = payload.get("machine")
-    res.seeds = seeds_entry(_seed_list(payload) if seeds is None else seeds)
+    if seeds is None:
+        seeds = layout.seeds(payload) if layout.seeds is not None else _seed_list(payload)
+    res.seeds = seeds_entry(seeds)
     return res
 
 

@@ -449,7 +449,14 @@ def quick_benchmark(out_dir: str | Path = "results/volterra_quick", jobs: int = 
 
 # -- result file and headline rows of the results index -----------------------------------
 
-RESULT_LAYOUTS = (ResultLayout("volterra", config=("meta",), cases=("fits", "runs")),)
+RESULT_LAYOUTS = (
+    ResultLayout(
+        "volterra",
+        config=("meta",),
+        cases=("fits", "runs"),
+        seeds=lambda p: sorted({r["seed"] for r in p.get("runs", []) if "seed" in r}),
+    ),
+)
 """The layout of ``volterra.json`` (:mod:`mcpilco.experiments.results`)."""
 
 

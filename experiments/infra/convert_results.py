@@ -121,16 +121,27 @@ def check_converted(result: Result, source: str = "result") -> None:
 
 
 def convert_file(path: Path) -> bool:
-    """Convert ``path`` in place when it is an old bench result; True when it was converted.
+    """Convert ``path`` in place when it is an old bench result, or lay a converted file out
+    again by its bench's current layout; True when the file changed.
 
-    Files already in the schema and files that are not a bench's result are left alone.
+    Files written in the schema by a bench and files that are not a bench's result are left
+    alone.
     """
     data = json.loads(path.read_text())
     kind = legacy_kind(path)
-    if not isinstance(data, dict) or data.get("schema") == SCHEMA or kind is None:
+    if not isinstance(data, dict) or kind is None:
         return False
-    res = convert(data, kind, last_commit_date(path))
+    if data.get("schema") == SCHEMA:
+        if "legacy" not in data:
+            return False
+        converted = result_from_dict(data, str(path))
+        dated = converted.legacy.get("date") == "last commit of the file"
+        res = convert(to_legacy(converted), converted.kind, converted.date if dated else None)
+    else:
+        res = convert(data, kind, last_commit_date(path))
     check_converted(result_from_dict(json.loads(json.dumps(res.to_dict()))), str(path))
+    if res.to_dict() == data:
+        return False
     write_atomic(path, json.dumps(res.to_dict(), indent=1) + "\n")
     return True
 

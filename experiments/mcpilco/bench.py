@@ -865,7 +865,12 @@ def replot(result: Result, json_path: Path) -> list[Path]:
 # -- result file and headline rows of the results index -----------------------------------
 
 RESULT_LAYOUTS = (
-    ResultLayout("mcpilco", config=("note", "reference_steps_note"), cases=("runs", "rmse_runs")),
+    ResultLayout(
+        "mcpilco",
+        config=("note", "reference_steps_note"),
+        cases=("runs", "rmse_runs"),
+        seeds=lambda p: [s for sec in p.get("runs", {}).values() for s in sec["seeds"]],
+    ),
 )
 """The layout of ``mcpilco_cartpole.json`` (:mod:`mcpilco.experiments.results`)."""
 

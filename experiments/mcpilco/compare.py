@@ -788,7 +788,7 @@ def compare(
 RESULT_LAYOUTS = (
     ResultLayout(
         "compare", config=("env_id", "tag", "note", "settings"), cases=("curves",),
-        failures=("failed",),
+        failures=("failed",), seeds=lambda p: [c["seed"] for c in p.get("curves", [])],
     ),
 )  # fmt: skip
 """The layout of ``compare_<env>[_<tag>].json`` (:mod:`mcpilco.experiments.results`)."""

@@ -699,7 +699,13 @@ def tracking_part(
 
 # -- result file and headline rows of the results index -----------------------------------
 
-RESULT_LAYOUTS = (ResultLayout("mcpilco_tracking", cases=("runs",)),)
+RESULT_LAYOUTS = (
+    ResultLayout(
+        "mcpilco_tracking",
+        cases=("runs",),
+        seeds=lambda p: [s for sec in p.get("runs", {}).values() for s in sec["seeds"]],
+    ),
+)
 """The layout of ``mcpilco_tracking.json`` (:mod:`mcpilco.experiments.results`)."""
 
 TRACKING_SECTION = "mcpilco/UR10-v0 (positions)"  # the UR10 tracking headline's section
