@@ -1,12 +1,14 @@
-"""Experiments: the benchmarks' protocols, aggregation and reports, and the sweep runner they
-share.
+"""Experiments: the benchmarks by capability, the one result schema they write, the results
+index, and the infrastructure they share.
 
-:mod:`mcpilco.experiments.sweep` runs lists of independent jobs (a seed of a method on an
-env, a Monte Carlo run of a benchmark) in local processes or on Ray, one result file per job;
-:mod:`mcpilco.experiments.probe` holds small calibrated jobs to check a backend with, and
-:mod:`mcpilco.experiments.overhead` measures the runner's overhead per job.
-:mod:`mcpilco.experiments.mcpilco_bench` (with :mod:`~mcpilco.experiments.mcpilco_timing` and
-:mod:`~mcpilco.experiments.mcpilco_rmse`) is the MC-PILCO benchmark,
-:mod:`mcpilco.experiments.compare` the comparison with PILCO and SB3, and
-:mod:`mcpilco.experiments.robustness` the robustness figures (bad, fuzzed inputs, killed runs).
+* :mod:`mcpilco.experiments.mcpilco`: MC-PILCO (the benchmark, the comparison with PILCO and
+  SB3, the GP predictor timings, the demo, the headline figure);
+* :mod:`mcpilco.experiments.kinematics`, :mod:`~mcpilco.experiments.collision`,
+  :mod:`~mcpilco.experiments.diagnosis`, :mod:`~mcpilco.experiments.identification`
+  (Volterra series, inverse dynamics): the other capabilities;
+* :mod:`mcpilco.experiments.infra`: the resumable sweep runner, probe jobs, its overhead,
+  the robustness figures and the conversion of result files written before the schema;
+* :mod:`mcpilco.experiments.results`: the result file every bench writes and its reader;
+  :mod:`mcpilco.experiments.benches`: the registered benches (layouts, headline rows,
+  replots); :mod:`mcpilco.experiments.results_index`: ``results/README.md`` from them.
 """

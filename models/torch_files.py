@@ -22,6 +22,8 @@ from typing import Any
 import numpy as np
 import torch
 
+from mcpilco.models.files import atomic_path
+
 __all__ = ["atomic_torch_save", "from_safe", "load_torch_file", "to_safe"]
 
 _NDARRAY_TAG = "__ndarray__"  # key of the dict that stands for a numpy array in a file
@@ -67,16 +69,13 @@ def from_safe(obj: Any) -> Any:
 
 
 def atomic_torch_save(obj: Any, path: str | os.PathLike) -> None:
-    """Write ``to_safe(obj)`` to ``path`` through ``<path>.tmp``, fsync and ``os.replace``
-    (atomic on POSIX: a process killed while writing leaves the previous file intact)."""
+    """Write ``to_safe(obj)`` to ``path`` through ``<path>.tmp`` (the partial file a resume
+    check looks for), :func:`~mcpilco.models.files.atomic_path`: a process killed while
+    writing leaves the previous file intact."""
     path = Path(path)
     payload = to_safe(obj)
-    tmp = path.with_name(path.name + ".tmp")
-    with open(tmp, "wb") as fh:
-        torch.save(payload, fh)
-        fh.flush()
-        os.fsync(fh.fileno())
-    os.replace(tmp, path)
+    with atomic_path(path, tmp=path.with_name(path.name + ".tmp")) as tmp:
+        torch.save(payload, tmp)
 
 
 def load_torch_file(path: str | os.PathLike, what: str, remedy: str) -> Any:

@@ -1,6 +1,6 @@
 """Benchmark: proprioceptive collision detection on the simulated UR10 (thesis section 4.6).
 
-Simulated data (:mod:`mcpilco.experiments.collision_data`): a collision-free training run of
+Simulated data (:mod:`mcpilco.experiments.collision.data`): a collision-free training run of
 ``--train-waypoints`` random waypoints, a validation run (``--test-waypoints`` waypoints, the
 tool circle, a final rest) that calibrates the thresholds, ``--push-free-minutes`` of
 push-free data for the false alarms, a run of ``--push-waypoints`` waypoints with random
@@ -10,7 +10,7 @@ Estimators PP, SP, FC (``sigma_v`` by cross-validation among ``--sigma-v-candida
 PP-sign; thresholds by the thesis rule (``max``) and the variance rule; persistence ``m``
 in ``--persistence``; detection against false alarms for the validation quantiles
 ``--alphas`` and ``--roc-persistence``
-(:mod:`mcpilco.experiments.collision_bench`).
+(:mod:`mcpilco.experiments.collision.bench`).
 
 The data are kept in ``RUNS_DIR/data.pkl`` (reused while the data options are the same);
 the ``sigma_v`` cross-validation and each estimator are sweep jobs in ``--jobs`` local
@@ -36,9 +36,9 @@ from collections.abc import Sequence
 from pathlib import Path
 
 from mcpilco.agents.common.cli import console_main
-from mcpilco.experiments.collision_bench import run_benchmark
-from mcpilco.experiments.collision_report import ESTIMATOR_NAMES
-from mcpilco.experiments.sweep import SweepError, add_sweep_arguments, runner_from_args
+from mcpilco.experiments.collision.bench import run_benchmark
+from mcpilco.experiments.collision.report import ESTIMATOR_NAMES
+from mcpilco.experiments.infra.sweep import SweepError, add_sweep_arguments, runner_from_args
 
 
 def build_parser() -> argparse.ArgumentParser:

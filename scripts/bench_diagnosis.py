@@ -2,11 +2,11 @@
 
 Each case is a random arm forward-simulated in MuJoCo under PD + gravity compensation with
 hidden effects as MuJoCo physics or applied forces, logged as ``t, q, tau`` only
-(:mod:`mcpilco.experiments.diagnosis_bench`): ``--per-kind`` cases of each effect kind of
+(:mod:`mcpilco.experiments.diagnosis.bench`): ``--per-kind`` cases of each effect kind of
 the library, ``--controls`` without an effect, ``--multi`` with two effects and
 ``--off-library`` with position-dependent friction (correct verdict: "unexplained"). The loop
 adds the ranked effects until none is significant; scored by
-:mod:`mcpilco.experiments.diagnosis_scoring` (top-1 / top-3, parameters, error against the
+:mod:`mcpilco.experiments.diagnosis.scoring` (top-1 / top-3, parameters, error against the
 noise floor, false alarms, verdicts).
 
 Each case is a sweep job (one thread) in ``--jobs`` local processes or on Ray
@@ -18,7 +18,7 @@ Example (about 20-30 s per case on one core)::
     mcpilco-bench-diagnosis --per-kind 3 --controls 5 --multi 5 --off-library 5 --jobs 2
 
 ``--speed`` times the loop instead on one 3-joint case of 7,503 training rows with a nominal
-and a GIP start (:func:`~mcpilco.experiments.diagnosis_bench.run_speed`) and writes
+and a GIP start (:func:`~mcpilco.experiments.diagnosis.bench.run_speed`) and writes
 ``results/diagnosis_speed.json`` and ``.md``.
 """
 
@@ -30,8 +30,8 @@ from collections.abc import Sequence
 from pathlib import Path
 
 from mcpilco.agents.common.cli import console_main
-from mcpilco.experiments.diagnosis_bench import EVALUATION_FIRST_SEED, run_benchmark, run_speed
-from mcpilco.experiments.sweep import SweepError, add_sweep_arguments, runner_from_args
+from mcpilco.experiments.diagnosis.bench import EVALUATION_FIRST_SEED, run_benchmark, run_speed
+from mcpilco.experiments.infra.sweep import SweepError, add_sweep_arguments, runner_from_args
 
 
 @console_main("mcpilco-bench-diagnosis")

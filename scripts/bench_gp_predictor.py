@@ -2,7 +2,7 @@
 
 Times one posterior call (mean and variance) of GPyTorch, of the cached and fused predictors
 in float64 and float32, and of the variance term alone (the ceiling of any exact float64
-predictor); what each path is and how it is timed: :mod:`mcpilco.experiments.gp_predictor_bench`.
+predictor); what each path is and how it is timed: :mod:`mcpilco.experiments.mcpilco.gp_predictor`.
 Writes ``--out`` (JSON) and prints a Markdown table and the speed ratios.
 
 Usage::
@@ -15,13 +15,13 @@ Usage::
 from __future__ import annotations
 
 import argparse
-import json
 from pathlib import Path
 
 import torch
 
 from mcpilco.agents.common.cli import console_main
-from mcpilco.experiments.gp_predictor_bench import markdown_table, run, summary
+from mcpilco.experiments.mcpilco.gp_predictor import RESULT_LAYOUTS, markdown_table, run, summary
+from mcpilco.experiments.results import write_result
 from mcpilco.models.device import resolve_device, retain_host_memory
 
 
@@ -55,8 +55,7 @@ def main(argv: list[str] | None = None) -> int:
         args.n_train, args.n_test, args.dim, args.outputs, args.repeats, args.seed, args.device
     )
     result["config"]["retain_host_memory"] = retained
-    args.out.parent.mkdir(parents=True, exist_ok=True)
-    args.out.write_text(json.dumps(result, indent=2))
+    write_result(args.out, RESULT_LAYOUTS[0], result)
     print(markdown_table(result))
     print()
     print(summary(result))

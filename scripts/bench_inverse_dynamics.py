@@ -5,7 +5,7 @@ Parts (``--parts``, comma separated; all by default):
 ``scara`` (``--runs`` Monte Carlo runs with model bias), ``efficiency`` (test GMSE against
 ``--sizes``, no model bias), ``ur10`` (the UR10 env's motor currents) and ``timing`` (GIP
 training and prediction at ``--timing-n`` points against the Cholesky floor); the protocol
-is in :mod:`mcpilco.experiments.inverse_dynamics_bench`. The scara runs are sweep jobs in
+is in :mod:`mcpilco.experiments.identification.inverse_dynamics`. The scara runs are sweep jobs in
 ``--jobs`` local processes or on Ray (``--ray [ADDRESS]``), each kept in
 ``RUNS_DIR/scara/run<i>.json``: a rerun computes only the runs without one.
 
@@ -26,8 +26,8 @@ import argparse
 from collections.abc import Sequence
 
 from mcpilco.agents.common.cli import console_main
-from mcpilco.experiments.inverse_dynamics_bench import ESTIMATORS, PARTS, run_benchmark
-from mcpilco.experiments.sweep import SweepError, add_sweep_arguments, runner_from_args
+from mcpilco.experiments.identification.inverse_dynamics import ESTIMATORS, PARTS, run_benchmark
+from mcpilco.experiments.infra.sweep import SweepError, add_sweep_arguments, runner_from_args
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -1,12 +1,12 @@
 """Kinematics learning benchmark: structure identification, FK GP, kinematic controller (ch. 2).
 
-Parts (thesis section 2.6; what each does: :mod:`mcpilco.experiments.kinematics_parts`):
+Parts (thesis section 2.6; what each does: :mod:`mcpilco.experiments.kinematics.parts`):
 (a) Monte Carlo over random noiseless robots (Fig. 2.4), (b) misclassified triplets against
 the number of noisy UR10 samples (Fig. 2.6), (c) the FK GP on the UR10 (Table 2.1), (d) the
 kinematic controller with online refits (Table 2.2). ``--fk-seeds`` runs part (c) alone on
 each seed and writes ``kinematics_c_seeds.{json,md}``; ``--reaching-seeds`` runs MC-PILCO
 reaching through the learned kinematics against the controller of (d) on each seed
-(:mod:`mcpilco.experiments.reaching_bench`) and writes ``kinematics_reaching.{json,md,png}``.
+(:mod:`mcpilco.experiments.kinematics.reaching`) and writes ``kinematics_reaching.{json,md,png}``.
 
 Outputs (``--out-dir``, default ``results/``; ``--merge`` keeps the parts not run from an
 existing ``kinematics.json``): ``kinematics.json``, ``kinematics_confusion.png``,
@@ -30,19 +30,19 @@ import sys
 import torch
 
 from mcpilco.agents.common.cli import console_main
-from mcpilco.experiments.kinematics_bench import (
+from mcpilco.experiments.infra.sweep import SweepError, add_sweep_arguments, runner_from_args
+from mcpilco.experiments.kinematics.bench import (
     KinematicsBenchSettings,
     run_benchmark,
     run_fk_seed_study,
 )
-from mcpilco.experiments.kinematics_parts import (
+from mcpilco.experiments.kinematics.parts import (
     FK_MODELS,
     REFINE_CHOICES,
     TRAIN_SELECTIONS,
 )
-from mcpilco.experiments.kinematics_report import fk_seed_markdown, markdown_report
-from mcpilco.experiments.reaching_bench import reaching_markdown, reaching_study
-from mcpilco.experiments.sweep import SweepError, add_sweep_arguments, runner_from_args
+from mcpilco.experiments.kinematics.reaching import reaching_markdown, reaching_study
+from mcpilco.experiments.kinematics.report import fk_seed_markdown, markdown_report
 
 DEFAULTS = KinematicsBenchSettings()
 

@@ -2,7 +2,7 @@
 
 The UR10 of ``mcpilco/MarkerCamera-v0`` follows a trajectory through 25 random waypoints;
 every frame is rendered and its markers detected with OpenCV, and the detected poses are
-compared with MuJoCo's (statistics: :mod:`mcpilco.experiments.marker_detection_bench`).
+compared with MuJoCo's (statistics: :mod:`mcpilco.experiments.kinematics.marker_detection`).
 
 Writes ``marker_detection.json``, ``marker_detection.md``, ``marker_detection.png`` and
 ``marker_detection_frame.png`` under ``--out-dir``. Needs OpenCV
@@ -21,7 +21,7 @@ import sys
 from pathlib import Path
 
 from mcpilco.agents.common.cli import console_main
-from mcpilco.experiments.marker_detection_bench import (
+from mcpilco.experiments.kinematics.marker_detection import (
     MIN_FRAMES,
     MarkerBenchSettings,
     run,

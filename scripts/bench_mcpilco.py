@@ -5,7 +5,7 @@ Parts, each optional (``tracking`` and ``tracking_kernels`` only when named):
 1. ``runs``: S seeds of the whole loop (exploration + policy trials) per env; per trial
    (3, 6, 9, 12, 15 s of experience) the success rate, mean time upright, mean ``|x|``,
    wall-clock per trial and per optimisation step. Seeds are sweep jobs
-   (:mod:`mcpilco.experiments.sweep`) with one torch thread each, in ``--jobs`` local
+   (:mod:`mcpilco.experiments.infra.sweep`) with one torch thread each, in ``--jobs`` local
    processes or on Ray (``--ray [ADDRESS]``); a finished seed is not rerun.
 2. ``timing``: seconds per policy optimisation step (forward + backward through the
    ``M x H`` particle rollout + Adam step) at ``M = 400`` particles (``--timing-particles``:
@@ -30,7 +30,7 @@ Parts, each optional (``tracking`` and ``tracking_kernels`` only when named):
    after each policy trial against the env's controller alone; ``tracking_kernels``: on the
    tracking runs under ``--rmse-runs``, each GP kernel of ``--kernels`` refitted on a run's
    data before its last trial (``--fit-trials K``: its first K trials'), the RMSE per joint
-   of its particles against that trial (:mod:`mcpilco.experiments.tracking_bench`); both
+   of its particles against that trial (:mod:`mcpilco.experiments.mcpilco.tracking`); both
    write ``results/mcpilco_tracking.*``.
 
 Writes ``results/mcpilco_cartpole.json`` (merged with an existing file, one section per
@@ -63,7 +63,8 @@ from mcpilco.agents.common.cli import console_main
 from mcpilco.agents.mc_pilco import DEFAULT_ENV_ID
 from mcpilco.agents.mc_pilco.config import ROLLOUT_DTYPES, parse_set
 from mcpilco.agents.mc_pilco.dynamics import KERNEL_CHOICES
-from mcpilco.experiments.mcpilco_bench import (
+from mcpilco.experiments.infra.sweep import SweepError, add_sweep_arguments, runner_from_args
+from mcpilco.experiments.mcpilco.bench import (
     PARTS,
     bench_configs,
     load_results,
@@ -73,8 +74,7 @@ from mcpilco.experiments.mcpilco_bench import (
     runs_part,
     timing_part,
 )
-from mcpilco.experiments.sweep import SweepError, add_sweep_arguments, runner_from_args
-from mcpilco.experiments.tracking_bench import PUSH_VARIANTS, tracking_kernels_part, tracking_part
+from mcpilco.experiments.mcpilco.tracking import PUSH_VARIANTS, tracking_kernels_part, tracking_part
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -6,7 +6,7 @@ message), ``crash`` (a traceback, another exception or exit status) or ``silent 
 answer, exit 0 or a NaN, on input that cannot support one). The kills start a small
 ``mcpilco-train`` run, SIGKILL it after a given time, then continue it with ``--resume``
 (``--overwrite`` when no trial had finished) and count the finished trials lost. See
-:mod:`mcpilco.experiments.robustness`.
+:mod:`mcpilco.experiments.infra.robustness`.
 
 Usage::
 
@@ -17,12 +17,17 @@ Usage::
 from __future__ import annotations
 
 import argparse
-import json
 from collections.abc import Sequence
 from pathlib import Path
 
 from mcpilco.agents.common.cli import console_main
-from mcpilco.experiments.robustness import markdown, outcome_lines, run_robustness, write_result
+from mcpilco.experiments.infra.robustness import (
+    markdown,
+    outcome_lines,
+    run_robustness,
+    write_result,
+)
+from mcpilco.experiments.results import read_result
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -47,7 +52,7 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv: Sequence[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     if args.table_from is not None:
-        result = json.loads(args.table_from.read_text())
+        result = read_result(args.table_from).payload()
         (args.table_from.with_suffix(".md")).write_text(markdown(result))
         print(markdown(result))
         return 0

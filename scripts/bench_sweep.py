@@ -3,7 +3,7 @@
 
 The same sweep of ``--n`` probe jobs (``--seconds`` each: ``sleep`` jobs wait, ``spin`` jobs
 do a fixed amount of CPU work) runs on every backend of ``--backends`` with ``--cpus`` CPUs,
-``--repeats`` times; see :mod:`mcpilco.experiments.overhead` for the figures. Writes
+``--repeats`` times; see :mod:`mcpilco.experiments.infra.overhead` for the figures. Writes
 ``results/sweep_overhead.json`` and ``results/sweep_overhead.md``. The ``ray`` backend needs
 ``pip install 'mcpilco[cluster]'``.
 
@@ -19,9 +19,9 @@ import argparse
 import sys
 from pathlib import Path
 
-from mcpilco.experiments.overhead import BACKENDS, measure, write_report
-from mcpilco.experiments.probe import KINDS
-from mcpilco.experiments.sweep import SweepError, import_ray
+from mcpilco.experiments.infra.overhead import BACKENDS, measure, write_report
+from mcpilco.experiments.infra.probe import KINDS
+from mcpilco.experiments.infra.sweep import SweepError, import_ray
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -3,7 +3,7 @@
 Each case is a random 3-joint arm logged as positions and motor currents with random torque
 constants (some negative); every ``--control-every``-th case has no hidden effect, the others
 a hidden damping. The constants are estimated, the nominal model diagnosed in torque units
-(:mod:`mcpilco.experiments.torque_constants_bench`).
+(:mod:`mcpilco.experiments.diagnosis.torque_constants`).
 
 Each case is a sweep job (one thread) in ``--jobs`` local processes or on Ray
 (``--ray [ADDRESS]``), its record kept in ``RUNS_DIR/seed<s>.json``: a rerun computes only
@@ -20,8 +20,8 @@ from collections.abc import Sequence
 from pathlib import Path
 
 from mcpilco.agents.common.cli import console_main
-from mcpilco.experiments.sweep import SweepError, add_sweep_arguments, runner_from_args
-from mcpilco.experiments.torque_constants_bench import run_benchmark
+from mcpilco.experiments.diagnosis.torque_constants import run_benchmark
+from mcpilco.experiments.infra.sweep import SweepError, add_sweep_arguments, runner_from_args
 
 
 @console_main("mcpilco-bench-torque-constants")

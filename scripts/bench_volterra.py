@@ -4,7 +4,7 @@ Experiment 1: the order-3, memory-6 system (6.36) in two setups (train and test 
 train std 1, test std 4), PK, IPK and MPK estimators and a least-squares oracle on the true
 monomials. Experiment 2: the Wiener system (6.38), memory 70, orders ``--orders`` at SNRs
 ``--snrs``, MPK and the tied SED-MPK (6.35). Metric: Fit% on the noiseless test output. The
-protocol is in :mod:`mcpilco.experiments.volterra_bench`.
+protocol is in :mod:`mcpilco.experiments.identification.volterra`.
 
 Every run is a sweep job with one torch thread, in ``--jobs`` worker processes or on Ray
 (``--ray [ADDRESS]``); its result is kept in ``OUT_DIR/volterra_runs/``, so that a killed or
@@ -19,7 +19,7 @@ Examples::
     mcpilco-bench-volterra                      # full protocol (100 / 40 runs)
     mcpilco-bench-volterra --runs 20 --runs-exp2 6 --jobs 2
     mcpilco-bench-volterra --quick              # experiment 1 only, 2 runs
-    python -c "from mcpilco.experiments.volterra_bench import quick_benchmark; quick_benchmark()"
+    python -c "from mcpilco.experiments.identification.volterra import quick_benchmark as q; q()"
 """
 
 from __future__ import annotations
@@ -30,8 +30,8 @@ from pathlib import Path
 from typing import Any
 
 from mcpilco.agents.common.cli import console_main
-from mcpilco.experiments.sweep import SweepError, add_sweep_arguments, runner_from_args
-from mcpilco.experiments.volterra_bench import EXP1, EXP2, QUICK, run_benchmark
+from mcpilco.experiments.identification.volterra import EXP1, EXP2, QUICK, run_benchmark
+from mcpilco.experiments.infra.sweep import SweepError, add_sweep_arguments, runner_from_args
 
 
 def _parser() -> argparse.ArgumentParser:

@@ -54,7 +54,8 @@ from mcpilco.agents.baselines.sb3 import HYPERPARAMS
 from mcpilco.agents.common.cli import console_main
 from mcpilco.agents.common.trials import DEFAULT_ENV_ID
 from mcpilco.agents.mc_pilco.config import parse_set
-from mcpilco.experiments.compare import (
+from mcpilco.experiments.infra.sweep import SweepError, add_sweep_arguments, runner_from_args
+from mcpilco.experiments.mcpilco.compare import (
     METHODS,
     compare,
     markdown,
@@ -62,7 +63,6 @@ from mcpilco.experiments.compare import (
     parse_steps,
     write_report,
 )
-from mcpilco.experiments.sweep import SweepError, add_sweep_arguments, runner_from_args
 
 
 def recorded_command_line(argv: list[str]) -> str:

@@ -3,7 +3,7 @@
 Runs the ``demo`` preset of the cart-pole's config file (one 3 s random-exploration trial, then
 3 policy trials with the benchmark's budget: 12 s of experience), then prints whether the
 pole was swung up, the time taken, and where the checkpoint, the Rerun recording
-(``run.rrd``) and the PNG plots are (:mod:`mcpilco.experiments.cartpole_demo`). On the CPU
+(``run.rrd``) and the PNG plots are (:mod:`mcpilco.experiments.mcpilco.demo`). On the CPU
 the rollout is compiled when a C++ compiler is found; ``--eager`` skips the compilation.
 With ``--device cuda`` the policy optimisation runs on a GPU.
 
@@ -20,7 +20,7 @@ from collections.abc import Sequence
 from pathlib import Path
 
 from mcpilco.agents.common.cli import console_main
-from mcpilco.experiments.cartpole_demo import demo_config, demo_report, run_demo
+from mcpilco.experiments.mcpilco.demo import demo_config, demo_report, run_demo
 
 
 def build_parser() -> argparse.ArgumentParser:

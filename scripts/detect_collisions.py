@@ -20,7 +20,7 @@ than ``--rate-tolerance``, or a non-uniform grid).
 Outputs (``--out-dir``, default next to the file): ``<stem>_collisions.csv`` (one row per
 alarm interval, alarms less than ``--merge-gap`` s apart merged: ``start, end, duration,
 joint, peak_ratio``) and ``<stem>_collisions.png``. The work is
-:func:`mcpilco.experiments.collision_detection.detect_collisions`.
+:func:`mcpilco.models.collision.detect.detect_collisions`.
 
 Usage::
 
@@ -35,8 +35,9 @@ import sys
 from collections.abc import Sequence
 
 from mcpilco.agents.common.cli import console_main
-from mcpilco.experiments.collision_detection import detect_collisions
+from mcpilco.experiments.collision.nominal import nominal_model
 from mcpilco.models.collision import InputError
+from mcpilco.models.collision.detect import detect_collisions
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -69,7 +70,10 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv: Sequence[str] | None = None) -> int:
     """CLI entry point: 0 on success, 2 on a bad file or option (message on stderr)."""
     options = vars(build_parser().parse_args(argv))
+    robot = options.pop("robot")
     try:
+        if options["train"] is not None and not options["model"]:
+            options["model"] = nominal_model(robot)
         summary = detect_collisions(options.pop("data"), **options)
     except InputError as err:
         print(f"error: {err}", file=sys.stderr)

@@ -2,7 +2,7 @@
 
 Writes ``train_1..N``, ``test_1..M`` (CSV or Parquet), the nominal robot file ``robot.xml``
 and the hidden answer ``truth.json`` under ``--out``; the effects, their sizes and the noise
-are described in :mod:`mcpilco.experiments.hidden_effects`.
+are described in :mod:`mcpilco.experiments.diagnosis.hidden_effects`.
 
 Example (the README walk-through; a few seconds)::
 
@@ -15,7 +15,7 @@ from __future__ import annotations
 import argparse
 from collections.abc import Sequence
 
-from mcpilco.experiments.hidden_effects import EFFECT_KEYS, ROBOTS, make_case, write_case
+from mcpilco.experiments.diagnosis.hidden_effects import EFFECT_KEYS, ROBOTS, make_case, write_case
 
 
 def build_parser() -> argparse.ArgumentParser:

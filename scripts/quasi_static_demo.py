@@ -2,7 +2,7 @@
 
 Only joint 1 moves, between rest phases at the same configuration; stiction makes the
 measured current at rest depend on how the joint arrived
-(:mod:`mcpilco.experiments.quasi_static_friction`).
+(:mod:`mcpilco.experiments.collision.quasi_static_friction`).
 
 Outputs (``--out-dir``, default ``results/``): ``collision_quasi_static.png``,
 ``collision_quasi_static.json`` and ``.md`` (mean and std of ``i1`` in every rest phase).
@@ -17,7 +17,7 @@ from __future__ import annotations
 import argparse
 from collections.abc import Sequence
 
-from mcpilco.experiments.quasi_static_friction import run, write_outputs
+from mcpilco.experiments.collision.quasi_static_friction import run, write_outputs
 
 
 def main(argv: Sequence[str] | None = None) -> int:

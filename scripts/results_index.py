@@ -1,14 +1,19 @@
 """Write ``results/README.md``, the index of headline figures (console script
 ``mcpilco-results-index``).
 
-Reads the results JSON files registered in :data:`mcpilco.experiments.results_index.REGISTRY`
-and writes one Markdown table: capability, headline figure, command, seeds, date of
-measurement and the page with the details. Run it after adding or rerunning a benchmark.
+Reads the result files of the headline rows every registered bench exports
+(:mod:`mcpilco.experiments.benches`) and writes one Markdown table: capability, headline
+figure, command, seeds, date of measurement and the page with the details. Run it after
+adding or rerunning a benchmark. ``--convert`` rewrites result files written before the one
+result schema (:mod:`mcpilco.experiments.results`) in it, their numbers unchanged;
+``--replot`` redraws every bench figure from its result file (no benchmark is rerun).
 
 Usage::
 
     mcpilco-results-index                    # results/README.md from results/*.json
     mcpilco-results-index --check            # exit 1 when results/README.md is out of date
+    mcpilco-results-index --convert          # old result files -> the result schema
+    mcpilco-results-index --replot           # redraw every bench figure from its file
 """
 
 from __future__ import annotations
@@ -17,6 +22,8 @@ import argparse
 import sys
 from pathlib import Path
 
+from mcpilco.experiments.benches import replot_tree
+from mcpilco.experiments.infra.convert_results import convert_tree
 from mcpilco.experiments.results_index import render_index
 
 
@@ -29,7 +36,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--results", type=Path, default=Path("results"), help="results folder")
     p.add_argument("--out", type=Path, default=None, help="index file (default RESULTS/README.md)")
     p.add_argument("--check", action="store_true", help="compare with the file, write nothing")
-    p.add_argument("--no-git", action="store_true", help="do not read dates from the git history")
+    p.add_argument("--convert", action="store_true", help="convert old result files first")
+    p.add_argument("--replot", action="store_true", help="redraw the figures from the files")
     return p
 
 
@@ -40,7 +48,13 @@ def main(argv: list[str] | None = None) -> int:
         parser.error(f"--results {args.results}: no such folder")
     out = args.out if args.out is not None else args.results / "README.md"
     try:
-        text = render_index(args.results, use_git=not args.no_git)
+        if args.convert:
+            for path in convert_tree(args.results):
+                print(f"converted {path}")
+        if args.replot:
+            for path in replot_tree(args.results):
+                print(f"drew {path}")
+        text = render_index(args.results)
     except (FileNotFoundError, ValueError) as err:
         print(f"mcpilco-results-index: error: {err}", file=sys.stderr)
         return 2

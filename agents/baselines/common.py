@@ -31,6 +31,7 @@ from typing import Any
 import numpy as np
 
 from mcpilco.agents.common.trials import env_dt, make_env, run_episode
+from mcpilco.models.files import write_atomic
 
 CURVE_FORMAT = "mcpilco-curve/1"
 """Tag of a learning-curve JSON file (one run: method, env, seed, points)."""
@@ -219,22 +220,22 @@ def validate_curve(curve: dict[str, Any], source: str = "curve") -> None:
 
 
 def save_curve(path: str | os.PathLike, curve: dict[str, Any]) -> Path:
-    """Write a learning curve atomically (``.tmp`` then ``os.replace``)."""
+    """Write a learning curve atomically (:func:`~mcpilco.models.files.write_atomic`)."""
     validate_curve(curve, str(path))
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(path.name + ".tmp")
-    tmp.write_text(json.dumps(curve, indent=1))
-    os.replace(tmp, path)
+    write_atomic(path, json.dumps(curve, indent=1))
     return path
 
 
 def load_curves(path: str | os.PathLike) -> list[dict[str, Any]]:
-    """Learning curves of a JSON file: one curve, a list of curves, or ``{"curves": [...]}``."""
+    """Learning curves of a JSON file: one curve, a list of curves, ``{"curves": [...]}`` or a
+    comparison's result file (its ``curves`` case entry, :mod:`mcpilco.experiments.results`)."""
     path = Path(path)
     if not path.is_file():
         raise FileNotFoundError(f"no result file at {path}")
     data = json.loads(path.read_text())
+    if isinstance(data, dict) and isinstance(data.get("cases"), dict) and "schema" in data:
+        data = data["cases"]
     if isinstance(data, dict) and "curves" in data:
         data = data["curves"]
     curves = data if isinstance(data, list) else [data]

@@ -109,8 +109,7 @@ class PilcoConfig:
             the data up to 12 s of experience (the bench budget's last trial drops the first
             60). A smaller set forgets the swings of the earlier trials; a larger one costs
             more: the memory of one evaluation of ``J`` (60-step moment-matching rollout,
-            forward and backward) grows as ``n^2``
-            (``results/compare_CartpoleSwingUp-v0_pilco_lbfgs_n180.md``).
+            forward and backward) grows as ``n^2``.
         optimizer: ``"lbfgs"`` (default): L-BFGS with a strong-Wolfe line search on the
             deterministic ``J``, the kind of quasi-Newton search PILCO itself uses (its
             ``minimize``, conjugate gradients / BFGS with line searches); ``"adam"``: Adam as

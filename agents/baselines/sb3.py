@@ -41,7 +41,6 @@ from __future__ import annotations
 
 import dataclasses
 import json
-import os
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -62,6 +61,7 @@ from mcpilco.agents.baselines.common import (
 from mcpilco.agents.common.checkpoint import check_resume
 from mcpilco.agents.common.trials import DEFAULT_ENV_ID, env_dt, make_env
 from mcpilco.envs.tasks.spec import TaskSpec
+from mcpilco.models.files import write_atomic
 
 ALGOS: tuple[str, ...] = ("sac", "td3", "ppo")
 """stable-baselines3 algorithms of the comparison."""
@@ -343,9 +343,7 @@ def __getattr__(name: str):
 
 # ----------------------------------------------------------------------------- runner
 def _atomic_json(path: Path, obj: Any) -> None:
-    tmp = path.with_name(path.name + ".tmp")
-    tmp.write_text(json.dumps(obj, indent=1))
-    os.replace(tmp, path)
+    write_atomic(path, json.dumps(obj, indent=1))
 
 
 def run_sb3(

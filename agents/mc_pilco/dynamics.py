@@ -49,11 +49,10 @@ Glossary
     velocity change, affine in ``w`` for a sinusoidal reference) gets this kernel. The
     structure is that of the accelerations: where the control period is long against the
     closed loop's time constants (a stiff PD loop moving the state within one period) the
-    velocity change departs from it, and RBF + MPK may predict such data better. Measured on
-    the UR10 tracking task (40 ms, the env's PD in the loop; docs/mcpilco.md, "Which kernel
-    models the arm"): fitted on 300 transitions its particles predict 4 s as closely as
-    RBF + MPK's, but fitted on the 100 of the exploration trial they drift by about 1 rad,
-    and its first policy leaves 0.95 of the controller's tracking error (RBF + MPK's 0.27).
+    velocity change departs from it, and RBF + MPK may predict such data better. How it
+    compares with RBF + MPK on the UR10 tracking task (40 ms, the env's PD in the loop), on
+    all of a run's data and on the exploration trial alone: docs/mcpilco.md, "Which kernel
+    models the arm" (results/mcpilco_tracking.md).
 """
 
 from __future__ import annotations

@@ -39,6 +39,8 @@ from typing import Any
 
 import numpy as np
 
+from mcpilco.models.files import atomic_path
+
 
 def plot_trial_particles(
     path: str | os.PathLike,
@@ -186,76 +188,79 @@ def write_rerun_recording(
     import rerun as rr
 
     path = Path(path)
-    tmp = path.with_name(path.name + ".tmp.rrd")
-    rec = rr.RecordingStream(application_id, recording_id=recording_id)
-    longest = max((len(tr["real"]) for tr in trials), default=1)
-    rec.save(tmp, default_blueprint=_blueprint(state_names, longest * dt))
-    step0 = 0
-    for tr in trials:
-        k = int(tr["index"])
-        rec.set_time("trial", sequence=k)
-        real = np.asarray(tr["real"], dtype=np.float64)
-        t = np.arange(real.shape[0]) * dt
-        parts = tr.get("particles")
-        for idx, name in enumerate(state_names):
-            if parts is not None:
-                tp = np.arange(parts.shape[1]) * dt
-                strips = np.stack([np.broadcast_to(tp, parts.shape[:2]), parts[:, :, idx]], -1)
+    with atomic_path(path, suffix=".tmp.rrd") as tmp:
+        rec = rr.RecordingStream(application_id, recording_id=recording_id)
+        longest = max((len(tr["real"]) for tr in trials), default=1)
+        rec.save(tmp, default_blueprint=_blueprint(state_names, longest * dt))
+        step0 = 0
+        for tr in trials:
+            k = int(tr["index"])
+            rec.set_time("trial", sequence=k)
+            real = np.asarray(tr["real"], dtype=np.float64)
+            t = np.arange(real.shape[0]) * dt
+            parts = tr.get("particles")
+            for idx, name in enumerate(state_names):
+                if parts is not None:
+                    tp = np.arange(parts.shape[1]) * dt
+                    strips = np.stack([np.broadcast_to(tp, parts.shape[:2]), parts[:, :, idx]], -1)
+                    rec.log(
+                        f"particles/{name}/model",
+                        rr.LineStrips2D(strips, colors=[70, 130, 230, 60], radii=0.004),
+                    )
+                else:
+                    rec.log(f"particles/{name}/model", rr.Clear(recursive=False))
+                pts = np.stack([t, real[:, idx]], -1)
                 rec.log(
-                    f"particles/{name}/model",
-                    rr.LineStrips2D(strips, colors=[70, 130, 230, 60], radii=0.004),
+                    f"particles/{name}/real",
+                    rr.Points2D(pts, colors=[0, 0, 0, 255], radii=0.02),
                 )
-            else:
-                rec.log(f"particles/{name}/model", rr.Clear(recursive=False))
-            pts = np.stack([t, real[:, idx]], -1)
-            rec.log(
-                f"particles/{name}/real",
-                rr.Points2D(pts, colors=[0, 0, 0, 255], radii=0.02),
-            )
-            ref = (references or {}).get(name)
-            if ref is not None:
-                line = np.stack([t, real[:, list(state_names).index(ref)]], -1)
-                rec.log(
-                    f"particles/{name}/reference",
-                    rr.LineStrips2D([line], colors=[40, 160, 60, 255], radii=0.006),
+                ref = (references or {}).get(name)
+                if ref is not None:
+                    line = np.stack([t, real[:, list(state_names).index(ref)]], -1)
+                    rec.log(
+                        f"particles/{name}/reference",
+                        rr.LineStrips2D([line], colors=[40, 160, 60, 255], radii=0.006),
+                    )
+                excl = tr.get("excluded")
+                if excl is not None and np.any(excl):
+                    rec.log(
+                        f"particles/{name}/excluded",
+                        rr.Points2D(
+                            pts[np.flatnonzero(excl)], colors=[220, 40, 40, 255], radii=0.04
+                        ),
+                    )
+                else:
+                    rec.log(f"particles/{name}/excluded", rr.Clear(recursive=False))
+                spans = _runs(tr.get("contact"))
+                if spans:
+                    rec.log(
+                        f"particles/{name}/push",
+                        rr.LineStrips2D(
+                            [pts[a : b + 1] for a, b in spans],
+                            colors=[240, 140, 20, 255],
+                            radii=0.03,
+                        ),
+                    )
+                else:
+                    rec.log(f"particles/{name}/push", rr.Clear(recursive=False))
+            for key in ("cost", "time_in_goal"):
+                if tr.get(key) is not None:
+                    rec.log(f"trial/{key}", rr.Scalars([float(tr[key])]))
+            if tr.get("success") is not None:
+                rec.log("trial/success", rr.Scalars([float(bool(tr["success"]))]))
+            if tr.get("gp_rmse") is not None:
+                rmse = np.asarray(tr["gp_rmse"], dtype=np.float64)
+                for name, value in zip(output_names, rmse, strict=True):
+                    rec.log(f"gp/one_step_rmse/{name}", rr.Scalars([float(value)]))
+            costs = tr.get("opt_costs")
+            if costs is not None and len(costs):
+                steps = step0 + np.arange(len(costs))
+                rec.send_columns(
+                    "optimisation/expected_cost",
+                    indexes=[rr.TimeColumn("opt_step", sequence=steps)],
+                    columns=rr.Scalars.columns(scalars=np.asarray(costs, dtype=np.float64)),
                 )
-            excl = tr.get("excluded")
-            if excl is not None and np.any(excl):
-                rec.log(
-                    f"particles/{name}/excluded",
-                    rr.Points2D(pts[np.flatnonzero(excl)], colors=[220, 40, 40, 255], radii=0.04),
-                )
-            else:
-                rec.log(f"particles/{name}/excluded", rr.Clear(recursive=False))
-            spans = _runs(tr.get("contact"))
-            if spans:
-                rec.log(
-                    f"particles/{name}/push",
-                    rr.LineStrips2D(
-                        [pts[a : b + 1] for a, b in spans], colors=[240, 140, 20, 255], radii=0.03
-                    ),
-                )
-            else:
-                rec.log(f"particles/{name}/push", rr.Clear(recursive=False))
-        for key in ("cost", "time_in_goal"):
-            if tr.get(key) is not None:
-                rec.log(f"trial/{key}", rr.Scalars([float(tr[key])]))
-        if tr.get("success") is not None:
-            rec.log("trial/success", rr.Scalars([float(bool(tr["success"]))]))
-        if tr.get("gp_rmse") is not None:
-            rmse = np.asarray(tr["gp_rmse"], dtype=np.float64)
-            for name, value in zip(output_names, rmse, strict=True):
-                rec.log(f"gp/one_step_rmse/{name}", rr.Scalars([float(value)]))
-        costs = tr.get("opt_costs")
-        if costs is not None and len(costs):
-            steps = step0 + np.arange(len(costs))
-            rec.send_columns(
-                "optimisation/expected_cost",
-                indexes=[rr.TimeColumn("opt_step", sequence=steps)],
-                columns=rr.Scalars.columns(scalars=np.asarray(costs, dtype=np.float64)),
-            )
-            step0 += len(costs)
-    rec.flush()
-    rec.disconnect()
-    os.replace(tmp, path)
+                step0 += len(costs)
+        rec.flush()
+        rec.disconnect()
     return path

@@ -90,6 +90,7 @@ from scipy.stats import norm
 
 from mcpilco.models.diagnosis.data import Trajectories, derivative_filter, smoother_noise_std
 from mcpilco.models.gp.linear_gp import single_thread
+from mcpilco.models.stats import Z95
 
 FloatArray = NDArray[np.float64]
 
@@ -630,7 +631,7 @@ def _bins(x: FloatArray, e: FloatArray, n_bins: int) -> dict[str, FloatArray]:
         "hi": edges[1:],
         "centre": 0.5 * (edges[:-1] + edges[1:]),
         "mean": mean,
-        "ci95": 1.96 * sd / np.sqrt(c),
+        "ci95": Z95 * sd / np.sqrt(c),
         "rms": rms,
         "count": count,
     }

@@ -80,6 +80,8 @@ from typing import Any, ClassVar
 import numpy as np
 from numpy.typing import NDArray
 
+from mcpilco.models.stats import Z95
+
 FloatArray = NDArray[np.float64]
 
 __all__ = [
@@ -402,12 +404,12 @@ class Effect:
         sd = np.sqrt(np.clip(np.diag(cov), 0.0, None))
         out = []
         for k, p in enumerate(self.params):
-            wrong = p.sign > 0 and mean[k] < -1.96 * sd[k]
+            wrong = p.sign > 0 and mean[k] < -Z95 * sd[k]
             out.append(
                 ParamEstimate(
                     p.name,
                     float(mean[k]),
-                    float(1.96 * sd[k]),
+                    float(Z95 * sd[k]),
                     ctx.unit(p.unit, self.joint),
                     bool(wrong),
                 )
@@ -633,8 +635,8 @@ class Cogging(Effect):
         h = np.array([-g[1], g[0]]) / amp if amp > 0 else np.zeros(2)  # d phi / d (a, b)
         sd_phi = math.sqrt(max(float(h @ cov[:2, :2] @ h), 0.0)) if amp > 0 else math.pi
         return [
-            ParamEstimate("A", amp, 1.96 * sd, ctx.unit("{F}", self.joint)),
-            ParamEstimate("phi", float(math.atan2(mean[1], mean[0])), 1.96 * sd_phi, "rad"),
+            ParamEstimate("A", amp, Z95 * sd, ctx.unit("{F}", self.joint)),
+            ParamEstimate("phi", float(math.atan2(mean[1], mean[0])), Z95 * sd_phi, "rad"),
         ]
 
 
@@ -863,7 +865,7 @@ def _linear_estimate(
     """``g^T w`` of weights ``w ~ N(mean, cov)`` with its 95 % interval."""
     value = float(g @ mean)
     sd = math.sqrt(max(float(g @ cov @ g), 0.0))
-    return ParamEstimate(name, value, 1.96 * sd, unit, bool(sign > 0 and value < -1.96 * sd))
+    return ParamEstimate(name, value, Z95 * sd, unit, bool(sign > 0 and value < -Z95 * sd))
 
 
 def flange_map(pos: FloatArray, rot: FloatArray) -> FloatArray:
@@ -972,7 +974,7 @@ class Payload(Effect):
     ) -> list[ParamEstimate]:
         out = [_linear_estimate("m", np.eye(len(mean))[0], mean, cov, "kg", sign=+1)]
         m, sd_m = float(mean[0]), math.sqrt(max(float(cov[0, 0]), 0.0))
-        if m > 2.0 * 1.96 * sd_m:  # the offset p = (m p) / m, delta method, when m is clear
+        if m > 2.0 * Z95 * sd_m:  # the offset p = (m p) / m, delta method, when m is clear
             p0 = self._p0()
             for i, axis in enumerate("xyz", start=1):
                 g = np.zeros(len(mean))

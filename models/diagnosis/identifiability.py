@@ -35,6 +35,7 @@ from numpy.typing import NDArray
 
 from mcpilco.models.diagnosis.effects import Effect, FeatureContext, ParamEstimate
 from mcpilco.models.gp.linear_gp import JointGP
+from mcpilco.models.stats import Z95
 
 FloatArray = NDArray[np.float64]
 
@@ -167,9 +168,9 @@ def judge_estimates(
             reasons.append(
                 f"its 95% interval ±{est.ci95:.3g} is wider than its value {est.value:.3g}"
             )
-        elif 1.96 * math.sqrt(var_l) >= value:
+        elif Z95 * math.sqrt(var_l) >= value:
             reasons.append(
-                f"the data alone bound it only to ±{1.96 * math.sqrt(var_l):.3g}, wider than "
+                f"the data alone bound it only to ±{Z95 * math.sqrt(var_l):.3g}, wider than "
                 f"its value {est.value:.3g}, which comes from the prior"
                 + (f"; the likelihood ties it to {names[partner]}" if partner is not None else "")
             )

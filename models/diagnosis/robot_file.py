@@ -75,6 +75,7 @@ from mcpilco.models.diagnosis.effects import (
 )
 from mcpilco.models.diagnosis.model import DiagnosisModel
 from mcpilco.models.diagnosis.start_models import NominalStart
+from mcpilco.models.stats import Z95
 
 FloatArray = NDArray[np.float64]
 
@@ -267,9 +268,9 @@ def found_effects(model: DiagnosisModel) -> list[FoundEffect]:
                 ParamEstimate(
                     name,
                     float(mean[k]),
-                    float(1.96 * sd[k]),
+                    float(Z95 * sd[k]),
                     _payload_unit(name),
-                    bool(name == "m" and mean[k] < -1.96 * sd[k]),
+                    bool(name == "m" and mean[k] < -Z95 * sd[k]),
                 )
                 for k, name in enumerate(INERTIAL_PARAMS)
             )

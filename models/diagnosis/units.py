@@ -105,6 +105,7 @@ from mcpilco.models.diagnosis.effects import (
     TorqueScale,
     ViscousFriction,
 )
+from mcpilco.models.stats import Z95
 
 FloatArray = NDArray[np.float64]
 
@@ -164,7 +165,7 @@ class TorqueConstants:
     @property
     def std(self) -> FloatArray:
         """``(n,)`` standard deviation of ``k_t``."""
-        return self.ci95 / 1.96
+        return self.ci95 / Z95
 
     def unit(self, joint: int) -> str:
         """Unit of ``k_t`` of joint ``joint`` (1-based)."""
@@ -414,10 +415,10 @@ def estimate_torque_constants(
         inv_k, sd_inv = float(beta[0]), float(math.sqrt(cov[0, 0]))
         k = 1.0 / inv_k if inv_k != 0 else math.inf
         sd_k = sd_inv * k**2
-        if not (math.isfinite(k) and 1.96 * sd_inv < MAX_RELATIVE_CI * abs(inv_k)):
+        if not (math.isfinite(k) and Z95 * sd_inv < MAX_RELATIVE_CI * abs(inv_k)):
             failed.append(
                 f"joint {joint}: the torque constant is not identifiable from the training "
-                f"data (k_t = {k:.3g} ± {1.96 * sd_k:.2g} {unit}, a 95% interval wider than "
+                f"data (k_t = {k:.3g} ± {Z95 * sd_k:.2g} {unit}, a 95% interval wider than "
                 f"{MAX_RELATIVE_CI:.0%} of k_t)"
             )
             continue
@@ -426,9 +427,9 @@ def estimate_torque_constants(
         params = []
         for m, (name, u) in enumerate(zip(names, units, strict=True), start=1):
             f, sd_f = _ratio(float(beta[m]), inv_k, cov, m, 0)
-            params.append(ParamEstimate(name, f, 1.96 * sd_f, u))
+            params.append(ParamEstimate(name, f, Z95 * sd_f, u))
         value.append(k)
-        ci95.append(1.96 * sd_k)
+        ci95.append(Z95 * sd_k)
         baseline.append(tuple(params))
         removed = sd_k * math.sqrt(float(np.mean(traj.y[rows, j] ** 2)))
         brought = sigma_in[j] ** 2 / max(math.sqrt(float(np.mean(tau_hat[:, j] ** 2))), 1e-300)
@@ -514,7 +515,7 @@ def widen_estimates(
     uncertainty of that joint's ``k_t`` (module docstring); unchanged without constants."""
     if constants is None:
         return list(estimates)
-    rel = 1.96 * float(constants.std[output]) / abs(float(constants.value[output]))
+    rel = Z95 * float(constants.std[output]) / abs(float(constants.value[output]))
     if rel == 0:
         return list(estimates)
     return [dataclasses.replace(p, ci95=math.hypot(p.ci95, rel * p.value)) for p in estimates]

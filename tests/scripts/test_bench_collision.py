@@ -2,9 +2,9 @@
 
 from __future__ import annotations
 
-import json
-
 import pytest
+
+from mcpilco.experiments.results import read_result
 
 TINY = [
     "--train-waypoints", "4", "--gp-points", "150", "--hyper-points", "60",
@@ -19,7 +19,7 @@ TINY = [
 def test_tiny_run_keeps_its_jobs_and_a_rerun_reuses_them(tmp_path, capsys, command):
     argv = [*TINY, "--out-dir", str(tmp_path / "out"), "--runs-dir", str(tmp_path / "runs")]
     assert command("mcpilco-bench-collision", [*argv, "--jobs", "2"]) == 0
-    first = json.loads((tmp_path / "out" / "collision.json").read_text())
+    first = read_result(tmp_path / "out" / "collision.json").payload()
     names = {p.stem for p in (tmp_path / "runs").glob("*.json")}
     assert names == {"sigma_v_cv", "PP", "SP", "FC", "PP-sign"}
     assert (tmp_path / "runs" / "data.pkl").is_file()
@@ -28,5 +28,5 @@ def test_tiny_run_keeps_its_jobs_and_a_rerun_reuses_them(tmp_path, capsys, comma
         command("mcpilco-bench-collision", argv) == 0
     )  # in this process: every job is read back, nothing recomputed
     assert "0 ran, 4 reused" in capsys.readouterr().out
-    again = json.loads((tmp_path / "out" / "collision.json").read_text())
+    again = read_result(tmp_path / "out" / "collision.json").payload()
     assert again["estimators"] == first["estimators"] and again["goals"] == first["goals"]

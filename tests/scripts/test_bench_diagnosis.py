@@ -1,6 +1,6 @@
 """mcpilco-bench-diagnosis: a case is a sweep job, reused by the next call; the report files."""
 
-import json
+from mcpilco.experiments.results import read_result
 
 
 def test_a_case_is_a_sweep_job_reused_by_the_next_call(tmp_path, capsys, command):
@@ -9,7 +9,7 @@ def test_a_case_is_a_sweep_job_reused_by_the_next_call(tmp_path, capsys, command
     assert command("mcpilco-bench-diagnosis", argv) == 0
     record = tmp_path / "runs" / "random" / "nominal" / "seed1000.json"
     stamp = record.stat().st_mtime_ns
-    first = json.loads((tmp_path / "diag.json").read_text())
+    first = read_result(tmp_path / "diag.json").payload()
     assert first["summary"]["cases"] == {"control": 1}  # case 0 of the plan is a control case
     assert first["seeds"] == [1000] and first["command"].startswith("mcpilco-bench-diagnosis ")
     (case,) = first["cases"]
@@ -19,4 +19,4 @@ def test_a_case_is_a_sweep_job_reused_by_the_next_call(tmp_path, capsys, command
     assert command("mcpilco-bench-diagnosis", argv) == 0  # the case is read back, not recomputed
     assert "0 ran, 1 reused, 0 failed" in capsys.readouterr().out
     assert record.stat().st_mtime_ns == stamp
-    assert json.loads((tmp_path / "diag.json").read_text())["cases"] == first["cases"]
+    assert read_result(tmp_path / "diag.json").payload()["cases"] == first["cases"]

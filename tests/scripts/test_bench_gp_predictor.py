@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-import json
+from mcpilco.experiments.results import read_result
 
 
 def test_bench_script_writes_json(command, tmp_path, capsys) -> None:
@@ -12,7 +12,7 @@ def test_bench_script_writes_json(command, tmp_path, capsys) -> None:
         ["--n-train", "30", "--n-test", "8", "--dim", "2", "--repeats", "1", "--out", str(out)],
     )
     assert rc == 0
-    result = json.loads(out.read_text())
+    result = read_result(out).payload()
     assert result["config"]["n_train"] == 30
     assert set(result["speedup_vs_gpytorch"]) >= {"cached64", "cached32", "fused64", "fused32"}
     assert result["max_abs_diff_cached64_vs_gpytorch"] < 1e-8

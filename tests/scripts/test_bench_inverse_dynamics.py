@@ -7,7 +7,8 @@ import json
 import numpy as np
 import torch
 
-from mcpilco.experiments.inverse_dynamics_bench import ESTIMATORS
+from mcpilco.experiments.identification.inverse_dynamics import ESTIMATORS
+from mcpilco.experiments.results import read_result
 
 
 def test_tiny_benchmark_writes_outputs(tmp_path, command) -> None:
@@ -27,7 +28,7 @@ def test_tiny_benchmark_writes_outputs(tmp_path, command) -> None:
         assert command("mcpilco-bench-inverse-dynamics", argv) == 0
     finally:
         torch.set_num_threads(threads)
-    res = json.loads((tmp_path / "inverse_dynamics.json").read_text())
+    res = read_result(tmp_path / "inverse_dynamics.json").payload()
     scara = res["scara"]
     assert set(scara["nmse"]) == set(ESTIMATORS)
     assert np.asarray(scara["nmse"]["GIP"]).shape == (2, 4)

@@ -6,6 +6,9 @@ import json
 import numpy as np
 import pytest
 
+from mcpilco.experiments.kinematics.bench import RESULT_LAYOUTS
+from mcpilco.experiments.results import read_result, write_result
+
 BENCH = "mcpilco-bench-kinematics"
 
 
@@ -14,7 +17,7 @@ def test_bench_monte_carlo_part_is_exact_on_noiseless_robots(command, tmp_path):
         BENCH, ["--parts", "a", "--robots", "1", "--out-dir", str(tmp_path), "--no-progress"]
     )
     assert rc == 0
-    res = json.loads((tmp_path / "kinematics.json").read_text())
+    res = read_result(tmp_path / "kinematics.json").payload()
     mc = res["monte_carlo"]
     assert mc["triplets"] == 75 and mc["misclassified_triplets"] == 0  # noiseless: exact
     assert mc["structures_recovered"] == 1
@@ -26,21 +29,21 @@ def test_bench_merge_keeps_the_parts_not_run(command, tmp_path):
     out = ["--out-dir", str(tmp_path), "--no-progress"]
     assert command(BENCH, ["--parts", "a", "--robots", "1", *out]) == 0
     path = tmp_path / "kinematics.json"
-    res = json.loads(path.read_text())
+    res = read_result(path).payload()
     row = {f"{n}_{c}_{s}": 0.01 for n in ("linear", "angle") for c in ("r1", "r2")
            for s in ("mean", "min", "max")}  # fmt: skip
     row.update(repeat=0, samples=25, triplets=126, misclassified=3)
     res["noise_vs_samples"] = dict(rows=[row], command="an earlier run of part b")
-    path.write_text(json.dumps(res))
+    write_result(path, RESULT_LAYOUTS[0], res)
     assert command(BENCH, ["--parts", "a", "--robots", "1", "--merge", *out]) == 0
-    merged = json.loads(path.read_text())
+    merged = read_result(path).payload()
     assert merged["noise_vs_samples"]["rows"] == [row]
     assert merged["monte_carlo"]["command"].endswith("--merge --out-dir " + str(tmp_path)
                                                      + " --no-progress")  # fmt: skip
     md = (tmp_path / "kinematics.md").read_text()
     assert "Command: `an earlier run of part b`" in md and "| 0 | 25 | 3 / 126 |" in md
     assert command(BENCH, ["--parts", "a", "--robots", "1", *out]) == 0  # without --merge: dropped
-    assert "noise_vs_samples" not in json.loads(path.read_text())
+    assert "noise_vs_samples" not in read_result(path).payload()
 
 
 @pytest.mark.slow
@@ -55,7 +58,7 @@ def test_bench_kinematics_tiny_run_writes_outputs(command, tmp_path):
         ],
     )  # fmt: skip
     assert rc == 0
-    res = json.loads((tmp_path / "kinematics.json").read_text())
+    res = read_result(tmp_path / "kinematics.json").payload()
     assert res["monte_carlo"]["misclassified_triplets"] == 0
     assert [r["samples"] for r in res["noise_vs_samples"]["rows"]] == [36, 72]
     assert len(res["fk_gp"]["polynomial_rmse_measured"]) == 7  # 6 pose + geodesic
@@ -88,7 +91,7 @@ def test_fk_seed_study_writes_its_table_and_counts_the_goal_from_its_rows(
     assert (
         command(BENCH, ["--fk-seeds", "0", "1", "--samples", "72", "--fk-train", "20", *out]) == 0
     )
-    study = json.loads((tmp_path / "kinematics_c_seeds.json").read_text())
+    study = read_result(tmp_path / "kinematics_c_seeds.json").payload()
     assert [r["seed"] for r in study["rows"]] == [0, 1]
     row1 = json.loads((tmp_path / "runs" / "c_seeds" / "seed1.json").read_text())["result"]
     assert row1 == study["rows"][1]  # one result file per seed

@@ -1,9 +1,9 @@
 """Smoke test of ``mcpilco-bench-markers``: a tiny rendered run writes its outputs and its
 statistics agree with a direct recomputation from the same frames."""
 
-import json
-
 import pytest
+
+from mcpilco.experiments.results import read_result
 
 pytest.importorskip("cv2", reason="the rendered marker path needs OpenCV (mcpilco[vision])")
 
@@ -13,7 +13,7 @@ def test_tiny_rendered_run_writes_outputs(command, tmp_path, gl_in_process):
                  ["--frames", "24", "--image-size", "960", "540", "--marker-size", "0.2",
                   "--out-dir", str(tmp_path), "--no-progress"])  # fmt: skip
     assert rc == 0
-    res = json.loads((tmp_path / "marker_detection.json").read_text())
+    res = read_result(tmp_path / "marker_detection.json").payload()
     assert res["config"]["frames"] == 25  # the start frame + one per segment
     per = res["per_marker"]
     assert len(per) == 7

@@ -5,8 +5,9 @@ from __future__ import annotations
 import pytest
 
 from mcpilco.agents.mc_pilco import DEFAULT_ENV_ID, load_config
-from mcpilco.experiments.mcpilco_bench import bench_configs, run_seed
-from tests.experiments.test_mcpilco_bench import _fake_runs
+from mcpilco.experiments.mcpilco.bench import bench_configs, run_seed
+from mcpilco.experiments.results import read_result
+from tests.experiments.mcpilco.test_bench import _fake_runs
 
 BENCH_CONFIG = load_config(DEFAULT_ENV_ID, preset="bench")
 
@@ -48,11 +49,11 @@ def test_task_set_runs_a_variant_of_the_shipped_task(tmp_path, capsys, command):
 
 
 def test_pool_option_adds_a_pooled_section(tmp_path, capsys, command):
-    import json
 
     import numpy as np
 
-    from mcpilco.experiments.mcpilco_bench import make_section, section_key
+    from mcpilco.experiments.mcpilco.bench import RESULT_LAYOUTS, make_section, section_key
+    from mcpilco.experiments.results import write_result
 
     rng = np.random.default_rng(3)
     cfg = BENCH_CONFIG.to_dict()
@@ -60,12 +61,12 @@ def test_pool_option_adds_a_pooled_section(tmp_path, capsys, command):
         section_key(DEFAULT_ENV_ID, "a"): make_section(cfg, _fake_runs([0, 1], 4, rng), 1, 1.0),
         section_key(DEFAULT_ENV_ID, "b"): make_section(cfg, _fake_runs([2], 4, rng), 1, 1.0),
     }
-    (tmp_path / "mcpilco_cartpole.json").write_text(json.dumps({"runs": runs}))
+    write_result(tmp_path / "mcpilco_cartpole.json", RESULT_LAYOUTS[0], {"runs": runs})
     argv = ["--out", str(tmp_path), "--runs-dir", str(tmp_path / "runs")]
     assert (
         command("mcpilco-bench-mcpilco", ["--pool", "a", "b"] + argv) == 0
     )  # no parts run when only --pool is given
-    out = json.loads((tmp_path / "mcpilco_cartpole.json").read_text())
+    out = read_result(tmp_path / "mcpilco_cartpole.json").payload()
     assert out["runs"][section_key(DEFAULT_ENV_ID, "a+b")]["seeds"] == [0, 1, 2]
     assert "(a+b)" in (tmp_path / "mcpilco_cartpole.md").read_text()
     assert command("mcpilco-bench-mcpilco", ["--pool", "a", "c"] + argv) == 2
@@ -75,14 +76,13 @@ def test_pool_option_adds_a_pooled_section(tmp_path, capsys, command):
 def test_timing_part_reports_each_particle_count(tmp_path, capsys, command):
     """The timing part times every (N, threads, M) asked for and tables M; bad counts are
     refused before any work."""
-    import json
 
     argv = ["--parts", "timing", "--timing-n", "20", "--timing-threads", "1"]
     argv += ["--out", str(tmp_path), "--runs-dir", str(tmp_path / "runs")]
     assert command("mcpilco-bench-mcpilco", [*argv, "--timing-particles", "0", "5"]) == 2
     assert "--timing-particles values must be >= 1" in capsys.readouterr().err
     assert command("mcpilco-bench-mcpilco", [*argv, "--timing-particles", "3", "5"]) == 0
-    timing = json.loads((tmp_path / "mcpilco_cartpole.json").read_text())["timing"]
+    timing = read_result(tmp_path / "mcpilco_cartpole.json").payload()["timing"]
     assert [(t["num_particles"], t["n_points"], t["threads"]) for t in timing] == [
         (3, 20, 1),
         (5, 20, 1),
@@ -95,7 +95,7 @@ def test_timing_part_reports_each_particle_count(tmp_path, capsys, command):
         command("mcpilco-bench-mcpilco", [*argv, "--timing-particles", "3", "--compile-rollout"])
         == 0
     )
-    (t,) = json.loads((tmp_path / "mcpilco_cartpole.json").read_text())["timing"]
+    (t,) = read_result(tmp_path / "mcpilco_cartpole.json").payload()["timing"]
     assert t["compiled_s_per_step_wall"] > 0 and t["compile_s"] > 0
     assert not t["compiled_rejected"] and t["compile_check"]["grad_rel"] < 1e-2
     # the default backend (native), the torch one and torch.compile of the time step, timed
@@ -133,7 +133,7 @@ def test_timing_part_reports_each_particle_count(tmp_path, capsys, command):
         )
         == 0
     )
-    (t,) = json.loads((tmp_path / "mcpilco_cartpole.json").read_text())["timing"]
+    (t,) = read_result(tmp_path / "mcpilco_cartpole.json").payload()["timing"]
     assert t["heap128k_s_per_step_wall"] > 0 and t["heap128k_page_faults_per_step"] >= 0
     assert t["page_faults_per_step"] >= 0 and "compiled_s_per_step_wall" not in t
     md = (tmp_path / "mcpilco_cartpole.md").read_text()
@@ -142,7 +142,7 @@ def test_timing_part_reports_each_particle_count(tmp_path, capsys, command):
     # --mpk-degree with --timing-append: the spec with another kernel, beside the first rows
     argv1 = [*argv, "--timing-particles", "3", "--mpk-degree", "1", "--timing-append"]
     assert command("mcpilco-bench-mcpilco", argv1) == 0
-    timing = json.loads((tmp_path / "mcpilco_cartpole.json").read_text())["timing"]
+    timing = read_result(tmp_path / "mcpilco_cartpole.json").payload()["timing"]
     assert [t.get("mpk_degree") for t in timing] == [2, 1]
     md = (tmp_path / "mcpilco_cartpole.md").read_text()
     assert "H = 60; GP RBF + MPK (p = 1))" in md and "H = 60; GP RBF + MPK (p = 2))" in md
@@ -154,7 +154,6 @@ def test_rmse_runs_part_uses_only_runs_that_swung_up_and_groups_by_their_kernel(
     """Part ``rmse_runs``: a run whose last trial failed is not used (and alone is an error);
     each used run gives both kernels' RMSE on its data before the last trial, grouped by the
     kernel the run learned with."""
-    import json
     import math
     import shutil
 
@@ -185,7 +184,7 @@ def test_rmse_runs_part_uses_only_runs_that_swung_up_and_groups_by_their_kernel(
         )
         == 0
     )
-    res = json.loads((tmp_path / "out" / "mcpilco_cartpole.json").read_text())["rmse_runs"]
+    res = read_result(tmp_path / "out" / "mcpilco_cartpole.json").payload()["rmse_runs"]
     assert sorted(r["run_kernel"] for r in res["per_run"]) == ["rbf", "rbf+mpk"]
     horizon = SMOKE.task_spec().horizon
     assert all(r["n_data"] == horizon for r in res["per_run"])  # exploration only

@@ -2,14 +2,14 @@
 
 from __future__ import annotations
 
-import json
+from mcpilco.experiments.results import read_result
 
 
 def test_tiny_sweep_writes_json_and_table(tmp_path, command):
     argv = ["--backends", "local", "--kinds", "sleep", "--n", "2", "--seconds", "0.05"]
     argv += ["--cpus", "1", "--repeats", "1", "--out", str(tmp_path)]
     assert command("mcpilco-bench-sweep", argv) == 0
-    result = json.loads((tmp_path / "sweep_overhead.json").read_text())
+    result = read_result(tmp_path / "sweep_overhead.json").payload()
     assert result["command"].startswith("mcpilco-bench-sweep --backends local")
     assert [(r["kind"], r["backend"]) for r in result["summary"]] == [("sleep", "local")]
     assert "| sleep | local |" in (tmp_path / "sweep_overhead.md").read_text()

@@ -2,12 +2,11 @@
 
 from __future__ import annotations
 
-import json
-
 import numpy as np
 import pytest
 
-from mcpilco.experiments import volterra_bench as bench
+from mcpilco.experiments.identification import volterra as bench
+from mcpilco.experiments.results import read_result
 
 pytestmark = pytest.mark.usefixtures("one_torch_thread")  # tiny GP fits
 
@@ -31,7 +30,7 @@ def test_tiny_benchmark_writes_json_pngs_and_table(tmp_path, command):
     assert rc == 0
     for name in ("volterra.json", "volterra.md", "volterra_exp1.png", "volterra_exp2.png"):
         assert (out / name).stat().st_size > 0, name
-    data = json.loads((out / "volterra.json").read_text())
+    data = read_result(out / "volterra.json").payload()
     assert data["meta"]["runs_exp1"] == 1 and data["meta"]["runs_exp2"] == 1
     fits1 = data["fits"]["exp1"]
     assert set(fits1) == {"setup1", "setup2"}
@@ -63,4 +62,4 @@ def test_tiny_benchmark_writes_json_pngs_and_table(tmp_path, command):
     )  # fmt: skip
     assert again["summary"] == data["summary"] and again["failed"] == []
     assert [f.stat().st_mtime_ns for f in files] == stamps
-    assert json.loads((out / "volterra.json").read_text())["meta"]["runs_reused"] == 3
+    assert read_result(out / "volterra.json").payload()["meta"]["runs_reused"] == 3

@@ -15,8 +15,10 @@ import pytest
 from mcpilco.agents.baselines.common import make_curve, save_curve, task_env_ids
 from mcpilco.agents.mc_pilco import load_config
 from mcpilco.envs.tasks.spec import TaskSpec
-from mcpilco.experiments.compare import aggregate_method
-from mcpilco.experiments.results_index import recorded_command
+from mcpilco.experiments.kinematics.reaching import RESULT_LAYOUTS as reaching_layouts
+from mcpilco.experiments.mcpilco.bench import RESULT_LAYOUTS as bench_layouts
+from mcpilco.experiments.mcpilco.compare import aggregate_method
+from mcpilco.experiments.results import read_result, write_result
 
 ENV = "mcpilco/CartpoleSwingUp-v0"
 
@@ -89,7 +91,7 @@ def test_two_fake_files_give_table_plot_and_ratios(fake_files, tmp_path, capsys,
     ]
     assert command("mcpilco-compare", argv) == 0
     stem = out / "compare_CartpoleSwingUp-v0_fake"
-    report = json.loads(stem.with_suffix(".json").read_text())
+    report = read_result(stem.with_suffix(".json")).payload()
     mc, sac = report["methods"]["mcpilco"], report["methods"]["sac"]
     assert mc["success_mean"] == pytest.approx([0, 0, 0.5, 1, 1])
     assert mc["t90_s"] == pytest.approx(12.0)
@@ -100,6 +102,10 @@ def test_two_fake_files_give_table_plot_and_ratios(fake_files, tmp_path, capsys,
     assert report["headline"]["goal"]["sb3"]["status"] == "met"
     # per seed: MC-PILCO seeds reach 90% at 9 s and 12 s, SAC seeds at 2000 s and 3000 s
     assert [s["t90_s"] for s in mc["per_seed"]] == [9.0, 12.0]
+    # bootstrap over two seeds: medians 9, 10.5, 12 with chances 1/4, 1/2, 1/4
+    assert mc["median_seed_t90_s"] == 10.5 and mc["median_seed_t90_ci95"] == [9.0, 12.0]
+    # Wilson, 2 of 2: (1 + z^2/4 - z^2/4) / (1 + z^2/2) = 1 / 2.9208
+    assert mc["seeds_reaching_90_ci95"] == pytest.approx([1 / 2.9208, 1.0], abs=1e-4)
     assert [s["t90_s"] for s in sac["per_seed"]] == [2000.0, 3000.0]
     # s.e.m. of SAC at 1000 s: values 0.2, 0.0 -> std (ddof 1) 0.1414 / sqrt(2) = 0.1
     assert sac["success_sem"][0] == pytest.approx(0.1)
@@ -110,7 +116,8 @@ def test_two_fake_files_give_table_plot_and_ratios(fake_files, tmp_path, capsys,
     # the report records the command line that made it, and the results index reads it
     assert report["command"] == shlex.join(["mcpilco-compare", *argv[:-2]])
     assert report["note"] == "two fake files"
-    assert recorded_command(report) == report["command"] and f"`{report['command']}`" in md
+    saved = read_result(stem.with_suffix(".json"))
+    assert saved.command_of() == report["command"] and f"`{report['command']}`" in md
     png = stem.with_suffix(".png").read_bytes()
     assert png[:8] == b"\x89PNG\r\n\x1a\n" and len(png) > 5_000
     assert "wrote" in capsys.readouterr().out
@@ -137,7 +144,7 @@ def test_unreached_target_gives_a_lower_bound(tmp_path, command):
         )
         == 0
     )
-    report = json.loads((out / "compare_CartpoleSwingUp-v0.json").read_text())
+    report = read_result(out / "compare_CartpoleSwingUp-v0.json").payload()
     r = report["headline"]["ratios"]["sac"]
     assert r["value"] is None and r["lower_bound"] == pytest.approx(2000.0 / 6.0)
     assert report["headline"]["goal"]["sb3"]["status"] == "met"  # > 333x is >= 100x
@@ -174,7 +181,7 @@ def test_pilco_goal(pilco, ratio, bound, status, tmp_path, command):
         )
         == 0
     )
-    goal = json.loads((out / "compare_CartpoleSwingUp-v0.json").read_text())["headline"]["goal"]
+    goal = read_result(out / "compare_CartpoleSwingUp-v0.json").payload()["headline"]["goal"]
     assert goal["pilco"]["ratio"] == pytest.approx(ratio)
     assert goal["pilco"]["ratio_is_lower_bound"] is bound and goal["pilco"]["status"] == status
 
@@ -268,7 +275,7 @@ def test_runs_dir_curves_are_collected(tmp_path, command):
         )
         == 0
     )
-    report = json.loads((out / "compare_CartpoleSwingUp-v0.json").read_text())
+    report = read_result(out / "compare_CartpoleSwingUp-v0.json").payload()
     assert report["methods"]["mcpilco"]["seeds"] == [4]
     assert report["methods"]["mcpilco"]["t90_s"] == 6.0
 
@@ -285,7 +292,7 @@ def test_a_seed_given_twice_counts_once(tmp_path, capsys, command):
     out = tmp_path / "r"
     argv = ["--collect-only", "--methods", "sac", "--seeds", "2", "--runs-dir", str(runs)]
     assert command("mcpilco-compare", [*argv, "--inputs", str(extra), "--out", str(out)]) == 0
-    report = json.loads((out / "compare_CartpoleSwingUp-v0.json").read_text())
+    report = read_result(out / "compare_CartpoleSwingUp-v0.json").payload()
     sac = report["methods"]["sac"]
     assert sorted(sac["seeds"]) == [0, 1]
     assert sac["success_mean"] == pytest.approx([0.0, 0.5, 0.75])
@@ -306,7 +313,7 @@ def test_a_failing_run_is_reported_and_sets_the_exit_code(tmp_path, capsys, comm
     assert command("mcpilco-compare", argv) == 1
     err = capsys.readouterr().err
     assert "FAILED pilco/seed0" in err and "max_points must be an integer >= 10" in err
-    report = json.loads((tmp_path / "r" / "compare_CartpoleSwingUp-v0.json").read_text())
+    report = read_result(tmp_path / "r" / "compare_CartpoleSwingUp-v0.json").payload()
     (failed,) = report["failed"]
     assert failed["method"] == "pilco" and failed["seed"] == 0
     assert "max_points must be an integer >= 10" in failed["error"]
@@ -332,12 +339,13 @@ def test_mcpilco_from_a_labelled_bench_section(horizon, tmp_path, capsys, comman
     }
     other = dict(section, per_seed=[{"seed": 0, "success": [True] * 5}])
     bench = tmp_path / "bench.json"
-    bench.write_text(json.dumps({"runs": {ENV: other, f"{ENV} (K2)": section}}))
+    runs = {"runs": {ENV: other, f"{ENV} (K2)": section}}
+    write_result(bench, bench_layouts[0], runs)
     out = tmp_path / "results"
     common = ["--methods", "mcpilco", "--mcpilco-json", str(bench), "--out", str(out)]
     common += ["--runs-dir", str(tmp_path / "none"), "--collect-only"]
     assert command("mcpilco-compare", [*common, "--mcpilco-label", "K2"]) == 0
-    report = json.loads((out / "compare_CartpoleSwingUp-v0.json").read_text())
+    report = read_result(out / "compare_CartpoleSwingUp-v0.json").payload()
     mc = report["methods"]["mcpilco"]
     assert mc["success_mean"] == pytest.approx([0, 0, 1 / 3, 2 / 3, 1])
     assert mc["t90_s"] == pytest.approx(15.0)
@@ -357,7 +365,7 @@ def test_runs_go_through_the_sweep_runner_and_keep_their_result(tmp_path, comman
         (runs / "CartpoleSwingUp-v0" / "mcpilco" / "seed0" / "curve.json").read_text()
     )
     assert record["result"] == curve and record["pid"] != os.getpid()
-    report = json.loads((tmp_path / "r" / "compare_CartpoleSwingUp-v0.json").read_text())
+    report = read_result(tmp_path / "r" / "compare_CartpoleSwingUp-v0.json").payload()
     assert report["methods"]["mcpilco"]["seeds"] == [0] and report["failed"] == []
 
 
@@ -403,7 +411,7 @@ def test_every_task_env_runs_through_compare(env_id, tmp_path, command):
     assert [p["steps"] for p in curve["points"]] == steps.tolist()
     assert [p["experience_s"] for p in curve["points"]] == pytest.approx(steps * task.dt)
     assert [p["success_rate"] for p in curve["points"]] == [float(r["success"]) for r in records]
-    report = json.loads((out / f"compare_{name}.json").read_text())
+    report = read_result(out / f"compare_{name}.json").payload()
     mc = report["methods"]["mcpilco"]
     assert mc["seeds"] == [0] and report["failed"] == []
     assert mc["final_success"] == float(records[-1]["success"])
@@ -432,7 +440,8 @@ def _reaching_study(path):
         }
         for seed, e in errors.items()
     ]
-    path.write_text(json.dumps({"settings": {"samples": 100, "rounds": 1}, "rows": rows}))
+    study = {"settings": {"samples": 100, "rounds": 1}, "rows": rows}
+    write_result(path, reaching_layouts[0], study)
     return path
 
 
@@ -452,7 +461,7 @@ def test_reaching_task_compares_the_reaching_study_with_sac(tmp_path, command, c
     sac += ["--eval-episodes", "2", "--sb3-hp", "sac.learning_starts=20", "sac.train_freq=1"]
     sac += ["sac.gradient_steps=1", "sac.batch_size=8", "--mcpilco-json", str(study)]
     assert command("mcpilco-compare", [*argv, *sac]) == 0
-    report = json.loads((out / "compare_MarkerCameraReach-v0.json").read_text())
+    report = read_result(out / "compare_MarkerCameraReach-v0.json").payload()
     mc, sb = report["methods"]["mcpilco"], report["methods"]["sac"]
     assert mc["experience_s"] == pytest.approx([14.8, 19.6])
     assert mc["success_mean"] == pytest.approx([0.875, 0.875])

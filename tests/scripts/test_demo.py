@@ -7,7 +7,7 @@ import dataclasses
 
 import torch
 
-import mcpilco.experiments.cartpole_demo as cartpole_demo
+import mcpilco.experiments.mcpilco.demo as cartpole_demo
 from mcpilco.agents.mc_pilco import DEFAULT_ENV_ID, load_config
 
 

@@ -8,7 +8,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from mcpilco.experiments.hidden_effects import make_case, write_case
+from mcpilco.experiments.diagnosis.hidden_effects import make_case, write_case
 
 
 @pytest.fixture(scope="module")

@@ -31,7 +31,7 @@ from mcpilco.agents.baselines.pilco import (
 )
 from mcpilco.agents.mc_pilco import TaskSpec, load_config, run_mcpilco
 from mcpilco.envs.cartpole_task import cartpole_cost
-from mcpilco.experiments.compare import run_method
+from mcpilco.experiments.mcpilco.compare import run_method
 
 ENV = "mcpilco/CartpoleSwingUp-v0"
 TASK = TaskSpec.for_env(ENV)

@@ -16,7 +16,7 @@ from mcpilco.agents.mc_pilco.filters import CollisionFilter, contact_steps, dila
 from mcpilco.envs.arm_builder import dh_forward_kinematics
 from mcpilco.envs.arm_data import rollout
 from mcpilco.envs.arm_env import UR10_HOME, Push, UR10Env
-from mcpilco.experiments.collision_detection import nominal_model
+from mcpilco.experiments.collision.nominal import nominal_model
 from mcpilco.models.collision import train_detector
 from mcpilco.models.robot_data import save_dataset
 

@@ -397,8 +397,8 @@ def test_kernel_comparison_on_a_tracking_run(tmp_path):
     0.41 / 0.58 rad for holding). The figures have one value per joint and one row per
     step, the summary counts one lowest kernel per run and joint, the report has a row per
     kernel, and an unknown kernel label is refused."""
-    from mcpilco.experiments.sweep import SweepRunner
-    from mcpilco.experiments.tracking_bench import (
+    from mcpilco.experiments.infra.sweep import SweepRunner
+    from mcpilco.experiments.mcpilco.tracking import (
         kernel_rmse_on_run,
         kernel_rmse_table,
         summarise_kernel_rmse,

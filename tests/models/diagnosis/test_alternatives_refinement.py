@@ -3,8 +3,8 @@
 Independent truth: MuJoCo's dry friction (``frictionloss``, a constraint that holds a joint
 at rest with any torque up to its level) in logs of
 :func:`mcpilco.envs.robot_logs.simulate_log` with their true velocities, and the Stribeck
-friction drawn by :func:`mcpilco.experiments.hidden_effects.make_case` (its Stribeck velocity
-and smoothing are known).
+friction drawn by :func:`mcpilco.experiments.diagnosis.hidden_effects.make_case` (its Stribeck
+velocity and smoothing are known).
 """
 
 from __future__ import annotations
@@ -17,7 +17,7 @@ import pytest
 from mcpilco.envs.arm_builder import arm_to_xml
 from mcpilco.envs.arms import random_arm
 from mcpilco.envs.robot_logs import HiddenEffect, simulate_log, write_log
-from mcpilco.experiments.hidden_effects import make_case
+from mcpilco.experiments.diagnosis.hidden_effects import make_case
 from mcpilco.models.diagnosis import (
     DiagnosisModel,
     NominalStart,

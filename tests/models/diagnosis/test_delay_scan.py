@@ -10,7 +10,7 @@ import math
 
 import numpy as np
 
-from mcpilco.experiments.hidden_effects import make_case
+from mcpilco.experiments.diagnosis.hidden_effects import make_case
 from mcpilco.models.diagnosis import DiagnosisModel, GIPStart, as_trajectories, heldout_rmse
 from mcpilco.models.diagnosis.effects import Delay
 from mcpilco.models.diagnosis.search import (

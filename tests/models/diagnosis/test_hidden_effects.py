@@ -1,4 +1,5 @@
-"""The loop on data with hidden effects (:mod:`mcpilco.experiments.hidden_effects`, SCARA).
+"""The loop on data with hidden effects
+(:mod:`mcpilco.experiments.diagnosis.hidden_effects`, SCARA).
 
 Single random effects (seeded: random key, joint, magnitude): the true effect on the true
 joint is the verdict, and adding it brings the held-out RMSE of the affected joints within
@@ -9,7 +10,7 @@ many cases: ``mcpilco-bench-diagnosis``.
 import numpy as np
 import pytest
 
-from mcpilco.experiments.hidden_effects import make_case
+from mcpilco.experiments.diagnosis.hidden_effects import make_case
 from mcpilco.models.diagnosis import (
     CoulombFriction,
     DiagnosisModel,

@@ -5,7 +5,7 @@ import html
 import numpy as np
 import pytest
 
-from mcpilco.experiments.hidden_effects import make_case, write_case
+from mcpilco.experiments.diagnosis.hidden_effects import make_case, write_case
 from mcpilco.models.diagnosis import run_diagnosis
 from tests.models.diagnosis.test_html_report import external_references
 
