@@ -430,14 +430,13 @@ def mcpilco_preset(env_id: str, preset: str | None = None) -> str | None:
     """The preset of the env's MC-PILCO config file that a comparison runs: ``preset`` when
     given, else ``"bench"`` (the benchmarks' budget) when the file has it, else None (the
     file's config as it is)."""
-    import yaml
-
     from mcpilco.agents.mc_pilco.loop import config_files
+    from mcpilco.envs.yaml_files import read_yaml
 
     if preset is not None:
         return preset
     path = config_files().get(env_id)
-    data = (yaml.safe_load(path.read_text()) or {}) if path is not None else {}
+    data = read_yaml(path, "MC-PILCO config file") if path is not None else {}
     return "bench" if "bench" in (data.get("presets") or {}) else None
 
 

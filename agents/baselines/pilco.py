@@ -217,9 +217,11 @@ def env_settings(env_id: str, path: str | Path = CONF_FILE) -> dict[str, Any]:
     Raises:
         ValueError: the entry names a field that :class:`PilcoConfig` does not have.
     """
-    import yaml
+    from mcpilco.envs.yaml_files import read_yaml
 
-    data = yaml.safe_load(Path(path).read_text()) or {}
+    data = read_yaml(path, "PILCO config file", mapping=False) or {}
+    if not isinstance(data, dict):
+        raise ValueError(f"PILCO config file {path} must hold a mapping, not {type(data).__name__}")
     entry = dict((data.get("envs") or {}).get(env_id) or {})
     fields = {f.name for f in dataclasses.fields(PilcoConfig)}
     unknown = sorted(set(entry) - fields)

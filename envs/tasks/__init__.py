@@ -35,11 +35,11 @@ def task_data(env_id: str) -> dict[str, Any]:
     Raises:
         KeyError: no task ships for ``env_id`` (the message lists those that do).
     """
-    import yaml
+    from mcpilco.envs.yaml_files import read_yaml
 
     if env_id not in TASK_FILES:
         raise KeyError(
             f"no task specification ships for {env_id!r}; tasks exist for "
             f"{', '.join(task_ids())} (write one for your env: see TaskSpec)"
         )
-    return yaml.safe_load((TASK_DIR / TASK_FILES[env_id]).read_text())
+    return read_yaml(TASK_DIR / TASK_FILES[env_id], "task file")

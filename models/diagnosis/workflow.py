@@ -42,6 +42,8 @@ tables, the figures, the verdict and the residual's structure).
 from __future__ import annotations
 
 import json
+import math
+import numbers
 import time
 from collections.abc import Callable, Sequence
 from pathlib import Path
@@ -53,6 +55,13 @@ from mcpilco.models.gp.linear_gp import single_thread
 
 
 @single_thread()  # the matrices are small: BLAS threads only wait for each other
+def _is_number(value: Any, integer: bool) -> bool:
+    """Whether ``value`` is a finite number (an integer with ``integer``), not a boolean."""
+    if isinstance(value, bool) or not isinstance(value, numbers.Real):
+        return False
+    return math.isfinite(value) and (not integer or int(value) == value)
+
+
 def run_diagnosis(
     train: Sequence[str | Path],
     test: Sequence[str | Path] | None = None,
@@ -125,6 +134,15 @@ def run_diagnosis(
     from mcpilco.models.diagnosis.units import currents_to_torque
 
     t_start = time.perf_counter()
+    for name, value, integer in (
+        ("auto", auto, True),
+        ("threshold", threshold, False),
+        ("max_points", max_points, True),
+        ("gip_iters", gip_iters, True),
+    ):
+        if not _is_number(value, integer) or value < (10 if name == "max_points" else 0):
+            low = 10 if name == "max_points" else 0
+            raise ValueError(f"{name} must be a finite number >= {low}, got {value!r}")
     if model is None and learned is None:
         raise ValueError(
             "give a start model: --model robot.xml (nominal), or --gip RRPR / --rbf RRPR (learned)"
