@@ -263,7 +263,7 @@ def parse_overrides(items: list[str] | None, flag: str = "--set") -> dict[str, A
         key = key.strip()
         if not sep or not _KEY.match(key):
             raise ValueError(
-                f"{flag} takes field=value with a dotted field name (opt.max_steps=300), "
+                f"{flag} takes key=value with a dotted field name as key (opt.max_steps=300), "
                 f"got {item[:80]!r}"
             )
         value = parse_yaml(text, f"{flag} {key}")

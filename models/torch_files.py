@@ -12,6 +12,7 @@ not exist) that names the file, says what is wrong with it and what to do.
 
 from __future__ import annotations
 
+import io
 import os
 import pickle
 import re
@@ -22,9 +23,12 @@ from typing import Any
 import numpy as np
 import torch
 
+from mcpilco.models.safe_io import create_new, read_bytes
+
 __all__ = ["atomic_torch_save", "from_safe", "load_torch_file", "to_safe"]
 
 _NDARRAY_TAG = "__ndarray__"  # key of the dict that stands for a numpy array in a file
+MAX_TORCH_FILE_BYTES = 4 << 30  # largest file read (4 GiB)
 
 
 def to_safe(obj: Any) -> Any:
@@ -72,14 +76,16 @@ def atomic_torch_save(obj: Any, path: str | os.PathLike) -> None:
     path = Path(path)
     payload = to_safe(obj)
     tmp = path.with_name(path.name + ".tmp")
-    with open(tmp, "wb") as fh:
+    with os.fdopen(create_new(tmp), "wb") as fh:  # a link at <path>.tmp is refused
         torch.save(payload, fh)
         fh.flush()
         os.fsync(fh.fileno())
     os.replace(tmp, path)
 
 
-def load_torch_file(path: str | os.PathLike, what: str, remedy: str) -> Any:
+def load_torch_file(
+    path: str | os.PathLike, what: str, remedy: str, *, follow_links: bool = True
+) -> Any:
     """Load a file written by :func:`atomic_torch_save` (or ``torch.save`` of tensors and
     plain data) with ``weights_only=True``.
 
@@ -87,6 +93,8 @@ def load_torch_file(path: str | os.PathLike, what: str, remedy: str) -> Any:
         path: the file.
         what: what the file is, for messages (e.g. ``"checkpoint"``).
         remedy: what the user can do when it cannot be read (ends the message).
+        follow_links: read through a symbolic link at ``path``; False (a run folder's
+            files): a link is refused (:func:`mcpilco.models.safe_io.read_bytes`).
 
     Raises:
         FileNotFoundError: no file at ``path``.
@@ -94,19 +102,24 @@ def load_torch_file(path: str | os.PathLike, what: str, remedy: str) -> Any:
             objects other than tensors and plain data.
     """
     path = Path(path)
-    if not path.exists():
+    if not path.exists() and not path.is_symlink():
         raise FileNotFoundError(f"{what} {path} does not exist; {remedy}")
-    if not path.is_file():
+    if follow_links and not path.is_file():
         raise ValueError(f"{what} {path} is not a file; {remedy}")
-    if path.stat().st_size == 0:
+    target = path.resolve() if follow_links else path
+    try:
+        data = read_bytes(target, what, MAX_TORCH_FILE_BYTES)
+    except FileNotFoundError:
+        raise FileNotFoundError(f"{what} {path} does not exist; {remedy}") from None
+    if not data:
         raise ValueError(f"{what} {path} is empty (0 bytes); {remedy}")
-    if not zipfile.is_zipfile(path):
+    if not zipfile.is_zipfile(io.BytesIO(data)):
         raise ValueError(
             f"{what} {path} is damaged or truncated (not the zip archive torch.save writes); "
             f"{remedy}"
         )
     try:
-        payload = torch.load(path, map_location="cpu", weights_only=True)
+        payload = torch.load(io.BytesIO(data), map_location="cpu", weights_only=True)
     except pickle.UnpicklingError as err:
         found = re.search(r"Unsupported global: GLOBAL (\S+)", str(err))
         which = f" ({found.group(1)})" if found else ""
@@ -114,7 +127,7 @@ def load_torch_file(path: str | os.PathLike, what: str, remedy: str) -> Any:
             f"{what} {path} holds objects other than tensors and plain data{which}, which "
             f"are not loaded because loading them could run code; {remedy}"
         ) from err
-    except (RuntimeError, EOFError, OSError, zipfile.BadZipFile, ValueError, KeyError) as err:
+    except Exception as err:  # noqa: BLE001 - any failure of a crafted archive is "damaged"
         raise ValueError(
             f"{what} {path} is damaged or truncated ({type(err).__name__}: "
             f"{' '.join(str(err).split())[:200]}); {remedy}"

@@ -65,6 +65,7 @@ from mcpilco.agents.mc_pilco.checkpoint import (
     CHECKPOINT_VERSION,
     atomic_torch_save,
     load_checkpoint,
+    restore_state,
     rng_state,
     set_rng_state,
 )
@@ -598,7 +599,7 @@ def run_pilco(
         check_resume(ckpt["config"], config, _RESUME_FIXED)
         episodes, records = ckpt["episodes"], ckpt["records"]
         opt_curves = ckpt["opt_curves"]
-        controller.load_state_dict(ckpt["policy"])
+        restore_state(controller, ckpt["policy"], "policy", ckpt_path)
         set_rng_state(ckpt["rng"], np_rng)
         start_trial = resumed_from = int(ckpt["next_trial"])
         if log:

@@ -48,6 +48,7 @@ from mcpilco.agents.mc_pilco.checkpoint import (
     CHECKPOINT_VERSION,
     atomic_torch_save,
     load_checkpoint,
+    restore_state,
     rng_state,
     set_rng_state,
 )
@@ -71,6 +72,7 @@ from mcpilco.agents.mc_pilco.viz import (
     write_rerun_recording,
 )
 from mcpilco.models.device import check_device_name, resolve_device
+from mcpilco.models.safe_io import atomic_write
 
 DEFAULT_ENV_ID = "mcpilco/CartpoleSwingUp-v0"
 CHECKPOINT_NAME = "checkpoint.pt"
@@ -809,9 +811,8 @@ def episode_outcome(ep: dict[str, Any], t0: float) -> dict[str, Any]:
 
 def write_records(out: Path, config: Any, records: list[dict[str, Any]]) -> None:
     """Write ``out/records.json`` (the config and one record per trial) atomically."""
-    tmp = out / "records.json.tmp"
-    tmp.write_text(json.dumps({"config": config.to_dict(), "records": records}, indent=1))
-    tmp.replace(out / "records.json")
+    text = json.dumps({"config": config.to_dict(), "records": records}, indent=1)
+    atomic_write(out / "records.json", text)  # a link at records.json.tmp is refused
 
 
 # ---------------------------------------------------------------------------------- main
@@ -945,8 +946,8 @@ def run_mcpilco(
             episodes = ckpt["episodes"]
             records = ckpt["records"]
             arrays = ckpt["arrays"]
-            policy.load_state_dict(ckpt["policy"])
-            population.load_state_dict(ckpt["population"])
+            restore_state(policy, ckpt["policy"], "policy", ckpt_path)
+            restore_state(population, ckpt["population"], "policy population", ckpt_path)
             opt_state = ckpt["optimizer"]
             if ckpt["gp_file"] is not None:
                 model.load(out / ckpt["gp_file"])

@@ -766,7 +766,10 @@ def _check_numbers(d: Mapping[str, Any]) -> None:
         )
         for i, v in items:
             where = path if i is None else f"{path}[{i}]"
-            check_number(v, f"task.{where}", **TASK_NUMBER_RANGES[rule])
+            try:
+                check_number(v, f"task.{where}", **TASK_NUMBER_RANGES[rule])
+            except ValueError as err:
+                raise TaskSpecError(str(err)) from None
 
     for key in ("dt", "horizon", "action_repeat", "action_low", "action_high", "init_mean"):
         if key in d:
