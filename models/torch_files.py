@@ -25,7 +25,7 @@ import torch
 
 from mcpilco.models.safe_io import create_new, read_bytes
 
-__all__ = ["atomic_torch_save", "from_safe", "load_torch_file", "to_safe"]
+__all__ = ["atomic_torch_save", "from_safe", "load_torch_bytes", "load_torch_file", "to_safe"]
 
 _NDARRAY_TAG = "__ndarray__"  # key of the dict that stands for a numpy array in a file
 MAX_TORCH_FILE_BYTES = 4 << 30  # largest file read (4 GiB)
@@ -111,12 +111,21 @@ def load_torch_file(
         data = read_bytes(target, what, MAX_TORCH_FILE_BYTES)
     except FileNotFoundError:
         raise FileNotFoundError(f"{what} {path} does not exist; {remedy}") from None
+    return load_torch_bytes(data, f"{what} {path}", remedy)
+
+
+def load_torch_bytes(data: bytes, what: str, remedy: str) -> Any:
+    """:func:`load_torch_file` of the bytes ``data`` (``what`` names them in messages).
+
+    Raises:
+        ValueError: empty, truncated, not a torch file, or objects other than tensors and
+            plain data.
+    """
     if not data:
-        raise ValueError(f"{what} {path} is empty (0 bytes); {remedy}")
+        raise ValueError(f"{what} is empty (0 bytes); {remedy}")
     if not zipfile.is_zipfile(io.BytesIO(data)):
         raise ValueError(
-            f"{what} {path} is damaged or truncated (not the zip archive torch.save writes); "
-            f"{remedy}"
+            f"{what} is damaged or truncated (not the zip archive torch.save writes); {remedy}"
         )
     try:
         payload = torch.load(io.BytesIO(data), map_location="cpu", weights_only=True)
@@ -124,12 +133,12 @@ def load_torch_file(
         found = re.search(r"Unsupported global: GLOBAL (\S+)", str(err))
         which = f" ({found.group(1)})" if found else ""
         raise ValueError(
-            f"{what} {path} holds objects other than tensors and plain data{which}, which "
-            f"are not loaded because loading them could run code; {remedy}"
+            f"{what} holds objects other than tensors and plain data{which}, which are not "
+            f"loaded because loading them could run code; {remedy}"
         ) from err
     except Exception as err:  # noqa: BLE001 - any failure of a crafted archive is "damaged"
         raise ValueError(
-            f"{what} {path} is damaged or truncated ({type(err).__name__}: "
+            f"{what} is damaged or truncated ({type(err).__name__}: "
             f"{' '.join(str(err).split())[:200]}); {remedy}"
         ) from err
     return from_safe(payload)

@@ -85,6 +85,12 @@ def build_parser() -> argparse.ArgumentParser:
         metavar="K",
         help="k_t per joint [N m/A] for current files; nan: estimate it (default: all)",
     )
+    p.add_argument(
+        "--include-root",
+        default=None,
+        metavar="FOLDER",
+        help="folder the <include> files of --model may lie in (default: the model's folder)",
+    )
     p.add_argument("--out", default="results/diagnosis_run")
     p.add_argument("--no-plots", action="store_true")
     p.add_argument("--no-rerun", action="store_true")
@@ -115,6 +121,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         threshold=args.threshold,
         max_points=args.max_points,
         gip_iters=args.gip_iters,
+        include_root=args.include_root,
         torque_constants=args.torque_constants,
         out=args.out,
         plots=not args.no_plots,

@@ -73,6 +73,7 @@ def run_diagnosis(
     threshold: float = 5.0,
     max_points: int = 600,
     gip_iters: int = 100,
+    include_root: str | Path | None = None,
     torque_constants: Sequence[float | None] | None = None,
     out: str | Path = "results/diagnosis_run",
     plots: bool = True,
@@ -94,6 +95,8 @@ def run_diagnosis(
         threshold: log-evidence threshold of a significant effect [nats].
         max_points: GP rows of a learned start.
         gip_iters: Adam iterations of a learned start's fit.
+        include_root: folder the ``<include>`` files of ``model`` must lie in (None: the
+            model's folder; :mod:`mcpilco.models.robot_files`).
         torque_constants: joint-side torque constants ``k_t`` [N m/A or N/A], one per joint,
             for current files; ``None``/``nan`` entries, or all when not given, are
             estimated (:mod:`~.units`).
@@ -131,6 +134,7 @@ def run_diagnosis(
     )
     from mcpilco.models.diagnosis.data import MIN_FIT_ROWS, MIN_HELDOUT_ROWS, require_rows
     from mcpilco.models.diagnosis.html_report import DiagnosisReport, weight_correlations
+    from mcpilco.models.diagnosis.start_models import read_robot_text
     from mcpilco.models.diagnosis.units import currents_to_torque
 
     t_start = time.perf_counter()
@@ -148,13 +152,15 @@ def run_diagnosis(
             "give a start model: --model robot.xml (nominal), or --gip RRPR / --rbf RRPR (learned)"
         )
     effects_to_add = [parse_effect(a) for a in add]
+    # the robot file read once, its includes confined to its folder (or include_root)
+    robot = None if model is None else read_robot_text(model, include_root)
     if learned is not None:
         kind, joint_types = learned
         if kind not in LEARNED_STARTS:
             raise ValueError(f"learned start must be one of {sorted(LEARNED_STARTS)}, got {kind!r}")
-        start = LEARNED_STARTS[kind](joint_types, robot=model, adam_iters=gip_iters)
+        start = LEARNED_STARTS[kind](joint_types, robot=robot, adam_iters=gip_iters)
     else:
-        start = NominalStart(model)
+        start = NominalStart(robot, name=str(model))
     n = start.n_joints
     train = load_trajectories(train, n_joints=n)
     if test:
