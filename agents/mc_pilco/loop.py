@@ -509,10 +509,13 @@ def make_env(
     (``horizon`` times the task's ``action_repeat`` env steps), clear errors for an unknown
     id, for spaces that do not fit ``task`` (:meth:`TaskSpec.check_env`), and for a horizon
     that differs from the env's own episode length when the task's success is the env's
-    ``info`` flag (defined at the env's own last step)."""
+    ``info`` flag (defined at the env's own last step), and for ``render_mode="human"``
+    where no window can open (:func:`mcpilco.envs.display.check_render_mode`)."""
     import gymnasium as gym
 
     import mcpilco.envs  # noqa: F401  (registers the ids)
+
+    from mcpilco.envs.display import check_render_mode
 
     if env_id not in gym.registry:
         raise ValueError(
@@ -525,7 +528,11 @@ def make_env(
             f"horizon mismatch: the config's horizon is {horizon} steps but {env_id} episodes "
             f"last {steps} steps (its success flag is set at its last step); set horizon={steps}"
         )
-    env = gym.make(env_id, max_episode_steps=int(horizon), **dict(env_kwargs or {}))
+    kwargs = dict(env_kwargs or {})
+    # "human" needs a window: refused with one line where none can open (a GLFW or pygame
+    # window on a machine without a display aborts or raises deep inside the env)
+    check_render_mode(kwargs.get("render_mode"), ("rgb_array", "depth_array"))
+    env = gym.make(env_id, max_episode_steps=int(horizon), **kwargs)
     if task is not None:
         try:
             task.check_env(env)

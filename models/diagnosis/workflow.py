@@ -135,7 +135,7 @@ def run_diagnosis(
     from mcpilco.models.diagnosis.data import MIN_FIT_ROWS, MIN_HELDOUT_ROWS, require_rows
     from mcpilco.models.diagnosis.html_report import DiagnosisReport, weight_correlations
     from mcpilco.models.diagnosis.start_models import read_robot_text
-    from mcpilco.models.diagnosis.units import currents_to_torque
+    from mcpilco.models.diagnosis.units import check_angle_units, currents_to_torque
 
     t_start = time.perf_counter()
     for name, value, integer in (
@@ -174,6 +174,8 @@ def run_diagnosis(
         log(f"held out: the last 30% of {train.names[0]}")
     require_rows(train, MIN_FIT_ROWS, "fitting a diagnosis model")  # before any work
     require_rows(test, MIN_HELDOUT_ROWS, "confirming effects on held-out data")
+    check_angle_units(start, train)  # a joint logged in degrees throughout
+    check_angle_units(start, test)
     data_warnings = list(dict.fromkeys(train.warnings + test.warnings))
     for text in data_warnings:
         log(f"warning: {text}")
