@@ -514,7 +514,6 @@ def make_env(
     import gymnasium as gym
 
     import mcpilco.envs  # noqa: F401  (registers the ids)
-
     from mcpilco.envs.display import check_render_mode
 
     if env_id not in gym.registry:
