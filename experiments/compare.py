@@ -18,7 +18,6 @@ writes ``compare_<env>[_<tag>].json``, ``.md`` and ``.png``.
 
 from __future__ import annotations
 
-import ast
 import json
 import math
 import sys
@@ -38,6 +37,7 @@ from mcpilco.agents.baselines.common import (
 )
 from mcpilco.agents.mc_pilco.loop import check_dynamics_task, load_config
 from mcpilco.agents.mc_pilco.task import TaskSpec
+from mcpilco.envs.yaml_files import parse_yaml
 from mcpilco.experiments.sweep import Job, SweepRunner
 from mcpilco.models.device import retain_host_memory
 
@@ -647,7 +647,8 @@ def parse_steps(tokens: list[str] | None) -> dict[str, int]:
 
 def parse_sb3_hp(tokens: list[str] | None) -> dict[str, dict[str, Any]]:
     """SB3 hyperparameter overrides from ``["sac.learning_starts=1000", ...]``: method ->
-    {key: value}, values read as Python literals where they are one (else kept as text).
+    {key: value}, each value read by the package's YAML loader
+    (:func:`mcpilco.envs.yaml_files.parse_yaml`: numbers, booleans, lists, null; else text).
 
     Raises:
         ValueError: a token that is not ``ALGO.KEY=VALUE`` with an SB3 method.
@@ -661,11 +662,7 @@ def parse_sb3_hp(tokens: list[str] | None) -> dict[str, dict[str, Any]]:
                 f"--sb3-hp: {tok!r} must look like ALGO.KEY=VALUE with ALGO in "
                 f"{', '.join(SB3_METHODS)} (e.g. sac.learning_starts=1000)"
             )
-        try:
-            value = ast.literal_eval(val)
-        except (ValueError, SyntaxError):
-            value = val
-        hp.setdefault(algo, {})[name] = value
+        hp.setdefault(algo, {})[name] = parse_yaml(val, f"--sb3-hp {key}")
     return hp
 
 

@@ -427,7 +427,7 @@ def load_dataset(path: str | Path, n_joints: int | None = None) -> RobotDataset:
         raise ValueError(f"{path}: unknown file type {suffix!r}; use .csv or .parquet")
     try:
         df, stored = _read_table(path, suffix)
-    except (ValueError, OSError, UnicodeDecodeError, ImportError) as err:
+    except (ValueError, OSError, UnicodeDecodeError, ImportError, RecursionError) as err:
         what = " ".join(str(err).split())[:200] or type(err).__name__
         raise ValueError(
             f"{path}: cannot be read as {suffix[1:]} ({what}); check that it is a complete "

@@ -127,10 +127,11 @@ def _read_manifest(path: Path) -> dict[str, Any]:
         return {}
     try:
         data = json.loads(read_bytes(file, "run manifest", MAX_MANIFEST_BYTES))
-    except (UnicodeDecodeError, json.JSONDecodeError) as err:
+    except (UnicodeDecodeError, json.JSONDecodeError, RecursionError) as err:
         raise ValueError(
-            f"{file} is damaged ({err}); delete it, or pass --overwrite to clear the run"
-        ) from err
+            f"{file} is damaged ({type(err).__name__}); delete it, or pass --overwrite to clear "
+            "the run"
+        ) from None
     if not isinstance(data, dict) or not isinstance(data.get("files", []), list):
         raise ValueError(f"{file} is not a run manifest; delete it or choose another folder")
     return data
@@ -221,6 +222,13 @@ def open_run_folder(
     fd = _lock(path)
     try:
         old = run_files(path)
+        links = [f for f in old if f.is_symlink()]
+        if links:  # someone else's link among a run's files: refused, not deleted nor followed
+            raise ValueError(
+                f"{links[0]} is a symbolic link; a run folder holds no links (one could "
+                "redirect a write or a read outside the folder): remove it, or choose another "
+                "folder"
+            )
         if not [f for f in old if f.name != MANIFEST_NAME] and not _lists_outputs(path):
             old = []  # a manifest of a run that wrote nothing (it failed before its first file)
         if old and not resume:
