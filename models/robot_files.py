@@ -44,6 +44,8 @@ def _read_text(path: Path, what: str) -> str:
         data = read_bytes(path, what, MAX_ROBOT_FILE_BYTES)
     except FileNotFoundError:
         raise ValueError(f"no {what} at {path}") from None
+    except OSError as err:
+        raise ValueError(f"{what} {path} cannot be read ({err.strerror})") from None
     try:
         return data.decode("utf-8")
     except UnicodeDecodeError as err:
@@ -86,9 +88,10 @@ def _expand(
             raise ValueError(f"{model}: <include file={name!r}> includes itself (a cycle)")
         if len(chain) > MAX_INCLUDE_DEPTH:
             raise ValueError(f"{model}: includes nested deeper than {MAX_INCLUDE_DEPTH} levels")
-        sub = _parse(_read_text(real, "included file"), f"included file {real}")
+        what = f"{model}: included file"
+        sub = _parse(_read_text(real, what), f"{what} {real}")
         if sub.tag != "mujoco":
-            raise ValueError(f"included file {real} must have a <mujoco> root, not <{sub.tag}>")
+            raise ValueError(f"{what} {real} must have a <mujoco> root, not <{sub.tag}>")
         _expand(sub, base, root, (*chain, real), model)
         children.extend(list(sub))
     parent[:] = children

@@ -52,7 +52,8 @@ from mcpilco.agents.baselines.common import check_task_env, load_curves
 from mcpilco.agents.baselines.pilco import OPTIMIZERS
 from mcpilco.agents.baselines.sb3 import HYPERPARAMS
 from mcpilco.agents.common.cli import console_main
-from mcpilco.agents.mc_pilco.loop import DEFAULT_ENV_ID, parse_set
+from mcpilco.agents.mc_pilco.loop import DEFAULT_ENV_ID
+from mcpilco.envs.yaml_files import parse_overrides
 from mcpilco.experiments.compare import (
     METHODS,
     compare,
@@ -196,8 +197,8 @@ def main(argv: list[str] | None = None) -> int:
     try:
         steps = parse_steps(args.steps)
         sb3_hp = parse_sb3_hp(args.sb3_hp)
-        mcpilco_set = parse_set(args.mcpilco_set)
-        pilco_set = parse_set(args.pilco_set)
+        mcpilco_set = parse_overrides(args.mcpilco_set, "--mcpilco-set")
+        pilco_set = parse_overrides(args.pilco_set, "--pilco-set")
     except ValueError as err:
         parser.error(str(err))
     pilco_over = pilco_set | {

@@ -149,7 +149,7 @@ def checkpoint_problem(ckpt: dict[str, Any]) -> str | None:
             names = (
                 kind.__name__ if isinstance(kind, type) else " or ".join(k.__name__ for k in kind)
             )
-            return f"{key} is a {type(ckpt[key]).__name__}, not a {names}"
+            return f"{key} is of type {type(ckpt[key]).__name__}, not {names}"
     if "rng" not in ckpt:
         return "no rng (generator states)"
     trials = ckpt["config"].get("num_trials")
