@@ -182,17 +182,31 @@ def _yaml_cases() -> list[HostileCase]:
     tag = "!!python/object/apply:os.system ['touch {marker}']"
     cases = []
     for value, threat, name, expect in (
-        (_inline_bomb(), "hang", "alias bomb", ("--set opt", "aliases")),
-        ("&a [*a, *a]", "hang", "recursive alias", ("--set opt", "recursive")),
-        (deep, "traceback", "5000 nested lists", ("--set opt", "deeper")),
-        ("1" * 5000, "traceback", "an integer of 5000 digits", ("--set opt",)),
-        ("\x00", "traceback", "a NUL character", ("--set opt", "not allowed")),
-        ("{a: 1, a: 2}", "silent wrong answer", "a key given twice", ("--set opt", "twice")),
-        ("{max_steps: 3", "unclear error", "unclosed mapping", ("--set opt", "line 1")),
+        (_inline_bomb(), "hang", "alias bomb", ("--set cost_length_scales", "aliases")),
+        ("&a [*a, *a]", "hang", "recursive alias", ("--set cost_length_scales", "recursive")),
+        (deep, "traceback", "5000 nested lists", ("--set cost_length_scales", "deeper")),
+        ("1" * 5000, "traceback", "an integer of 5000 digits", ("--set cost_length_scales",)),
+        ("\x00", "traceback", "a NUL character", ("--set cost_length_scales", "not allowed")),
+        (
+            "{a: 1, a: 2}",
+            "silent wrong answer",
+            "a key given twice",
+            ("--set cost_length_scales", "twice"),
+        ),
+        (
+            "{max_steps: 3",
+            "unclear error",
+            "unclosed mapping",
+            ("--set cost_length_scales", "line 1"),
+        ),
     ):
         cases.append(
             HostileCase(
-                threat, "mcpilco-train", f"--set {name}", _train("--set", f"opt={value}"), expect
+                threat,
+                "mcpilco-train",
+                f"--set {name}",
+                _train("--set", f"cost_length_scales={value}"),
+                expect,
             )
         )
     cases.append(
@@ -1181,6 +1195,12 @@ def _bench_collision_cases() -> list[HostileCase]:
             {"options": options, "sets": _Payload(path.parents[2] / "outside" / "pwned")}, path
         )
 
+    def plain_pickle(path: Path, options: dict[str, Any]) -> None:
+        import pickle
+
+        marker = path.parents[2] / "outside" / "pwned"
+        path.write_bytes(pickle.dumps({"options": options, "sets": _Payload(marker)}))
+
     def wrong(path: Path, options: dict[str, Any]) -> None:
         from mcpilco.models.torch_files import atomic_torch_save
 
@@ -1193,9 +1213,16 @@ def _bench_collision_cases() -> list[HostileCase]:
         HostileCase(
             "code execution",
             "mcpilco-bench-collision",
-            "data file with code",
+            "data file: a torch file with code",
             data_file(code),
             ("data.pt", "run code"),
+        ),
+        HostileCase(
+            "code execution",
+            "mcpilco-bench-collision",
+            "data file: a pickle with code",
+            data_file(plain_pickle),
+            ("data.pt",),
         ),
         HostileCase(
             "silent wrong answer",

@@ -477,9 +477,15 @@ def load_estimator(source: Any) -> CurrentEstimator:
 MAX_SAVED_ROWS = 1_000_000  # most conditioning rows an estimator file may hold
 _INPUT_GROUPS = ("q", "qd", "qdd", "e_q", "e_qd", "i_cmd")  # input groups of a saved estimator
 _CONFIG_KEYS = {
-    "blocks", "coulomb_velocity", "noise_init", "noise_min", "predict_chunk",
+    "blocks",
+    "coulomb_velocity",
+    "noise_init",
+    "noise_min",
+    "predict_chunk",
     "rbf_outputscale_init",
-}  # fmt: skip
+    "rbf_lengthscale_init",
+    "sigma_v",
+}  # constructor arguments a saved estimator may replay (CurrentEstimator.config)
 
 
 def _estimator_problem(payload: Any) -> str | None:
