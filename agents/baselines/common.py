@@ -31,6 +31,7 @@ from typing import Any
 import numpy as np
 
 from mcpilco.agents.mc_pilco.loop import env_dt, make_env, run_episode
+from mcpilco.models.safe_io import atomic_write
 
 CURVE_FORMAT = "mcpilco-curve/1"
 """Tag of a learning-curve JSON file (one run: method, env, seed, points)."""
@@ -223,9 +224,7 @@ def save_curve(path: str | os.PathLike, curve: dict[str, Any]) -> Path:
     validate_curve(curve, str(path))
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(path.name + ".tmp")
-    tmp.write_text(json.dumps(curve, indent=1))
-    os.replace(tmp, path)
+    atomic_write(path, json.dumps(curve, indent=1))  # a link at <path>.tmp is refused
     return path
 
 

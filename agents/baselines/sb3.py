@@ -41,7 +41,6 @@ from __future__ import annotations
 
 import dataclasses
 import json
-import os
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -61,6 +60,7 @@ from mcpilco.agents.baselines.common import (
 )
 from mcpilco.agents.mc_pilco.loop import DEFAULT_ENV_ID, check_resume, env_dt, make_env
 from mcpilco.agents.mc_pilco.task import TaskSpec
+from mcpilco.models.safe_io import atomic_write
 
 ALGOS: tuple[str, ...] = ("sac", "td3", "ppo")
 """stable-baselines3 algorithms of the comparison."""
@@ -331,9 +331,7 @@ def __getattr__(name: str):
 
 # ----------------------------------------------------------------------------- runner
 def _atomic_json(path: Path, obj: Any) -> None:
-    tmp = path.with_name(path.name + ".tmp")
-    tmp.write_text(json.dumps(obj, indent=1))
-    os.replace(tmp, path)
+    atomic_write(path, json.dumps(obj, indent=1))  # a link at <path>.tmp is refused
 
 
 def run_sb3(

@@ -39,6 +39,8 @@ from typing import Any
 
 import numpy as np
 
+from mcpilco.models.safe_io import create_new
+
 
 def plot_trial_particles(
     path: str | os.PathLike,
@@ -187,6 +189,7 @@ def write_rerun_recording(
 
     path = Path(path)
     tmp = path.with_name(path.name + ".tmp.rrd")
+    os.close(create_new(tmp))  # a link at the temporary path is refused, never written through
     rec = rr.RecordingStream(application_id, recording_id=recording_id)
     longest = max((len(tr["real"]) for tr in trials), default=1)
     rec.save(tmp, default_blueprint=_blueprint(state_names, longest * dt))
