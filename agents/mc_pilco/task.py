@@ -754,8 +754,8 @@ an hour, magnitudes of at most 1e9, length scales in [1e-9, 1e9] (a smaller one 
 def _check_numbers(d: Mapping[str, Any]) -> None:
     """Every number of the plain task data ``d`` finite and within
     :data:`TASK_NUMBER_RANGES` (entries of lists each; the error names the field, e.g.
-    ``task.cost.terms[0].length_scale``); values that are not numbers are left to the type
-    checks before."""
+    ``task.cost.terms[0].length_scale``); a string or a boolean where a number belongs is
+    refused as well."""
     from mcpilco.envs.numbers import check_number
 
     def check(value: Any, path: str, rule: str) -> None:
