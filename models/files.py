@@ -1,26 +1,101 @@
-"""Atomic file writes: a reader (a resumed run, a second process) sees the old file or the
-whole new one, never a part.
+"""File access of run folders and results: atomic writes, and reads and creations that follow
+no symbolic link.
 
-The content goes to a temporary file in the destination's folder, is flushed to disk
-(``fsync``) and renamed over the destination with ``os.replace``, which is atomic on POSIX
-within one file system. A write that fails or is interrupted removes its temporary file; a
-process killed mid-write leaves at most the temporary file, never a truncated destination.
+Atomic writes: a reader (a resumed run, a second process) sees the old file or the whole new
+one, never a part. The content goes to a temporary file in the destination's folder, is
+flushed to disk (``fsync``) and renamed over the destination with ``os.replace``, which is
+atomic on POSIX within one file system (and replaces a link at the destination itself, never
+its target). A write that fails or is interrupted removes its temporary file; a process
+killed mid-write leaves at most the temporary file, never a truncated destination.
+:func:`write_atomic` writes text or bytes, :func:`atomic_open` yields the open file (for
+``torch.save``), and :func:`atomic_path` hands a temporary path to code
+that writes the file itself by name (a recording library) and moves it into place
+when that code returns. Every layer above ``models`` (agents, experiments, scripts) writes
+its files through these two.
 
-:func:`write_atomic` writes text or bytes; :func:`atomic_path` hands a temporary path to
-code that writes the file itself (``torch.save``, a recording library) and moves it into
-place when that code returns. Every layer above ``models`` (agents, experiments, scripts)
-writes its files through these two.
+No links: a run folder may sit on a shared machine where someone else can put files into
+it. A symbolic link named like a run's file (``run.lock``, ``checkpoint.pt.tmp``) would make
+a plain ``open`` write through the link into a file outside the folder. A temporary file is
+therefore created with ``O_CREAT | O_EXCL | O_NOFOLLOW`` (:func:`create_new`: a link, or a
+file that appeared in between, makes it fail; a symbolic link is refused, not removed, so the
+user sees what was put into the folder); :func:`open_nofollow` opens an existing regular
+file without following a link; :func:`read_bytes` reads only a regular file of bounded size
+(a FIFO or a device would block or never end). Every refusal is a ``ValueError`` naming the
+file and what to do.
 """
 
 from __future__ import annotations
 
 import os
+import stat
 import tempfile
 from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
+from typing import BinaryIO
 
-__all__ = ["atomic_path", "write_atomic"]
+__all__ = [
+    "LinkError",
+    "atomic_open",
+    "atomic_path",
+    "create_new",
+    "open_nofollow",
+    "read_bytes",
+    "write_atomic",
+]
+
+
+class LinkError(ValueError):
+    """A path of a run folder is a symbolic link (or not a regular file) and was refused."""
+
+
+def _link_error(path: Path) -> LinkError:
+    return LinkError(
+        f"{path} is a symbolic link; a run folder holds no links (one could redirect a write "
+        "or a read outside the folder): remove it, or choose another folder"
+    )
+
+
+def open_nofollow(path: str | os.PathLike, flags: int, mode: int = 0o644) -> int:
+    """``os.open(path, flags | O_NOFOLLOW | O_CLOEXEC)`` for a regular file; the descriptor.
+
+    Raises:
+        LinkError: ``path`` is a symbolic link or not a regular file (the descriptor is
+            closed).
+        FileNotFoundError: no file at ``path`` and ``flags`` has no ``O_CREAT``.
+    """
+    path = Path(path)
+    try:
+        fd = os.open(path, flags | os.O_NOFOLLOW | os.O_CLOEXEC | os.O_NONBLOCK, mode)
+    except OSError as err:
+        if path.is_symlink():
+            raise _link_error(path) from None
+        if isinstance(err, IsADirectoryError):
+            raise LinkError(f"{path} is a folder where a file is expected; remove it") from None
+        raise
+    if not stat.S_ISREG(os.fstat(fd).st_mode):
+        os.close(fd)
+        raise LinkError(f"{path} is not a regular file; remove it, or choose another folder")
+    os.set_blocking(fd, True)
+    return fd
+
+
+def create_new(path: str | os.PathLike) -> int:
+    """A new, empty regular file at ``path`` opened for writing (its descriptor); a stale
+    regular file of that name is removed first, a symbolic link is refused.
+
+    Raises:
+        LinkError: ``path`` is a symbolic link or a folder.
+        FileExistsError: another process created ``path`` in between.
+    """
+    path = Path(path)
+    if path.is_symlink():
+        raise _link_error(path)
+    if path.exists():
+        if not path.is_file():
+            raise LinkError(f"{path} is not a regular file; remove it, or choose another folder")
+        path.unlink()
+    return open_nofollow(path, os.O_WRONLY | os.O_CREAT | os.O_EXCL)
 
 
 @contextmanager
@@ -44,10 +119,14 @@ def atomic_path(
         tmp_path = Path(name)
     else:
         tmp_path = Path(tmp)
+        os.close(create_new(tmp_path))  # a link at the fixed name is refused
     try:
         yield tmp_path
-        with open(tmp_path, "rb+") as fh:
-            os.fsync(fh.fileno())
+        fd = open_nofollow(tmp_path, os.O_RDWR)
+        try:
+            os.fsync(fd)
+        finally:
+            os.close(fd)
         umask = os.umask(0)
         os.umask(umask)
         os.chmod(tmp_path, 0o666 & ~umask)
@@ -57,11 +136,59 @@ def atomic_path(
         raise
 
 
+@contextmanager
+def atomic_open(
+    path: str | os.PathLike, *, tmp: str | os.PathLike | None = None
+) -> Iterator[BinaryIO]:
+    """Yield a binary file open for writing at a new temporary file for ``path`` (``tmp``, a
+    fixed name created by :func:`create_new`, or a unique one as :func:`atomic_path`); on a
+    normal exit flush, fsync and rename it over ``path``; on an exception delete it and
+    re-raise. The content is written through the descriptor that created the file, so nothing
+    put at the temporary name meanwhile is written through."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    if tmp is None:
+        fd, name = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+        tmp_path = Path(name)
+    else:
+        tmp_path = Path(tmp)
+        fd = create_new(tmp_path)
+    try:
+        with os.fdopen(fd, "wb") as fh:
+            yield fh
+            fh.flush()
+            os.fsync(fh.fileno())
+            umask = os.umask(0)
+            os.umask(umask)
+            os.fchmod(fh.fileno(), 0o666 & ~umask)
+        os.replace(tmp_path, path)
+    except BaseException:
+        tmp_path.unlink(missing_ok=True)
+        raise
+
+
 def write_atomic(path: str | os.PathLike, content: str | bytes) -> None:
     """Write ``content`` (text as UTF-8, or bytes) to ``path`` atomically
-    (:func:`atomic_path`)."""
-    with atomic_path(path) as tmp:
-        if isinstance(content, bytes):
-            tmp.write_bytes(content)
-        else:
-            tmp.write_text(content, encoding="utf-8")
+    (:func:`atomic_open`)."""
+    with atomic_open(path) as fh:
+        fh.write(content if isinstance(content, bytes) else content.encode("utf-8"))
+
+
+def read_bytes(path: str | os.PathLike, what: str, max_bytes: int) -> bytes:
+    """The bytes of the regular file ``path`` (not a link), at most ``max_bytes``.
+
+    Raises:
+        FileNotFoundError: no file at ``path``.
+        LinkError: a symbolic link, a folder, a FIFO or a device.
+        ValueError: larger than ``max_bytes``.
+    """
+    path = Path(path)
+    try:
+        fd = open_nofollow(path, os.O_RDONLY | os.O_NOCTTY)
+    except LinkError as err:
+        raise LinkError(f"{what} {err}") from None
+    with os.fdopen(fd, "rb") as fh:
+        data = fh.read(max_bytes + 1)
+    if len(data) > max_bytes:
+        raise ValueError(f"{what} {path} is larger than {max_bytes} bytes; it is not such a file")
+    return data

@@ -190,6 +190,23 @@ def _joint_count(columns: list[str]) -> int:
     return max(idx)
 
 
+def _not_numbers(column: pd.Series) -> str | None:
+    """``"booleans"`` for a boolean column or one holding a boolean, ``"text"`` for a column of
+    strings that all read as numbers (a typed file storing numbers as text), else None.
+    pandas would read ``True`` as 1.0 and ``"1.5"`` as 1.5: silent wrong or unchecked numbers.
+    A text column with a value that is no number is reported by its row later."""
+    if pd.api.types.is_bool_dtype(column):
+        return "booleans"
+    if column.dtype == object or pd.api.types.is_string_dtype(column):
+        values = column.to_numpy()
+        if any(isinstance(v, bool | np.bool_) for v in values):
+            return "booleans"
+        if len(values) and all(isinstance(v, str) for v in values):
+            if pd.to_numeric(column, errors="coerce").notna().all():
+                return "text"
+    return None
+
+
 def from_frame(
     df: pd.DataFrame, n_joints: int | None = None, source: str = "<frame>"
 ) -> RobotDataset:
@@ -234,6 +251,13 @@ def from_frame(
     used = ["t"] + [f"{g}{j}" for g in JOINT_GROUPS if present[g] for j in range(1, n + 1)]
     if "contact" in cols:
         used.append("contact")
+    for c in used:
+        kind = _not_numbers(df[c])
+        if kind is not None and not (c == "contact" and kind == "booleans"):
+            raise ValueError(
+                f"{source}: column '{c}' holds {kind}, not numbers; store its measured values "
+                "as numbers"
+            )
     values = df[used].apply(pd.to_numeric, errors="coerce").to_numpy(dtype=np.float64)
     bad = ~np.isfinite(values)
     if bad.any():
@@ -403,7 +427,7 @@ def load_dataset(path: str | Path, n_joints: int | None = None) -> RobotDataset:
         raise ValueError(f"{path}: unknown file type {suffix!r}; use .csv or .parquet")
     try:
         df, stored = _read_table(path, suffix)
-    except (ValueError, OSError, UnicodeDecodeError, ImportError) as err:
+    except (ValueError, OSError, UnicodeDecodeError, ImportError, RecursionError) as err:
         what = " ".join(str(err).split())[:200] or type(err).__name__
         raise ValueError(
             f"{path}: cannot be read as {suffix[1:]} ({what}); check that it is a complete "

@@ -12,6 +12,7 @@ not exist) that names the file, says what is wrong with it and what to do.
 
 from __future__ import annotations
 
+import io
 import os
 import pickle
 import re
@@ -22,11 +23,12 @@ from typing import Any
 import numpy as np
 import torch
 
-from mcpilco.models.files import atomic_path
+from mcpilco.models.files import atomic_open, read_bytes
 
-__all__ = ["atomic_torch_save", "from_safe", "load_torch_file", "to_safe"]
+__all__ = ["atomic_torch_save", "from_safe", "load_torch_bytes", "load_torch_file", "to_safe"]
 
 _NDARRAY_TAG = "__ndarray__"  # key of the dict that stands for a numpy array in a file
+MAX_TORCH_FILE_BYTES = 4 << 30  # largest file read (4 GiB)
 
 
 def to_safe(obj: Any) -> Any:
@@ -70,15 +72,17 @@ def from_safe(obj: Any) -> Any:
 
 def atomic_torch_save(obj: Any, path: str | os.PathLike) -> None:
     """Write ``to_safe(obj)`` to ``path`` through ``<path>.tmp`` (the partial file a resume
-    check looks for), :func:`~mcpilco.models.files.atomic_path`: a process killed while
+    check looks for), :func:`~mcpilco.models.files.atomic_open`: a process killed while
     writing leaves the previous file intact."""
     path = Path(path)
     payload = to_safe(obj)
-    with atomic_path(path, tmp=path.with_name(path.name + ".tmp")) as tmp:
-        torch.save(payload, tmp)
+    with atomic_open(path, tmp=path.with_name(path.name + ".tmp")) as fh:
+        torch.save(payload, fh)
 
 
-def load_torch_file(path: str | os.PathLike, what: str, remedy: str) -> Any:
+def load_torch_file(
+    path: str | os.PathLike, what: str, remedy: str, *, follow_links: bool = True
+) -> Any:
     """Load a file written by :func:`atomic_torch_save` (or ``torch.save`` of tensors and
     plain data) with ``weights_only=True``.
 
@@ -86,6 +90,8 @@ def load_torch_file(path: str | os.PathLike, what: str, remedy: str) -> Any:
         path: the file.
         what: what the file is, for messages (e.g. ``"checkpoint"``).
         remedy: what the user can do when it cannot be read (ends the message).
+        follow_links: read through a symbolic link at ``path``; False (a run folder's
+            files): a link is refused (:func:`mcpilco.models.files.read_bytes`).
 
     Raises:
         FileNotFoundError: no file at ``path``.
@@ -93,29 +99,43 @@ def load_torch_file(path: str | os.PathLike, what: str, remedy: str) -> Any:
             objects other than tensors and plain data.
     """
     path = Path(path)
-    if not path.exists():
+    if not path.exists() and not path.is_symlink():
         raise FileNotFoundError(f"{what} {path} does not exist; {remedy}")
-    if not path.is_file():
+    if follow_links and not path.is_file():
         raise ValueError(f"{what} {path} is not a file; {remedy}")
-    if path.stat().st_size == 0:
-        raise ValueError(f"{what} {path} is empty (0 bytes); {remedy}")
-    if not zipfile.is_zipfile(path):
+    target = path.resolve() if follow_links else path
+    try:
+        data = read_bytes(target, what, MAX_TORCH_FILE_BYTES)
+    except FileNotFoundError:
+        raise FileNotFoundError(f"{what} {path} does not exist; {remedy}") from None
+    return load_torch_bytes(data, f"{what} {path}", remedy)
+
+
+def load_torch_bytes(data: bytes, what: str, remedy: str) -> Any:
+    """:func:`load_torch_file` of the bytes ``data`` (``what`` names them in messages).
+
+    Raises:
+        ValueError: empty, truncated, not a torch file, or objects other than tensors and
+            plain data.
+    """
+    if not data:
+        raise ValueError(f"{what} is empty (0 bytes); {remedy}")
+    if not zipfile.is_zipfile(io.BytesIO(data)):
         raise ValueError(
-            f"{what} {path} is damaged or truncated (not the zip archive torch.save writes); "
-            f"{remedy}"
+            f"{what} is damaged or truncated (not the zip archive torch.save writes); {remedy}"
         )
     try:
-        payload = torch.load(path, map_location="cpu", weights_only=True)
+        payload = torch.load(io.BytesIO(data), map_location="cpu", weights_only=True)
     except pickle.UnpicklingError as err:
         found = re.search(r"Unsupported global: GLOBAL (\S+)", str(err))
         which = f" ({found.group(1)})" if found else ""
         raise ValueError(
-            f"{what} {path} holds objects other than tensors and plain data{which}, which "
-            f"are not loaded because loading them could run code; {remedy}"
+            f"{what} holds objects other than tensors and plain data{which}, which are not "
+            f"loaded because loading them could run code; {remedy}"
         ) from err
-    except (RuntimeError, EOFError, OSError, zipfile.BadZipFile, ValueError, KeyError) as err:
+    except Exception as err:  # noqa: BLE001 - any failure of a crafted archive is "damaged"
         raise ValueError(
-            f"{what} {path} is damaged or truncated ({type(err).__name__}: "
+            f"{what} is damaged or truncated ({type(err).__name__}: "
             f"{' '.join(str(err).split())[:200]}); {remedy}"
         ) from err
     return from_safe(payload)

@@ -12,7 +12,7 @@ in ``--persistence``; detection against false alarms for the validation quantile
 ``--alphas`` and ``--roc-persistence``
 (:mod:`mcpilco.experiments.collision.bench`).
 
-The data are kept in ``RUNS_DIR/data.pkl`` (reused while the data options are the same);
+The data are kept in ``RUNS_DIR/data.pt`` (reused while the data options are the same);
 the ``sigma_v`` cross-validation and each estimator are sweep jobs in ``--jobs`` local
 processes or on Ray (``--ray [ADDRESS]``; a multi-node cluster needs ``--runs-dir`` on a
 shared file system), each writing ``RUNS_DIR/<label>.json``: a rerun computes only the jobs
@@ -73,7 +73,7 @@ def build_parser() -> argparse.ArgumentParser:
         "--runs-dir",
         type=Path,
         default=Path("runs/bench_collision"),
-        help="simulated data (data.pkl) and one result file per job, reused by a rerun",
+        help="simulated data (data.pt) and one result file per job, reused by a rerun",
     )
     p.add_argument("--no-progress", action="store_true")
     add_sweep_arguments(p)  # --jobs N (local processes), --ray [ADDRESS]: CV and estimators

@@ -56,6 +56,7 @@ from mcpilco.agents.common.trials import DEFAULT_ENV_ID
 from mcpilco.agents.mc_pilco.config import parse_set
 from mcpilco.experiments.infra.sweep import SweepError, add_sweep_arguments, runner_from_args
 from mcpilco.experiments.mcpilco.compare import (
+from mcpilco.envs.yaml_files import parse_overrides
     METHODS,
     compare,
     markdown,
@@ -197,8 +198,8 @@ def main(argv: list[str] | None = None) -> int:
     try:
         steps = parse_steps(args.steps)
         sb3_hp = parse_sb3_hp(args.sb3_hp)
-        mcpilco_set = parse_set(args.mcpilco_set)
-        pilco_set = parse_set(args.pilco_set)
+        mcpilco_set = parse_overrides(args.mcpilco_set, "--mcpilco-set")
+        pilco_set = parse_overrides(args.pilco_set, "--pilco-set")
     except ValueError as err:
         parser.error(str(err))
     pilco_over = pilco_set | {

@@ -34,7 +34,7 @@ import argparse
 import sys
 from collections.abc import Sequence
 
-from mcpilco.agents.common.cli import console_main
+from mcpilco.agents.common.cli import console_main, number_arg
 from mcpilco.experiments.collision.nominal import nominal_model
 from mcpilco.models.collision import InputError
 from mcpilco.models.collision.detect import detect_collisions
@@ -50,18 +50,34 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--model", default=None, help="nominal MJCF/URDF (default: --robot)")
     p.add_argument("--robot", default="ur10", help="nominal arm when --model is not given")
     p.add_argument("--calibrate", default=None, help="collision-free log for the thresholds")
-    p.add_argument("--calibration-fraction", type=float, default=0.2)
-    p.add_argument("--gp-points", type=int, default=2000)
-    p.add_argument("--hyper-points", type=int, default=400)
-    p.add_argument("--adam-iters", type=int, default=80)
-    p.add_argument("--lbfgs-iters", type=int, default=20)
+    p.add_argument(
+        "--calibration-fraction", type=number_arg(0, 1, lo_open=True, hi_open=True), default=0.2
+    )
+    p.add_argument("--gp-points", type=number_arg(10, 1_000_000, integer=True), default=2000)
+    p.add_argument("--hyper-points", type=number_arg(10, 100_000, integer=True), default=400)
+    p.add_argument("--adam-iters", type=number_arg(0, 1_000_000, integer=True), default=80)
+    p.add_argument("--lbfgs-iters", type=number_arg(0, 1_000_000, integer=True), default=20)
     p.add_argument("--rule", default="max", choices=("max", "variance"))
-    p.add_argument("--false-alarm-rate", type=float, default=0.0)
-    p.add_argument("--persistence", type=int, default=None, help="override the detector's")
+    p.add_argument("--false-alarm-rate", type=number_arg(0, 1, hi_open=True), default=0.0)
+    p.add_argument(
+        "--persistence",
+        type=number_arg(1, 10_000, integer=True),
+        default=None,
+        help="override the detector's",
+    )
     p.add_argument("--save", default=None, help="write the trained detector here")
-    p.add_argument("--rate-tolerance", type=float, default=0.05, help="relative")
-    p.add_argument("--merge-gap", type=float, default=0.25, help="merge alarms closer [s]")
-    p.add_argument("--joint", type=int, default=None, help="joint plotted (default: busiest)")
+    p.add_argument(
+        "--rate-tolerance", type=number_arg(0, 1, lo_open=True), default=0.05, help="relative"
+    )
+    p.add_argument(
+        "--merge-gap", type=number_arg(0, 1e6), default=0.25, help="merge alarms closer [s]"
+    )
+    p.add_argument(
+        "--joint",
+        type=number_arg(1, 1_000, integer=True),
+        default=None,
+        help="joint plotted (default: busiest)",
+    )
     p.add_argument("--out-dir", default=None)
     return p
 

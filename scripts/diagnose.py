@@ -37,7 +37,7 @@ from __future__ import annotations
 import argparse
 from collections.abc import Sequence
 
-from mcpilco.agents.common.cli import console_main
+from mcpilco.agents.common.cli import console_main, number_arg
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -55,19 +55,41 @@ def build_parser() -> argparse.ArgumentParser:
         "--rbf", default=None, metavar="JOINT_TYPES", help="learned RBF start, e.g. RRPR"
     )
     p.add_argument("--add", action="append", default=[], metavar="EFFECT", help="e.g. coulomb:2")
-    p.add_argument("--auto", type=int, default=0, metavar="N", help="add up to N effects")
-    p.add_argument("--threshold", type=float, default=5.0, help="Δlog-evidence threshold [nats]")
-    p.add_argument("--max-points", type=int, default=600, help="GP rows with a learned start")
     p.add_argument(
-        "--gip-iters", type=int, default=100, help="Adam iterations of a learned start's fit"
+        "--auto",
+        type=number_arg(0, 100, integer=True),
+        default=0,
+        metavar="N",
+        help="add up to N effects",
+    )
+    p.add_argument(
+        "--threshold", type=number_arg(0, 1e6), default=5.0, help="Δlog-evidence threshold [nats]"
+    )
+    p.add_argument(
+        "--max-points",
+        type=number_arg(10, 100_000, integer=True),
+        default=600,
+        help="GP rows with a learned start",
+    )
+    p.add_argument(
+        "--gip-iters",
+        type=number_arg(0, 1_000_000, integer=True),
+        default=100,
+        help="Adam iterations of a learned start's fit",
     )
     p.add_argument(
         "--torque-constants",
         nargs="+",
-        type=float,
+        type=float,  # nan: estimate the joint's constant (checked by run_diagnosis)
         default=None,
         metavar="K",
         help="k_t per joint [N m/A] for current files; nan: estimate it (default: all)",
+    )
+    p.add_argument(
+        "--include-root",
+        default=None,
+        metavar="FOLDER",
+        help="folder the <include> files of --model may lie in (default: the model's folder)",
     )
     p.add_argument("--out", default="results/diagnosis_run")
     p.add_argument("--no-plots", action="store_true")
@@ -99,6 +121,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         threshold=args.threshold,
         max_points=args.max_points,
         gip_iters=args.gip_iters,
+        include_root=args.include_root,
         torque_constants=args.torque_constants,
         out=args.out,
         plots=not args.no_plots,

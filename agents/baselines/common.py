@@ -233,7 +233,12 @@ def load_curves(path: str | os.PathLike) -> list[dict[str, Any]]:
     path = Path(path)
     if not path.is_file():
         raise FileNotFoundError(f"no result file at {path}")
-    data = json.loads(path.read_text())
+    try:
+        data = json.loads(path.read_text())
+    except (UnicodeDecodeError, json.JSONDecodeError, RecursionError) as err:
+        raise ValueError(
+            f"{path} is not a JSON file of learning curves ({type(err).__name__})"
+        ) from None
     if isinstance(data, dict) and isinstance(data.get("cases"), dict) and "schema" in data:
         data = data["cases"]
     if isinstance(data, dict) and "curves" in data:

@@ -65,6 +65,7 @@ from mcpilco.agents.common.checkpoint import (
     CHECKPOINT_NAME,
     check_resume,
     load_checkpoint,
+    restore_state,
     rng_state,
     save_checkpoint,
     set_rng_state,
@@ -219,9 +220,11 @@ def env_settings(env_id: str, path: str | Path = CONF_FILE) -> dict[str, Any]:
     Raises:
         ValueError: the entry names a field that :class:`PilcoConfig` does not have.
     """
-    import yaml
+    from mcpilco.envs.yaml_files import read_yaml
 
-    data = yaml.safe_load(Path(path).read_text()) or {}
+    data = read_yaml(path, "PILCO config file", mapping=False) or {}
+    if not isinstance(data, dict):
+        raise ValueError(f"PILCO config file {path} must hold a mapping, not {type(data).__name__}")
     entry = dict((data.get("envs") or {}).get(env_id) or {})
     fields = {f.name for f in dataclasses.fields(PilcoConfig)}
     unknown = sorted(set(entry) - fields)
@@ -600,7 +603,7 @@ def run_pilco(
         episodes = ckpt["episodes"]
         records = [TrialRecord.from_dict(r) for r in ckpt["records"]]
         opt_curves = ckpt["opt_curves"]
-        controller.load_state_dict(ckpt["policy"])
+        restore_state(controller, ckpt["policy"], "policy", ckpt_path)
         set_rng_state(ckpt["rng"], np_rng)
         start_trial = resumed_from = int(ckpt["next_trial"])
         if log:

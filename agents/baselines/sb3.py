@@ -74,9 +74,9 @@ HYPERPARAMS_FILE = Path(__file__).resolve().parent / "conf" / "sb3.yaml"
 
 
 def _load_hyperparams() -> tuple[dict[str, dict[str, dict[str, Any]]], dict[str, str]]:
-    import yaml
+    from mcpilco.envs.yaml_files import read_yaml
 
-    data = yaml.safe_load(HYPERPARAMS_FILE.read_text())
+    data = read_yaml(HYPERPARAMS_FILE, "SB3 hyperparameter file")
     return data["sets"], dict(data.get("envs") or {})
 
 

@@ -12,11 +12,13 @@ their traceback. ``raise SystemExit("message")`` is printed the same way and bec
 
 from __future__ import annotations
 
+import argparse
 import functools
 import sys
 from collections.abc import Callable, Sequence
+from typing import Any
 
-__all__ = ["DEBUG_FLAG", "USER_ERRORS", "console_main", "one_line"]
+__all__ = ["DEBUG_FLAG", "USER_ERRORS", "console_main", "number_arg", "one_line"]
 
 DEBUG_FLAG = "--debug"  # command-line flag that shows the traceback of a user error
 # exception types that report a problem with the user's input, not a bug
@@ -77,3 +79,36 @@ def console_main(prog: str) -> Callable[[MainFunction], Callable[..., int]]:
         return wrapped
 
     return decorate
+
+
+def number_arg(
+    lo: float | None = None,
+    hi: float | None = None,
+    *,
+    integer: bool = False,
+    lo_open: bool = False,
+    hi_open: bool = False,
+) -> Callable[[str], Any]:
+    """An argparse ``type`` for a number flag: finite, within ``[lo, hi]`` (bounds excluded
+    with ``lo_open`` / ``hi_open``), an integer with ``integer`` (``1e3`` reads as 1000);
+    argparse prints ``argument --flag: value must be ... got ...`` and exits 2
+    (:func:`mcpilco.envs.numbers.check_number`)."""
+    from mcpilco.envs.numbers import check_number
+
+    def parse(text: str) -> Any:
+        try:
+            value: Any = int(text) if integer else float(text)
+        except ValueError:
+            try:
+                value = float(text)
+            except ValueError:
+                value = text
+        try:
+            return check_number(
+                value, "value", lo=lo, hi=hi, integer=integer, lo_open=lo_open, hi_open=hi_open
+            )
+        except ValueError as err:
+            raise argparse.ArgumentTypeError(str(err)) from None
+
+    parse.__name__ = "integer" if integer else "number"  # argparse names the type with it
+    return parse

@@ -18,6 +18,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from mcpilco.models.files import write_atomic
+
 RECORDS_NAME = "records.json"
 """The records file in a run's output folder."""
 
@@ -154,10 +156,8 @@ def write_records(out: str | Path, config: Any, records: Sequence[TrialRecord]) 
     """Write ``out/records.json`` (the config's ``to_dict()`` and one record per trial)
     atomically (a temporary file moved over the old one); returns its path."""
     path = Path(out) / RECORDS_NAME
-    tmp = path.with_name(path.name + ".tmp")
     data = {"config": config.to_dict(), "records": [r.to_dict() for r in records]}
-    tmp.write_text(json.dumps(data, indent=1))
-    tmp.replace(path)
+    write_atomic(path, json.dumps(data, indent=1))  # a link at records.json.tmp is refused
     return path
 
 

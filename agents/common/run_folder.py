@@ -10,7 +10,12 @@ A *run folder* is the ``--out`` folder of a training run. :func:`open_run_folder
   folder fails at once; the kernel releases the lock when the process exits or is killed,
   so a killed run never leaves a stale lock;
 * keeps ``manifest.json``, the list of files the run wrote (rewritten atomically by
-  :meth:`RunFolder.record`; files deleted since are dropped from it).
+  :meth:`RunFolder.record`; files deleted since are dropped from it);
+* follows no symbolic link: ``run.lock``, the manifest and every temporary file are opened
+  with ``O_NOFOLLOW`` (temporary files created with ``O_EXCL``,
+  :mod:`mcpilco.models.files`), so a link put into the folder by someone else is refused
+  instead of written through; every name a manifest lists must be a plain file name of the
+  folder (a path outside it is refused, never deleted).
 """
 
 from __future__ import annotations
@@ -20,8 +25,11 @@ import fcntl
 import json
 import os
 import time
-from pathlib import Path
+from pathlib import Path, PurePosixPath
 from typing import Any
+
+from mcpilco.envs.numbers import shown
+from mcpilco.models.files import open_nofollow, read_bytes, write_atomic
 
 __all__ = [
     "LOCK_NAME",
@@ -48,6 +56,7 @@ RUN_OUTPUTS = (
     "gp_trial*.pt.tmp",
 )
 _FORMAT = "mcpilco.run_folder/1"  # the manifest's format tag
+MAX_MANIFEST_BYTES = 1 << 20  # largest manifest read (a run lists a few dozen files)
 
 
 class RunFolderBusyError(ValueError):
@@ -82,12 +91,12 @@ class RunFolder:
                 self._files.add(p.relative_to(self.path).as_posix())
             else:
                 self._files |= {f.relative_to(self.path).as_posix() for f in self.path.glob(str(p))}
-        self._files = {f for f in self._files if (self.path / f).is_file()}
+        self._files = {
+            f for f in self._files if (self.path / f).is_file() and not (self.path / f).is_symlink()
+        }
         files = sorted(self._files | {MANIFEST_NAME})
         data = {"format": _FORMAT, "updated": time.time(), "files": files}
-        tmp = self.path / (MANIFEST_NAME + ".tmp")
-        tmp.write_text(json.dumps(data, indent=1))
-        os.replace(tmp, self.path / MANIFEST_NAME)
+        write_atomic(self.path / MANIFEST_NAME, json.dumps(data, indent=1))
 
     @property
     def files(self) -> list[str]:
@@ -114,29 +123,51 @@ class RunFolder:
 def _read_manifest(path: Path) -> dict[str, Any]:
     """The manifest of ``path`` (empty when absent); ValueError naming it when damaged."""
     file = path / MANIFEST_NAME
-    if not file.exists():
+    if not file.exists() and not file.is_symlink():
         return {}
     try:
-        data = json.loads(file.read_text())
-    except (UnicodeDecodeError, json.JSONDecodeError) as err:
+        data = json.loads(read_bytes(file, "run manifest", MAX_MANIFEST_BYTES))
+    except (UnicodeDecodeError, json.JSONDecodeError, RecursionError) as err:
         raise ValueError(
-            f"{file} is damaged ({err}); delete it, or pass --overwrite to clear the run"
-        ) from err
+            f"{file} is damaged ({type(err).__name__}); delete it, or pass --overwrite to clear "
+            "the run"
+        ) from None
     if not isinstance(data, dict) or not isinstance(data.get("files", []), list):
         raise ValueError(f"{file} is not a run manifest; delete it or choose another folder")
     return data
+
+
+def _listed_file(path: Path, name: Any) -> Path:
+    """The file ``name`` of a manifest of ``path``: a plain file name in the folder (no
+    folder part, no ``..``, not absolute); ValueError naming the manifest otherwise, so that
+    a crafted manifest can never make ``--overwrite`` delete a file outside the folder."""
+    ok = isinstance(name, str) and name not in ("", ".", "..") and "\0" not in name
+    if ok:
+        pure = PurePosixPath(name)
+        ok = not pure.is_absolute() and len(pure.parts) == 1 and "\\" not in name
+    if ok:
+        file = path / name
+        ok = file.parent.resolve() == path.resolve()
+    if not ok:
+        raise ValueError(
+            f"{path / MANIFEST_NAME} lists {shown(name)}, which is not a file of the run "
+            "folder; it was not written by a run: delete the manifest (and check the folder) "
+            "before reusing the folder"
+        )
+    return file
 
 
 def run_files(path: Path) -> list[Path]:
     """Files of an earlier run in ``path``: those its manifest lists and the known run
     outputs (:data:`RUN_OUTPUTS`), the lock file excluded; sorted."""
     found: set[Path] = set()
+    listed: list[Any] = []
     with contextlib.suppress(ValueError):  # a damaged manifest is itself a run file
         listed = _read_manifest(path).get("files", [])
-        found |= {path / f for f in listed if isinstance(f, str) and "/" not in f and f}
+    found |= {_listed_file(path, f) for f in listed}  # a path outside the folder: refused
     for pattern in (*RUN_OUTPUTS, MANIFEST_NAME, MANIFEST_NAME + ".tmp"):
         found |= set(path.glob(pattern))
-    return sorted(f for f in found if f.name != LOCK_NAME and f.is_file())
+    return sorted(f for f in found if f.name != LOCK_NAME and (f.is_file() or f.is_symlink()))
 
 
 def _lists_outputs(path: Path) -> bool:
@@ -152,7 +183,7 @@ def _lists_outputs(path: Path) -> bool:
 def _lock(path: Path) -> int:
     """Open and ``flock`` the folder's lock file; RunFolderBusyError when held elsewhere."""
     lock_file = path / LOCK_NAME
-    fd = os.open(lock_file, os.O_RDWR | os.O_CREAT, 0o644)
+    fd = open_nofollow(lock_file, os.O_RDWR | os.O_CREAT)  # a link there is refused
     try:
         fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
     except BlockingIOError:
@@ -191,6 +222,13 @@ def open_run_folder(
     fd = _lock(path)
     try:
         old = run_files(path)
+        links = [f for f in old if f.is_symlink()]
+        if links:  # someone else's link among a run's files: refused, not deleted nor followed
+            raise ValueError(
+                f"{links[0]} is a symbolic link; a run folder holds no links (one could "
+                "redirect a write or a read outside the folder): remove it, or choose another "
+                "folder"
+            )
         if not [f for f in old if f.name != MANIFEST_NAME] and not _lists_outputs(path):
             old = []  # a manifest of a run that wrote nothing (it failed before its first file)
         if old and not resume:

@@ -112,8 +112,11 @@ def make_env(
     that do not fit ``task``
     (:meth:`~mcpilco.envs.tasks.spec.TaskSpec.check_env`), and for a horizon that differs
     from the env's own episode length when the task's success is the env's ``info`` flag
-    (defined at the env's own last step)."""
+    (defined at the env's own last step), and for ``render_mode="human"`` where no window
+    can open (:func:`mcpilco.envs.display.check_render_mode`)."""
     import gymnasium as gym
+
+    from mcpilco.envs.display import check_render_mode
 
     env_id = resolve_env_id(env_id)
     steps = gym.spec(env_id).max_episode_steps
@@ -123,10 +126,14 @@ def make_env(
             f"horizon mismatch: the config's horizon is {horizon} steps but {env_id} episodes "
             f"last {steps} steps (its success flag is set at its last step); set horizon={steps}"
         )
+    kwargs = dict(env_kwargs or {})
+    # "human" needs a window: refused with one line where none can open (a GLFW or pygame
+    # window on a machine without a display aborts or raises deep inside the env)
+    check_render_mode(kwargs.get("render_mode"), ("rgb_array", "depth_array"))
     try:
-        env = gym.make(env_id, max_episode_steps=int(horizon), **dict(env_kwargs or {}))
+        env = gym.make(env_id, max_episode_steps=int(horizon), **kwargs)
     except TypeError as err:  # an argument the env does not take
-        raise ValueError(f"{env_id}: env_kwargs {dict(env_kwargs or {})}: {err}") from None
+        raise ValueError(f"{env_id}: env_kwargs {kwargs}: {err}") from None
     if task is not None:
         try:
             task.check_env(env)

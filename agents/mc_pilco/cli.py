@@ -25,14 +25,12 @@ def load_task_file(path: str | Path) -> dict[str, Any]:
     """The mapping of a YAML task file (validated later, by :class:`TaskSpec`).
 
     Raises:
-        ValueError: the file cannot be read or is not YAML; the message names the file.
+        ValueError: the file cannot be read, is not YAML, is empty or not a mapping
+            (:func:`~mcpilco.envs.yaml_files.read_yaml`); the message names the file.
     """
-    import yaml
+    from mcpilco.envs.yaml_files import read_yaml
 
-    try:
-        return yaml.safe_load(Path(path).read_text())
-    except (OSError, yaml.YAMLError) as err:
-        raise ValueError(f"--task {path}: {err}") from None
+    return read_yaml(path, "--task file")
 
 
 def parse_env_kwargs(text: str | Path) -> dict[str, Any]:

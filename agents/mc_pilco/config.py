@@ -48,6 +48,31 @@ _LEGACY_FIELD_VALUES: dict[str, Any] = {
     "push_filter": None,
 }  # value of each field added after results were saved, for configs that lack it
 POLICY_INITS = ("box", "data")  # MCPilcoConfig.policy_init
+# range of each number of MCPilcoConfig (mcpilco.envs.numbers.check_number keywords): what a
+# run on one machine can hold (particles x horizon x candidates tensors, GP subsets)
+CONFIG_NUMBER_RANGES: dict[str, dict[str, Any]] = {
+    "num_trials": {"lo": 0, "hi": 10_000, "integer": True},
+    "horizon": {"lo": 1, "hi": 10_000_000, "integer": True},
+    "num_particles": {"lo": 1, "hi": 100_000, "integer": True},
+    "max_points": {"lo": 10, "hi": 100_000, "integer": True},
+    "gp_adam_iters": {"lo": 0, "hi": 1_000_000, "integer": True},
+    "gp_lbfgs_iters": {"lo": 0, "hi": 1_000_000, "integer": True},
+    "gp_noise_min": {"lo": 0.0, "hi": 1.0},
+    "gp_min_lengthscale": {"lo": 1e-9, "hi": 1e9},
+    "num_basis": {"lo": 1, "hi": 100_000, "integer": True},
+    "policy_weight_scale": {"lo": 0.0, "hi": 1e6},
+    "policy_centers_box": {"lo": 0.0, "hi": 1e6, "lo_open": True},
+    "push_filter_margin": {"lo": 0, "hi": 100_000, "integer": True},
+    "num_candidates": {"lo": 1, "hi": 1_000, "integer": True},
+    "explore_hold": {"lo": 1, "hi": 10_000_000, "integer": True},
+    "explore_steps": {"lo": 1, "hi": 10_000_000, "integer": True},
+    "init_std": {"lo": 0.0, "hi": 1e6},
+    "sim_obs_noise_std": {"lo": 0.0, "hi": 1e6},
+    "opt_steps_first": {"lo": 1, "hi": 10_000_000, "integer": True},
+    "log_particles": {"lo": 0, "hi": 100_000, "integer": True},
+    "seed": {"lo": 0, "hi": 2**32 - 1, "integer": True},
+    "torch_threads": {"lo": 1, "hi": 4096, "integer": True},
+}
 
 
 @dataclass
@@ -175,7 +200,22 @@ class MCPilcoConfig:
     device: str = "cpu"
 
     def __post_init__(self) -> None:
+        from mcpilco.envs.numbers import check_number
+
+        for name, rule in CONFIG_NUMBER_RANGES.items():
+            if getattr(self, name) is not None:
+                setattr(self, name, check_number(getattr(self, name), name, **rule))
+        for name in ("cost_length_scales", "cost_limit_widths"):
+            for key, v in (
+                (getattr(self, name) or {}).items() if isinstance(getattr(self, name), dict) else ()
+            ):
+                check_number(v, f"{name}.{key}", lo=1e-9, hi=1e9)
+        if not isinstance(self.compile_rollout, bool):
+            raise ValueError(f"compile_rollout must be true or false, got {self.compile_rollout!r}")
         if isinstance(self.opt, dict):
+            unknown = sorted(set(self.opt) - {f.name for f in dataclasses.fields(PolicyOptConfig)})
+            if unknown:
+                raise ValueError(f"unknown opt fields {unknown}")
             self.opt = PolicyOptConfig(**self.opt)
         for name in ("num_particles", "num_candidates", "explore_hold", "num_basis"):
             v = getattr(self, name)
@@ -306,24 +346,11 @@ def _is_positive_number(v: Any) -> bool:
 
 def parse_set(items: list[str] | None) -> dict[str, Any]:
     """``["a=1", "opt.max_steps=500", "cost_length_scales={x: 1}"]`` -> a nested dict of
-    overrides; values are parsed as YAML (numbers, lists, mappings, null)."""
-    import yaml
+    overrides (:func:`~mcpilco.envs.yaml_files.parse_overrides`: each value parsed by the
+    package's one YAML loader, bounded, YAML 1.2 numbers)."""
+    from mcpilco.envs.yaml_files import parse_overrides
 
-    out: dict[str, Any] = {}
-    for item in items or []:
-        key, sep, text = item.partition("=")
-        if not sep or not key.strip():
-            raise ValueError(f"--set takes key=value, got {item!r}")
-        try:
-            value = yaml.safe_load(text)
-        except yaml.YAMLError as err:
-            raise ValueError(f"--set {key}: cannot parse {text!r} ({err})") from None
-        node = out
-        *parents, leaf = key.strip().split(".")
-        for p in parents:
-            node = node.setdefault(p, {})
-        node[leaf] = value
-    return out
+    return parse_overrides(items, "--set")
 
 
 def _merge(base: dict[str, Any], over: dict[str, Any]) -> dict[str, Any]:
@@ -335,11 +362,11 @@ def _merge(base: dict[str, Any], over: dict[str, Any]) -> dict[str, Any]:
 
 def config_files(conf_dir: str | Path = CONF_DIR) -> dict[str, Path]:
     """Env id -> per-env config file (``*.yaml`` in ``conf_dir`` with an ``env_id`` key)."""
-    import yaml
+    from mcpilco.envs.yaml_files import read_yaml
 
     out = {}
     for path in sorted(Path(conf_dir).glob("*.yaml")):
-        data = yaml.safe_load(path.read_text()) or {}
+        data = read_yaml(path, "MC-PILCO config file")
         if "env_id" in data:
             out[str(data["env_id"])] = path
     return out
@@ -355,11 +382,11 @@ def read_config_file(path: str | Path) -> dict[str, Any]:
         ValueError: the file cannot be read, is not YAML, or has other keys; the message
             names the file.
     """
-    import yaml
+    from mcpilco.envs.yaml_files import read_yaml
 
     try:
-        data = yaml.safe_load(Path(path).read_text()) or {}
-    except (OSError, yaml.YAMLError) as err:
+        data = read_yaml(path, "config file")
+    except OSError as err:
         raise ValueError(f"config file {path}: {err}") from None
     if not isinstance(data, dict):
         raise ValueError(f"config file {path}: expected a mapping with {CONFIG_FILE_KEYS}")

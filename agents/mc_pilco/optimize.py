@@ -78,6 +78,12 @@ class PolicyOptConfig:
     snapshot_every: int = 0  # steps between kept parameter copies (0: the final ones only)
 
     def __post_init__(self) -> None:
+        from mcpilco.envs.numbers import check_number
+
+        for name, rule in _OPT_NUMBER_RANGES.items():
+            setattr(self, name, check_number(getattr(self, name), f"opt.{name}", **rule))
+        if not isinstance(self.cuda_graph, bool):
+            raise ValueError(f"opt.cuda_graph must be true or false, got {self.cuda_graph!r}")
         if self.max_steps < 1:
             raise ValueError(f"max_steps must be >= 1, got {self.max_steps}")
         if not (self.lr > 0 and self.lr_min > 0):
@@ -92,6 +98,22 @@ class PolicyOptConfig:
             raise ValueError(f"min_steps must be >= 0, got {self.min_steps}")
         if int(self.snapshot_every) != self.snapshot_every or self.snapshot_every < 0:
             raise ValueError(f"snapshot_every must be an integer >= 0, got {self.snapshot_every!r}")
+
+
+_OPT_NUMBER_RANGES: dict[str, dict] = {
+    "max_steps": {"lo": 1, "hi": 10_000_000, "integer": True},
+    "lr": {"lo": 0.0, "hi": 1e3, "lo_open": True},
+    "lr_min": {"lo": 0.0, "hi": 1e3, "lo_open": True},
+    "dropout": {"lo": 0.0, "hi": 1.0, "hi_open": True},
+    "dropout_reduction": {"lo": 0.0, "hi": 1.0},
+    "monitor_alpha": {"lo": 0.0, "hi": 1.0, "hi_open": True},
+    "monitor_threshold": {"lo": 0.0, "hi": 1e9},
+    "monitor_threshold_min": {"lo": 0.0, "hi": 1e9},
+    "monitor_patience": {"lo": 1, "hi": 10_000_000, "integer": True},
+    "min_steps": {"lo": 0, "hi": 10_000_000, "integer": True},
+    "max_reinits": {"lo": 0, "hi": 1_000, "integer": True},
+    "snapshot_every": {"lo": 0, "hi": 10_000_000, "integer": True},
+}  # range of each number of PolicyOptConfig (mcpilco.envs.numbers.check_number keywords)
 
 
 class CostMonitor:

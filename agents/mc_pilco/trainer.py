@@ -54,6 +54,7 @@ from mcpilco.agents.common.checkpoint import (
     CHECKPOINT_NAME,
     check_resume,
     load_checkpoint,
+    restore_state,
     rng_state,
     save_checkpoint,
     set_rng_state,
@@ -466,8 +467,10 @@ class Trainer:
         self.episodes = ckpt["episodes"]
         self.records = [TrialRecord.from_dict(r) for r in ckpt["records"]]
         self.arrays = ckpt["arrays"]
-        self.policy.load_state_dict(ckpt["policy"])
-        self.population.load_state_dict(ckpt["population"])
+        restore_state(self.policy, ckpt["policy"], "policy", self.checkpoint_path)
+        restore_state(
+            self.population, ckpt["population"], "policy population", self.checkpoint_path
+        )
         if ckpt["gp_file"] is not None:
             self.model.load(self.out / ckpt["gp_file"])
         set_rng_state(ckpt["rng"], self.np_rng)

@@ -39,7 +39,7 @@ def task_data(env_id: str) -> dict[str, Any]:
     Raises:
         KeyError: no task ships for ``env_id`` (the message lists those that do).
     """
-    import yaml
+    from mcpilco.envs.yaml_files import read_yaml
 
     if env_id not in TASK_FILES:
         raise KeyError(
@@ -47,4 +47,4 @@ def task_data(env_id: str) -> dict[str, Any]:
             f"{', '.join(task_ids())} (write a task file for your env and pass it with --task; "
             "the MC-PILCO docs list its fields)"
         )
-    return yaml.safe_load((TASK_DIR / TASK_FILES[env_id]).read_text())
+    return read_yaml(TASK_DIR / TASK_FILES[env_id], "task file")

@@ -868,6 +868,7 @@ class TaskSpec:
             if key not in d:
                 raise _fail(key, "is required")
         _check_types(d)
+        _check_numbers(d)
         cost = d.pop("cost", None) or {}
         if not isinstance(cost, Mapping):
             raise _fail("cost", "expected a mapping with 'terms'")
@@ -900,10 +901,11 @@ class TaskSpec:
 
     @classmethod
     def from_yaml(cls, path: str | Path) -> TaskSpec:
-        """A spec from a YAML task file."""
-        import yaml
+        """A spec from a YAML task file (:func:`~mcpilco.envs.yaml_files.read_yaml`: an
+        empty file is an error)."""
+        from mcpilco.envs.yaml_files import read_yaml
 
-        return cls.from_dict(yaml.safe_load(Path(path).read_text()))
+        return cls.from_dict(read_yaml(path, "task file"))
 
     @classmethod
     def for_env(cls, env_id: str) -> TaskSpec:
@@ -918,6 +920,80 @@ class TaskSpec:
 
 def _is_number(v: Any) -> bool:
     return isinstance(v, int | float) and not isinstance(v, bool)
+
+
+TASK_NUMBER_RANGES: dict[str, dict[str, Any]] = {
+    "dt": {"lo": 0.0, "hi": 3600.0, "lo_open": True},
+    "horizon": {"lo": 1, "hi": 10_000_000, "integer": True},
+    "action_repeat": {"lo": 1, "hi": 10_000, "integer": True},
+    "action_low": {"lo": -1e9, "hi": 1e9},
+    "action_high": {"lo": -1e9, "hi": 1e9},
+    "init_mean": {"lo": -1e9, "hi": 1e9},
+    "init_std": {"lo": 0.0, "hi": 1e6},
+    "obs_indices": {"lo": 0, "hi": 1_000_000, "integer": True},
+    "cost.terms.target": {"lo": -1e9, "hi": 1e9},
+    "cost.terms.length_scale": {"lo": 1e-9, "hi": 1e9},
+    "success.window": {"lo": 1, "hi": 10_000_000, "integer": True},
+    "success.bounds.target": {"lo": -1e9, "hi": 1e9},
+    "success.bounds.tol": {"lo": 0.0, "hi": 1e9, "lo_open": True},
+    "success.tracking_rms": {"lo": 0.0, "hi": 1e9, "lo_open": True},
+    "limits": {"lo": -1e9, "hi": 1e9},
+}
+"""Range of each number of a task file (a list's entries each): a control period of at most
+an hour, magnitudes of at most 1e9, length scales in [1e-9, 1e9] (a smaller one underflows
+``d^2 / l^2`` to inf; :func:`mcpilco.envs.numbers.check_number`)."""
+
+
+def _check_numbers(d: Mapping[str, Any]) -> None:
+    """Every number of the plain task data ``d`` finite and within
+    :data:`TASK_NUMBER_RANGES` (entries of lists each; the error names the field, e.g.
+    ``task.cost.terms[0].length_scale``); a string or a boolean where a number belongs is
+    refused as well."""
+    from mcpilco.envs.numbers import check_number
+
+    def check(value: Any, path: str, rule: str) -> None:
+        items = (
+            list(enumerate(value))
+            if isinstance(value, Sequence) and not isinstance(value, str)
+            else [(None, value)]
+        )
+        for i, v in items:
+            where = path if i is None else f"{path}[{i}]"
+            try:
+                check_number(v, f"task.{where}", **TASK_NUMBER_RANGES[rule])
+            except ValueError as err:
+                raise TaskSpecError(str(err)) from None
+
+    for key in ("dt", "horizon", "action_repeat", "action_low", "action_high", "init_mean"):
+        if key in d:
+            check(d[key], key, key)
+    for key in ("init_std", "obs_indices"):
+        if d.get(key) is not None:
+            check(d[key], key, key)
+    cost = d.get("cost")
+    terms = cost.get("terms") if isinstance(cost, Mapping) else None
+    for i, t in enumerate(terms if isinstance(terms, list) else []):
+        for key in ("target", "length_scale"):
+            if isinstance(t, Mapping) and key in t:
+                check(t[key], f"cost.terms[{i}].{key}", f"cost.terms.{key}")
+    success = d.get("success")
+    if isinstance(success, Mapping):
+        if success.get("window") is not None:
+            check(success["window"], "success.window", "success.window")
+        for name, b in (
+            (success.get("bounds") or {}).items()
+            if isinstance(success.get("bounds"), Mapping)
+            else ()
+        ):
+            for key in ("target", "tol"):
+                if isinstance(b, Mapping) and key in b:
+                    check(b[key], f"success.bounds.{name}.{key}", f"success.bounds.{key}")
+        rms = success.get("tracking_rms")
+        for name, v in rms.items() if isinstance(rms, Mapping) else ():
+            check(v, f"success.tracking_rms.{name}", "success.tracking_rms")
+    limits = d.get("limits")
+    for name, v in limits.items() if isinstance(limits, Mapping) else ():
+        check(v, f"limits.{name}", "limits")
 
 
 def _check_types(d: Mapping[str, Any]) -> None:

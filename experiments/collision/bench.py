@@ -16,7 +16,7 @@ median latency, false alarms per minute on the push-free data; detection rate ag
 alarms per minute with thresholds from the validation quantiles ``1 - alpha`` (``alphas``)
 for every ``m`` in ``roc_persistence``.
 
-Jobs: the simulated data are kept in ``runs_dir/data.pkl``; the ``sigma_v``
+Jobs: the simulated data are kept in ``runs_dir/data.pt``; the ``sigma_v``
 cross-validation and each estimator's fit and evaluation are sweep jobs
 (:mod:`mcpilco.experiments.infra.sweep`) that read it (a multi-node Ray cluster needs ``runs_dir``
 on a shared file system), FC after the cross-validation. Each writes
@@ -45,7 +45,12 @@ import torch
 from tqdm.auto import tqdm
 
 from mcpilco.envs.arm_env import Push
-from mcpilco.experiments.collision.data import DATA_OPTIONS, load_sets, simulated_sets
+from mcpilco.experiments.collision.data import (
+    DATA_FILE,
+    DATA_OPTIONS,
+    load_sets,
+    simulated_sets,
+)
 from mcpilco.experiments.collision.nominal import nominal_model
 from mcpilco.experiments.collision.report import (
     goals,
@@ -335,7 +340,7 @@ def run_benchmark(args: argparse.Namespace, runner: SweepRunner) -> dict[str, An
     bar = tqdm(total=5, disable=args.no_progress, desc="simulation")
 
     t0 = time.perf_counter()
-    data_path = args.runs_dir / "data.pkl"
+    data_path = args.runs_dir / DATA_FILE
     sets = simulated_sets(args, data_path, bar)
     bar.close()
     timing["simulation"] = time.perf_counter() - t0

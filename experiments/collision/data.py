@@ -19,16 +19,18 @@ figure scenario (thesis Fig. 4.3)
     the circle then a 15 s rest; five 1 s pushes of ``scenario_force`` N on link 4,
     horizontal and tangential, three while tracking and two at rest (:func:`scenario`).
 
-:func:`simulated_sets` keeps the sets in a pickle and reads them back while the options
-that made them (:data:`DATA_OPTIONS`) are the same.
+:func:`simulated_sets` keeps the sets in a safe file of arrays and plain data
+(``data.pt``, :mod:`mcpilco.models.torch_files`: loading it cannot run code; never a pickle)
+and reads them back, checked against the sets' format, while the options that made them
+(:data:`DATA_OPTIONS`) are the same.
 """
 
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import functools
 import math
-import pickle
 from pathlib import Path
 from typing import Any
 
@@ -44,7 +46,7 @@ from mcpilco.envs.arm_data import (
     rollout,
 )
 from mcpilco.envs.arm_env import PUSH_RANGES, UR10_HOME, Push, UR10Env
-from mcpilco.models.files import write_atomic
+from mcpilco.models.torch_files import atomic_torch_save, load_torch_file
 
 FloatArray = np.ndarray
 
@@ -224,27 +226,74 @@ DATA_OPTIONS = (
 """Options that set the simulated data (:func:`simulate`)."""
 
 
+DATA_FILE = "data.pt"  # name of the simulated sets' file in the benchmark's runs folder
+ROLLOUT_SETS = ("train", "validation", "push_free", "pushes", "scenario")  # sets of rollouts
+PUSH_LISTS = ("push_list", "scenario_pushes")  # sets that are lists of Push
+_REMEDY = "delete it to simulate the data again"  # what to do with a file that is refused
+
+
+def _to_plain(sets: dict[str, Any]) -> dict[str, Any]:
+    """``sets`` with every :class:`Push` as a plain dict (a safe file holds plain data)."""
+    return {
+        k: [dataclasses.asdict(p) for p in v] if k in PUSH_LISTS else v for k, v in sets.items()
+    }
+
+
+def _from_plain(sets: Any, path: Path) -> dict[str, Any]:
+    """Inverse of :func:`_to_plain`, checked against the format of :func:`simulate`'s sets:
+    each rollout set a mapping of equally long arrays, each push a :class:`Push`'s fields.
+
+    Raises:
+        ValueError: naming ``path`` and what does not match.
+    """
+
+    def fail(what: str) -> ValueError:
+        return ValueError(f"collision data {path} does not match its format ({what}); {_REMEDY}")
+
+    expected = {*ROLLOUT_SETS, *PUSH_LISTS, "push_at_rest", "scenario_at_rest"}
+    expected |= {"current_gain", "current_noise_std"}
+    if not isinstance(sets, dict) or set(sets) != expected:
+        raise fail("not the simulated sets")
+    for name in ROLLOUT_SETS:
+        data = sets[name]
+        if not isinstance(data, dict) or not data:
+            raise fail(f"{name} is not a mapping of arrays")
+        lengths = {len(v) if isinstance(v, np.ndarray) else -1 for v in data.values()}
+        if len(lengths) != 1 or -1 in lengths:
+            raise fail(f"{name} does not hold arrays of one length")
+    fields = {f.name for f in dataclasses.fields(Push)}
+    out = dict(sets)
+    for name in PUSH_LISTS:
+        pushes = sets[name]
+        if not isinstance(pushes, list) or not all(
+            isinstance(p, dict) and set(p) == fields for p in pushes
+        ):
+            raise fail(f"{name} is not a list of pushes")
+        out[name] = [Push(**{**p, "force": tuple(p["force"])}) for p in pushes]
+    return out
+
+
 def simulated_sets(args: argparse.Namespace, path: Path, bar: tqdm) -> dict[str, Any]:
-    """:func:`simulate`, kept in ``path`` (a pickle with the :data:`DATA_OPTIONS` it was made
-    with) and read back from it while those options are the same."""
+    """:func:`simulate`, kept in ``path`` (a safe file, :data:`DATA_FILE`, with the
+    :data:`DATA_OPTIONS` it was made with) and read back from it while those options are
+    the same."""
     options = {k: getattr(args, k) for k in DATA_OPTIONS}
-    if path.is_file():
-        with open(path, "rb") as fh:
-            saved = pickle.load(fh)
-        if saved["options"] == options:
+    if path.is_file() or path.is_symlink():
+        saved = load_torch_file(path, "collision data", _REMEDY, follow_links=False)
+        if isinstance(saved, dict) and saved.get("options") == options:
+            sets = _from_plain(saved.get("sets"), path)
             bar.update(5)
-            return saved["sets"]
+            return sets
     sets = simulate(args, bar)
-    data = {"options": options, "sets": sets}
-    write_atomic(path, pickle.dumps(data, protocol=pickle.HIGHEST_PROTOCOL))
+    atomic_torch_save({"options": options, "sets": _to_plain(sets)}, path)
     return sets
 
 
 @functools.lru_cache(maxsize=1)
 def _load_sets(path: str, mtime_ns: int) -> dict[str, Any]:
     """The simulated sets in ``path`` (cached per worker process while the file is the same)."""
-    with open(path, "rb") as fh:
-        return pickle.load(fh)["sets"]
+    saved = load_torch_file(path, "collision data", _REMEDY, follow_links=False)
+    return _from_plain(saved.get("sets") if isinstance(saved, dict) else None, Path(path))
 
 
 def load_sets(data_path: str) -> dict[str, Any]:

@@ -13,7 +13,10 @@ cannot support one).
 * :func:`fuzz_counts`: random GP data, robot-log frames and file bytes given to the library;
 * :func:`kill_runs`: a small ``mcpilco-train`` run is killed with SIGKILL after a given time,
   then continued with ``--resume`` (``--overwrite`` when no trial had finished), and the
-  finished trials lost are counted.
+  finished trials lost are counted;
+* :func:`hostile_results`: the hostile inputs of every entry point
+  (:mod:`mcpilco.experiments.hostile_inputs`), counted per threat class by outcome (holes,
+  hangs, tracebacks, silent wrong answers, unclear errors).
 
 :func:`run_robustness` runs them all; :func:`write_result` writes ``robustness.json`` and
 the tables of :func:`markdown` in ``robustness.md``.
@@ -48,6 +51,8 @@ __all__ = [
     "command_line",
     "diagnose_cases",
     "fuzz_counts",
+    "hostile_results",
+    "hostile_table",
     "kill_runs",
     "lock_case",
     "markdown",
@@ -294,6 +299,38 @@ def kill_runs(tmp: Path, kill_after: Sequence[float]) -> list[dict[str, Any]]:
     return rows
 
 
+def hostile_results(tmp: Path) -> list[dict[str, Any]]:
+    """The outcome of every hostile case (:func:`~.hostile_inputs.run_case`, in this
+    process, each in its own folder under ``tmp``)."""
+    from mcpilco.experiments.hostile_inputs import hostile_cases, run_case
+
+    return [run_case(c, tmp / f"hostile_{k}") for k, c in enumerate(hostile_cases())]
+
+
+def hostile_table(rows: Sequence[dict[str, Any]]) -> list[str]:
+    """Markdown lines: hostile cases counted per threat class by outcome, then every case
+    that was not refused."""
+    from mcpilco.experiments.hostile_inputs import OUTCOMES as HOSTILE
+    from mcpilco.experiments.hostile_inputs import THREATS
+
+    md = ["| threat class | cases | " + " | ".join(HOSTILE) + " |"]
+    md.append("|" + "---|" * (2 + len(HOSTILE)))
+    for threat in [*THREATS, "all"]:
+        mine = [r for r in rows if threat in ("all", r["threat"])]
+        counts = Counter(r["outcome"] for r in mine)
+        cells = " | ".join(str(counts.get(o, 0)) for o in HOSTILE)
+        md.append(f"| {threat} | {len(mine)} | {cells} |")
+    entries = Counter(r["entry"] for r in rows)
+    md += ["", "Cases per entry point: " + ", ".join(f"{e} {n}" for e, n in entries.items())]
+    failed = [r for r in rows if r["outcome"] != "refused"]
+    if failed:
+        md += ["", "| case | outcome | message |", "|---|---|---|"]
+        for r in failed:
+            message = r["message"].replace("|", "\\|")
+            md.append(f"| {r['entry']}: {r['input']} | {r['outcome']} | {message} |")
+    return md
+
+
 def fuzz_counts(seed: int, n: int) -> list[dict[str, Any]]:
     """Outcomes of random GP data, robot frames and file bytes (``n`` inputs per kind)."""
     import torch
@@ -386,9 +423,11 @@ OUTCOMES = ("result", "clear error", "crash", "silent wrong")  # columns of the 
 
 
 def markdown(result: dict[str, Any]) -> str:
-    """The tables of ``result``: inputs counted by tool and kind (fuzzed inputs included),
-    each case with its message, killed runs."""
-    md = ["| tool | kind of input | inputs | " + " | ".join(OUTCOMES) + " |"]
+    """The tables of ``result``: hostile inputs counted per threat class
+    (:func:`hostile_table`), inputs counted by tool and kind (fuzzed inputs included), each
+    case with its message, killed runs."""
+    md = [*hostile_table(result.get("hostile", [])), ""] if result.get("hostile") else []
+    md += ["| tool | kind of input | inputs | " + " | ".join(OUTCOMES) + " |"]
     md.append("|" + "---|" * (3 + len(OUTCOMES)))
     groups: dict[tuple[str, str], Counter] = {}
     for c in result["cases"]:
@@ -447,12 +486,15 @@ def run_robustness(
         kills = kill_runs(tmp, kill_after)
         for c in cases:  # the temporary folder is no part of the figures
             c["message"] = c["message"].replace(str(tmp), "<folder>")
+        log("hostile inputs")
+        hostile = hostile_results(tmp)
     log(f"{fuzz} fuzzed inputs per kind")
     fuzzed = fuzz_counts(seed, fuzz)
     return {
         "cases": cases,
         "fuzz": fuzzed,
         "kills": kills,
+        "hostile": hostile,
         "seconds": round(time.perf_counter() - t0, 1),
     }
 
@@ -472,6 +514,7 @@ def outcome_lines(result: dict[str, Any]) -> list[str]:
     """Short text lines of ``result``: cases counted by tool, kind and outcome, then the
     fuzz and kill rows."""
     by = Counter((c["tool"], c["kind"], c["outcome"]) for c in result["cases"])
+    by.update(("hostile", r["threat"], r["outcome"]) for r in result.get("hostile", []))
     lines = ["\t".join(map(str, (*key, count))) for key, count in sorted(by.items())]
     return lines + [str(row) for row in (*result["fuzz"], *result["kills"])]
 

@@ -18,7 +18,6 @@ writes ``compare_<env>[_<tag>].json``, ``.md`` and ``.png``.
 
 from __future__ import annotations
 
-import ast
 import json
 import math
 import sys
@@ -39,6 +38,7 @@ from mcpilco.agents.baselines.common import (
 from mcpilco.agents.mc_pilco.config import load_config
 from mcpilco.agents.mc_pilco.trainer import check_dynamics_task
 from mcpilco.envs.tasks.spec import TaskSpec
+from mcpilco.envs.yaml_files import parse_yaml
 from mcpilco.experiments.infra.sweep import Job, SweepRunner
 from mcpilco.experiments.results import (
     Headline,
@@ -444,14 +444,13 @@ def mcpilco_preset(env_id: str, preset: str | None = None) -> str | None:
     """The preset of the env's MC-PILCO config file that a comparison runs: ``preset`` when
     given, else ``"bench"`` (the benchmarks' budget) when the file has it, else None (the
     file's config as it is)."""
-    import yaml
-
     from mcpilco.agents.mc_pilco.config import config_files
+    from mcpilco.envs.yaml_files import read_yaml
 
     if preset is not None:
         return preset
     path = config_files().get(env_id)
-    data = (yaml.safe_load(path.read_text()) or {}) if path is not None else {}
+    data = read_yaml(path, "MC-PILCO config file") if path is not None else {}
     return "bench" if "bench" in (data.get("presets") or {}) else None
 
 
@@ -663,7 +662,8 @@ def parse_steps(tokens: list[str] | None) -> dict[str, int]:
 
 def parse_sb3_hp(tokens: list[str] | None) -> dict[str, dict[str, Any]]:
     """SB3 hyperparameter overrides from ``["sac.learning_starts=1000", ...]``: method ->
-    {key: value}, values read as Python literals where they are one (else kept as text).
+    {key: value}, each value read by the package's YAML loader
+    (:func:`mcpilco.envs.yaml_files.parse_yaml`: numbers, booleans, lists, null; else text).
 
     Raises:
         ValueError: a token that is not ``ALGO.KEY=VALUE`` with an SB3 method.
@@ -677,11 +677,7 @@ def parse_sb3_hp(tokens: list[str] | None) -> dict[str, dict[str, Any]]:
                 f"--sb3-hp: {tok!r} must look like ALGO.KEY=VALUE with ALGO in "
                 f"{', '.join(SB3_METHODS)} (e.g. sac.learning_starts=1000)"
             )
-        try:
-            value = ast.literal_eval(val)
-        except (ValueError, SyntaxError):
-            value = val
-        hp.setdefault(algo, {})[name] = value
+        hp.setdefault(algo, {})[name] = parse_yaml(val, f"--sb3-hp {key}")
     return hp
 
 

@@ -37,6 +37,7 @@ import torch
 from numpy.typing import NDArray
 
 from mcpilco.models.collision.estimators import CurrentEstimator, load_estimator
+from mcpilco.models.torch_files import load_torch_file
 
 FloatArray = NDArray[np.float64]
 BoolArray = NDArray[np.bool_]
@@ -58,6 +59,7 @@ RULES: tuple[str, ...] = ("max", "variance")
 """Threshold rules: ``"max"`` constant ``sigma_CD`` per joint, ``"variance"`` ``k sigma(x)``."""
 
 _FORMAT = "mcpilco.collision.CollisionDetector/1"
+_RULES = ("max", "variance")  # threshold rules of a detector file
 
 
 def _as_2d(value: Any, name: str) -> FloatArray:
@@ -334,19 +336,37 @@ class CollisionDetector:
 
     @classmethod
     def load(cls, path: Any) -> CollisionDetector:
-        """Read a detector written by :meth:`save`."""
-        payload = torch.load(path, map_location="cpu", weights_only=True)
-        if not isinstance(payload, dict) or payload.get("format") != _FORMAT:
-            raise ValueError(f"{path} is not a collision-detector file (CollisionDetector.save)")
-        est = load_estimator(payload["estimator"].numpy().tobytes())
-        det = cls(
-            est,
-            payload["rule"],
-            payload["false_alarm_rate"],
-            payload["persistence"],
-            payload.get("sample_time"),
-        )
+        """Read a detector written by :meth:`save`, checked against its format (the
+        values' types and ranges, the thresholds one per joint of the estimator).
+
+        Raises:
+            FileNotFoundError: no file at ``path``.
+            ValueError: one line naming the file and what does not match.
+        """
+        remedy = "write the detector again (mcpilco-detect-collisions --train ... --save FILE)"
+        payload = load_torch_file(path, "collision-detector file", remedy)
+        problem = _detector_problem(payload)
+        if problem is not None:
+            raise ValueError(
+                f"collision-detector file {path} does not match its format: {problem}; {remedy}"
+            )
+        try:
+            est = load_estimator(payload["estimator"].numpy().tobytes())
+            det = cls(
+                est,
+                payload["rule"],
+                payload["false_alarm_rate"],
+                payload["persistence"],
+                payload.get("sample_time"),
+            )
+        except ValueError as err:
+            raise ValueError(f"collision-detector file {path}: {err}") from None
         det.scale_ = payload["scale"].numpy().astype(np.float64)
+        if det.scale_.shape != (det.n_joints,):
+            raise ValueError(
+                f"collision-detector file {path} does not match its format: {det.scale_.size} "
+                f"thresholds for {det.n_joints} joints; {remedy}"
+            )
         return det
 
     @property
@@ -363,3 +383,36 @@ class CollisionDetector:
             "sample_time": self.sample_time,
             "scale": None if self.scale_ is None else self.scale_.tolist(),
         }
+
+
+def _is_number(v: Any) -> bool:
+    return isinstance(v, int | float) and not isinstance(v, bool) and bool(np.isfinite(v))
+
+
+def _detector_problem(payload: Any) -> str | None:
+    """What in a loaded detector payload does not match the format of
+    :meth:`CollisionDetector.save` (None: nothing)."""
+    if not isinstance(payload, dict) or payload.get("format") != _FORMAT:
+        return "not a collision-detector file (written by CollisionDetector.save)"
+    if payload.get("rule") not in _RULES:
+        return f"rule is not one of {_RULES}"
+    rate = payload.get("false_alarm_rate")
+    if not (_is_number(rate) and 0.0 <= rate < 1.0):
+        return "false_alarm_rate is not a number in [0, 1)"
+    persistence = payload.get("persistence")
+    if not (isinstance(persistence, int) and not isinstance(persistence, bool)):
+        return "persistence is not an integer"
+    if not 1 <= persistence <= 10_000:
+        return "persistence is not in [1, 10000]"
+    dt = payload.get("sample_time")
+    if dt is not None and not (_is_number(dt) and 0.0 < dt <= 10.0):
+        return "sample_time is not a number in (0, 10] s"
+    scale = payload.get("scale")
+    if not isinstance(scale, torch.Tensor) or scale.ndim != 1 or not scale.is_floating_point():
+        return "scale is not a 1-D float tensor"
+    if not bool(torch.isfinite(scale).all()) or not bool((scale >= 0).all()):
+        return "scale holds values that are not finite and >= 0"
+    est = payload.get("estimator")
+    if not isinstance(est, torch.Tensor) or est.dtype != torch.uint8 or est.ndim != 1:
+        return "estimator is not the bytes of a saved estimator"
+    return None

@@ -34,7 +34,6 @@ GPInverseDynamics`).
 
 from __future__ import annotations
 
-import io
 from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 from typing import Any
@@ -60,6 +59,8 @@ from mcpilco.models.inverse_dynamics import (
     rbf_kernel,
 )
 from mcpilco.models.robot_data import RobotDataset
+from mcpilco.models.robot_files import read_robot_file
+from mcpilco.models.torch_files import load_torch_bytes, load_torch_file
 
 FloatArray = NDArray[np.float64]
 
@@ -155,8 +156,8 @@ def _model_text(model: Any) -> str | None:
     try:
         path = Path(model)
         if path.exists():
-            return path.read_text()
-    except (TypeError, ValueError, OSError):
+            return read_robot_file(path)  # includes expanded, confined to its folder
+    except (TypeError, OSError):
         pass
     return None
 
@@ -442,23 +443,79 @@ def make_estimator(name: str, model: Any, **kwargs: Any) -> CurrentEstimator:
 def load_estimator(source: Any) -> CurrentEstimator:
     """Rebuild an estimator written by :meth:`CurrentEstimator.save` (a path, file object or
     bytes): the GP is conditioned again on the saved rows at the saved hyperparameters."""
+    remedy = "save the estimator again (CurrentEstimator.save)"
     if isinstance(source, bytes | bytearray):
-        source = io.BytesIO(source)
-    payload = torch.load(source, map_location="cpu", weights_only=True)
-    if not isinstance(payload, dict) or payload.get("format") != _FORMAT:
-        raise ValueError(f"{source} is not a collision current-estimator file (written by save)")
+        what, data = "current-estimator data", bytes(source)
+    elif isinstance(source, str | Path):
+        what, data = f"current-estimator file {source}", None
+    else:
+        what, data = "current-estimator data", source.read()
+    if data is None:
+        payload = load_torch_file(source, "current-estimator file", remedy)
+    else:
+        payload = load_torch_bytes(data, what, remedy)
+    problem = _estimator_problem(payload)
+    if problem is not None:
+        raise ValueError(f"{what} does not match its format: {problem}; {remedy}")
     name = payload["name"]
-    est = make_estimator(
-        name, payload["model_text"], adam_iters=0, lbfgs_iters=0, **payload["config"]
-    )
-    inputs = CollisionInputs(**{g: v.numpy() for g, v in payload["inputs"].items()})
-    est.fit(inputs, payload["targets"].numpy())
     try:
+        est = make_estimator(
+            name, payload["model_text"], adam_iters=0, lbfgs_iters=0, **payload["config"]
+        )
+        inputs = CollisionInputs(**{g: v.numpy() for g, v in payload["inputs"].items()})
+        est.fit(inputs, payload["targets"].numpy())
         est.gp_.model_.load_state_dict(payload["state_dict"])
-    except RuntimeError as err:
-        raise ValueError(f"the saved hyperparameters do not fit the {name} kernel: {err}") from err
+    except (RuntimeError, TypeError, KeyError, IndexError) as err:
+        first = " ".join(str(err).split())[:160]
+        raise ValueError(
+            f"{what}: the saved {name} estimator cannot be rebuilt ({first})"
+        ) from None
     est.gp_.model_.eval()
     return est
+
+
+MAX_SAVED_ROWS = 1_000_000  # most conditioning rows an estimator file may hold
+_INPUT_GROUPS = ("q", "qd", "qdd", "e_q", "e_qd", "i_cmd")  # input groups of a saved estimator
+_CONFIG_KEYS = {
+    "blocks",
+    "coulomb_velocity",
+    "noise_init",
+    "noise_min",
+    "predict_chunk",
+    "rbf_outputscale_init",
+    "rbf_lengthscale_init",
+    "sigma_v",
+}  # constructor arguments a saved estimator may replay (CurrentEstimator.config)
+
+
+def _estimator_problem(payload: Any) -> str | None:
+    """What in a loaded estimator payload does not match the format of
+    :meth:`CurrentEstimator.save` (None: nothing): the format tag, a known estimator name,
+    the model text, the constructor config's keys, equally long finite 2-D input and target
+    tensors of at most :data:`MAX_SAVED_ROWS` rows, a state dict of tensors."""
+    if not isinstance(payload, dict) or payload.get("format") != _FORMAT:
+        return "not a collision current-estimator file (written by CurrentEstimator.save)"
+    if payload.get("name") not in ESTIMATORS:
+        return f"estimator name is not one of {sorted(ESTIMATORS)}"
+    if not isinstance(payload.get("model_text"), str) or "<" not in payload["model_text"]:
+        return "no nominal robot description text"
+    config = payload.get("config")
+    if not isinstance(config, dict) or not set(config) <= _CONFIG_KEYS:
+        return f"config is not a mapping of {sorted(_CONFIG_KEYS)}"
+    inputs, targets = payload.get("inputs"), payload.get("targets")
+    if not isinstance(inputs, dict) or not inputs or not set(inputs) <= set(_INPUT_GROUPS):
+        return f"inputs are not a mapping of {_INPUT_GROUPS}"
+    arrays = [*inputs.values(), targets]
+    if not all(isinstance(a, Tensor) and a.ndim == 2 and a.is_floating_point() for a in arrays):
+        return "inputs and targets are not 2-D float tensors"
+    if len({a.shape for a in arrays}) != 1 or not 1 <= len(targets) <= MAX_SAVED_ROWS:
+        return f"inputs and targets are not of one shape with 1..{MAX_SAVED_ROWS} rows"
+    if not all(bool(torch.isfinite(a).all()) for a in arrays):
+        return "inputs or targets hold NaN or inf"
+    state = payload.get("state_dict")
+    if not isinstance(state, dict) or not all(isinstance(v, Tensor) for v in state.values()):
+        return "state_dict is not a mapping of tensors"
+    return None
 
 
 def rmse_split(i: Any, i_hat: Any, qd: Any, sigma_v: float = SIGMA_V) -> dict[str, FloatArray]:

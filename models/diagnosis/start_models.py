@@ -38,6 +38,7 @@ from mcpilco.models.inverse_dynamics import (
     RBFEstimator,
     load_pinocchio_model,
 )
+from mcpilco.models.robot_files import read_robot_file, refuse_includes
 
 FloatArray = NDArray[np.float64]
 
@@ -52,21 +53,21 @@ __all__ = [
 ]
 
 
-def read_robot_text(source: str | Path) -> str:
-    """The MJCF/URDF text of a path or the text itself (kept so that a saved model is whole)."""
+def read_robot_text(source: str | Path, include_root: str | Path | None = None) -> str:
+    """The MJCF/URDF text of a path (its includes expanded and confined to its folder, or to
+    ``include_root``: :func:`mcpilco.models.robot_files.read_robot_file`) or the text itself
+    (which may include no file), kept so that a saved model is whole."""
     if isinstance(source, Path) or ("<" not in str(source) and len(str(source)) < 4096):
         path = Path(source)
         if not path.exists():
             raise ValueError(f"no robot description at {path}; give an MJCF (.xml) or URDF file")
         if not path.is_file():
             raise ValueError(f"robot description {path} is not a file; give an MJCF or URDF file")
-        try:
-            text = path.read_text()
-        except UnicodeDecodeError as err:
-            raise ValueError(f"robot description {path} is not text ({err})") from err
+        text = read_robot_file(path, include_root)
         check_robot_text(text, str(path))
         return text
     check_robot_text(str(source), "the robot description text")
+    refuse_includes(str(source), "the robot description text")
     return str(source)
 
 

@@ -76,6 +76,7 @@ from mcpilco.models.diagnosis.robot_file import (
     write_corrected_mjcf,
 )
 from mcpilco.models.diagnosis.start_models import NominalStart
+from mcpilco.models.robot_files import read_robot_file, refuse_includes
 
 FloatArray = NDArray[np.float64]
 
@@ -111,7 +112,9 @@ def _as_spec(robot: str | Path | mujoco.MjSpec) -> mujoco.MjSpec:
         path = Path(text)
         if not path.is_file():
             raise ValueError(f"no MJCF file at {path}")
-        text = path.read_text()
+        text = read_robot_file(path)  # includes expanded, confined to its folder
+    else:
+        refuse_includes(text, "the robot description text")
     if "<mujoco" not in text:
         raise ValueError("the robot file must be MJCF (<mujoco>)")
     return mujoco.MjSpec.from_string(text)

@@ -533,3 +533,58 @@ def without_fitted_scales(traj: Trajectories, effects: Sequence[Effect]) -> Traj
     ci95 = constants.ci95.copy()
     ci95[free] = 0.0
     return dataclasses.replace(traj, torque_constants=dataclasses.replace(constants, ci95=ci95))
+
+
+DEGREE_FIT_GAIN = 4.0
+"""Factor by which the nominal rigid-body model must fit the measured torques better (mean
+squared residual) with a joint's ``q, qd, qdd`` read as degrees before the log is refused as
+being in degrees (:func:`check_angle_units`)."""
+DEGREE_CHECK_ROWS = 2000  # rows (evenly spaced) on which the rad / deg fits are compared
+
+
+def check_angle_units(start: Any, traj: Trajectories) -> None:
+    """Refuse a log whose revolute joint has ``q``, ``qd`` and ``qdd`` all in degrees.
+
+    The kinematic check of the loader (``q`` against the integral of ``qd``) cannot see such
+    a joint: its three columns agree with each other. The physics can: with a nominal
+    rigid-body start model, the mean squared torque residual
+    ``e(S) = mean ||y - tau_hat(D_S q, D_S qd, D_S qdd)||^2`` with ``D_S`` scaling the
+    joints in ``S`` by ``pi / 180`` is compared with ``e({})`` (the log as given), for each
+    revolute joint alone and all revolute joints together. When the best ``S`` fits
+    :data:`DEGREE_FIT_GAIN` times better, the log is refused naming the joints: a joint in
+    rad read as degrees would barely move and fit worse, never that much better.
+    Only a nominal start on torque data can tell (learned starts and currents: no check).
+
+    Raises:
+        ValueError: naming the file(s), the joints and the conversion.
+    """
+    if getattr(start, "kind", None) != "nominal" or traj.output != "tau":
+        return
+    revolute = [j for j, c in enumerate(start.joint_types) if c == "R"]
+    if not revolute or traj.n_samples < 10:
+        return
+    rows = np.unique(np.linspace(0, traj.n_samples - 1, DEGREE_CHECK_ROWS).astype(np.int64))
+    q, qd, qdd, y = (
+        np.asarray(a[rows], dtype=np.float64) for a in (traj.q, traj.qd, traj.qdd, traj.y)
+    )
+
+    def error(joints: Sequence[int]) -> float:
+        s = np.ones(q.shape[1])
+        s[list(joints)] = np.pi / 180.0
+        r = y - start.torque(q * s, qd * s, qdd * s)
+        return float(np.mean(r**2))
+
+    base = error([])
+    if not np.isfinite(base) or base <= 0.0:
+        return
+    options = [[j] for j in revolute] + ([revolute] if len(revolute) > 1 else [])
+    errors = [error(s) for s in options]
+    best = int(np.argmin(errors))
+    if errors[best] * DEGREE_FIT_GAIN < base:
+        joints = options[best]
+        cols = ", ".join(f"q{j + 1}, qd{j + 1}, qdd{j + 1}" for j in joints)
+        raise ValueError(
+            f"{', '.join(dict.fromkeys(traj.names))}: joint(s) {[j + 1 for j in joints]} look "
+            f"like degrees: the rigid-body model fits the torques {base / errors[best]:.3g} "
+            f"times better with them read as degrees; convert {cols} to rad (x pi/180)"
+        )

@@ -42,6 +42,8 @@ tables, the figures, the verdict and the residual's structure).
 from __future__ import annotations
 
 import json
+import math
+import numbers
 import time
 from collections.abc import Callable, Sequence
 from pathlib import Path
@@ -53,6 +55,13 @@ from mcpilco.models.gp.linear_gp import single_thread
 
 
 @single_thread()  # the matrices are small: BLAS threads only wait for each other
+def _is_number(value: Any, integer: bool) -> bool:
+    """Whether ``value`` is a finite number (an integer with ``integer``), not a boolean."""
+    if isinstance(value, bool) or not isinstance(value, numbers.Real):
+        return False
+    return math.isfinite(value) and (not integer or int(value) == value)
+
+
 def run_diagnosis(
     train: Sequence[str | Path],
     test: Sequence[str | Path] | None = None,
@@ -64,6 +73,7 @@ def run_diagnosis(
     threshold: float = 5.0,
     max_points: int = 600,
     gip_iters: int = 100,
+    include_root: str | Path | None = None,
     torque_constants: Sequence[float | None] | None = None,
     out: str | Path = "results/diagnosis_run",
     plots: bool = True,
@@ -85,6 +95,8 @@ def run_diagnosis(
         threshold: log-evidence threshold of a significant effect [nats].
         max_points: GP rows of a learned start.
         gip_iters: Adam iterations of a learned start's fit.
+        include_root: folder the ``<include>`` files of ``model`` must lie in (None: the
+            model's folder; :mod:`mcpilco.models.robot_files`).
         torque_constants: joint-side torque constants ``k_t`` [N m/A or N/A], one per joint,
             for current files; ``None``/``nan`` entries, or all when not given, are
             estimated (:mod:`~.units`).
@@ -122,21 +134,33 @@ def run_diagnosis(
     )
     from mcpilco.models.diagnosis.data import MIN_FIT_ROWS, MIN_HELDOUT_ROWS, require_rows
     from mcpilco.models.diagnosis.html_report import DiagnosisReport, weight_correlations
-    from mcpilco.models.diagnosis.units import currents_to_torque
+    from mcpilco.models.diagnosis.start_models import read_robot_text
+    from mcpilco.models.diagnosis.units import check_angle_units, currents_to_torque
 
     t_start = time.perf_counter()
+    for name, value, integer in (
+        ("auto", auto, True),
+        ("threshold", threshold, False),
+        ("max_points", max_points, True),
+        ("gip_iters", gip_iters, True),
+    ):
+        if not _is_number(value, integer) or value < (10 if name == "max_points" else 0):
+            low = 10 if name == "max_points" else 0
+            raise ValueError(f"{name} must be a finite number >= {low}, got {value!r}")
     if model is None and learned is None:
         raise ValueError(
             "give a start model: --model robot.xml (nominal), or --gip RRPR / --rbf RRPR (learned)"
         )
     effects_to_add = [parse_effect(a) for a in add]
+    # the robot file read once, its includes confined to its folder (or include_root)
+    robot = None if model is None else read_robot_text(model, include_root)
     if learned is not None:
         kind, joint_types = learned
         if kind not in LEARNED_STARTS:
             raise ValueError(f"learned start must be one of {sorted(LEARNED_STARTS)}, got {kind!r}")
-        start = LEARNED_STARTS[kind](joint_types, robot=model, adam_iters=gip_iters)
+        start = LEARNED_STARTS[kind](joint_types, robot=robot, adam_iters=gip_iters)
     else:
-        start = NominalStart(model)
+        start = NominalStart(robot, name=str(model))
     n = start.n_joints
     train = load_trajectories(train, n_joints=n)
     if test:
@@ -150,6 +174,8 @@ def run_diagnosis(
         log(f"held out: the last 30% of {train.names[0]}")
     require_rows(train, MIN_FIT_ROWS, "fitting a diagnosis model")  # before any work
     require_rows(test, MIN_HELDOUT_ROWS, "confirming effects on held-out data")
+    check_angle_units(start, train)  # a joint logged in degrees throughout
+    check_angle_units(start, test)
     data_warnings = list(dict.fromkeys(train.warnings + test.warnings))
     for text in data_warnings:
         log(f"warning: {text}")

@@ -45,6 +45,7 @@ from numpy.typing import NDArray
 
 from mcpilco.models.inverse_dynamics.base import InverseDynamicsEstimator
 from mcpilco.models.inverse_dynamics.inputs import JointStates
+from mcpilco.models.robot_files import read_robot_file, refuse_includes
 
 FloatArray = NDArray[np.float64]
 
@@ -95,16 +96,20 @@ def load_pinocchio_model(source: Any) -> Any:
         path = Path(source)
         if not path.exists():
             raise ValueError(f"no robot description at {path}; give an MJCF/URDF path or text")
-        text = path.read_text()
+        text = read_robot_file(path)  # includes expanded, confined to the model's folder
+        expanded = text != path.read_text()
         try:
             if "<robot" in text:
                 return pin.buildModelFromUrdf(str(path))
-            if "<mujoco" in text:
+            if "<mujoco" in text and not expanded:
                 return with_mujoco_inertias(pin.buildModelFromMJCF(str(path)), path=path)
         except RuntimeError as err:
             raise ValueError(f"pinocchio cannot build the robot in {path}: {err}") from err
-        raise ValueError(f"{path} is neither MJCF (<mujoco>) nor URDF (<robot>)")
+        if "<mujoco" not in text:
+            raise ValueError(f"{path} is neither MJCF (<mujoco>) nor URDF (<robot>)")
+        source = text  # the includes expanded: built from the text
     if isinstance(source, str):
+        refuse_includes(source, "the robot description text")
         if "<robot" in source:
             try:
                 return pin.buildModelFromXML(source)

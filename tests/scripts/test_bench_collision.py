@@ -22,7 +22,7 @@ def test_tiny_run_keeps_its_jobs_and_a_rerun_reuses_them(tmp_path, capsys, comma
     first = read_result(tmp_path / "out" / "collision.json").payload()
     names = {p.stem for p in (tmp_path / "runs").glob("*.json")}
     assert names == {"sigma_v_cv", "PP", "SP", "FC", "PP-sign"}
-    assert (tmp_path / "runs" / "data.pkl").is_file()
+    assert (tmp_path / "runs" / "data.pt").is_file()
     capsys.readouterr()
     assert (
         command("mcpilco-bench-collision", argv) == 0

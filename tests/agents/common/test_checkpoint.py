@@ -30,8 +30,9 @@ def test_numpy_and_rng_state_round_trip_exactly(tmp_path):
     rng = np.random.default_rng(3)
     obj = {
         "version": CHECKPOINT_VERSION,
-        "config": {"seed": 3},
+        "config": {"seed": 3, "num_trials": 2},
         "next_trial": 1,
+        "records": [{"index": 0}],
         "episodes": [{"obs": rng.normal(size=(5, 4)), "actions": np.ones((4, 1), np.float32)}],
         "flags": (np.bool_(True), np.float64(2.5), np.int64(7)),
         "rng": rng_state(rng),
