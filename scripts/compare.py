@@ -53,10 +53,9 @@ from mcpilco.agents.baselines.pilco import OPTIMIZERS
 from mcpilco.agents.baselines.sb3 import HYPERPARAMS
 from mcpilco.agents.common.cli import console_main
 from mcpilco.agents.common.trials import DEFAULT_ENV_ID
-from mcpilco.agents.mc_pilco.config import parse_set
+from mcpilco.envs.yaml_files import parse_overrides
 from mcpilco.experiments.infra.sweep import SweepError, add_sweep_arguments, runner_from_args
 from mcpilco.experiments.mcpilco.compare import (
-from mcpilco.envs.yaml_files import parse_overrides
     METHODS,
     compare,
     markdown,
