@@ -1,6 +1,6 @@
 """Hostile inputs of every entry point, by threat class: each must be refused in one line that
 names the field or file, with exit status 2, within its time limit, and with no file outside
-the run folder touched (:mod:`mcpilco.experiments.hostile_inputs`).
+the run folder touched (:mod:`mcpilco.experiments.infra.hostile_inputs`).
 
 The cases that refuse before any env, model or run is built run in the default suite; those
 that build one first (crafted checkpoints, detector estimators, degree checks) are slow.
@@ -15,7 +15,7 @@ from pathlib import Path
 
 import pytest
 
-from mcpilco.experiments.hostile_inputs import (
+from mcpilco.experiments.infra.hostile_inputs import (
     EXAMPLE,
     OUTCOMES,
     THREATS,

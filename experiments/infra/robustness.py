@@ -15,7 +15,7 @@ cannot support one).
   then continued with ``--resume`` (``--overwrite`` when no trial had finished), and the
   finished trials lost are counted;
 * :func:`hostile_results`: the hostile inputs of every entry point
-  (:mod:`mcpilco.experiments.hostile_inputs`), counted per threat class by outcome (holes,
+  (:mod:`mcpilco.experiments.infra.hostile_inputs`), counted per threat class by outcome (holes,
   hangs, tracebacks, silent wrong answers, unclear errors).
 
 :func:`run_robustness` runs them all; :func:`write_result` writes ``robustness.json`` and
@@ -302,7 +302,7 @@ def kill_runs(tmp: Path, kill_after: Sequence[float]) -> list[dict[str, Any]]:
 def hostile_results(tmp: Path) -> list[dict[str, Any]]:
     """The outcome of every hostile case (:func:`~.hostile_inputs.run_case`, in this
     process, each in its own folder under ``tmp``)."""
-    from mcpilco.experiments.hostile_inputs import hostile_cases, run_case
+    from mcpilco.experiments.infra.hostile_inputs import hostile_cases, run_case
 
     return [run_case(c, tmp / f"hostile_{k}") for k, c in enumerate(hostile_cases())]
 
@@ -310,8 +310,8 @@ def hostile_results(tmp: Path) -> list[dict[str, Any]]:
 def hostile_table(rows: Sequence[dict[str, Any]]) -> list[str]:
     """Markdown lines: hostile cases counted per threat class by outcome, then every case
     that was not refused."""
-    from mcpilco.experiments.hostile_inputs import OUTCOMES as HOSTILE
-    from mcpilco.experiments.hostile_inputs import THREATS
+    from mcpilco.experiments.infra.hostile_inputs import OUTCOMES as HOSTILE
+    from mcpilco.experiments.infra.hostile_inputs import THREATS
 
     md = ["| threat class | cases | " + " | ".join(HOSTILE) + " |"]
     md.append("|" + "---|" * (2 + len(HOSTILE)))

@@ -595,7 +595,7 @@ def _checkpoint(work: Path) -> dict[str, Any]:
     """A checkpoint of the small run's config whose trial 0 finished (no GP yet)."""
     import torch
 
-    from mcpilco.agents.mc_pilco.checkpoint import CHECKPOINT_VERSION, rng_state
+    from mcpilco.agents.common.checkpoint import CHECKPOINT_VERSION, rng_state
     from mcpilco.agents.mc_pilco.cli import config_from_options
 
     config = config_from_options(
@@ -1182,7 +1182,7 @@ BENCH_TINY_OPTIONS = {
 def _bench_collision_cases() -> list[HostileCase]:
     def data_file(content: Callable[[Path, dict[str, Any]], None]) -> Callable:
         def build(w: Path, o: Path) -> list[str]:
-            from mcpilco.experiments.collision_data import DATA_FILE
+            from mcpilco.experiments.collision.data import DATA_FILE
 
             (w / "runs").mkdir()
             content(w / "runs" / DATA_FILE, dict(BENCH_TINY_OPTIONS))
