@@ -67,7 +67,7 @@ THREATS: dict[str, str] = {
 OUTCOMES = ("refused", "hole", "hang", "traceback", "silent wrong answer", "unclear error")
 """How the package answered a hostile input (module docstring); ``refused`` is wanted."""
 CASE_LIMIT_S = 60.0  # seconds a case may run before it counts as a hang
-EXAMPLE = Path(__file__).resolve().parents[1] / "models/diagnosis/examples/scara_coulomb2"
+EXAMPLE = Path(__file__).resolve().parents[2] / "models/diagnosis/examples/scara_coulomb2"
 VICTIM_TEXT = "precious data of someone else\n"  # content of outside/victim.txt
 ENV = "mcpilco/CartpoleSwingUp-v0"  # env of the training cases
 SMALL_RUN = [
