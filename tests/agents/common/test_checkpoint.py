@@ -130,8 +130,12 @@ def test_save_checkpoint_writes_what_load_checkpoint_checks(tmp_path):
     from mcpilco.agents.common.checkpoint import save_checkpoint
     from mcpilco.agents.mc_pilco import MCPilcoConfig
 
+    from mcpilco.agents.common.checkpoint import rng_state
+
     cfg = MCPilcoConfig(seed=4)
-    save_checkpoint(tmp_path / "c.pt", cfg, 3, episodes=[{"obs": np.ones((2, 4))}])
+    records = [{"index": k, "kind": "policy" if k else "exploration"} for k in range(3)]
+    state = {"episodes": [{"obs": np.ones((2, 4))}], "records": records}
+    save_checkpoint(tmp_path / "c.pt", cfg, 3, rng=rng_state(np.random.default_rng(0)), **state)
     ckpt = load_checkpoint(tmp_path / "c.pt")
     assert ckpt["version"] == CHECKPOINT_VERSION and ckpt["next_trial"] == 3
     assert MCPilcoConfig.from_dict(ckpt["config"]) == cfg
