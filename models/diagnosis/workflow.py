@@ -43,7 +43,7 @@ from __future__ import annotations
 
 import json
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -65,6 +65,9 @@ def run_diagnosis(
     max_points: int = 600,
     gip_iters: int = 100,
     torque_constants: Sequence[float | None] | None = None,
+    topic: str | None = None,
+    current_topic: str | None = None,
+    joint_map: Mapping[str, str] | None = None,
     out: str | Path = "results/diagnosis_run",
     plots: bool = True,
     rerun: bool = True,
@@ -74,7 +77,8 @@ def run_diagnosis(
     """Run the diagnosis loop on files and write its outputs (module docstring).
 
     Args:
-        train: training files (CSV / Parquet, dataset schema).
+        train: training files (CSV / Parquet, dataset schema; ROS 2 bag folders, ``.db3``
+            and ``.mcap`` files of ``sensor_msgs/JointState``, :mod:`~.bags`).
         test: held-out files (default: split off the training files).
         model: nominal robot file (MJCF ``.xml`` or URDF); the start model unless
             ``learned`` is given.
@@ -88,6 +92,10 @@ def run_diagnosis(
         torque_constants: joint-side torque constants ``k_t`` [N m/A or N/A], one per joint,
             for current files; ``None``/``nan`` entries, or all when not given, are
             estimated (:mod:`~.units`).
+        topic: the JointState topic of bag files (``None``: the bag's only one).
+        current_topic: a bag topic of motor currents (``None``: the efforts are torques).
+        joint_map: bag joint name -> the robot file's joint name, for names that differ
+            (equal names pair by themselves).
         out: output folder (created).
         plots, rerun: write the PNG figures / the Rerun recording.
         sysid: refine the corrected robot file with ``mujoco.sysid`` (nominal MJCF start).
@@ -120,7 +128,13 @@ def run_diagnosis(
         parse_effect,
         residual_report,
     )
-    from mcpilco.models.diagnosis.data import MIN_FIT_ROWS, MIN_HELDOUT_ROWS, require_rows
+    from mcpilco.models.diagnosis.bags import BagOptions
+    from mcpilco.models.diagnosis.data import (
+        MIN_FIT_ROWS,
+        MIN_HELDOUT_ROWS,
+        require_motion,
+        require_rows,
+    )
     from mcpilco.models.diagnosis.html_report import DiagnosisReport, weight_correlations
     from mcpilco.models.diagnosis.units import currents_to_torque
 
@@ -138,9 +152,12 @@ def run_diagnosis(
     else:
         start = NominalStart(model)
     n = start.n_joints
-    train = load_trajectories(train, n_joints=n)
+    robot = getattr(start, "robot", None)  # the robot file's joint names pair bag joints
+    bag = BagOptions(topic, current_topic, dict(joint_map or {}))
+    names = None if robot is None else list(robot.model.names)[1:]
+    train = load_trajectories(train, n_joints=n, bag=bag, joint_names=names)
     if test:
-        test = load_trajectories(test, n_joints=n)
+        test = load_trajectories(test, n_joints=n, bag=bag, joint_names=names)
     elif train.n_segments >= 2:
         test = train.select([train.n_segments - 1])
         train = train.select(range(train.n_segments - 1))
@@ -149,6 +166,7 @@ def run_diagnosis(
         train, test = train.split_time(0.7)
         log(f"held out: the last 30% of {train.names[0]}")
     require_rows(train, MIN_FIT_ROWS, "fitting a diagnosis model")  # before any work
+    require_motion(train)
     require_rows(test, MIN_HELDOUT_ROWS, "confirming effects on held-out data")
     data_warnings = list(dict.fromkeys(train.warnings + test.warnings))
     for text in data_warnings:
