@@ -15,8 +15,9 @@ its place (:func:`~.search.next_version`). Every version is saved as
 
 Motor-current files (columns ``i1..in``) are put into torque units first, ``y = k_t i``: with
 the given ``torque_constants``, and for the joints without one with constants estimated on the
-training files against the robot file (:mod:`~.units`; joints the data cannot pin down stop
-the run with their names); ``k_t`` and its interval are reported, and its uncertainty is
+training files against the robot file (:mod:`~.units`; a joint the data cannot pin down is
+diagnosed in its own current units, A, with a free scale of its model torque fitted with the
+effects, and the reason is reported); ``k_t`` and its interval are reported, and its uncertainty is
 kept either in the model (a free scale of the model torque, ``scale:j``, so that it is never
 named as an offset, spring or cogging) or in the noise floor. A learned start without a robot
 file has no torque units: without given constants its loop stays in amperes.
@@ -112,8 +113,8 @@ def run_diagnosis(
 
     Raises:
         ValueError: bad input (no start model, unreadable or too short files, a joint count
-            that differs from the model's, ``out`` a file, bad torque constants or ones the
-            data cannot pin down), with a message naming it.
+            that differs from the model's, ``out`` a file, bad torque constants), with a
+            message naming it.
     """
     from mcpilco.models.diagnosis import (
         LEARNED_STARTS,
@@ -185,7 +186,9 @@ def run_diagnosis(
     if out.exists() and not out.is_dir():
         raise ValueError(f"--out {out} is a file; give a folder")
     out.mkdir(parents=True, exist_ok=True)
-    unit = "A" if train.output == "i" else None
+    unit: str | list[str | None] | None = "A" if train.output == "i" else None
+    if constants is not None and constants.in_current.any():  # k_t not identifiable: in A
+        unit = ["A" if c else None for c in constants.in_current]
 
     scales = [] if constants is None else constants.effects()  # k_t still free (.units)
     model = DiagnosisModel(start, scales, max_points=max_points).fit(train)
@@ -366,6 +369,11 @@ def run_diagnosis(
             "sample time": f"{train.sample_time:g} s",
             "output": "motor current i [A]" if train.output == "i" else "joint torque tau",
             **({} if constants is None else {"torque constants": constants.text()}),
+            **{
+                f"joint {j + 1} in A": f"torque constant not identifiable: {why}"
+                for j, why in enumerate(() if constants is None else constants.reasons)
+                if why is not None
+            },
         },
         warnings=data_warnings,
         seconds=time.perf_counter() - t_start,
