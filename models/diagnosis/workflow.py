@@ -120,6 +120,7 @@ def run_diagnosis(
         LEARNED_STARTS,
         DiagnosisModel,
         NominalStart,
+        backward_step,
         diagnose,
         fit_metrics,
         heldout_floor,
@@ -249,6 +250,7 @@ def run_diagnosis(
         versions.append(model)
         log(f"   {model.describe()}")
     alternatives: dict[str, str] = {}  # never added beside the effect they stand for
+    removals: list[Any] = []  # backward elimination (search.backward_step)
     for _ in range(auto):
         if model.name not in diag_obj:
             diag_obj[model.name] = diagnose(
@@ -257,9 +259,17 @@ def run_diagnosis(
             log(diag_obj[model.name].table(6))
         if diag_obj[model.name].lead is None:  # no missing effect nor in-span refinement
             break
+        newest = diag_obj[model.name].lead.effect
         model = next_version(model, diag_obj[model.name], alternatives)
         versions.append(model)
         log(f"   {model.describe()}")
+        while (step := backward_step(model, test, newest, threshold=threshold)) is not None:
+            model, removal = step  # an earlier effect whose evidence the new one took
+            versions.append(model)
+            removals.append(removal)
+            alternatives[removal.label] = newest.label  # only ever put back in its place
+            log(f"   {removal.text()}")
+            log(f"   {model.describe()}")
     saved = [str(v.save(out / "models")) for v in versions]
     log(f"   saved: {', '.join(saved)}")
     for v in versions:
@@ -332,10 +342,11 @@ def run_diagnosis(
 
         log("\n== 6. the corrected robot file")
         robot_file = robot_file_step(versions[-1], train, test, out, sysid=sysid, log=log)
+    removed = {r.version: f" (removed {r.variant}: its evidence taken by {r.by})" for r in removals}
     final = diag_obj[versions[-1].name].verdict()
     log(f"\nverdict: {final}")
     summary = {
-        "versions": [v.describe() for v in versions],
+        "versions": [v.describe() + removed.get(v.name, "") for v in versions],
         "heldout_rmse": held.tolist(),
         "noise_floor": noise.tolist(),
         "rmse_over_floor": ratios.tolist(),
@@ -346,6 +357,7 @@ def run_diagnosis(
         "data_warnings": data_warnings,
         "robot_file": robot_file,
         "torque_constants": None if constants is None else constants.to_dict(),
+        "removed": [r.to_dict() for r in removals],
         "seconds": time.perf_counter() - t_start,
     }
     report = DiagnosisReport(
