@@ -72,6 +72,7 @@ from mcpilco.models.diagnosis.search import (
     refine_shape,
     score_candidates,
     score_effect,
+    stepwise,
 )
 from mcpilco.models.diagnosis.start_models import (
     LEARNED_STARTS,
@@ -158,6 +159,7 @@ __all__ = [
     "run_diagnosis",
     "score_candidates",
     "score_effect",
+    "stepwise",
     "write_corrected_mjcf",
     "whiteness_test",
 ]

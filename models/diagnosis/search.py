@@ -158,6 +158,7 @@ __all__ = [
     "refine_shape",
     "score_candidates",
     "score_effect",
+    "stepwise",
 ]
 
 EVIDENCE_THRESHOLD = 5.0
@@ -1194,14 +1195,84 @@ def auto_improve(
         diags.append(d)
         if d.lead is None or added >= max_steps:
             break
-        newest = d.lead.effect
-        versions.append(next_version(versions[-1], d, alternatives))
+        steps = stepwise(versions[-1], d, held, alternatives, **tests)
         added += 1
-        while (step := backward_step(versions[-1], held, newest, **tests)) is not None:
+        for new, _ in steps:
+            versions.append(new)
             diags.append(None)
-            versions.append(step[0])
-            alternatives[step[1].label] = newest.label
+        diags.pop()  # the last new version is diagnosed next
     return versions, diags
+
+
+def stepwise(
+    model: DiagnosisModel,
+    diagnosis: Diagnosis,
+    heldout: Any,
+    alternatives: dict[str, str],
+    *,
+    threshold: float = EVIDENCE_THRESHOLD,
+    min_heldout_gain: float = MIN_HELDOUT_GAIN,
+    min_explained: float = MIN_EXPLAINED,
+) -> list[tuple[DiagnosisModel, Removal | None]]:
+    """One step of stepwise selection (module docstring): the diagnosis's lead added
+    (:func:`next_version`), then every earlier effect it superseded removed
+    (:func:`backward_step`), and, for a rigid-body lead (a link's inertia, a payload), the
+    rotor inertias of its joints tried in its place (:func:`_rotor_inertias_instead`).
+
+    Returns:
+        the new versions in order, each with its :class:`Removal` (``None`` for an addition).
+    """
+    tests = dict(
+        threshold=threshold, min_heldout_gain=min_heldout_gain, min_explained=min_explained
+    )
+    newest = diagnosis.lead.effect
+    out: list[tuple[DiagnosisModel, Removal | None]] = [
+        (next_version(model, diagnosis, alternatives), None)
+    ]
+    while (step := backward_step(out[-1][0], heldout, newest, **tests)) is not None:
+        out.append(step)
+        alternatives[step[1].label] = newest.label  # only ever put back in its place
+    out += _rotor_inertias_instead(out[-1][0], diagnosis, heldout, alternatives, **tests)
+    return out
+
+
+def _rotor_inertias_instead(
+    model: DiagnosisModel,
+    diagnosis: Diagnosis,
+    heldout: Any,
+    alternatives: dict[str, str],
+    **tests: float,
+) -> list[tuple[DiagnosisModel, Removal | None]]:
+    """Rotor inertia against link inertia and payload, told apart by the joints each acts on
+    (module docstring): with a rigid-body lead just added, the armatures of its joints that
+    the same diagnosis found significant in evidence (with a physical sign) are added on top,
+    one version each, and backward elimination run after each; the versions are kept only
+    if the rigid-body effect is then removed (the armatures took its evidence: one cause per
+    joint), else none of them is (``[]``)."""
+    lead = diagnosis.lead.effect
+    if not lead.shared or not any(e.same_slot(lead) for e in model.effects):
+        return []
+    reach = set(lead.outputs(model.n_joints))
+    rotors = [
+        c.effect
+        for c in diagnosis.candidates
+        if c.effect.key == "armature"
+        and c.delta > tests["threshold"]
+        and not c.wrong_sign
+        and c.effect.joint - 1 in reach
+        and not any(c.effect.same_slot(e) for e in model.effects)
+    ]
+    out: list[tuple[DiagnosisModel, Removal | None]] = []
+    alts = dict(alternatives)
+    for rotor in rotors:
+        out.append(((out[-1][0] if out else model).with_effect(rotor, backfit=True), None))
+        while (step := backward_step(out[-1][0], heldout, rotor, **tests)) is not None:
+            out.append(step)
+            alts[step[1].label] = rotor.label
+    if any(r is not None and r.label == lead.label for _, r in out):
+        alternatives.update(alts)
+        return out
+    return []
 
 
 def next_version(

@@ -10,7 +10,9 @@ held-out files the last training file (or, with one file, its last 30%) is held 
 Effects are added by name (``coulomb:2``) or automatically, best first (missing effects
 before refinements inside a learned start's span), while one is significant; what the data
 cannot tell apart from an added effect is reported as its alternative and only ever put in
-its place (:func:`~.search.next_version`). Every version is saved as
+its place (:func:`~.search.next_version`); after each addition, earlier effects whose
+evidence it took are removed as new versions (stepwise selection, :func:`~.search.stepwise`).
+Every version is saved as
 ``<out>/models/model_v<k>.json`` (never overwritten).
 
 Motor-current files (columns ``i1..in``) are put into torque units first, ``y = k_t i``: with
@@ -120,15 +122,14 @@ def run_diagnosis(
         LEARNED_STARTS,
         DiagnosisModel,
         NominalStart,
-        backward_step,
         diagnose,
         fit_metrics,
         heldout_floor,
         load_trajectories,
         metrics_table,
-        next_version,
         parse_effect,
         residual_report,
+        stepwise,
     )
     from mcpilco.models.diagnosis.bags import BagOptions
     from mcpilco.models.diagnosis.data import (
@@ -259,17 +260,16 @@ def run_diagnosis(
             log(diag_obj[model.name].table(6))
         if diag_obj[model.name].lead is None:  # no missing effect nor in-span refinement
             break
-        newest = diag_obj[model.name].lead.effect
-        model = next_version(model, diag_obj[model.name], alternatives)
-        versions.append(model)
-        log(f"   {model.describe()}")
-        while (step := backward_step(model, test, newest, threshold=threshold)) is not None:
-            model, removal = step  # an earlier effect whose evidence the new one took
-            versions.append(model)
-            removals.append(removal)
-            alternatives[removal.label] = newest.label  # only ever put back in its place
-            log(f"   {removal.text()}")
-            log(f"   {model.describe()}")
+        steps = stepwise(  # add the lead, remove what it superseded
+            model, diag_obj[model.name], test, alternatives, threshold=threshold
+        )
+        for new, removal in steps:
+            versions.append(new)
+            if removal is not None:
+                removals.append(removal)
+                log(f"   {removal.text()}")
+            log(f"   {new.describe()}")
+        model = versions[-1]
     saved = [str(v.save(out / "models")) for v in versions]
     log(f"   saved: {', '.join(saved)}")
     for v in versions:

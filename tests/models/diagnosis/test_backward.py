@@ -24,7 +24,9 @@ from mcpilco.models.diagnosis import (
     NominalStart,
     backward_step,
     load_trajectories,
+    run_diagnosis,
 )
+from mcpilco.models.diagnosis.search import FLOOR_FACTOR
 
 DURATION = 4.0
 SIZE = 20 * 0.05  # effect torque: about 20 stds of simulate_log's torque noise [N m]
@@ -86,3 +88,42 @@ def test_a_real_heavier_link_is_kept(arm, probe, tmp_path):
     start = NominalStart(arm_to_xml(arm, friction=False))
     model = DiagnosisModel(start, [LinkInertia(2), Armature(2)]).fit(train)
     assert backward_step(model, test, Armature(2)) is None
+
+
+def _run(arm, effects, tmp_path):
+    paths = [
+        write_log(tmp_path / f"log{s}.csv", simulate_log(arm, effects, duration=DURATION, seed=s))
+        for s in (0, 1)
+    ]
+    xml = tmp_path / "robot.xml"
+    xml.write_text(arm_to_xml(arm, friction=False))
+    kw = dict(model=xml, auto=4, plots=False, rerun=False, sysid=False, log=lambda s: None)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)
+        return run_diagnosis([paths[0]], [paths[1]], out=tmp_path / "run", **kw)
+
+
+def test_rotor_inertias_replace_a_link_inertia_that_led(arm, probe, tmp_path):
+    """Armatures on joints 1 and 2: link 2's inertia (acting on both joints) leads the first
+    ranking and, added alone, leaves joint 1 above the floor. The run adds the armatures of
+    its joints on top and removes the link inertia: the versions show the removal, the last
+    holds the two armatures only, at the floor."""
+    summary = _run(arm, [_armature(probe, 1), _armature(probe, 2)], tmp_path)
+    first = summary["diagnoses"]["v0"]["candidates"][0]
+    assert first["effect"] == "link 2 inertia", first
+    assert summary["versions"][1].endswith("+ link 2 inertia"), summary["versions"]
+    assert "removed link 2 inertia" in summary["versions"][-1], summary["versions"]
+    assert summary["versions"][-1].split(" + ", 1)[1].startswith("armature:1, armature:2 (")
+    assert "inertia:2" in [r["label"] for r in summary["removed"]]
+    assert max(summary["rmse_over_floor"][-1]) <= FLOOR_FACTOR, summary["rmse_over_floor"]
+    assert "no significant missing effect" in summary["verdict"]
+
+
+def test_a_heavier_last_link_stays_a_rigid_body_effect(arm, tmp_path):
+    """The last link really heavier (mass x1.6), no rotor inertia: the run ends with the last
+    body's inertia (payload or link 3 inertia, one family), no armature, nothing removed."""
+    summary = _run(arm, [HiddenEffect("mass", 3, 1.6)], tmp_path)
+    last = summary["versions"][-1]
+    assert "payload" in last or "link 3 inertia" in last, summary["versions"]
+    assert "armature" not in last and summary["removed"] == [], summary["versions"]
+    assert max(summary["rmse_over_floor"][-1]) <= FLOOR_FACTOR, summary["rmse_over_floor"]
