@@ -239,7 +239,15 @@ def _columns(
     if joints is None:
         return list(range(len(names))), []
     model_of = {b: joint_map.get(b, b) for b in names}
-    index = {m: k for k, m in enumerate(model_of.values()) if m in joints}
+    index: dict[str, int] = {}
+    for k, (b, m) in enumerate(model_of.items()):
+        if m in index:
+            raise ValueError(
+                f"{path}: bag joints {names[index[m]]!r} and {b!r} both stand for model joint "
+                f"{m!r}; map one of them elsewhere with --joint-map"
+            )
+        if m in joints:
+            index[m] = k
     missing = [j for j in joints if j not in index]
     if missing:
         unknown = [m for m in joint_map if m not in names]

@@ -590,6 +590,11 @@ def load_trajectories(
     def load(p: str | Path) -> RobotDataset:
         if is_bag(p):
             return read_bag(p, joint_names, bag, n_joints=n_joints)
+        if Path(p).is_dir():
+            raise ValueError(
+                f"{p} is a folder without metadata.yaml; give a ROS 2 bag folder, a .db3 or "
+                ".mcap file, or a .csv or .parquet measurement file"
+            )
         return load_dataset(p, n_joints=n_joints)
 
     with warnings.catch_warnings():

@@ -163,6 +163,8 @@ def test_unmatched_joint_names_list_both_sets(logs, tmp_path):
     assert "--joint-map" in text
     ok = read_bag(path, NAMES, BagOptions(joint_map=parse_joint_map(["a=j1", "b=j2", "c=j3"])))
     assert ok.n_joints == 3
+    twice = BagOptions(joint_map={"a": "j1", "b": "j1", "c": "j3"})
+    _one_line_error(lambda: read_bag(path, NAMES, twice), "both stand for model joint 'j1'")
 
 
 def test_gaps_and_reordering_are_refused(logs, tmp_path):
