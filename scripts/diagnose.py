@@ -20,6 +20,11 @@ Files of motor currents (``i1..in`` instead of ``tau1..taun``) are put into torq
 with ``--torque-constants K1 K2 ...`` (N m/A per joint, negative for a reversed motor;
 ``nan`` for a joint whose constant is to be estimated), or, without it, with constants
 estimated per joint against ``--model``.
+ROS 2 bags (a bag folder, ``.db3`` or ``.mcap`` file; ``pip install mcpilco[logs]``) are
+read as measurement files: ``sensor_msgs/JointState`` of ``--topic`` (position, velocity,
+effort), the motor currents of ``--current-topic``, bag joints paired with the robot file's
+joints by name or by ``--joint-map bag_name=joint`` / ``--joint-map-file map.yaml``, resampled
+onto a uniform time grid (:mod:`mcpilco.models.diagnosis.bags`).
 Every version is saved as ``<out>/models/model_v<k>.json`` (never overwritten).
 
 Outputs under ``--out``: ``compare_v<k>.png`` (measured vs predicted ±2σ),
@@ -44,7 +49,9 @@ def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(
         prog="mcpilco-diagnose", description=__doc__.split("\n")[0].rstrip(",")
     )
-    p.add_argument("--train", nargs="+", required=True, help="training files (.csv/.parquet)")
+    p.add_argument(
+        "--train", nargs="+", required=True, help="training files (.csv/.parquet, ROS 2 bags)"
+    )
     p.add_argument("--test", nargs="*", default=None, help="held-out files")
     p.add_argument("--model", default=None, help="nominal robot file (MJCF .xml or URDF)")
     learned = p.add_mutually_exclusive_group()
@@ -91,6 +98,22 @@ def build_parser() -> argparse.ArgumentParser:
         metavar="FOLDER",
         help="folder the <include> files of --model may lie in (default: the model's folder)",
     )
+    p.add_argument(
+        "--topic", default=None, help="JointState topic of bag files (default: the only one)"
+    )
+    p.add_argument(
+        "--current-topic", default=None, help="bag topic of motor currents [A] (JointState effort)"
+    )
+    p.add_argument(
+        "--joint-map",
+        nargs="+",
+        default=[],
+        metavar="BAG=JOINT",
+        help="pair bag joint names with the robot file's (names that match pair by themselves)",
+    )
+    p.add_argument(
+        "--joint-map-file", default=None, help="YAML file of bag_name: model_joint pairs"
+    )
     p.add_argument("--out", default="results/diagnosis_run")
     p.add_argument("--no-plots", action="store_true")
     p.add_argument("--no-rerun", action="store_true")
@@ -106,7 +129,16 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv: Sequence[str] | None = None) -> int:
     """Run the loop; returns 0, or 2 on bad input (one line naming the problem)."""
     args = build_parser().parse_args(argv)
+    from mcpilco.envs.yaml_files import read_yaml
     from mcpilco.models.diagnosis import run_diagnosis
+    from mcpilco.models.diagnosis.bags import check_joint_map, parse_joint_map
+
+    joint_map = (
+        check_joint_map(read_yaml(args.joint_map_file, "joint map"), args.joint_map_file)
+        if args.joint_map_file
+        else {}
+    )
+    joint_map.update(parse_joint_map(args.joint_map))
 
     learned = next(
         ((k, getattr(args, k)) for k in ("gip", "rbf") if getattr(args, k) is not None), None
@@ -123,6 +155,9 @@ def main(argv: Sequence[str] | None = None) -> int:
         gip_iters=args.gip_iters,
         include_root=args.include_root,
         torque_constants=args.torque_constants,
+        topic=args.topic,
+        current_topic=args.current_topic,
+        joint_map=joint_map,
         out=args.out,
         plots=not args.no_plots,
         rerun=not args.no_rerun,

@@ -61,7 +61,9 @@ from mcpilco.models.diagnosis.search import (
     Candidate,
     Diagnosis,
     FloorCheck,
+    Removal,
     auto_improve,
+    backward_step,
     diagnose,
     floor_check,
     heldout_floor,
@@ -70,6 +72,7 @@ from mcpilco.models.diagnosis.search import (
     refine_shape,
     score_candidates,
     score_effect,
+    stepwise,
 )
 from mcpilco.models.diagnosis.start_models import (
     LEARNED_STARTS,
@@ -128,7 +131,9 @@ __all__ = [
     "Trajectories",
     "ViscousFriction",
     "as_trajectories",
+    "Removal",
     "auto_improve",
+    "backward_step",
     "cross_correlation_test",
     "currents_to_torque",
     "default_library",
@@ -154,6 +159,7 @@ __all__ = [
     "run_diagnosis",
     "score_candidates",
     "score_effect",
+    "stepwise",
     "write_corrected_mjcf",
     "whiteness_test",
 ]

@@ -668,7 +668,7 @@ def residual_report(
     reversal_window: int = 30,
     max_lag: int = CORRELATION_LAGS,
     window_s: float = 0.5,
-    unit: str | None = None,
+    unit: str | Sequence[str | None] | None = None,
 ) -> ResidualReport:
     """Residual analysis of ``traj.y - y_hat`` (module docstring).
 
@@ -678,6 +678,8 @@ def residual_report(
         noise_std: ``(n,)`` the "x noise" yardstick; ``None``: :func:`noise_floor` (the
             measurement noise, not the model's fitted noise, which absorbs model errors).
         joint_types: e.g. ``"RRPR"`` (units in the words).
+        unit: the output's unit in the words, for all joints or per joint (``None``: N·m or
+            N by joint type).
     """
     e_all = traj.y - y_hat
     if noise_std is None:
@@ -687,7 +689,8 @@ def residual_report(
     out, windows = [], []
     for j in range(traj.n_joints):
         prism = joint_types[j] == "P"
-        force = unit or ("N" if prism else "N·m")
+        own = unit if unit is None or isinstance(unit, str) else unit[j]
+        force = own or ("N" if prism else "N·m")
         e = e_all[:, j]
         sigma = float(noise_std[j]) if noise_std[j] > 0 else float(np.std(e)) or 1.0
         jr = JointResiduals(joint=j + 1, noise_std=sigma)

@@ -83,6 +83,7 @@ from scipy.signal import savgol_coeffs, savgol_filter
 from mcpilco.models.robot_data import RobotDataset, load_dataset, sampling_warnings
 
 if TYPE_CHECKING:
+    from mcpilco.models.diagnosis.bags import BagOptions
     from mcpilco.models.diagnosis.units import TorqueConstants
 
 FloatArray = NDArray[np.float64]
@@ -102,6 +103,7 @@ __all__ = [
     "as_trajectories",
     "choose_derivative_filter",
     "load_trajectories",
+    "require_motion",
     "require_rows",
     "smoother_noise_std",
     "uniform_sample_time",
@@ -113,6 +115,9 @@ and up to a dozen effect parameters per joint are estimated from them."""
 MIN_HELDOUT_ROWS = 50
 """Fewest held-out rows an effect is confirmed or rejected on (the held-out RMSE change
 must stand out from its sampling noise)."""
+MIN_MOTION = 1e-3
+"""Smallest range of a joint's position [rad or m] in a log that identifies anything: below
+it (0.06 deg, 1 mm) the arm stood still and every regressor but gravity is noise."""
 
 DERIVATIVE_WINDOW = 0.1
 """Shortest (and default) time span ``W`` [s] of the Savitzky-Golay window that estimates
@@ -573,14 +578,29 @@ def load_trajectories(
     paths: Sequence[str | Path],
     n_joints: int | None = None,
     derivative_window: float | None = None,
+    bag: BagOptions | None = None,
+    joint_names: Sequence[str] | None = None,
 ) -> Trajectories:
-    """Load and validate measurement files (CSV/Parquet, schema of ``models.robot_data``);
-    ``qd``/``qdd`` that a file lacks are estimated (module docstring) with the span
-    ``derivative_window`` [s] (``None``: chosen per file)."""
+    """Load and validate measurement files (CSV/Parquet, schema of ``models.robot_data``;
+    ROS 2 bags and MCAP files by :func:`~.bags.read_bag` with the topics of ``bag`` and the
+    model's ``joint_names``); ``qd``/``qdd`` that a file lacks are estimated (module
+    docstring) with the span ``derivative_window`` [s] (``None``: chosen per file)."""
+    from mcpilco.models.diagnosis.bags import is_bag, read_bag
+
+    def load(p: str | Path) -> RobotDataset:
+        if is_bag(p):
+            return read_bag(p, joint_names, bag, n_joints=n_joints)
+        if Path(p).is_dir():
+            raise ValueError(
+                f"{p} is a folder without metadata.yaml; give a ROS 2 bag folder, a .db3 or "
+                ".mcap file, or a .csv or .parquet measurement file"
+            )
+        return load_dataset(p, n_joints=n_joints)
+
     with warnings.catch_warnings():
         # the loader's check of its own derivatives is redone on the estimates
         warnings.filterwarnings("ignore", r".* computed from .*", RuntimeWarning)
-        datasets = [load_dataset(p, n_joints=n_joints) for p in paths]
+        datasets = [load(p) for p in paths]
     return as_trajectories(datasets, n_joints, derivative_window)
 
 
@@ -592,4 +612,17 @@ def require_rows(traj: Trajectories, needed: int, what: str) -> None:
         raise ValueError(
             f"{what} needs at least {needed} rows, got {traj.n_samples} ({files}); give longer "
             "or more measurement files"
+        )
+
+
+def require_motion(traj: Trajectories) -> None:
+    """Raise ValueError when no joint's position range reaches :data:`MIN_MOTION` in
+    ``traj``: a log of an arm at rest identifies no effect (the ranges and files are named)."""
+    spans = np.ptp(traj.q, axis=0) if traj.n_samples else np.zeros(traj.n_joints)
+    if (spans < MIN_MOTION).all():
+        files = ", ".join(traj.names) or "<arrays>"
+        ranges = ", ".join(f"{x:.2g}" for x in spans)
+        raise ValueError(
+            f"{files}: no joint moves more than {MIN_MOTION:g} rad or m (ranges {ranges}): a "
+            "log of an arm at rest identifies nothing; record the arm moving through its range"
         )

@@ -692,6 +692,30 @@ class DiagnosisModel:
             new.fit(self.train_, refit_start=False, _warm=warm, backfit=backfit, _parent=self)
         return new
 
+    def without(self, label: str, backfit: bool = False) -> DiagnosisModel:
+        """The next version with the effect labelled ``label`` removed (backward elimination,
+        :func:`~mcpilco.models.diagnosis.search.backward_step`), fitted if ``self`` is; the
+        joints it does not act on keep ``self``'s fit.
+
+        Raises:
+            ValueError: no effect ``label`` in the model.
+        """
+        labels = [e.label for e in self.effects]
+        if label not in labels:
+            raise ValueError(f"model {self.name} holds no {label}; it holds {labels or 'none'}")
+        k = labels.index(label)
+        new = DiagnosisModel(
+            self.start,
+            (*self.effects[:k], *self.effects[k + 1 :]),
+            version=self.version + 1,
+            max_points=self.max_points,
+            max_delay_samples=self.max_delay_samples,
+            history=(*self.history, f"{self.name} - {self.effects[k].variant_label}"),
+        )
+        if self.train_ is not None:
+            new.fit(self.train_, refit_start=False, backfit=backfit, _parent=self)
+        return new
+
     def add(self, effect: Effect) -> DiagnosisModel:
         """``model.add(CoulombFriction(joint=2))``: the next version with the effect added and
         refitted (a learned start model is backfitted once); unscanned shape values (cogging

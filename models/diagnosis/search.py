@@ -74,6 +74,22 @@ Alternatives (one effect per group)
     on its joints and lowers their held-out RMSE by more than ``min_heldout_gain`` percent.
     (It is tried only when it gains more than ``threshold`` nats on top of the model: the
     model with both nests the one with it alone.)
+Backward elimination (stepwise both ways)
+    Forward selection alone keeps an effect whose evidence a later one has taken: on an arm
+    with rotor inertia on several joints, a link's inertia (one weight vector over the
+    joints it moves) can lead first and stay after the armatures of those joints explain
+    the data. So after every addition, :func:`backward_step` asks of each earlier effect
+    that shares a joint with the new one whether it would still be added now: the model
+    without it (refitted) against the model with it must show the three tests of
+    significance above, more than ``threshold`` nats of log-evidence on its joints, a
+    held-out RMSE lower by more than ``min_heldout_gain`` percent and more than
+    ``min_explained`` of a joint's floor variance explained. An effect that fails one is
+    removed (the one whose removal loses the least evidence first, then the check repeats)
+    as a new version, and becomes an alternative of the effect that took its evidence (it is
+    only ever put back in its place). Rotor inertia, link inertia and payload are told
+    apart this way by the joints each acts on (one joint's ``qdd``; the joints up to the
+    link; every joint); where the data cannot tell the later effect from the earlier one,
+    the earlier one is kept only if it still earns its place, and the removal says so.
 Verdict against the noise floor
     A verdict the data cannot support is not given. The held-out RMSE of the diagnosed model,
     and of that model with the lead (the missing effect, else the refinement) added, is
@@ -129,7 +145,9 @@ __all__ = [
     "Candidate",
     "Diagnosis",
     "FloorCheck",
+    "Removal",
     "auto_improve",
+    "backward_step",
     "diagnose",
     "explained_share",
     "floor_check",
@@ -140,6 +158,7 @@ __all__ = [
     "refine_shape",
     "score_candidates",
     "score_effect",
+    "stepwise",
 ]
 
 EVIDENCE_THRESHOLD = 5.0
@@ -1074,26 +1093,186 @@ def diagnose(
     return d
 
 
+@dataclass(frozen=True)
+class Removal:
+    """An effect taken out by :func:`backward_step` (module docstring).
+
+    Attributes:
+        label: the removed effect's label (``link 2 inertia``, ``armature:3``).
+        variant: its variant label (with its shape values).
+        by: the later effect that took its evidence.
+        version: the name of the version without it.
+        evidence: log-evidence it still adds on its joints given the rest [nats].
+        heldout_delta_pct: held-out RMSE change it makes on its joints given the rest [%].
+        explained: largest share of a joint's floor variance it explains given the rest.
+    """
+
+    label: str
+    variant: str
+    by: str
+    version: str
+    evidence: float
+    heldout_delta_pct: float
+    explained: float
+
+    def text(self) -> str:
+        return (
+            f"{self.version}: removed {self.variant}: with {self.by} in the model it adds "
+            f"{self.evidence:+.1f} nats and changes the held-out RMSE of its joints by "
+            f"{self.heldout_delta_pct:+.1f}% (explains {100 * max(self.explained, 0.0):.0f}% "
+            "of a joint's floor variance): the model without it is as good, its evidence was "
+            f"taken by {self.by}"
+        )
+
+    def to_dict(self) -> dict[str, Any]:
+        return dataclasses.asdict(self)
+
+
+def backward_step(
+    model: DiagnosisModel,
+    heldout: Any,
+    newest: Effect,
+    *,
+    threshold: float = EVIDENCE_THRESHOLD,
+    min_heldout_gain: float = MIN_HELDOUT_GAIN,
+    min_explained: float = MIN_EXPLAINED,
+) -> tuple[DiagnosisModel, Removal] | None:
+    """One step of backward elimination after ``newest`` was added to ``model`` (module
+    docstring): the version without the earlier effect (sharing a joint with ``newest``)
+    that no longer earns its place and loses the least evidence, with the record of its
+    removal; ``None`` when every earlier effect still earns its place. Blocks the loop puts
+    in itself (a free torque scale) are never removed."""
+    from mcpilco.models.diagnosis.effects import MODEL_ONLY_EFFECTS
+
+    held = as_trajectories(heldout, model.n_joints).interior()
+    n = model.n_joints
+    reach = set(newest.outputs(n))
+    full = heldout_rmse(model, held)
+    found: tuple[DiagnosisModel, Removal] | None = None
+    for e in model.effects:
+        if e.same_slot(newest) or e.key in MODEL_ONLY_EFFECTS:
+            continue
+        outs = e.outputs(n)
+        if not reach & set(outs):
+            continue
+        minus = model.without(e.label)
+        evidence = float(sum(model.evidence_[j] - minus.evidence_[j] for j in outs))
+        rmse = heldout_rmse(minus, held)
+        pct = heldout_change_pct(rmse, full, minus.noise_std_, np.array(outs))
+        explained = explained_share(rmse, full, heldout_floor(minus, held), outs)
+        if evidence > threshold and pct < -min_heldout_gain and explained > min_explained:
+            continue  # it still earns its place
+        removal = Removal(
+            e.label, e.variant_label, newest.variant_label, minus.name, evidence, pct, explained
+        )
+        if found is None or evidence < found[1].evidence:
+            found = (minus, removal)
+    return found
+
+
 def auto_improve(
     model: DiagnosisModel, heldout: Any, max_steps: int = 4, **kwargs: Any
-) -> tuple[list[DiagnosisModel], list[Diagnosis]]:
+) -> tuple[list[DiagnosisModel], list[Diagnosis | None]]:
     """Add the missing effect (else the in-span refinement, :attr:`Diagnosis.lead`), refit,
-    re-diagnose, until none is left.
+    remove the earlier effects whose evidence it took (:func:`backward_step`), re-diagnose,
+    until none is left.
 
     Returns:
-        ``(versions, diagnoses)``: ``versions[0] = model``; ``diagnoses[k]`` of ``versions[k]``
-        (the last one says what remains).
+        ``(versions, diagnoses)``: ``versions[0] = model``, then every version (additions and
+        removals); ``diagnoses[k]`` of ``versions[k]``, ``None`` for a version that a removal
+        replaced before it was diagnosed (the last one says what remains).
     """
-    versions, diags = [model], []
+    versions: list[DiagnosisModel] = [model]
+    diags: list[Diagnosis | None] = []
     alternatives: dict[str, str] = {}
     held = as_trajectories(heldout, model.n_joints).interior()  # one object: floors are kept
-    for _ in range(max_steps + 1):
+    tests = {
+        k: kwargs[k] for k in ("threshold", "min_heldout_gain", "min_explained") if k in kwargs
+    }
+    added = 0
+    while True:
         d = diagnose(versions[-1], held, alternatives=alternatives, **kwargs)
         diags.append(d)
-        if d.lead is None or len(versions) > max_steps:
+        if d.lead is None or added >= max_steps:
             break
-        versions.append(next_version(versions[-1], d, alternatives))
+        steps = stepwise(versions[-1], d, held, alternatives, **tests)
+        added += 1
+        for new, _ in steps:
+            versions.append(new)
+            diags.append(None)
+        diags.pop()  # the last new version is diagnosed next
     return versions, diags
+
+
+def stepwise(
+    model: DiagnosisModel,
+    diagnosis: Diagnosis,
+    heldout: Any,
+    alternatives: dict[str, str],
+    *,
+    threshold: float = EVIDENCE_THRESHOLD,
+    min_heldout_gain: float = MIN_HELDOUT_GAIN,
+    min_explained: float = MIN_EXPLAINED,
+) -> list[tuple[DiagnosisModel, Removal | None]]:
+    """One step of stepwise selection (module docstring): the diagnosis's lead added
+    (:func:`next_version`), then every earlier effect it superseded removed
+    (:func:`backward_step`), and, for a rigid-body lead (a link's inertia, a payload), the
+    rotor inertias of its joints tried in its place (:func:`_rotor_inertias_instead`).
+
+    Returns:
+        the new versions in order, each with its :class:`Removal` (``None`` for an addition).
+    """
+    tests = dict(
+        threshold=threshold, min_heldout_gain=min_heldout_gain, min_explained=min_explained
+    )
+    newest = diagnosis.lead.effect
+    out: list[tuple[DiagnosisModel, Removal | None]] = [
+        (next_version(model, diagnosis, alternatives), None)
+    ]
+    while (step := backward_step(out[-1][0], heldout, newest, **tests)) is not None:
+        out.append(step)
+        alternatives[step[1].label] = newest.label  # only ever put back in its place
+    out += _rotor_inertias_instead(out[-1][0], diagnosis, heldout, alternatives, **tests)
+    return out
+
+
+def _rotor_inertias_instead(
+    model: DiagnosisModel,
+    diagnosis: Diagnosis,
+    heldout: Any,
+    alternatives: dict[str, str],
+    **tests: float,
+) -> list[tuple[DiagnosisModel, Removal | None]]:
+    """Rotor inertia against link inertia and payload, told apart by the joints each acts on
+    (module docstring): with a rigid-body lead just added, the armatures of its joints that
+    the same diagnosis found significant in evidence (with a physical sign) are added on top,
+    one version each, and backward elimination run after each; the versions are kept only
+    if the rigid-body effect is then removed (the armatures took its evidence: one cause per
+    joint), else none of them is (``[]``)."""
+    lead = diagnosis.lead.effect
+    if not lead.shared or not any(e.same_slot(lead) for e in model.effects):
+        return []
+    reach = set(lead.outputs(model.n_joints))
+    rotors = [
+        c.effect
+        for c in diagnosis.candidates
+        if c.effect.key == "armature"
+        and c.delta > tests["threshold"]
+        and not c.wrong_sign
+        and c.effect.joint - 1 in reach
+        and not any(c.effect.same_slot(e) for e in model.effects)
+    ]
+    out: list[tuple[DiagnosisModel, Removal | None]] = []
+    alts = dict(alternatives)
+    for rotor in rotors:
+        out.append(((out[-1][0] if out else model).with_effect(rotor, backfit=True), None))
+        while (step := backward_step(out[-1][0], heldout, rotor, **tests)) is not None:
+            out.append(step)
+            alts[step[1].label] = rotor.label
+    if any(r is not None and r.label == lead.label for _, r in out):
+        alternatives.update(alts)
+        return out
+    return []
 
 
 def next_version(

@@ -570,6 +570,9 @@ def robot_file_step(
         reason = f"the start model is not a nominal MJCF ({model.start.describe()})"
     elif train.output != "tau" or test.output != "tau":
         reason = "the logs hold motor currents: the effects are not in torque units"
+    elif train.torque_constants is not None and train.torque_constants.in_current.any():
+        joints = [int(j) + 1 for j in np.flatnonzero(train.torque_constants.in_current)]
+        reason = f"joints {joints} are diagnosed in A (torque constant not identifiable)"
     if reason is not None:
         log(f"   no corrected robot file: {reason}")
         return {"skipped": reason}

@@ -47,9 +47,16 @@ Estimation (:func:`estimate_torque_constants`, on the training rows)
 Identifiability
     A joint whose 95% interval of ``k_j`` is wider than :data:`MAX_RELATIVE_CI` of ``|k_j|``
     (no torque excitation beyond friction and offset: a joint at rest, a current that carries
-    only noise), or whose corrected normal matrix ``A`` is not positive definite (the model
-    torque is a combination of the baseline, or drowned in its own noise), raises
-    ``ValueError`` naming the joint: the scale is not guessed.
+    only noise, or an unmodelled effect that loads a joint the model says carries little
+    torque, e.g. a payload on the wrist), or whose corrected normal matrix ``A`` is not
+    positive definite (the model torque is a combination of the baseline, or drowned in its
+    own noise), is a finding, not the end of the run: the scale is not guessed, the joint is
+    diagnosed in its own current units. Its data stay in A (``k_j`` taken as 1,
+    :attr:`TorqueConstants.reasons` says why) and the loop's first version holds the free
+    scale ``alpha tau_hat_j`` on it, fitted jointly with every candidate effect, so that
+    ``(1 + alpha) tau_hat_j = tau_hat_j / k_j``; an effect on that joint is scored and named
+    in A (its parameters are torque parameters divided by ``k_j``, :func:`widen_estimates`
+    relabels their units). The other joints are converted and diagnosed as usual.
 Noise floor
     A perfect model in torque units with ``k`` taken as ``k_hat`` still misses
     ``y - tau = (k_hat - k) i`` on the data, of expected square ``sd(k)^2 mean(i^2)`` per
@@ -115,6 +122,7 @@ __all__ = [
     "TorqueConstants",
     "currents_to_torque",
     "estimate_torque_constants",
+    "current_unit",
     "given_torque_constants",
     "widen_estimates",
     "without_fitted_scales",
@@ -141,6 +149,8 @@ class TorqueConstants:
         rows: training rows of the estimate (0 when every constant was given).
         free_scale: ``(n,)`` joints whose model holds a free scale (module docstring); none
             by default.
+        reasons: per joint, why its ``k_t`` is not identifiable (the joint stays in A,
+            ``value`` 1), or ``None``; empty: every joint identified or given.
     """
 
     value: FloatArray
@@ -150,10 +160,19 @@ class TorqueConstants:
     baseline: tuple[tuple[ParamEstimate, ...], ...] = ()
     rows: int = 0
     free_scale: NDArray[np.bool_] | None = None
+    reasons: tuple[str | None, ...] = ()
 
     @property
     def n_joints(self) -> int:
         return int(self.value.size)
+
+    @property
+    def in_current(self) -> NDArray[np.bool_]:
+        """``(n,)`` joints diagnosed in their own current units (``k_t`` not identifiable)."""
+        out = np.zeros(self.n_joints, dtype=bool)
+        for j, why in enumerate(self.reasons):
+            out[j] = why is not None
+        return out
 
     @property
     def source(self) -> str:
@@ -209,6 +228,14 @@ class TorqueConstants:
         lines = ["torque constants k_t (tau = k_t i):"]
         for j in range(self.n_joints):
             k, ci, unit = self.value[j], self.ci95[j], self.unit(j + 1)
+            if self.in_current[j]:
+                lines.append(
+                    f"   joint {j + 1}: k_t not identifiable ({self.reasons[j]}); diagnosed in "
+                    f"A: its data stay in motor current, the model torque gets a free scale "
+                    f"fitted with the effects (scale:{j + 1}, 1 + alpha = 1 / k_t), and an "
+                    "effect on it is named with its parameters in A"
+                )
+                continue
             if self.given[j]:
                 lines.append(f"   joint {j + 1}: k_t = {k:.5g} {unit}   given, used as it is")
                 continue
@@ -234,6 +261,8 @@ class TorqueConstants:
                     "given": bool(self.given[j]),
                     "free_scale": bool(self.free_scale is not None and self.free_scale[j]),
                     "baseline": [p.__dict__ for p in self.baseline[j]],
+                    "identifiable": not bool(self.in_current[j]),
+                    "reason": self.reasons[j] if self.reasons else None,
                 }
                 for j in range(self.n_joints)
             ],
@@ -366,9 +395,12 @@ def estimate_torque_constants(
         given: optional per-joint ``k_t`` the user knows, ``None``/``nan`` for the joints to
             estimate (e.g. a wrist whose torque is too small to pin its constant down).
 
+    Returns:
+        the constants; a joint whose ``k_t`` the data cannot pin down has ``value`` 1, its
+        reason in :attr:`TorqueConstants.reasons` and a free scale (module docstring).
+
     Raises:
-        ValueError: ``traj`` holds torques, too few rows, bad given values, or joints whose
-            ``k_t`` the data cannot pin down (every such joint named with its interval).
+        ValueError: ``traj`` holds torques, too few rows, or bad given values.
     """
     if traj.output != "i":
         raise ValueError(
@@ -384,7 +416,7 @@ def estimate_torque_constants(
     n_rows = rows.size
     lags = max(int(4.0 * (n_rows / 100.0) ** (2.0 / 9.0)), window)
     known = np.full(traj.n_joints, np.nan) if given is None else _given_values(given, joint_types)
-    value, ci95, baseline, failed, free = [], [], [], [], []
+    value, ci95, baseline, reasons, free = [], [], [], [], []
     names = ("F_v", "F_c", "tau_0")
     for j in range(traj.n_joints):
         joint = j + 1
@@ -393,6 +425,7 @@ def estimate_torque_constants(
             ci95.append(0.0)
             baseline.append(())
             free.append(False)
+            reasons.append(None)
             continue
         x = np.concatenate(
             [
@@ -405,22 +438,28 @@ def estimate_torque_constants(
         )
         beta, cov = _corrected_least_squares(x, traj.y[rows, j], sigma_in[j] ** 2, ranges, lags)
         unit = "N/A" if joint_types[j] == "P" else "N·m/A"
+        why = None
         if beta is None:
-            failed.append(
-                f"joint {joint}: the torque constant is not identifiable from the training "
-                "data (its model torque is a combination of friction and offset, or drowned "
-                "in the noise of the estimated qd/qdd)"
+            why = (
+                "its model torque is a combination of friction and offset, or drowned in the "
+                "noise of the estimated qd/qdd"
             )
-            continue
-        inv_k, sd_inv = float(beta[0]), float(math.sqrt(cov[0, 0]))
-        k = 1.0 / inv_k if inv_k != 0 else math.inf
-        sd_k = sd_inv * k**2
-        if not (math.isfinite(k) and Z95 * sd_inv < MAX_RELATIVE_CI * abs(inv_k)):
-            failed.append(
-                f"joint {joint}: the torque constant is not identifiable from the training "
-                f"data (k_t = {k:.3g} ± {Z95 * sd_k:.2g} {unit}, a 95% interval wider than "
-                f"{MAX_RELATIVE_CI:.0%} of k_t)"
-            )
+        else:
+            inv_k, sd_inv = float(beta[0]), float(math.sqrt(cov[0, 0]))
+            k = 1.0 / inv_k if inv_k != 0 else math.inf
+            sd_k = sd_inv * k**2
+            if not (math.isfinite(k) and Z95 * sd_inv < MAX_RELATIVE_CI * abs(inv_k)):
+                why = (
+                    f"k_t = {k:.3g} ± {Z95 * sd_k:.2g} {unit}, a 95% interval wider than "
+                    f"{MAX_RELATIVE_CI:.0%} of k_t: the current shows too little of the model "
+                    "torque beyond friction, offset and what the model lacks"
+                )
+        if why is not None:  # a finding: the joint is diagnosed in A (module docstring)
+            value.append(1.0)
+            ci95.append(0.0)
+            baseline.append(())
+            free.append(True)
+            reasons.append(why)
             continue
         force = "N" if joint_types[j] == "P" else "N·m"
         units = (f"{force}·s/{'m' if joint_types[j] == 'P' else 'rad'}", force, force)
@@ -434,13 +473,7 @@ def estimate_torque_constants(
         removed = sd_k * math.sqrt(float(np.mean(traj.y[rows, j] ** 2)))
         brought = sigma_in[j] ** 2 / max(math.sqrt(float(np.mean(tau_hat[:, j] ** 2))), 1e-300)
         free.append(removed > brought)
-    if failed:
-        raise ValueError(
-            "; ".join(failed) + ": the current shows too little of the model torque beyond "
-            "friction and offset. Excite the joint more, or give its constant and let the "
-            "others be estimated (torque_constants=[..., None, ...]; --torque-constants with "
-            "nan for each joint to estimate)"
-        )
+        reasons.append(None)
     return TorqueConstants(
         np.array(value),
         np.array(ci95),
@@ -449,6 +482,7 @@ def estimate_torque_constants(
         tuple(baseline),
         n_rows,
         np.array(free, dtype=bool),
+        tuple(reasons) if any(r is not None for r in reasons) else (),
     )
 
 
@@ -477,8 +511,7 @@ def currents_to_torque(
         ``(train, test, constants)``; ``constants`` is ``None`` when nothing was converted.
 
     Raises:
-        ValueError: constants given for torque files, bad constants, or a joint whose
-            constant the data cannot pin down.
+        ValueError: constants given for torque files, or bad constants.
     """
     if train.output != "i":
         if torque_constants is not None:
@@ -512,13 +545,27 @@ def widen_estimates(
 ) -> list[ParamEstimate]:
     """``estimates`` of a linear effect block fitted on output ``output`` (0-based) of data
     put into torque units with ``constants``, their intervals widened by the relative
-    uncertainty of that joint's ``k_t`` (module docstring); unchanged without constants."""
+    uncertainty of that joint's ``k_t`` (module docstring); unchanged without constants. On a
+    joint diagnosed in A (``k_t`` not identifiable) the values are torque parameters divided
+    by ``k_t``: their units say so (:func:`current_unit`)."""
     if constants is None:
         return list(estimates)
+    if constants.in_current[output]:
+        return [dataclasses.replace(p, unit=current_unit(p.unit)) for p in estimates]
     rel = Z95 * float(constants.std[output]) / abs(float(constants.value[output]))
     if rel == 0:
         return list(estimates)
     return [dataclasses.replace(p, ci95=math.hypot(p.ci95, rel * p.value)) for p in estimates]
+
+
+def current_unit(unit: str) -> str:
+    """The unit of a torque parameter (``unit``) divided by a torque constant: ``N·m`` or
+    ``N`` at its head becomes ``A`` (``N·m·s/rad`` -> ``A·s/rad``); other units (inertia,
+    mass, none) get ``/k_t`` appended."""
+    for head in ("N·m", "N"):
+        if unit == head or unit.startswith(head + "·") or unit.startswith(head + "/"):
+            return "A" + unit[len(head) :]
+    return f"{unit}/k_t".lstrip("/") if unit else "1/k_t"
 
 
 def without_fitted_scales(traj: Trajectories, effects: Sequence[Effect]) -> Trajectories:

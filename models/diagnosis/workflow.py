@@ -10,13 +10,16 @@ held-out files the last training file (or, with one file, its last 30%) is held 
 Effects are added by name (``coulomb:2``) or automatically, best first (missing effects
 before refinements inside a learned start's span), while one is significant; what the data
 cannot tell apart from an added effect is reported as its alternative and only ever put in
-its place (:func:`~.search.next_version`). Every version is saved as
+its place (:func:`~.search.next_version`); after each addition, earlier effects whose
+evidence it took are removed as new versions (stepwise selection, :func:`~.search.stepwise`).
+Every version is saved as
 ``<out>/models/model_v<k>.json`` (never overwritten).
 
 Motor-current files (columns ``i1..in``) are put into torque units first, ``y = k_t i``: with
 the given ``torque_constants``, and for the joints without one with constants estimated on the
-training files against the robot file (:mod:`~.units`; joints the data cannot pin down stop
-the run with their names); ``k_t`` and its interval are reported, and its uncertainty is
+training files against the robot file (:mod:`~.units`; a joint the data cannot pin down is
+diagnosed in its own current units, A, with a free scale of its model torque fitted with the
+effects, and the reason is reported); ``k_t`` and its interval are reported, and its uncertainty is
 kept either in the model (a free scale of the model torque, ``scale:j``, so that it is never
 named as an offset, spring or cogging) or in the noise floor. A learned start without a robot
 file has no torque units: without given constants its loop stays in amperes.
@@ -45,7 +48,7 @@ import json
 import math
 import numbers
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -75,6 +78,9 @@ def run_diagnosis(
     gip_iters: int = 100,
     include_root: str | Path | None = None,
     torque_constants: Sequence[float | None] | None = None,
+    topic: str | None = None,
+    current_topic: str | None = None,
+    joint_map: Mapping[str, str] | None = None,
     out: str | Path = "results/diagnosis_run",
     plots: bool = True,
     rerun: bool = True,
@@ -84,7 +90,8 @@ def run_diagnosis(
     """Run the diagnosis loop on files and write its outputs (module docstring).
 
     Args:
-        train: training files (CSV / Parquet, dataset schema).
+        train: training files (CSV / Parquet, dataset schema; ROS 2 bag folders, ``.db3``
+            and ``.mcap`` files of ``sensor_msgs/JointState``, :mod:`~.bags`).
         test: held-out files (default: split off the training files).
         model: nominal robot file (MJCF ``.xml`` or URDF); the start model unless
             ``learned`` is given.
@@ -100,6 +107,10 @@ def run_diagnosis(
         torque_constants: joint-side torque constants ``k_t`` [N m/A or N/A], one per joint,
             for current files; ``None``/``nan`` entries, or all when not given, are
             estimated (:mod:`~.units`).
+        topic: the JointState topic of bag files (``None``: the bag's only one).
+        current_topic: a bag topic of motor currents (``None``: the efforts are torques).
+        joint_map: bag joint name -> the robot file's joint name, for names that differ
+            (equal names pair by themselves).
         out: output folder (created).
         plots, rerun: write the PNG figures / the Rerun recording.
         sysid: refine the corrected robot file with ``mujoco.sysid`` (nominal MJCF start).
@@ -116,8 +127,8 @@ def run_diagnosis(
 
     Raises:
         ValueError: bad input (no start model, unreadable or too short files, a joint count
-            that differs from the model's, ``out`` a file, bad torque constants or ones the
-            data cannot pin down), with a message naming it.
+            that differs from the model's, ``out`` a file, bad torque constants), with a
+            message naming it.
     """
     from mcpilco.models.diagnosis import (
         LEARNED_STARTS,
@@ -128,11 +139,17 @@ def run_diagnosis(
         heldout_floor,
         load_trajectories,
         metrics_table,
-        next_version,
         parse_effect,
         residual_report,
+        stepwise,
     )
-    from mcpilco.models.diagnosis.data import MIN_FIT_ROWS, MIN_HELDOUT_ROWS, require_rows
+    from mcpilco.models.diagnosis.bags import BagOptions
+    from mcpilco.models.diagnosis.data import (
+        MIN_FIT_ROWS,
+        MIN_HELDOUT_ROWS,
+        require_motion,
+        require_rows,
+    )
     from mcpilco.models.diagnosis.html_report import DiagnosisReport, weight_correlations
     from mcpilco.models.diagnosis.start_models import read_robot_text
     from mcpilco.models.diagnosis.units import check_angle_units, currents_to_torque
@@ -162,9 +179,12 @@ def run_diagnosis(
     else:
         start = NominalStart(robot, name=str(model))
     n = start.n_joints
-    train = load_trajectories(train, n_joints=n)
+    robot = getattr(start, "robot", None)  # the robot file's joint names pair bag joints
+    bag = BagOptions(topic, current_topic, dict(joint_map or {}))
+    names = None if robot is None else list(robot.model.names)[1:]
+    train = load_trajectories(train, n_joints=n, bag=bag, joint_names=names)
     if test:
-        test = load_trajectories(test, n_joints=n)
+        test = load_trajectories(test, n_joints=n, bag=bag, joint_names=names)
     elif train.n_segments >= 2:
         test = train.select([train.n_segments - 1])
         train = train.select(range(train.n_segments - 1))
@@ -173,6 +193,7 @@ def run_diagnosis(
         train, test = train.split_time(0.7)
         log(f"held out: the last 30% of {train.names[0]}")
     require_rows(train, MIN_FIT_ROWS, "fitting a diagnosis model")  # before any work
+    require_motion(train)
     require_rows(test, MIN_HELDOUT_ROWS, "confirming effects on held-out data")
     check_angle_units(start, train)  # a joint logged in degrees throughout
     check_angle_units(start, test)
@@ -193,7 +214,9 @@ def run_diagnosis(
     if out.exists() and not out.is_dir():
         raise ValueError(f"--out {out} is a file; give a folder")
     out.mkdir(parents=True, exist_ok=True)
-    unit = "A" if train.output == "i" else None
+    unit: str | list[str | None] | None = "A" if train.output == "i" else None
+    if constants is not None and constants.in_current.any():  # k_t not identifiable: in A
+        unit = ["A" if c else None for c in constants.in_current]
 
     scales = [] if constants is None else constants.effects()  # k_t still free (.units)
     model = DiagnosisModel(start, scales, max_points=max_points).fit(train)
@@ -254,6 +277,7 @@ def run_diagnosis(
         versions.append(model)
         log(f"   {model.describe()}")
     alternatives: dict[str, str] = {}  # never added beside the effect they stand for
+    removals: list[Any] = []  # backward elimination (search.backward_step)
     for _ in range(auto):
         if model.name not in diag_obj:
             diag_obj[model.name] = diagnose(
@@ -262,9 +286,16 @@ def run_diagnosis(
             log(diag_obj[model.name].table(6))
         if diag_obj[model.name].lead is None:  # no missing effect nor in-span refinement
             break
-        model = next_version(model, diag_obj[model.name], alternatives)
-        versions.append(model)
-        log(f"   {model.describe()}")
+        steps = stepwise(  # add the lead, remove what it superseded
+            model, diag_obj[model.name], test, alternatives, threshold=threshold
+        )
+        for new, removal in steps:
+            versions.append(new)
+            if removal is not None:
+                removals.append(removal)
+                log(f"   {removal.text()}")
+            log(f"   {new.describe()}")
+        model = versions[-1]
     saved = [str(v.save(out / "models")) for v in versions]
     log(f"   saved: {', '.join(saved)}")
     for v in versions:
@@ -337,10 +368,11 @@ def run_diagnosis(
 
         log("\n== 6. the corrected robot file")
         robot_file = robot_file_step(versions[-1], train, test, out, sysid=sysid, log=log)
+    removed = {r.version: f" (removed {r.variant}: its evidence taken by {r.by})" for r in removals}
     final = diag_obj[versions[-1].name].verdict()
     log(f"\nverdict: {final}")
     summary = {
-        "versions": [v.describe() for v in versions],
+        "versions": [v.describe() + removed.get(v.name, "") for v in versions],
         "heldout_rmse": held.tolist(),
         "noise_floor": noise.tolist(),
         "rmse_over_floor": ratios.tolist(),
@@ -351,6 +383,7 @@ def run_diagnosis(
         "data_warnings": data_warnings,
         "robot_file": robot_file,
         "torque_constants": None if constants is None else constants.to_dict(),
+        "removed": [r.to_dict() for r in removals],
         "seconds": time.perf_counter() - t_start,
     }
     report = DiagnosisReport(
@@ -374,6 +407,11 @@ def run_diagnosis(
             "sample time": f"{train.sample_time:g} s",
             "output": "motor current i [A]" if train.output == "i" else "joint torque tau",
             **({} if constants is None else {"torque constants": constants.text()}),
+            **{
+                f"joint {j + 1} in A": f"torque constant not identifiable: {why}"
+                for j, why in enumerate(() if constants is None else constants.reasons)
+                if why is not None
+            },
         },
         warnings=data_warnings,
         seconds=time.perf_counter() - t_start,

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import re
 import warnings
 
 import numpy as np
@@ -28,6 +29,7 @@ from mcpilco.models.diagnosis import (
     given_torque_constants,
     heldout_floor,
     load_trajectories,
+    run_diagnosis,
 )
 from mcpilco.models.diagnosis.search import FLOOR_FACTOR
 
@@ -168,15 +170,69 @@ def test_constants_for_torque_files_are_refused(start, no_effect):
 
 
 def test_a_current_without_torque_is_not_identifiable(start, no_effect):
-    """Joint 3's current replaced by noise (no torque in it): the estimate refuses, naming
-    the joint, rather than guess a constant."""
+    """Joint 3's current replaced by noise (no torque in it): the estimate does not guess a
+    constant; joint 3 stays in A with a free scale and the reason, the others are estimated
+    as before. A given constant is used as it is."""
     y = no_effect[0].y.copy()
     y[:, 2] = np.random.default_rng(0).normal(0.0, 0.01, y.shape[0])
     train = dataclasses.replace(no_effect[0], y=y)
-    with pytest.raises(ValueError, match="joint 3: the torque constant is not identifiable"):
-        estimate_torque_constants(train, start.robot.rnea, "RRR")
+    found = estimate_torque_constants(train, start.robot.rnea, "RRR")
+    assert found.in_current.tolist() == [False, False, True]
+    assert found.value[2] == 1.0 and found.free_scale[2] and "wider than 25%" in found.reasons[2]
+    assert (np.abs(found.value[:2] - K_T[:2]) <= found.ci95[:2]).all(), found.text()
+    assert "joint 3: k_t not identifiable" in found.text() and "diagnosed in A" in found.text()
+    assert found.to_dict()["joints"][2]["identifiable"] is False
     given = estimate_torque_constants(train, start.robot.rnea, "RRR", given=[None, None, 1.5])
     assert given.value[2] == 1.5 and given.source == "given and estimated"
+    assert not given.in_current.any()
+
+
+def test_unidentifiable_constant_still_names_the_effect(tmp_path):
+    """A cogging torque on the last joint (0.3 N m, 8 periods per rad) that the nominal model
+    says carries little torque: its k_t is not identifiable (the run used to stop there).
+    Now the run completes, joint 3 is diagnosed in A with the reason in the summary and the
+    report, cogging:3 is named with its amplitude in A (truth 0.3 / k_3 = 0.15 A), and the
+    joints end at the floor."""
+    arm = random_arm(3, seed=1, joint_types="RRR").rigid()
+    k_t = np.array([0.5, -1.5, 2.0])
+    effects = [HiddenEffect("cogging", 3, 0.3, 8.0)]
+    paths = [
+        write_log(
+            tmp_path / f"log{s}.csv",
+            simulate_log(arm, effects, duration=DURATION, seed=s, torque_constants=k_t),
+        )
+        for s in (0, 1)
+    ]
+    xml = tmp_path / "robot.xml"
+    xml.write_text(arm_to_xml(arm, friction=False))
+    lines: list[str] = []
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)
+        summary = run_diagnosis(
+            [paths[0]],
+            [paths[1]],
+            model=xml,
+            auto=3,
+            plots=False,
+            rerun=False,
+            out=tmp_path / "run",
+            log=lines.append,
+        )
+    joints = summary["torque_constants"]["joints"]
+    assert [j["identifiable"] for j in joints] == [True, True, False], joints
+    assert "wider than 25%" in joints[2]["reason"]
+    assert any("joint 3: k_t not identifiable" in t for t in lines)
+    last = summary["versions"][-1]
+    assert "cogging:3" in last and "scale:3" in last, summary["versions"]
+    assert not any(k in last for k in ("spring", "offset", "payload")), last
+    assert max(summary["rmse_over_floor"][-1]) <= FLOOR_FACTOR, summary["rmse_over_floor"]
+    assert "no significant missing effect" in summary["verdict"]
+    assert summary["robot_file"]["skipped"].startswith("joints [3] are diagnosed in A")
+    html = (tmp_path / "run" / "report.html").read_text()
+    assert "joint 3 in A" in html and "torque constant not identifiable" in html
+    (line,) = [t for t in lines if "cogging:3" in t and "(joint 3): A = " in t]
+    value, ci95 = map(float, re.search(r"A = (\S+) ± (\S+) A$", line).groups())
+    assert abs(abs(value) - 0.3 / k_t[2]) <= ci95, line
 
 
 def test_diagnose_command_estimates_or_takes_the_constants(arm, no_effect, tmp_path, command):
