@@ -39,7 +39,7 @@ def parse_env_kwargs(text: str | Path) -> dict[str, Any]:
     Raises:
         ValueError: not YAML, or not a mapping with string keys.
     """
-    import yaml
+    from mcpilco.envs.yaml_files import parse_yaml, read_yaml
 
     path = Path(text)
     try:
@@ -47,8 +47,11 @@ def parse_env_kwargs(text: str | Path) -> dict[str, Any]:
     except OSError:  # a mapping too long to be a path
         is_file = False
     try:
-        data = yaml.safe_load(path.read_text() if is_file else str(text))
-    except (OSError, yaml.YAMLError) as err:
+        if is_file:
+            data = read_yaml(path, "--env-kwargs file", mapping=False)
+        else:
+            data = parse_yaml(str(text), "--env-kwargs")
+    except OSError as err:
         raise ValueError(f"--env-kwargs {text}: {err}") from None
     if data is None:
         return {}
