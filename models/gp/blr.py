@@ -82,8 +82,8 @@ class BayesianLinearRegression:
             self.A += (Phi.T @ Phi)[None]
             self.b += (Phi.T @ Y).T
         else:
-            self.A += np.einsum("jnf,jng->jfg", Phi, Phi)
-            self.b += np.einsum("jnf,nj->jf", Phi, Y)
+            self.A += np.matmul(Phi.transpose(0, 2, 1), Phi)  # batched BLAS, not einsum
+            self.b += np.matmul(Phi.transpose(0, 2, 1), Y.T[:, :, None])[..., 0]
         self.yy += np.sum(Y**2, axis=0)
         self.n += Y.shape[0]
 

@@ -36,7 +36,7 @@ from numpy.typing import NDArray
 
 from mcpilco.models.gp import GPRegressor
 from mcpilco.models.inverse_dynamics.base import InverseDynamicsEstimator
-from mcpilco.models.inverse_dynamics.inputs import JointStates, input_names
+from mcpilco.models.inverse_dynamics.inputs import JointStates, as_joint_states, input_names
 from mcpilco.models.inverse_dynamics.kernels import RowLinearKernel
 from mcpilco.models.inverse_dynamics.rigid_body import RigidBodyFeatures
 from mcpilco.models.kernels import GIPKernel, check_joint_types, gip_feature_names, gip_features
@@ -249,8 +249,6 @@ class NystromGIPEstimator(GIPEstimator):
         super().__init__(joint_types, hyper_points=hyper_points, **kwargs)
 
     def _fit(self, states: JointStates, y: FloatArray) -> None:
-        from mcpilco.models.gp.blr import BayesianLinearRegression
-
         n = states.n_joints
         X = self.gp_inputs(states)
         N = X.shape[0]
@@ -285,12 +283,32 @@ class NystromGIPEstimator(GIPEstimator):
             W = np.zeros_like(U)
             W[:, keep] = U[:, keep] / np.sqrt(S[keep])
             self._whiten.append(W)
+        self._regress(X, y)
+
+    def _regress(self, X: FloatArray, y: FloatArray) -> None:
+        """Step 3 (class docstring) on GP input rows ``X``, and the weights in kernel
+        space, ``beta_b = W_b w_b``, so that the mean is ``k_b(x, Z) beta_b`` (``O(M)`` per
+        row and joint instead of the features' ``O(M^2)``)."""
+        from mcpilco.models.gp.blr import BayesianLinearRegression
+
         ym = self.gp_.y_mean_.numpy()
         ys = self.gp_.y_scale_.numpy()
-        self.blr_ = BayesianLinearRegression(pick.size, n)
-        for a in range(0, N, self.chunk):
+        self.blr_ = BayesianLinearRegression(self.inducing_.shape[0], len(self._whiten))
+        for a in range(0, X.shape[0], self.chunk):
             self.blr_.add(self._features(X[a : a + self.chunk]), (y[a : a + self.chunk] - ym) / ys)
         self.blr_.fit(noise_min=self.noise_min)
+        self._beta = np.stack(
+            [W @ w for W, w in zip(self._whiten, self.blr_.weights_, strict=True)]
+        )
+
+    def refit_targets(self, states: Any, y: FloatArray) -> None:
+        """The regression (step 3) refitted on new targets ``y`` at the same kernel
+        hyperparameters and inducing rows (a learned start backfitted on the output minus
+        fitted effects)."""
+        if self.gp_ is None:
+            raise RuntimeError("not fitted")
+        states = as_joint_states(states, self.n_joints_)
+        self._regress(self.gp_inputs(states), np.asarray(y, dtype=np.float64))
 
     def _features(self, X: FloatArray) -> FloatArray:
         """``(n, N, M)`` Nystroem features of GP input rows ``X``."""
@@ -308,15 +326,18 @@ class NystromGIPEstimator(GIPEstimator):
             variances.append(var * ys**2)
         return np.concatenate(means), np.concatenate(variances)
 
-    def predict_mean(self, states: JointStates) -> FloatArray:
-        """``(N, n)`` posterior mean only (no variance products)."""
-        X = self.gp_inputs(states)
+    def predict_mean(self, X: Any) -> FloatArray:
+        """``(N, n)`` posterior mean only at ``X`` (as in :meth:`predict`), ``O(M)`` per row
+        and joint (no variance products)."""
+        if self.gp_ is None:
+            raise RuntimeError(f"{type(self).__name__} is not fitted; call fit(X, y) first")
+        X = self.gp_inputs(as_joint_states(X, self.n_joints_))
         ym = self.gp_.y_mean_.numpy()
         ys = self.gp_.y_scale_.numpy()
-        out = [
-            self.blr_.predict(self._features(X[a : a + self.chunk]))[0] * ys + ym
-            for a in range(0, X.shape[0], self.chunk)
-        ]
+        out = []
+        for a in range(0, X.shape[0], self.chunk):
+            K = self.gp_.prior_covariance(self.inducing_, X[a : a + self.chunk]).numpy()
+            out.append(np.einsum("bmn,bm->nb", K, self._beta) * ys + ym)
         return np.concatenate(out)
 
     @property
