@@ -557,7 +557,7 @@ class GIPStart(LearnedStart):
 
         new = copy.copy(self)
         new.estimator_ = copy.deepcopy(self.estimator_)
-        new.estimator_.refit_targets(JointStates(q, qd, qdd), y)
+        new.estimator_.refit_targets(np.concatenate([q, qd, qdd], axis=1), y)
         new._memo = OrderedDict()
         return new
 
@@ -574,7 +574,7 @@ class GIPStart(LearnedStart):
             self._memo,
             "torque",
             (q, qd, qdd),
-            lambda: self.estimator_.predict_mean(JointStates(q, qd, qdd)),
+            lambda: self.estimator_.predict_mean(np.concatenate([q, qd, qdd], axis=1)),
         )
 
     def noise_variance(self) -> FloatArray:
