@@ -40,7 +40,9 @@ predictions are projected onto the interval the same way (:meth:`DiagnosisModel.
 Training rows: every sample except the first and last ``max_delay_samples`` of each file
 (so that any scanned delay reads states, and the start model's backfit reads outputs,
 inside the same file); with a start kernel, at most ``max_points`` of them, evenly spaced
-in time (the exact GP costs ``O(N^3)``).
+in time (the exact GP costs ``O(N^3)``). A start that learns from every row
+(:attr:`.StartModel.all_rows`: a GIP start with ``inducing``) is fitted, and backfitted, on
+all of them; its kernel still enters the joints' GPs on the ``max_points`` rows.
 """
 
 from __future__ import annotations
