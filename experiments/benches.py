@@ -32,6 +32,7 @@ BENCH_MODULES: tuple[str, ...] = (
     "mcpilco.experiments.kinematics.marker_detection",
     "mcpilco.experiments.diagnosis.bench",
     "mcpilco.experiments.diagnosis.torque_constants",
+    "mcpilco.experiments.diagnosis.learned_start",
     "mcpilco.experiments.infra.overhead",
     "mcpilco.experiments.infra.robustness",
 )

@@ -214,17 +214,24 @@ def draw_effect(kind: str, arm: Any, probe: Any, rng: np.random.Generator, tau_n
 
 
 # ----------------------------------------------------------------------------- one case
-def make_start(kind: str, nominal_xml: str, joint_types: str, iters: int) -> Any:
+def make_start(
+    kind: str, nominal_xml: str, joint_types: str, iters: int, inducing: int | None = None
+) -> Any:
     """The start model of a case: nominal physics from the arm's table (``"nominal"``), or a
-    GIP / RBF GP learned on the training files (the table then only serves the payload)."""
+    GIP / RBF GP learned on the training files (the table then only serves the payload);
+    ``inducing``: a GIP start fitted on every row with that many Nystroem rows
+    (:class:`~mcpilco.models.diagnosis.GIPStart`)."""
     from mcpilco.models.diagnosis import LEARNED_STARTS, NominalStart
 
     if kind == "nominal":
         return NominalStart(nominal_xml)
     if kind not in LEARNED_STARTS:
         raise ValueError(f"start must be nominal or one of {sorted(LEARNED_STARTS)}, got {kind!r}")
+    if inducing is not None and kind != "gip":
+        raise ValueError(f"inducing is a setting of the gip start, not of {kind!r}")
+    extra = {} if inducing is None else {"inducing": inducing}
     return LEARNED_STARTS[kind](
-        joint_types, robot=nominal_xml, adam_iters=iters, lbfgs_iters=max(iters // 3, 1)
+        joint_types, robot=nominal_xml, adam_iters=iters, lbfgs_iters=max(iters // 3, 1), **extra
     )
 
 
@@ -252,6 +259,7 @@ def run_case(
     max_points: int = 600,
     iters: int = 100,
     max_steps: int = 4,
+    inducing: int | None = None,
 ) -> dict[str, Any]:
     """Simulate one case (module docstring), run the loop on it and score it.
 
@@ -265,6 +273,8 @@ def run_case(
         start: ``nominal``, ``gip`` or ``rbf``.
         max_points, iters: GP rows and Adam iterations of a learned start.
         max_steps: most effects the loop adds.
+        inducing: a GIP start fitted on every row with this many Nystroem rows
+            (:func:`make_start`).
 
     Returns:
         the record: the case (arm, noise, effects and their realised size), the loop's
@@ -321,7 +331,9 @@ def run_case(
     t_sim = time.perf_counter() - t0
 
     xml = arm_to_xml(arm, friction=False)
-    model = DiagnosisModel(make_start(start, xml, arm.joint_types, iters), max_points=max_points)
+    model = DiagnosisModel(
+        make_start(start, xml, arm.joint_types, iters, inducing), max_points=max_points
+    )
     model.fit(train)
     versions, diags = auto_improve(model, test, max_steps=max_steps)
     first, last = diags[0], diags[-1]
@@ -358,6 +370,7 @@ def run_case(
         "tau_noise": tau_noise,
         "rows": {"train": int(train.n_samples), "test": int(test.n_samples)},
         "start": start,
+        "inducing": inducing,
         "effects": truth,
         "size_over_noise": (size / tau_noise).round(2).tolist(),
         "ranking": ranking,

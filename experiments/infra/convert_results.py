@@ -36,6 +36,7 @@ LEGACY_KINDS: tuple[tuple[str, str], ...] = (
     ("collision_quasi_static.json", "quasi_static_friction"),
     ("collision.json", "collision"),
     ("compare_*.json", "compare"),
+    ("diagnosis_learned_start.json", "diagnosis_learned_start"),
     ("diagnosis_robot_logs.json", "diagnosis"),
     ("diagnosis_speed.json", "diagnosis_speed"),
     ("mcpilco_cartpole.json", "mcpilco"),

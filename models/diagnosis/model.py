@@ -40,7 +40,9 @@ predictions are projected onto the interval the same way (:meth:`DiagnosisModel.
 Training rows: every sample except the first and last ``max_delay_samples`` of each file
 (so that any scanned delay reads states, and the start model's backfit reads outputs,
 inside the same file); with a start kernel, at most ``max_points`` of them, evenly spaced
-in time (the exact GP costs ``O(N^3)``).
+in time (the exact GP costs ``O(N^3)``). A start that learns from every row
+(:attr:`.StartModel.all_rows`: a GIP start with ``inducing``) is fitted, and backfitted, on
+all of them; its kernel still enters the joints' GPs on the ``max_points`` rows.
 """
 
 from __future__ import annotations
@@ -150,7 +152,9 @@ class DiagnosisModel:
         return f"{self.name}: {self.start.describe()} + {added}"
 
     # ------------------------------------------------------------------ fitting
-    def _training_rows(self, traj: Trajectories) -> NDArray[np.int64]:
+    def _training_rows(self, traj: Trajectories, subset: bool = True) -> NDArray[np.int64]:
+        """Every sample but ``max_delay_samples`` at each end of each file; with a start
+        kernel and ``subset``, at most ``max_points`` of them evenly spaced in time."""
         rows = []
         k = self.max_delay_samples
         for a, b in traj.segments:
@@ -159,7 +163,7 @@ class DiagnosisModel:
             else:  # a file too short to spare both ends: keep its middle sample
                 rows.append(np.array([(a + b) // 2]))
         rows = np.concatenate(rows)
-        if self.start.has_kernel and rows.size > self.max_points:
+        if subset and self.start.has_kernel and rows.size > self.max_points:
             pick = np.unique(np.round(np.linspace(0, rows.size - 1, self.max_points)).astype(int))
             rows = rows[pick]
         return rows
@@ -342,13 +346,12 @@ class DiagnosisModel:
             scale=self.gps_[output].scale,
         )
 
-    def _start_targets(self) -> FloatArray:
-        """``(N, n)`` outputs that the start model sees at the states ``x(rows)``:
-        ``y_j(rows + k_j)`` for a joint delayed by ``k_j`` samples."""
+    def _start_targets(self, rows: NDArray[np.int64] | None = None) -> FloatArray:
+        """``(N, n)`` outputs that the start model sees at the states ``x(rows)`` (default
+        the training rows): ``y_j(rows + k_j)`` for a joint delayed by ``k_j`` samples."""
         traj = self.train_
-        cols = [
-            traj.at(traj.y[:, j], self.rows_, self._delay_samples(j)) for j in range(self.n_joints)
-        ]
+        rows = self.rows_ if rows is None else rows
+        cols = [traj.at(traj.y[:, j], rows, self._delay_samples(j)) for j in range(self.n_joints)]
         return np.stack(cols, axis=1)
 
     def blocks(self, ctx: FeatureContext, output: int) -> list[FloatArray]:
@@ -408,10 +411,13 @@ class DiagnosisModel:
         self.rest_ = at_rest(traj)  # (N, n) rows where a joint is at rest
         # set-valued dry-friction torque of the rows at rest, taken off the targets
         self.stick_ = np.zeros((self.rows_.size, self.n_joints))
-        q, qd, qdd = traj.q[self.rows_], traj.qd[self.rows_], traj.qdd[self.rows_]
+        # a start that learns from every row (LearnedStart.all_rows) reads them all; its
+        # kernel K_0 still enters the joints' GPs on the training rows
+        start_rows = self._training_rows(traj, subset=False) if self.start.all_rows else self.rows_
+        q, qd, qdd = traj.q[start_rows], traj.qd[start_rows], traj.qdd[start_rows]
         fitted = getattr(self.start, "estimator_", True) is not None
         if refit_start or (refit_start is None and not fitted):
-            self.start.fit(q, qd, qdd, self._start_targets())
+            self.start.fit(q, qd, qdd, self._start_targets(start_rows))
             _parent = None
         self.ctx_ = self._shifted(0)[0]
         dt = traj.sample_time
@@ -446,8 +452,9 @@ class DiagnosisModel:
         if backfit and isinstance(self.start, LearnedStart) and self.effects:
             # backfitting: the learned start model refitted on the output minus the effects,
             # both at the states x(rows) it reads
-            y_adj = self._start_targets() - np.stack(
-                [self._effect_part(j, self.ctx_) for j in range(self.n_joints)], axis=1
+            ctx = self.ctx_ if start_rows is self.rows_ else self.context(traj, start_rows)
+            y_adj = self._start_targets(start_rows) - np.stack(
+                [self._effect_part(j, ctx) for j in range(self.n_joints)], axis=1
             )
             self.start = self.start.refit(q, qd, qdd, y_adj)
             return self.fit(traj, refit_start=False, _warm=dict(enumerate(self.theta_)))
@@ -838,6 +845,11 @@ class DiagnosisModel:
                 converge_nats=start_spec.get("converge_nats", 0.5),
                 max_rounds=start_spec.get("max_rounds", 10),
                 hyper_points=start_spec.get("hyper_points"),
+                **(
+                    {"inducing": start_spec["inducing"]}
+                    if start_spec.get("inducing") is not None
+                    else {}
+                ),
             )
         else:
             raise ValueError(f"unknown start model kind {start_spec['kind']!r}")

@@ -35,6 +35,7 @@ from mcpilco.models.inverse_dynamics import (
     GIPEstimator,
     GPInverseDynamics,
     JointStates,
+    NystromGIPEstimator,
     RBFEstimator,
     load_pinocchio_model,
 )
@@ -88,6 +89,9 @@ def check_robot_text(text: str, source: str) -> None:
         )
 
 
+ALL_ROWS_HYPER_POINTS = 600
+"""Rows of the exact hyperparameter fit of a GIP start fitted on every row
+(:class:`GIPStart` with ``inducing``)."""
 HYPER_POINTS = 200
 """Training rows on which a learned start fits its kernel's hyperparameters (of the 600 it
 is conditioned on by default; :class:`LearnedStart`)."""
@@ -217,6 +221,7 @@ class StartModel:
 
     kind = "start"
     torque_is_prior_mean: bool = False  # tau_hat = m (physics); a learned start's differ
+    all_rows: bool = False  # fit() reads every training row, not the kernel's subset
     joint_types: str = ""
     n_joints: int = 0
     robot: _Robot | None = None
@@ -486,17 +491,100 @@ class LearnedStart(StartModel):
 
 class GIPStart(LearnedStart):
     """A GIP GP (thesis eq. 3.8/3.11): ``K_0`` = the GIP kernel of the joint types
-    (:class:`~mcpilco.models.inverse_dynamics.GIPEstimator`); see :class:`LearnedStart`."""
+    (:class:`~mcpilco.models.inverse_dynamics.GIPEstimator`); see :class:`LearnedStart`.
+
+    Every row (``inducing`` given): the start is fitted on every training row, not on the
+    diagnosis GP's ``max_points`` (:attr:`all_rows`):
+    :class:`~mcpilco.models.inverse_dynamics.NystromGIPEstimator` fits the GIP kernel's
+    hyperparameters exactly on ``hyper_points`` random rows, then a Bayesian linear
+    regression over ``inducing`` Nystroem features of that kernel on all rows
+    (``O(N M^2)``). Its posterior mean is the prior mean ``m_j``; ``K_0`` (same kernel) then
+    models what the mean leaves on the diagnosis GP's rows (its scale ``alpha`` refitted per
+    joint), and backfitting refits the regression on ``y`` minus the effects at the same
+    hyperparameters. A subset of a few hundred rows leaves the GIP's large feature space
+    under-determined (7 joints: about ``5^7 x 36`` monomials); all rows bring the start to
+    the noise floor where the subset does not (``mcpilco.experiments.diagnosis.learned_start``).
+
+    Args:
+        inducing: Nystroem rows ``M`` (``None``: the exact GP on the training rows).
+        hyper_points: with ``inducing``, rows of the exact hyperparameter fit (default
+            :data:`ALL_ROWS_HYPER_POINTS`); otherwise as in :class:`LearnedStart`.
+        **kwargs: as in :class:`LearnedStart`.
+    """
 
     kind = "gip"
 
+    def __init__(
+        self,
+        joint_types: str,
+        robot: str | Path | None = None,
+        *,
+        inducing: int | None = None,
+        hyper_points: int | None = HYPER_POINTS,
+        **kwargs: Any,
+    ) -> None:
+        if inducing is not None and inducing < 1:
+            raise ValueError(f"inducing must be >= 1 or None, got {inducing}")
+        if inducing is not None and hyper_points == HYPER_POINTS:
+            hyper_points = ALL_ROWS_HYPER_POINTS
+        super().__init__(joint_types, robot, hyper_points=hyper_points, **kwargs)
+        self.inducing = inducing
+        self.all_rows = inducing is not None
+
     def make_estimator(self) -> GPInverseDynamics:
-        return GIPEstimator(
-            self.joint_types,
-            adam_iters=self.adam_iters,
-            lbfgs_iters=self.lbfgs_iters,
-            hyper_points=self.hyper_points,
+        opt = dict(adam_iters=self.adam_iters, lbfgs_iters=self.lbfgs_iters)
+        if self.inducing is not None:
+            return NystromGIPEstimator(
+                self.joint_types, inducing=self.inducing, hyper_points=self.hyper_points, **opt
+            )
+        return GIPEstimator(self.joint_types, hyper_points=self.hyper_points, **opt)
+
+    def fit(self, q: FloatArray, qd: FloatArray, qdd: FloatArray, y: FloatArray) -> None:
+        if not self.all_rows:
+            return super().fit(q, qd, qdd, y)
+        est = self.make_estimator()
+        est.fit(np.concatenate([q, qd, qdd], axis=1), y)
+        self.estimator_ = est
+        self.rounds_ = 0
+        self._memo = OrderedDict()
+
+    def refit(self, q: FloatArray, qd: FloatArray, qdd: FloatArray, y: FloatArray) -> GIPStart:
+        """Every-row start: a copy whose regression is refitted on ``y`` (the output minus
+        the fitted effects) at the same kernel hyperparameters; else
+        :meth:`LearnedStart.refit`."""
+        if not self.all_rows:
+            return super().refit(q, qd, qdd, y)
+        import copy
+
+        new = copy.copy(self)
+        new.estimator_ = copy.deepcopy(self.estimator_)
+        new.estimator_.refit_targets(np.concatenate([q, qd, qdd], axis=1), y)
+        new._memo = OrderedDict()
+        return new
+
+    def prior_mean(self, q: FloatArray, qd: FloatArray, qdd: FloatArray) -> FloatArray:
+        if not self.all_rows:
+            return super().prior_mean(q, qd, qdd)
+        return self.torque(q, qd, qdd)
+
+    def torque(self, q: FloatArray, qd: FloatArray, qdd: FloatArray) -> FloatArray:
+        if not self.all_rows:
+            return super().torque(q, qd, qdd)
+        self._gp()
+        return _memo(
+            self._memo,
+            "torque",
+            (q, qd, qdd),
+            lambda: self.estimator_.predict_mean(np.concatenate([q, qd, qdd], axis=1)),
         )
+
+    def noise_variance(self) -> FloatArray:
+        if not self.all_rows:
+            return super().noise_variance()
+        return self.estimator_.noise_variance_
+
+    def spec(self) -> dict[str, Any]:
+        return {**super().spec(), "inducing": self.inducing}
 
     def spans(self, effect: Any) -> bool:
         """:meth:`Effect.in_gip_span` of the joint types (the GIP feature space is finite

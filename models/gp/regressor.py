@@ -602,6 +602,18 @@ class GPRegressor:
             k = dense_diag(self.model_.covar_module, x.expand(m, *x.shape))
         return k.expand(m, x.shape[0]).T * self.y_scale_**2
 
+    def prior_covariance(self, X1: np.ndarray | Tensor, X2: np.ndarray | Tensor) -> Tensor:
+        """``(m, N1, N2)`` prior covariance :math:`k_b(x, x')` of every output in standardised
+        output units (times ``y_scale_**2`` for the original units), dense."""
+        self._check_fitted()
+        x1 = self._standardize_x(self._as_inputs(X1))
+        x2 = self._standardize_x(self._as_inputs(X2))
+        m = self.output_dim
+        with torch.no_grad():
+            return dense_covar(
+                self.model_.covar_module, x1.expand(m, *x1.shape), x2.expand(m, *x2.shape)
+            )
+
     # ------------------------------------------------------------------ persistence
     def save(self, path: str | os.PathLike) -> None:
         """Write hyperparameters (state_dict), training data and constants to ``path``

@@ -10,6 +10,7 @@ estimator                          model
 =================================  =========================================================
 :class:`GIPEstimator`              GP, GIP kernel on ``F(q, qd, qdd)`` (eq. 3.8, 3.11)
 :class:`GIPFrictionEstimator`      GIP + linear kernel on the joint's ``[qd, sign qd]``
+:class:`NystromGIPEstimator`       GIP on every row: Nystroem features, Bayesian linear reg.
 :class:`RBFEstimator`              GP, RBF-ARD kernel on ``[q, qd, qdd]``
 :class:`NNEstimator`               MLP 2 x 400, Adam, early stopping
 :class:`FisherianEstimator`        least squares on the nominal regressor (FE, eq. 3.2)
@@ -27,6 +28,7 @@ from mcpilco.models.inverse_dynamics.gp_estimators import (
     GIPEstimator,
     GIPFrictionEstimator,
     GPInverseDynamics,
+    NystromGIPEstimator,
     PPEstimator,
     RBFEstimator,
     SPEstimator,
@@ -56,6 +58,7 @@ __all__ = [
     "FisherianEstimator",
     "GIPEstimator",
     "GIPFrictionEstimator",
+    "NystromGIPEstimator",
     "GPInverseDynamics",
     "InverseDynamicsEstimator",
     "JointStates",

@@ -36,7 +36,7 @@ from numpy.typing import NDArray
 
 from mcpilco.models.gp import GPRegressor
 from mcpilco.models.inverse_dynamics.base import InverseDynamicsEstimator
-from mcpilco.models.inverse_dynamics.inputs import JointStates, input_names
+from mcpilco.models.inverse_dynamics.inputs import JointStates, as_joint_states, input_names
 from mcpilco.models.inverse_dynamics.kernels import RowLinearKernel
 from mcpilco.models.inverse_dynamics.rigid_body import RigidBodyFeatures
 from mcpilco.models.kernels import GIPKernel, check_joint_types, gip_feature_names, gip_features
@@ -47,6 +47,7 @@ __all__ = [
     "GIPEstimator",
     "GIPFrictionEstimator",
     "GPInverseDynamics",
+    "NystromGIPEstimator",
     "PPEstimator",
     "RBFEstimator",
     "SPEstimator",
@@ -196,6 +197,153 @@ class GIPEstimator(GPInverseDynamics):
 
     def kernel(self, batch_shape: torch.Size, n_joints: int) -> gpytorch.kernels.Kernel:
         return GIPKernel(self.joint_types, batch_shape=batch_shape)
+
+
+INDUCING_TOLERANCE = 1e-9
+"""Eigenvalues of ``K_ZZ`` below this fraction of its largest are dropped from the Nystroem
+features (the GIP kernel has finite rank; its null directions carry no function)."""
+
+
+class NystromGIPEstimator(GIPEstimator):
+    r"""The GIP estimator on every row: exact hyperparameters on a subset, then Bayesian
+    linear regression over Nystroem features of the fitted kernel.
+
+    1. The GIP GP's hyperparameters (thesis eq. 3.11) are fitted by marginal likelihood on
+       ``hyper_points`` rows (seeded random subset; :class:`GIPEstimator`).
+    2. ``M = inducing`` rows ``Z`` evenly spaced over the data give, per joint ``b``, the
+       features :math:`\phi_b(x) = S^{-1/2} U^\top k_b(Z, x)` with
+       :math:`k_b(Z, Z) = U S U^\top` (eigenvalues above :data:`INDUCING_TOLERANCE` times
+       the largest), so that :math:`\phi_b(x)^\top \phi_b(x') = k_b(x, Z) k_b(Z, Z)^{+}
+       k_b(Z, x')`: the fitted GIP kernel restricted to the span of ``Z``, exact once
+       ``M`` reaches the kernel's finite rank.
+    3. :class:`~mcpilco.models.gp.blr.BayesianLinearRegression` on **all** rows (standardised
+       targets): the kernel's scale and the noise per joint by type-II ML, the posterior in
+       weight space, ``O(N M^2)`` time and ``O(M^2)`` memory per joint.
+
+    Args:
+        joint_types: e.g. ``"RRPR"``.
+        inducing: ``M``.
+        hyper_points: rows of the exact hyperparameter fit (``None``: all, ``O(N^3)``).
+        chunk: rows per feature chunk.
+        **kwargs: as in :class:`GIPEstimator` (``max_points`` is not used).
+
+    Fitted attributes: ``gp_`` (the exact GP of step 1, conditioned on its subset),
+    ``blr_``, ``inducing_`` (``Z``), ``hyper_rows_``.
+    """
+
+    name = "GIP-Nystroem"
+
+    def __init__(
+        self,
+        joint_types: str,
+        *,
+        inducing: int = 1500,
+        hyper_points: int | None = 600,
+        chunk: int = 4000,
+        **kwargs: Any,
+    ) -> None:
+        if inducing < 1 or chunk < 1:
+            raise ValueError(f"inducing and chunk must be >= 1, got {inducing}, {chunk}")
+        self.inducing = int(inducing)
+        self.chunk = int(chunk)
+        super().__init__(joint_types, hyper_points=hyper_points, **kwargs)
+
+    def _fit(self, states: JointStates, y: FloatArray) -> None:
+        n = states.n_joints
+        X = self.gp_inputs(states)
+        N = X.shape[0]
+        self.gp_ = GPRegressor(
+            lambda batch: self.kernel(batch, n),
+            standardize_x=self.standardize_x,
+            noise_init=self.noise_init,
+            noise_min=self.noise_min,
+            input_names=self.gp_input_names(n),
+            output_names=[f"tau{j}" for j in range(1, n + 1)],
+        )
+        rows = np.arange(N)
+        if self.hyper_points is not None and N > self.hyper_points:
+            rng = np.random.default_rng(self.seed)
+            rows = np.sort(rng.choice(N, self.hyper_points, replace=False))
+        self.hyper_rows_ = rows
+        self.gp_.fit(
+            X[rows],
+            y[rows],
+            adam_iters=self.adam_iters,
+            adam_lr=self.adam_lr,
+            lbfgs_iters=self.lbfgs_iters,
+            progress=self.progress,
+        )
+        pick = np.unique(np.round(np.linspace(0, N - 1, min(self.inducing, N))).astype(int))
+        self.inducing_ = X[pick]
+        Kzz = self.gp_.prior_covariance(self.inducing_, self.inducing_).numpy()
+        self._whiten = []
+        for b in range(n):
+            S, U = np.linalg.eigh(0.5 * (Kzz[b] + Kzz[b].T))
+            keep = S > INDUCING_TOLERANCE * max(float(S[-1]), 1e-300)
+            W = np.zeros_like(U)
+            W[:, keep] = U[:, keep] / np.sqrt(S[keep])
+            self._whiten.append(W)
+        self._regress(X, y)
+
+    def _regress(self, X: FloatArray, y: FloatArray) -> None:
+        """Step 3 (class docstring) on GP input rows ``X``, and the weights in kernel
+        space, ``beta_b = W_b w_b``, so that the mean is ``k_b(x, Z) beta_b`` (``O(M)`` per
+        row and joint instead of the features' ``O(M^2)``)."""
+        from mcpilco.models.gp.blr import BayesianLinearRegression
+
+        ym = self.gp_.y_mean_.numpy()
+        ys = self.gp_.y_scale_.numpy()
+        self.blr_ = BayesianLinearRegression(self.inducing_.shape[0], len(self._whiten))
+        for a in range(0, X.shape[0], self.chunk):
+            self.blr_.add(self._features(X[a : a + self.chunk]), (y[a : a + self.chunk] - ym) / ys)
+        self.blr_.fit(noise_min=self.noise_min)
+        self._beta = np.stack(
+            [W @ w for W, w in zip(self._whiten, self.blr_.weights_, strict=True)]
+        )
+
+    def refit_targets(self, states: Any, y: FloatArray) -> None:
+        """The regression (step 3) refitted on new targets ``y`` at the same kernel
+        hyperparameters and inducing rows (a learned start backfitted on the output minus
+        fitted effects)."""
+        if self.gp_ is None:
+            raise RuntimeError("not fitted")
+        states = as_joint_states(states, self.n_joints_)
+        self._regress(self.gp_inputs(states), np.asarray(y, dtype=np.float64))
+
+    def _features(self, X: FloatArray) -> FloatArray:
+        """``(n, N, M)`` Nystroem features of GP input rows ``X``."""
+        K = self.gp_.prior_covariance(self.inducing_, X).numpy()
+        return np.stack([K[b].T @ W for b, W in enumerate(self._whiten)])
+
+    def _predict(self, states: JointStates) -> tuple[FloatArray, FloatArray]:
+        X = self.gp_inputs(states)
+        ym = self.gp_.y_mean_.numpy()
+        ys = self.gp_.y_scale_.numpy()
+        means, variances = [], []
+        for a in range(0, X.shape[0], self.chunk):
+            mean, var = self.blr_.predict(self._features(X[a : a + self.chunk]), with_var=True)
+            means.append(mean * ys + ym)
+            variances.append(var * ys**2)
+        return np.concatenate(means), np.concatenate(variances)
+
+    def predict_mean(self, X: Any) -> FloatArray:
+        """``(N, n)`` posterior mean only at ``X`` (as in :meth:`predict`), ``O(M)`` per row
+        and joint (no variance products)."""
+        if self.gp_ is None:
+            raise RuntimeError(f"{type(self).__name__} is not fitted; call fit(X, y) first")
+        X = self.gp_inputs(as_joint_states(X, self.n_joints_))
+        ym = self.gp_.y_mean_.numpy()
+        ys = self.gp_.y_scale_.numpy()
+        out = []
+        for a in range(0, X.shape[0], self.chunk):
+            K = self.gp_.prior_covariance(self.inducing_, X[a : a + self.chunk]).numpy()
+            out.append(np.einsum("bmn,bm->nb", K, self._beta) * ys + ym)
+        return np.concatenate(out)
+
+    @property
+    def noise_variance_(self) -> FloatArray:
+        """``(n,)`` noise variance of each joint fitted on all rows (units of ``y`` squared)."""
+        return self.blr_.noise_variance * self.gp_.y_scale_.numpy() ** 2
 
 
 class GIPFrictionEstimator(GIPEstimator):

@@ -116,3 +116,39 @@ def test_hyperparameters_on_a_subset_then_the_posterior_of_every_row():
     assert GIPStart("RR").hyper_points == 200
     with pytest.raises(ValueError, match="hyper_points"):
         GIPStart("RR", hyper_points=1)
+
+
+def test_gip_start_on_every_row_reads_them_all_and_backfits_its_regression():
+    """``inducing``: the diagnosis model hands the start every training row (not its
+    ``max_points``), the start's prior mean is its regression's posterior mean (so the
+    residual target the joints' GPs see is what the start leaves), the spec keeps the
+    setting, and a refit on other targets keeps the kernel and moves the mean."""
+    from mcpilco.models.diagnosis import as_trajectories
+    from mcpilco.models.robot_data import make_dataset
+
+    q, qd, qdd, y = _planar_data(400, 3)
+    t = np.arange(400) * 0.01
+    data = as_trajectories(make_dataset({"t": t, "q": q, "qd": qd, "qdd": qdd, "tau": y}))
+    start = GIPStart("RR", adam_iters=5, lbfgs_iters=2, inducing=120, hyper_points=40)
+    model = DiagnosisModel(start, max_points=50, max_delay_samples=2).fit(data)
+    assert model.rows_.size == 50
+    assert start.estimator_.blr_.n == 400 - 2 * 2  # every training row
+    states = (model.train_.q, model.train_.qd, model.train_.qdd)
+    rows = model.rows_
+    np.testing.assert_allclose(
+        model.target(0), model.train_.y[rows, 0] - start.torque(*states)[rows, 0]
+    )
+    again = DiagnosisModel.from_spec(model.spec())
+    assert again.start.inducing == 120 and again.start.all_rows
+    # new targets (another function in the GIP span): the refit follows them, the kernel
+    # hyperparameters stay those of the first fit
+    other = np.stack([2.0 * np.cos(q[:, 0]) + qdd[:, 1], np.sin(q[:, 1]) * qd[:, 0] ** 2], 1)
+    moved = start.refit(q, qd, qdd, other)
+    assert np.sqrt(np.mean((moved.torque(q, qd, qdd) - other) ** 2)) < 0.05
+    np.testing.assert_allclose(
+        moved.kernel((q, qd, qdd), (q[:5], qd[:5], qdd[:5])),
+        start.kernel((q, qd, qdd), (q[:5], qd[:5], qdd[:5])),
+    )
+    assert moved.estimator_.gp_ is not start.estimator_.gp_
+    with pytest.raises(ValueError, match="inducing"):
+        GIPStart("RR", inducing=0)

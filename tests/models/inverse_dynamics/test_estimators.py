@@ -140,3 +140,31 @@ def test_metrics_match_hand_computation() -> None:
     assert gmse(y, p) == pytest.approx(0.5 + 0.5)
     with pytest.raises(ValueError, match="shapes differ"):
         nmse(y, p[:1])
+
+
+def test_nystrom_gip_uses_every_row() -> None:
+    """Hyperparameters on 60 rows, the regression on all 1500: the error against the closed
+    form falls to about ``sigma sqrt(F / N)`` (F = 150 GIP monomials of an RR arm), well
+    below the exact GP conditioned on the 60 rows alone."""
+    from mcpilco.models.inverse_dynamics import NystromGIPEstimator
+
+    rng = np.random.default_rng(7)
+    sigma = 0.05
+    X = random_states(1500, 8)
+    y = two_link_torque(X[:, :2], X[:, 2:4], X[:, 4:]) + sigma * rng.standard_normal((1500, 2))
+    Xt = random_states(300, 9)
+    yt = two_link_torque(Xt[:, :2], Xt[:, 2:4], Xt[:, 4:])
+    nys = NystromGIPEstimator("RR", inducing=300, hyper_points=60, **FAST).fit(X, y)
+    mean, var = nys.predict(Xt)
+    rmse = np.sqrt(np.mean((mean - yt) ** 2, axis=0))
+    assert np.all(rmse < 0.5 * sigma), rmse
+    assert np.all(var >= 0) and var.shape == yt.shape
+    np.testing.assert_allclose(nys.predict_mean(Xt), mean, rtol=1e-6, atol=1e-9)
+    assert np.sqrt(nys.noise_variance_) == pytest.approx([sigma, sigma], rel=0.15)
+    rows = nys.hyper_rows_
+    sub = GIPEstimator("RR", **FAST).fit(X[rows], y[rows])
+    rmse_sub = np.sqrt(np.mean((sub.predict(Xt)[0] - yt) ** 2, axis=0))
+    assert np.all(rmse < 0.5 * rmse_sub), (rmse, rmse_sub)
+    # the regression refitted on other targets at the same hyperparameters
+    nys.refit_targets(X, 2.0 * y)
+    np.testing.assert_allclose(nys.predict_mean(Xt), 2.0 * mean, rtol=0.05, atol=0.05)
