@@ -869,7 +869,7 @@ RESULT_LAYOUTS = (
         "mcpilco",
         config=("note", "reference_steps_note"),
         cases=("runs", "rmse_runs"),
-        seeds=lambda p: [s for sec in p.get("runs", {}).values() for s in sec["seeds"]],
+        seeds=lambda p: [s for sec in p.get("runs", {}).values() for s in sec.get("seeds", ())],
     ),
 )
 """The layout of ``mcpilco_cartpole.json`` (:mod:`mcpilco.experiments.results`)."""

@@ -784,10 +784,13 @@ def compare(
 
 RESULT_LAYOUTS = (
     ResultLayout(
-        "compare", config=("env_id", "tag", "note", "settings"), cases=("curves",),
-        failures=("failed",), seeds=lambda p: [c["seed"] for c in p.get("curves", [])],
+        "compare",
+        config=("env_id", "tag", "note", "settings"),
+        cases=("curves",),
+        failures=("failed",),
+        seeds=lambda p: [c["seed"] for c in p.get("curves", []) if "seed" in c],
     ),
-)  # fmt: skip
+)
 """The layout of ``compare_<env>[_<tag>].json`` (:mod:`mcpilco.experiments.results`)."""
 
 

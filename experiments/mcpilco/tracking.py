@@ -703,7 +703,7 @@ RESULT_LAYOUTS = (
     ResultLayout(
         "mcpilco_tracking",
         cases=("runs",),
-        seeds=lambda p: [s for sec in p.get("runs", {}).values() for s in sec["seeds"]],
+        seeds=lambda p: [s for sec in p.get("runs", {}).values() for s in sec.get("seeds", ())],
     ),
 )
 """The layout of ``mcpilco_tracking.json`` (:mod:`mcpilco.experiments.results`)."""
