@@ -67,7 +67,8 @@ THREATS: dict[str, str] = {
 OUTCOMES = ("refused", "hole", "hang", "traceback", "silent wrong answer", "unclear error")
 """How the package answered a hostile input (module docstring); ``refused`` is wanted."""
 CASE_LIMIT_S = 60.0  # seconds a case may run before it counts as a hang
-EXAMPLE = Path(__file__).resolve().parents[2] / "models/diagnosis/examples/scara_coulomb2"
+ROOT = Path(__file__).resolve().parents[2]  # the package's source tree (named <package>)
+EXAMPLE = ROOT / "models/diagnosis/examples/scara_coulomb2"
 VICTIM_TEXT = "precious data of someone else\n"  # content of outside/victim.txt
 ENV = "mcpilco/CartpoleSwingUp-v0"  # env of the training cases
 SMALL_RUN = [
@@ -1303,10 +1304,10 @@ def run_case(
     limit_s: float = CASE_LIMIT_S,
     main: Callable[..., Any] | None = None,
 ) -> dict[str, Any]:
-    """Run ``case`` in ``folder`` (created; ``work/`` for its files, ``outside/`` with the
+    """Run ``case`` in ``folder`` (created; ``input/`` for its files, ``outside/`` with the
     victim file) with ``main`` (default: the ``main`` of the console script ``case.entry``);
     its ``outcome`` (:data:`OUTCOMES`), ``message`` (the last stderr line) and ``seconds``."""
-    work, outside = folder / "work", folder / "outside"
+    work, outside = folder / "input", folder / "outside"
     work.mkdir(parents=True)
     outside.mkdir()
     (outside / "victim.txt").write_text(VICTIM_TEXT)
@@ -1353,6 +1354,6 @@ def run_case(
         "entry": case.entry,
         "input": case.name,
         "outcome": outcome,
-        "message": message.replace(str(folder), "<folder>")[:300],
+        "message": message.replace(str(folder), "<folder>").replace(str(ROOT), "<package>")[:300],
         "seconds": round(seconds, 2),
     }

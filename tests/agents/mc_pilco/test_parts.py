@@ -384,7 +384,7 @@ def test_optimizer_keeps_snapshots_of_the_parameters_it_had_after_those_steps():
     assert any(not torch.equal(v, w) for v, w in zip(first, last, strict=True))
     only_final = optimize_policy(StalledLoss(pol), pol, PolicyOptConfig(max_steps=3))
     assert [step for step, _ in only_final.snapshots] == [3]
-    with pytest.raises(ValueError, match=r"snapshot_every must be an integer in \[0, "):
+    with pytest.raises(ValueError, match="snapshot_every must be an integer"):
         PolicyOptConfig(snapshot_every=-1)
 
 

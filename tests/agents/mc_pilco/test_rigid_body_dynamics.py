@@ -382,8 +382,7 @@ def test_tracking_success_bounds_the_rms_of_each_tracked_joint():
     assert not strict.is_success(states, {}, task.horizon)
     with pytest.raises(TaskSpecError, match=r"task\.success\.tracking_rms\.qd1: needs a state"):
         TaskSpec.from_dict(dict(spec, success={"tracking_rms": {"qd1": 0.1}}))
-    bound = r"task\.success\.tracking_rms\.q1 must be a finite number in \(0, "
-    with pytest.raises(TaskSpecError, match=bound):
+    with pytest.raises(TaskSpecError, match=r"tracking_rms\.q1 must be a finite number"):
         TaskSpec.from_dict(dict(spec, success={"tracking_rms": {"q1": -1}}))
 
 
