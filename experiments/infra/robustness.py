@@ -43,6 +43,7 @@ import pandas as pd
 
 from mcpilco.experiments import results as result_files
 from mcpilco.experiments.results import Headline, Result, ResultLayout
+from mcpilco.models.files import write_atomic
 
 __all__ = [
     "OUTCOMES",
@@ -506,7 +507,7 @@ def write_result(result: dict[str, Any], out_dir: Path) -> tuple[Path, Path]:
     out_dir.mkdir(parents=True, exist_ok=True)
     json_path, md_path = out_dir / "robustness.json", out_dir / "robustness.md"
     result_files.write_result(json_path, RESULT_LAYOUTS[0], result)
-    md_path.write_text(markdown(result))
+    write_atomic(md_path, markdown(result))
     return json_path, md_path
 
 
@@ -521,7 +522,7 @@ def outcome_lines(result: dict[str, Any]) -> list[str]:
 
 # -- result file and headline rows of the results index -----------------------------------
 
-RESULT_LAYOUTS = (ResultLayout("robustness", cases=("cases", "fuzz", "kills")),)
+RESULT_LAYOUTS = (ResultLayout("robustness", cases=("cases", "fuzz", "kills", "hostile")),)
 """The layout of ``robustness.json`` (:mod:`mcpilco.experiments.results`)."""
 
 
@@ -530,10 +531,15 @@ def _robustness_row(r: Result) -> str:
     fuzz = sum(f["inputs"] for f in r["fuzz"])
     crash = outcomes.count("crash") + sum(f.get("crash", 0) for f in r["fuzz"])
     silent = outcomes.count("silent wrong") + sum(f.get("silent wrong", 0) for f in r["fuzz"])
-    return (
+    text = (
         f"{len(outcomes)} bad inputs to the console scripts and {fuzz} fuzzed inputs: "
         f"{crash} crashes, {silent} silent wrong answers"
     )
+    hostile = r.payload().get("hostile") or []
+    if hostile:
+        refused = sum(c["outcome"] == "refused" for c in hostile)
+        text += f"; {refused} of {len(hostile)} hostile inputs refused with one line"
+    return text
 
 
 HEADLINES = (
