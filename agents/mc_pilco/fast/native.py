@@ -50,12 +50,15 @@ points, ``F`` MPK features, ``m`` outputs, ``d`` GP inputs).
 
 from __future__ import annotations
 
+import contextlib
+import fcntl
 import hashlib
 import os
 import platform
 import shutil
 import subprocess
 import threading
+from collections.abc import Iterator
 from pathlib import Path
 from types import ModuleType
 from typing import Any
@@ -142,6 +145,29 @@ def _ninja_dir() -> str | None:
     return getattr(ninja, "BIN_DIR", None)
 
 
+BUILD_LOCK_NAME = "mcpilco_build.lock"  # the flock every process builds under
+TORCH_LOCK_NAME = "lock"  # the lock file torch.utils.cpp_extension leaves in a build folder
+
+
+@contextlib.contextmanager
+def build_lock(build: Path) -> Iterator[None]:
+    """Hold an exclusive ``fcntl.flock`` on ``build/mcpilco_build.lock`` while the extension
+    is built or loaded.
+
+    PyTorch's own build lock is a file that exists while a process builds; a process killed
+    during the build leaves it behind and every later build waits on it for ever. An flock is
+    released by the kernel when its holder dies, so under it the only process that can hold
+    PyTorch's lock is this one: a lock file found there was left by a killed build and is
+    removed before the build starts."""
+    fd = os.open(build / BUILD_LOCK_NAME, os.O_RDWR | os.O_CREAT | os.O_NOFOLLOW, 0o644)
+    try:
+        fcntl.flock(fd, fcntl.LOCK_EX)
+        (build / TORCH_LOCK_NAME).unlink(missing_ok=True)
+        yield
+    finally:
+        os.close(fd)  # releases the flock
+
+
 def load_library() -> ModuleType:
     """The compiled rollout extension, built on first use (see the module docstring).
 
@@ -168,13 +194,14 @@ def load_library() -> ModuleType:
             os.environ["CXX"] = cxx  # the compiler cpp_extension runs
             if shutil.which("ninja") is None:  # the ninja package's binary, off PATH
                 os.environ["PATH"] = os.pathsep.join(filter(None, (_ninja_dir(), before["PATH"])))
-            lib = cpp_extension.load(
-                name,
-                [str(p) for p in SOURCES],
-                extra_cflags=list(CXX_FLAGS),
-                build_directory=str(build),
-                verbose=False,
-            )
+            with build_lock(build):
+                lib = cpp_extension.load(
+                    name,
+                    [str(p) for p in SOURCES],
+                    extra_cflags=list(CXX_FLAGS),
+                    build_directory=str(build),
+                    verbose=False,
+                )
         except (OSError, ImportError) as err:  # unwritable cache, unloadable module
             _LIB_ERROR = f"{type(err).__name__}: {err}"
             raise RuntimeError(_LIB_ERROR) from err

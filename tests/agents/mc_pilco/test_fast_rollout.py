@@ -655,3 +655,29 @@ def test_native_library_builds_once_and_its_failures_are_clear_errors(tmp_path, 
     with pytest.raises(RuntimeError, match="NotADirectoryError|FileExistsError"):
         nr.load_library()
     assert nr.build_error() is not None
+
+
+def test_build_lock_removes_a_killed_builds_lock_and_excludes_other_processes(tmp_path):
+    """A ``lock`` file left by a build that was killed (PyTorch's baton) is removed under the
+    flock, and while one process holds the flock another cannot take it (it would wait)."""
+    import fcntl
+    import os
+    import subprocess
+    import sys
+
+    from mcpilco.agents.mc_pilco.fast.native import BUILD_LOCK_NAME, TORCH_LOCK_NAME, build_lock
+
+    (tmp_path / TORCH_LOCK_NAME).write_text("")  # what a killed build leaves
+    probe = (
+        "import fcntl, os, sys; fd = os.open(sys.argv[1], os.O_RDWR)\n"
+        "try:\n    fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)\nexcept BlockingIOError:\n"
+        "    sys.exit(3)\nsys.exit(0)"
+    )
+    lock = str(tmp_path / BUILD_LOCK_NAME)
+    with build_lock(tmp_path):
+        assert not (tmp_path / TORCH_LOCK_NAME).exists()
+        assert subprocess.run([sys.executable, "-c", probe, lock]).returncode == 3
+    assert subprocess.run([sys.executable, "-c", probe, lock]).returncode == 0
+    fd = os.open(lock, os.O_RDWR)  # released: this process can take it at once
+    fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+    os.close(fd)
