@@ -127,10 +127,8 @@ def test_sigkill_after_a_trial_loses_no_finished_trial(tmp_path):
 
 
 def test_save_checkpoint_writes_what_load_checkpoint_checks(tmp_path):
-    from mcpilco.agents.common.checkpoint import save_checkpoint
+    from mcpilco.agents.common.checkpoint import rng_state, save_checkpoint
     from mcpilco.agents.mc_pilco import MCPilcoConfig
-
-    from mcpilco.agents.common.checkpoint import rng_state
 
     cfg = MCPilcoConfig(seed=4)
     records = [{"index": k, "kind": "policy" if k else "exploration"} for k in range(3)]
