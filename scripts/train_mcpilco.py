@@ -27,7 +27,7 @@ from pathlib import Path
 
 from mcpilco.agents.common.cli import console_main
 from mcpilco.agents.mc_pilco import DEFAULT_ENV_ID
-from mcpilco.agents.mc_pilco.cli import check_config, config_from_options, train
+from mcpilco.agents.mc_pilco.cli import budget_report, check_config, config_from_options, train
 from mcpilco.agents.mc_pilco.config import ROLLOUT_DTYPES
 from mcpilco.agents.mc_pilco.dynamics import KERNEL_CHOICES
 
@@ -164,6 +164,7 @@ def main(argv: list[str] | None = None) -> int:
             opt_steps=args.opt_steps,
         )
         check_config(config)
+        print(budget_report(config))
     except ValueError as err:
         parser.error(str(err))
     summary = train(

@@ -445,4 +445,48 @@ def load_config(
     merged = _merge(merged, overrides or {})
     if merged.get("env_id") != env_id:
         raise ValueError(f"the config names env {merged.get('env_id')!r}, not {env_id!r}")
-    return MCPilcoConfig.from_dict(merged)
+    return with_derived_budget(MCPilcoConfig.from_dict(merged), merged)
+
+
+def with_derived_budget(config: MCPilcoConfig, given: dict[str, Any]) -> MCPilcoConfig:
+    """``config`` with the budget derived from its task
+    (:func:`~mcpilco.agents.mc_pilco.budget.derive_budget`) in each of ``num_particles``,
+    ``opt.max_steps`` and ``max_points`` that ``given`` (the merged files and overrides)
+    does not set. A task that cannot be built yet keeps the defaults (its error comes from
+    the checks before a run); so does a task that learns no dynamics."""
+    from mcpilco.agents.mc_pilco.budget import derive_budget
+
+    try:
+        task = config.task_spec()
+    except ValueError:
+        return config
+    if task.model != "dynamics":
+        return config
+    budget = derive_budget(task)
+    over: dict[str, Any] = {}
+    if "num_particles" not in given:
+        over["num_particles"] = budget.num_particles
+    if "max_points" not in given:
+        over["max_points"] = budget.max_points
+    opt = given.get("opt")
+    if not (isinstance(opt, dict) and "max_steps" in opt):
+        over["opt"] = dataclasses.replace(config.opt, max_steps=budget.opt_steps)
+        if config.opt_steps_first is not None:
+            over["opt_steps_first"] = min(config.opt_steps_first, budget.opt_steps)
+    return dataclasses.replace(config, **over)
+
+
+def budget_report(config: MCPilcoConfig) -> str:
+    """The line ``mcpilco-train`` prints once at the start: the budget derived from the
+    task and the values of the config that differ from it (a shipped or the user's config
+    file, ``--set`` or an option)."""
+    from mcpilco.agents.mc_pilco.budget import budget_line, derive_budget
+
+    task = config.task_spec()
+    budget = derive_budget(task)
+    used = {
+        "num_particles": (config.num_particles, budget.num_particles),
+        "opt.max_steps": (config.opt.max_steps, budget.opt_steps),
+        "max_points": (config.max_points, budget.max_points),
+    }
+    return budget_line(task, budget, {k: v for k, (v, d) in used.items() if v != d})
