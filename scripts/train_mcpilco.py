@@ -132,6 +132,13 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument(
         "--overwrite", action="store_true", help="delete the run found in OUT first (else refused)"
     )
+    p.add_argument(
+        "--eval-episodes",
+        type=int,
+        default=None,
+        help="after each policy trial, E episodes from the task's initial distribution (not "
+        "experience): success rate with a 95 %% interval (default 0: none)",
+    )
     p.add_argument("--no-progress", action="store_true", help="no tqdm bars")
     p.add_argument("--no-rrd", action="store_true", help="do not write run.rrd")
     return p
@@ -162,6 +169,7 @@ def main(argv: list[str] | None = None) -> int:
             device=args.device,
             compile_rollout=args.compile_rollout,
             opt_steps=args.opt_steps,
+            eval_episodes=args.eval_episodes,
         )
         check_config(config)
         print(budget_report(config))

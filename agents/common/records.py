@@ -67,6 +67,10 @@ class TrialRecord:
             the trial collected its steps across resets; ``exploration_episodes`` in files
             written before, read as this field).
         opt_skipped: PILCO optimisation steps skipped on a non-finite ``J``.
+        eval_episodes, eval_counted, eval_successes, eval_ci: evaluation episodes after the
+            trial (not experience), those that started outside the goal set, their
+            successes, and the 95 % Wilson interval of the success rate
+            (:func:`~mcpilco.agents.common.trials.evaluate`).
         extra: keys of a record this version does not know, kept as read.
     """
 
@@ -109,6 +113,10 @@ class TrialRecord:
     n_filtered_contact: int | None = None
     episodes: int | None = None
     opt_skipped: int | None = None
+    eval_episodes: int | None = None
+    eval_counted: int | None = None
+    eval_successes: int | None = None
+    eval_ci: list[float] | None = None
     extra: dict[str, Any] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
@@ -197,6 +205,15 @@ def record_line(r: TrialRecord) -> str:
         line += f", {r.steps} steps in {r.episodes} episodes"
     if r.started_in_goal:
         line += " [started in the goal set: not counted as a success]"
+    if r.eval_counted:
+        lo, hi = (100 * v for v in r.eval_ci)
+        rate = 100 * r.eval_successes / r.eval_counted
+        line += (
+            f", eval {r.eval_successes}/{r.eval_counted} "
+            f"({rate:.0f} %, 95 % CI {lo:.0f}-{hi:.0f} %)"
+        )
+    elif r.eval_episodes:
+        line += f", eval: all {r.eval_episodes} episodes started in the goal set"
     if r.tracking_rms:
         line += ", tracking RMS " + " / ".join(f"{v:.4f}" for v in r.tracking_rms.values())
     if r.kind == "policy":

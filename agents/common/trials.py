@@ -321,6 +321,55 @@ def exploration_episodes(
     return trial_episodes(env, actor, trial_seed(seed, 0), horizon, task, min_steps, record_info)
 
 
+EVAL_SEED_BASE = 10**12
+"""Evaluation episode ``i`` after trial ``k`` of run ``seed`` resets with seed
+``EVAL_SEED_BASE + 1000 trial_seed(seed, k) + i``: above every trial seed (``< 10^12`` for
+run seeds below ``10^8``), distinct for up to 1000 episodes per trial."""
+
+MAX_EVAL_EPISODES = 1000  # evaluation episodes per trial with distinct seeds
+
+
+def eval_seed(seed: int, k: int, i: int) -> int:
+    """Reset seed of evaluation episode ``i`` after trial ``k`` of run ``seed``
+    (:data:`EVAL_SEED_BASE`; disjoint from every :func:`trial_seed`)."""
+    return EVAL_SEED_BASE + MAX_EVAL_EPISODES * trial_seed(seed, k) + int(i)
+
+
+def evaluate(
+    env,
+    act: Callable[[np.ndarray], np.ndarray],
+    seed: int,
+    k: int,
+    episodes: int,
+    task: TaskSpec,
+) -> dict[str, Any]:
+    """``episodes`` evaluation episodes of the policy ``act`` after trial ``k``, each from the
+    task's initial distribution (reset seeds :func:`eval_seed`), not counted as experience.
+    The success rate counts the episodes that started outside the goal set
+    (``started_in_goal`` ones are left out) with its 95 % Wilson interval.
+
+    Returns the record fields ``eval_episodes`` (run), ``eval_counted`` (started outside
+    the goal set), ``eval_successes`` and ``eval_ci`` ([low, high]; None when none counted).
+    """
+    from mcpilco.models.stats import wilson_interval
+
+    if int(episodes) != episodes or not 1 <= episodes <= MAX_EVAL_EPISODES:
+        raise ValueError(f"eval episodes must be in 1..{MAX_EVAL_EPISODES}, got {episodes!r}")
+    counted = successes = 0
+    for i in range(int(episodes)):
+        ep = run_episode(env, act, eval_seed(seed, k, i), task.horizon, task)
+        if not ep["started_in_goal"]:
+            counted += 1
+            successes += bool(ep["success"])
+    ci = [float(v) for v in wilson_interval(successes, counted)] if counted else None
+    return {
+        "eval_episodes": int(episodes),
+        "eval_counted": counted,
+        "eval_successes": successes,
+        "eval_ci": ci,
+    }
+
+
 def episode_outcome(ep: dict[str, Any], t0: float) -> dict[str, Any]:
     """The real-system part of a trial record: evaluation cost, ``success``, whether the
     episode ``started_in_goal`` (its success then counts as none), time in the goal region of

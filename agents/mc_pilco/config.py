@@ -52,6 +52,7 @@ POLICY_INITS = ("box", "data")  # MCPilcoConfig.policy_init
 # run on one machine can hold (particles x horizon x candidates tensors, GP subsets)
 CONFIG_NUMBER_RANGES: dict[str, dict[str, Any]] = {
     "num_trials": {"lo": 0, "hi": 10_000, "integer": True},
+    "eval_episodes": {"lo": 0, "hi": 1000, "integer": True},
     "horizon": {"lo": 1, "hi": 10_000_000, "integer": True},
     "num_particles": {"lo": 1, "hi": 100_000, "integer": True},
     "max_points": {"lo": 10, "hi": 100_000, "integer": True},
@@ -156,6 +157,10 @@ class MCPilcoConfig:
         rollout_dtype: dtype of the GP posterior evaluated in the particle rollout,
             ``"float32"`` (default) or ``"float64"``; the particles, the policy and the GP
             fit are the same in both (float32, float32, float64).
+        eval_episodes: ``E``: after each policy trial, ``E`` episodes of the applied policy
+            from the task's initial distribution (reset seeds disjoint from the trials', not
+            counted as experience), their success rate with a 95 % interval in the record
+            (:func:`~mcpilco.agents.common.trials.evaluate`); 0: none.
         device: where the policy optimisation runs (policy, particles, GP posterior):
             ``"cpu"`` (default) or ``"cuda"`` / ``"cuda:<index>"``. The GP fit (float64,
             ``N <= max_points``) and the env stay on the CPU.
@@ -198,6 +203,7 @@ class MCPilcoConfig:
     rollout_backend: str = "auto"
     rollout_dtype: str = "float32"
     device: str = "cpu"
+    eval_episodes: int = 0
 
     def __post_init__(self) -> None:
         from mcpilco.envs.numbers import check_number

@@ -8,6 +8,7 @@ Algorithm 1, one method each::
         fit_model()                 GP dynamics on all transitions D (marginal likelihood)
         improve_policy()            minimise the particle estimate J^ (5.8), monitoring rule
         apply_policy()              run the policy on the system for H steps, D += its data
+        evaluate_policy()           E evaluation episodes (eval_episodes; not in D)
         commit_trial()              record, plots, checkpoint (the trial's commit point)
 
 Glossary
@@ -67,6 +68,7 @@ from mcpilco.agents.common.records import RunSummary, TrialRecord, record_line, 
 from mcpilco.agents.common.run_folder import RUN_OUTPUTS, open_run_folder
 from mcpilco.agents.common.trials import (
     episode_outcome,
+    evaluate,
     exploration_episodes,
     make_env,
     transitions,
@@ -182,6 +184,7 @@ class Trainer:
             dynamics = self.fit_model(rec)
             self.improve_policy(k, dynamics, rec, arr)
             episodes = self.apply_policy(k, rec, arr)
+            self.evaluate_policy(k, rec)
         self.commit_trial(k, episodes, rec, arr, t0)
 
     # ----------------------------------------------------------------------- the steps
@@ -336,6 +339,14 @@ class Trainer:
         )
         arr["gp_rmse"] = rec.gp_rmse
         return episodes
+
+    def evaluate_policy(self, k: int, rec: TrialRecord) -> None:
+        """With ``eval_episodes`` ``E``: ``E`` episodes of the applied policy from the task's
+        initial distribution, not added to ``D``; their success rate goes to the record."""
+        cfg = self.config
+        if cfg.eval_episodes:
+            act = policy_act(self.policy)
+            rec.update(**evaluate(self.env, act, cfg.seed, k, cfg.eval_episodes, self.task))
 
     def commit_trial(
         self,

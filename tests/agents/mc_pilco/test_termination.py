@@ -1,6 +1,7 @@
 """Terminating envs: trials collect their declared steps across resets, every step counts as
 experience, the record says how many episodes a trial spanned, and the particle rollout
-absorbs a particle that leaves the task's termination set at a cost of 1 per step."""
+absorbs a particle that leaves the task's termination set at a cost of 1 per step; the
+evaluation episodes after a trial are no experience and have seeds of their own."""
 
 from __future__ import annotations
 
@@ -12,12 +13,19 @@ import pytest
 import torch
 from torch import nn
 
-from mcpilco.agents.common.records import TrialRecord
-from mcpilco.agents.common.trials import exploration_episodes, make_env
+from mcpilco.agents.common.records import TrialRecord, record_line
+from mcpilco.agents.common.trials import (
+    EVAL_SEED_BASE,
+    eval_seed,
+    exploration_episodes,
+    make_env,
+    trial_seed,
+)
 from mcpilco.agents.mc_pilco import MCPilcoConfig, PolicyOptConfig, run_mcpilco
 from mcpilco.agents.mc_pilco.fast import use_fast_rollout
 from mcpilco.agents.mc_pilco.loss import MCPilcoLoss, TerminationSet
 from mcpilco.envs.tasks.spec import TaskSpec, TaskSpecError
+from mcpilco.models.stats import Z95
 from tests.agents.mc_pilco import terminating_env
 from tests.agents.mc_pilco.terminating_env import END, ENV_ID, TASK
 
@@ -44,11 +52,13 @@ def test_exploration_collects_the_declared_steps_across_resets():
 
 def test_trainer_counts_every_step_and_records_the_episodes(tmp_path):
     """The exploration and a policy trial each take ``trial_steps = 30`` steps (the env ends
-    episodes after at most 10): 3 s of experience per trial, the episodes counted."""
+    episodes after at most 10): 3 s of experience per trial, the episodes counted. Four
+    evaluation episodes follow the policy trial, none of them experience; none can last the
+    20 steps success needs: 0 of 4, Wilson interval [0, z^2 / (4 + z^2)]."""
     cfg = MCPilcoConfig(
         env_id=ENV_ID, task=TASK, num_trials=1, num_particles=5, max_points=50,
         gp_adam_iters=10, gp_lbfgs_iters=5, num_basis=5, sim_obs_noise_std=0.0,
-        torch_threads=1, opt=PolicyOptConfig(max_steps=3, min_steps=1),
+        torch_threads=1, opt=PolicyOptConfig(max_steps=3, min_steps=1), eval_episodes=4,
     )  # fmt: skip
     summary = run_mcpilco(cfg, tmp_path, progress=False, log=None, write_rrd=False)
     explore, policy = summary.trials
@@ -57,6 +67,20 @@ def test_trainer_counts_every_step_and_records_the_episodes(tmp_path):
     assert explore.experience_s == pytest.approx(3.0) and policy.experience_s == pytest.approx(6.0)
     assert policy.n_data == 30  # the model of trial 1: every exploration transition
     assert explore.success is False and policy.success is False  # no episode lasts 20 steps
+    z2 = Z95**2  # the package's 95 % quantile
+    assert (policy.eval_episodes, policy.eval_counted, policy.eval_successes) == (4, 4, 0)
+    assert policy.eval_ci == pytest.approx([0.0, z2 / (4 + z2)])
+    assert explore.eval_episodes is None
+    assert record_line(policy).split(", eval ")[1].startswith("0/4 (0 %, 95 % CI 0-49 %)")
+
+
+def test_evaluation_seeds_are_disjoint_from_the_trial_seeds():
+    trial = {trial_seed(s, k) for s in range(100) for k in range(50)}
+    evals = [eval_seed(s, k, i) for s in range(100) for k in range(50) for i in (0, 1, 999)]
+    assert len(set(evals)) == len(evals) and not trial & set(evals)
+    assert max(trial) < EVAL_SEED_BASE <= min(evals)
+    with pytest.raises(ValueError, match="eval_episodes"):
+        MCPilcoConfig(env_id=ENV_ID, task=TASK, eval_episodes=-1)
 
 
 class _Drift(nn.Module):
