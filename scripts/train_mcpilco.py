@@ -27,7 +27,7 @@ from pathlib import Path
 
 from mcpilco.agents.common.cli import console_main
 from mcpilco.agents.mc_pilco import DEFAULT_ENV_ID
-from mcpilco.agents.mc_pilco.cli import check_config, config_from_options, train
+from mcpilco.agents.mc_pilco.cli import budget_report, check_config, config_from_options, train
 from mcpilco.agents.mc_pilco.config import ROLLOUT_DTYPES
 from mcpilco.agents.mc_pilco.dynamics import KERNEL_CHOICES
 
@@ -132,6 +132,13 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument(
         "--overwrite", action="store_true", help="delete the run found in OUT first (else refused)"
     )
+    p.add_argument(
+        "--eval-episodes",
+        type=int,
+        default=None,
+        help="after each policy trial, E episodes from the task's initial distribution (not "
+        "experience): success rate with a 95 %% interval (default 0: none)",
+    )
     p.add_argument("--no-progress", action="store_true", help="no tqdm bars")
     p.add_argument("--no-rrd", action="store_true", help="do not write run.rrd")
     return p
@@ -162,8 +169,10 @@ def main(argv: list[str] | None = None) -> int:
             device=args.device,
             compile_rollout=args.compile_rollout,
             opt_steps=args.opt_steps,
+            eval_episodes=args.eval_episodes,
         )
         check_config(config)
+        print(budget_report(config))
     except ValueError as err:
         parser.error(str(err))
     summary = train(

@@ -630,7 +630,7 @@ def run_pilco(
                     config.explore_steps,
                 )
                 ep = eps[0]  # its outcome is the record's (MC-PILCO's exploration trial)
-                rec.exploration_episodes = len(eps)
+                rec.episodes = len(eps)
             else:
                 s, a, s1 = transitions(episodes, task)  # the same data as MC-PILCO
                 s, a, s1 = (

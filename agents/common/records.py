@@ -39,7 +39,7 @@ class TrialRecord:
         started_in_goal: the trial started in the set it had to reach (its success is then
             no swing-up and counts as none).
         time_in_goal: seconds within the task's goal bounds.
-        steps: control steps of the trial (a PILCO exploration: of all its episodes).
+        steps: control steps of the trial (of all its episodes).
         wall_s: wall-clock seconds of the whole trial.
         experience_s: seconds of interaction of the run so far (``H T_s (k + 1)`` when no
             episode ends early).
@@ -63,8 +63,14 @@ class TrialRecord:
             trial's transitions.
         n_contact, n_filtered, n_filtered_contact: steps the env reports a contact (a
             push), transitions a push filter left out, and those of them that overlap one.
-        exploration_episodes: episodes of a PILCO exploration trial.
+        episodes: episodes the trial spanned (more than one where the env ended one early and
+            the trial collected its steps across resets; ``exploration_episodes`` in files
+            written before, read as this field).
         opt_skipped: PILCO optimisation steps skipped on a non-finite ``J``.
+        eval_episodes, eval_counted, eval_successes, eval_ci: evaluation episodes after the
+            trial (not experience), those that started outside the goal set, their
+            successes, and the 95 % Wilson interval of the success rate
+            (:func:`~mcpilco.agents.common.trials.evaluate`).
         extra: keys of a record this version does not know, kept as read.
     """
 
@@ -105,8 +111,12 @@ class TrialRecord:
     n_contact: int | None = None
     n_filtered: int | None = None
     n_filtered_contact: int | None = None
-    exploration_episodes: int | None = None
+    episodes: int | None = None
     opt_skipped: int | None = None
+    eval_episodes: int | None = None
+    eval_counted: int | None = None
+    eval_successes: int | None = None
+    eval_ci: list[float] | None = None
     extra: dict[str, Any] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
@@ -142,6 +152,8 @@ class TrialRecord:
         if "index" not in d or "kind" not in d:
             raise ValueError(f"a trial record needs 'index' and 'kind', got keys {sorted(d)}")
         names = _field_names() - {"extra"}
+        if "exploration_episodes" in d and "episodes" not in d:  # the field's former name
+            d = {("episodes" if k == "exploration_episodes" else k): v for k, v in d.items()}
         return cls(
             **{k: v for k, v in d.items() if k in names},
             extra={k: v for k, v in d.items() if k not in names},
@@ -189,8 +201,19 @@ def record_line(r: TrialRecord) -> str:
         f"cost {r.cost:.2f}, success {r.success}, in goal {r.time_in_goal:.2f} s, "
         f"time {r.wall_s:.1f} s"
     )
+    if r.episodes is not None and r.episodes > 1:
+        line += f", {r.steps} steps in {r.episodes} episodes"
     if r.started_in_goal:
         line += " [started in the goal set: not counted as a success]"
+    if r.eval_counted:
+        lo, hi = (100 * v for v in r.eval_ci)
+        rate = 100 * r.eval_successes / r.eval_counted
+        line += (
+            f", eval {r.eval_successes}/{r.eval_counted} "
+            f"({rate:.0f} %, 95 % CI {lo:.0f}-{hi:.0f} %)"
+        )
+    elif r.eval_episodes:
+        line += f", eval: all {r.eval_episodes} episodes started in the goal set"
     if r.tracking_rms:
         line += ", tracking RMS " + " / ".join(f"{v:.4f}" for v in r.tracking_rms.values())
     if r.kind == "policy":

@@ -6,7 +6,8 @@ An *episode* is one run of an env under an action rule, read through a
 actions (T, A), the task's evaluation cost, success and time in the goal region
 (:func:`run_episode`). Trial ``k`` of run ``seed`` resets the env with
 :func:`trial_seed`, so that MC-PILCO and its baselines see the same initial states.
-Trial 0 explores with random actions (:func:`exploration_episodes`); the model's data are
+Trial 0 explores with random actions (:func:`exploration_episodes`); a trial spans several
+episodes where the env ends one early (:func:`trial_episodes`); the model's data are
 the :func:`transitions` ``(s_t, a_t, s_{t+1})`` of all episodes, less those that touch one of
 the task's limits or that a push filter marked.
 """
@@ -271,6 +272,35 @@ def exploration_actions(
     return np.repeat(draws, hold, axis=0)[:horizon]
 
 
+def trial_episodes(
+    env,
+    actor: Callable[[int], Callable[[np.ndarray], np.ndarray]],
+    reset_seed: int,
+    horizon: int,
+    task: TaskSpec,
+    min_steps: int | None = None,
+    record_info: bool = False,
+) -> list[dict[str, Any]]:
+    """The episodes of one trial: the first runs ``horizon`` steps from the reset seed
+    ``reset_seed`` (fewer when the env terminates it). With ``min_steps``, further episodes
+    follow, each reset from the env's own generator (seeded by the first reset) and at most
+    ``horizon`` steps long, the last one cut so that exactly ``min_steps`` steps are taken
+    in all: experience that resets whenever an episode ends, as in TorchRL's PILCO example
+    (``initial_rollout_length``). ``actor(n)`` gives the action rule of an episode of at
+    most ``n`` steps. Returns the episodes in order (:func:`run_episode`'s dicts).
+    """
+    if min_steps is not None and (int(min_steps) != min_steps or min_steps < 1):
+        raise ValueError(f"min_steps must be a positive integer, got {min_steps!r}")
+    episodes: list[dict[str, Any]] = []
+    taken, seed = 0, reset_seed
+    while not episodes or (min_steps is not None and taken < min_steps):
+        n = horizon if not episodes else min(horizon, int(min_steps) - taken)
+        episodes.append(run_episode(env, actor(n), seed, n, task, record_info))
+        taken += episodes[-1]["steps"]
+        seed = None
+    return episodes
+
+
 def exploration_episodes(
     env,
     rng: np.random.Generator,
@@ -281,28 +311,63 @@ def exploration_episodes(
     min_steps: int | None = None,
     record_info: bool = False,
 ) -> list[dict[str, Any]]:
-    """Trial 0: episodes under the random actions of :func:`exploration_actions`.
+    """Trial 0: :func:`trial_episodes` from the reset seed ``trial_seed(seed, 0)`` under the
+    random actions of :func:`exploration_actions` (drawn from ``rng`` per episode)."""
 
-    The first episode runs ``horizon`` steps from the reset seed ``trial_seed(seed, 0)``
-    (fewer when the env terminates it). With ``min_steps``, further episodes follow, each
-    reset from the env's own generator (seeded by the first reset) and at most ``horizon``
-    steps long, the last one cut so that exactly ``min_steps`` steps are taken in all: a
-    random rollout of ``min_steps`` steps that resets whenever an episode ends, as in
-    TorchRL's PILCO example (``initial_rollout_length``). Returns the episodes in order
-    (:func:`run_episode`'s dicts).
-    """
-    if min_steps is not None and (int(min_steps) != min_steps or min_steps < 1):
-        raise ValueError(f"min_steps must be a positive integer, got {min_steps!r}")
-    episodes: list[dict[str, Any]] = []
-    taken, reset_seed = 0, trial_seed(seed, 0)
-    while not episodes or (min_steps is not None and taken < min_steps):
-        n = horizon if not episodes else min(horizon, int(min_steps) - taken)
+    def actor(n: int) -> Callable[[np.ndarray], np.ndarray]:
         it = iter(exploration_actions(rng, n, hold, task.action_low, task.action_high))
-        ep = run_episode(env, lambda _o, it=it: next(it), reset_seed, n, task, record_info)
-        episodes.append(ep)
-        taken += ep["steps"]
-        reset_seed = None
-    return episodes
+        return lambda _o: next(it)
+
+    return trial_episodes(env, actor, trial_seed(seed, 0), horizon, task, min_steps, record_info)
+
+
+EVAL_SEED_BASE = 10**12
+"""Evaluation episode ``i`` after trial ``k`` of run ``seed`` resets with seed
+``EVAL_SEED_BASE + 1000 trial_seed(seed, k) + i``: above every trial seed (``< 10^12`` for
+run seeds below ``10^8``), distinct for up to 1000 episodes per trial."""
+
+MAX_EVAL_EPISODES = 1000  # evaluation episodes per trial with distinct seeds
+
+
+def eval_seed(seed: int, k: int, i: int) -> int:
+    """Reset seed of evaluation episode ``i`` after trial ``k`` of run ``seed``
+    (:data:`EVAL_SEED_BASE`; disjoint from every :func:`trial_seed`)."""
+    return EVAL_SEED_BASE + MAX_EVAL_EPISODES * trial_seed(seed, k) + int(i)
+
+
+def evaluate(
+    env,
+    act: Callable[[np.ndarray], np.ndarray],
+    seed: int,
+    k: int,
+    episodes: int,
+    task: TaskSpec,
+) -> dict[str, Any]:
+    """``episodes`` evaluation episodes of the policy ``act`` after trial ``k``, each from the
+    task's initial distribution (reset seeds :func:`eval_seed`), not counted as experience.
+    The success rate counts the episodes that started outside the goal set
+    (``started_in_goal`` ones are left out) with its 95 % Wilson interval.
+
+    Returns the record fields ``eval_episodes`` (run), ``eval_counted`` (started outside
+    the goal set), ``eval_successes`` and ``eval_ci`` ([low, high]; None when none counted).
+    """
+    from mcpilco.models.stats import wilson_interval
+
+    if int(episodes) != episodes or not 1 <= episodes <= MAX_EVAL_EPISODES:
+        raise ValueError(f"eval episodes must be in 1..{MAX_EVAL_EPISODES}, got {episodes!r}")
+    counted = successes = 0
+    for i in range(int(episodes)):
+        ep = run_episode(env, act, eval_seed(seed, k, i), task.horizon, task)
+        if not ep["started_in_goal"]:
+            counted += 1
+            successes += bool(ep["success"])
+    ci = [float(v) for v in wilson_interval(successes, counted)] if counted else None
+    return {
+        "eval_episodes": int(episodes),
+        "eval_counted": counted,
+        "eval_successes": successes,
+        "eval_ci": ci,
+    }
 
 
 def episode_outcome(ep: dict[str, Any], t0: float) -> dict[str, Any]:

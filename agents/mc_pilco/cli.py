@@ -15,10 +15,17 @@ from typing import Any
 
 from mcpilco.agents.common.records import RunSummary
 from mcpilco.agents.common.trials import DEFAULT_ENV_ID, make_env
-from mcpilco.agents.mc_pilco.config import MCPilcoConfig, load_config, parse_set
+from mcpilco.agents.mc_pilco.config import MCPilcoConfig, budget_report, load_config, parse_set
 from mcpilco.agents.mc_pilco.trainer import Trainer, check_compile_toolchain
 
-__all__ = ["check_config", "config_from_options", "load_task_file", "parse_env_kwargs", "train"]
+__all__ = [
+    "budget_report",
+    "check_config",
+    "config_from_options",
+    "load_task_file",
+    "parse_env_kwargs",
+    "train",
+]
 
 
 def load_task_file(path: str | Path) -> dict[str, Any]:

@@ -52,6 +52,7 @@ POLICY_INITS = ("box", "data")  # MCPilcoConfig.policy_init
 # run on one machine can hold (particles x horizon x candidates tensors, GP subsets)
 CONFIG_NUMBER_RANGES: dict[str, dict[str, Any]] = {
     "num_trials": {"lo": 0, "hi": 10_000, "integer": True},
+    "eval_episodes": {"lo": 0, "hi": 1000, "integer": True},
     "horizon": {"lo": 1, "hi": 10_000_000, "integer": True},
     "num_particles": {"lo": 1, "hi": 100_000, "integer": True},
     "max_points": {"lo": 10, "hi": 100_000, "integer": True},
@@ -156,6 +157,10 @@ class MCPilcoConfig:
         rollout_dtype: dtype of the GP posterior evaluated in the particle rollout,
             ``"float32"`` (default) or ``"float64"``; the particles, the policy and the GP
             fit are the same in both (float32, float32, float64).
+        eval_episodes: ``E``: after each policy trial, ``E`` episodes of the applied policy
+            from the task's initial distribution (reset seeds disjoint from the trials', not
+            counted as experience), their success rate with a 95 % interval in the record
+            (:func:`~mcpilco.agents.common.trials.evaluate`); 0: none.
         device: where the policy optimisation runs (policy, particles, GP posterior):
             ``"cpu"`` (default) or ``"cuda"`` / ``"cuda:<index>"``. The GP fit (float64,
             ``N <= max_points``) and the env stay on the CPU.
@@ -198,6 +203,7 @@ class MCPilcoConfig:
     rollout_backend: str = "auto"
     rollout_dtype: str = "float32"
     device: str = "cpu"
+    eval_episodes: int = 0
 
     def __post_init__(self) -> None:
         from mcpilco.envs.numbers import check_number
@@ -445,4 +451,48 @@ def load_config(
     merged = _merge(merged, overrides or {})
     if merged.get("env_id") != env_id:
         raise ValueError(f"the config names env {merged.get('env_id')!r}, not {env_id!r}")
-    return MCPilcoConfig.from_dict(merged)
+    return with_derived_budget(MCPilcoConfig.from_dict(merged), merged)
+
+
+def with_derived_budget(config: MCPilcoConfig, given: dict[str, Any]) -> MCPilcoConfig:
+    """``config`` with the budget derived from its task
+    (:func:`~mcpilco.agents.mc_pilco.budget.derive_budget`) in each of ``num_particles``,
+    ``opt.max_steps`` and ``max_points`` that ``given`` (the merged files and overrides)
+    does not set. A task that cannot be built yet keeps the defaults (its error comes from
+    the checks before a run); so does a task that learns no dynamics."""
+    from mcpilco.agents.mc_pilco.budget import derive_budget
+
+    try:
+        task = config.task_spec()
+    except ValueError:
+        return config
+    if task.model != "dynamics":
+        return config
+    budget = derive_budget(task)
+    over: dict[str, Any] = {}
+    if "num_particles" not in given:
+        over["num_particles"] = budget.num_particles
+    if "max_points" not in given:
+        over["max_points"] = budget.max_points
+    opt = given.get("opt")
+    if not (isinstance(opt, dict) and "max_steps" in opt):
+        over["opt"] = dataclasses.replace(config.opt, max_steps=budget.opt_steps)
+        if config.opt_steps_first is not None:
+            over["opt_steps_first"] = min(config.opt_steps_first, budget.opt_steps)
+    return dataclasses.replace(config, **over)
+
+
+def budget_report(config: MCPilcoConfig) -> str:
+    """The line ``mcpilco-train`` prints once at the start: the budget derived from the
+    task and the values of the config that differ from it (a shipped or the user's config
+    file, ``--set`` or an option)."""
+    from mcpilco.agents.mc_pilco.budget import budget_line, derive_budget
+
+    task = config.task_spec()
+    budget = derive_budget(task)
+    used = {
+        "num_particles": (config.num_particles, budget.num_particles),
+        "opt.max_steps": (config.opt.max_steps, budget.opt_steps),
+        "max_points": (config.max_points, budget.max_points),
+    }
+    return budget_line(task, budget, {k: v for k, (v, d) in used.items() if v != d})

@@ -19,6 +19,17 @@ Glossary (thesis sections 5.4.1-5.4.2; Amadio et al. 2022, sec. III)
 ``s_J``
     standard deviation over particles of the per-particle cumulative cost
     ``sum_t c(x_t^(m))`` (reported with the loss).
+termination (an absorbing set)
+    a task whose env ends an episode when the state leaves a set ``X_ok``
+    (:class:`TerminationSet`, the task file's ``termination``) is rolled out with an alive
+    mask ``a_t^(m) = prod_{s <= t} 1[x_s^(m) in X_ok]``:
+    ``x_{t+1} = a_t f(x_t, u_t, eps_t) + (1 - a_t) x_t`` (a particle that left stays at the
+    state where it left, as the env's last observation does) and
+    ``c_{t+1} = a_{t+1} c(x_{t+1}) + (1 - a_{t+1}) c_max`` with ``c_max = 1``, the bound of
+    the saturating cost ``c = 1 - exp(.) <= 1``: every step after the env would have ended
+    costs the most a step can. A particle that leaves at step ``t`` so pays ``H - t + 1``
+    on top of its earlier costs; the mask is piecewise constant, so the gradient flows
+    through the costs of the particles still alive.
 candidates ``k = 1..K``
     with a :class:`~mcpilco.agents.mc_pilco.policy.PolicyPopulation` the rollout carries
     ``M`` particles per candidate, stacked candidate-major (``K M`` in all);
@@ -31,6 +42,7 @@ over ``(M, .)``; there is no Python loop over particles.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable, Sequence
 from contextlib import AbstractContextManager
 from dataclasses import dataclass
@@ -57,6 +69,49 @@ class RolloutEngine(Protocol):
     def serial_caller(self) -> AbstractContextManager[None]: ...
 
     def costs(self, x: Tensor, noise: Tensor, nu: Tensor | None) -> Tensor: ...
+
+
+TERMINATION_COST = 1.0
+"""``c_max``: the cost of each step a particle spends in the absorbing set (the saturating
+cost's bound)."""
+
+
+class TerminationSet(nn.Module):
+    """``state (..., n) -> outside (...)`` (bool): whether the state lies outside the ranges
+    ``lo_j <= x_j <= hi_j`` of the listed coordinates ``j`` (an angle by its wrapped value
+    in ``[-pi, pi)``), where the env ends an episode.
+
+    Args:
+        idx: the coordinates ``j``; lo, hi: their ranges; angle: which of them are angles.
+    """
+
+    def __init__(
+        self, idx: Sequence[int], lo: Sequence[float], hi: Sequence[float], angle: Sequence[bool]
+    ) -> None:
+        super().__init__()
+        self.idx = [int(i) for i in idx]
+        self.register_buffer("lo", torch.as_tensor(lo, dtype=torch.float32))
+        self.register_buffer("hi", torch.as_tensor(hi, dtype=torch.float32))
+        self.register_buffer("angle", torch.as_tensor(angle, dtype=torch.bool))
+
+    @classmethod
+    def from_task(cls, task) -> TerminationSet | None:
+        """The set of a :class:`~mcpilco.envs.tasks.spec.TaskSpec`'s ``termination`` (None:
+        the task declares none)."""
+        if not task.termination:
+            return None
+        names = list(task.termination)
+        return cls(
+            [task.index(n) for n in names],
+            [task.termination[n][0] for n in names],
+            [task.termination[n][1] for n in names],
+            [n in task.angles for n in names],
+        )
+
+    def forward(self, state: Tensor) -> Tensor:
+        v = state[..., self.idx]
+        v = torch.where(self.angle, torch.remainder(v + math.pi, 2 * math.pi) - math.pi, v)
+        return ((v < self.lo.to(v.dtype)) | (v > self.hi.to(v.dtype))).any(dim=-1)
 
 
 @dataclass
@@ -86,6 +141,10 @@ class MCPilcoLoss(LossModule):
         obs_noise_std: ``sigma_obs`` of the simulated measurement noise on the policy input.
         delta_dim: dimension of ``eps`` per step (number of GPs); None: the dynamics'
             ``layout.output_dim``.
+        termination: module ``state (..., n) -> outside (...)`` (bool), the set where the
+            env ends an episode (:class:`TerminationSet`); a particle there is absorbed
+            (module glossary). None: the env never ends an episode early.
+        termination_cost: ``c_max``, the cost of each absorbed step.
 
     ``forward(td)`` reads optional entries ``"initial_state"`` (K M, n) and ``"noise"``
     (H, K M, delta_dim) (common random numbers, tests); otherwise it samples them. It returns
@@ -105,6 +164,8 @@ class MCPilcoLoss(LossModule):
         init_std: float | Sequence[float] | Tensor = 0.01,
         obs_noise_std: float = 0.0,
         delta_dim: int | None = None,
+        termination: nn.Module | None = None,
+        termination_cost: float = TERMINATION_COST,
     ) -> None:
         super().__init__()
         if int(horizon) != horizon or horizon < 1:
@@ -121,6 +182,8 @@ class MCPilcoLoss(LossModule):
         self.horizon = int(horizon)
         self.num_particles = int(num_particles)
         self.obs_noise_std = float(obs_noise_std)
+        self.termination = termination
+        self.termination_cost = float(termination_cost)
         if delta_dim is None:
             layout = getattr(dynamics, "layout", None)
             if layout is None:
@@ -167,7 +230,14 @@ class MCPilcoLoss(LossModule):
         (a function with :meth:`step`'s signature and results, e.g. ``torch.compile`` of it,
         used by :meth:`rollout`); None for both: the eager rollout. The loss does not build
         or choose them: :func:`~mcpilco.agents.mc_pilco.fast.use_fast_rollout` does,
-        and checks them against the eager rollout first."""
+        and checks them against the eager rollout first. An engine computes the costs of
+        the whole rollout itself, without the absorbing set: with a ``termination`` only a
+        ``step_fn`` is taken (``ValueError`` otherwise)."""
+        if engine is not None and self.termination is not None:
+            raise ValueError(
+                "a chained rollout engine does not mask the absorbing set of a terminating "
+                "task; use a step_fn or the eager rollout"
+            )
         self._engine, self._step_fn = engine, step_fn
 
     @property
@@ -234,7 +304,8 @@ class MCPilcoLoss(LossModule):
         num_particles: int | None = None,
         keep_states: bool = True,
     ) -> ParticleRollout:
-        """Propagate ``M`` particles for ``H`` steps; differentiable w.r.t. the policy.
+        """Propagate ``M`` particles for ``H`` steps; differentiable w.r.t. the policy. With
+        a ``termination`` set, particles that leave it are absorbed (module glossary).
 
         Args:
             initial_state: (K M, n) ``x_0``; sampled when None.
@@ -253,9 +324,17 @@ class MCPilcoLoss(LossModule):
         # the policy's dropout masks are drawn here, step by step, outside the (possibly
         # compiled) step: the same random stream as a policy drawing its own
         draw_mask = getattr(self._policy_fn, "draw_dropout_mask", None)
+        term = self.termination
+        alive = None if term is None else ~term(x)  # a_0: x_0 within the set
         for t in range(self.horizon):
             mask = None if draw_mask is None else draw_mask(x)
-            x, u, c = step(x, noise[t], None if obs_noise is None else obs_noise[t], mask)
+            x_next, u, c = step(x, noise[t], None if obs_noise is None else obs_noise[t], mask)
+            if alive is not None:  # the absorbing set: a_{t+1} = a_t 1[x_{t+1} in X_ok]
+                alive_next = alive & ~term(x_next)
+                x_next = torch.where(alive[:, None], x_next, x)
+                c = torch.where(alive_next, c, torch.full_like(c, self.termination_cost))
+                alive = alive_next
+            x = x_next
             costs.append(c)
             if keep_states or t == self.horizon - 1:
                 states.append(x)

@@ -8,6 +8,7 @@ Algorithm 1, one method each::
         fit_model()                 GP dynamics on all transitions D (marginal likelihood)
         improve_policy()            minimise the particle estimate J^ (5.8), monitoring rule
         apply_policy()              run the policy on the system for H steps, D += its data
+        evaluate_policy()           E evaluation episodes (eval_episodes; not in D)
         commit_trial()              record, plots, checkpoint (the trial's commit point)
 
 Glossary
@@ -26,6 +27,10 @@ trial ``k >= 1``
     to the env for ``H`` steps, append the transitions to ``D``.
 experience
     ``H T_s (k + 1)`` seconds after trial ``k`` (3, 6, 9, 12, 15 s ... on the cart-pole).
+    An env that ends an episode early (the task's ``termination``) is reset until the trial
+    has taken the task's ``trial_steps`` (default ``H``) steps: every step counts, and the
+    record says how many ``episodes`` the trial spanned; the trial's outcome (cost,
+    success) is its first episode's, from the trial's reset seed.
 record of a trial
     a :class:`~mcpilco.agents.common.records.TrialRecord`: the task's evaluation cost
     ``sum_t c(x_t)`` on the true state, ``success``, the time within the task's goal bounds,
@@ -63,10 +68,11 @@ from mcpilco.agents.common.records import RunSummary, TrialRecord, record_line, 
 from mcpilco.agents.common.run_folder import RUN_OUTPUTS, open_run_folder
 from mcpilco.agents.common.trials import (
     episode_outcome,
+    evaluate,
     exploration_episodes,
     make_env,
-    run_episode,
     transitions,
+    trial_episodes,
     trial_seed,
 )
 from mcpilco.agents.mc_pilco.config import RESUME_FIXED, MCPilcoConfig
@@ -75,7 +81,7 @@ from mcpilco.agents.mc_pilco.dynamics import GPDynamicsModel
 from mcpilco.agents.mc_pilco.fast import cpp_compiler, cpp_compiler_names, use_fast_rollout
 from mcpilco.agents.mc_pilco.features import StateLayout
 from mcpilco.agents.mc_pilco.filters import CollisionFilter, contact_steps
-from mcpilco.agents.mc_pilco.loss import MCPilcoLoss
+from mcpilco.agents.mc_pilco.loss import MCPilcoLoss, TerminationSet
 from mcpilco.agents.mc_pilco.optimize import choose_policy, optimize_policy
 from mcpilco.agents.mc_pilco.policy import (
     PolicyPopulation,
@@ -172,13 +178,14 @@ class Trainer:
         rec = TrialRecord(index=k, kind="exploration" if k == 0 else "policy")
         arr: dict[str, Any] = {"index": k, "particles": None, "opt_costs": None}
         if k == 0:
-            episode = self.explore()
+            episodes = self.explore()
         else:
             self.init_policy_from_data(k)
             dynamics = self.fit_model(rec)
             self.improve_policy(k, dynamics, rec, arr)
-            episode = self.apply_policy(k, rec, arr)
-        self.commit_trial(k, episode, rec, arr, t0)
+            episodes = self.apply_policy(k, rec, arr)
+            self.evaluate_policy(k, rec)
+        self.commit_trial(k, episodes, rec, arr, t0)
 
     # ----------------------------------------------------------------------- the steps
     def set_up(self) -> None:
@@ -202,19 +209,20 @@ class Trainer:
             self.run_folder.close()
             raise
 
-    def explore(self) -> dict[str, Any]:
-        """Trial 0: an episode of random actions held ``explore_hold`` steps each."""
+    def explore(self) -> list[dict[str, Any]]:
+        """Trial 0: episodes of random actions held ``explore_hold`` steps each, of
+        ``explore_steps`` (else the task's ``trial_steps``) steps in all."""
         config = self.config
-        (episode,) = exploration_episodes(
+        return exploration_episodes(
             self.env,
             self.np_rng,
             config.seed,
             config.explore_steps or self.horizon,
             self.task,
             config.explore_hold,
+            config.explore_steps or self.task.steps_per_trial,
             record_info=True,
         )
-        return episode
 
     def init_policy_from_data(self, k: int) -> None:
         """With ``policy_init="data"``: draw the policy's centres and lengthscales from the
@@ -222,7 +230,10 @@ class Trainer:
         if self.config.policy_init != "data" or self.policy.center_mean is not None:
             return
         task = self.task
-        init = data_init(task.features(self.episodes[0]["obs"]))
+        n_explore = self.records[0].episodes or 1  # the exploration trial's episodes
+        init = data_init(
+            task.features(np.concatenate([e["obs"] for e in self.episodes[:n_explore]]))
+        )
         self.population.use_data_init(init)
         self.policy.use_data_init(init)
         if k == 1:  # the first policy starts there
@@ -306,50 +317,67 @@ class Trainer:
             n_log = min(config.log_particles, config.num_particles)
             arr["particles"] = predict.rollout(num_particles=n_log).states.cpu().numpy()
 
-    def apply_policy(self, k: int, rec: TrialRecord, arr: dict[str, Any]) -> dict[str, Any]:
-        """Apply the chosen policy (no dropout) to the system for ``H`` steps; record the
+    def apply_policy(self, k: int, rec: TrialRecord, arr: dict[str, Any]) -> list[dict[str, Any]]:
+        """Apply the chosen policy (no dropout) to the system for ``H`` steps (episodes of
+        the task's ``trial_steps`` steps in all, where the env ends one early); record the
         model's one-step error on the new transitions."""
-        episode = run_episode(
+        act = policy_act(self.policy)
+        episodes = trial_episodes(
             self.env,
-            policy_act(self.policy),
+            lambda _n: act,
             trial_seed(self.config.seed, k),
             self.horizon,
             self.task,
+            self.task.steps_per_trial,
             True,
         )
-        free = transitions([episode], self.task)
+        free = transitions(episodes, self.task)
         rec.gp_rmse = (
             self.model.one_step_rmse(*free).tolist()
             if len(free[1])
             else [math.nan] * self.layout.output_dim
         )
         arr["gp_rmse"] = rec.gp_rmse
-        return episode
+        return episodes
+
+    def evaluate_policy(self, k: int, rec: TrialRecord) -> None:
+        """With ``eval_episodes`` ``E``: ``E`` episodes of the applied policy from the task's
+        initial distribution, not added to ``D``; their success rate goes to the record."""
+        cfg = self.config
+        if cfg.eval_episodes:
+            act = policy_act(self.policy)
+            rec.update(**evaluate(self.env, act, cfg.seed, k, cfg.eval_episodes, self.task))
 
     def commit_trial(
         self,
         k: int,
-        episode: dict[str, Any],
+        episodes: list[dict[str, Any]],
         rec: TrialRecord,
         arr: dict[str, Any],
         t0: float,
     ) -> None:
-        """Add the trial's data to ``D``, complete its record, write the plots and
-        ``records.json``, then the checkpoint (last: it is the commit point of the trial)."""
+        """Add the trial's data (all its episodes) to ``D``, complete its record (the
+        outcome of its first episode), write the plots and ``records.json``, then the
+        checkpoint (last: it is the commit point of the trial)."""
         task = self.task
-        filtered = None if self.push_filter is None else self.push_filter.excluded(episode["infos"])
-        contact = contact_steps(episode.pop("infos"))
-        if contact is not None:  # the env says when it was pushed (ground truth)
-            rec.n_contact = int(contact.sum())
-            arr["contact"] = contact
-        if filtered is not None:
-            rec.n_filtered = int(filtered.sum())
-            if contact is not None:  # filtered transitions that overlap a push
-                rec.n_filtered_contact = int((filtered & contact).sum())
-        self.episodes.append(
-            {"obs": episode["obs"], "actions": episode["actions"], "filtered": filtered}
-        )
+        marks = []  # per episode: the push filter's marks (None: no filter)
+        for i, ep in enumerate(episodes):
+            filtered = None if self.push_filter is None else self.push_filter.excluded(ep["infos"])
+            marks.append(filtered)
+            contact = contact_steps(ep.pop("infos"))
+            if contact is not None:  # the env says when it was pushed (ground truth)
+                rec.n_contact = (rec.n_contact or 0) + int(contact.sum())
+                if i == 0:
+                    arr["contact"] = contact
+            if filtered is not None:
+                rec.n_filtered = (rec.n_filtered or 0) + int(filtered.sum())
+                if contact is not None:  # filtered transitions that overlap a push
+                    both = int((filtered & contact).sum())
+                    rec.n_filtered_contact = (rec.n_filtered_contact or 0) + both
+            self.episodes.append({"obs": ep["obs"], "actions": ep["actions"], "filtered": filtered})
+        episode, filtered = episodes[0], marks[0]  # the plots draw the first episode
         rec.update(**episode_outcome(episode, t0))
+        rec.update(steps=sum(e["steps"] for e in episodes), episodes=len(episodes))
         # seconds of interaction so far (episodes that terminate early count what they ran)
         rec.experience_s = sum(len(e["actions"]) for e in self.episodes) * task.dt
         arr.update(real=episode["states"], cost=rec.cost, success=rec.success)
@@ -515,6 +543,7 @@ class Trainer:
             init_mean=task.init_mean,
             init_std=self.init_std,
             obs_noise_std=config.sim_obs_noise_std,
+            termination=TerminationSet.from_task(task),
         ).to(self.device)  # with the policy module and the dynamics in it
 
     def _progress_bar(self, total: int, desc: str | None = None):

@@ -20,6 +20,7 @@ TASK_FILES: dict[str, str] = {
     "mcpilco/DMCCartpoleSwingUp-v0": "dmc_cartpole_swingup.yaml",
     "dm_control/cartpole-swingup-v0": "dmc_cartpole_swingup_suite.yaml",
     "dm_control/pendulum-swingup-v0": "dmc_pendulum_swingup.yaml",
+    "InvertedDoublePendulum-v5": "inverted_double_pendulum_v5.yaml",
     "InvertedPendulum-v5": "inverted_pendulum_v5.yaml",
     "Pendulum-v1": "pendulum_v1.yaml",
     "mcpilco/UR10-v0": "ur10_tracking.yaml",

@@ -70,6 +70,16 @@ limits
     (:meth:`TaskSpec.touches_limit`); the optimised cost can put a barrier at each limit
     (:mod:`mcpilco.agents.mc_pilco.cost`), which keeps the predicted particles, and so the
     policy, off the stops.
+termination
+    ``{x_j: [lo_j, hi_j]}``: the env ends an episode as soon as a listed coordinate leaves
+    its range (an angle by its wrapped value), e.g. a pole that falls past 0.2 rad. The
+    particle rollout then treats the set outside as absorbing
+    (:class:`~mcpilco.agents.mc_pilco.loss.MCPilcoLoss`): a particle that leaves it stays
+    where it left and pays the cost's maximum for every remaining step.
+``trial_steps``
+    control steps of experience each trial collects: an episode that ends early is followed
+    by further episodes (reset by the env's own generator) until that many steps were taken
+    in all; default the horizon (one full episode of an env that never terminates).
 success
     the env's ``info[info_key]`` at the last step, else every state of the last ``window``
     steps within ``tol`` of its target (angles by wrapped distance), and with
@@ -214,6 +224,10 @@ class TaskSpec:
             (keys ``centre``, ``amplitudes``, ``omegas``, ``phases``, ``duration``), or None.
         limits: ``{state name: (lo, hi)}``, the range each listed coordinate cannot leave on
             the system (module glossary); no angle.
+        termination: ``{state name: (lo, hi)}``, the range outside which the env ends an
+            episode (module glossary; an angle by its wrapped value).
+        trial_steps: control steps of experience per trial, across resets (None: the
+            horizon; module glossary).
     """
 
     env_id: str
@@ -241,6 +255,8 @@ class TaskSpec:
     model: str = "dynamics"
     state_from: Mapping[str, StateReader] | None = None
     env_reset_options: Mapping[str, Any] | None = None
+    termination: Mapping[str, tuple[float, float]] = field(default_factory=dict)
+    trial_steps: int | None = None
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "_entry_names", {})  # source -> entry names, by check_env
@@ -368,7 +384,13 @@ class TaskSpec:
                 raise _fail(f"success.tracking_rms.{key}", f"needs a bound > 0, got {bound!r}")
         if s.info_key is None and not s.bounds and not s.full_horizon and not s.tracking_rms:
             raise _fail("success", "needs an info_key, bounds, full_horizon or tracking_rms")
-        self._check_limits()
+        object.__setattr__(self, "limits", self._check_ranges("limits", self.limits, False))
+        object.__setattr__(
+            self, "termination", self._check_ranges("termination", self.termination, True)
+        )
+        ts = self.trial_steps
+        if ts is not None and (not isinstance(ts, int) or isinstance(ts, bool) or ts < 1):
+            raise _fail("trial_steps", f"expected a positive integer number of steps, got {ts!r}")
         self._check_arm()
         self._check_state_from()
         if self.env_reset_options is not None and not isinstance(self.env_reset_options, Mapping):
@@ -399,24 +421,25 @@ class TaskSpec:
                 )
         object.__setattr__(self, "state_from", readers)
 
-    def _check_limits(self) -> None:
-        """``limits``: known, non-angle state names, each with finite ``lo < hi``."""
-        if not isinstance(self.limits, Mapping):
-            raise _fail("limits", f"expected a mapping state name -> [lo, hi], got {self.limits!r}")
-        limits = {}
-        for key, lim in self.limits.items():
-            if key not in self.state_names:
-                raise _fail(f"limits.{key}", f"unknown state name (states: {self.state_names})")
-            if key in self.angles:
-                raise _fail(f"limits.{key}", "an angle wraps around and has no limits")
+    def _check_ranges(self, key: str, ranges: Any, angles: bool) -> dict[str, tuple[float, float]]:
+        """``limits`` or ``termination`` (``key``): known state names (an angle only where
+        ``angles``), each with finite ``lo < hi``; returned as a plain dict."""
+        if not isinstance(ranges, Mapping):
+            raise _fail(key, f"expected a mapping state name -> [lo, hi], got {ranges!r}")
+        out = {}
+        for name, lim in ranges.items():
+            if name not in self.state_names:
+                raise _fail(f"{key}.{name}", f"unknown state name (states: {self.state_names})")
+            if name in self.angles and not angles:
+                raise _fail(f"{key}.{name}", "an angle wraps around and has no limits")
             ok = isinstance(lim, Sequence) and not isinstance(lim, str) and len(lim) == 2
             if not ok or not all(_is_number(v) for v in lim):
-                raise _fail(f"limits.{key}", f"needs [lo, hi], got {lim!r}")
+                raise _fail(f"{key}.{name}", f"needs [lo, hi], got {lim!r}")
             lo, hi = float(lim[0]), float(lim[1])
             if not (math.isfinite(lo) and math.isfinite(hi) and lo < hi):
-                raise _fail(f"limits.{key}", f"needs finite lo < hi, got [{lo}, {hi}]")
-            limits[str(key)] = (lo, hi)
-        object.__setattr__(self, "limits", limits)
+                raise _fail(f"{key}.{name}", f"needs finite lo < hi, got [{lo}, {hi}]")
+            out[str(name)] = (lo, hi)
+        return out
 
     def _check_arm(self) -> None:
         """The arm fields (module glossary); errors name the field."""
@@ -809,6 +832,23 @@ class TaskSpec:
                 hit |= (v < lo) | (v > hi)
         return hit
 
+    @property
+    def steps_per_trial(self) -> int:
+        """Control steps of experience each trial collects (``trial_steps``, else the
+        horizon)."""
+        return int(self.horizon if self.trial_steps is None else self.trial_steps)
+
+    def terminated(self, states: np.ndarray) -> np.ndarray:
+        """Per state ``(..., n)``, whether it lies outside the ``termination`` ranges (an
+        angle by its wrapped value); all False without them."""
+        states = np.asarray(states, dtype=np.float64)
+        out = np.zeros(states.shape[:-1], dtype=bool)
+        for name, (lo, hi) in self.termination.items():
+            v = states[..., self.index(name)]
+            v = wrap(v) if name in self.angles else v
+            out |= (v < lo) | (v > hi)
+        return out
+
     def in_goal(self, states: np.ndarray) -> np.ndarray:
         """Per state, whether every success bound holds (all True without bounds)."""
         states = np.asarray(states, dtype=np.float64)
@@ -938,6 +978,7 @@ TASK_NUMBER_RANGES: dict[str, dict[str, Any]] = {
     "success.bounds.tol": {"lo": 0.0, "hi": 1e9, "lo_open": True},
     "success.tracking_rms": {"lo": 0.0, "hi": 1e9, "lo_open": True},
     "limits": {"lo": -1e9, "hi": 1e9},
+    "trial_steps": {"lo": 1, "hi": 10_000_000, "integer": True},
 }
 """Range of each number of a task file (a list's entries each): a control period of at most
 an hour, magnitudes of at most 1e9, length scales in [1e-9, 1e9] (a smaller one underflows
@@ -991,9 +1032,12 @@ def _check_numbers(d: Mapping[str, Any]) -> None:
         rms = success.get("tracking_rms")
         for name, v in rms.items() if isinstance(rms, Mapping) else ():
             check(v, f"success.tracking_rms.{name}", "success.tracking_rms")
-    limits = d.get("limits")
-    for name, v in limits.items() if isinstance(limits, Mapping) else ():
-        check(v, f"limits.{name}", "limits")
+    for key in ("limits", "termination"):
+        ranges = d.get(key)
+        for name, v in ranges.items() if isinstance(ranges, Mapping) else ():
+            check(v, f"{key}.{name}", "limits")
+    if d.get("trial_steps") is not None:
+        check(d["trial_steps"], "trial_steps", "trial_steps")
 
 
 def _check_types(d: Mapping[str, Any]) -> None:

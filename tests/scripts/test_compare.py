@@ -222,7 +222,8 @@ def test_unknown_env_lists_task_envs(tmp_path, error_of):
 def test_env_without_task_is_refused(tmp_path, error_of):
     err = error_of(["--env", "mcpilco/MarkerCamera-v0", "--out", str(tmp_path)])
     assert "env 'mcpilco/MarkerCamera-v0' has no task specification" in err
-    valid = "valid env ids: InvertedPendulum-v5, Pendulum-v1, dm_control/cartpole-swingup-v0, "
+    valid = "valid env ids: InvertedDoublePendulum-v5, InvertedPendulum-v5, Pendulum-v1, "
+    valid += "dm_control/cartpole-swingup-v0, "
     assert valid + "dm_control/pendulum-swingup-v0, mcpilco/CartpoleSwingUp-v0" in err
 
 

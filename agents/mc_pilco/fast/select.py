@@ -108,6 +108,18 @@ def choose_backend(backend: str, parts: tuple[Any, Any, Any, torch.device]) -> s
     return "dynamo"
 
 
+def eager_only_reason(loss: Any) -> str | None:
+    """Why no chained backend can run ``loss`` whatever its parts (None: they may): the
+    rigid-body GP kernel has no chained backward, and a terminating task's absorbing set
+    (``loss.termination``) is masked in the eager rollout's loop only. ``"auto"`` then runs
+    the eager rollout; ``"dynamo"`` compiles the step, which the eager loop masks."""
+    if getattr(loss.dynamics, "joint_inputs", None) is not None:
+        return "the rigid-body GP kernel has no native or torch rollout"
+    if getattr(loss, "termination", None) is not None:
+        return "the task terminates (its absorbing set is masked by the eager rollout only)"
+    return None
+
+
 def use_fast_rollout(
     loss: Any,
     backend: str = "auto",
@@ -142,15 +154,15 @@ def use_fast_rollout(
         )
     loss.set_fast_rollout(None)
     torch.compiler.reset()
-    if getattr(loss.dynamics, "joint_inputs", None) is not None and backend != "dynamo":
+    eager_reason = eager_only_reason(loss)
+    if eager_reason is not None and backend != "dynamo":
         if backend != "auto":
             raise ValueError(
-                f"the {backend} backend cannot run this rollout: the rigid-body GP kernel has "
-                "no chained backward ('auto' runs it eagerly, 'dynamo' compiles its step)"
+                f"the {backend} backend cannot run this rollout: {eager_reason} ('auto' runs "
+                "it eagerly, 'dynamo' compiles its step)"
             )
         warnings.warn(
-            "rollout backend 'auto': the rigid-body GP kernel has no native or torch rollout; "
-            "using the eager rollout",
+            f"rollout backend 'auto': {eager_reason}; using the eager rollout",
             RuntimeWarning,
             stacklevel=2,
         )
@@ -200,5 +212,6 @@ __all__ = [
     "ChainedBackend",
     "FastRollout",
     "choose_backend",
+    "eager_only_reason",
     "use_fast_rollout",
 ]

@@ -114,7 +114,7 @@ def test_inverted_pendulum_run_counts_every_exploration_step(tmp_path):
     curve = run_method("pilco", "InvertedPendulum-v5", 0, tmp_path, opts)
     saved = json.loads((tmp_path / "records.json").read_text())
     explore, policy = saved["records"]
-    assert explore["steps"] == 60 and explore["exploration_episodes"] > 1
+    assert explore["steps"] == 60 and explore["episodes"] > 1
     assert explore["experience_s"] == pytest.approx(60 * 0.04)
     assert policy["gp_points"] == 60 and policy["opt_steps"] == 2
     assert 1 <= policy["steps"] <= 50
