@@ -26,6 +26,8 @@ file and what to do.
 
 from __future__ import annotations
 
+import hashlib
+import hmac
 import os
 import stat
 import tempfile
@@ -41,6 +43,9 @@ __all__ = [
     "create_new",
     "open_nofollow",
     "read_bytes",
+    "read_signed",
+    "sign_file",
+    "signing_key",
     "write_atomic",
 ]
 
@@ -191,4 +196,87 @@ def read_bytes(path: str | os.PathLike, what: str, max_bytes: int) -> bytes:
         data = fh.read(max_bytes + 1)
     if len(data) > max_bytes:
         raise ValueError(f"{what} {path} is larger than {max_bytes} bytes; it is not such a file")
+    return data
+
+
+SIGNATURE_SUFFIX = ".sig"  # the HMAC of a signed file sits beside it under this suffix
+KEY_ENV = "MCPILCO_KEY_FILE"  # environment variable naming the signing key's file
+_SIGN_CONTEXT = b"mcpilco-signed-file/1\0"  # prefix of every signed message (domain separation)
+
+
+def signing_key_path() -> Path:
+    """The user's signing key: ``$MCPILCO_KEY_FILE``, else ``~/.config/mcpilco/file_key``."""
+    env = os.environ.get(KEY_ENV)
+    return Path(env) if env else Path.home() / ".config" / "mcpilco" / "file_key"
+
+
+def signing_key() -> bytes:
+    """The user's 32-byte signing key, created on first use with permissions 0600 in a
+    folder of permissions 0700 (only this user can read it, so only this user can sign).
+
+    Raises:
+        ValueError: the key file is a link, not a regular file, readable by others, or not
+            32 bytes; the message names it and what to do.
+    """
+    path = signing_key_path()
+    if not path.exists() and not path.is_symlink():
+        path.parent.mkdir(parents=True, exist_ok=True, mode=0o700)
+        try:
+            fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_EXCL | os.O_NOFOLLOW, 0o600)
+        except FileExistsError:  # another process created it meanwhile
+            pass
+        else:
+            with os.fdopen(fd, "wb") as fh:
+                fh.write(os.urandom(32))
+    key = read_bytes(path, "signing key", 64)
+    mode = os.stat(path, follow_symlinks=False).st_mode
+    if mode & 0o077:
+        raise ValueError(
+            f"signing key {path} is readable or writable by others (mode {oct(mode & 0o777)}); "
+            "run chmod 600 on it"
+        )
+    if len(key) != 32:
+        raise ValueError(f"signing key {path} is not 32 bytes; remove it to make a new one")
+    return key
+
+
+def _signature(name: str, data: bytes) -> str:
+    msg = _SIGN_CONTEXT + name.encode() + b"\0" + data
+    return hmac.new(signing_key(), msg, hashlib.sha256).hexdigest()
+
+
+def sign_file(path: str | os.PathLike) -> None:
+    """Write ``<path>.sig``: the HMAC-SHA256, under the user's :func:`signing_key`, of the
+    file's name and bytes. A file another library writes in a format that can run code when
+    read (a pickle) is signed after it is written and read back only through
+    :func:`read_signed`."""
+    path = Path(path)
+    data = read_bytes(path, "file to sign", 1 << 34)
+    write_atomic(path.with_name(path.name + SIGNATURE_SUFFIX), _signature(path.name, data))
+
+
+def read_signed(path: str | os.PathLike, what: str, max_bytes: int = 1 << 34) -> bytes:
+    """The bytes of ``path`` when ``<path>.sig`` holds their HMAC under the user's key
+    (:func:`sign_file`): a file this user's runs wrote, not one put into the folder by
+    someone else. The bytes are read once, so what is checked is what the caller gets.
+
+    Raises:
+        ValueError: no signature, a wrong one, a link or an oversized file; the message
+            names ``what`` and the file.
+    """
+    path = Path(path)
+    data = read_bytes(path, what, max_bytes)
+    sig_path = path.with_name(path.name + SIGNATURE_SUFFIX)
+    try:
+        sig = read_bytes(sig_path, f"signature of {what}", 256).decode("ascii", "replace")
+    except FileNotFoundError:
+        raise ValueError(
+            f"{what} {path} has no signature ({sig_path.name}): it was not written by your "
+            "runs, so it is not read (it could run code); start the run again without resuming"
+        ) from None
+    if not hmac.compare_digest(sig.strip(), _signature(path.name, data)):
+        raise ValueError(
+            f"{what} {path} does not match its signature: changed after your run wrote it, or "
+            "written by someone else; it is not read (it could run code); start the run again"
+        )
     return data

@@ -95,3 +95,17 @@ def one_torch_thread() -> Iterator[None]:
     torch.set_num_threads(1)
     yield
     torch.set_num_threads(previous)
+
+
+@pytest.fixture(autouse=True, scope="session")
+def _signing_key_in_a_temporary_folder(tmp_path_factory) -> Iterator[None]:
+    """Signed run files (``mcpilco.models.files.sign_file``) use a key made for the test
+    session, never the user's own key in ``~/.config``; subprocesses inherit it."""
+    key = tmp_path_factory.mktemp("signing") / "file_key"
+    old = os.environ.get("MCPILCO_KEY_FILE")
+    os.environ["MCPILCO_KEY_FILE"] = str(key)
+    yield
+    if old is None:
+        os.environ.pop("MCPILCO_KEY_FILE", None)
+    else:
+        os.environ["MCPILCO_KEY_FILE"] = old

@@ -40,7 +40,9 @@ the swing-up for 300k / 300k / 2M steps of 1000-step episodes).
 from __future__ import annotations
 
 import dataclasses
+import io
 import json
+import re
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -61,7 +63,7 @@ from mcpilco.agents.baselines.common import (
 from mcpilco.agents.common.checkpoint import check_resume
 from mcpilco.agents.common.trials import DEFAULT_ENV_ID, env_dt, make_env
 from mcpilco.envs.tasks.spec import TaskSpec
-from mcpilco.models.files import write_atomic
+from mcpilco.models.files import SIGNATURE_SUFFIX, read_signed, sign_file, write_atomic
 
 ALGOS: tuple[str, ...] = ("sac", "td3", "ppo")
 """stable-baselines3 algorithms of the comparison."""
@@ -204,11 +206,53 @@ def _make_vec_env(cfg: SB3Config, runner: dict[str, Any], stats_path: Path | Non
     )
     if runner.get("normalize"):
         if stats_path is not None:
-            venv = VecNormalize.load(str(stats_path), venv)
+            import pickle
+
+            # VecNormalize.load unpickles the file by name; the same, from the signed bytes
+            data = read_signed(stats_path, "SB3 normalisation statistics")
+            stats = pickle.loads(data)  # signed by this user's run: see read_signed
+            if not isinstance(stats, VecNormalize):
+                raise ValueError(f"{stats_path} holds no VecNormalize statistics")
+            stats.set_venv(venv)
+            venv = stats
             venv.training = True
         else:
             venv = VecNormalize(venv, norm_obs=True, norm_reward=True)
     return venv
+
+
+CHECKPOINT_PATTERNS = (
+    "model_*.zip",
+    "replay_*.pkl",
+    "vecnormalize_*.pkl",
+    "*.zip.sig",
+    "*.pkl.sig",
+)  # the files of an SB3 run's checkpoints (with their signatures), rotated on each save
+_CHECKPOINT_NAME = {
+    "model": re.compile(r"model_\d+\.zip"),
+    "replay": re.compile(r"replay_\d+\.pkl"),
+    "vecnormalize": re.compile(r"vecnormalize_\d+\.pkl"),
+}  # the names checkpoint() gives, the only ones a resumed run reads
+
+
+def check_checkpoint_names(ckpt: Any, curve_path: Path) -> None:
+    """Refuse a ``curve.json`` checkpoint entry that names anything but the run's own
+    checkpoint files (``model_<n>.zip`` ... in the run folder: no path, no other file).
+
+    Raises:
+        ValueError: naming the entry and the file.
+    """
+    if not isinstance(ckpt, dict) or not isinstance(ckpt.get("steps"), int):
+        raise ValueError(f"{curve_path}: its checkpoint entry is not a checkpoint of this run")
+    for key, value in ckpt.items():
+        if key == "steps" or value is None:
+            continue
+        rule = _CHECKPOINT_NAME.get(key)
+        if rule is None or not isinstance(value, str) or not rule.fullmatch(value):
+            raise ValueError(
+                f"{curve_path}: checkpoint.{key} = {str(value)[:80]!r} is not a checkpoint file "
+                "of this run folder; start the run again without resuming"
+            )
 
 
 def policy_act(model, vec_normalize=None) -> Callable[[np.ndarray], np.ndarray]:
@@ -392,13 +436,18 @@ def run_sb3(
         elif log:
             log(f"{curve_path} has no checkpoint yet: starting from scratch")
 
+    if ckpt is not None:
+        check_checkpoint_names(ckpt, curve_path)
     stats = out / ckpt["vecnormalize"] if ckpt and ckpt.get("vecnormalize") else None
     venv = _make_vec_env(config, runner, stats)
     if ckpt is not None:
-        model = algo_cls.load(str(out / ckpt["model"]), env=venv, device="cpu")
+        # SB3's files hold pickles: read only when this user's run signed them
+        data = read_signed(out / ckpt["model"], "SB3 model")
+        model = algo_cls.load(io.BytesIO(data), env=venv, device="cpu")
         model._last_obs = None  # the saved env state is gone: reset on learn
         if ckpt.get("replay"):
-            model.load_replay_buffer(str(out / ckpt["replay"]))
+            buffer = read_signed(out / ckpt["replay"], "SB3 replay buffer")
+            model.load_replay_buffer(io.BytesIO(buffer))
         if log:
             log(f"resumed {out / ckpt['model']} at {ckpt['steps']} env steps")
     else:
@@ -436,10 +485,14 @@ def run_sb3(
         if cb.vec_normalize is not None:
             files["vecnormalize"] = f"vecnormalize_{n}.pkl"
             cb.vec_normalize.save(str(out / files["vecnormalize"]))
+        for key, name in files.items():
+            if key != "steps":
+                sign_file(out / name)  # read back only through read_signed
         state["checkpoint"] = files
         write_curve()  # the commit point
         keep = {v for k, v in files.items() if k != "steps"}
-        for pattern in ("model_*.zip", "replay_*.pkl", "vecnormalize_*.pkl"):
+        keep |= {name + SIGNATURE_SUFFIX for name in keep}
+        for pattern in CHECKPOINT_PATTERNS:
             for old_file in out.glob(pattern):
                 if old_file.name not in keep:
                     old_file.unlink(missing_ok=True)

@@ -105,3 +105,33 @@ def test_config_round_trips_through_to_dict_and_from_dict():
         assert SB3Config.from_dict(json.loads(json.dumps(cfg.to_dict()))) == cfg
     with pytest.raises(ValueError, match=r"unknown SB3 config fields \['colour'\]"):
         SB3Config.from_dict({**SB3Config("td3").to_dict(), "colour": "red"})
+
+
+class _Payload:
+    """Unpickling this creates the file ``target``: what a crafted checkpoint would do."""
+
+    def __init__(self, target):
+        self.target = str(target)
+
+    def __reduce__(self):
+        return (open, (self.target, "w"))
+
+
+def test_resume_reads_no_pickle_it_did_not_sign(tmp_path):
+    """A replay buffer replaced by a crafted pickle (with the old signature kept) and a
+    checkpoint entry naming a file outside the run are refused before anything is unpickled:
+    the payload's file is never created."""
+    import pickle
+
+    run_method("sac", ENV, 3, tmp_path, _opts("sac", 150))
+    curve = json.loads((tmp_path / "curve.json").read_text())
+    replay = tmp_path / curve["checkpoint"]["replay"]
+    marker = tmp_path.parent / f"{tmp_path.name}_pwned"
+    replay.write_bytes(pickle.dumps(_Payload(marker)))
+    with pytest.raises(ValueError, match="does not match its signature"):
+        run_method("sac", ENV, 3, tmp_path, _opts("sac", 300))
+    assert not marker.exists()
+    outside = dict(curve["checkpoint"], model="../elsewhere/model_150.zip")
+    (tmp_path / "curve.json").write_text(json.dumps({**curve, "checkpoint": outside}))
+    with pytest.raises(ValueError, match=r"checkpoint\.model = .* is not a checkpoint file"):
+        run_method("sac", ENV, 3, tmp_path, _opts("sac", 300))
