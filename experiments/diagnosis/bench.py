@@ -48,8 +48,9 @@ without friction (``arm.without_friction()``: the rigid body and the rotor inert
 draws its encoder, noise, references and effects from its seed as above, a kind listed in the
 set's ``sizes`` with its value uniform in the given range instead. ``panda``: the Franka Emika
 Panda of :func:`~mcpilco.envs.arms.panda` (MuJoCo Menagerie's frames and inertials), with a
-payload at the flange, rotor inertia on three joints, dry friction of 2-3 N m on two joints, a
-heavier link, damping, position-dependent friction (off-library) and a control.
+payload at the flange, rotor inertia of 0.05-0.3 kg m^2 on three joints (a half to three
+times the table's armature), dry friction of 2-3 N m on two joints, a heavier link, damping,
+position-dependent friction (off-library) and a control.
 
 Seeds: :data:`DEVELOPMENT_SEEDS` may be looked at while developing the loop; results are
 reported on evaluation seeds from :data:`EVALUATION_FIRST_SEED`, on which no setting is chosen.
@@ -137,7 +138,7 @@ CASE_SETS: dict[str, CaseSet] = {
             ("single", ("damping",)),
             ("off_library", ("position_friction",)),
         ),
-        sizes={"frictionloss": (2.0, 3.0)},
+        sizes={"armature": (0.05, 0.3), "frictionloss": (2.0, 3.0)},
     ),
 }
 """Named case sets (``--case-set``)."""
