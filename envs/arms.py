@@ -1,4 +1,5 @@
-"""Robot tables for :mod:`mcpilco.envs.arm_builder`: UR10, an AdeptOne-like SCARA, random arms.
+"""Robot tables for :mod:`mcpilco.envs.arm_builder`: UR10, an AdeptOne-like SCARA, the Franka
+Emika Panda, random arms.
 
 Every function returns an :class:`~mcpilco.envs.arm_builder.ArmSpec` (pure data; nothing is
 compiled here). Units: m, rad, kg, kg m^2, N m (N for prismatic joints), A.
@@ -29,6 +30,26 @@ SCARA (AdeptOne-like, joints R R P R, thesis section 3.4.1)
     centres of mass (middle of each arm, quill centre above the tip) and cylinder inertias
     are assumptions. Joints 1-2 are direct drive (``K_r = 1``) as on the AdeptOne, the quill
     is a ball screw (``K_r = 2 pi / 0.02`` rad/m), joint 4 has ``K_r = 20``.
+Franka Emika Panda (7 revolute joints)
+    Bodies, frames, joint ranges and inertials transcribed from MuJoCo Menagerie's
+    ``franka_emika_panda/panda.xml`` (google-deepmind/mujoco_menagerie, commit
+    ``1b428b08bb26ca6024e7b21e8ff21a59f847eb87``, Apache-2.0 licence); its inertials are from
+    Gaz, Cognetti, Oliva, Robuffo Giordano & De Luca, "Dynamic identification of the Franka
+    Emika Panda robot with retrieval of feasible parameters using penalty-based
+    optimization", IEEE RA-L 2019. No meshes. Menagerie's body frames are the modified-DH
+    frames of Franka's documentation, ``B_{i+1} = B_i Tx(a_i) Rx(alpha_i) Rz(q_{i+1})
+    Tz(d_{i+1})``, which is the builder's body-to-body transform: the DH rows below
+    reproduce Menagerie's bodies ``link1..link6`` exactly; ``link7``'s body sits at the flange
+    (Menagerie's ``link8``, 0.107 m along joint 7's axis), which moves the frame along the
+    axis only. The gripper is rigid: the hand (0.73 kg) and both fingers (0.015 kg each,
+    closed, at their body origins) are lumped into link 7 (mass, centre of mass and inertia
+    combined by the parallel-axis theorem); the base ``link0`` is fixed to the world and
+    carries no joint, so it is left out. Menagerie's joint ``armature = 0.1`` and ``damping =
+    1`` (simulation settings, not identified values) are kept as ``rotor_inertia`` (gear 1)
+    and ``viscous``; ``arm.rigid()`` drops them. Torque limits 87 N m (joints 1-4) and 12 N m
+    (5-7) are Menagerie's actuator force ranges; speed limits 2.175 rad/s (joints 1-4) and
+    2.61 rad/s (5-7) are Franka's datasheet values (not in the Menagerie file); torque
+    constants are not published (1 N m/A, gear 1).
 Random arms
     :func:`random_arm` draws joint types, DH parameters, masses and centres of mass from
     documented uniform ranges (seeded), for Monte Carlo studies.
@@ -39,8 +60,17 @@ from __future__ import annotations
 import math
 
 import numpy as np
+from numpy.typing import NDArray
 
-from mcpilco.envs.arm_builder import ArmSpec, DHJoint, LinkInertia, solid_cylinder_inertia
+from mcpilco.envs.arm_builder import (
+    ArmSpec,
+    DHJoint,
+    LinkInertia,
+    inertia_matrix,
+    rot_x,
+    rot_z,
+    solid_cylinder_inertia,
+)
 
 TWO_PI = 2.0 * math.pi
 
@@ -148,6 +178,110 @@ def scara() -> ArmSpec:
     )
 
 
+def lump_inertials(
+    parts: list[tuple[float, NDArray[np.float64], NDArray[np.float64]]],
+) -> tuple[float, NDArray[np.float64], NDArray[np.float64]]:
+    """One rigid body from ``parts`` ``(m_k, c_k, I_k)`` given in one frame (``I_k`` 3x3 about
+    ``c_k``): ``m = sum m_k``, ``c = sum m_k c_k / m`` and, by the parallel-axis theorem,
+    ``I = sum I_k + m_k (|r_k|^2 E - r_k r_k^T)`` with ``r_k = c_k - c``."""
+    mass = sum(m for m, _, _ in parts)
+    com = sum(m * np.asarray(c, dtype=np.float64) for m, c, _ in parts) / mass
+    inertia = np.zeros((3, 3))
+    for m, c, i_k in parts:
+        r = np.asarray(c, dtype=np.float64) - com
+        inertia += i_k + m * (float(r @ r) * np.eye(3) - np.outer(r, r))
+    return mass, com, inertia
+
+
+def _in_dh_frame(
+    mass: float, com: NDArray[np.float64], inertia: NDArray[np.float64], a: float, alpha: float
+) -> LinkInertia:
+    """A link given in its body frame ``B_i`` re-expressed in DH frame ``{i} = B_i Tx(a)
+    Rx(alpha)`` (the frame :class:`~mcpilco.envs.arm_builder.LinkInertia` is given in)."""
+    r = rot_x(alpha)
+    c = r.T @ (np.asarray(com, dtype=np.float64) - np.array([a, 0.0, 0.0]))
+    i = r.T @ inertia @ r
+    full = (i[0, 0], i[1, 1], i[2, 2], i[0, 1], i[0, 2], i[1, 2])
+    return LinkInertia(float(mass), tuple(c.tolist()), tuple(float(v) for v in full))
+
+
+# Menagerie panda.xml inertials, each in its body's frame: (mass, pos, fullinertia)
+PANDA_INERTIALS: tuple[tuple[float, tuple[float, ...], tuple[float, ...]], ...] = (
+    (4.970684, (0.003875, 0.002081, -0.04762),
+     (0.70337, 0.70661, 0.0091170, -0.00013900, 0.0067720, 0.019169)),
+    (0.646926, (-0.003141, -0.02872, 0.003495),
+     (0.0079620, 2.8110e-2, 2.5995e-2, -3.925e-3, 1.0254e-2, 7.04e-4)),
+    (3.228604, (2.7518e-2, 3.9252e-2, -6.6502e-2),
+     (3.7242e-2, 3.6155e-2, 1.083e-2, -4.761e-3, -1.1396e-2, -1.2805e-2)),
+    (3.587895, (-5.317e-2, 1.04419e-1, 2.7454e-2),
+     (2.5853e-2, 1.9552e-2, 2.8323e-2, 7.796e-3, -1.332e-3, 8.641e-3)),
+    (1.225946, (-1.1953e-2, 4.1065e-2, -3.8437e-2),
+     (3.5549e-2, 2.9474e-2, 8.627e-3, -2.117e-3, -4.037e-3, 2.29e-4)),
+    (1.666555, (6.0149e-2, -1.4117e-2, -1.0517e-2),
+     (1.964e-3, 4.354e-3, 5.433e-3, 1.09e-4, -1.158e-3, 3.41e-4)),
+    (7.35522e-01, (1.0517e-2, -4.252e-3, 6.1597e-2),
+     (1.2516e-2, 1.0027e-2, 4.815e-3, -4.28e-4, -1.196e-3, -7.41e-4)),
+)  # fmt: skip
+PANDA_HAND: tuple[float, tuple[float, ...], tuple[float, ...]] = (
+    0.73,
+    (-0.01, 0.0, 0.03),
+    (0.001, 0.0025, 0.0017, 0.0, 0.0, 0.0),
+)  # Menagerie hand inertial, hand frame
+PANDA_FINGER: tuple[float, tuple[float, ...], tuple[float, ...]] = (
+    0.015,
+    (0.0, 0.0, 0.0584),
+    (2.375e-6, 2.375e-6, 7.5e-7, 0.0, 0.0, 0.0),
+)  # one finger (closed), hand frame
+PANDA_FLANGE = 0.107  # Menagerie link8 (flange) along joint 7's axis [m]
+PANDA_HAND_YAW = -math.pi / 4  # hand frame about the flange's z (quat 0.924 0 0 -0.383)
+
+
+def panda() -> ArmSpec:
+    """The Franka Emika Panda (7 revolute joints, rigid gripper) from MuJoCo Menagerie's
+    ``panda.xml``; see the module docstring for the source, the licence and the frames."""
+    # builder rows (d_i, a_i, alpha_i): Menagerie's modified-DH body transforms
+    d = (0.333, 0.0, 0.316, 0.0, 0.384, 0.0, PANDA_FLANGE)
+    a = (0.0, 0.0, 0.0825, -0.0825, 0.0, 0.088, 0.0)
+    alpha = (-math.pi / 2, math.pi / 2, math.pi / 2, -math.pi / 2, math.pi / 2, math.pi / 2, 0.0)
+    ranges = ((-2.8973, 2.8973), (-1.7628, 1.7628), (-2.8973, 2.8973), (-3.0718, -0.0698),
+              (-2.8973, 2.8973), (-0.0175, 3.7525), (-2.8973, 2.8973))  # fmt: skip
+    torque_limit = (87.0,) * 4 + (12.0,) * 3
+    velocity_limit = (2.175,) * 4 + (2.61,) * 3
+    joints = tuple(
+        DHJoint(
+            a=a[i],
+            alpha=alpha[i],
+            d=d[i],
+            type="R",
+            range=ranges[i],
+            viscous=1.0,
+            rotor_inertia=0.1,
+            torque_limit=torque_limit[i],
+            velocity_limit=velocity_limit[i],
+        )
+        for i in range(7)
+    )
+    links = []
+    for i, (mass, pos, full) in enumerate(PANDA_INERTIALS):
+        com, inertia = np.array(pos), inertia_matrix(full)
+        if i == 6:  # link 7's body sits at the flange; the rigid hand and fingers join it
+            flange = np.array([0.0, 0.0, PANDA_FLANGE])
+            yaw = rot_z(PANDA_HAND_YAW)
+            parts = [(mass, com - flange, inertia)] + [
+                (m, yaw @ np.array(c), yaw @ inertia_matrix(f) @ yaw.T)
+                for m, c, f in (PANDA_HAND, PANDA_FINGER, PANDA_FINGER)
+            ]
+            mass, com, inertia = lump_inertials(parts)
+        links.append(_in_dh_frame(mass, com, inertia, a[i], alpha[i]))
+    return ArmSpec(
+        name="panda",
+        joints=joints,
+        links=tuple(links),
+        radius=0.05,
+        description="Franka Emika Panda: MuJoCo Menagerie panda.xml (Apache-2.0), rigid gripper",
+    )
+
+
 RANDOM_ARM_RANGES: dict[str, tuple[float, float]] = dict(
     a=(-0.4, 0.4),  # link length [m]
     d=(0.0, 0.3),  # link offset [m] (offset d0 of prismatic joints too)
@@ -235,5 +369,5 @@ def random_arm(
     )
 
 
-ARMS = {"ur10": ur10, "scara": scara}
+ARMS = {"ur10": ur10, "scara": scara, "panda": panda}
 """Named robot tables (factories)."""

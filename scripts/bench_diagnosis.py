@@ -17,6 +17,12 @@ Example (about 20-30 s per case on one core)::
 
     mcpilco-bench-diagnosis --per-kind 3 --controls 5 --multi 5 --off-library 5 --jobs 2
 
+``--case-set panda`` runs a fixed list of cases on the Franka Emika Panda (MuJoCo Menagerie's
+frames and inertials) instead: payload, rotor inertia on three joints, dry friction of 2-3 N m
+on two joints, a heavier link, damping, position-dependent friction and a control::
+
+    nice -n 10 mcpilco-bench-diagnosis --case-set panda --first-seed 0 --out /tmp/panda
+
 ``--speed`` times the loop instead on one 3-joint case of 7,503 training rows with a nominal
 and a GIP start (:func:`~mcpilco.experiments.diagnosis.bench.run_speed`) and writes
 ``results/diagnosis_speed.json`` and ``.md``.
@@ -30,7 +36,12 @@ from collections.abc import Sequence
 from pathlib import Path
 
 from mcpilco.agents.common.cli import console_main
-from mcpilco.experiments.diagnosis.bench import EVALUATION_FIRST_SEED, run_benchmark, run_speed
+from mcpilco.experiments.diagnosis.bench import (
+    CASE_SETS,
+    EVALUATION_FIRST_SEED,
+    run_benchmark,
+    run_speed,
+)
 from mcpilco.experiments.infra.sweep import SweepError, add_sweep_arguments, runner_from_args
 
 
@@ -42,6 +53,14 @@ def main(argv: Sequence[str] | None = None) -> int:
     p.add_argument("--multi", type=int, default=5, help="cases with two hidden effects")
     p.add_argument(
         "--off-library", type=int, default=5, help="cases with position-dependent friction"
+    )
+    p.add_argument(
+        "--case-set",
+        choices=sorted(CASE_SETS),
+        default=None,
+        help="a named, fixed list of cases on one arm (e.g. panda: the Franka Emika Panda "
+        "from MuJoCo Menagerie) instead of random arms; --per-kind, --controls, --multi, "
+        "--off-library, --min-joints and --max-joints are then unused",
     )
     p.add_argument("--cases", type=int, default=None, help="run only the first N of the plan")
     p.add_argument("--first-seed", type=int, default=EVALUATION_FIRST_SEED)
@@ -84,6 +103,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         start=args.start,
         max_points=args.max_points,
         iters=args.iters,
+        case_set=args.case_set,
         out=args.out,
         runs_dir=args.runs_dir,
         command=shlex.join(["mcpilco-bench-diagnosis", *(argv or [])]),

@@ -42,6 +42,16 @@ is significant); :mod:`mcpilco.experiments.diagnosis.scoring` scores the answer 
 truth. :func:`run_benchmark` runs the cases as sweep jobs and writes JSON, Markdown and a PNG
 (confusion of the hidden effect against the effect named first).
 
+Named case sets (:data:`CASE_SETS`, ``--case-set``): a fixed list of cases on one arm of
+:data:`mcpilco.envs.arms.ARMS` instead of random arms. Its nominal robot file is the table
+without friction (``arm.without_friction()``: the rigid body and the rotor inertias); each case
+draws its encoder, noise, references and effects from its seed as above, a kind listed in the
+set's ``sizes`` with its value uniform in the given range instead. ``panda``: the Franka Emika
+Panda of :func:`~mcpilco.envs.arms.panda` (MuJoCo Menagerie's frames and inertials), with a
+payload at the flange, rotor inertia of 0.05-0.3 kg m^2 on three joints (a half to three
+times the table's armature), dry friction of 2-3 N m on two joints, a heavier link, damping,
+position-dependent friction (off-library) and a control.
+
 Seeds: :data:`DEVELOPMENT_SEEDS` may be looked at while developing the loop; results are
 reported on evaluation seeds from :data:`EVALUATION_FIRST_SEED`, on which no setting is chosen.
 """
@@ -56,7 +66,7 @@ import time
 import warnings
 from collections.abc import Sequence
 from pathlib import Path
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 
@@ -98,6 +108,40 @@ MAX_DRAWS = 20
 """Draws of a case's arm (and of its effects) before giving up when every simulation diverges."""
 RANKING_KEPT = 10
 """Candidates of the first diagnosis's ranking kept in a record."""
+
+
+class CaseSet(NamedTuple):
+    """A named, fixed list of cases on one arm (module docstring).
+
+    Attributes:
+        arm: a table of :data:`mcpilco.envs.arms.ARMS`.
+        cases: ``(role, kinds)`` of each case, in order; a kind listed twice acts on two
+            different joints (links).
+        sizes: kind -> ``(low, high)``: its value is drawn uniformly in this range instead of
+            from ``snr`` (or :data:`MASS_FACTOR_RANGE`, :data:`PAYLOAD_RANGE`).
+    """
+
+    arm: str
+    cases: tuple[tuple[str, tuple[str, ...]], ...]
+    sizes: dict[str, tuple[float, float]]
+
+
+CASE_SETS: dict[str, CaseSet] = {
+    "panda": CaseSet(
+        arm="panda",
+        cases=(
+            ("control", ()),
+            ("single", ("payload",)),
+            ("multi", ("armature", "armature", "armature")),
+            ("multi", ("frictionloss", "frictionloss")),
+            ("single", ("mass",)),
+            ("single", ("damping",)),
+            ("off_library", ("position_friction",)),
+        ),
+        sizes={"armature": (0.05, 0.3), "frictionloss": (2.0, 3.0)},
+    ),
+}
+"""Named case sets (``--case-set``)."""
 
 
 # ----------------------------------------------------------------------------- the plan
@@ -165,10 +209,18 @@ def effect_torque(arm: Any, effects: Sequence[Any], log: Any) -> np.ndarray:
     return inverse(true) - inverse(nominal)
 
 
-def draw_effect(kind: str, arm: Any, probe: Any, rng: np.random.Generator, tau_noise: float) -> Any:
+def draw_effect(
+    kind: str,
+    arm: Any,
+    probe: Any,
+    rng: np.random.Generator,
+    tau_noise: float,
+    value_range: tuple[float, float] | None = None,
+) -> Any:
     """A :class:`~mcpilco.envs.robot_logs.HiddenEffect` of ``kind`` on a random joint (link),
     its size drawn as in the module docstring from the effect-free ``probe`` log's true
-    states."""
+    states, or uniformly in ``value_range`` when given (the value itself: N m s/rad, N m,
+    kg m^2, ...; the mass factor; the payload's kg)."""
     from mcpilco.envs.robot_logs import FRICTION_VELOCITY, HiddenEffect
 
     n = arm.n_joints
@@ -194,6 +246,8 @@ def draw_effect(kind: str, arm: Any, probe: Any, rng: np.random.Generator, tau_n
             ref = float(rng.uniform(10.0, 40.0) if prismatic else rng.uniform(1.0, 4.0))
             shape = (1.0 + 0.5 * np.sin(ref * q)) * np.tanh(qd / FRICTION_VELOCITY)
         snr = _log_uniform(rng, *SNR_RANGE)
+        if value_range is not None:
+            return HiddenEffect(kind, j, float(rng.uniform(*value_range)), ref)
         return HiddenEffect(kind, j, snr * tau_noise / max(_rms(shape), 1e-12), ref)
     if kind not in ("mass", "payload"):
         raise ValueError(f"unknown hidden-effect kind {kind!r}; use one of {EFFECT_KINDS}")
@@ -201,11 +255,16 @@ def draw_effect(kind: str, arm: Any, probe: Any, rng: np.random.Generator, tau_n
     for _ in range(20):
         if kind == "mass":
             effect = HiddenEffect(
-                "mass", int(rng.integers(1, n + 1)), float(rng.uniform(*MASS_FACTOR_RANGE))
+                "mass",
+                int(rng.integers(1, n + 1)),
+                float(rng.uniform(*(value_range or MASS_FACTOR_RANGE))),
             )
         else:
             effect = HiddenEffect(
-                "payload", n, float(rng.uniform(*PAYLOAD_RANGE)), float(rng.uniform(0.0, 0.1))
+                "payload",
+                n,
+                float(rng.uniform(*(value_range or PAYLOAD_RANGE))),
+                float(rng.uniform(0.0, 0.1)),
             )
         size = np.sqrt(np.mean(effect_torque(arm, [effect], probe) ** 2, axis=0)) / tau_noise
         if size.max() >= MIN_SIZE:
@@ -260,6 +319,8 @@ def run_case(
     iters: int = 100,
     max_steps: int = 4,
     inducing: int | None = None,
+    arm: str = "random",
+    sizes: dict[str, Sequence[float]] | None = None,
 ) -> dict[str, Any]:
     """Simulate one case (module docstring), run the loop on it and score it.
 
@@ -275,6 +336,11 @@ def run_case(
         max_steps: most effects the loop adds.
         inducing: a GIP start fitted on every row with this many Nystroem rows
             (:func:`make_start`).
+        arm: ``"random"`` (a random arm of ``min_joints..max_joints`` joints, its rigid
+            table the nominal robot file) or a table of :data:`mcpilco.envs.arms.ARMS`
+            (its table without friction the nominal robot file).
+        sizes: kind -> ``(low, high)``, the range its value is drawn from
+            (:func:`draw_effect`); other kinds as in the module docstring.
 
     Returns:
         the record: the case (arm, noise, effects and their realised size), the loop's
@@ -283,7 +349,7 @@ def run_case(
         :func:`score_record`.
     """
     from mcpilco.envs.arm_builder import arm_to_xml
-    from mcpilco.envs.arms import random_arm
+    from mcpilco.envs.arms import ARMS, random_arm
     from mcpilco.envs.robot_logs import SimulationDiverged, simulate_log
     from mcpilco.models.diagnosis import DiagnosisModel, auto_improve
 
@@ -292,47 +358,54 @@ def run_case(
             raise ValueError(f"unknown hidden-effect kind {k!r}; use one of {EFFECT_KINDS}")
     if not 1 <= min_joints <= max_joints:
         raise ValueError(f"need 1 <= min_joints <= max_joints, got {min_joints}, {max_joints}")
+    if arm != "random" and arm not in ARMS:
+        raise ValueError(f"arm must be 'random' or one of {sorted(ARMS)}, got {arm!r}")
+    ranges = {k: (float(v[0]), float(v[1])) for k, v in (sizes or {}).items()}
     t0 = time.perf_counter()
     rng = np.random.default_rng(seed)
+    table = None if arm == "random" else ARMS[arm]().without_friction()
     for _ in range(MAX_DRAWS):
-        n = int(rng.integers(min_joints, max_joints + 1))
-        arm = random_arm(n, seed=int(rng.integers(2**31))).rigid()
+        if table is None:
+            n = int(rng.integers(min_joints, max_joints + 1))
+            robot = random_arm(n, seed=int(rng.integers(2**31))).rigid()
+        else:
+            robot, n = table, table.n_joints
         counts = int(rng.choice(ENCODER_COUNTS))
         tau_noise = _log_uniform(rng, *TAU_NOISE_RANGE)
         log_seeds = [int(s) for s in rng.integers(2**31, size=train_files + 1)]
         sim = dict(duration=duration, counts_per_rev=counts, tau_noise=tau_noise)
         try:  # an arm whose controller the simulation cannot follow: draw another arm
-            probe = simulate_log(arm, [], seed=log_seeds[0], **sim)
+            probe = simulate_log(robot, [], seed=log_seeds[0], **sim)
             break
         except SimulationDiverged:
             continue
     else:
-        raise RuntimeError(f"seed {seed}: {MAX_DRAWS} random arms all diverged")
+        raise RuntimeError(f"seed {seed}: {MAX_DRAWS} draws of the arm all diverged")
     for _ in range(MAX_DRAWS):
         effects: list[Any] = []
         for k in kinds:
-            e = draw_effect(k, arm, probe, rng, tau_noise)
+            e = draw_effect(k, robot, probe, rng, tau_noise, ranges.get(k))
             while any(e.kind == o.kind and e.joint == o.joint for o in effects):
-                e = draw_effect(k, arm, probe, rng, tau_noise)
+                e = draw_effect(k, robot, probe, rng, tau_noise, ranges.get(k))
             effects.append(e)
         try:
-            logs = [simulate_log(arm, effects, seed=s, **sim) for s in log_seeds]
+            logs = [simulate_log(robot, effects, seed=s, **sim) for s in log_seeds]
             break
         except SimulationDiverged:  # a draw the simulated arm cannot follow: draw again
             continue
     else:
         raise RuntimeError(f"seed {seed}: {MAX_DRAWS} draws of {list(kinds)} all diverged")
     size = np.sqrt(
-        np.mean(np.concatenate([effect_torque(arm, effects, log) for log in logs]) ** 2, axis=0)
+        np.mean(np.concatenate([effect_torque(robot, effects, log) for log in logs]) ** 2, axis=0)
     )
     names = [f"seed{seed}_train{k + 1}" for k in range(train_files)] + [f"seed{seed}_test"]
     train = _trajectories(logs[:-1], names[:-1])
     test = _trajectories(logs[-1:], names[-1:])
     t_sim = time.perf_counter() - t0
 
-    xml = arm_to_xml(arm, friction=False)
+    xml = arm_to_xml(robot, friction=False)
     model = DiagnosisModel(
-        make_start(start, xml, arm.joint_types, iters, inducing), max_points=max_points
+        make_start(start, xml, robot.joint_types, iters, inducing), max_points=max_points
     )
     model.fit(train)
     versions, diags = auto_improve(model, test, max_steps=max_steps)
@@ -355,7 +428,7 @@ def run_case(
     for e in effects:
         d = dataclasses.asdict(e)
         if e.kind == "mass":
-            d["nominal_link_mass"] = arm.links[e.joint - 1].mass
+            d["nominal_link_mass"] = robot.links[e.joint - 1].mass
         truth.append(d)
     ranking = [[c.effect.key, c.effect.joint] for c in first.candidates[:RANKING_KEPT]]
     named = None if first.best is None else [first.best.effect.key, first.best.effect.joint]
@@ -364,7 +437,8 @@ def run_case(
     rec: dict[str, Any] = {
         "seed": seed,
         "role": role,
-        "arm": arm.joint_types,
+        "arm": robot.joint_types,
+        "arm_name": robot.name,
         "n_joints": n,
         "encoder_counts_per_rev": counts,
         "tau_noise": tau_noise,
@@ -427,16 +501,27 @@ def run_benchmark(
     runs_dir: str | Path = "runs/bench_diagnosis",
     command: str | None = None,
     config: dict[str, Any] | None = None,
+    case_set: str | None = None,
 ) -> dict[str, Any] | None:
-    """Run the cases of :func:`case_plan` (the first ``cases`` of it when given; seeds
-    ``first_seed, first_seed + 1, ...`` in plan order) as sweep jobs of ``runner``, each
-    record kept in ``runs_dir/random/<start>/seed<s>.json`` (a rerun computes only the cases
-    without one), and write ``out`` + ``.json`` (``command``, ``measured`` date, ``config``,
-    ``seeds``, the summary, every record, the failed cases), ``.md`` and ``_confusion.png``.
+    """Run the cases of :func:`case_plan`, or of the named :data:`CASE_SETS` entry
+    ``case_set`` (the first ``cases`` of either when given; seeds ``first_seed, first_seed +
+    1, ...`` in plan order) as sweep jobs of ``runner``, each record kept in
+    ``runs_dir/<arm>/<start>/seed<s>.json`` (``<arm>``: ``random`` or the case set's arm; a
+    rerun computes only the cases without one), and write ``out`` + ``.json`` (``command``,
+    ``measured`` date, ``config``, ``seeds``, the summary, every record, the failed cases),
+    ``.md`` and ``_confusion.png``.
 
     Returns ``{"summary", "records", "markdown", "sweep"}``, or None when no case finished.
     """
-    plan = case_plan(per_kind, controls, multi, off_library)
+    if case_set is not None and case_set not in CASE_SETS:
+        raise ValueError(f"case_set must be one of {sorted(CASE_SETS)}, got {case_set!r}")
+    named = CASE_SETS.get(case_set) if case_set is not None else None
+    if named is None:
+        plan = case_plan(per_kind, controls, multi, off_library)
+        arm, sizes = "random", None
+    else:
+        plan = [(role, list(kinds)) for role, kinds in named.cases]
+        arm, sizes = named.arm, dict(named.sizes)
     if cases is not None:
         plan = plan[:cases]
     if not plan:
@@ -450,12 +535,14 @@ def run_benchmark(
         "start": start,
         "max_points": max_points,
         "iters": iters,
+        "arm": arm,
+        "sizes": sizes,
     }
     jobs = [
         Job(f"seed{s}", run_case, {**common, "seed": s, "role": role, "kinds": list(kinds)})
         for s, (role, kinds) in zip(seeds, plan, strict=True)
     ]
-    sweep = runner.run(jobs, Path(runs_dir) / "random" / start, desc="cases")
+    sweep = runner.run(jobs, Path(runs_dir) / arm / start, desc="cases")
     print(sweep.summary())
     records = [{**r, "score": score_record(r)} for r in sweep.results.values()]
     if not records:
@@ -464,8 +551,9 @@ def run_benchmark(
     out = Path(out)
     out.parent.mkdir(parents=True, exist_ok=True)
     title = (
-        f"Diagnosis on simulated robot logs ({len(records)} cases, seeds "
-        f"{seeds[0]}..{seeds[-1]}, {start} start)"
+        f"Diagnosis on simulated robot logs ({len(records)} cases"
+        + ("" if named is None else f", case set {case_set}")
+        + f", seeds {seeds[0]}..{seeds[-1]}, {start} start)"
     )
     png = plot_confusion(records, out.with_name(out.name + "_confusion.png"), title)
     payload: dict[str, Any] = {
@@ -480,8 +568,13 @@ def run_benchmark(
     if sweep.failed:
         payload["failed"] = [f.key for f in sweep.failed]
     write_result(out.with_suffix(".json"), RESULT_LAYOUTS[0], payload)
+    arms_text = (
+        f"Random arms ({min_joints}-{max_joints} joints)"
+        if named is None
+        else f"The {arm} table (nominal: without friction)"
+    )
     intro = (
-        f"Random arms ({min_joints}-{max_joints} joints) simulated in MuJoCo under PD + gravity "
+        f"{arms_text} simulated in MuJoCo under PD + gravity "
         f"compensation; {train_files} training logs and 1 held-out log of {duration:g} s each, "
         "t, q and tau only. Roles: control (no effect), single, multi (two effects), "
         'off_library (position-dependent friction: correct verdict "unexplained"). '

@@ -10,11 +10,12 @@ import numpy as np
 import pytest
 
 from mcpilco.envs.arm_builder import ArmSpec, DHJoint, LinkInertia, arm_to_xml, build_arm_model
-from mcpilco.envs.arms import random_arm, scara, ur10
+from mcpilco.envs.arms import panda, random_arm, scara, ur10
 
 ARMS = {
     "ur10": ur10(),
     "scara": scara(),
+    "panda": panda(),
     "random_rrrrrr": random_arm(6, seed=1, joint_types="RRRRRR"),
     "random_prrpr": random_arm(5, seed=2, joint_types="PRRPR"),
     "random_mixed": random_arm(7, seed=3),

@@ -9,9 +9,11 @@ import numpy as np
 import pytest
 
 from mcpilco.experiments.diagnosis.bench import (
+    CASE_SETS,
     LIBRARY_KINDS,
     SPEED_STAGES,
     case_plan,
+    draw_effect,
     run_case,
     run_speed,
     score_record,
@@ -234,6 +236,43 @@ def test_tiny_simulated_case_finds_its_damping():
     assert score["top1"] is True and score["found"] == [True], rec["ranking"]
     (p,) = score["parameters"]
     assert p["parameter"] == f"viscous:{j} F_v" and p["relative_error"] < 0.1, p
+
+
+def test_a_value_range_replaces_the_snr_draw():
+    """A kind given a range gets its value uniformly from it, whatever the noise; without
+    one, a scaled kind's value follows the torque noise (``snr`` times it)."""
+    from mcpilco.envs.arms import panda
+    from mcpilco.envs.robot_logs import simulate_log
+
+    arm = panda().without_friction()
+    probe = simulate_log(arm, [], duration=1.0, seed=0)
+    rng = np.random.default_rng(0)
+    for noise in (1e-4, 10.0):
+        e = draw_effect("frictionloss", arm, probe, rng, noise, (2.0, 3.0))
+        assert e.kind == "frictionloss" and 2.0 <= e.value <= 3.0 and 1 <= e.joint <= 7
+    tiny = draw_effect("frictionloss", arm, probe, rng, 1e-4)
+    assert tiny.value < 0.01  # at most 30 noise stds of 1e-4 N m over rms(tanh) >= ~0.3
+    payload = draw_effect("payload", arm, probe, rng, 0.05, (1.0, 1.5))
+    assert payload.joint == 7 and 1.0 <= payload.value <= 1.5
+
+
+@pytest.mark.slow  # about 10 s of CPU: three 1 s logs of a 7-joint arm and a diagnosis
+def test_panda_case_set_draws_its_effects_on_the_panda():
+    """The Panda set's dry-friction case: two frictionloss effects of 2-3 N m on two
+    different joints of the 7-joint Panda, whose torque shows on those joints only."""
+    role, kinds = CASE_SETS["panda"].cases[3]
+    assert kinds == ("frictionloss", "frictionloss")
+    rec = run_case(seed=3, role=role, kinds=list(kinds), duration=1.0, train_files=1,
+                   arm="panda", sizes=CASE_SETS["panda"].sizes, max_steps=1)  # fmt: skip
+    assert rec["arm_name"] == "panda" and rec["n_joints"] == 7
+    joints = sorted(e["joint"] for e in rec["effects"])
+    assert len(set(joints)) == 2
+    assert all(2.0 <= e["value"] <= 3.0 for e in rec["effects"])
+    size = np.array(rec["size_over_noise"])
+    others = np.delete(size, [j - 1 for j in joints])
+    assert size[[j - 1 for j in joints]].min() > 5.0 and np.all(others < 1e-3), size
+    with pytest.raises(ValueError, match="'kuka'"):
+        run_case(seed=0, role="control", kinds=[], arm="kuka")
 
 
 def test_an_effect_below_the_noise_is_not_scored_as_missed():
