@@ -21,7 +21,7 @@ Example (about 20-30 s per case on one core)::
 frames and inertials) instead: payload, rotor inertia on three joints, dry friction of 2-3 N m
 on two joints, a heavier link, damping, position-dependent friction and a control::
 
-    nice -n 10 mcpilco-bench-diagnosis --case-set panda --first-seed 0 --out /tmp/panda
+    nice -n 10 mcpilco-bench-diagnosis --case-set panda --first-seed 0 --out runs/panda
 
 ``--speed`` times the loop instead on one 3-joint case of 7,503 training rows with a nominal
 and a GIP start (:func:`~mcpilco.experiments.diagnosis.bench.run_speed`) and writes

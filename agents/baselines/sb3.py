@@ -206,11 +206,11 @@ def _make_vec_env(cfg: SB3Config, runner: dict[str, Any], stats_path: Path | Non
     )
     if runner.get("normalize"):
         if stats_path is not None:
-            import pickle
+            from stable_baselines3.common.save_util import load_from_pkl
 
             # VecNormalize.load unpickles the file by name; the same, from the signed bytes
             data = read_signed(stats_path, "SB3 normalisation statistics")
-            stats = pickle.loads(data)  # signed by this user's run: see read_signed
+            stats = load_from_pkl(io.BytesIO(data))  # signed by this user's run
             if not isinstance(stats, VecNormalize):
                 raise ValueError(f"{stats_path} holds no VecNormalize statistics")
             stats.set_venv(venv)

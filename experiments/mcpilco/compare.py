@@ -859,7 +859,12 @@ def _row(capability: str, stem: str, figure: Callable[[Result], str]) -> Headlin
 
 HEADLINES = (
     _row(
-        "MC-PILCO, Gymnasium InvertedPendulum-v5",
+        "MC-PILCO, Gymnasium InvertedPendulum-v5 (terminating episodes)",
+        "compare_InvertedPendulum-v5_seeds1000",
+        _balance_row,
+    ),
+    _row(
+        "MC-PILCO against TorchRL PILCO, InvertedPendulum-v5",
         "compare_InvertedPendulum-v5_noisefloor110",
         _balance_row,
     ),
