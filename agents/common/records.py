@@ -54,6 +54,11 @@ class TrialRecord:
             steps, seconds, wall and CPU seconds per step.
         opt_stop, opt_lr_reductions, opt_reinits: why it stopped, learning-rate reductions,
             re-initialisations (MC-PILCO's monitoring rule).
+        opt_restarts, opt_restart_reasons, opt_success_level: plateau restarts of the
+            policy search, why each ran (its step, plateau and level), and the success level
+            ``J_succ`` they compare with (None: the task's success set is no box).
+        explore_braked: steps of the exploration trial whose random action was replaced by
+            braking before a declared limit (:class:`~mcpilco.agents.common.trials.LimitGuard`).
         opt_final_cost: ``J^`` at the last step (mean over candidates).
         candidate_costs, chosen_candidate, chosen_cost: ``J^`` of each candidate policy of
             the chosen snapshot, the applied one and its ``J^``.
@@ -100,6 +105,10 @@ class TrialRecord:
     opt_stop: str | None = None
     opt_lr_reductions: int | None = None
     opt_reinits: int | None = None
+    opt_restarts: int | None = None
+    opt_restart_reasons: list[str] | None = None
+    opt_success_level: float | None = None
+    explore_braked: int | None = None
     opt_final_cost: float | None = None
     candidate_costs: list[float] | None = None
     chosen_candidate: int | None = None

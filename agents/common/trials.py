@@ -301,6 +301,108 @@ def trial_episodes(
     return episodes
 
 
+class LimitGuard:
+    """Keeps random exploration inside the task's declared ``limits`` and ``termination``
+    box (end stops, joint ranges, the set outside which the env ends an episode) by
+    braking before a bound, with no model of the system given.
+
+    For each bounded position ``q_i`` with a velocity ``v_i`` (the task's ``pairs``; an
+    angle that wraps has no bound), the velocity change of one control step is fitted
+    online by least squares on the transitions seen so far (those that stay strictly
+    inside the bounds)::
+
+        Delta v_i ~ b_i^T u + c_i
+
+    With ``m``, ``h`` the middle and half width of the action box and ``c'_i = c_i +
+    b_i^T m``, the worst action pushes ``v_i`` towards a bound in direction ``s = +-1`` by
+    ``p_s = sum_j |b_ij| h_j + s c'_i`` per step, and braking (``u_j = m_j - s sign(b_ij)
+    h_j``) slows it by ``g_s = sum_j |b_ij| h_j - s c'_i``. After one more free step the
+    speed towards the bound is at most ``w = s v_i + p_s``, and from there the coordinate
+    travels ``T_s w (w / (2 g_s) + 1)`` before it stops. Whenever ``q_i + s T_s w`` plus
+    that distance would reach the bound on side ``s``, the random action is replaced by
+    the braking one: an action that could drive past a bound is reversed. The fit needs
+    actions that differ (held random actions do not), so the first ``2 A`` steps of the
+    first episode probe each action ``j`` with a pulse ``m + h_j e_j`` and its reverse
+    ``m - h_j e_j`` (``A`` actions; their pushes cancel); until the fit has full rank, the
+    random actions pass unchanged. ``interventions`` counts the steps braked, ``probes`` the
+    probe steps. The rule is exact for a coordinate whose velocity change is affine in the
+    action; for others it is a margin that grows with the speed.
+    """
+
+    def __init__(self, task: TaskSpec) -> None:
+        self.task = task
+        velocity = dict(task.pairs)
+        box: dict[str, tuple[float, float]] = {}
+        for name, (lo, hi) in [*task.termination.items(), *task.limits.items()]:
+            if name in velocity and name not in task.angles:
+                old = box.get(name, (-np.inf, np.inf))
+                box[name] = (max(lo, old[0]), min(hi, old[1]))
+        self.bounds = [
+            (task.index(n), task.index(velocity[n]), lo, hi) for n, (lo, hi) in box.items()
+        ]
+        self.low = np.asarray(task.action_low, dtype=np.float64)
+        self.high = np.asarray(task.action_high, dtype=np.float64)
+        self.rows: list[np.ndarray] = []  # [u, 1] of each transition fitted
+        self.dv: list[np.ndarray] = []  # Delta v of the bounded coordinates
+        self.coef: np.ndarray | None = None  # (A + 1, bounds): b_i and c_i per column
+        self.interventions = 0
+        self.probes = 0
+        self._prev: tuple[np.ndarray, np.ndarray] | None = None
+
+    def start_episode(self) -> None:
+        """A new episode: the next state follows a reset, not the last action."""
+        self._prev = None
+
+    def __call__(self, x: np.ndarray, u: np.ndarray) -> np.ndarray:
+        """The action to apply in observed state ``x`` instead of the random ``u``."""
+        x = np.asarray(x, dtype=np.float64)
+        u = np.clip(np.asarray(u, dtype=np.float64).reshape(-1), self.low, self.high)
+        if not self.bounds:
+            return u
+        self._learn(x)
+        if self.probes < 2 * len(u):
+            j, sign = divmod(self.probes, 2)
+            out = (self.high + self.low) / 2.0
+            out[j] += (self.high[j] - self.low[j]) / 2.0 * (1.0 if sign == 0 else -1.0)
+            self.probes += 1
+        else:
+            out = u if self.coef is None else self._brake(x, u)
+        self._prev = (x, out)
+        return out
+
+    def _learn(self, x: np.ndarray) -> None:
+        if self._prev is None:
+            return
+        x0, u0 = self._prev
+        for i, _, lo, hi in self.bounds:
+            if not (lo < x0[i] < hi and lo < x[i] < hi):
+                return  # a stop or the termination set acted: no free motion
+        vel = [v for _, v, _, _ in self.bounds]
+        self.rows.append(np.append(u0, 1.0))
+        self.dv.append(x[vel] - x0[vel])
+        a = np.stack(self.rows)
+        if len(a) >= a.shape[1] and np.linalg.matrix_rank(a) == a.shape[1]:
+            self.coef = np.linalg.lstsq(a, np.stack(self.dv), rcond=None)[0]
+
+    def _brake(self, x: np.ndarray, u: np.ndarray) -> np.ndarray:
+        mid, half = (self.high + self.low) / 2.0, (self.high - self.low) / 2.0
+        dt = self.task.dt
+        for col, (i, iv, lo, hi) in enumerate(self.bounds):
+            b = self.coef[:-1, col]
+            c = float(self.coef[-1, col] + b @ mid)
+            reach = float(np.abs(b) @ half)
+            for s, bound in ((1.0, hi), (-1.0, lo)):
+                w = s * x[iv] + reach + s * c  # speed towards the bound after a free step
+                if w <= 0.0:
+                    continue
+                g = reach - s * c
+                stop = dt * w * (w / (2.0 * g) + 1.0) if g > 0 else np.inf
+                if s * (x[i] - bound) + dt * w + stop >= 0.0:
+                    self.interventions += 1
+                    return mid - s * np.sign(b) * half
+        return u
+
+
 def exploration_episodes(
     env,
     rng: np.random.Generator,
@@ -310,13 +412,19 @@ def exploration_episodes(
     hold: int = 1,
     min_steps: int | None = None,
     record_info: bool = False,
+    guard: LimitGuard | None = None,
 ) -> list[dict[str, Any]]:
     """Trial 0: :func:`trial_episodes` from the reset seed ``trial_seed(seed, 0)`` under the
-    random actions of :func:`exploration_actions` (drawn from ``rng`` per episode)."""
+    random actions of :func:`exploration_actions` (drawn from ``rng`` per episode), each
+    passed through ``guard`` (:class:`LimitGuard`: braking before the task's limits) when
+    given."""
 
     def actor(n: int) -> Callable[[np.ndarray], np.ndarray]:
         it = iter(exploration_actions(rng, n, hold, task.action_low, task.action_high))
-        return lambda _o: next(it)
+        if guard is None:
+            return lambda _o: next(it)
+        guard.start_episode()
+        return lambda o: guard(o, next(it))
 
     return trial_episodes(env, actor, trial_seed(seed, 0), horizon, task, min_steps, record_info)
 

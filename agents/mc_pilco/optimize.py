@@ -31,6 +31,18 @@ snapshot
 NaN restart
     a non-finite ``J^`` re-initialises the policy parameters and Adam (at most
     ``max_reinits`` times, then ``FloatingPointError``).
+plateau restart
+    given the task's success level ``J_succ`` (the largest ``J`` a trajectory that
+    succeeds can have, :func:`~mcpilco.agents.mc_pilco.trainer.success_cost_level`), a
+    stall whose plateau ``J-bar`` (the mean ``J^`` per candidate over the last ``n_s``
+    steps) lies above ``J_succ`` means the search sits in a basin none of whose policies
+    succeed on the model: a finer learning rate would only settle there. Instead the
+    parameters at the plateau are kept as a snapshot and the policy is drawn afresh
+    (``reset_parameters`` with a new seed), with the initial learning rate, dropout,
+    threshold and fresh Adam moments, at most ``max_restarts`` times and only while
+    ``min_steps + n_s`` steps of the budget remain (the time a fresh start needs before its
+    own first stall). The caller applies the snapshot with the lowest ``J^``
+    (:func:`choose_policy`), so a restart can only add candidates.
 
 The constants are those of the MC-PILCO reference cart-pole configuration (``a = 0.01``,
 ``a_min = 0.0025``, ``p = 0.25``, ``Delta p = 0.125``, ``alpha_s = 0.99``, ``sigma_s = 0.08``,
@@ -74,6 +86,7 @@ class PolicyOptConfig:
     monitor_patience: int = 200
     min_steps: int = 200
     max_reinits: int = 3
+    max_restarts: int = 2  # plateau restarts per optimisation (module glossary)
     cuda_graph: bool = True
     snapshot_every: int = 0  # steps between kept parameter copies (0: the final ones only)
 
@@ -112,6 +125,7 @@ _OPT_NUMBER_RANGES: dict[str, dict] = {
     "monitor_patience": {"lo": 1, "hi": 10_000_000, "integer": True},
     "min_steps": {"lo": 0, "hi": 10_000_000, "integer": True},
     "max_reinits": {"lo": 0, "hi": 1_000, "integer": True},
+    "max_restarts": {"lo": 0, "hi": 1_000, "integer": True},
     "snapshot_every": {"lo": 0, "hi": 10_000_000, "integer": True},
 }  # range of each number of PolicyOptConfig (mcpilco.envs.numbers.check_number keywords)
 
@@ -170,6 +184,9 @@ class OptimizationResult:
     signals: list[float] = field(default_factory=list)
     num_lr_reductions: int = 0
     num_reinits: int = 0
+    restarts: list[str] = field(default_factory=list)
+    """Why each plateau restart ran (its step, plateau ``J-bar`` and the success level)."""
+    success_level: float | None = None
     seconds: float = 0.0
     cpu_seconds: float = 0.0
     stop_reason: str = "max_steps"
@@ -258,6 +275,8 @@ def optimize_policy(
     policy: nn.Module,
     config: PolicyOptConfig,
     on_step: Callable[[int, float, float, float], None] | None = None,
+    success_level: float | None = None,
+    num_candidates: int = 1,
 ) -> OptimizationResult:
     """Minimise ``loss_module()["loss_cost"]`` over ``policy``'s parameters with Adam.
 
@@ -268,8 +287,12 @@ def optimize_policy(
             NaN restart.
         config: schedule and budget.
         on_step: called as ``on_step(k, J^_k, s_J,k, a_k)`` after each step (progress bars).
+        success_level: ``J_succ`` of the plateau restarts (module glossary), per candidate;
+            None: no restarts.
+        num_candidates: ``K``, the candidates whose ``J^`` the loss sums (the plateau is
+            compared per candidate).
     """
-    res = OptimizationResult()
+    res = OptimizationResult(success_level=success_level)
     lr = config.lr
     dropout = config.dropout
     params = [p for p in policy.parameters() if p.requires_grad]
@@ -322,6 +345,16 @@ def optimize_policy(
                 on_step(k, cost, std, lr)
             if config.snapshot_every and res.num_steps % config.snapshot_every == 0:
                 res.snapshots.append((res.num_steps, [p.detach().clone() for p in params]))
+            if stalled and _plateau_restart(res, config, success_level, num_candidates):
+                if not res.snapshots or res.snapshots[-1][0] != res.num_steps:  # keep the plateau
+                    res.snapshots.append((res.num_steps, [p.detach().clone() for p in params]))
+                policy.reset_parameters(int(torch.randint(2**31 - 1, ())))
+                lr, dropout = config.lr, config.dropout
+                _set_dropout(policy, dropout)
+                step_fn = None
+                opt = torch.optim.Adam(params, lr=lr)
+                monitor = new_monitor()
+                continue
             if stalled:
                 if lr <= config.lr_min:
                     res.stop_reason = "lr_min"
@@ -342,6 +375,28 @@ def optimize_policy(
         for p in params:  # release the gradients (a CUDA graph's memory pool with them)
             p.grad = None
     return res
+
+
+def _plateau_restart(
+    res: OptimizationResult,
+    config: PolicyOptConfig,
+    level: float | None,
+    num_candidates: int,
+) -> bool:
+    """At a stall: whether to restart (module glossary, plateau restart); when so, the
+    reason is appended to ``res.restarts``."""
+    if level is None or len(res.restarts) >= config.max_restarts:
+        return False
+    if config.max_steps - res.num_steps < config.min_steps + config.monitor_patience:
+        return False
+    recent = res.costs[-config.monitor_patience :]
+    plateau = sum(recent) / len(recent) / num_candidates
+    if plateau <= level:
+        return False
+    res.restarts.append(
+        f"step {res.num_steps}: J^ plateau {plateau:.2f} above the success level {level:.2f}"
+    )
+    return True
 
 
 @torch.no_grad()

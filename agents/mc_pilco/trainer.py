@@ -67,6 +67,7 @@ from mcpilco.agents.common.checkpoint import (
 from mcpilco.agents.common.records import RunSummary, TrialRecord, record_line, write_records
 from mcpilco.agents.common.run_folder import RUN_OUTPUTS, open_run_folder
 from mcpilco.agents.common.trials import (
+    LimitGuard,
     episode_outcome,
     evaluate,
     exploration_episodes,
@@ -178,7 +179,7 @@ class Trainer:
         rec = TrialRecord(index=k, kind="exploration" if k == 0 else "policy")
         arr: dict[str, Any] = {"index": k, "particles": None, "opt_costs": None}
         if k == 0:
-            episodes = self.explore()
+            episodes = self.explore(rec)
         else:
             self.init_policy_from_data(k)
             dynamics = self.fit_model(rec)
@@ -202,6 +203,7 @@ class Trainer:
             if self.resume:
                 self._load_checkpoint()
             self.cost_fn = self._optimised_cost()
+            self.success_level = success_cost_level(self.task, self.cost_fn)
             self.init_std = self._init_std()
         except BaseException:
             if self.env is not None:
@@ -209,11 +211,14 @@ class Trainer:
             self.run_folder.close()
             raise
 
-    def explore(self) -> list[dict[str, Any]]:
+    def explore(self, rec: TrialRecord | None = None) -> list[dict[str, Any]]:
         """Trial 0: episodes of random actions held ``explore_hold`` steps each, of
-        ``explore_steps`` (else the task's ``trial_steps``) steps in all."""
+        ``explore_steps`` (else the task's ``trial_steps``) steps in all; with
+        ``explore_limits``, braked before the task's limits and termination box
+        (:class:`~mcpilco.agents.common.trials.LimitGuard`; the braked steps go to ``rec``)."""
         config = self.config
-        return exploration_episodes(
+        guard = LimitGuard(self.task) if config.explore_limits else None
+        episodes = exploration_episodes(
             self.env,
             self.np_rng,
             config.seed,
@@ -222,7 +227,11 @@ class Trainer:
             config.explore_hold,
             config.explore_steps or self.task.steps_per_trial,
             record_info=True,
+            guard=guard,
         )
+        if rec is not None and guard is not None and guard.bounds:
+            rec.update(explore_braked=guard.interventions)
+        return episodes
 
     def init_policy_from_data(self, k: int) -> None:
         """With ``policy_init="data"``: draw the policy's centres and lengthscales from the
@@ -288,7 +297,14 @@ class Trainer:
                     J = c / config.num_candidates
                     obar.set_postfix(J=f"{J:.2f}", std=f"{s:.2f}", lr=f"{lr:.4f}")
 
-        res = optimize_policy(loss, self.population, opt_cfg, on_step=on_step)
+        res = optimize_policy(
+            loss,
+            self.population,
+            opt_cfg,
+            on_step=on_step,
+            success_level=self.success_level,
+            num_candidates=config.num_candidates,
+        )
         if obar is not None:
             obar.close()
         snap_costs, snap = choose_policy(loss, self.population, self.policy, res.snapshots)
@@ -301,6 +317,9 @@ class Trainer:
             opt_stop=res.stop_reason,
             opt_lr_reductions=res.num_lr_reductions,
             opt_reinits=res.num_reinits,
+            opt_restarts=len(res.restarts),
+            opt_restart_reasons=list(res.restarts),
+            opt_success_level=res.success_level,
             opt_final_cost=res.costs[-1] / config.num_candidates if res.costs else math.nan,
             candidate_costs=cand_costs.tolist(),
             chosen_candidate=int(cand_costs.argmin()),
@@ -615,6 +634,49 @@ class _CostFn(torch.nn.Module):
 
     def forward(self, state: torch.Tensor) -> torch.Tensor:
         return self.fn(state)
+
+
+MAX_GOAL_CORNERS = 4096  # corners of a goal box evaluated by success_cost_level (2^12)
+
+
+@torch.no_grad()
+def success_cost_level(
+    task: TaskSpec, cost: Callable[[torch.Tensor], torch.Tensor]
+) -> float | None:
+    """``J_succ``: the largest cumulative cost ``cost`` gives a trajectory that succeeds on
+    ``task`` (the level of the optimiser's plateau restarts,
+    :mod:`~mcpilco.agents.mc_pilco.optimize`).
+
+    A success keeps the state in the goal box ``G`` (``success.bounds``: each bounded state
+    within ``target +- tol``; for a ``full_horizon`` task without bounds, the
+    ``termination`` box) for the last ``W`` steps (``success.window``; all ``H`` steps for
+    a ``full_horizon`` task), and before them moves from the initial state ``x_0`` (the
+    task's ``init_mean``) towards it. With ``c_G`` the largest cost on ``G`` (at its
+    corners, the unbounded coordinates at ``x_0``; the cost terms rise away from their
+    targets) and ``c_0 = c(x_0)``::
+
+        J_succ = (H - W) max(c_0, c_G) + W c_G
+
+    A plateau above it is a trajectory that stays costlier than its start for the whole
+    approach or misses the goal at the end. None where the task's success set is no box
+    (an ``info`` flag or a tracking bound only): then nothing restarts.
+    """
+    s = task.success
+    box = {k: (b.target - b.tol, b.target + b.tol) for k, b in s.bounds.items()}
+    if not box and s.full_horizon:
+        box = dict(task.termination)
+    if not box or 2 ** len(box) > MAX_GOAL_CORNERS:
+        return None
+    x0 = torch.as_tensor(np.asarray(task.init_mean, dtype=np.float64), dtype=torch.float32)
+    corners = x0.repeat(2 ** len(box), 1)
+    for j, (name, (lo, hi)) in enumerate(box.items()):
+        upper = (torch.arange(len(corners)) >> j) & 1
+        corners[:, task.index(name)] = torch.where(upper.bool(), hi, lo)
+    c_goal = float(cost(corners).max())
+    c_start = float(cost(x0[None])[0])
+    h = task.horizon
+    w = h if s.full_horizon or s.window is None else min(int(s.window), h)
+    return (h - w) * max(c_start, c_goal) + w * c_goal
 
 
 def check_compile_toolchain(device: torch.device, backend: str = "auto") -> None:

@@ -1,0 +1,73 @@
+"""Exploration that respects declared end stops: on a cart whose track ends in stops (the
+task's ``limits``), held random actions drive it into a stop; braked by
+:class:`~mcpilco.agents.common.trials.LimitGuard`, which is told nothing of the cart's
+law, the cart never reaches either stop."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from mcpilco.agents.common.trials import LimitGuard, exploration_episodes, make_env
+from mcpilco.envs.tasks.spec import TaskSpec
+from tests.agents.common import end_stop_env
+from tests.agents.common.end_stop_env import ENV_ID, FORCE, SLOPE, STOP, TASK
+
+SEEDS = range(12)
+HOLD = 10  # each random push held 0.5 s: long enough to reach a stop
+
+
+def _explore(seed: int, guard: LimitGuard | None) -> list[dict]:
+    task = TaskSpec.from_dict(TASK)
+    env = make_env(ENV_ID, task.horizon, task)
+    try:
+        return exploration_episodes(
+            env, np.random.default_rng(seed), seed, task.horizon, task, HOLD, guard=guard
+        )
+    finally:
+        env.close()
+
+
+def test_unguarded_exploration_hits_the_stop():
+    """The premise: without the guard, held random pushes reach a stop on most seeds."""
+    assert end_stop_env.SlopeCart  # the env module registers the id
+    hits = [np.any(np.abs(_explore(s, None)[0]["states"][:, 0]) >= STOP) for s in SEEDS]
+    assert sum(hits) >= len(SEEDS) // 2
+
+
+def test_guarded_exploration_never_reaches_a_stop():
+    """With the guard the true state stays strictly inside the track on every seed and the
+    guard braked on each (it had to). The actions are the unguarded run's random draws
+    except the two probe pulses (+1, -1) at the start and the braked steps, each a full
+    push."""
+    task = TaskSpec.from_dict(TASK)
+    for seed in SEEDS:
+        guard = LimitGuard(task)
+        (ep,) = _explore(seed, guard)
+        x = ep["states"][:, 0]
+        assert np.all(np.abs(x) < STOP), (seed, x.min(), x.max())
+        assert guard.interventions > 0 and guard.probes == 2
+        u = ep["actions"][:, 0]
+        np.testing.assert_array_equal(u[:2], [1.0, -1.0])
+        (free,) = _explore(seed, None)
+        changed = np.flatnonzero(u[2:] != free["actions"][2:, 0]) + 2
+        assert 0 < len(changed) <= guard.interventions
+        np.testing.assert_array_equal(np.abs(u[changed]), 1.0)  # full pushes
+
+
+def test_guard_learns_the_cart_law():
+    """The online fit of ``Delta v = b u + c`` recovers the env's own ``T_s F`` and
+    ``-T_s G`` (noise-free data away from the stops)."""
+    task = TaskSpec.from_dict(TASK)
+    guard = LimitGuard(task)
+    _explore(0, guard)
+    b, c = guard.coef[:, 0]
+    np.testing.assert_allclose([b, c], [task.dt * FORCE, -task.dt * SLOPE], rtol=1e-6)
+
+
+def test_guard_without_bounds_passes_actions_through():
+    """A task that declares no limits gets the random actions unchanged."""
+    task = TaskSpec.from_dict({k: v for k, v in TASK.items() if k != "limits"})
+    guard = LimitGuard(task)
+    u = np.array([0.7])
+    assert guard.bounds == [] and guard(np.array([0.99, 5.0]), u) is not None
+    np.testing.assert_array_equal(guard(np.array([0.99, 5.0]), u), u)
