@@ -8,33 +8,41 @@ Cost model of one policy-optimisation step (a rollout of ``J^`` and its gradient
 with ``H`` the horizon, ``E`` the GP outputs, ``D`` the GP input size (state features and
 actions) and ``N`` the GP's training points: per particle, step and output the posterior
 mean and variance cost a fixed part (the policy, the features, the sampling) and a part
-linear in ``N D`` (the cross-kernel ``k(x, X)`` and its products). The constants are
-calibrated on the cart-pole swing-up (``M = 400``, ``H = 60``, ``E = 2``, ``D = 6``, the
-eager rollout, one thread): its mean seconds per step were 0.107, 0.131, 0.164, 0.203 s at
-``N = 60, 120, 180, 240`` points (trials 1-4 of 20 seeds), a straight line in ``N`` whose
-slope and intercept give ``c_1`` and ``c_0``. The ``N^2`` terms of the variance
-(``k^T K^-1 k``) did not show at these sizes and are left out. On a machine loaded by other
-work a step takes several times longer (the same cart-pole step measured 2.0 s at a load of
-13 on two cores): the model predicts an unloaded machine.
+linear in ``N D`` (the cross-kernel ``k(x, X)`` and its products). The ``N^2`` terms of the
+variance (``k^T K^-1 k``) are left out at these sizes. The constants ``c_0``, ``c_1`` are
+measured, not assumed: :func:`fit_step_constants` fits them by least squares on relative
+error to CPU seconds per step timed on several tasks, particle counts and GP sizes (the
+eager rollout on one thread, as a run's worker has it); ``mcpilco-bench-budget`` re-runs
+the measurement and writes the numbers and the fit to ``results/mcpilco_budget.md``. The
+model predicts the CPU time of an unloaded core; on a machine loaded by other work a step
+takes longer in wall-clock time.
 
 With ``N_k = min(N_max, k T)`` points before policy trial ``k`` (``T`` steps per trial), the
 optimisation of ``K`` trials takes ``sum_k S t_step(M, N_k)``. Starting from the thesis's
 budget (``M = 400``, ``S = 1500``, ``N_max = 300``), ``M`` and ``S`` are scaled down by the
 same factor until that sum fits :data:`OPT_TIME_BUDGET_S` (no lower than
 :data:`MIN_PARTICLES`, :data:`MIN_OPT_STEPS`), then ``N_max`` is lowered (no lower than
-:data:`MIN_POINTS`) if it still does not fit.
+:data:`MIN_POINTS`) if it still does not fit. :data:`OPT_TIME_BUDGET_S` is the
+optimisation's share of :data:`RUN_TIME_BUDGET_S`, a 5-trial run on two cores; the rest is
+the GP fits, the env and the plots. :func:`shipped_budgets` checks every shipped task file
+against it.
 """
 
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
 
 from mcpilco.envs.tasks.spec import TaskSpec
 
-C0_S = 1.6e-6  # c_0 [s] per particle, step and GP output (cart-pole calibration above)
+C0_S = 1.6e-6  # c_0 [s] per particle, step and GP output (fit_step_constants; results/)
 C1_S = 1.9e-9  # c_1 [s] per particle, step, GP output and training point x input
-OPT_TIME_BUDGET_S = 600.0  # the optimisation's share of a 15-minute run of 5 policy trials
+RUN_TIME_BUDGET_S = 900.0  # a run of 5 policy trials of a new env on two cores: 15 minutes
+OPT_TIME_BUDGET_S = 600.0  # the optimisation's share of RUN_TIME_BUDGET_S
 BUDGET_TRIALS = 5  # policy trials the budget is sized for
 DEFAULT_PARTICLES, DEFAULT_OPT_STEPS, DEFAULT_POINTS = 400, 1500, 300  # thesis 5.5.1
 MIN_PARTICLES, MIN_OPT_STEPS, MIN_POINTS = 50, 200, 50  # the least a run is given
@@ -80,6 +88,62 @@ def derive_budget(task: TaskSpec, seconds: float = OPT_TIME_BUDGET_S) -> Budget:
     return Budget(m, s, n, run_seconds(task, m, s, n))
 
 
+def fit_step_constants(rows: Sequence[Mapping[str, float]]) -> tuple[float, float]:
+    """``(c_0, c_1)`` of ``t_step = M H E (c_0 + c_1 N D)`` fitted to measured steps:
+    each row holds ``particles`` ``M``, ``horizon`` ``H``, ``outputs`` ``E``, ``inputs``
+    ``D``, ``points`` ``N`` and ``seconds`` (per step). Least squares on the relative
+    error ``(t_model - t) / t``, so that small and large steps weigh alike.
+
+    Raises:
+        ValueError: fewer than two rows, or rows that do not tell ``c_0`` from ``c_1``
+            (one ``N D`` only).
+    """
+    if len(rows) < 2:
+        raise ValueError(f"fit_step_constants needs at least two rows, got {len(rows)}")
+    a = np.array(
+        [[r["particles"] * r["horizon"] * r["outputs"]] * 2 for r in rows],
+        dtype=np.float64,
+    )
+    a[:, 1] *= np.array([r["points"] * r["inputs"] for r in rows], dtype=np.float64)
+    t = np.array([r["seconds"] for r in rows], dtype=np.float64)
+    if np.linalg.matrix_rank(a / t[:, None]) < 2:
+        raise ValueError("fit_step_constants needs rows with at least two values of N D")
+    c, *_ = np.linalg.lstsq(a / t[:, None], np.ones(len(t)), rcond=None)
+    return float(c[0]), float(c[1])
+
+
+def shipped_budgets() -> list[dict[str, Any]]:
+    """The derived budget of every shipped task file that learns dynamics
+    (:func:`mcpilco.envs.tasks.task_ids`), with the predicted optimisation seconds of
+    :data:`BUDGET_TRIALS` trials and whether they fit :data:`OPT_TIME_BUDGET_S` (a budget
+    already at its floors may not: ``at_floor``)."""
+    from mcpilco.envs.tasks import task_ids
+
+    out = []
+    for env_id in task_ids():
+        task = TaskSpec.for_env(env_id)
+        if task.model != "dynamics":
+            continue
+        b = derive_budget(task)
+        out.append(
+            {
+                "env_id": env_id,
+                "states": task.state_dim,
+                "actions": task.action_dim,
+                "outputs": len(task.output_idx),
+                "horizon": task.horizon,
+                "num_particles": b.num_particles,
+                "opt_steps": b.opt_steps,
+                "max_points": b.max_points,
+                "predicted_s": b.predicted_s,
+                "fits": b.predicted_s <= OPT_TIME_BUDGET_S,
+                "at_floor": (b.num_particles, b.opt_steps, b.max_points)
+                == (MIN_PARTICLES, MIN_OPT_STEPS, MIN_POINTS),
+            }
+        )
+    return out
+
+
 def budget_line(task: TaskSpec, budget: Budget, overridden: dict[str, int]) -> str:
     """One line saying what was derived and from what, and what a config overrode."""
     line = (
@@ -88,8 +152,10 @@ def budget_line(task: TaskSpec, budget: Budget, overridden: dict[str, int]) -> s
         f"{task.action_dim} action{'s' if task.action_dim > 1 else ''}, "
         f"{len(task.output_idx)} GP outputs, horizon {task.horizon}: about "
         f"{budget.predicted_s / 60:.0f} min of optimisation for {BUDGET_TRIALS} trials on an "
-        "idle 2-core machine; set num_particles=..., opt.max_steps=..., max_points=... to "
-        "override)"
+        f"idle core, within the {OPT_TIME_BUDGET_S / 60:.0f} of a "
+        f"{RUN_TIME_BUDGET_S / 60:.0f}-minute run on 2 cores"
+        f"{'' if budget.predicted_s <= OPT_TIME_BUDGET_S else ' NOT met even at the floors'}; "
+        "set num_particles=..., opt.max_steps=..., max_points=... to override)"
     )
     if overridden:
         line += "; the config sets " + ", ".join(f"{k}={v}" for k, v in overridden.items())
