@@ -44,11 +44,12 @@ CONF_DIR = Path(__file__).resolve().parent / "conf"
 """The shipped per-env config files (one YAML file per env id)."""
 _LEGACY_FIELD_VALUES: dict[str, Any] = {
     "explore_hold": 1,
-    "explore_limits": False,
+    "explore_limits": "none",
     "policy_init": "box",
     "push_filter": None,
 }  # value of each field added after results were saved, for configs that lack it
 POLICY_INITS = ("box", "data")  # MCPilcoConfig.policy_init
+EXPLORE_LIMITS = ("limits", "termination", "none")  # MCPilcoConfig.explore_limits
 # range of each number of MCPilcoConfig (mcpilco.envs.numbers.check_number keywords): what a
 # run on one machine can hold (particles x horizon x candidates tensors, GP subsets)
 CONFIG_NUMBER_RANGES: dict[str, dict[str, Any]] = {
@@ -133,10 +134,10 @@ class MCPilcoConfig:
             (length ``K``); None: ``policy_weight_scale`` for all.
         explore_hold: control steps each random action of the exploration trial is held
             (``u ~ U(low, high)`` drawn once per ``explore_hold`` steps; 1: i.i.d.).
-        explore_limits: brake the random exploration before the task's declared limits
-            and termination box (:class:`~mcpilco.agents.common.trials.LimitGuard`: an
-            action that drives towards a bound it would cross is reversed); false: plain
-            random actions.
+        explore_limits: ``"limits"`` (default): brake the random exploration before the
+            task's declared ``limits`` (:class:`~mcpilco.agents.common.trials.LimitGuard`:
+            an action that could drive past a bound is reversed); ``"termination"``: before
+            its ``termination`` box too; ``"none"``: plain random actions.
         explore_steps: steps of the exploration trial (None: the horizon). A task whose
             policy trials need a longer horizon than the data a first model needs can start
             with a shorter random trial.
@@ -196,7 +197,7 @@ class MCPilcoConfig:
     candidate_weight_scales: list[float] | None = None
     explore_hold: int = 1
     explore_steps: int | None = None
-    explore_limits: bool = True
+    explore_limits: str = "limits"
     env_kwargs: dict[str, Any] | None = None
     init_std: float | None = None
     sim_obs_noise_std: float = 0.01
@@ -222,8 +223,10 @@ class MCPilcoConfig:
                 (getattr(self, name) or {}).items() if isinstance(getattr(self, name), dict) else ()
             ):
                 check_number(v, f"{name}.{key}", lo=1e-9, hi=1e9)
-        if not isinstance(self.explore_limits, bool):
-            raise ValueError(f"explore_limits must be true or false, got {self.explore_limits!r}")
+        if self.explore_limits not in EXPLORE_LIMITS:
+            raise ValueError(
+                f"explore_limits must be one of {EXPLORE_LIMITS}, got {self.explore_limits!r}"
+            )
         if not isinstance(self.compile_rollout, bool):
             raise ValueError(f"compile_rollout must be true or false, got {self.compile_rollout!r}")
         if isinstance(self.opt, dict):

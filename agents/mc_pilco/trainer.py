@@ -213,11 +213,15 @@ class Trainer:
 
     def explore(self, rec: TrialRecord | None = None) -> list[dict[str, Any]]:
         """Trial 0: episodes of random actions held ``explore_hold`` steps each, of
-        ``explore_steps`` (else the task's ``trial_steps``) steps in all; with
-        ``explore_limits``, braked before the task's limits and termination box
+        ``explore_steps`` (else the task's ``trial_steps``) steps in all; braked before the
+        task's limits (and termination box) as ``explore_limits`` says
         (:class:`~mcpilco.agents.common.trials.LimitGuard`; the braked steps go to ``rec``)."""
         config = self.config
-        guard = LimitGuard(self.task) if config.explore_limits else None
+        guard = (
+            None
+            if config.explore_limits == "none"
+            else LimitGuard(self.task, termination=config.explore_limits == "termination")
+        )
         episodes = exploration_episodes(
             self.env,
             self.np_rng,

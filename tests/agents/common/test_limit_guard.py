@@ -71,3 +71,34 @@ def test_guard_without_bounds_passes_actions_through():
     u = np.array([0.7])
     assert guard.bounds == [] and guard(np.array([0.99, 5.0]), u) is not None
     np.testing.assert_array_equal(guard(np.array([0.99, 5.0]), u), u)
+
+
+def test_trainer_explores_within_the_limits_and_records_the_braking(tmp_path):
+    """MC-PILCO's exploration trial on the cart brakes by default (``explore_limits:
+    limits``) and its record counts the braked steps; ``none`` explores freely; another
+    value is refused naming the field."""
+    import pytest
+
+    from mcpilco.agents.common.records import TrialRecord
+    from mcpilco.agents.mc_pilco import MCPilcoConfig
+    from mcpilco.agents.mc_pilco.trainer import Trainer
+
+    for mode in ("limits", "none"):
+        cfg = MCPilcoConfig(
+            env_id=ENV_ID, task=TASK, num_trials=0, num_basis=5, explore_hold=HOLD,
+            explore_limits=mode, seed=3,
+        )  # fmt: skip
+        trainer = Trainer(cfg, tmp_path / mode, progress=False, log=None, write_rrd=False)
+        trainer.set_up()
+        rec = TrialRecord(index=0, kind="exploration")
+        try:
+            (ep,) = trainer.explore(rec)
+        finally:
+            trainer.env.close()
+            trainer.run_folder.close()
+        if mode == "limits":
+            assert rec.explore_braked > 0 and np.all(np.abs(ep["states"][:, 0]) < STOP)
+        else:
+            assert rec.explore_braked is None
+    with pytest.raises(ValueError, match="explore_limits"):
+        MCPilcoConfig(env_id=ENV_ID, task=TASK, explore_limits="yes")
