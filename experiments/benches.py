@@ -23,6 +23,7 @@ BENCH_MODULES: tuple[str, ...] = (
     "mcpilco.experiments.mcpilco.compare",
     "mcpilco.experiments.mcpilco.tracking",
     "mcpilco.experiments.mcpilco.gp_predictor",
+    "mcpilco.experiments.mcpilco.budget_model",
     "mcpilco.experiments.identification.volterra",
     "mcpilco.experiments.identification.inverse_dynamics",
     "mcpilco.experiments.collision.bench",

@@ -8,6 +8,7 @@ Usage::
 
     mcpilco-bench-budget
     mcpilco-bench-budget --envs mcpilco/CartpoleSwingUp-v0 --particles 100 400 --points 60 300
+    mcpilco-bench-budget --refit results/mcpilco_budget.json    # fit again, no timing
 """
 
 from __future__ import annotations
@@ -22,7 +23,8 @@ from mcpilco.experiments.mcpilco.budget_model import (
     DEFAULT_PARTICLES,
     DEFAULT_POINTS,
     budget_model_part,
-    measure_steps,
+    measurement,
+    read_measurement,
 )
 
 
@@ -33,17 +35,27 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--points", type=int, nargs="+", default=list(DEFAULT_POINTS))
     p.add_argument("--repeats", type=int, default=3, help="timed steps per row (median)")
     p.add_argument("--out", type=Path, default=Path("results"))
+    p.add_argument(
+        "--refit", type=Path, metavar="JSON",
+        help="fit the measurement of an earlier mcpilco_budget.json again (no timing)",
+    )  # fmt: skip
     return p
 
 
 @console_main("mcpilco-bench-budget")
 def main(argv: list[str]) -> None:
     args = build_parser().parse_args(argv)
-    rows = measure_steps(args.envs, args.particles, args.points, args.repeats)
-    command = "mcpilco-bench-budget " + shlex.join(argv)
-    res = budget_model_part(args.out, rows, command)
+    if args.refit is not None:
+        measured = read_measurement(args.refit)
+    else:
+        command = "mcpilco-bench-budget " + shlex.join(argv)
+        measured = measurement(args.envs, args.particles, args.points, args.repeats, command)
+    res = budget_model_part(args.out, measured)
     fit = res["fitted"]
-    print(f"c_0 = {fit['c0_s']:.3g} s, c_1 = {fit['c1_s']:.3g} s -> {args.out}")
+    print(
+        f"c_H = {fit['ch_s']:.3g} s, c_0 = {fit['c0_s']:.3g} s, c_1 = {fit['c1_s']:.3g} s "
+        f"-> {args.out}"
+    )
 
 
 if __name__ == "__main__":

@@ -3,26 +3,30 @@
 
 Cost model of one policy-optimisation step (a rollout of ``J^`` and its gradient)::
 
-    t_step(M, N) = M H E (c_0 + c_1 N D)   [s]
+    t_step(M, N) = H (c_H + E M (c_0 + c_1 N D))   [s]
 
 with ``H`` the horizon, ``E`` the GP outputs, ``D`` the GP input size (state features and
-actions) and ``N`` the GP's training points: per particle, step and output the posterior
-mean and variance cost a fixed part (the policy, the features, the sampling) and a part
-linear in ``N D`` (the cross-kernel ``k(x, X)`` and its products). The ``N^2`` terms of the
-variance (``k^T K^-1 k``) are left out at these sizes. The constants ``c_0``, ``c_1`` are
-measured, not assumed: :func:`fit_step_constants` fits them by least squares on relative
-error to CPU seconds per step timed on several tasks, particle counts and GP sizes (the
-eager rollout on one thread, as a run's worker has it); ``mcpilco-bench-budget`` re-runs
-the measurement and writes the numbers and the fit to ``results/mcpilco_budget.md``. The
-model predicts the CPU time of an unloaded core; on a machine loaded by other work a step
-takes longer in wall-clock time.
+actions) and ``N`` the GP's training points: per time step a fixed part that does not
+grow with the particles (the op-by-op dispatch of the rollout, ``c_H``), and per particle
+and output a fixed part (the policy, the features, the sampling, ``c_0``) and a part
+linear in ``N D`` (the cross-kernel ``k(x, X)`` and its products, ``c_1``). The ``N^2`` terms of
+the variance (``k^T K^-1 k``) are left out at these sizes. The constants are measured, not
+assumed: :func:`fit_step_constants` fits them (non-negative least squares on relative
+error) to the CPU seconds per step timed on several task specs, particle counts and GP
+sizes (the eager rollout on one thread, as a run's worker has it); ``mcpilco-bench-budget``
+re-runs the measurement and writes the rows, the fit and the machine's load to
+``results/mcpilco_budget.md``, whose fit the constants below are. CPU seconds grow on a
+machine busy with other work (shared caches and memory bandwidth); the results file says
+how busy it was.
 
 With ``N_k = min(N_max, k T)`` points before policy trial ``k`` (``T`` steps per trial), the
 optimisation of ``K`` trials takes ``sum_k S t_step(M, N_k)``. Starting from the thesis's
 budget (``M = 400``, ``S = 1500``, ``N_max = 300``), ``M`` and ``S`` are scaled down by the
-same factor until that sum fits :data:`OPT_TIME_BUDGET_S` (no lower than
+same factor ``f`` (the largest, found by bisection: with the fixed part ``c_H`` the time is
+not proportional to ``M S``) until that sum fits :data:`OPT_TIME_BUDGET_S` (no lower than
 :data:`MIN_PARTICLES`, :data:`MIN_OPT_STEPS`), then ``N_max`` is lowered (no lower than
-:data:`MIN_POINTS`) if it still does not fit. :data:`OPT_TIME_BUDGET_S` is the
+:data:`MIN_POINTS`) if it still does not fit: the model's data are the last thing given
+up. :data:`OPT_TIME_BUDGET_S` is the
 optimisation's share of :data:`RUN_TIME_BUDGET_S`, a 5-trial run on two cores; the rest is
 the GP fits, the env and the plots. :func:`shipped_budgets` checks every shipped task file
 against it.
@@ -30,7 +34,6 @@ against it.
 
 from __future__ import annotations
 
-import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any
@@ -39,8 +42,9 @@ import numpy as np
 
 from mcpilco.envs.tasks.spec import TaskSpec
 
-C0_S = 1.6e-6  # c_0 [s] per particle, step and GP output (fit_step_constants; results/)
-C1_S = 1.9e-9  # c_1 [s] per particle, step, GP output and training point x input
+CH_S = 1.9e-3  # c_H [s] per time step (fit_step_constants; results/mcpilco_budget.md)
+C0_S = 0.0  # c_0 [s] per particle, time step and GP output (the fit's is 0)
+C1_S = 3.32e-9  # c_1 [s] per particle, time step, GP output and training point x input
 RUN_TIME_BUDGET_S = 900.0  # a run of 5 policy trials of a new env on two cores: 15 minutes
 OPT_TIME_BUDGET_S = 600.0  # the optimisation's share of RUN_TIME_BUDGET_S
 BUDGET_TRIALS = 5  # policy trials the budget is sized for
@@ -60,11 +64,25 @@ class Budget:
     predicted_s: float
 
 
+def model_seconds(
+    particles: float,
+    horizon: float,
+    outputs: float,
+    inputs: float,
+    points: float,
+    constants: tuple[float, float, float] | None = None,
+) -> float:
+    """``t_step = H (c_H + E M (c_0 + c_1 N D))`` with ``constants`` ``(c_H, c_0, c_1)``
+    (None: the module's :data:`CH_S`, :data:`C0_S`, :data:`C1_S`)."""
+    ch, c0, c1 = (CH_S, C0_S, C1_S) if constants is None else constants
+    return horizon * (ch + outputs * particles * (c0 + c1 * points * inputs))
+
+
 def step_seconds(task: TaskSpec, particles: int, points: int) -> float:
     """``t_step(M, N)`` of the module's cost model for ``task``."""
     e = len(task.output_idx)
     d = task.feature_dim + task.action_dim
-    return particles * task.horizon * e * (C0_S + C1_S * points * d)
+    return model_seconds(particles, task.horizon, e, d, points)
 
 
 def run_seconds(task: TaskSpec, particles: int, steps: int, max_points: int) -> float:
@@ -78,38 +96,60 @@ def run_seconds(task: TaskSpec, particles: int, steps: int, max_points: int) -> 
 
 def derive_budget(task: TaskSpec, seconds: float = OPT_TIME_BUDGET_S) -> Budget:
     """The budget of ``task`` (module docstring) for ``seconds`` of optimisation."""
-    m, s, n = DEFAULT_PARTICLES, DEFAULT_OPT_STEPS, DEFAULT_POINTS
-    f = math.sqrt(seconds / run_seconds(task, m, s, n))
-    if f < 1.0:
-        m = max(MIN_PARTICLES, int(m * f) // 10 * 10)
-        s = max(MIN_OPT_STEPS, int(s * f) // 50 * 50)
+    n = DEFAULT_POINTS
+
+    def scaled(f: float) -> tuple[int, int]:  # M, S at factor f (rounded down, floored)
+        m = max(MIN_PARTICLES, int(DEFAULT_PARTICLES * f) // 10 * 10)
+        return m, max(MIN_OPT_STEPS, int(DEFAULT_OPT_STEPS * f) // 50 * 50)
+
+    lo, hi = 0.0, 1.0
+    if run_seconds(task, *scaled(hi), n) <= seconds:
+        lo = hi
+    for _ in range(30):  # the largest f whose budget fits (bisection)
+        if lo == hi:
+            break
+        mid = (lo + hi) / 2.0
+        lo, hi = (mid, hi) if run_seconds(task, *scaled(mid), n) <= seconds else (lo, mid)
+    m, s = scaled(lo)
     while n > MIN_POINTS and run_seconds(task, m, s, n) > seconds:
         n -= 10
     return Budget(m, s, n, run_seconds(task, m, s, n))
 
 
-def fit_step_constants(rows: Sequence[Mapping[str, float]]) -> tuple[float, float]:
-    """``(c_0, c_1)`` of ``t_step = M H E (c_0 + c_1 N D)`` fitted to measured steps:
-    each row holds ``particles`` ``M``, ``horizon`` ``H``, ``outputs`` ``E``, ``inputs``
-    ``D``, ``points`` ``N`` and ``seconds`` (per step). Least squares on the relative
-    error ``(t_model - t) / t``, so that small and large steps weigh alike.
+def fit_step_constants(rows: Sequence[Mapping[str, float]]) -> tuple[float, float, float]:
+    """``(c_H, c_0, c_1)`` of ``t_step = H (c_H + E M (c_0 + c_1 N D))`` fitted to measured
+    steps: each row holds ``particles`` ``M``, ``horizon`` ``H``, ``outputs`` ``E``,
+    ``inputs`` ``D``, ``points`` ``N`` and ``seconds`` (per step). Non-negative least
+    squares on the relative error ``(t_model - t) / t``, so that small and large steps weigh
+    alike.
 
     Raises:
-        ValueError: fewer than two rows, or rows that do not tell ``c_0`` from ``c_1``
-            (one ``N D`` only).
+        ValueError: fewer than three rows, or rows that cannot tell the three constants
+            apart (one particle count, or one ``N D``).
     """
-    if len(rows) < 2:
-        raise ValueError(f"fit_step_constants needs at least two rows, got {len(rows)}")
+    from scipy.optimize import nnls
+
+    if len(rows) < 3:
+        raise ValueError(f"fit_step_constants needs at least three rows, got {len(rows)}")
     a = np.array(
-        [[r["particles"] * r["horizon"] * r["outputs"]] * 2 for r in rows],
+        [
+            [
+                1.0,
+                r["outputs"] * r["particles"],
+                r["outputs"] * r["particles"] * r["points"] * r["inputs"],
+            ]
+            for r in rows
+        ],
         dtype=np.float64,
     )
-    a[:, 1] *= np.array([r["points"] * r["inputs"] for r in rows], dtype=np.float64)
+    a *= np.array([r["horizon"] for r in rows], dtype=np.float64)[:, None]
     t = np.array([r["seconds"] for r in rows], dtype=np.float64)
-    if np.linalg.matrix_rank(a / t[:, None]) < 2:
-        raise ValueError("fit_step_constants needs rows with at least two values of N D")
-    c, *_ = np.linalg.lstsq(a / t[:, None], np.ones(len(t)), rcond=None)
-    return float(c[0]), float(c[1])
+    if np.linalg.matrix_rank(a / t[:, None]) < 3:
+        raise ValueError(
+            "fit_step_constants needs rows with two particle counts and two values of N D"
+        )
+    c, _ = nnls(a / t[:, None], np.ones(len(t)))
+    return float(c[0]), float(c[1]), float(c[2])
 
 
 def shipped_budgets() -> list[dict[str, Any]]:
@@ -151,8 +191,8 @@ def budget_line(task: TaskSpec, budget: Budget, overridden: dict[str, int]) -> s
         f"N <= {budget.max_points} GP points (derived from {task.state_dim} states, "
         f"{task.action_dim} action{'s' if task.action_dim > 1 else ''}, "
         f"{len(task.output_idx)} GP outputs, horizon {task.horizon}: about "
-        f"{budget.predicted_s / 60:.0f} min of optimisation for {BUDGET_TRIALS} trials on an "
-        f"idle core, within the {OPT_TIME_BUDGET_S / 60:.0f} of a "
+        f"{budget.predicted_s / 60:.0f} min of optimisation for {BUDGET_TRIALS} trials by the "
+        f"measured step-time model, within the {OPT_TIME_BUDGET_S / 60:.0f} of a "
         f"{RUN_TIME_BUDGET_S / 60:.0f}-minute run on 2 cores"
         f"{'' if budget.predicted_s <= OPT_TIME_BUDGET_S else ' NOT met even at the floors'}; "
         "set num_particles=..., opt.max_steps=..., max_points=... to override)"

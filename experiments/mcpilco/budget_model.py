@@ -5,26 +5,38 @@ checked against the run's time budget (console script ``mcpilco-bench-budget``).
 Each row times one optimisation step (:func:`~mcpilco.experiments.mcpilco.timing.time_opt_step`:
 the eager particle rollout, its backward and an Adam step, one thread, the median CPU seconds
 of a few steps) on a task spec, ``M`` particles and a GP fitted on ``N`` random-exploration
-transitions. :func:`~mcpilco.agents.mc_pilco.budget.fit_step_constants` fits ``c_0``,
-``c_1`` of ``t_step = M H E (c_0 + c_1 N D)`` to all rows; the report lists each row with the
-model's prediction (with the fitted and with the constants in use), the constants, and the
-derived budget of every shipped task file (:func:`~mcpilco.agents.mc_pilco.budget.
-shipped_budgets`). Writes ``results/mcpilco_budget.json`` and ``.md``.
+transitions. :func:`~mcpilco.agents.mc_pilco.budget.fit_step_constants` fits ``c_H``,
+``c_0``, ``c_1`` of ``t_step = H (c_H + E M (c_0 + c_1 N D))`` to all rows; the report
+lists each row with the model's prediction (with the fitted and with the constants in
+use), the constants, the machine's load, and the derived budget of every shipped task file
+(:func:`~mcpilco.agents.mc_pilco.budget.shipped_budgets`). Writes
+``results/mcpilco_budget.json`` and ``.md``.
 """
 
 from __future__ import annotations
 
-import json
+import os
 import platform
 import time
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
+from mcpilco.experiments.results import ResultLayout, read_result, write_result
+
 RESULTS_NAME = "mcpilco_budget"  # results/<name>.json and .md
 DEFAULT_ENVS = ("mcpilco/CartpoleSwingUp-v0", "Pendulum-v1", "InvertedDoublePendulum-v5")
 DEFAULT_PARTICLES = (100, 400)  # M of the measured steps
 DEFAULT_POINTS = (60, 180, 300)  # N of the measured steps
+
+RESULT_LAYOUTS = (
+    ResultLayout(
+        "budget", config=("in_use", "opt_time_budget_s", "run_time_budget_s"),
+        cases=("rows", "shipped"),
+    ),
+)  # fmt: skip
+"""The layout of ``mcpilco_budget.json`` (:mod:`mcpilco.experiments.results`)."""
+HEADLINES = ()  # the fit is a calibration, not a headline figure
 
 
 def measure_steps(
@@ -59,32 +71,69 @@ def measure_steps(
     return rows
 
 
-def budget_model_part(
-    out_dir: Path, rows: list[dict[str, Any]] | None = None, command: str = ""
+def measurement(
+    env_ids: Sequence[str] = DEFAULT_ENVS,
+    particles: Sequence[int] = DEFAULT_PARTICLES,
+    points: Sequence[int] = DEFAULT_POINTS,
+    repeats: int = 3,
+    command: str = "",
 ) -> dict[str, Any]:
-    """Measure (unless ``rows`` are given), fit, check the shipped task files and write
-    ``out_dir/mcpilco_budget.{json,md}``; returns the results."""
+    """:func:`measure_steps` with its provenance: the UTC date, the command, the machine and
+    its 1-minute load average before and after (CPU seconds grow on a busy machine)."""
+    load_before = os.getloadavg()[0]
+    rows = measure_steps(env_ids, particles, points, repeats)
+    return {
+        "date": time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime()),
+        "command": command or None,
+        "machine": f"{platform.machine()}, {platform.python_version()}, {os.cpu_count()} CPUs",
+        "load_average": [round(load_before, 2), round(os.getloadavg()[0], 2)],
+        "rows": rows,
+    }
+
+
+def read_measurement(path: Path) -> dict[str, Any]:
+    """The measurement (rows and provenance) of a result file written before, to fit again
+    without measuring again."""
+    res = read_result(path)
+    data = {**res.config, **res.summary, **res.cases}
+    keys = ("particles", "horizon", "outputs", "inputs", "points", "seconds", "wall_seconds")
+    return {
+        "date": data.get("measured", res.date),
+        "command": res.command,
+        "machine": res.machine,
+        "load_average": data["load_average"],
+        "rows": [{"env_id": r["env_id"], **{k: r[k] for k in keys}} for r in data["rows"]],
+    }
+
+
+def budget_model_part(out_dir: Path, measured: dict[str, Any]) -> dict[str, Any]:
+    """Fit the measurement ``measured`` (:func:`measurement`), check the shipped task files
+    and write ``out_dir/mcpilco_budget.{json,md}``; returns the results."""
     from mcpilco.agents.mc_pilco import budget
 
-    rows = measure_steps() if rows is None else rows
-    c0, c1 = budget.fit_step_constants(rows)
+    rows = [dict(r) for r in measured["rows"]]
+    fitted = budget.fit_step_constants(rows)
+    keys = ("particles", "horizon", "outputs", "inputs", "points")
     for r in rows:
-        base = r["particles"] * r["horizon"] * r["outputs"]
-        r["fitted_s"] = base * (c0 + c1 * r["points"] * r["inputs"])
-        r["model_s"] = base * (budget.C0_S + budget.C1_S * r["points"] * r["inputs"])
+        r["fitted_s"] = budget.model_seconds(*(r[k] for k in keys), constants=fitted)
+        r["model_s"] = budget.model_seconds(*(r[k] for k in keys))
     results = {
-        "date": time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime()),
-        "command": command,
-        "machine": f"{platform.machine()}, {platform.python_version()}",
-        "fitted": {"c0_s": c0, "c1_s": c1},
-        "in_use": {"c0_s": budget.C0_S, "c1_s": budget.C1_S},
+        "date": measured["date"],
+        "measured": measured["date"],
+        "command": measured["command"],
+        "machine": measured["machine"],
+        "load_average": measured["load_average"],
+        "fitted": dict(zip(("ch_s", "c0_s", "c1_s"), fitted, strict=True)),
+        "in_use": {"ch_s": budget.CH_S, "c0_s": budget.C0_S, "c1_s": budget.C1_S},
         "opt_time_budget_s": budget.OPT_TIME_BUDGET_S,
         "run_time_budget_s": budget.RUN_TIME_BUDGET_S,
         "rows": rows,
         "shipped": budget.shipped_budgets(),
     }
     out_dir.mkdir(parents=True, exist_ok=True)
-    (out_dir / f"{RESULTS_NAME}.json").write_text(json.dumps(results, indent=1))
+    payload = {k: v for k, v in results.items() if k not in ("date", "command")}
+    path = out_dir / f"{RESULTS_NAME}.json"
+    write_result(path, RESULT_LAYOUTS[0], payload, seeds=(), command=results["command"])
     (out_dir / f"{RESULTS_NAME}.md").write_text(report(results))
     return results
 
@@ -95,15 +144,18 @@ def report(results: dict[str, Any]) -> str:
     md = [
         "# MC-PILCO budget: seconds per policy-optimisation step",
         "",
-        f"`{results['command']}` ({results['date']}; {results['machine']}).",
+        f"`{results['command'] or 'budget_model_part'}` ({results['date']}; "
+        f"{results['machine']}; 1-minute load "
+        f"average {results['load_average'][0]} before, {results['load_average'][1]} after "
+        "the measurement).",
         "",
-        "Model: `t_step = M H E (c_0 + c_1 N D)` (M particles, H horizon, E GP outputs, "
-        "N GP points, D GP inputs: state features and actions); measured: the eager step "
-        "(rollout, backward, Adam) on one thread, median CPU seconds.",
+        "Model: `t_step = H (c_H + E M (c_0 + c_1 N D))` (M particles, H horizon, E GP "
+        "outputs, N GP points, D GP inputs: state features and actions); measured: the eager "
+        "step (rollout, backward, Adam) on one thread, median CPU seconds.",
         "",
-        f"Fitted here: c_0 = {fit['c0_s']:.3g} s, c_1 = {fit['c1_s']:.3g} s. In use "
-        f"(`mcpilco.agents.mc_pilco.budget`): c_0 = {use['c0_s']:.3g} s, "
-        f"c_1 = {use['c1_s']:.3g} s.",
+        f"Fitted here: c_H = {fit['ch_s']:.3g} s, c_0 = {fit['c0_s']:.3g} s, "
+        f"c_1 = {fit['c1_s']:.3g} s. In use (`mcpilco.agents.mc_pilco.budget`): "
+        f"c_H = {use['ch_s']:.3g} s, c_0 = {use['c0_s']:.3g} s, c_1 = {use['c1_s']:.3g} s.",
         "",
         "| task | M | H | E | D | N | measured [s] | fitted model [s] | model in use [s] |",
         "|---|---|---|---|---|---|---|---|---|",
