@@ -32,8 +32,9 @@ NaN restart
     a non-finite ``J^`` re-initialises the policy parameters and Adam (at most
     ``max_reinits`` times, then ``FloatingPointError``).
 plateau restart
-    given the task's success level ``J_succ`` (the largest ``J`` a trajectory that
-    succeeds can have, :func:`~mcpilco.agents.mc_pilco.trainer.success_cost_level`), a
+    given the task's success level ``J_succ`` (the largest ``J`` of a trajectory that
+    succeeds and is never costlier than its start on the way,
+    :func:`~mcpilco.agents.mc_pilco.trainer.success_cost_level`), a
     stall whose plateau ``J-bar`` (the mean ``J^`` per candidate over the last ``n_s``
     steps) lies above ``J_succ`` means the search sits in a basin none of whose policies
     succeed on the model: a finer learning rate would only settle there. Instead the

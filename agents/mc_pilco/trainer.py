@@ -648,8 +648,8 @@ def success_cost_level(
     task: TaskSpec, cost: Callable[[torch.Tensor], torch.Tensor]
 ) -> float | None:
     """``J_succ``: the largest cumulative cost ``cost`` gives a trajectory that succeeds on
-    ``task`` (the level of the optimiser's plateau restarts,
-    :mod:`~mcpilco.agents.mc_pilco.optimize`).
+    ``task`` and is never costlier than its start before it reaches the goal (the level of
+    the optimiser's plateau restarts, :mod:`~mcpilco.agents.mc_pilco.optimize`).
 
     A success keeps the state in the goal box ``G`` (``success.bounds``: each bounded state
     within ``target +- tol``; for a ``full_horizon`` task without bounds, the
