@@ -351,15 +351,17 @@ def test_env_kwargs_reach_gym_make():
 
 
 def test_transitions_at_declared_limits_stay_out_of_the_model_data(tmp_path):
-    """A lower limit on ``py`` 0.2 below the start: the random trial crosses it, and the first
-    policy trial's GP is fitted on the other transitions only (counted here from the
-    episode's states); the barrier on that limit runs in the optimised cost. Widths on a state
-    without limits, bad widths, and widths beside a cost function are refused."""
+    """A lower limit on ``py`` 0.2 below the start: the random trial (unbraked,
+    ``explore_limits: none``) crosses it, and the first policy trial's GP is fitted on the
+    other transitions only (counted here from the episode's states); the barrier on that
+    limit runs in the optimised cost. Widths on a state without limits, bad widths, and
+    widths beside a cost function are refused."""
     lo = TASK["init_mean"][2] - 0.2
     task = {**TASK, "limits": {"py": [lo, 5.0]}}
     cfg = toy_config(
         task=task,
         num_trials=1,
+        explore_limits="none",
         cost_limit_widths={"py": 0.02},
         opt=PolicyOptConfig(max_steps=5, min_steps=1),
     )
