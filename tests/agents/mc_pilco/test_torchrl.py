@@ -33,7 +33,7 @@ from mcpilco.agents.mc_pilco.torchrl_parts import (
 from tests.agents.mc_pilco import toy_env
 
 ROOT = Path(__file__).resolve().parents[3]
-EXAMPLE = ROOT / "examples" / "torchrl" / "mcpilco.py"
+EXAMPLE = ROOT / "examples" / "torchrl" / "mc_pilco.py"
 
 
 class Halve(nn.Module):

@@ -20,10 +20,10 @@ seen as TorchRL objects:
 
 Run::
 
-    python examples/torchrl/mcpilco.py                       # config.yaml's env
-    python examples/torchrl/mcpilco.py --set env_id=dm_control/pendulum-swingup-v0 \\
+    python examples/torchrl/mc_pilco.py                       # config.yaml's env
+    python examples/torchrl/mc_pilco.py --set env_id=dm_control/pendulum-swingup-v0 \\
         --set config.num_trials=8
-    python examples/torchrl/mcpilco.py --config my.yaml      # same layout as config.yaml
+    python examples/torchrl/mc_pilco.py --config my.yaml      # same layout as config.yaml
 
 The script decides compiling: ``config.compile_rollout: true`` builds the fast rollout of
 the loss (:func:`~mcpilco.agents.mc_pilco.fast.use_fast_rollout`) after each GP fit,
@@ -220,7 +220,9 @@ def train(cfg: dict[str, Any], log=print) -> list[dict[str, Any]]:
             )
             loss = make_loss(world)
             if config.compile_rollout:  # the script's choice; checked against the eager rollout
-                use_fast_rollout(loss, config.rollout_backend, dynamic=False)
+                fast = use_fast_rollout(loss, config.rollout_backend, dynamic=False)
+                if log is not None:
+                    log(f"fast rollout: {fast.backend or 'eager'} {fast.error or ''}".rstrip())
             # policy update: minimise J^ over the candidates, apply the best one
             res = optimize_policy(loss, population, config.opt)
             choose_policy(loss, population, policy, res.snapshots)
