@@ -59,6 +59,7 @@ from mcpilco.agents.mc_pilco.loss import TerminationSet
 from mcpilco.agents.mc_pilco.optimize import choose_policy
 from mcpilco.agents.mc_pilco.policy import data_init
 from mcpilco.agents.mc_pilco.torchrl_parts import STATE_KEY, ParticleWorldModel, make_torchrl_env
+from mcpilco.agents.mc_pilco.trainer import CANDIDATE_SEED_STRIDE
 from mcpilco.envs.yaml_files import read_yaml
 
 try:  # TorchRL >= 0.11 names its single-process collector Collector
@@ -67,7 +68,6 @@ except ImportError:  # pragma: no cover - older TorchRL
     from torchrl.collectors import SyncDataCollector as Collector
 
 CONFIG = Path(__file__).with_name("config.yaml")  # the example's config file
-SEED_STRIDE = 7919  # candidate k of run seed s is initialised with seed s + 7919 k
 
 
 def read_config(path: str | Path = CONFIG, overrides: list[str] | None = None) -> dict[str, Any]:
@@ -116,7 +116,7 @@ def train(cfg: dict[str, Any], log=print) -> list[dict[str, Any]]:
             num_basis=config.num_basis,
             centers_box=config.policy_centers_box,
             weight_scale=scale,
-            seed=config.seed + SEED_STRIDE * k,
+            seed=config.seed + CANDIDATE_SEED_STRIDE * k,
         )
         for k, scale in enumerate(
             config.candidate_weight_scales or [config.policy_weight_scale] * config.num_candidates
