@@ -9,9 +9,13 @@ TorchRL-style parts (Amadio et al., IEEE T-RO 2022) over any task that declares 
 * modules: :class:`SquashedRBFPolicy` (a ``TensorDictModule`` via :func:`make_policy_module`),
   :class:`GPDynamicsModel` / :class:`SpeedIntegrationDynamics` (GP changes, speed
   integration), :class:`SaturatingCost`;
-* objective: :class:`MCPilcoLoss` (particle rollout, ``loss_cost``); fast rollouts of it
+* objective: :class:`MCPilcoLoss` (particle rollout, ``loss_cost``; tensordict keys set by
+  ``set_keys``); fast rollouts of it
   (native C++, chained PyTorch, ``torch.compile``) chosen and checked against the eager one
   by :func:`use_fast_rollout`;
+* TorchRL parts (:mod:`.torchrl_parts`): the GP world model as a ``TensorDictModule``
+  (:class:`ParticleWorldModel`) and a TorchRL env of a task (:func:`make_torchrl_env`),
+  used by the example ``examples/torchrl``;
 * training: :func:`optimize_policy` (Adam + monitoring rule) and :class:`Trainer` (thesis
   Algorithm 1: trials, checkpoints, PNG and Rerun outputs; :func:`run_mcpilco` runs one),
   configured by :class:`MCPilcoConfig` and per-env YAML files (:func:`load_config`). The
@@ -44,6 +48,7 @@ from mcpilco.agents.mc_pilco.policy import (
     SquashedRBFPolicy,
     make_policy_module,
 )
+from mcpilco.agents.mc_pilco.torchrl_parts import ParticleWorldModel, make_torchrl_env
 from mcpilco.agents.mc_pilco.trainer import Trainer, run_mcpilco
 from mcpilco.envs.tasks.spec import TaskSpec, TaskSpecError
 
@@ -56,6 +61,7 @@ __all__ = [
     "MCPilcoLoss",
     "OptimizationResult",
     "ParticleRollout",
+    "ParticleWorldModel",
     "PolicyOptConfig",
     "PolicyPopulation",
     "RunSummary",
@@ -72,6 +78,7 @@ __all__ = [
     "make_env",
     "make_kernel_factory",
     "make_policy_module",
+    "make_torchrl_env",
     "optimize_policy",
     "parse_set",
     "registered_ids",

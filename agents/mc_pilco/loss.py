@@ -38,6 +38,17 @@ candidates ``k = 1..K``
 
 All particles are propagated together: each time step is a handful of batched tensor ops
 over ``(M, .)``; there is no Python loop over particles.
+
+tensordict keys (TorchRL's ``set_keys`` convention)
+    ``loss.set_keys(name=key)`` renames what the loss reads and writes (defaults in
+    :class:`MCPilcoLoss`'s ``_AcceptedKeys``): the input's ``initial_state`` ``x_0`` and
+    ``noise`` ``eps`` (both optional), the outputs ``loss_cost``, ``cost_std`` and
+    ``candidate_costs``, and the keys of the parts: ``observation`` (what a policy
+    ``TensorDictModule`` and the world model read as ``x_t``), ``action`` (what the policy
+    writes, the world model reads) and ``next_observation`` (the world model's sampled
+    ``x_{t+1}``). A part whose keys differ from the loss's is refused at :meth:`forward`,
+    naming the ``set_keys`` call that fits it. :meth:`MCPilcoLoss.rollout_tensordict`
+    writes the particle trajectories under the same keys.
 """
 
 from __future__ import annotations
@@ -51,8 +62,11 @@ from typing import Protocol
 import torch
 from tensordict import TensorDict, TensorDictBase
 from tensordict.nn import TensorDictModule
+from tensordict.utils import NestedKey
 from torch import Tensor, nn
 from torchrl.objectives import LossModule
+
+from mcpilco.agents.mc_pilco.torchrl_parts import ParticleWorldModel
 
 
 class RolloutEngine(Protocol):
@@ -128,11 +142,14 @@ class MCPilcoLoss(LossModule):
     """Expected cumulative cost of the policy under the GP particle dynamics, ``loss_cost``.
 
     Args:
-        policy: ``TensorDictModule`` (``"observation"`` -> ``"action"``) or a plain module
-            ``obs (..., n) -> action (..., A)``.
+        policy: ``TensorDictModule`` (the loss's ``observation`` key -> its ``action`` key)
+            or a plain module ``obs (..., n) -> action (..., A)``.
         dynamics: module ``(state, action, eps) -> next_state`` (e.g.
-            :class:`~mcpilco.agents.mc_pilco.dynamics.SpeedIntegrationDynamics`); replace it
-            with :meth:`set_dynamics` after each GP re-fit.
+            :class:`~mcpilco.agents.mc_pilco.dynamics.SpeedIntegrationDynamics`), or the GP
+            world model as a ``TensorDictModule``
+            (:class:`~mcpilco.agents.mc_pilco.torchrl_parts.ParticleWorldModel`, whose
+            dynamics the rollout steps); replace it with :meth:`set_dynamics` after each GP
+            re-fit.
         cost: module ``state (..., n) -> cost (...)``.
         horizon: ``H``, number of simulated steps (> 0).
         num_particles: ``M`` (> 0).
@@ -146,12 +163,40 @@ class MCPilcoLoss(LossModule):
             (module glossary). None: the env never ends an episode early.
         termination_cost: ``c_max``, the cost of each absorbed step.
 
-    ``forward(td)`` reads optional entries ``"initial_state"`` (K M, n) and ``"noise"``
+    ``forward(td)`` reads optional entries ``initial_state`` (K M, n) and ``noise``
     (H, K M, delta_dim) (common random numbers, tests); otherwise it samples them. It returns
     a TensorDict with ``loss_cost`` (the differentiable ``sum_k J^_k``), ``cost_std``
     (``s_J``, mean over candidates, detached) and ``candidate_costs`` (``J^_k``, (K,),
-    detached). A plain policy is ``K = 1``.
+    detached). A plain policy is ``K = 1``. Every key is set by :meth:`set_keys` (module
+    glossary)::
+
+        loss.set_keys(observation="state", loss_cost="loss_mcpilco")
     """
+
+    @dataclass
+    class _AcceptedKeys:
+        """The tensordict keys of the loss and their defaults (module glossary).
+
+        Attributes:
+            initial_state: ``x_0`` of the particles (K M, n) in the input; optional.
+            noise: ``eps`` (H, K M, delta_dim) in the input; optional.
+            observation: ``x_t``, the input key of the policy and the world model.
+            action: ``u_t``, the output key of the policy, an input of the world model.
+            next_observation: the world model's sampled ``x_{t+1}``.
+            loss_cost: ``sum_k J^_k`` (differentiable); cost_std: ``s_J``;
+            candidate_costs: ``J^_k`` (K,).
+        """
+
+        initial_state: NestedKey = "initial_state"
+        noise: NestedKey = "noise"
+        observation: NestedKey = "observation"
+        action: NestedKey = "action"
+        next_observation: NestedKey = ("next", "observation")
+        loss_cost: NestedKey = "loss_cost"
+        cost_std: NestedKey = "cost_std"
+        candidate_costs: NestedKey = "candidate_costs"
+
+    default_keys = _AcceptedKeys
 
     def __init__(
         self,
@@ -177,7 +222,9 @@ class MCPilcoLoss(LossModule):
         if obs_noise_std < 0:
             raise ValueError(f"obs_noise_std must be >= 0, got {obs_noise_std}")
         self.policy = policy
-        self.dynamics = dynamics
+        self._world_model_keys: tuple[list, list] | None = None  # set by set_dynamics
+        self.set_dynamics(dynamics)
+        dynamics = self.dynamics
         self.cost = cost
         self.horizon = int(horizon)
         self.num_particles = int(num_particles)
@@ -199,10 +246,10 @@ class MCPilcoLoss(LossModule):
             torch.as_tensor(init_std, dtype=torch.float32).expand(self.state_dim).clone(),
         )
         if isinstance(policy, TensorDictModule):
-            if list(policy.in_keys) != ["observation"] or list(policy.out_keys) != ["action"]:
+            if len(policy.in_keys) != 1 or len(policy.out_keys) != 1:
                 raise ValueError(
-                    "the policy TensorDictModule must read 'observation' and write 'action', "
-                    f"got in_keys={policy.in_keys}, out_keys={policy.out_keys}"
+                    "the policy TensorDictModule must read one key (the state) and write one "
+                    f"(the action), got in_keys={policy.in_keys}, out_keys={policy.out_keys}"
                 )
             # the hot loop calls the wrapped module directly (no TensorDict per time step)
             self._policy_fn = policy.module
@@ -261,8 +308,40 @@ class MCPilcoLoss(LossModule):
         return False
 
     def set_dynamics(self, dynamics: nn.Module) -> None:
-        """Use new particle dynamics (after a GP re-fit)."""
+        """Use new particle dynamics (after a GP re-fit): a module ``(state, action, eps) ->
+        next_state`` or a :class:`~mcpilco.agents.mc_pilco.torchrl_parts.ParticleWorldModel`
+        (its dynamics are stepped; its keys are checked at :meth:`forward`)."""
+        if isinstance(dynamics, ParticleWorldModel):
+            self._world_model_keys = (list(dynamics.in_keys), list(dynamics.out_keys))
+            dynamics = dynamics.dynamics
+        else:
+            self._world_model_keys = None
         self.dynamics = dynamics
+
+    def check_part_keys(self) -> None:
+        """Raise ValueError when the policy's or the world model's tensordict keys are not the
+        loss's (:meth:`set_keys`): the message names the ``set_keys`` call that fits them."""
+        keys = self.tensor_keys
+        if isinstance(self.policy, TensorDictModule):
+            got = (self.policy.in_keys[0], self.policy.out_keys[0])
+            if got != (keys.observation, keys.action):
+                raise ValueError(
+                    f"the policy reads {got[0]!r} and writes {got[1]!r} but the loss's keys are "
+                    f"observation={keys.observation!r}, action={keys.action!r}; call "
+                    f"loss.set_keys(observation={got[0]!r}, action={got[1]!r})"
+                )
+        if self._world_model_keys is not None:
+            (obs, act, _), (nxt, _) = self._world_model_keys
+            if (obs, act, nxt) != (keys.observation, keys.action, keys.next_observation):
+                raise ValueError(
+                    f"the world model reads {obs!r}, {act!r} and writes {nxt!r} but the loss's "
+                    f"keys are observation={keys.observation!r}, action={keys.action!r}, "
+                    f"next_observation={keys.next_observation!r}; call loss.set_keys("
+                    f"observation={obs!r}, action={act!r}, next_observation={nxt!r})"
+                )
+
+    def _forward_value_estimator_keys(self, **kwargs) -> None:
+        """No value estimator: :meth:`set_keys` only renames the keys (LossModule hook)."""
 
     def sample_initial_state(self, num_particles: int | None = None) -> Tensor:
         """``x_0^(m) ~ N(mu_0, Sigma_0)``, (K M, n) (``M`` per candidate)."""
@@ -345,9 +424,31 @@ class MCPilcoLoss(LossModule):
             costs=torch.stack(costs, dim=1),
         )
 
+    def rollout_tensordict(
+        self,
+        initial_state: Tensor | None = None,
+        noise: Tensor | None = None,
+        num_particles: int | None = None,
+    ) -> TensorDict:
+        """:meth:`rollout` as a TensorDict of batch ``(K M, H)`` under the loss's keys (as a
+        TorchRL collector writes a trajectory): ``observation`` ``x_t``, ``action`` ``u_t``,
+        ``("next", ...)`` of ``next_observation`` ``x_{t+1}`` and ``("next", "cost")``
+        ``c(x_{t+1})``; differentiable w.r.t. the policy."""
+        ro = self.rollout(initial_state, noise, num_particles)
+        keys = self.tensor_keys
+        td = TensorDict(
+            {keys.observation: ro.states[:, :-1], keys.action: ro.actions},
+            batch_size=ro.costs.shape,
+        )
+        td.set(keys.next_observation, ro.states[:, 1:])
+        td.set(("next", "cost"), ro.costs[..., None])
+        return td
+
     def forward(self, tensordict: TensorDictBase | None = None) -> TensorDict:
+        keys = self.tensor_keys
+        self.check_part_keys()
         td = TensorDict({}, batch_size=[]) if tensordict is None else tensordict
-        init, noise = td.get("initial_state", None), td.get("noise", None)
+        init, noise = td.get(keys.initial_state, None), td.get(keys.noise, None)
         engine = self._engine
         if engine is not None and init is not None and init.shape[:1] != (engine.rows,):
             engine = None  # built for the module's particle count only: run eagerly
@@ -365,11 +466,8 @@ class MCPilcoLoss(LossModule):
                 if per_particle.shape[1] > 1
                 else per_particle.new_zeros(())
             )
-        return TensorDict(
-            {
-                "loss_cost": per_candidate.sum(),
-                "cost_std": std,
-                "candidate_costs": per_candidate.detach(),
-            },
-            batch_size=[],
-        )
+        out = TensorDict({}, batch_size=[])
+        out.set(keys.loss_cost, per_candidate.sum())
+        out.set(keys.cost_std, std)
+        out.set(keys.candidate_costs, per_candidate.detach())
+        return out
