@@ -36,7 +36,7 @@ from mcpilco.models.diagnosis.analysis import (
     residual_report,
     whiteness_test,
 )
-from mcpilco.models.diagnosis.data import Trajectories, as_trajectories, load_trajectories
+from mcpilco.models.diagnosis.data import as_trajectories, load_trajectories
 from mcpilco.models.diagnosis.effects import (
     EFFECTS,
     Armature,
@@ -96,6 +96,7 @@ from mcpilco.models.diagnosis.units import (
 )
 from mcpilco.models.diagnosis.workflow import run_diagnosis
 from mcpilco.models.gp.linear_gp import JointGP
+from mcpilco.models.robot_data import Trajectories
 
 __all__ = [
     "add_effect",

@@ -62,7 +62,6 @@ from numpy.typing import NDArray
 from mcpilco.models.diagnosis.analysis import at_rest
 from mcpilco.models.diagnosis.data import (
     MIN_FIT_ROWS,
-    Trajectories,
     as_trajectories,
     require_rows,
 )
@@ -83,7 +82,7 @@ from mcpilco.models.diagnosis.start_models import (
 )
 from mcpilco.models.diagnosis.units import widen_estimates
 from mcpilco.models.gp.linear_gp import JointGP, single_thread
-from mcpilco.models.robot_data import RobotDataset
+from mcpilco.models.robot_data import Trajectories
 
 FloatArray = NDArray[np.float64]
 
@@ -383,7 +382,7 @@ class DiagnosisModel:
 
     def fit(
         self,
-        train: Trajectories | RobotDataset | Sequence[RobotDataset],
+        train: Trajectories | Sequence[Trajectories],
         refit_start: bool | None = None,
         _warm: dict[int, FloatArray] | None = None,
         backfit: bool = False,
@@ -614,7 +613,7 @@ class DiagnosisModel:
 
     # ------------------------------------------------------------------ prediction
     def predict(
-        self, data: Trajectories | RobotDataset | Sequence[RobotDataset], with_var: bool = True
+        self, data: Trajectories | Sequence[Trajectories], with_var: bool = True
     ) -> tuple[FloatArray, FloatArray]:
         """Posterior mean and latent variance of the output at every sample, ``(N, n)``."""
         self._check_fitted()

@@ -75,7 +75,6 @@ from mcpilco.models.diagnosis.bags import BagOptions
 from mcpilco.models.diagnosis.data import (
     MIN_FIT_ROWS,
     MIN_HELDOUT_ROWS,
-    Trajectories,
     load_trajectories,
     require_motion,
     require_rows,
@@ -102,6 +101,7 @@ from mcpilco.models.diagnosis.units import (
     currents_to_torque,
 )
 from mcpilco.models.gp.linear_gp import single_thread
+from mcpilco.models.robot_data import Trajectories
 
 Log = Callable[[str], None]  # receives the report, one block of text at a time
 
