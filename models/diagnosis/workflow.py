@@ -506,6 +506,57 @@ def _report_data(data: LoadedLogs) -> dict[str, Any]:
     }
 
 
+def _summary(
+    held: HeldOut, found: SearchResult, artefacts: dict[str, str], robot_file: dict | None
+) -> dict[str, Any]:
+    """The summary of the run (:func:`run_diagnosis`'s return value) less its ``seconds`` and
+    ``report``."""
+    versions, data, last = found.versions, held.data, found.versions[-1]
+    removed = {
+        r.version: f" (removed {r.variant}: its evidence taken by {r.by})" for r in found.removals
+    }
+    return {
+        "versions": [v.describe() + removed.get(v.name, "") for v in versions],
+        "heldout_rmse": np.array([held.rmse(v) for v in versions]).tolist(),
+        "noise_floor": held.floor(last).tolist(),
+        "rmse_over_floor": np.array([held.rmse(v) / held.floor(v) for v in versions]).tolist(),
+        "verdict": found.diagnoses[last.name].verdict(),
+        "diagnoses": {k: d.to_dict() for k, d in found.diagnoses.items()},
+        "saved": found.saved,
+        "artefacts": artefacts,
+        "data_warnings": data.warnings,
+        "robot_file": robot_file,
+        "torque_constants": None if data.constants is None else data.constants.to_dict(),
+        "removed": [r.to_dict() for r in found.removals],
+    }
+
+
+def _html_report(
+    held: HeldOut, found: SearchResult, summary: dict[str, Any], seconds: float
+) -> DiagnosisReport:
+    """The run's :class:`~.html_report.DiagnosisReport` (``report.html``)."""
+    versions, last = found.versions, found.versions[-1]
+    return DiagnosisReport(
+        title=f"Model diagnosis: {last.start.describe()}",
+        verdict=summary["verdict"],
+        versions=summary["versions"],
+        heldout_rmse=np.array([held.rmse(v) for v in versions]),
+        floors=np.array([held.floor(v) for v in versions]),
+        metrics=[row for v in versions for row in held.evaluate(v)["rows"]],
+        diagnoses=found.diagnoses,
+        parameters=last.parameters(),
+        correlations=weight_correlations(last),
+        alternatives=found.alternatives,
+        residuals=held.reports[last.name],
+        final_check=found.diagnoses[last.name].base,
+        figures=held.figures,
+        data=_report_data(held.data),
+        warnings=held.data.warnings,
+        seconds=seconds,
+        corrected=_corrected_parameters(summary["robot_file"]),
+    )
+
+
 def report_stage(
     held: HeldOut,
     found: SearchResult,
@@ -530,47 +581,10 @@ def report_stage(
 
         log("\n== 6. the corrected robot file")
         robot_file = robot_file_step(versions[-1], data.train, data.test, out, sysid=sysid, log=log)
-    removed = {
-        r.version: f" (removed {r.variant}: its evidence taken by {r.by})" for r in found.removals
-    }
-    last = versions[-1]
-    final = found.diagnoses[last.name].verdict()
-    log(f"\nverdict: {final}")
-    held_rmse = np.array([held.rmse(v) for v in versions])
-    summary = {
-        "versions": [v.describe() + removed.get(v.name, "") for v in versions],
-        "heldout_rmse": held_rmse.tolist(),
-        "noise_floor": held.floor(last).tolist(),
-        "rmse_over_floor": np.array([held.rmse(v) / held.floor(v) for v in versions]).tolist(),
-        "verdict": final,
-        "diagnoses": {k: d.to_dict() for k, d in found.diagnoses.items()},
-        "saved": found.saved,
-        "artefacts": artefacts,
-        "data_warnings": data.warnings,
-        "robot_file": robot_file,
-        "torque_constants": None if data.constants is None else data.constants.to_dict(),
-        "removed": [r.to_dict() for r in found.removals],
-        "seconds": time.perf_counter() - t_start,
-    }
-    report = DiagnosisReport(
-        title=f"Model diagnosis: {last.start.describe()}",
-        verdict=final,
-        versions=summary["versions"],
-        heldout_rmse=held_rmse,
-        floors=np.array([held.floor(v) for v in versions]),
-        metrics=[row for v in versions for row in held.evaluate(v)["rows"]],
-        diagnoses=found.diagnoses,
-        parameters=last.parameters(),
-        correlations=weight_correlations(last),
-        alternatives=found.alternatives,
-        residuals=held.reports[last.name],
-        final_check=found.diagnoses[last.name].base,
-        figures=held.figures,
-        data=_report_data(data),
-        warnings=data.warnings,
-        seconds=time.perf_counter() - t_start,
-        corrected=_corrected_parameters(robot_file),
-    )
+    summary = _summary(held, found, artefacts, robot_file)
+    log(f"\nverdict: {summary['verdict']}")
+    summary["seconds"] = time.perf_counter() - t_start
+    report = _html_report(held, found, summary, time.perf_counter() - t_start)
     summary["report"] = str(report.write(out / "report.html"))
     (out / "summary.json").write_text(json.dumps(summary, indent=1, default=float))
     for text in data.warnings:  # repeated where the report ends
