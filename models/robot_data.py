@@ -1,4 +1,5 @@
-"""Robot measurement files: the one dataset schema, a validating loader and a saver.
+"""Robot measurement files: the one dataset schema, a validating loader and a saver, and
+:class:`Trajectories`, the one container of robot logs (one file, or several stacked).
 
 The arm envs' data (``mcpilco-collect-arm-data``) and the files users bring from their
 robots share this format: one row per sample, CSV or Parquet, columns
@@ -19,7 +20,7 @@ column                  meaning                                       unit (R jo
 ======================  ============================================  ========================
 
 (*) at least one of the ``tau`` and ``i`` groups must be present. Joints are numbered from 1.
-Other columns are kept in :attr:`RobotDataset.extras`. A group is either complete
+Other columns are kept in :attr:`Trajectories.extras`. A group is either complete
 (``1..n``) or absent.
 
 Derivatives when absent (:func:`differentiate`): on a uniform time grid (relative spread
@@ -32,9 +33,11 @@ same filter applied to ``qd`` (measured or computed).
 from __future__ import annotations
 
 import json
+import math
 import re
 import warnings
-from dataclasses import dataclass, field
+from collections.abc import Sequence
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -101,12 +104,40 @@ def column_names(n_joints: int, groups: tuple[str, ...] = JOINT_GROUPS) -> list[
     return [*cols, "contact"]
 
 
-@dataclass
-class RobotDataset:
-    """A validated robot dataset: arrays ``(N,)`` / ``(N, n)`` in the units of :data:`UNITS`.
+ROW_FIELDS: tuple[str, ...] = ("t", *JOINT_GROUPS, "contact", "y", "segment")
+"""The per-row arrays of :class:`Trajectories` (``None`` where a group is absent)."""
 
-    ``qd``/``qdd`` are always filled (computed when the file lacks them; see
-    ``metadata["computed"]``); the optional groups are ``None`` when absent.
+
+@dataclass
+class Trajectories:
+    """Robot trajectories: one measured log, or several stacked (one segment each), as arrays
+    ``(N,)`` / ``(N, n)`` in the units of :data:`UNITS`.
+
+    The one container of robot logs: :func:`load_dataset` gives one file's (one segment), the
+    diagnosis stacks several (:func:`~mcpilco.models.diagnosis.data.as_trajectories`), holds
+    trajectories out *whole*, shifts targets in time inside one (delay scan) and averages
+    residuals around velocity reversals inside one, so it keeps every sample's segment.
+
+    Attributes:
+        t, q, qd, qdd: time and joint states; ``qd``/``qdd`` always filled (computed when the
+            file lacks them; see ``metadata["computed"]``).
+        tau, i, i_cmd, e_q, e_qd, contact: the optional groups, ``None`` when absent.
+        extras: the file's other columns.
+        metadata: stored with the file, plus ``source`` (the path) and ``computed``.
+        y: ``(N, n)`` the output a model predicts: ``tau``, or the motor currents ``i`` of a
+            file without torques (``k_t i`` once put into torque units,
+            :mod:`mcpilco.models.diagnosis.units`).
+        output: ``"tau"`` or ``"i"`` (what ``y`` holds).
+        segment: ``(N,)`` the segment (log) of every sample, ``0..k-1``, contiguous.
+        names: the source of every segment (file path or ``"<arrays>"``; empty for one
+            file as loaded, whose source is ``metadata["source"]``).
+        warnings: data warnings of the diagnosis loader.
+        estimated: per segment (aligned with ``names``), the
+            :class:`~mcpilco.models.diagnosis.data.Estimate` of the ``qd``/``qdd`` groups it
+            computed from ``q``, or ``None`` where the file gave them; ``None`` as a whole for
+            a log the diagnosis loader has not yet prepared.
+        torque_constants: the :class:`~mcpilco.models.diagnosis.units.TorqueConstants` that
+            put motor currents into torque units (``y = k_t i``), or ``None``.
     """
 
     t: FloatArray
@@ -121,6 +152,21 @@ class RobotDataset:
     contact: NDArray[np.int64] | None = None
     extras: dict[str, FloatArray] = field(default_factory=dict)
     metadata: dict[str, Any] = field(default_factory=dict)
+    y: FloatArray | None = None
+    output: str | None = None
+    segment: NDArray[np.int64] | None = None
+    names: list[str] = field(default_factory=list)
+    warnings: list[str] = field(default_factory=list)
+    estimated: list[Any] | None = None
+    torque_constants: Any = None
+
+    def __post_init__(self) -> None:
+        if self.output is None:
+            self.output = "tau" if self.tau is not None else "i"
+        if self.y is None:
+            self.y = self.tau if self.output == "tau" else self.i
+        if self.segment is None:
+            self.segment = np.zeros(self.t.shape[0], dtype=np.int64)
 
     @property
     def n_joints(self) -> int:
@@ -131,12 +177,26 @@ class RobotDataset:
         return int(self.t.shape[0])
 
     @property
+    def n_segments(self) -> int:
+        return int(self.segment.max()) + 1 if self.segment.size else 0
+
+    @property
+    def segments(self) -> list[tuple[int, int]]:
+        """``(start, stop)`` row range of every segment (segments are contiguous)."""
+        edges = np.flatnonzero(np.diff(self.segment)) + 1
+        starts = np.concatenate([[0], edges])
+        stops = np.concatenate([edges, [self.n_samples]])
+        return list(zip(starts.tolist(), stops.tolist(), strict=True))
+
+    @property
     def sample_time(self) -> float:
-        """Median ``diff(t)`` [s]."""
-        return float(np.median(np.diff(self.t))) if self.n_samples > 1 else float("nan")
+        """Median sample time [s] over all segments (``nan`` below two rows)."""
+        dts = [np.diff(self.t[a:b]) for a, b in self.segments if b - a > 1]
+        return float(np.median(np.concatenate(dts))) if dts else float("nan")
 
     def to_frame(self) -> pd.DataFrame:
-        """The dataset as a ``DataFrame`` with the schema's column names and order."""
+        """The schema's columns (name and order, absent groups skipped), then the extras, as a
+        ``DataFrame``: what :func:`save_dataset` writes."""
         cols: dict[str, Any] = {"t": self.t}
         for g in JOINT_GROUPS:
             arr = getattr(self, g)
@@ -148,19 +208,99 @@ class RobotDataset:
         cols.update(self.extras)
         return pd.DataFrame(cols)
 
-    def subset(self, rows: ArrayLike) -> RobotDataset:
-        """Rows ``rows`` (index array or boolean mask) as a new dataset."""
+    def subset(self, rows: ArrayLike) -> Trajectories:
+        """Rows ``rows`` (index array or boolean mask) as new trajectories; the segments keep
+        their numbers, names and derivative estimates."""
 
         def take(a: Any) -> Any:
             return None if a is None else a[rows]
 
-        return RobotDataset(
-            t=self.t[rows],
-            **{g: take(getattr(self, g)) for g in JOINT_GROUPS},
-            contact=take(self.contact),
+        return replace(
+            self,
+            **{f: take(getattr(self, f)) for f in ROW_FIELDS},
             extras={k: v[rows] for k, v in self.extras.items()},
             metadata=dict(self.metadata),
+            names=list(self.names),
+            warnings=list(self.warnings),
+            estimated=None if self.estimated is None else list(self.estimated),
         )
+
+    def select(self, segments: Sequence[int]) -> Trajectories:
+        """The listed segments only (renumbered ``0..k-1``)."""
+        keep = np.isin(self.segment, list(segments))
+        out = self.subset(keep)
+        kept = sorted(set(out.segment.tolist()))
+        remap = {s: k for k, s in enumerate(kept)}
+        out.segment = np.array([remap[s] for s in out.segment.tolist()], dtype=np.int64)
+        out.names = [self.names[s] for s in kept] if self.names else []
+        if self.estimated:
+            out.estimated = [self.estimated[s] for s in kept]
+        return out
+
+    def split_time(self, fraction: float) -> tuple[Trajectories, Trajectories]:
+        """Cut every segment at ``fraction`` of its rows: (first parts, last parts).
+
+        Used to hold out a contiguous block when only one training file is given.
+        """
+        first = np.zeros(self.n_samples, dtype=bool)
+        for a, b in self.segments:
+            first[a : a + int(round(fraction * (b - a)))] = True
+        return self.subset(first), self.subset(~first)
+
+    def edge_rows(self, segment: int) -> int:
+        """Rows at each end of ``segment`` whose ``qd``/``qdd`` come from the derivative
+        filter's edge fit (0 when the file gave them or they were dropped)."""
+        est = self.estimated[segment] if self.estimated and segment < len(self.estimated) else None
+        return 0 if est is None else est.edge_rows
+
+    def interior(self) -> Trajectories:
+        """These trajectories without the :meth:`edge_rows` of every segment
+        (:mod:`mcpilco.models.diagnosis.data`); ``self`` when there are none. A segment keeps
+        at least its middle row."""
+        keep = np.ones(self.n_samples, dtype=bool)
+        for a, b in self.segments:
+            m = min(self.edge_rows(int(self.segment[a])), (b - a - 1) // 2)
+            keep[a : a + m] = False
+            keep[b - m : b] = False
+        if keep.all():
+            return self
+        out = self.subset(keep)
+        out.estimated = [None if e is None else replace(e, interior=True) for e in self.estimated]
+        return out
+
+    def shift_index(self, rows: NDArray[np.int64], k: int) -> NDArray[np.int64]:
+        """Rows ``rows + k`` clipped to each row's own segment (targets ``k`` samples later)."""
+        out = rows + k
+        for a, b in self.segments:
+            inside = (rows >= a) & (rows < b)
+            out[inside] = np.clip(out[inside], a, b - 1)
+        return out
+
+    def at(self, values: FloatArray, rows: NDArray[np.int64], shift: float) -> FloatArray:
+        """``values`` at the rows ``rows + shift`` (``shift`` in samples, any real number):
+        linear interpolation between the two samples around each, both clipped to the row's
+        own segment (:meth:`shift_index`); a whole ``shift`` reads the samples themselves."""
+        k0 = math.floor(shift)
+        frac = float(shift) - k0
+        lower = values[self.shift_index(rows, k0)]
+        if frac == 0.0:
+            return lower
+        upper = values[self.shift_index(rows, k0 + 1)]
+        return (1.0 - frac) * lower + frac * upper
+
+    def delayed(self, values: FloatArray, delay: float) -> FloatArray:
+        """``values(t - delay)`` per segment by linear interpolation (clamped at the start).
+
+        Args:
+            values: ``(N,)`` samples of a signal on these trajectories.
+            delay: [s] (>= 0: the output lags the states).
+        """
+        out = np.array(values, dtype=np.float64, copy=True)
+        if delay == 0:
+            return out
+        for a, b in self.segments:
+            out[a:b] = np.interp(self.t[a:b] - delay, self.t[a:b], values[a:b])
+        return out
 
 
 def differentiate(y: ArrayLike, t: ArrayLike) -> FloatArray:
@@ -209,8 +349,8 @@ def _not_numbers(column: pd.Series) -> str | None:
 
 def from_frame(
     df: pd.DataFrame, n_joints: int | None = None, source: str = "<frame>"
-) -> RobotDataset:
-    """Validate a ``DataFrame`` against the schema and build a :class:`RobotDataset`.
+) -> Trajectories:
+    """Validate a ``DataFrame`` against the schema and build a :class:`Trajectories`.
 
     Raises:
         ValueError: a missing column (named), a NaN/inf value (row index and column), time
@@ -304,7 +444,7 @@ def from_frame(
         metadata["warnings"] = warned
         for text in warned:
             warnings.warn(text, RuntimeWarning, stacklevel=2)
-    return RobotDataset(t=t, contact=contact, extras=extras, metadata=metadata, **arrays)
+    return Trajectories(t=t, contact=contact, extras=extras, metadata=metadata, **arrays)
 
 
 def check_plausible(values: FloatArray, columns: list[str], index: Any, source: str) -> None:
@@ -411,11 +551,11 @@ def _read_table(path: Path, suffix: str) -> tuple[pd.DataFrame, dict[str, Any]]:
     return table.to_pandas(), stored
 
 
-def load_dataset(path: str | Path, n_joints: int | None = None) -> RobotDataset:
+def load_dataset(path: str | Path, n_joints: int | None = None) -> Trajectories:
     """Read and validate a CSV (``.csv``) or Parquet (``.parquet``/``.pq``) robot file.
 
     Metadata stored by :func:`save_dataset` (Parquet key ``mcpilco``; CSV sidecar
-    ``<file>.json``) is merged into :attr:`RobotDataset.metadata`.
+    ``<file>.json``) is merged into :attr:`Trajectories.metadata`.
     """
     path = Path(path)
     if not path.exists():
@@ -442,8 +582,8 @@ def load_dataset(path: str | Path, n_joints: int | None = None) -> RobotDataset:
 
 def make_dataset(
     arrays: dict[str, ArrayLike], metadata: dict[str, Any] | None = None
-) -> RobotDataset:
-    """A validated :class:`RobotDataset` from arrays keyed by group name (``t``, ``q``, ...;
+) -> Trajectories:
+    """A validated :class:`Trajectories` from arrays keyed by group name (``t``, ``q``, ...;
     other keys become extra columns: 1-D as is, ``(N, m)`` as ``key_1..key_m``, forces
     ``f_*`` of shape ``(N, 3)`` as ``key_x/y/z``)."""
     if "q" not in arrays or "t" not in arrays:
@@ -474,7 +614,7 @@ def make_dataset(
 
 
 def save_dataset(
-    dataset: RobotDataset | dict[str, ArrayLike],
+    dataset: Trajectories | dict[str, ArrayLike],
     path: str | Path,
     metadata: dict[str, Any] | None = None,
 ) -> Path:
@@ -484,7 +624,7 @@ def save_dataset(
     ``metadata`` (JSON-serialisable) goes into the Parquet schema metadata (key
     ``mcpilco``) or a CSV sidecar ``<file>.json``.
     """
-    if not isinstance(dataset, RobotDataset):
+    if not isinstance(dataset, Trajectories):
         dataset = make_dataset(dataset, metadata)
     path = Path(path)
     meta = {**dataset.metadata, **(metadata or {})}

@@ -13,7 +13,7 @@ Each case is a sweep job (one thread) in ``--jobs`` local processes or on Ray
 (``--ray [ADDRESS]``), its record kept in ``RUNS_DIR/random/<start>/seed<s>.json``: a rerun
 computes only the cases without one. Writes ``OUT.json``, ``OUT.md`` and
 ``OUT_confusion.png``. Seeds from 1000 are the evaluation range (0-99: development).
-Example (about 20-30 s per case on one core)::
+Example::
 
     mcpilco-bench-diagnosis --per-kind 3 --controls 5 --multi 5 --off-library 5 --jobs 2
 

@@ -132,7 +132,7 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument(
         "--measurement", choices=("ideal", "aruco"), default=d.measurement,
         help="(c) marker poses from the env's noise model, or rendered + ArUco detection "
-        "(needs OpenCV and MUJOCO_GL=egl/osmesa; ~0.3 s per frame)",
+        "(needs OpenCV and MUJOCO_GL=egl/osmesa)",
     )  # fmt: skip
     p.add_argument(
         "--fk-seeds", type=int, nargs="+", default=None,

@@ -8,7 +8,7 @@ a hidden damping. The constants are estimated, the nominal model diagnosed in to
 Each case is a sweep job (one thread) in ``--jobs`` local processes or on Ray
 (``--ray [ADDRESS]``), its record kept in ``RUNS_DIR/seed<s>.json``: a rerun computes only
 the cases without one. Writes ``results/torque_constants.json`` and
-``results/torque_constants.md``. Example (about 10 s per case on one core)::
+``results/torque_constants.md``. Example::
 
     mcpilco-bench-torque-constants --cases 20 --jobs 2
 """

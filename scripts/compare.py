@@ -49,6 +49,7 @@ from pathlib import Path
 from typing import Any
 
 from mcpilco.agents.baselines.common import check_task_env, load_curves
+from mcpilco.agents.baselines.compare import METHODS
 from mcpilco.agents.baselines.pilco import OPTIMIZERS
 from mcpilco.agents.baselines.sb3 import HYPERPARAMS
 from mcpilco.agents.common.cli import console_main
@@ -56,7 +57,6 @@ from mcpilco.agents.common.trials import DEFAULT_ENV_ID
 from mcpilco.envs.yaml_files import parse_overrides
 from mcpilco.experiments.infra.sweep import SweepError, add_sweep_arguments, runner_from_args
 from mcpilco.experiments.mcpilco.compare import (
-    METHODS,
     compare,
     markdown,
     parse_sb3_hp,

@@ -5,7 +5,10 @@
 * :mod:`.sb3`: SAC, TD3 and PPO from stable-baselines3 with rl-baselines3-zoo
   hyper-parameters, evaluated every ``K`` env steps on 10 episodes (success rate vs
   seconds of experience), checkpointed and resumable;
-* :mod:`.common`: task envs, the learning-curve JSON format, policy evaluation.
+* :mod:`.common`: task envs, the learning-curve JSON format, policy evaluation;
+* :mod:`.compare`: one method on one seed as a learning curve, the curves aggregated over
+  seeds, ``T90`` and the data-efficiency ratios to MC-PILCO (the library of
+  ``mcpilco-compare``, whose benchmark face is :mod:`mcpilco.experiments.mcpilco.compare`).
 
 Heavy libraries (torchrl, botorch, stable-baselines3) are imported by the sub-modules only.
 """

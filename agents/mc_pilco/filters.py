@@ -19,7 +19,8 @@ alarm ``a_k``
     transition ``t`` (from control step ``t`` to ``t + 1``, its ``R`` env samples) is
     excluded when an alarm falls on one of its samples, or on those of the ``margin``
     transitions before and after it: the detector raises its alarm some samples into a push
-    (median latency 40 ms on the UR10) and the push's ramp ends before the arm settles.
+    (its latency: results/collision_5000/collision.md) and the push's ramp ends before the
+    arm settles.
 
 The env's ``info`` must carry the arm env's per-sample keys (:mod:`mcpilco.envs.arm_env`):
 ``q, qd, qdd, e_q, e_qd`` and the motor currents ``current`` (``i``) and ``current_cmd``

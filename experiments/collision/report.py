@@ -17,6 +17,18 @@ import numpy as np
 ESTIMATOR_NAMES = ("PP", "SP", "FC")
 """Current estimators of the benchmark (:data:`mcpilco.models.collision.ESTIMATORS`)."""
 
+# an estimator's and a threshold rule's names in the figures' legends, in words
+ESTIMATOR_LABELS: dict[str, str] = {
+    "PP": "GP, rigid body + friction (PP)",
+    "PP-sign": "GP, rigid body + sign friction (PP)",
+    "SP": "GP, PP + RBF (SP)",
+    "FC": "GP, PP + gated RBF at rest (FC)",
+}
+RULE_LABELS: dict[str, str] = {
+    "max": "threshold max |s|",
+    "variance": "threshold k sigma(x)",
+}
+
 
 def _plt() -> Any:
     """``matplotlib.pyplot`` on the file-only Agg backend."""
@@ -40,7 +52,8 @@ def plot_rmse(results: dict[str, Any], path: Path) -> None:
     for ax, regime in zip(axes, ("dynamic", "quasi_static"), strict=True):
         for k, name in enumerate(names):
             vals = results["estimators"][name]["rmse"][regime]
-            ax.bar(x + (k - (len(names) - 1) / 2) * width, vals, width, label=name)
+            label = ESTIMATOR_LABELS.get(name, name)
+            ax.bar(x + (k - (len(names) - 1) / 2) * width, vals, width, label=label)
         ax.plot(x, noise, "k_", ms=25, mew=2, label="noise std")
         title = "|qd_j| >= sigma_v (dynamic)" if regime == "dynamic" else "|qd_j| < sigma_v"
         ax.set_title(f"{title}, sigma_v = {results['config']['rmse_sigma_v']:g} rad/s")
@@ -98,7 +111,8 @@ def plot_roc(results: dict[str, Any], path: Path) -> None:
                     continue
                 fa = [max(p["false_alarms_per_minute"], 1e-2) for p in pts]
                 rate = [p["rate_all"] for p in pts]
-                ax.plot(fa, rate, style, color=f"C{k}", label=f"{name} {rule}")
+                label = f"{ESTIMATOR_LABELS.get(name, name)}, {RULE_LABELS[rule]}"
+                ax.plot(fa, rate, style, color=f"C{k}", label=label)
         ax.set_xscale("log")
         ax.set_xlabel("false alarms per minute on push-free data (0 plotted at 0.01)")
         ax.set_ylabel("fraction of pushes detected")

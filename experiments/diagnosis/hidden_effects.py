@@ -80,7 +80,7 @@ class Case:
     seed: int
 
     def datasets(self, which: str = "train") -> list[Any]:
-        """The arrays as validated ``RobotDataset`` objects."""
+        """The arrays as validated ``Trajectories`` objects."""
         return [make_dataset(a) for a in getattr(self, which)]
 
     def truth(self) -> list[str]:

@@ -16,6 +16,17 @@ from typing import Any
 
 import numpy as np
 
+# an estimator's name in the figures' legends, in words (the tables keep the short names)
+ESTIMATOR_LABELS: dict[str, str] = {
+    "FE": "rigid body, least squares (FE)",
+    "PP": "GP, rigid-body prior (PP)",
+    "SP": "GP, rigid-body prior + RBF (SP)",
+    "GIP": "GP, GIP kernel",
+    "RBF": "GP, RBF kernel",
+    "NN": "neural network (MLP)",
+    "GIP+F": "GP, GIP kernel + friction",
+}
+
 
 def _summary(values: Sequence[Sequence[float]]) -> list[tuple[float, float, float]]:
     """Per joint: (median, first quartile, third quartile)."""
@@ -60,7 +71,7 @@ def plot_efficiency(res: dict[str, Any], path: Path) -> None:
 
     fig, ax = plt.subplots(figsize=(5, 4))
     for name, vals in res["gmse"].items():
-        ax.loglog(res["sizes"], vals, "o-", label=name)
+        ax.loglog(res["sizes"], vals, "o-", label=ESTIMATOR_LABELS.get(name, name))
     ax.axhline(res["noise_gmse_floor"], color="gray", ls=":", label="noise")
     ax.set_xlabel("training samples")
     ax.set_ylabel("test GMSE [N^2 m^2]")
@@ -81,16 +92,17 @@ def plot_ur10(res: dict[str, Any], path: Path) -> None:
 
     names = list(res["nmse"])
     n = len(res["noise_floor"])
-    fig, ax = plt.subplots(figsize=(7, 4))
+    fig, ax = plt.subplots(figsize=(10, 4))
     width = 0.8 / max(len(names), 1)
     joints = np.arange(1, n + 1)
     for k, name in enumerate(names):
-        ax.bar(joints + (k - len(names) / 2 + 0.5) * width, res["nmse"][name], width, label=name)
+        x = joints + (k - len(names) / 2 + 0.5) * width
+        ax.bar(x, res["nmse"][name], width, label=ESTIMATOR_LABELS.get(name, name))
     ax.plot(joints, res["noise_floor"], "k_", ms=20, mew=2, label="noise floor")
     ax.set_yscale("log")
     ax.set_xlabel("joint")
     ax.set_ylabel("test nMSE (motor currents)")
-    ax.legend(fontsize=7)
+    ax.legend(fontsize=8, loc="upper left", bbox_to_anchor=(1.01, 1.0))  # beside the bars
     ax.set_title(f"UR10 env: {res['n_train']} train ({res['n_gp']} for the GPs)")
     fig.tight_layout()
     fig.savefig(path, dpi=110)

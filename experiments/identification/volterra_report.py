@@ -124,6 +124,14 @@ def markdown_table(summary: dict, meta: dict) -> str:
     return "\n".join(lines)
 
 
+# a kernel's name under its box, in words
+KERNEL_LABELS: dict[str, str] = {
+    "mpk": "MPK",
+    "sed_mpk_tied": "SED-MPK",
+    "sed_mpk": "SED-MPK (untied)",
+}
+
+
 def _box(ax, groups: list[list[float]], labels: list[str], title: str) -> None:
     data = [[v for v in g if v is not None] or [np.nan] for g in groups]
     ax.boxplot(data, tick_labels=labels)
@@ -171,8 +179,8 @@ def plot_exp2(fits: dict, path: Path) -> None:
         for cname in cnames:
             for kind, vals in fits[cname].items():
                 groups.append(vals)
-                name = kind.upper().replace("SED_MPK_TIED", "SED").replace("SED_MPK", "SED*")
-                labels.append(f"{name}\n{cname.split('_')[0]}")
+                name = KERNEL_LABELS.get(kind, kind.upper())
+                labels.append(f"{name}\norder {cname.split('_')[0].lstrip('r')}")
         n = max(len(g) for g in groups)
         _box(ax, groups, labels, f"SNR {snr} dB ({n} runs)")
     fig.suptitle("Experiment 2: Wiener system (6.38)")

@@ -26,7 +26,7 @@ name                               meaning
 =================================  =========================================================
 
 Nothing here imports ``mcpilco.envs``: data come as
-:class:`~mcpilco.models.robot_data.RobotDataset` or arrays (schema groups ``q, qd, qdd, i,
+:class:`~mcpilco.models.robot_data.Trajectories` or arrays (schema groups ``q, qd, qdd, i,
 i_cmd, e_q, e_qd, contact``).
 """
 

@@ -25,7 +25,7 @@ FC (eqs. 4.8-4.10, "SP with non-parametric friction compensation")
     signal is ``s = i - i_hat`` (:mod:`mcpilco.models.collision.detector`).
 
 All three take :class:`~mcpilco.models.collision.inputs.CollisionInputs` (or a
-``RobotDataset`` / arrays, see that module) and currents ``i`` ``(N, n)`` [A]; ``predict``
+``Trajectories`` / arrays, see that module) and currents ``i`` ``(N, n)`` [A]; ``predict``
 returns ``(mean, var)`` ``(N, n)`` with ``var`` the latent variance (noise variance in
 ``noise_variance_``). Hyperparameters by marginal likelihood on ``hyper_points`` random rows,
 then the GP is conditioned on all rows (:class:`~mcpilco.models.inverse_dynamics.
@@ -58,7 +58,7 @@ from mcpilco.models.inverse_dynamics import (
     load_pinocchio_model,
     rbf_kernel,
 )
-from mcpilco.models.robot_data import RobotDataset
+from mcpilco.models.robot_data import Trajectories
 from mcpilco.models.robot_files import read_robot_file
 from mcpilco.models.torch_files import load_torch_bytes, load_torch_file
 
@@ -163,9 +163,10 @@ def _model_text(model: Any) -> str | None:
 
 
 def _current_targets(y: Any, X: Any, n_rows: int, n_joints: int) -> FloatArray:
-    """Motor currents ``(N, n)``: ``y``, or the ``i`` group of a ``RobotDataset`` ``X``."""
+    """Motor currents ``(N, n)``: ``y``, or the ``i`` group of a robot log ``X``
+    (``Trajectories``)."""
     if y is None:
-        if isinstance(X, RobotDataset):
+        if isinstance(X, Trajectories):
             if X.i is None:
                 raise ValueError(
                     f"the dataset has no motor-current columns i1..i{n_joints}; the collision "
@@ -182,8 +183,9 @@ def _current_targets(y: Any, X: Any, n_rows: int, n_joints: int) -> FloatArray:
 class CurrentEstimator:
     """Mixin: fit / predict on :class:`CollisionInputs`, currents as targets, save / load.
 
-    ``fit(X, y=None)`` accepts a ``RobotDataset`` (targets: its ``i`` columns), a mapping of
-    group arrays or an ``(N, 3n)`` / ``(N, 6n)`` array with currents ``y`` ``(N, n)`` [A].
+    ``fit(X, y=None)`` accepts a robot log (``Trajectories``; targets: its ``i`` columns), a
+    mapping of group arrays or an ``(N, 3n)`` / ``(N, 6n)`` array with currents ``y``
+    ``(N, n)`` [A].
     The rows the GP is conditioned on are kept (``train_inputs_``, ``train_targets_``) so
     that :meth:`save` writes a small file (inputs and hyperparameters, not the Gram matrix).
     """

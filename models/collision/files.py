@@ -23,7 +23,7 @@ import numpy as np
 from mcpilco.models.collision.detector import CollisionDetector
 from mcpilco.models.collision.estimators import make_estimator
 from mcpilco.models.collision.inputs import as_collision_inputs
-from mcpilco.models.robot_data import RobotDataset, load_dataset
+from mcpilco.models.robot_data import Trajectories, load_dataset
 
 INTERVAL_COLUMNS = ("start", "end", "duration", "joint", "peak_ratio")
 """Columns of the alarm-interval CSV (:func:`write_intervals`)."""
@@ -33,7 +33,7 @@ class InputError(ValueError):
     """A problem with the user's files or options (reported without a traceback)."""
 
 
-def load_log(path: str | Path, n_joints: int | None = None, fc: bool = False) -> RobotDataset:
+def load_log(path: str | Path, n_joints: int | None = None, fc: bool = False) -> Trajectories:
     """Read and check a log (schema loader + current / controller groups)."""
     try:
         ds = load_dataset(path, n_joints=n_joints)
@@ -55,7 +55,7 @@ def load_log(path: str | Path, n_joints: int | None = None, fc: bool = False) ->
     return ds
 
 
-def check_sample_time(ds: RobotDataset, expected: float | None, tolerance: float) -> float:
+def check_sample_time(ds: Trajectories, expected: float | None, tolerance: float) -> float:
     """Median ``diff(t)``; raises when it is off ``expected`` or the grid is not uniform."""
     dt = np.diff(ds.t)
     median = float(np.median(dt))

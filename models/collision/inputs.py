@@ -15,7 +15,7 @@ Glossary (thesis chapter 4)
     (thesis value ``1e-2`` rad/s, chosen by cross-validation).
 
 Accepted input forms (every public function here): a
-:class:`~mcpilco.models.robot_data.RobotDataset` (the documented file format), a mapping of
+:class:`~mcpilco.models.robot_data.Trajectories` (the documented file format), a mapping of
 arrays keyed by group (``{"q": (N, n), "qd": ..., "i_cmd": ...}``), or one ``(N, 6n)`` array
 with the columns of ``x_bar`` in order (``(N, 3n)`` when only ``x`` is needed).
 """
@@ -29,7 +29,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from mcpilco.models.inverse_dynamics import JointStates
-from mcpilco.models.robot_data import RobotDataset
+from mcpilco.models.robot_data import Trajectories
 
 FloatArray = NDArray[np.float64]
 
@@ -113,8 +113,8 @@ def as_collision_inputs(
     """Validate ``X`` into :class:`CollisionInputs` (see the module docstring for the forms).
 
     Args:
-        X: a ``RobotDataset``, a mapping of group arrays, a ``CollisionInputs``, or an array
-            ``(N, 3n)`` (``x``) / ``(N, 6n)`` (``x_bar``).
+        X: a robot log (``Trajectories``), a mapping of group arrays, a ``CollisionInputs``,
+            or an array ``(N, 3n)`` (``x``) / ``(N, 6n)`` (``x_bar``).
         n_joints: expected ``n``; ``None`` infers it.
         require_controller: raise unless ``e_q``, ``e_qd`` and ``i_cmd`` are present.
 
@@ -126,8 +126,8 @@ def as_collision_inputs(
     groups: dict[str, FloatArray | None]
     if isinstance(X, CollisionInputs):
         groups = {g: getattr(X, g) for g in (*STATE_GROUPS, *CONTROLLER_GROUPS)}
-    elif isinstance(X, RobotDataset) or isinstance(X, Mapping):
-        get = (lambda g: getattr(X, g)) if isinstance(X, RobotDataset) else X.get
+    elif isinstance(X, Trajectories) or isinstance(X, Mapping):
+        get = (lambda g: getattr(X, g)) if isinstance(X, Trajectories) else X.get
         groups = {}
         for g in (*STATE_GROUPS, *CONTROLLER_GROUPS):
             value = get(g)

@@ -7,10 +7,10 @@ from pathlib import Path
 import numpy as np
 
 from mcpilco.models.collision.detector import Detection, runs
-from mcpilco.models.robot_data import RobotDataset
+from mcpilco.models.robot_data import Trajectories
 
 
-def plot_detection(ds: RobotDataset, result: Detection, joint: int, path: Path) -> None:
+def plot_detection(ds: Trajectories, result: Detection, joint: int, path: Path) -> None:
     """Two panels over time, saved to ``path``: the measured current of ``joint`` (1-based)
     with its estimate, and ``|s_j| / sigma_CD,j`` of every joint against the threshold 1.
     Alarms are shaded red, logged ground-truth contacts grey."""

@@ -13,7 +13,7 @@ The loop (:func:`run_diagnosis` runs it on files; console script ``mcpilco-diagn
 3. which effect is missing: :func:`diagnose` scores every candidate of :mod:`.effects` on
    every joint by the log-evidence it adds (:mod:`mcpilco.models.gp.linear_gp`), confirms
    the best on held-out trajectories, groups look-alikes;
-4. add it: ``model = model.add(CoulombFriction(joint=2))`` (a new version);
+4. add it: ``model = add_effect(model, CoulombFriction(joint=2))`` (a new version);
 5. watch the error fall: :func:`~.plots.plot_waterfall`, :func:`~.plots.write_rerun`;
    the run's :class:`DiagnosisReport` (``report.html``, one self-contained file). Parameters
    the data cannot pin down are reported as not identifiable (:mod:`.identifiability`);
@@ -21,6 +21,7 @@ The loop (:func:`run_diagnosis` runs it on files; console script ``mcpilco-diagn
    :func:`refine_with_sysid` (``mujoco.sysid``), :func:`free_run_error` (open-loop replay).
 """
 
+from mcpilco.models.diagnosis.add import add_effect
 from mcpilco.models.diagnosis.analysis import (
     CorrelationTest,
     InputNoise,
@@ -35,7 +36,7 @@ from mcpilco.models.diagnosis.analysis import (
     residual_report,
     whiteness_test,
 )
-from mcpilco.models.diagnosis.data import Trajectories, as_trajectories, load_trajectories
+from mcpilco.models.diagnosis.data import as_trajectories, load_trajectories
 from mcpilco.models.diagnosis.effects import (
     EFFECTS,
     Armature,
@@ -95,8 +96,10 @@ from mcpilco.models.diagnosis.units import (
 )
 from mcpilco.models.diagnosis.workflow import run_diagnosis
 from mcpilco.models.gp.linear_gp import JointGP
+from mcpilco.models.robot_data import Trajectories
 
 __all__ = [
+    "add_effect",
     "at_rest",
     "EFFECTS",
     "LEARNED_STARTS",

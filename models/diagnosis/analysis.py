@@ -5,7 +5,7 @@ Metrics per joint ``j`` (``y`` measured, ``y_hat`` predicted, ``N`` samples)
     y_hat)^2))``, ``fit = 100 (1 - ||y - y_hat|| / ||y - mean(y)||)`` % (NRMSE fit, as in
     system-identification toolboxes).
 Residual ``e = y - y_hat`` analysis
-    * binned against ``qd_j``, ``q_j``, ``qdd_j`` (equal-count bins): mean ``+-`` 1.96
+    * binned against ``qd_j``, ``q_j``, ``qdd_j`` (equal-count bins): mean ``+-`` Z95
       ``sd / sqrt(count)`` (95% interval of the bin mean);
     * averaged around velocity reversals of joint ``j`` (sign changes of ``qd_j``), ``+-W``
       samples, separately for ``+ -> -`` and ``- -> +`` reversals;
@@ -23,7 +23,7 @@ Noise floor (the error a perfect model still has on held-out data)
     ``floor_j = sqrt(sigma_meas,j^2 + sigma_in,j^2 + sigma_k,j^2)``. ``sigma_meas`` is the
     output's own measurement noise (:func:`noise_floor`, first differences of the residual).
     ``sigma_in`` is the noise the *prediction* inherits when ``qd``/``qdd`` were estimated from
-    measured positions (:attr:`Trajectories.estimated`, :func:`input_noise`): with white noise
+    measured positions (:attr:`.Trajectories.estimated`, :func:`input_noise`): with white noise
     of std ``sigma_x,k`` on the differentiated signal ``x_k`` (``q_k``; ``qd_k`` when only
     ``qdd`` was estimated) and the filter's coefficient rows ``B = [delta, c_1, c_2]`` (the sample
     itself and the first/second derivative coefficients),
@@ -88,8 +88,9 @@ from numpy.typing import NDArray
 from scipy.signal import lfilter, savgol_coeffs
 from scipy.stats import norm
 
-from mcpilco.models.diagnosis.data import Trajectories, derivative_filter, smoother_noise_std
+from mcpilco.models.diagnosis.data import derivative_filter, smoother_noise_std
 from mcpilco.models.gp.linear_gp import single_thread
+from mcpilco.models.robot_data import Trajectories
 from mcpilco.models.stats import Z95
 
 FloatArray = NDArray[np.float64]

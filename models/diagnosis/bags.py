@@ -5,7 +5,7 @@ A ROS 2 arm logs its joints as ``sensor_msgs/msg/JointState`` messages (``name``
 ``ros2 bag record`` into a bag: a folder with ``metadata.yaml`` and its storage files
 (``.db3``, sqlite3, or ``.mcap``), or a storage file alone; a plain MCAP file with ROS 2
 (``ros2msg``/CDR) channels reads the same way. :func:`read_bag` turns one such log into the
-:class:`~mcpilco.models.robot_data.RobotDataset` of a CSV/Parquet file, so everything after
+:class:`~mcpilco.models.robot_data.Trajectories` of a CSV/Parquet file, so everything after
 it (derivative estimates, checks, the diagnosis loop) is the same. The reader is the
 maintained ``rosbags`` package (optional extra ``logs``: ``pip install mcpilco[logs]``).
 
@@ -55,7 +55,7 @@ import numpy as np
 import pandas as pd
 from numpy.typing import NDArray
 
-from mcpilco.models.robot_data import RobotDataset, from_frame
+from mcpilco.models.robot_data import Trajectories, from_frame
 
 FloatArray = NDArray[np.float64]
 
@@ -338,7 +338,7 @@ def read_bag(
     joints: Sequence[str] | None = None,
     options: BagOptions | None = None,
     n_joints: int | None = None,
-) -> RobotDataset:
+) -> Trajectories:
     """The dataset of one bag (module docstring): ``t`` on a uniform grid from 0, ``q``,
     ``qd`` when recorded, and ``tau`` (``effort``) or ``i`` (the current topic).
 
@@ -422,7 +422,7 @@ def read_bag(
 
 def write_joint_states(
     path: str | Path,
-    dataset: RobotDataset,
+    dataset: Trajectories,
     joint_names: Sequence[str],
     topic: str = "/joint_states",
     storage: str = "sqlite3",

@@ -1,9 +1,11 @@
 """Trajectories for the diagnosis loop: several measurement files stacked, one segment each.
 
-A *trajectory* is one measurement file (one :class:`~mcpilco.models.robot_data.RobotDataset`).
-The diagnosis loop holds trajectories out *whole* (never single samples of one), shifts
-targets in time inside a trajectory (delay scan), and averages residuals around velocity
-reversals inside a trajectory, so it keeps the segment of every sample.
+A *trajectory* is one measurement file. The loop's data are
+:class:`~mcpilco.models.robot_data.Trajectories`, the package's one container of robot logs,
+stacked by :func:`as_trajectories`: the loop holds trajectories out *whole* (never single
+samples of one), shifts targets in time inside a trajectory (delay scan), and averages
+residuals around velocity reversals inside a trajectory, so it keeps the segment of every
+sample.
 
 Glossary
 --------
@@ -32,8 +34,9 @@ is chosen per file (:func:`choose_derivative_filter`) from :data:`DERIVATIVE_WIN
   last ``m`` samples use a fit over the edge window (``mode="interp"``), evaluated ``m``
   samples off its centre: its second derivative there errs by far more than the central
   estimate (on a simulated arm, several N m of inverse-dynamics torque in the first rows,
-  where the central rows are at the torque noise). :meth:`Trajectories.interior` drops these
-  edge rows; the diagnosis fits and evaluates models on the interior rows only.
+  where the central rows are at the torque noise).
+  :meth:`~mcpilco.models.robot_data.Trajectories.interior` drops these edge rows; the
+  diagnosis fits and evaluates models on the interior rows only.
 * noise gain: white noise of standard deviation ``sigma_q`` on ``q`` (e.g. encoder
   quantisation, ``sigma_q = step / sqrt(12)``) becomes ``sigma_qd = ||c_1|| sigma_q`` and
   ``sigma_qdd = ||c_2|| sigma_q`` with ``c_k`` the filter's coefficients (units 1/s and
@@ -61,18 +64,18 @@ window; sharp motion (stick-slip at a velocity reversal) keeps the short one.
 
 Files that already give ``qd`` and ``qdd`` are used as given. The estimate needs a uniform
 time grid: a segment whose sample intervals depart from their median by more than
-:data:`SAMPLING_TOLERANCE` (relative) is refused. :attr:`Trajectories.estimated` records,
-per segment, which groups were estimated and with which filter, so that the loop can count
+:data:`SAMPLING_TOLERANCE` (relative) is refused.
+:attr:`~mcpilco.models.robot_data.Trajectories.estimated` records, per segment, which
+groups were estimated and with which filter, so that the loop can count
 the noise they carry.
 """
 
 from __future__ import annotations
 
-import math
 import re
 import warnings
 from collections.abc import Sequence
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -80,11 +83,10 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.signal import savgol_coeffs, savgol_filter
 
-from mcpilco.models.robot_data import RobotDataset, load_dataset, sampling_warnings
+from mcpilco.models.robot_data import Trajectories, load_dataset, sampling_warnings
 
 if TYPE_CHECKING:
     from mcpilco.models.diagnosis.bags import BagOptions
-    from mcpilco.models.diagnosis.units import TorqueConstants
 
 FloatArray = NDArray[np.float64]
 
@@ -99,7 +101,6 @@ __all__ = [
     "derivative_filter",
     "estimate_derivatives",
     "MIN_HELDOUT_ROWS",
-    "Trajectories",
     "as_trajectories",
     "choose_derivative_filter",
     "load_trajectories",
@@ -298,7 +299,8 @@ class Estimate:
         groups: the estimated groups (``("qd", "qdd")`` or ``("qdd",)``).
         filter: the :class:`DerivativeFilter`.
         interior: ``True`` once the segment's ``window // 2`` edge rows at each end (the
-            filter's edge fit) were dropped (:meth:`Trajectories.interior`).
+            filter's edge fit) were dropped
+            (:meth:`~mcpilco.models.robot_data.Trajectories.interior`).
     """
 
     groups: tuple[str, ...]
@@ -311,184 +313,35 @@ class Estimate:
         return 0 if self.interior else self.filter.window // 2
 
 
-@dataclass
-class Trajectories:
-    """Stacked trajectories ``t (N,)``, ``q, qd, qdd, y (N, n)``, ``segment (N,)``.
-
-    Attributes:
-        output: ``"tau"`` or ``"i"`` (what ``y`` holds).
-        names: the source of every segment (file path or ``"<arrays>"``).
-        warnings: data warnings of the loader.
-        estimated: per segment (aligned with ``names``), the :class:`Estimate` of the
-            ``qd``/``qdd`` groups computed from ``q``, or ``None`` when the file gave them.
-        torque_constants: the :class:`~mcpilco.models.diagnosis.units.TorqueConstants` that
-            put motor currents into torque units (``y = k_t i``), or ``None``.
-    """
-
-    t: FloatArray
-    q: FloatArray
-    qd: FloatArray
-    qdd: FloatArray
-    y: FloatArray
-    segment: NDArray[np.int64]
-    output: str = "tau"
-    names: list[str] = field(default_factory=list)
-    warnings: list[str] = field(default_factory=list)
-    estimated: list[Estimate | None] = field(default_factory=list)
-    torque_constants: TorqueConstants | None = None
-
-    @property
-    def n_joints(self) -> int:
-        return int(self.q.shape[1])
-
-    @property
-    def n_samples(self) -> int:
-        return int(self.t.shape[0])
-
-    @property
-    def n_segments(self) -> int:
-        return int(self.segment.max()) + 1 if self.segment.size else 0
-
-    @property
-    def segments(self) -> list[tuple[int, int]]:
-        """``(start, stop)`` row range of every segment (segments are contiguous)."""
-        edges = np.flatnonzero(np.diff(self.segment)) + 1
-        starts = np.concatenate([[0], edges])
-        stops = np.concatenate([edges, [self.n_samples]])
-        return list(zip(starts.tolist(), stops.tolist(), strict=True))
-
-    @property
-    def sample_time(self) -> float:
-        """Median sample time [s] over all segments."""
-        dts = [np.diff(self.t[a:b]) for a, b in self.segments if b - a > 1]
-        return float(np.median(np.concatenate(dts))) if dts else float("nan")
-
-    def select(self, segments: Sequence[int]) -> Trajectories:
-        """The listed segments only (renumbered ``0..k-1``)."""
-        keep = np.isin(self.segment, list(segments))
-        seg = self.segment[keep]
-        remap = {s: k for k, s in enumerate(sorted(set(seg.tolist())))}
-        return Trajectories(
-            t=self.t[keep],
-            q=self.q[keep],
-            qd=self.qd[keep],
-            qdd=self.qdd[keep],
-            y=self.y[keep],
-            segment=np.array([remap[s] for s in seg.tolist()], dtype=np.int64),
-            output=self.output,
-            names=[self.names[s] for s in sorted(remap)],
-            warnings=list(self.warnings),
-            estimated=[self.estimated[s] for s in sorted(remap)] if self.estimated else [],
-            torque_constants=self.torque_constants,
-        )
-
-    def split_time(self, fraction: float) -> tuple[Trajectories, Trajectories]:
-        """Cut every segment at ``fraction`` of its rows: (first parts, last parts).
-
-        Used to hold out a contiguous block when only one training file is given.
-        """
-        first = np.zeros(self.n_samples, dtype=bool)
-        for a, b in self.segments:
-            first[a : a + int(round(fraction * (b - a)))] = True
-        return self._mask(first), self._mask(~first)
-
-    def _mask(self, keep: NDArray[np.bool_]) -> Trajectories:
-        return Trajectories(
-            t=self.t[keep],
-            q=self.q[keep],
-            qd=self.qd[keep],
-            qdd=self.qdd[keep],
-            y=self.y[keep],
-            segment=self.segment[keep],
-            output=self.output,
-            names=list(self.names),
-            warnings=list(self.warnings),
-            estimated=list(self.estimated),
-            torque_constants=self.torque_constants,
-        )
-
-    def edge_rows(self, segment: int) -> int:
-        """Rows at each end of ``segment`` whose ``qd``/``qdd`` come from the derivative
-        filter's edge fit (0 when the file gave them or they were dropped)."""
-        est = self.estimated[segment] if segment < len(self.estimated) else None
-        return 0 if est is None else est.edge_rows
-
-    def interior(self) -> Trajectories:
-        """These trajectories without the :meth:`edge_rows` of every segment (module
-        docstring); ``self`` when there are none. A segment keeps at least its middle row."""
-        keep = np.ones(self.n_samples, dtype=bool)
-        for a, b in self.segments:
-            m = min(self.edge_rows(int(self.segment[a])), (b - a - 1) // 2)
-            keep[a : a + m] = False
-            keep[b - m : b] = False
-        if keep.all():
-            return self
-        out = self._mask(keep)
-        out.estimated = [None if e is None else replace(e, interior=True) for e in self.estimated]
-        return out
-
-    def shift_index(self, rows: NDArray[np.int64], k: int) -> NDArray[np.int64]:
-        """Rows ``rows + k`` clipped to each row's own segment (targets ``k`` samples later)."""
-        out = rows + k
-        for a, b in self.segments:
-            inside = (rows >= a) & (rows < b)
-            out[inside] = np.clip(out[inside], a, b - 1)
-        return out
-
-    def at(self, values: FloatArray, rows: NDArray[np.int64], shift: float) -> FloatArray:
-        """``values`` at the rows ``rows + shift`` (``shift`` in samples, any real number):
-        linear interpolation between the two samples around each, both clipped to the row's
-        own segment (:meth:`shift_index`); a whole ``shift`` reads the samples themselves."""
-        k0 = math.floor(shift)
-        frac = float(shift) - k0
-        lower = values[self.shift_index(rows, k0)]
-        if frac == 0.0:
-            return lower
-        upper = values[self.shift_index(rows, k0 + 1)]
-        return (1.0 - frac) * lower + frac * upper
-
-    def delayed(self, values: FloatArray, delay: float) -> FloatArray:
-        """``values(t - delay)`` per segment by linear interpolation (clamped at the start).
-
-        Args:
-            values: ``(N,)`` samples of a signal on these trajectories.
-            delay: [s] (>= 0: the output lags the states).
-        """
-        out = np.array(values, dtype=np.float64, copy=True)
-        if delay == 0:
-            return out
-        for a, b in self.segments:
-            out[a:b] = np.interp(self.t[a:b] - delay, self.t[a:b], values[a:b])
-        return out
-
-
 def as_trajectories(
-    data: Trajectories | RobotDataset | Sequence[RobotDataset],
+    data: Trajectories | Sequence[Trajectories],
     n_joints: int | None = None,
     derivative_window: float | None = None,
 ) -> Trajectories:
-    """Stack datasets into :class:`Trajectories` (one segment per dataset); ``qd``/``qdd`` that
-    a dataset lacks are estimated with the span ``derivative_window`` [s], or, when ``None``,
-    the span chosen per file (:func:`choose_derivative_filter`).
+    """Stack logs into one :class:`~mcpilco.models.robot_data.Trajectories` (one segment
+    each) for the diagnosis; ``qd``/``qdd`` that a log lacks are estimated with the span
+    ``derivative_window`` [s], or, when ``None``, the span chosen per file
+    (:func:`choose_derivative_filter`). Trajectories this function prepared already
+    (``estimated`` set) are returned as they are.
 
     Raises:
-        ValueError: no dataset, joint counts that differ between files or from ``n_joints``
+        ValueError: no log, joint counts that differ between files or from ``n_joints``
             (the counts are named), or files that mix ``tau`` and current-only outputs.
     """
-    if isinstance(data, Trajectories):
+    if isinstance(data, Trajectories) and data.estimated is not None:
         if n_joints is not None and data.n_joints != n_joints:
             raise ValueError(
                 f"joint count mismatch: the data has {data.n_joints} joints but the model "
                 f"has {n_joints}"
             )
         return data
-    datasets = [data] if isinstance(data, RobotDataset) else list(data)
+    datasets = [data] if isinstance(data, Trajectories) else list(data)
     if not datasets:
         raise ValueError("no trajectories given; pass at least one dataset or file")
     expected = n_joints if n_joints is not None else datasets[0].n_joints
     for ds in datasets:
-        if not isinstance(ds, RobotDataset):
-            raise TypeError(f"expected RobotDataset objects, got {type(ds).__name__}")
+        if not isinstance(ds, Trajectories):
+            raise TypeError(f"expected Trajectories objects, got {type(ds).__name__}")
         if ds.n_joints != expected:
             src = ds.metadata.get("source", "<dataset>")
             what = "the model" if n_joints is not None else "the first file"
@@ -502,7 +355,7 @@ def as_trajectories(
             "missing columns 'tau1'..: some files have torques and others only currents; "
             "give the same output group (tau or i) in every file"
         )
-    parts = {k: [] for k in ("t", "q", "qd", "qdd", "y", "segment")}
+    parts: dict[str, list] = {k: [] for k in ("t", "q", "qd", "qdd", "y", "segment")}
     estimated: list[Estimate | None] = []
     notes: list[str] = []
     for s, ds in enumerate(datasets):
@@ -515,8 +368,14 @@ def as_trajectories(
         parts["qdd"].append(qdd)
         parts["y"].append(ds.tau if output == "tau" else ds.i)
         parts["segment"].append(np.full(ds.n_samples, s, dtype=np.int64))
+    groups = {  # the optional groups every log has, stacked too
+        g: np.concatenate([getattr(ds, g) for ds in datasets])
+        for g in ("tau", "i", "i_cmd", "e_q", "e_qd", "contact")
+        if all(getattr(ds, g) is not None for ds in datasets)
+    }
     return Trajectories(
         **{k: np.concatenate(v) for k, v in parts.items()},
+        **groups,
         output=output,
         names=[str(ds.metadata.get("source", "<arrays>")) for ds in datasets],
         warnings=notes,
@@ -525,7 +384,7 @@ def as_trajectories(
 
 
 def _data_warnings(
-    ds: RobotDataset, est: Estimate | None, qd: FloatArray, qdd: FloatArray
+    ds: Trajectories, est: Estimate | None, qd: FloatArray, qdd: FloatArray
 ) -> list[str]:
     """The loader's warnings of ``ds``; those about derivatives it computed are replaced by
     the same check on the estimates, with the estimate's window (``RuntimeWarning``)."""
@@ -554,7 +413,7 @@ def _swing_warnings(values: FloatArray, g: str, of: str, window: int, source: st
 
 
 def _derivatives(
-    ds: RobotDataset, window: float | None = None
+    ds: Trajectories, window: float | None = None
 ) -> tuple[FloatArray, FloatArray, Estimate | None]:
     """``qd, qdd`` of a dataset: as given, or estimated (module docstring) for the groups
     that the file lacked (``ds.metadata["computed"]``) with the span ``window`` (``None``:
@@ -587,7 +446,7 @@ def load_trajectories(
     docstring) with the span ``derivative_window`` [s] (``None``: chosen per file)."""
     from mcpilco.models.diagnosis.bags import is_bag, read_bag
 
-    def load(p: str | Path) -> RobotDataset:
+    def load(p: str | Path) -> Trajectories:
         if is_bag(p):
             return read_bag(p, joint_names, bag, n_joints=n_joints)
         if Path(p).is_dir():

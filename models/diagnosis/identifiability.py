@@ -11,8 +11,8 @@ identifiable from these data* when
 1. the likelihood is flat along it: ``a`` has a component in the null space of ``H`` (in the
    correlation scale ``H_ij / sqrt(H_ii H_jj)``, eigenvalues below :data:`FLAT_EIGENVALUE` of
    the largest; a weight whose column the data never excite has ``H_ii = 0``);
-2. its 95% posterior interval ``1.96 sqrt(a^T C a)`` is wider than ``|theta_k|``;
-3. the data alone bound it only to ``1.96 sqrt(a^T H^-1 a) >= |theta_k|``: the reported number
+2. its 95% posterior interval ``Z95 sqrt(a^T C a)`` is wider than ``|theta_k|``;
+3. the data alone bound it only to ``Z95 sqrt(a^T H^-1 a) >= |theta_k|``: the reported number
    then comes from the prior ``w_b ~ N(0, lambda_b I)``, whose variance type-II maximum
    likelihood shrinks towards 0 for an effect the data do not support;
 4. its posterior correlation with another weight of the joint's model (another effect's, or

@@ -1,19 +1,22 @@
 """A versioned diagnosis model: a start model plus added physical effects, one GP per joint.
 
-Version ``v0`` is the start model (nominal physics or a learned GIP GP); ``model.add(effect)``
-returns version ``v(k+1)`` with the effect's block added (a linear kernel on it, see
-:mod:`mcpilco.models.gp.linear_gp`) and refits it on the same training data:
+Version ``v0`` is the start model (nominal physics or a learned GIP GP);
+``model.with_effect(effect)`` returns version ``v(k+1)`` with the effect's block added (a
+linear kernel on it, see :mod:`mcpilco.models.gp.linear_gp`) and refits it on the same
+training data:
 
 .. code-block:: python
 
     model = DiagnosisModel(NominalStart("robot.xml")).fit(train)
-    model = model.add(CoulombFriction(joint=2))      # v1, refitted
+    model = add_effect(model, CoulombFriction(joint=2))  # v1, refitted
     mean, var = model.predict(test)
 
 Refitting re-optimises, per joint, the start kernel's scale ``alpha``, the noise
 ``sigma^2`` and every block's prior variance ``lambda_b`` (type-II ML); the GIP kernel's own
-hyperparameters stay at their version-0 values (a learned start is backfitted by
-:meth:`DiagnosisModel.add`).
+hyperparameters stay at their version-0 values (a learned start is backfitted when an effect
+is added, :func:`~.add.add_effect`). :func:`~.add.add_effect` scans an effect's shape values
+(cogging order, delay, ...) by evidence before adding it; the model itself takes only
+complete effects, and never imports the search.
 
 Rigid-body effects (a link's inertia, a payload: :attr:`.Effect.shared`) have one weight
 vector ``w`` for all the joints they move, so they are not blocks of one joint's GP: the fit
@@ -59,7 +62,6 @@ from numpy.typing import NDArray
 from mcpilco.models.diagnosis.analysis import at_rest
 from mcpilco.models.diagnosis.data import (
     MIN_FIT_ROWS,
-    Trajectories,
     as_trajectories,
     require_rows,
 )
@@ -80,7 +82,7 @@ from mcpilco.models.diagnosis.start_models import (
 )
 from mcpilco.models.diagnosis.units import widen_estimates
 from mcpilco.models.gp.linear_gp import JointGP, single_thread
-from mcpilco.models.robot_data import RobotDataset
+from mcpilco.models.robot_data import Trajectories
 
 FloatArray = NDArray[np.float64]
 
@@ -129,8 +131,8 @@ class DiagnosisModel:
             e.outputs(start.n_joints)
             if not e.is_complete():
                 raise ValueError(
-                    f"{e.label} has unscanned shape values; add it with model.add(...) so that "
-                    "the scan picks them"
+                    f"{e.label} has unscanned shape values; add it with add_effect(model, ...) "
+                    "so that the scan picks them"
                 )
         self.version = int(version)
         self.max_points = int(max_points)
@@ -380,7 +382,7 @@ class DiagnosisModel:
 
     def fit(
         self,
-        train: Trajectories | RobotDataset | Sequence[RobotDataset],
+        train: Trajectories | Sequence[Trajectories],
         refit_start: bool | None = None,
         _warm: dict[int, FloatArray] | None = None,
         backfit: bool = False,
@@ -395,7 +397,8 @@ class DiagnosisModel:
             refit_start: refit a learned start model (default: only when not yet fitted).
             backfit: with a learned (GIP/RBF) start and added effects, re-optimise the GP's own
                 hyperparameters on ``y`` minus the fitted effects (warm start), then refit
-                (one backfitting pass; :meth:`add` does it, held-out confirmations do not).
+                (one backfitting pass; :func:`~.add.add_effect` does it, held-out
+                confirmations do not).
 
         Raises:
             ValueError: joint count of the data differs from the model's (both named).
@@ -610,7 +613,7 @@ class DiagnosisModel:
 
     # ------------------------------------------------------------------ prediction
     def predict(
-        self, data: Trajectories | RobotDataset | Sequence[RobotDataset], with_var: bool = True
+        self, data: Trajectories | Sequence[Trajectories], with_var: bool = True
     ) -> tuple[FloatArray, FloatArray]:
         """Posterior mean and latent variance of the output at every sample, ``(N, n)``."""
         self._check_fitted()
@@ -722,20 +725,6 @@ class DiagnosisModel:
         if self.train_ is not None:
             new.fit(self.train_, refit_start=False, backfit=backfit, _parent=self)
         return new
-
-    def add(self, effect: Effect) -> DiagnosisModel:
-        """``model.add(CoulombFriction(joint=2))``: the next version with the effect added and
-        refitted (a learned start model is backfitted once); unscanned shape values (cogging
-        order, delay, ...) are picked by the evidence scan of
-        :func:`~mcpilco.models.diagnosis.search.score_effect`, continuous ones then refined
-        (:func:`~mcpilco.models.diagnosis.search.refine_shape`)."""
-        effect.outputs(self.n_joints)
-        if not effect.is_complete():
-            self._check_fitted()
-            from mcpilco.models.diagnosis.search import score_effect
-
-            effect = score_effect(self, effect, refine=True).effect
-        return self.with_effect(effect, backfit=True)
 
     # ------------------------------------------------------------------ parameters
     def estimates(self, effect: Effect, output: int) -> list[ParamEstimate]:

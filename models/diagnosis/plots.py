@@ -20,7 +20,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from mcpilco.models.diagnosis.analysis import ResidualReport
-from mcpilco.models.diagnosis.data import Trajectories
+from mcpilco.models.robot_data import Trajectories
 
 FloatArray = NDArray[np.float64]
 

@@ -122,7 +122,6 @@ from scipy.special import logsumexp
 from mcpilco.models.diagnosis.analysis import input_noise, noise_floor, residual_report
 from mcpilco.models.diagnosis.data import (
     MIN_HELDOUT_ROWS,
-    Trajectories,
     as_trajectories,
     require_rows,
 )
@@ -138,6 +137,7 @@ from mcpilco.models.diagnosis.profile import likelihood_interval, phase_interval
 from mcpilco.models.diagnosis.shared import score_shared
 from mcpilco.models.diagnosis.units import widen_estimates, without_fitted_scales
 from mcpilco.models.gp.linear_gp import single_thread
+from mcpilco.models.robot_data import Trajectories
 
 FloatArray = NDArray[np.float64]
 

@@ -65,7 +65,6 @@ import mujoco
 import numpy as np
 from numpy.typing import NDArray
 
-from mcpilco.models.diagnosis.data import Trajectories
 from mcpilco.models.diagnosis.model import DiagnosisModel
 from mcpilco.models.diagnosis.robot_file import (
     PAYLOAD_BODY,
@@ -76,6 +75,7 @@ from mcpilco.models.diagnosis.robot_file import (
     write_corrected_mjcf,
 )
 from mcpilco.models.diagnosis.start_models import NominalStart
+from mcpilco.models.robot_data import Trajectories
 from mcpilco.models.robot_files import read_robot_file, refuse_includes
 
 FloatArray = NDArray[np.float64]

@@ -86,8 +86,8 @@ Effect parameters
     The effects found afterwards are fitted on ``k_hat i``: their parameters are in torque
     units, and every linear one (friction levels, offset, stiffness, amplitude, mass,
     inertia) is off by the factor ``k / k_hat`` of its joint. :func:`widen_estimates` adds
-    that relative uncertainty to their intervals,
-    ``ci^2 + (1.96 |value| sd(k) / |k_hat|)^2``; a delay is not scaled.
+    that relative uncertainty to their intervals, ``ci^2 + (Z95 |value| sd(k) / |k_hat|)^2``
+    (:data:`~mcpilco.models.stats.Z95`); a delay is not scaled.
 """
 
 from __future__ import annotations
@@ -102,7 +102,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from mcpilco.models.diagnosis.analysis import input_noise
-from mcpilco.models.diagnosis.data import MIN_FIT_ROWS, Trajectories, require_rows
+from mcpilco.models.diagnosis.data import MIN_FIT_ROWS, require_rows
 from mcpilco.models.diagnosis.effects import (
     CoulombFriction,
     Effect,
@@ -112,6 +112,7 @@ from mcpilco.models.diagnosis.effects import (
     TorqueScale,
     ViscousFriction,
 )
+from mcpilco.models.robot_data import Trajectories
 from mcpilco.models.stats import Z95
 
 FloatArray = NDArray[np.float64]
@@ -318,7 +319,7 @@ def _fit_rows(traj: Trajectories) -> tuple[NDArray[np.int64], list[tuple[int, in
     filter window (0 when nothing was estimated)."""
     rows, ranges, window = [], [], 0
     for s, (a, b) in enumerate(traj.segments):
-        est = traj.estimated[s] if s < len(traj.estimated) else None
+        est = traj.estimated[s] if s < len(traj.estimated or ()) else None
         m = traj.edge_rows(s)
         window = max(window, 0 if est is None else est.filter.window)
         r = np.arange(a + m, b - m)

@@ -60,22 +60,20 @@ def greedy_subset(
         ``indices`` (int64, ``(k,)``, in selection order, no duplicates), and with
         ``return_variance`` the variances ``(*batch, N)``.
     """
-    from mcpilco.models.gp.regressor import GPRegressor
-
-    if isinstance(kernel_or_gp, GPRegressor):
-        gp = kernel_or_gp
-        gp._check_fitted()
-        X = gp._standardize_x(gp._as_inputs(X))
-        kernel = gp.model_.covar_module
-        if noise_variance is None:
-            noise_variance = gp.model_.likelihood.noise.detach().squeeze(-1)
-    elif isinstance(kernel_or_gp, gpytorch.kernels.Kernel):
+    if isinstance(kernel_or_gp, gpytorch.kernels.Kernel):
         kernel = kernel_or_gp
         X = torch.as_tensor(X, dtype=torch.float64)
         if X.dim() != 2:
             raise ValueError(f"X must be 2-D (N, d), got shape {tuple(X.shape)}")
         if noise_variance is None:
             noise_variance = 0.0
+    elif hasattr(kernel_or_gp, "model_"):  # a GPRegressor (regressor.py imports this module)
+        gp = kernel_or_gp
+        gp._check_fitted()
+        X = gp._standardize_x(gp._as_inputs(X))
+        kernel = gp.model_.covar_module
+        if noise_variance is None:
+            noise_variance = gp.model_.likelihood.noise.detach().squeeze(-1)
     else:
         raise TypeError(
             "kernel_or_gp must be a gpytorch Kernel or a fitted GPRegressor, got "

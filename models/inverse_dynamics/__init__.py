@@ -1,7 +1,7 @@
 """Inverse-dynamics estimators: GIP, RBF, NN and rigid-body (FE, PP, SP) (thesis ch. 3).
 
 One interface (:class:`InverseDynamicsEstimator`): ``fit(X, y)`` with ``X`` a
-:class:`~mcpilco.models.robot_data.RobotDataset` or an ``(N, 3n)`` array ``[q, qd, qdd]`` and
+:class:`~mcpilco.models.robot_data.Trajectories` or an ``(N, 3n)`` array ``[q, qd, qdd]`` and
 ``y`` the joint torques ``(N, n)``; ``predict(X) -> (mean, var)`` as numpy ``(N, n)`` arrays
 (``var`` is ``None`` for the neural network).
 

@@ -3,7 +3,7 @@
 ``predict`` returns ``(mean, var)``, two numpy float64 arrays ``(N, n)`` in the units of
 ``y``; ``var`` is the *latent* variance of the estimate (no measurement noise added), or
 ``None`` for estimators without one (the neural network). Inputs follow
-:mod:`mcpilco.models.inverse_dynamics.inputs` (a ``RobotDataset`` or ``(N, 3n)`` arrays
+:mod:`mcpilco.models.inverse_dynamics.inputs` (a robot log (``Trajectories``) or ``(N, 3n)`` arrays
 ``[q, qd, qdd]``).
 """
 

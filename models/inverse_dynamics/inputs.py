@@ -3,13 +3,13 @@
 Input convention (every estimator of :mod:`mcpilco.models.inverse_dynamics`)
 -------------------------------------------------------------------------
 ``X``
-    either a :class:`~mcpilco.models.robot_data.RobotDataset` (its ``q``, ``qd``, ``qdd``) or
+    either a :class:`~mcpilco.models.robot_data.Trajectories` (its ``q``, ``qd``, ``qdd``) or
     an array ``(N, 3n)`` whose columns are ``[q_1..q_n, qd_1..qd_n, qdd_1..qdd_n]`` (the
     schema's column order).
 ``y``
     joint torques ``(N, n)`` (or any per-joint output such as motor currents); with a
-    ``RobotDataset`` and ``y=None`` the dataset's ``tau`` group (or ``i`` when ``tau`` is
-    absent) is used.
+    robot log (``Trajectories``) and ``y=None`` the log's ``tau`` group (or ``i`` when
+    ``tau`` is absent) is used.
 """
 
 from __future__ import annotations
@@ -19,7 +19,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from mcpilco.models.robot_data import RobotDataset
+from mcpilco.models.robot_data import Trajectories
 
 FloatArray = NDArray[np.float64]
 
@@ -63,7 +63,8 @@ def _as_float_array(value: Any, name: str) -> FloatArray:
 
 
 def as_joint_states(X: Any, n_joints: int | None = None) -> JointStates:
-    """Validate ``X`` (a ``RobotDataset`` or an ``(N, 3n)`` array) into :class:`JointStates`.
+    """Validate ``X`` (a robot log, ``Trajectories``, or an ``(N, 3n)`` array) into
+    :class:`JointStates`.
 
     Args:
         X: inputs (see the module docstring).
@@ -74,7 +75,7 @@ def as_joint_states(X: Any, n_joints: int | None = None) -> JointStates:
         ValueError: wrong number of dimensions, a column count that is not ``3n``, a joint
             count different from ``n_joints``, no rows, or a NaN/inf (the column is named).
     """
-    if isinstance(X, RobotDataset):
+    if isinstance(X, Trajectories):
         q, qd, qdd = (np.asarray(a, dtype=np.float64) for a in (X.q, X.qd, X.qdd))
         n = q.shape[1]
         if n_joints is not None and n != n_joints:
@@ -117,12 +118,15 @@ def as_joint_states(X: Any, n_joints: int | None = None) -> JointStates:
 def as_targets(y: Any, X: Any, n_rows: int, n_joints: int) -> FloatArray:
     """Validate the targets: ``(N, n)`` float64 matching ``N`` rows of ``X`` and ``n`` joints.
 
-    With ``y=None`` and a ``RobotDataset`` ``X`` the dataset's ``tau`` (else ``i``) is used.
+    With ``y=None`` and a robot log ``X`` (``Trajectories``) the log's ``tau`` (else ``i``)
+    is used.
     A 1-D ``y`` is accepted for ``n = 1``.
     """
     if y is None:
-        if not isinstance(X, RobotDataset):
-            raise ValueError("y is None: give the joint torques y (N, n) or a RobotDataset X")
+        if not isinstance(X, Trajectories):
+            raise ValueError(
+                "y is None: give the joint torques y (N, n) or a robot log X (Trajectories)"
+            )
         y = X.tau if X.tau is not None else X.i
         if y is None:
             raise ValueError("the dataset has neither 'tau' nor 'i' columns to fit")

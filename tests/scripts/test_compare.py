@@ -13,11 +13,11 @@ import numpy as np
 import pytest
 
 from mcpilco.agents.baselines.common import make_curve, save_curve, task_env_ids
+from mcpilco.agents.baselines.compare import aggregate_method
 from mcpilco.agents.mc_pilco import load_config
 from mcpilco.envs.tasks.spec import TaskSpec
 from mcpilco.experiments.kinematics.reaching import RESULT_LAYOUTS as reaching_layouts
 from mcpilco.experiments.mcpilco.bench import RESULT_LAYOUTS as bench_layouts
-from mcpilco.experiments.mcpilco.compare import aggregate_method
 from mcpilco.experiments.results import read_result, write_result
 
 ENV = "mcpilco/CartpoleSwingUp-v0"

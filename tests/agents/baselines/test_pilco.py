@@ -16,6 +16,7 @@ import pytest
 import torch
 from tensordict import TensorDict
 
+from mcpilco.agents.baselines.compare import run_method
 from mcpilco.agents.baselines.pilco import (
     ImaginedCost,
     PilcoConfig,
@@ -31,7 +32,6 @@ from mcpilco.agents.baselines.pilco import (
 )
 from mcpilco.agents.mc_pilco import TaskSpec, load_config, run_mcpilco
 from mcpilco.envs.cartpole_task import cartpole_cost
-from mcpilco.experiments.mcpilco.compare import run_method
 
 ENV = "mcpilco/CartpoleSwingUp-v0"
 TASK = TaskSpec.for_env(ENV)

@@ -1,5 +1,5 @@
 """Tiny-budget smoke runs of SAC, TD3 and PPO through the run of one method and seed that
-``mcpilco-compare`` makes (:func:`mcpilco.experiments.mcpilco.compare.run_method`).
+``mcpilco-compare`` makes (:func:`mcpilco.agents.baselines.compare.run_method`).
 
 300 env steps, an evaluation every 150 steps on 2 episodes; the zoo hyper-parameters are
 shrunk (``learning_starts``, ``n_steps``) so that every algorithm also trains.
@@ -12,7 +12,7 @@ import json
 import pytest
 from stable_baselines3.common.save_util import load_from_pkl
 
-from mcpilco.experiments.mcpilco.compare import run_method
+from mcpilco.agents.baselines.compare import run_method
 
 ENV = "mcpilco/CartpoleSwingUp-v0"
 DMC_ENV = "mcpilco/DMCCartpoleSwingUp-v0"

@@ -22,6 +22,7 @@ from mcpilco.models.diagnosis import (
     DiagnosisModel,
     NominalStart,
     StribeckFriction,
+    add_effect,
     as_trajectories,
     at_rest,
     auto_improve,
@@ -121,7 +122,7 @@ def test_set_valued_dry_friction_reaches_the_floor(friction_logs):
     level's interval holds the truth and the held-out error is at the noise floor on joint 2,
     where the smooth sign alone leaves the stick phases' torque unexplained."""
     v0, test = friction_logs
-    v1 = v0.add(CoulombFriction(joint=2))
+    v1 = add_effect(v0, CoulombFriction(joint=2))
     p = _level(v1, v1.effects[0])
     assert abs(p["value"] - LEVEL) <= p["ci95"], p
     check = floor_check(v1, test)

@@ -16,6 +16,7 @@ from mcpilco.models.diagnosis import (
     DiagnosisModel,
     GIPStart,
     NominalStart,
+    add_effect,
     as_trajectories,
     auto_improve,
     diagnose,
@@ -43,7 +44,7 @@ def test_single_random_effect_ranks_first_and_error_falls(seed):
     d = diagnose(model, test)
     assert d.best is not None, d.table()
     assert d.best.label == case.truth()[0], d.table()
-    new = model.add(d.best.effect)
+    new = add_effect(model, d.best.effect)
     rmse = heldout_rmse(new, test)
     j = _affected(case)
     assert np.all(rmse[j] <= 1.5 * case.noise_std[j]), (rmse / case.noise_std, case.effects)
@@ -60,7 +61,7 @@ def test_control_case_reports_no_significant_effect():
 def test_python_add_api_versions_and_parameter():
     case = make_case("scara", ["coulomb:2"], seed=5, duration=DURATION)
     v0 = DiagnosisModel(NominalStart(case.nominal_xml)).fit(case.datasets("train"))
-    v1 = v0.add(CoulombFriction(joint=2))
+    v1 = add_effect(v0, CoulombFriction(joint=2))
     assert (v0.version, v1.version) == (0, 1) and v0.effects == ()
     (p,) = v1.parameters()
     true_fc = case.effects[0]["parameter"]

@@ -29,6 +29,7 @@ from mcpilco.models.diagnosis import (
     StribeckFriction,
     TorqueOffset,
     ViscousFriction,
+    add_effect,
     free_run_error,
     load_trajectories,
     run_diagnosis,
@@ -223,7 +224,7 @@ def damped(tmp_path_factory):
     xml = arm_to_xml(arm, friction=False, timestep=1e-3, integrator="Euler")
     (folder / "robot.xml").write_text(xml)
     model = DiagnosisModel(NominalStart(xml)).fit(train)
-    model = model.add(ViscousFriction(joint=2)).add(CoulombFriction(joint=3))
+    model = add_effect(add_effect(model, ViscousFriction(joint=2)), CoulombFriction(joint=3))
     return dict(
         folder=folder, xml=xml, train=train, test=test, model=model, true_xml=logs[1].truth.true_xml
     )
