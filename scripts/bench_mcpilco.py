@@ -74,6 +74,7 @@ from mcpilco.experiments.mcpilco.bench import (
     runs_part,
     timing_part,
 )
+from mcpilco.experiments.mcpilco.timing import JOINTS_SPEC, VARIANTS
 from mcpilco.experiments.mcpilco.tracking import PUSH_VARIANTS, tracking_kernels_part, tracking_part
 
 
@@ -162,9 +163,15 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument(
         "--timing-env", nargs="+", default=[DEFAULT_ENV_ID],
         help="env ids whose task specs the timing part times (each over its own horizon; "
-        "e.g. mcpilco/UR10-v0: 24 states, 6 actions, 12 GP outputs)",
+        "e.g. mcpilco/UR10-v0: 24 states, 6 actions, 12 GP outputs), or the timing spec "
+        f"{JOINTS_SPEC} (the UR10's joints alone: 12 states, 6 actions, 6 GP outputs)",
     )  # fmt: skip
     p.add_argument("--timing-threads", type=int, nargs="+", default=[1, 2])
+    p.add_argument(
+        "--timing-variants", nargs="+", default=None, choices=VARIANTS,
+        help="timing part with --compile-rollout: which fast steps to time beside the eager "
+        "one (default: all; 'compiled' is the default backend's, e.g. native)",
+    )  # fmt: skip
     p.add_argument(
         "--timing-particles",
         type=int,
@@ -272,6 +279,7 @@ def main(argv: list[str] | None = None) -> int:
             device=args.device, compile_rollout=bool(args.compile_rollout),
             heap_contrast=bool(args.timing_heap_contrast), env_ids=args.timing_env,
             append=bool(args.timing_append), kernel=args.kernel, mpk_degree=args.mpk_degree,
+            variants=args.timing_variants,
         )  # fmt: skip
     if "rmse" in args.parts:
         try:

@@ -351,14 +351,18 @@ def timing_part(
     log: Callable[[str], None] = print,
     kernel: str | None = None,
     mpk_degree: int | None = None,
+    variants: Sequence[str] | None = None,
 ) -> list[dict[str, Any]]:
     """Part ``timing``: :func:`~mcpilco.experiments.mcpilco.timing.time_opt_step` for every
     task spec (``env_ids``, each over its own horizon and with its config's GP kernel), GP
     size, thread count and particle count (on a CUDA device both with and without a CUDA
     graph; ``kernel``, ``mpk_degree``: instead of the config's); replaces
     ``results["timing"]`` (``append``: only the rows of the task specs and kernels timed
-    now) and writes the report."""
-    from mcpilco.experiments.mcpilco.timing import time_opt_step
+    now) and writes the report. ``env_ids`` may name a timing spec of
+    :func:`~mcpilco.experiments.mcpilco.timing.timing_task` (it uses its env's config);
+    ``variants``: the fast steps to time (None: all of
+    :data:`~mcpilco.experiments.mcpilco.timing.VARIANTS`)."""
+    from mcpilco.experiments.mcpilco.timing import VARIANTS, time_opt_step, timing_task
 
     rows = []
     graphs = (True, False) if device.startswith("cuda") else (False,)
@@ -372,7 +376,8 @@ def timing_part(
     ]
     # each spec's GP as its config fits it, or as the arguments say
     configs = {
-        e: load_config(e).with_overrides(kernel=kernel, mpk_degree=mpk_degree) for e in env_ids
+        e: load_config(timing_task(e)[1]).with_overrides(kernel=kernel, mpk_degree=mpk_degree)
+        for e in env_ids
     }
     for env_id, n, th, m, graph in grid:
         cfg = configs[env_id]
@@ -380,6 +385,7 @@ def timing_part(
             n, num_particles=m, threads=th, device=device, cuda_graph=graph,
             compile_rollout=compile_rollout, heap_contrast=heap_contrast, env_id=env_id,
             kernel=cfg.kernel, mpk_degree=cfg.mpk_degree,
+            variants=tuple(VARIANTS if variants is None else variants),
         )  # fmt: skip
         comp = t.get("compiled_s_per_step_wall")
         log(
@@ -644,6 +650,8 @@ def timing_row(t: dict) -> str:
         heap += f" | {t['floor_s']:.4f} | {t['matmul_gflops']:.0f}"
     else:
         heap += " | - | -"
+    heap += f" | {t['products_floor_s']:.3f}" if "products_floor_s" in t else " | -"
+    heap += f" | {t['cpu_model']} ({t['cpu_isa']})" if "cpu_model" in t else " | -"
     return (
         f"| {t['num_particles']} | {t['n_points']} | {t.get('device', 'cpu')} | {graph} "
         f"| {t['threads']} | {t['s_per_step_wall']:.3f} | {t['s_per_step_cpu']:.3f} "
@@ -737,7 +745,12 @@ def write_report(results: dict, out_dir: Path) -> None:
             "rounds, where the default is `native`. Dynamo: the time step `torch.compile`-d "
             "instead, in the same rounds. Floor: the flops of the GP posterior variance "
             "(2 N^2 per particle, output and step, forward and backward) at this machine's "
-            "float32 matmul rate (column GFLOP/s, 512 x 512 product on the same threads).",
+            "float32 matmul rate (column GFLOP/s, 512 x 512 product on the same threads); "
+            "products floor: every product with the GP's constant matrices (the RBF's "
+            "exponents, the MPK's feature block, the triangular factor; forward and backward) "
+            "at that rate. CPU: the model and its vector ISA; the JSON rows hold the native "
+            "build's compiler and flags (`-march=native`: built for that CPU) and, for the "
+            "`native` step, the seconds of each stage of its loops.",
             "",
             "Faults: minor page faults per step, with the freed memory kept in the process "
             "(`retain_host_memory`). 128 KiB heap: the eager step with glibc's initial "
@@ -762,9 +775,9 @@ def write_report(results: dict, out_dir: Path) -> None:
                 "| CPU s/step | faults | fast: backend | wall s/step | CPU s/step "
                 "| speed-up (CPU) | build s | shards | torch: wall s/step | CPU s/step "
                 "| dynamo: wall s/step | CPU s/step | 128 KiB heap: wall s/step | faults "
-                "| floor s/step | GFLOP/s |",
+                "| floor s/step | GFLOP/s | products floor s/step | CPU |",
                 "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"
-                "---|---|",
+                "---|---|---|---|",
             ]
             md += [timing_row(t) for t in rows]
             md.append("")

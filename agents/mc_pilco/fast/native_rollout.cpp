@@ -38,6 +38,8 @@ typedef float v8u __attribute__((vector_size(32), aligned(4)));
 typedef int32_t v8i __attribute__((vector_size(32), aligned(32)));
 typedef uint8_t v8b __attribute__((vector_size(8), aligned(1)));
 
+constexpr int POLICY_CHAINS = 4;  // independent sums the policy's loops keep (FMA latency)
+static_assert(POLICY_CHAINS == 4, "the policy loops add their 4 sums by hand");
 constexpr float EXP_FLOOR = -87.0f;  // exp's argument floor (models/numerics.py)
 constexpr float VAR_FLOOR = 1e-12f;  // variance floor of the sample (dynamics.py)
 constexpr float PI_F = 3.14159265358979323846f;  // pi rounded to float, as torch rounds it
@@ -256,11 +258,11 @@ struct Pol {
 
 // scratch of one thread, sized for the model
 struct Work {
-    std::vector<float> xa, mean, var, u, feat, dR, dx, dxs, dpsi, wprior, gmean, gvar,
+    std::vector<float> xa, mean, var, u, usum, feat, dR, dx, dxs, dpsi, wprior, gmean, gvar,
         gstate, G, gs, gin, gf, ga, gx, csum, delta;
     explicit Work(const Model &M)
         : xa((M.d + 2) * TILE), mean(M.m * TILE), var(M.m * TILE),
-          u(M.A * TILE), feat(M.fp),
+          u(M.A * TILE), usum(M.A), feat(M.fp),
           dR((int64_t)pad_rows(M.f + M.N) * TILE), dx(pad_rows(M.d + 1) * TILE),
           dxs(M.d * TILE), dpsi((M.f > 0 ? M.f : 1) * TILE), wprior(M.d * TILE),
           gmean(M.m * TILE), gvar(M.m * TILE), gstate(M.n * TILE), G((int64_t)TILE * M.nb),
@@ -282,7 +284,36 @@ float phi_row_t(int fp_rt, int nb, const float *a, float asq, const float *bT, c
         for (int j = 0; j < FPT; ++j) av[j] = bc(a[j]);
     const v8 half_asq = bc(0.5f * asq), tv = bc(keep_t), sv = bc(keep_scale);
     v8 acc = bc(0.0f);
+    auto finish = [&](int i0, v8 lp) {  // phi = exp(lp - |a|^2 / 2) D of basis i0 .. i0 + 7
+        v8 ph = vexp_floor(lp - half_asq);
+        v8 bf = __builtin_convertvector(*(const v8b *)(by + i0), v8);
+        ph = ph * (bf < tv ? sv : bc(0.0f));
+        st(phi + i0, ph);
+        acc += ph * ld(w0 + i0);
+    };
     int i = 0;
+    // POLICY_CHAINS blocks of 8 basis functions at a time: as many independent sums over the
+    // features, so that the multiply-adds do not wait on each other
+    for (; i + 8 * POLICY_CHAINS <= nb; i += 8 * POLICY_CHAINS) {
+        v8 lp[POLICY_CHAINS];
+#pragma GCC unroll 4
+        for (int u = 0; u < POLICY_CHAINS; ++u) lp[u] = ld(bsq + i + 8 * u);  // -|b_i|^2 / 2
+        if (FPT) {
+#pragma GCC unroll 32
+            for (int j = 0; j < FPT; ++j)
+#pragma GCC unroll 4
+                for (int u = 0; u < POLICY_CHAINS; ++u)
+                    lp[u] += av[j] * ld(bT + j * nb + i + 8 * u);
+        } else {
+            for (int j = 0; j < fp; ++j) {
+                const v8 aj = bc(a[j]);
+#pragma GCC unroll 4
+                for (int u = 0; u < POLICY_CHAINS; ++u) lp[u] += aj * ld(bT + j * nb + i + 8 * u);
+            }
+        }
+#pragma GCC unroll 4
+        for (int u = 0; u < POLICY_CHAINS; ++u) finish(i + 8 * u, lp[u]);
+    }
     for (; i + 8 <= nb; i += 8) {
         v8 lp = ld(bsq + i);  // -|b_i|^2 / 2
         if (FPT) {
@@ -291,12 +322,7 @@ float phi_row_t(int fp_rt, int nb, const float *a, float asq, const float *bT, c
         } else {
             for (int j = 0; j < fp; ++j) lp += bc(a[j]) * ld(bT + j * nb + i);
         }
-        lp -= half_asq;
-        v8 ph = vexp_floor(lp);
-        v8 bf = __builtin_convertvector(*(const v8b *)(by + i), v8);
-        ph = ph * (bf < tv ? sv : bc(0.0f));
-        st(phi + i, ph);
-        acc += ph * ld(w0 + i);
+        finish(i, lp);
     }
     float s = hsum(acc);
     for (; i < nb; ++i) {
@@ -348,9 +374,14 @@ float g_row_t(int fp_rt, int A, int nb, const float *phi, const float *gs, const
             s = hsum(acc[j < NACC ? j : 0]);
             k = vec_end;
         } else {
-            v8 v = bc(0.0f);
-            for (; k + 8 <= nb; k += 8) v += ld(G + k) * ld(bj + k);
-            s = hsum(v);
+            v8 v[POLICY_CHAINS] = {};
+            for (; k + 8 * POLICY_CHAINS <= nb; k += 8 * POLICY_CHAINS)
+#pragma GCC unroll 4
+                for (int u = 0; u < POLICY_CHAINS; ++u)
+                    v[u] += ld(G + k + 8 * u) * ld(bj + k + 8 * u);
+            for (; k + 8 <= nb; k += 8) v[0] += ld(G + k) * ld(bj + k);
+            for (int u = 1; u < POLICY_CHAINS; ++u) v[0] += v[u];
+            s = hsum(v[0]);
         }
         for (; k < nb; ++k) s += G[k] * bj[k];
         ga[j] = s;
@@ -378,21 +409,27 @@ void tile_sums_t(int fp_rt, int A, int nb, const float *Gb, const float *phi, co
                 for (int j = 0; j < FPT; ++j) sb[j] += G * bc(a_rec[j * TILE + q]);
             }
             for (int j = 0; j < FPT; ++j) st(gb + (int64_t)j * nb + i, sb[j]);
-        } else {
+        } else {  // each sum over the 16 particles in POLICY_CHAINS independent parts
             for (int q = 0; q < TILE; ++q) sc += ld(Gb + (int64_t)q * nb + i);
             for (int j = 0; j < fp; ++j) {
-                v8 sb = ld(gb + (int64_t)j * nb + i);
-                for (int q = 0; q < TILE; ++q)
-                    sb += ld(Gb + (int64_t)q * nb + i) * bc(a_rec[j * TILE + q]);
-                st(gb + (int64_t)j * nb + i, sb);
+                v8 sb[POLICY_CHAINS] = {};
+                for (int q = 0; q < TILE; q += POLICY_CHAINS)
+#pragma GCC unroll 4
+                    for (int u = 0; u < POLICY_CHAINS; ++u)
+                        sb[u] += ld(Gb + (int64_t)(q + u) * nb + i) * bc(a_rec[j * TILE + q + u]);
+                st(gb + (int64_t)j * nb + i,
+                   ld(gb + (int64_t)j * nb + i) + ((sb[0] + sb[1]) + (sb[2] + sb[3])));
             }
         }
         st(gcol + i, sc);
         for (int a = 0; a < A; ++a) {
-            v8 sw = ld(gw + (int64_t)a * nb + i);
-            for (int q = 0; q < TILE; ++q)
-                sw += ld(phi + (int64_t)q * nb + i) * bc(gs[a * TILE + q]);
-            st(gw + (int64_t)a * nb + i, sw);
+            v8 sw[POLICY_CHAINS] = {};
+            for (int q = 0; q < TILE; q += POLICY_CHAINS)
+#pragma GCC unroll 4
+                for (int u = 0; u < POLICY_CHAINS; ++u)
+                    sw[u] += ld(phi + (int64_t)(q + u) * nb + i) * bc(gs[a * TILE + q + u]);
+            st(gw + (int64_t)a * nb + i,
+               ld(gw + (int64_t)a * nb + i) + ((sw[0] + sw[1]) + (sw[2] + sw[3])));
         }
     }
     for (; i < nb; ++i) {
@@ -464,16 +501,25 @@ void policy_forward(const Model &M, const Lay &L, const Pol &P, const float *x, 
         const uint8_t *by = bytes + (int64_t)(q < valid ? q : 0) * nb;
         const float s0 = phi_row(fp, nb, feat, asq, P.bT.data(), P.bsq.data(), by, keep_t,
                                  keep_scale, P.wT.data(), phi);
-        for (int a = 0; a < M.A; ++a) {
-            float s = s0;
-            if (a > 0) {
-                const float *wa = P.wT.data() + (int64_t)a * nb;
-                v8 acc = bc(0.0f);
-                int i = 0;
-                for (; i + 8 <= nb; i += 8) acc += ld(phi + i) * ld(wa + i);
-                s = hsum(acc);
-                for (; i < nb; ++i) s += phi[i] * wa[i];
+        float *sums = W.usum.data();  // (D o phi) w of every action; the first's from phi_row
+        sums[0] = s0;
+        for (int a0 = 1; a0 < M.A; a0 += POLICY_CHAINS) {  // POLICY_CHAINS actions per pass
+            const int na = M.A - a0 < POLICY_CHAINS ? M.A - a0 : POLICY_CHAINS;
+            v8 acc[POLICY_CHAINS] = {};
+            int i = 0;
+            for (; i + 8 <= nb; i += 8) {
+                const v8 ph = ld(phi + i);
+                for (int u = 0; u < na; ++u) acc[u] += ph * ld(P.wT.data() + (int64_t)(a0 + u) * nb + i);
             }
+            for (int u = 0; u < na; ++u) {
+                const float *wa = P.wT.data() + (int64_t)(a0 + u) * nb;
+                float s = hsum(acc[u]);
+                for (int k = i; k < nb; ++k) s += phi[k] * wa[k];
+                sums[a0 + u] = s;
+            }
+        }
+        for (int a = 0; a < M.A; ++a) {
+            const float s = sums[a];
             float t = std::tanh(s / M.u_half[a]);
             rec[L.t + a * TILE + q] = t;
             W.u[a * TILE + q] = M.u_mid[a] + M.u_half[a] * t;
