@@ -13,6 +13,13 @@ loop reads. What the loop buys:
 
 * particles in tiles of 16 (the extension's ``tile()``): a tile's whole time step (policy,
   GP posterior, sampling, integration, cost) runs on data that stays in the core's caches;
+  a group of tiles runs each time step together, output by output, so that one output's
+  constant matrices serve the whole group while they are cached (``NativeModel.group()``:
+  as many tiles as fit with them in half the L2 cache the C++ reads at run time, at most 8;
+  ``set_group`` overrides it; a tile's arithmetic, hence its result, does not depend on it);
+* denormal floats flushed to zero while the loops run (x86 MXCSR, the caller's setting
+  restored): the kernel values at the exponential's floor make denormal products, which
+  many CPUs handle by slow microcode assists;
 * the products with the GP's constant matrices, ``[V; m] = [L^{-1} Phi, L^{-1}; alpha^T Phi,
   alpha^T] [psi; r]`` forward and ``dR = [L^{-1} Phi, L^{-1}]^T V (-2 g_v) + alpha_aug g_m``
   backward (glossary of :mod:`~mcpilco.models.gp.fused`; ``dV = -2 g_v V`` is never formed:
