@@ -107,7 +107,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument(
         "--timing-append",
         action="store_true",
-        help="timing part: replace only the rows of the --timing-env specs, keep the others",
+        help="timing part: replace only the rows timed again (same spec, kernel, N, particles, "
+        "threads, device), keep the others",
     )
     p.add_argument(
         "--pushes", nargs="?", const="both", choices=PUSH_VARIANTS,

@@ -60,6 +60,7 @@ __all__ = [
     "section_key",
     "section_table",
     "reference_table",
+    "timing_key",
     "timing_part",
     "timing_row",
     "write_report",
@@ -357,8 +358,8 @@ def timing_part(
     task spec (``env_ids``, each over its own horizon and with its config's GP kernel), GP
     size, thread count and particle count (on a CUDA device both with and without a CUDA
     graph; ``kernel``, ``mpk_degree``: instead of the config's); replaces
-    ``results["timing"]`` (``append``: only the rows of the task specs and kernels timed
-    now) and writes the report. ``env_ids`` may name a timing spec of
+    ``results["timing"]`` (``append``: only the rows timed again now, :func:`timing_key`)
+    and writes the report. ``env_ids`` may name a timing spec of
     :func:`~mcpilco.experiments.mcpilco.timing.timing_task` (it uses its env's config);
     ``variants``: the fast steps to time (None: all of
     :data:`~mcpilco.experiments.mcpilco.timing.VARIANTS`)."""
@@ -400,9 +401,9 @@ def timing_part(
             )
         )
         rows.append(t)
-    if append:  # keep the rows of other task specs and kernels
-        timed = {timing_spec(t) for t in rows}
-        kept = [t for t in results.get("timing", []) if timing_spec(t) not in timed]
+    if append:  # keep the rows not timed again now
+        timed = {timing_key(t) for t in rows}
+        kept = [t for t in results.get("timing", []) if timing_key(t) not in timed]
         results["timing"] = kept + rows
     else:
         results["timing"] = rows
@@ -609,6 +610,15 @@ def timing_spec(t: dict) -> tuple[str, str, int | None]:
     return t.get("env_id", DEFAULT_ENV_ID), kernel, t.get("mpk_degree", 2)
 
 
+def timing_key(t: dict) -> tuple:
+    """What makes two timing rows the same measurement: the spec and kernel
+    (:func:`timing_spec`), ``N``, particles, threads, device and CUDA graph."""
+    return (
+        *timing_spec(t), t["n_points"], t["num_particles"], t["threads"],
+        t.get("device", "cpu"), bool(t.get("cuda_graph")),
+    )  # fmt: skip
+
+
 def kernel_label(kernel: str, mpk_degree: int | None = None) -> str:
     """A kernel's name in the reports: ``"rbf+mpk"`` with its degree (``"RBF + MPK
     (p = 1)"``), ``"RBF"``, ``"rigid body"``."""
@@ -671,8 +681,9 @@ def reference_table(timing: list[dict], measured: Sequence[dict] = ()) -> list[s
     ``measured``: the reference's own steps timed on this machine on a comparable task
     (``env_id`` of the package's spec, ``task``: the reference's, ``n_points``,
     ``num_particles``, ``threads``, ``s_per_step``); a row with the same spec, N, M and
-    threads is divided into that step, any other into the cart-pole range
-    (:data:`~mcpilco.experiments.mcpilco.timing.REFERENCE_S_PER_STEP`)."""
+    threads is divided into that step, any other cart-pole row into the cart-pole range
+    (:data:`~mcpilco.experiments.mcpilco.timing.REFERENCE_S_PER_STEP`); other rows get no
+    ratio."""
     from mcpilco.experiments.mcpilco.timing import REFERENCE_S_PER_STEP, reference_speedup
 
     lo, hi = REFERENCE_S_PER_STEP
@@ -685,8 +696,9 @@ def reference_table(timing: list[dict], measured: Sequence[dict] = ()) -> list[s
         "machine class; each step here (the fast rollout's, else the eager one, wall clock) "
         "is divided into that range, or into the reference's own step on a comparable task "
         "where one was timed with the same N, particles and threads (its task and seconds "
-        "in brackets). The cart-pole range holds for N = 60: at larger N the reference "
-        "takes longer, so that ratio understates the speed-up.",
+        "in brackets; a row of another spec without one has no ratio). The cart-pole range "
+        "holds for N = 60: at larger N the reference takes longer, so that ratio understates "
+        "the speed-up.",
         "",
         "| spec | particles M | GP points N | threads | step | wall s/step | CPU s/step "
         "| floor s/step | x reference |",
@@ -704,9 +716,11 @@ def reference_table(timing: list[dict], measured: Sequence[dict] = ()) -> list[s
             ratio = (
                 f"{_ratio(ref['s_per_step'] / wall)}x ({ref['task']}: {ref['s_per_step']:.2f} s)"
             )
-        else:
+        elif env_id == DEFAULT_ENV_ID:
             a, b = reference_speedup(wall)
             ratio = f"{_ratio(a)}-{_ratio(b)}x"
+        else:  # no reference step timed for this spec
+            ratio = "-"
         md.append(
             f"| {env_id} ({kernel_label(kernel, degree)}) | {t['num_particles']} "
             f"| {t['n_points']} | {t['threads']} | {step} | {wall:.3f} | {cpu:.3f} | {floor} "
