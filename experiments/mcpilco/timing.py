@@ -49,7 +49,8 @@ __all__ = [
 
 JOINTS_SPEC = "mcpilco/UR10-v0:joints"
 """A timing spec, not a registered env: the UR10's six joints without the reference
-(``q, qd``: 12 states, 6 torques), held at the home pose, the velocities' changes predicted and
+(``q, qd``: 12 states, 6 torques), its cost each joint's distance from the home pose, its
+initial state the UR10 task's joints (on the reference), the velocities' changes predicted and
 the positions integrated (6 GP outputs over 18 inputs; the layout of the reference
 implementation's UR5 task). Its data are the first 12 coordinates of ``mcpilco/UR10-v0``'s
 random exploration; it times the step, it is not a task to learn."""
