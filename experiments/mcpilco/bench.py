@@ -968,13 +968,15 @@ def _step_row(r: Result) -> str:
     ]  # fmt: skip
     if large:
         line += f", {large[0]['compiled_s_per_step_wall']:.3f} s at N = 250"
-    own = {(m["env_id"], m["n_points"]): m["s_per_step"] for m in r.get("reference_steps", [])}
+    own = {  # the reference's own steps, by spec, N, particles and threads
+        (m["env_id"], m["n_points"], m["num_particles"], m["threads"]): m["s_per_step"]
+        for m in r.get("reference_steps", [])
+    }
+    key = lambda t: (t.get("env_id"), t["n_points"], t["num_particles"], t["threads"])  # noqa: E731
     ratios = [
-        own[(t["env_id"], t["n_points"])] / t["compiled_s_per_step_wall"]
+        own[key(t)] / t["compiled_s_per_step_wall"]
         for t in timing
-        if (t.get("env_id"), t["n_points"]) in own
-        and t.get("mpk_degree") == 1
-        and "compiled_s_per_step_wall" in t
+        if key(t) in own and t.get("mpk_degree") == 1 and "compiled_s_per_step_wall" in t
     ]
     if ratios:  # the arm spec against the reference's own arm task, same kernel
         line += (
