@@ -105,11 +105,9 @@ def build_parser() -> argparse.ArgumentParser:
     add_sweep_arguments(p)  # --jobs N (local processes, 1 thread each), --ray [ADDRESS]
     p.add_argument("--preset", default="bench", help="preset of each env's config file")
     p.add_argument(
-        "--timing-append",
-        action="store_true",
-        help="timing part: replace only the rows timed again (same spec, kernel, N, particles, "
-        "threads, device), keep the others",
-    )
+        "--timing-append", action="store_true",
+        help="timing part: replace only the rows timed again, keep the others",
+    )  # fmt: skip
     p.add_argument(
         "--pushes", nargs="?", const="both", choices=PUSH_VARIANTS,
         help="tracking part: the env's random pushes on; runs with the push filter, without it "
@@ -164,28 +162,22 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument(
         "--timing-env", nargs="+", default=[DEFAULT_ENV_ID],
         help="env ids whose task specs the timing part times (each over its own horizon; "
-        "e.g. mcpilco/UR10-v0: 24 states, 6 actions, 12 GP outputs), or the timing spec "
-        f"{JOINTS_SPEC} (the UR10's joints alone: 12 states, 6 actions, 6 GP outputs)",
+        f"e.g. mcpilco/UR10-v0: 24 states, 12 GP outputs; {JOINTS_SPEC}: 12 and 6)",
     )  # fmt: skip
     p.add_argument("--timing-threads", type=int, nargs="+", default=[1, 2])
     p.add_argument(
         "--timing-variants", nargs="+", default=None, choices=VARIANTS,
-        help="timing part with --compile-rollout: which fast steps to time beside the eager "
-        "one (default: all; 'compiled' is the default backend's, e.g. native)",
+        help="timing part: the fast steps timed beside the eager one (default: all)",
     )  # fmt: skip
     p.add_argument(
-        "--timing-particles",
-        type=int,
-        nargs="+",
-        default=[400],
+        "--timing-particles", type=int, nargs="+", default=[400],
         help="particle counts M of the timing part (e.g. 25 400: the fixed cost and the goal's M)",
-    )
+    )  # fmt: skip
     p.add_argument(
-        "--timing-heap-contrast",
-        action="store_true",
+        "--timing-heap-contrast", action="store_true",
         help="timing part: also time the eager step with glibc's initial heap thresholds "
         "(128 KiB) instead of the retained heap, alternating in the same rounds",
-    )
+    )  # fmt: skip
     p.add_argument("--rmse-seeds", type=int, default=10)
     p.add_argument(
         "--rmse-policy",
