@@ -74,6 +74,7 @@ from mcpilco.experiments.mcpilco.bench import (
     runs_part,
     timing_part,
 )
+from mcpilco.experiments.mcpilco.timing import JOINTS_SPEC, VARIANTS
 from mcpilco.experiments.mcpilco.tracking import PUSH_VARIANTS, tracking_kernels_part, tracking_part
 
 
@@ -104,10 +105,9 @@ def build_parser() -> argparse.ArgumentParser:
     add_sweep_arguments(p)  # --jobs N (local processes, 1 thread each), --ray [ADDRESS]
     p.add_argument("--preset", default="bench", help="preset of each env's config file")
     p.add_argument(
-        "--timing-append",
-        action="store_true",
-        help="timing part: replace only the rows of the --timing-env specs, keep the others",
-    )
+        "--timing-append", action="store_true",
+        help="timing part: replace only the rows timed again, keep the others",
+    )  # fmt: skip
     p.add_argument(
         "--pushes", nargs="?", const="both", choices=PUSH_VARIANTS,
         help="tracking part: the env's random pushes on; runs with the push filter, without it "
@@ -162,22 +162,22 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument(
         "--timing-env", nargs="+", default=[DEFAULT_ENV_ID],
         help="env ids whose task specs the timing part times (each over its own horizon; "
-        "e.g. mcpilco/UR10-v0: 24 states, 6 actions, 12 GP outputs)",
+        f"e.g. mcpilco/UR10-v0: 24 states, 12 GP outputs; {JOINTS_SPEC}: 12 and 6)",
     )  # fmt: skip
     p.add_argument("--timing-threads", type=int, nargs="+", default=[1, 2])
     p.add_argument(
-        "--timing-particles",
-        type=int,
-        nargs="+",
-        default=[400],
-        help="particle counts M of the timing part (e.g. 25 400: the fixed cost and the goal's M)",
-    )
+        "--timing-variants", nargs="+", default=None, choices=VARIANTS,
+        help="timing part: the fast steps timed beside the eager one (default: all)",
+    )  # fmt: skip
     p.add_argument(
-        "--timing-heap-contrast",
-        action="store_true",
+        "--timing-particles", type=int, nargs="+", default=[400],
+        help="particle counts M of the timing part (e.g. 25 400: the fixed cost and the goal's M)",
+    )  # fmt: skip
+    p.add_argument(
+        "--timing-heap-contrast", action="store_true",
         help="timing part: also time the eager step with glibc's initial heap thresholds "
         "(128 KiB) instead of the retained heap, alternating in the same rounds",
-    )
+    )  # fmt: skip
     p.add_argument("--rmse-seeds", type=int, default=10)
     p.add_argument(
         "--rmse-policy",
@@ -272,6 +272,7 @@ def main(argv: list[str] | None = None) -> int:
             device=args.device, compile_rollout=bool(args.compile_rollout),
             heap_contrast=bool(args.timing_heap_contrast), env_ids=args.timing_env,
             append=bool(args.timing_append), kernel=args.kernel, mpk_degree=args.mpk_degree,
+            variants=args.timing_variants,
         )  # fmt: skip
     if "rmse" in args.parts:
         try:

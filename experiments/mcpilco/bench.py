@@ -60,6 +60,7 @@ __all__ = [
     "section_key",
     "section_table",
     "reference_table",
+    "timing_key",
     "timing_part",
     "timing_row",
     "write_report",
@@ -351,14 +352,18 @@ def timing_part(
     log: Callable[[str], None] = print,
     kernel: str | None = None,
     mpk_degree: int | None = None,
+    variants: Sequence[str] | None = None,
 ) -> list[dict[str, Any]]:
     """Part ``timing``: :func:`~mcpilco.experiments.mcpilco.timing.time_opt_step` for every
     task spec (``env_ids``, each over its own horizon and with its config's GP kernel), GP
     size, thread count and particle count (on a CUDA device both with and without a CUDA
     graph; ``kernel``, ``mpk_degree``: instead of the config's); replaces
-    ``results["timing"]`` (``append``: only the rows of the task specs and kernels timed
-    now) and writes the report."""
-    from mcpilco.experiments.mcpilco.timing import time_opt_step
+    ``results["timing"]`` (``append``: only the rows timed again now, :func:`timing_key`)
+    and writes the report. ``env_ids`` may name a timing spec of
+    :func:`~mcpilco.experiments.mcpilco.timing.timing_task` (it uses its env's config);
+    ``variants``: the fast steps to time (None: all of
+    :data:`~mcpilco.experiments.mcpilco.timing.VARIANTS`)."""
+    from mcpilco.experiments.mcpilco.timing import VARIANTS, time_opt_step, timing_task
 
     rows = []
     graphs = (True, False) if device.startswith("cuda") else (False,)
@@ -372,7 +377,8 @@ def timing_part(
     ]
     # each spec's GP as its config fits it, or as the arguments say
     configs = {
-        e: load_config(e).with_overrides(kernel=kernel, mpk_degree=mpk_degree) for e in env_ids
+        e: load_config(timing_task(e)[1]).with_overrides(kernel=kernel, mpk_degree=mpk_degree)
+        for e in env_ids
     }
     for env_id, n, th, m, graph in grid:
         cfg = configs[env_id]
@@ -380,6 +386,7 @@ def timing_part(
             n, num_particles=m, threads=th, device=device, cuda_graph=graph,
             compile_rollout=compile_rollout, heap_contrast=heap_contrast, env_id=env_id,
             kernel=cfg.kernel, mpk_degree=cfg.mpk_degree,
+            variants=tuple(VARIANTS if variants is None else variants),
         )  # fmt: skip
         comp = t.get("compiled_s_per_step_wall")
         log(
@@ -394,9 +401,9 @@ def timing_part(
             )
         )
         rows.append(t)
-    if append:  # keep the rows of other task specs and kernels
-        timed = {timing_spec(t) for t in rows}
-        kept = [t for t in results.get("timing", []) if timing_spec(t) not in timed]
+    if append:  # keep the rows not timed again now
+        timed = {timing_key(t) for t in rows}
+        kept = [t for t in results.get("timing", []) if timing_key(t) not in timed]
         results["timing"] = kept + rows
     else:
         results["timing"] = rows
@@ -603,6 +610,15 @@ def timing_spec(t: dict) -> tuple[str, str, int | None]:
     return t.get("env_id", DEFAULT_ENV_ID), kernel, t.get("mpk_degree", 2)
 
 
+def timing_key(t: dict) -> tuple:
+    """What makes two timing rows the same measurement: the spec and kernel
+    (:func:`timing_spec`), ``N``, particles, threads, device and CUDA graph."""
+    return (
+        *timing_spec(t), t["n_points"], t["num_particles"], t["threads"],
+        t.get("device", "cpu"), bool(t.get("cuda_graph")),
+    )  # fmt: skip
+
+
 def kernel_label(kernel: str, mpk_degree: int | None = None) -> str:
     """A kernel's name in the reports: ``"rbf+mpk"`` with its degree (``"RBF + MPK
     (p = 1)"``), ``"RBF"``, ``"rigid body"``."""
@@ -644,6 +660,8 @@ def timing_row(t: dict) -> str:
         heap += f" | {t['floor_s']:.4f} | {t['matmul_gflops']:.0f}"
     else:
         heap += " | - | -"
+    heap += f" | {t['products_floor_s']:.3f}" if "products_floor_s" in t else " | -"
+    heap += f" | {t['cpu_model']} ({t['cpu_isa']})" if "cpu_model" in t else " | -"
     return (
         f"| {t['num_particles']} | {t['n_points']} | {t.get('device', 'cpu')} | {graph} "
         f"| {t['threads']} | {t['s_per_step_wall']:.3f} | {t['s_per_step_cpu']:.3f} "
@@ -663,8 +681,9 @@ def reference_table(timing: list[dict], measured: Sequence[dict] = ()) -> list[s
     ``measured``: the reference's own steps timed on this machine on a comparable task
     (``env_id`` of the package's spec, ``task``: the reference's, ``n_points``,
     ``num_particles``, ``threads``, ``s_per_step``); a row with the same spec, N, M and
-    threads is divided into that step, any other into the cart-pole range
-    (:data:`~mcpilco.experiments.mcpilco.timing.REFERENCE_S_PER_STEP`)."""
+    threads is divided into that step, any other cart-pole row into the cart-pole range
+    (:data:`~mcpilco.experiments.mcpilco.timing.REFERENCE_S_PER_STEP`); other rows get no
+    ratio."""
     from mcpilco.experiments.mcpilco.timing import REFERENCE_S_PER_STEP, reference_speedup
 
     lo, hi = REFERENCE_S_PER_STEP
@@ -677,8 +696,9 @@ def reference_table(timing: list[dict], measured: Sequence[dict] = ()) -> list[s
         "machine class; each step here (the fast rollout's, else the eager one, wall clock) "
         "is divided into that range, or into the reference's own step on a comparable task "
         "where one was timed with the same N, particles and threads (its task and seconds "
-        "in brackets). The cart-pole range holds for N = 60: at larger N the reference "
-        "takes longer, so that ratio understates the speed-up.",
+        "in brackets; a row of another spec without one has no ratio). The cart-pole range "
+        "holds for N = 60: at larger N the reference takes longer, so that ratio understates "
+        "the speed-up.",
         "",
         "| spec | particles M | GP points N | threads | step | wall s/step | CPU s/step "
         "| floor s/step | x reference |",
@@ -696,9 +716,11 @@ def reference_table(timing: list[dict], measured: Sequence[dict] = ()) -> list[s
             ratio = (
                 f"{_ratio(ref['s_per_step'] / wall)}x ({ref['task']}: {ref['s_per_step']:.2f} s)"
             )
-        else:
+        elif env_id == DEFAULT_ENV_ID:
             a, b = reference_speedup(wall)
             ratio = f"{_ratio(a)}-{_ratio(b)}x"
+        else:  # no reference step timed for this spec
+            ratio = "-"
         md.append(
             f"| {env_id} ({kernel_label(kernel, degree)}) | {t['num_particles']} "
             f"| {t['n_points']} | {t['threads']} | {step} | {wall:.3f} | {cpu:.3f} | {floor} "
@@ -737,7 +759,12 @@ def write_report(results: dict, out_dir: Path) -> None:
             "rounds, where the default is `native`. Dynamo: the time step `torch.compile`-d "
             "instead, in the same rounds. Floor: the flops of the GP posterior variance "
             "(2 N^2 per particle, output and step, forward and backward) at this machine's "
-            "float32 matmul rate (column GFLOP/s, 512 x 512 product on the same threads).",
+            "float32 matmul rate (column GFLOP/s, 512 x 512 product on the same threads); "
+            "products floor: every product with the GP's constant matrices (the RBF's "
+            "exponents, the MPK's feature block, the triangular factor; forward and backward) "
+            "at that rate. CPU: the model and its vector ISA; the JSON rows hold the native "
+            "build's compiler and flags (`-march=native`: built for that CPU) and, for the "
+            "`native` step, the seconds of each stage of its loops.",
             "",
             "Faults: minor page faults per step, with the freed memory kept in the process "
             "(`retain_host_memory`). 128 KiB heap: the eager step with glibc's initial "
@@ -762,9 +789,9 @@ def write_report(results: dict, out_dir: Path) -> None:
                 "| CPU s/step | faults | fast: backend | wall s/step | CPU s/step "
                 "| speed-up (CPU) | build s | shards | torch: wall s/step | CPU s/step "
                 "| dynamo: wall s/step | CPU s/step | 128 KiB heap: wall s/step | faults "
-                "| floor s/step | GFLOP/s |",
+                "| floor s/step | GFLOP/s | products floor s/step | CPU |",
                 "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"
-                "---|---|",
+                "---|---|---|---|",
             ]
             md += [timing_row(t) for t in rows]
             md.append("")
@@ -941,13 +968,15 @@ def _step_row(r: Result) -> str:
     ]  # fmt: skip
     if large:
         line += f", {large[0]['compiled_s_per_step_wall']:.3f} s at N = 250"
-    own = {(m["env_id"], m["n_points"]): m["s_per_step"] for m in r.get("reference_steps", [])}
+    own = {  # the reference's own steps, by spec, N, particles and threads
+        (m["env_id"], m["n_points"], m["num_particles"], m["threads"]): m["s_per_step"]
+        for m in r.get("reference_steps", [])
+    }
+    key = lambda t: (t.get("env_id"), t["n_points"], t["num_particles"], t["threads"])  # noqa: E731
     ratios = [
-        own[(t["env_id"], t["n_points"])] / t["compiled_s_per_step_wall"]
+        own[key(t)] / t["compiled_s_per_step_wall"]
         for t in timing
-        if (t.get("env_id"), t["n_points"]) in own
-        and t.get("mpk_degree") == 1
-        and "compiled_s_per_step_wall" in t
+        if key(t) in own and t.get("mpk_degree") == 1 and "compiled_s_per_step_wall" in t
     ]
     if ratios:  # the arm spec against the reference's own arm task, same kernel
         line += (

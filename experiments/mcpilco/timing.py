@@ -11,7 +11,16 @@ variance, the part of a step that grows with ``N`` squared, at this machine's fl
 rate (:func:`matmul_rate`). Per particle, GP output and time step, the variance
 ``sigma^2 = k** - ||L^{-1} k*||^2`` costs about ``N^2`` flops forward (a triangular solve,
 ``N^2 / 2`` multiply-adds) and as many backward, so a step's floor is
-``2 N^2 M m H / rate`` seconds (``M`` particles, ``m`` outputs, ``H`` steps).
+``2 N^2 M m H / rate`` seconds (``M`` particles, ``m`` outputs, ``H`` steps). The products
+floor (:func:`product_flops`) counts every product with the GP's constant matrices instead:
+the RBF's exponents ``N (d + 2)``, the MPK's ``N x F`` feature block and the triangular
+factor's ``N^2 / 2`` multiply-adds forward, as many backward, per particle, output and step.
+
+Every row records the machine it ran on (:func:`cpu_info`: CPU model, ISA, L2 cache, the
+native build's compiler and flags), since the ratios hold for that CPU only.
+
+Besides the registered envs' task specs, :func:`timing_task` knows :data:`JOINTS_SPEC`, a
+12-state arm spec between the cart-pole and the UR10 tracking task.
 """
 
 from __future__ import annotations
@@ -25,13 +34,28 @@ import numpy as np
 from mcpilco.agents.mc_pilco import DEFAULT_ENV_ID, TaskSpec
 
 __all__ = [
+    "JOINTS_SPEC",
     "REFERENCE_S_PER_STEP",
+    "VARIANTS",
+    "cpu_info",
     "exploration_data",
     "matmul_rate",
+    "product_flops",
     "reference_speedup",
     "time_opt_step",
+    "timing_task",
     "variance_flops",
 ]
+
+JOINTS_SPEC = "mcpilco/UR10-v0:joints"
+"""A timing spec, not a registered env: the UR10's six joints without the reference
+(``q, qd``: 12 states, 6 torques), its cost each joint's distance from the home pose, its
+initial state the UR10 task's joints (on the reference), the velocities' changes predicted and
+the positions integrated (6 GP outputs over 18 inputs; the layout of the reference
+implementation's UR5 task). Its data are the first 12 coordinates of ``mcpilco/UR10-v0``'s
+random exploration; it times the step, it is not a task to learn."""
+
+VARIANTS = ("compiled", "torch", "dynamo")  # the fast steps time_opt_step can time
 
 MATMUL_SIZE = 512  # rows and columns of the square float32 product that measures the rate
 
@@ -77,12 +101,101 @@ def matmul_rate(threads: int, repeats: int = 20) -> float:
     return 2.0 * MATMUL_SIZE**3 / best
 
 
+def timing_task(spec: str) -> tuple[TaskSpec, str]:
+    """The task spec a timing ``spec`` names and the registered env whose config and data it
+    uses: a registered env id (its shipped spec, itself), or :data:`JOINTS_SPEC`."""
+    if spec != JOINTS_SPEC:
+        return TaskSpec.for_env(spec), spec
+    env_id = spec.split(":")[0]
+    from mcpilco.envs.tasks import task_data
+
+    d = dict(task_data(env_id))
+    joints = list(d["joints"])
+    names = list(d["state_names"][: 2 * len(joints)])  # q, qd of each joint
+    reference = {k: v for k, v in d["reference"].items() if k != "states"}
+    d.update(
+        state_names=names,
+        obs_indices=list(range(len(names))),
+        speed_integration=True,
+        affine_inputs=[],
+        reference=reference,
+        init_mean=list(d["init_mean"][: len(names)]),
+        cost={
+            "terms": [
+                {"state": q, "target": c, "length_scale": 0.02}
+                for q, c in zip(joints, reference["centre"], strict=True)
+            ]
+        },
+        success={"full_horizon": True},
+    )
+    return TaskSpec.from_dict(d), env_id
+
+
+def cpu_info() -> dict[str, object]:
+    """What a timing row ran on: the CPU model, its vector ISA (``avx512f``, ``avx2`` or
+    neither, from ``/proc/cpuinfo``), its per-core L2 cache (bytes, as the native rollout reads
+    it; None without the extension), the native build's compiler and flags (``-march=native``:
+    the code is built for this CPU), and the torch version."""
+    import platform
+
+    import torch
+
+    from mcpilco.agents.mc_pilco.fast import native
+
+    model, flags = platform.processor() or platform.machine(), set()
+    try:
+        with open("/proc/cpuinfo") as f:
+            for line in f:
+                if line.startswith("model name") and model in ("", platform.machine()):
+                    model = line.split(":", 1)[1].strip()
+                elif line.startswith("flags") and not flags:
+                    flags = set(line.split(":", 1)[1].split())
+    except OSError:
+        pass
+    isa = [x for x in ("avx512f", "avx2", "fma") if x in flags]
+    cxx = native.cpp_compiler()
+    version = None
+    if cxx:
+        import subprocess
+
+        try:
+            out = subprocess.run([cxx, "--version"], capture_output=True, text=True, timeout=30)
+            version = out.stdout.splitlines()[0] if out.stdout else None
+        except (OSError, subprocess.SubprocessError):
+            version = None
+    try:
+        l2 = int(native.load_library().l2_cache_bytes())
+    except RuntimeError:
+        l2 = None
+    return {
+        "cpu_model": model,
+        "cpu_isa": " ".join(isa) or "none of avx512f, avx2, fma",
+        "l2_cache_bytes": l2,
+        "build_compiler": version,
+        "build_flags": " ".join(native.CXX_FLAGS),
+        "torch_version": torch.__version__,
+    }
+
+
+def product_flops(
+    n_points: int, features: int, inputs: int, num_particles: int, outputs: int, horizon: int
+) -> float:
+    """Flops of the products with the GP's constant matrices in one optimisation step,
+    forward and backward: per particle, output and step ``2 (N (d + 2) + N F + N^2 / 2)``
+    forward (the RBF's exponents, the MPK's ``N x F`` feature block, the triangular factor)
+    and ``2 (N F + N^2 / 2 + N (d + 1))`` backward (``d`` GP inputs, ``F`` MPK features)."""
+    N, F, d = n_points, features, inputs
+    per = 2.0 * (N * (d + 2) + N * F + N * N / 2) + 2.0 * (N * F + N * N / 2 + N * (d + 1))
+    return per * num_particles * outputs * horizon
+
+
 def exploration_data(env_id: str, n_points: int, seed: int, hold: int = 1):
     """``n_points`` transitions of random-exploration episodes (actions held ``hold`` steps,
-    :func:`~mcpilco.agents.common.trials.exploration_actions`)."""
+    :func:`~mcpilco.agents.common.trials.exploration_actions`) of the timing spec ``env_id``
+    (:func:`timing_task`)."""
     from mcpilco.agents.common.trials import exploration_actions, make_env, run_episode, transitions
 
-    task = TaskSpec.for_env(env_id)
+    task, env_id = timing_task(env_id)
     H = task.horizon
     env = make_env(env_id, H, task)
     rng = np.random.default_rng(seed)
@@ -108,6 +221,7 @@ def time_opt_step(
     cuda_graph: bool = True,
     compile_rollout: bool = False,
     heap_contrast: bool = False,
+    variants: tuple[str, ...] = VARIANTS,
 ) -> dict[str, float]:
     """Median wall and CPU seconds of one optimisation step (rollout, backward, Adam) on the
     task of ``env_id`` (its :class:`~mcpilco.agents.mc_pilco.TaskSpec`: state and action
@@ -121,12 +235,18 @@ def time_opt_step(
     ``native``) and of ``torch.compile`` of the time step (``dynamo_*``, when the default is
     not already that), each on its own loss module sharing the policy and the GP posterior;
     the eager and the fast steps alternate within each round, so their ratios hold on a busy
-    machine. ``compile_s``: the time of ``use_fast_rollout`` (the build and its check against
+    machine. ``variants``: which of :data:`VARIANTS` to time (``compiled`` is built first in
+    any case: the others are timed where it is ``native``, as above).
+    ``compile_s``: the time of ``use_fast_rollout`` (the build and its check against
     the eager rollout, one step of each); ``compile_check`` its figures. A fast rollout that
     fails the check is not timed (``compiled_rejected``).
 
     ``floor_s``: :func:`variance_flops` at :func:`matmul_rate` on ``threads`` threads
-    (``matmul_gflops``), the time the ``N``-squared part of a step needs at the least.
+    (``matmul_gflops``), the time the ``N``-squared part of a step needs at the least;
+    ``products_floor_s``: :func:`product_flops` at that rate. ``native_stage_s``: with the
+    native rollout, the seconds per step of each stage of its loops
+    (:func:`~mcpilco.agents.mc_pilco.fast.native.stage_seconds`, summed over its threads), and
+    ``native_group`` the tiles it runs together. The row holds :func:`cpu_info` too.
 
     The process keeps its freed memory (:func:`~mcpilco.models.device.retain_host_memory`,
     as a training run does); ``page_faults_per_step`` counts the minor page faults of each
@@ -161,8 +281,11 @@ def time_opt_step(
     sync = torch.cuda.synchronize if dev.type == "cuda" else (lambda: None)
     torch.set_num_threads(threads)
     retain_host_memory()
+    unknown = set(variants) - set(VARIANTS)
+    if unknown:
+        raise ValueError(f"variants must be among {VARIANTS}, got {sorted(unknown)}")
     s, a, s1, _ = exploration_data(env_id, n_points, 0)
-    task = TaskSpec.for_env(env_id)
+    task, _ = timing_task(env_id)
     horizon = task.horizon if horizon is None else int(horizon)
     model = GPDynamicsModel(
         task, kernel=kernel, mpk_degree=mpk_degree, adam_iters=30, lbfgs_iters=5, max_points=None
@@ -191,6 +314,8 @@ def time_opt_step(
         for name, backend in (("compiled", "auto"), ("torch", "torch"), ("dynamo", "dynamo")):
             if name == "torch" and compile_info.get("compile_backend") != "native":
                 continue  # the chained rollout does not apply here
+            if name != "compiled" and name not in variants:
+                continue
             compiled = make_loss()
             t_compile = time.perf_counter()
             fast = use_fast_rollout(compiled, backend=backend, dynamic=False)
@@ -212,6 +337,9 @@ def time_opt_step(
                 break  # the default already is dynamo here
     if heap_contrast:
         step_fns["heap128k"] = step_fns["eager"]
+    engine = compiled_losses[0].fast_rollout[0] if compiled_losses else None
+    native_engine = engine if type(engine).__name__ == "NativeRollout" else None
+    stage_totals: dict[str, float] = {}
     walls: dict[str, list[float]] = {k: [] for k in step_fns}
     cpus: dict[str, list[float]] = {k: [] for k in step_fns}
     faults: dict[str, list[int]] = {k: [] for k in step_fns}
@@ -225,9 +353,16 @@ def time_opt_step(
             sync()
             t, c = time.perf_counter(), time.process_time()
             f0 = resource.getrusage(resource.RUSAGE_SELF).ru_minflt
+            if native_engine is not None and name == "compiled":
+                from mcpilco.agents.mc_pilco.fast.native import stage_seconds
+
+                stage_seconds(reset=True)
             step_fn()
             opt.step()
             sync()
+            if i and native_engine is not None and name == "compiled":
+                for stage, sec in stage_seconds().items():
+                    stage_totals[stage] = stage_totals.get(stage, 0.0) + sec / repeats
             if i:  # the first round is a warm-up
                 walls[name].append(time.perf_counter() - t)
                 cpus[name].append(time.process_time() - c)
@@ -253,7 +388,19 @@ def time_opt_step(
     }
     rate = matmul_rate(threads) if dev.type == "cpu" else float("nan")
     flops = variance_flops(n_points, num_particles, dynamics.layout.output_dim, horizon)
-    out.update({"matmul_gflops": rate / 1e9, "floor_s": flops / rate})
+    pred = dynamics.delta_model
+    features = getattr(getattr(pred, "row_blocks", None), "features", 0) or 0
+    inputs = dynamics.layout.feature_dim + policy.action_dim
+    pflops = product_flops(
+        n_points, features, inputs, num_particles, dynamics.layout.output_dim, horizon
+    )
+    out.update(
+        {"matmul_gflops": rate / 1e9, "floor_s": flops / rate, "products_floor_s": pflops / rate}
+    )
+    out.update(cpu_info())
+    if native_engine is not None:
+        out["native_group"] = int(native_engine.model.group())
+        out["native_stage_s"] = stage_totals
     out.update(compile_info)
     for name in ("compiled", "torch", "dynamo", "heap128k"):
         if name in step_fns:

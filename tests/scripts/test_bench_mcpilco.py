@@ -3,9 +3,12 @@
 from __future__ import annotations
 
 import pytest
+import torch
 
 from mcpilco.agents.mc_pilco import DEFAULT_ENV_ID, load_config
+from mcpilco.agents.mc_pilco.fast.native import STAGE_NAMES
 from mcpilco.experiments.mcpilco.bench import bench_configs, run_seed
+from mcpilco.experiments.mcpilco.timing import JOINTS_SPEC
 from mcpilco.experiments.results import read_result
 from tests.experiments.mcpilco.test_bench import _fake_runs
 
@@ -110,6 +113,17 @@ def test_timing_part_reports_each_particle_count(tmp_path, capsys, command):
     # the floor: 2 N^2 M m H flops at the measured matmul rate
     assert t["floor_s"] == pytest.approx(2 * 20**2 * 3 * 2 * 60 / (t["matmul_gflops"] * 1e9))
     assert f"| {t['floor_s']:.4f} | {t['matmul_gflops']:.0f} |" in md
+    # the products floor: per particle, output and step 2 (N (d + 2) + N F + N^2 / 2) forward
+    # and 2 (N F + N^2 / 2 + N (d + 1)) backward; d = 6, F = (d + 1)(d + 2) / 2 = 28 (p = 2)
+    per = 2 * (20 * 8 + 20 * 28 + 200) + 2 * (20 * 28 + 200 + 20 * 7)
+    rate = t["matmul_gflops"] * 1e9
+    assert t["products_floor_s"] == pytest.approx(per * 3 * 2 * 60 / rate)
+    # the machine and the build, and the native loops' stages
+    assert t["cpu_model"] and t["build_flags"] == "-O3 -march=native -fno-math-errno"
+    assert t["native_group"] >= 1 and t["torch_version"] == torch.__version__
+    assert set(t["native_stage_s"]) == set(STAGE_NAMES)
+    assert all(v >= 0 for v in t["native_stage_s"].values())
+    assert f"| {t['products_floor_s']:.3f} | {t['cpu_model']} ({t['cpu_isa']}) |" in md
     assert f"| {t['dynamo_s_per_step_wall']:.3f} | {t['dynamo_s_per_step_cpu']:.3f} |" in md
     # the spec's table heading, and the step against the reference implementation's 0.45-0.58 s
     assert (t["env_id"], t["state_dim"], t["action_dim"], t["gp_outputs"], t["horizon"]) == (
@@ -138,7 +152,7 @@ def test_timing_part_reports_each_particle_count(tmp_path, capsys, command):
     assert t["page_faults_per_step"] >= 0 and "compiled_s_per_step_wall" not in t
     md = (tmp_path / "mcpilco_cartpole.md").read_text()
     row = next(line for line in md.splitlines() if line.startswith("| 3 | 20 | cpu | no | 1 |"))
-    assert row.count("|") == 23 and f"| {t['heap128k_s_per_step_wall']:.3f} |" in row
+    assert row.count("|") == 25 and f"| {t['heap128k_s_per_step_wall']:.3f} |" in row
     # --mpk-degree with --timing-append: the spec with another kernel, beside the first rows
     argv1 = [*argv, "--timing-particles", "3", "--mpk-degree", "1", "--timing-append"]
     assert command("mcpilco-bench-mcpilco", argv1) == 0
@@ -146,6 +160,15 @@ def test_timing_part_reports_each_particle_count(tmp_path, capsys, command):
     assert [t.get("mpk_degree") for t in timing] == [2, 1]
     md = (tmp_path / "mcpilco_cartpole.md").read_text()
     assert "H = 60; GP RBF + MPK (p = 1))" in md and "H = 60; GP RBF + MPK (p = 2))" in md
+    # the 12-state arm spec, only the default backend's fast step beside the eager one
+    argv2 = [*argv, "--timing-particles", "3", "--timing-env", JOINTS_SPEC, "--timing-append"]
+    argv2 += ["--compile-rollout", "--timing-variants", "compiled"]
+    assert command("mcpilco-bench-mcpilco", argv2) == 0
+    (t,) = [t for t in read_result(tmp_path / "mcpilco_cartpole.json").payload()["timing"]
+            if t["env_id"] == JOINTS_SPEC]  # fmt: skip
+    assert (t["state_dim"], t["action_dim"], t["gp_outputs"], t["horizon"]) == (12, 6, 6, 100)
+    assert t["compile_backend"] == "native" and t["compiled_s_per_step_wall"] > 0
+    assert "torch_s_per_step_wall" not in t and "dynamo_s_per_step_wall" not in t
 
 
 def test_rmse_runs_part_uses_only_runs_that_swung_up_and_groups_by_their_kernel(

@@ -14,9 +14,21 @@
 
 #include "native_rollout.h"
 
+#include <unistd.h>
+
+#include <algorithm>
+#include <atomic>
+#include <chrono>
 #include <cmath>
+#include <cstdlib>
 #include <cstring>
+#include <fstream>
+#include <string>
 #include <vector>
+
+#if defined(__SSE__)
+#include <xmmintrin.h>
+#endif
 
 namespace mcp {
 namespace {
@@ -26,6 +38,8 @@ typedef float v8u __attribute__((vector_size(32), aligned(4)));
 typedef int32_t v8i __attribute__((vector_size(32), aligned(32)));
 typedef uint8_t v8b __attribute__((vector_size(8), aligned(1)));
 
+constexpr int POLICY_CHAINS = 4;  // independent sums the policy's loops keep (FMA latency)
+static_assert(POLICY_CHAINS == 4, "the policy loops add their 4 sums by hand");
 constexpr float EXP_FLOOR = -87.0f;  // exp's argument floor (models/numerics.py)
 constexpr float VAR_FLOOR = 1e-12f;  // variance floor of the sample (dynamics.py)
 constexpr float PI_F = 3.14159265358979323846f;  // pi rounded to float, as torch rounds it
@@ -122,18 +136,66 @@ constexpr int NO_SPLIT = 1 << 30;  // split of a gemm_tile whose X is one block 
 
 constexpr int PREFETCH_LINES = 16;  // cache lines of the next record requested per call of next()
 
-// Requests a record (the next one the backward loop reads, written long before and since
-// evicted to memory) into the caches a few lines at a time, between the kernel's blocks, so
-// that its loads overlap the arithmetic instead of waiting at the start of its step.
+// Requests the records the backward loop reads next (written long before and since evicted to
+// memory: one per tile of a group) into the caches a few lines at a time, between the kernel's
+// blocks, so that their loads overlap the arithmetic instead of waiting at the start of a step.
 struct Prefetch {
-    const char *p = nullptr, *end = nullptr;
-    void start(const float *rec, int64_t floats) {
-        p = (const char *)rec;
-        end = rec ? p + floats * (int64_t)sizeof(float) : p;
+    std::vector<const char *> p, end;
+    size_t at = 0;
+    void start(const std::vector<const float *> &recs, int64_t floats) {
+        p.clear();
+        end.clear();
+        at = 0;
+        for (const float *rec : recs) {
+            if (!rec) continue;
+            p.push_back((const char *)rec);
+            end.push_back((const char *)rec + floats * (int64_t)sizeof(float));
+        }
     }
     void next() {
-        for (int i = 0; i < PREFETCH_LINES && p < end; ++i, p += 64) __builtin_prefetch(p, 0, 3);
+        for (int i = 0; i < PREFETCH_LINES && at < p.size(); ++i) {
+            __builtin_prefetch(p[at], 0, 3);
+            p[at] += 64;
+            if (p[at] >= end[at]) ++at;
+        }
     }
+};
+
+// Stage clocks: nanoseconds spent in each stage of the loops, summed over every thread and
+// call since the last reset (stage_names() in native_rollout.h names them).
+std::atomic<int64_t> STAGE_NS[NUM_STAGES];
+
+inline int64_t now_ns() {
+    return std::chrono::duration_cast<std::chrono::nanoseconds>(
+               std::chrono::steady_clock::now().time_since_epoch())
+        .count();
+}
+
+// a loop's own stage clocks, added to STAGE_NS once when it ends
+struct StageClock {
+    int64_t ns[NUM_STAGES] = {};
+    int64_t last = now_ns();
+    void lap(int stage) {  // the time since the last lap goes to `stage`
+        const int64_t t = now_ns();
+        ns[stage] += t - last;
+        last = t;
+    }
+    ~StageClock() {
+        for (int i = 0; i < NUM_STAGES; ++i) STAGE_NS[i].fetch_add(ns[i]);
+    }
+};
+
+// Denormal floats flushed to zero (FTZ) and read as zero (DAZ) while a loop runs, the
+// caller's floating-point control restored after.  The kernel values at the exponential's
+// floor (exp(-87) ~ 1.6e-38) times the GP's constants are denormal; on CPUs that handle
+// denormals by microcode assists (most Intel cores) every such product costs about a hundred
+// cycles.  The values lost are below 1.2e-38, far under the float32 rounding of the results.
+struct FlushDenormals {
+#if defined(__SSE__)
+    unsigned saved = _mm_getcsr();
+    FlushDenormals() { _mm_setcsr(saved | 0x8040u); }  // FTZ (bit 15) | DAZ (bit 6)
+    ~FlushDenormals() { _mm_setcsr(saved); }
+#endif
 };
 
 // offsets (floats) of a tile's record of one step, each block a multiple of 16
@@ -196,11 +258,11 @@ struct Pol {
 
 // scratch of one thread, sized for the model
 struct Work {
-    std::vector<float> xa, mean, var, u, feat, dR, dx, dxs, dpsi, wprior, gmean, gvar,
+    std::vector<float> xa, mean, var, u, usum, feat, dR, dx, dxs, dpsi, wprior, gmean, gvar,
         gstate, G, gs, gin, gf, ga, gx, csum, delta;
     explicit Work(const Model &M)
         : xa((M.d + 2) * TILE), mean(M.m * TILE), var(M.m * TILE),
-          u(M.A * TILE), feat(M.fp),
+          u(M.A * TILE), usum(M.A), feat(M.fp),
           dR((int64_t)pad_rows(M.f + M.N) * TILE), dx(pad_rows(M.d + 1) * TILE),
           dxs(M.d * TILE), dpsi((M.f > 0 ? M.f : 1) * TILE), wprior(M.d * TILE),
           gmean(M.m * TILE), gvar(M.m * TILE), gstate(M.n * TILE), G((int64_t)TILE * M.nb),
@@ -222,7 +284,36 @@ float phi_row_t(int fp_rt, int nb, const float *a, float asq, const float *bT, c
         for (int j = 0; j < FPT; ++j) av[j] = bc(a[j]);
     const v8 half_asq = bc(0.5f * asq), tv = bc(keep_t), sv = bc(keep_scale);
     v8 acc = bc(0.0f);
+    auto finish = [&](int i0, v8 lp) {  // phi = exp(lp - |a|^2 / 2) D of basis i0 .. i0 + 7
+        v8 ph = vexp_floor(lp - half_asq);
+        v8 bf = __builtin_convertvector(*(const v8b *)(by + i0), v8);
+        ph = ph * (bf < tv ? sv : bc(0.0f));
+        st(phi + i0, ph);
+        acc += ph * ld(w0 + i0);
+    };
     int i = 0;
+    // POLICY_CHAINS blocks of 8 basis functions at a time: as many independent sums over the
+    // features, so that the multiply-adds do not wait on each other
+    for (; i + 8 * POLICY_CHAINS <= nb; i += 8 * POLICY_CHAINS) {
+        v8 lp[POLICY_CHAINS];
+#pragma GCC unroll 4
+        for (int u = 0; u < POLICY_CHAINS; ++u) lp[u] = ld(bsq + i + 8 * u);  // -|b_i|^2 / 2
+        if (FPT) {
+#pragma GCC unroll 32
+            for (int j = 0; j < FPT; ++j)
+#pragma GCC unroll 4
+                for (int u = 0; u < POLICY_CHAINS; ++u)
+                    lp[u] += av[j] * ld(bT + j * nb + i + 8 * u);
+        } else {
+            for (int j = 0; j < fp; ++j) {
+                const v8 aj = bc(a[j]);
+#pragma GCC unroll 4
+                for (int u = 0; u < POLICY_CHAINS; ++u) lp[u] += aj * ld(bT + j * nb + i + 8 * u);
+            }
+        }
+#pragma GCC unroll 4
+        for (int u = 0; u < POLICY_CHAINS; ++u) finish(i + 8 * u, lp[u]);
+    }
     for (; i + 8 <= nb; i += 8) {
         v8 lp = ld(bsq + i);  // -|b_i|^2 / 2
         if (FPT) {
@@ -231,12 +322,7 @@ float phi_row_t(int fp_rt, int nb, const float *a, float asq, const float *bT, c
         } else {
             for (int j = 0; j < fp; ++j) lp += bc(a[j]) * ld(bT + j * nb + i);
         }
-        lp -= half_asq;
-        v8 ph = vexp_floor(lp);
-        v8 bf = __builtin_convertvector(*(const v8b *)(by + i), v8);
-        ph = ph * (bf < tv ? sv : bc(0.0f));
-        st(phi + i, ph);
-        acc += ph * ld(w0 + i);
+        finish(i, lp);
     }
     float s = hsum(acc);
     for (; i < nb; ++i) {
@@ -288,9 +374,14 @@ float g_row_t(int fp_rt, int A, int nb, const float *phi, const float *gs, const
             s = hsum(acc[j < NACC ? j : 0]);
             k = vec_end;
         } else {
-            v8 v = bc(0.0f);
-            for (; k + 8 <= nb; k += 8) v += ld(G + k) * ld(bj + k);
-            s = hsum(v);
+            v8 v[POLICY_CHAINS] = {};
+            for (; k + 8 * POLICY_CHAINS <= nb; k += 8 * POLICY_CHAINS)
+#pragma GCC unroll 4
+                for (int u = 0; u < POLICY_CHAINS; ++u)
+                    v[u] += ld(G + k + 8 * u) * ld(bj + k + 8 * u);
+            for (; k + 8 <= nb; k += 8) v[0] += ld(G + k) * ld(bj + k);
+            for (int u = 1; u < POLICY_CHAINS; ++u) v[0] += v[u];
+            s = hsum(v[0]);
         }
         for (; k < nb; ++k) s += G[k] * bj[k];
         ga[j] = s;
@@ -318,21 +409,27 @@ void tile_sums_t(int fp_rt, int A, int nb, const float *Gb, const float *phi, co
                 for (int j = 0; j < FPT; ++j) sb[j] += G * bc(a_rec[j * TILE + q]);
             }
             for (int j = 0; j < FPT; ++j) st(gb + (int64_t)j * nb + i, sb[j]);
-        } else {
+        } else {  // each sum over the 16 particles in POLICY_CHAINS independent parts
             for (int q = 0; q < TILE; ++q) sc += ld(Gb + (int64_t)q * nb + i);
             for (int j = 0; j < fp; ++j) {
-                v8 sb = ld(gb + (int64_t)j * nb + i);
-                for (int q = 0; q < TILE; ++q)
-                    sb += ld(Gb + (int64_t)q * nb + i) * bc(a_rec[j * TILE + q]);
-                st(gb + (int64_t)j * nb + i, sb);
+                v8 sb[POLICY_CHAINS] = {};
+                for (int q = 0; q < TILE; q += POLICY_CHAINS)
+#pragma GCC unroll 4
+                    for (int u = 0; u < POLICY_CHAINS; ++u)
+                        sb[u] += ld(Gb + (int64_t)(q + u) * nb + i) * bc(a_rec[j * TILE + q + u]);
+                st(gb + (int64_t)j * nb + i,
+                   ld(gb + (int64_t)j * nb + i) + ((sb[0] + sb[1]) + (sb[2] + sb[3])));
             }
         }
         st(gcol + i, sc);
         for (int a = 0; a < A; ++a) {
-            v8 sw = ld(gw + (int64_t)a * nb + i);
-            for (int q = 0; q < TILE; ++q)
-                sw += ld(phi + (int64_t)q * nb + i) * bc(gs[a * TILE + q]);
-            st(gw + (int64_t)a * nb + i, sw);
+            v8 sw[POLICY_CHAINS] = {};
+            for (int q = 0; q < TILE; q += POLICY_CHAINS)
+#pragma GCC unroll 4
+                for (int u = 0; u < POLICY_CHAINS; ++u)
+                    sw[u] += ld(phi + (int64_t)(q + u) * nb + i) * bc(gs[a * TILE + q + u]);
+            st(gw + (int64_t)a * nb + i,
+               ld(gw + (int64_t)a * nb + i) + ((sw[0] + sw[1]) + (sw[2] + sw[3])));
         }
     }
     for (; i < nb; ++i) {
@@ -404,16 +501,25 @@ void policy_forward(const Model &M, const Lay &L, const Pol &P, const float *x, 
         const uint8_t *by = bytes + (int64_t)(q < valid ? q : 0) * nb;
         const float s0 = phi_row(fp, nb, feat, asq, P.bT.data(), P.bsq.data(), by, keep_t,
                                  keep_scale, P.wT.data(), phi);
-        for (int a = 0; a < M.A; ++a) {
-            float s = s0;
-            if (a > 0) {
-                const float *wa = P.wT.data() + (int64_t)a * nb;
-                v8 acc = bc(0.0f);
-                int i = 0;
-                for (; i + 8 <= nb; i += 8) acc += ld(phi + i) * ld(wa + i);
-                s = hsum(acc);
-                for (; i < nb; ++i) s += phi[i] * wa[i];
+        float *sums = W.usum.data();  // (D o phi) w of every action; the first's from phi_row
+        sums[0] = s0;
+        for (int a0 = 1; a0 < M.A; a0 += POLICY_CHAINS) {  // POLICY_CHAINS actions per pass
+            const int na = M.A - a0 < POLICY_CHAINS ? M.A - a0 : POLICY_CHAINS;
+            v8 acc[POLICY_CHAINS] = {};
+            int i = 0;
+            for (; i + 8 <= nb; i += 8) {
+                const v8 ph = ld(phi + i);
+                for (int u = 0; u < na; ++u) acc[u] += ph * ld(P.wT.data() + (int64_t)(a0 + u) * nb + i);
             }
+            for (int u = 0; u < na; ++u) {
+                const float *wa = P.wT.data() + (int64_t)(a0 + u) * nb;
+                float s = hsum(acc[u]);
+                for (int k = i; k < nb; ++k) s += phi[k] * wa[k];
+                sums[a0 + u] = s;
+            }
+        }
+        for (int a = 0; a < M.A; ++a) {
+            const float s = sums[a];
             float t = std::tanh(s / M.u_half[a]);
             rec[L.t + a * TILE + q] = t;
             W.u[a * TILE + q] = M.u_mid[a] + M.u_half[a] * t;
@@ -422,10 +528,11 @@ void policy_forward(const Model &M, const Lay &L, const Pol &P, const float *x, 
 }
 
 // one tile's time step: x (n x 16, in/out), cost (16) out, record filled
-void step_forward_tile(const Model &M, const Lay &L, const Pol &P, float *x, const float *eps,
-                       const float *nu, const uint8_t *bytes, int valid, float keep_t,
-                       float keep_scale, float *rec, Work &W, float *cost) {
-    const int m = M.m, N = M.N, d = M.d, F = M.f, np = M.n_plain, fp = M.fp;
+// one tile's policy and GP inputs: u, x^ = [f(x), u] standardised and psi(z) to the record
+void inputs_forward_tile(const Model &M, const Lay &L, const Pol &P, const float *x,
+                         const float *nu, const uint8_t *bytes, int valid, float keep_t,
+                         float keep_scale, float *rec, Work &W) {
+    const int d = M.d, F = M.f, np = M.n_plain, fp = M.fp;
     policy_forward(M, L, P, x, nu, bytes, valid, keep_t, keep_scale, rec, W);
     // GP inputs [f(x), u], standardised
     float *xs = rec + L.xs;
@@ -463,8 +570,16 @@ void step_forward_tile(const Model &M, const Lay &L, const Pol &P, float *x, con
         for (int h = 0; h < TILE; h += 8) st(psi + h, bc(1.0f));
         std::memcpy(psi + TILE, xs, sizeof(float) * d * TILE);
     }
+}
+
+// one tile's GP posterior of output b: r = exp(E) and [V; mean] to the record, the mean and
+// the variance of Delta_b to W
+void gp_forward_tile(const Model &M, const Lay &L, int b, float *rec, Work &W,
+                     StageClock &clock) {
+    const int m = M.m, N = M.N, d = M.d, F = M.f;
+    const float *xs = rec + L.xs, *psi = rec + L.psi;
     float *xa = W.xa.data();
-    for (int b = 0; b < m; ++b) {
+    {
         float *r = rec + L.r + (int64_t)b * N * TILE;
         float *V = rec + L.V + (int64_t)b * L.vrows * TILE;  // then the mean row
         // x_aug = [x^; 1; -||x^/l_b||^2 / 2] -> E = W_aug x_aug, r = exp(E)
@@ -485,6 +600,7 @@ void step_forward_tile(const Model &M, const Lay &L, const Pol &P, float *x, con
                 st(r + (first + q) * TILE + 8, vexp_floor(c1[q]));
             }
         });
+        clock.lap(STAGE_FWD_RBF);
         // [V; mean] = [B; alpha_aug] [psi; r], and ||V||^2 summed over the rows in order
         v8 vv2[2] = {bc(0.0f), bc(0.0f)};
         gemm_tile(M.fwd[b], psi, F, r, [V, N, &vv2](int first, const v8 *c0, const v8 *c1) {
@@ -527,6 +643,13 @@ void step_forward_tile(const Model &M, const Lay &L, const Pol &P, float *x, con
             st(W.var.data() + b * TILE + h, vo);
         }
     }
+    clock.lap(STAGE_FWD_TRI);
+}
+
+// one tile's sample, clip, integration and cost: x (n x 16, in/out), cost (16) out
+void sample_forward_tile(const Model &M, const Lay &L, float *x, const float *eps, float *rec,
+                         Work &W, float *cost) {
+    const int m = M.m;
     // Delta = clip(mean + sqrt(max(var, floor)) eps), x+ = x A^T + Delta S^T, cost c(x+);
     // loops over the tile's 16 particles (the compiler vectorises them)
     float *delta = W.delta.data();
@@ -647,11 +770,12 @@ struct PolGrad {
     }
 };
 
-// one tile's backward: g (n x 16) in: dJ/dx_{t+1}; out: dJ/dx_t.  gc (16): dJ/dc_{t+1}.
-// pf: the record of the tile's previous step, requested while this one runs.
-void step_backward_tile(const Model &M, const Lay &L, const Pol &P, const float *rec, Work &W,
-                        float *g, const float *gc, PolGrad &PG, Prefetch &pf) {
-    const int m = M.m, N = M.N, d = M.d, F = M.f, np = M.n_plain, fp = M.fp, nb = M.nb;
+// one tile's backward through the cost, the integration and the sample: g (n x 16) in,
+// dJ/dx_{t+1}; gc (16): dJ/dc_{t+1}; out: W.gstate (g A), W.gmean, W.gvar (dJ/d mean and
+// variance of each output), the GP input gradients zeroed
+void sample_backward_tile(const Model &M, const Lay &L, const float *rec, Work &W,
+                          const float *g, const float *gc) {
+    const int m = M.m, d = M.d;
     float *gstate = W.gstate.data(), *gmean = W.gmean.data(), *gvar = W.gvar.data();
     // cost: dc/dx_j = 2 E d_j d'_j / l_j^2; loops over the tile's 16 particles
     float *gx = W.gx.data(), *gE2 = W.csum.data();
@@ -705,13 +829,20 @@ void step_backward_tile(const Model &M, const Lay &L, const Pol &P, const float 
             gv[q] = gd * e[q] / (2.0f * sd[q]) * on[q];
         }
     }
-    const float *xs = rec + L.xs;
+    std::memset(W.dxs.data(), 0, sizeof(float) * d * TILE);
+    std::memset(W.dpsi.data(), 0, sizeof(float) * W.dpsi.size());
+    std::memset(W.wprior.data(), 0, sizeof(float) * d * TILE);
+}
+
+// one tile's backward through the GP posterior of output b: adds to W.dxs, W.dpsi, W.wprior
+// (dJ/dx^ by the RBF part, dJ/dpsi, the prior's weight) from W.gmean, W.gvar
+void gp_backward_tile(const Model &M, const Lay &L, int b, const float *rec, Work &W,
+                      Prefetch &pf, StageClock &clock) {
+    const int m = M.m, N = M.N, d = M.d, F = M.f;
+    const float *gmean = W.gmean.data(), *gvar = W.gvar.data(), *xs = rec + L.xs;
     float *dxs = W.dxs.data(), *dpsi = W.dpsi.data(), *wprior = W.wprior.data();
     float *dR = W.dR.data(), *dx = W.dx.data();
-    std::memset(dxs, 0, sizeof(float) * d * TILE);
-    std::memset(dpsi, 0, sizeof(float) * W.dpsi.size());
-    std::memset(wprior, 0, sizeof(float) * d * TILE);
-    for (int b = 0; b < m; ++b) {
+    {
         const float *r = rec + L.r + (int64_t)b * N * TILE;
         const float *V = rec + L.V + (int64_t)b * L.vrows * TILE;
         v8 gms[2], m2gv[2];  // g_m and -2 g_v (standardised), particles 0-7 and 8-15
@@ -753,6 +884,7 @@ void step_backward_tile(const Model &M, const Lay &L, const Pol &P, const float 
                 }
             }
         });
+        clock.lap(STAGE_BWD_TRI);
         // [(X/l^2)^T dE; 1^T dE] = W_t dE
         gemm_tile_store(M.w_t[b], dE, NO_SPLIT, dE, dx);
         for (int h = 0; h < TILE; h += 8) {
@@ -764,6 +896,17 @@ void step_backward_tile(const Model &M, const Lay &L, const Pol &P, const float 
             }
         }
     }
+    clock.lap(STAGE_BWD_RBF);
+}
+
+// one tile's backward through the GP inputs and the policy: g (n x 16) out, dJ/dx_t, from
+// W.gstate and the GP input gradients; the policy-parameter sums to PG
+void inputs_backward_tile(const Model &M, const Lay &L, const Pol &P, const float *rec, Work &W,
+                          float *g, PolGrad &PG) {
+    const int d = M.d, F = M.f, np = M.n_plain, fp = M.fp, nb = M.nb;
+    const float *xs = rec + L.xs, *dpsi = W.dpsi.data(), *wprior = W.wprior.data();
+    const float *gstate = W.gstate.data();
+    float *dxs = W.dxs.data();
     if (M.p == 2) {
         for (int fi = 0; fi < F; ++fi) {
             int ia = M.idx_a[fi], ic = M.idx_c[fi];
@@ -837,37 +980,105 @@ void step_backward_tile(const Model &M, const Lay &L, const Pol &P, const float 
 
 int64_t record_floats(const Model &M) { return Lay(M).size; }
 
+int64_t l2_cache_bytes() {
+#if defined(_SC_LEVEL2_CACHE_SIZE)
+    const long sc = sysconf(_SC_LEVEL2_CACHE_SIZE);
+    if (sc > 0) return sc;
+#endif
+    for (int index = 0; index < 8; ++index) {  // Linux: the cache levels of CPU 0
+        const std::string dir = "/sys/devices/system/cpu/cpu0/cache/index" + std::to_string(index);
+        std::ifstream level(dir + "/level"), type(dir + "/type"), size(dir + "/size");
+        int lv = 0;
+        std::string ty, sz;
+        if (!(level >> lv) || !(type >> ty) || !(size >> sz)) continue;
+        if (lv != 2 || ty == "Instruction") continue;
+        const int64_t value = std::atoll(sz.c_str());
+        const char unit = sz.empty() ? ' ' : sz.back();
+        return unit == 'K' ? value << 10 : unit == 'M' ? value << 20 : value;
+    }
+    return 0;
+}
+
+int default_group(const Model &M, int64_t l2_bytes) {
+    if (l2_bytes <= 0) l2_bytes = FALLBACK_L2_BYTES;
+    const int64_t F = M.p > 0 ? M.f : 0, N = M.N;
+    auto floats = [](const Packed &P) { return P.off[P.blocks - 1] + (int64_t)RB * (P.end[P.blocks - 1] - P.beg[P.blocks - 1]); };
+    int64_t consts = 0;  // the larger of one output's forward and backward constant matrices
+    for (int b = 0; b < M.m; ++b) {
+        const int64_t f = floats(M.w_aug[b]) + floats(M.fwd[b]);
+        const int64_t g = floats(M.bwd[b]) + floats(M.w_t[b]);
+        consts = std::max(consts, std::max(f, g));
+    }
+    // one tile's data of one output: r, [V; mean], dR = [dpsi; dE], psi and x_aug
+    const int64_t tile = (int64_t)TILE * (N + pad_rows(N + 1) + pad_rows(F + N) + F + M.d + 2);
+    const int64_t room = l2_bytes / 2 / (int64_t)sizeof(float) - consts;
+    const int64_t group = room > 0 ? room / tile : 1;
+    return (int)std::max<int64_t>(1, std::min<int64_t>(MAX_GROUP, group));
+}
+
+void stage_seconds(double *out, bool reset) {
+    for (int i = 0; i < NUM_STAGES; ++i)
+        out[i] = 1e-9 * (double)(reset ? STAGE_NS[i].exchange(0) : STAGE_NS[i].load());
+}
+
 void forward(const Model &M, int horizon, int K, int per, const float *x0, const float *eps,
              const float *nu, const uint8_t *const *bytes, float keep_t, float keep_scale,
              const float *centers, const float *log_l, const float *w, float *costs, float *rec) {
+    const FlushDenormals ftz;
     const int n = M.n, m = M.m, nb = M.nb, rows = K * per, tiles_per = (per + TILE - 1) / TILE;
+    const int G = M.group < tiles_per ? M.group : tiles_per;
     const Lay L(M);
-    Work W(M);
+    std::vector<Work> W(G, Work(M));
     Pol P(M);
-    std::vector<float> x(n * TILE), e(m * TILE), v(n * TILE);
+    std::vector<float> x((int64_t)G * n * TILE), e(m * TILE), v(n * TILE);
+    std::vector<float *> rc(G);
     float cost[TILE];
+    StageClock clock;
     for (int k = 0; k < K; ++k) {
         P.load(M, centers + (int64_t)k * nb * M.fp, log_l + (int64_t)k * M.fp,
                w + (int64_t)k * nb * M.A);
-        for (int tile = 0; tile < tiles_per; ++tile) {
-            const int first = k * per + tile * TILE;
-            const int valid = per - tile * TILE < TILE ? per - tile * TILE : TILE;
+        // a group of G tiles runs each time step together, output by output, so that one
+        // output's constant matrices serve G tiles while they are in the core's caches
+        for (int tile0 = 0; tile0 < tiles_per; tile0 += G) {
+            const int g_n = tiles_per - tile0 < G ? tiles_per - tile0 : G;
             std::fill(x.begin(), x.end(), 0.0f);
-            for (int q = 0; q < valid; ++q)
-                for (int j = 0; j < n; ++j) x[j * TILE + q] = x0[(int64_t)(first + q) * n + j];
+            for (int g = 0; g < g_n; ++g) {
+                const int first = k * per + (tile0 + g) * TILE;
+                const int valid = per - (tile0 + g) * TILE < TILE ? per - (tile0 + g) * TILE : TILE;
+                float *xg = x.data() + (int64_t)g * n * TILE;
+                for (int q = 0; q < valid; ++q)
+                    for (int j = 0; j < n; ++j) xg[j * TILE + q] = x0[(int64_t)(first + q) * n + j];
+            }
             for (int t = 0; t < horizon; ++t) {
-                std::fill(v.begin(), v.end(), 0.0f);
-                std::fill(e.begin(), e.end(), 0.0f);
-                for (int q = 0; q < valid; ++q) {
-                    const int64_t r = (int64_t)t * rows + first + q;
-                    for (int j = 0; j < n; ++j) v[j * TILE + q] = nu[r * n + j];
-                    for (int j = 0; j < m; ++j) e[j * TILE + q] = eps[r * m + j];
+                for (int g = 0; g < g_n; ++g) {
+                    const int tile = tile0 + g, first = k * per + tile * TILE;
+                    const int valid = per - tile * TILE < TILE ? per - tile * TILE : TILE;
+                    std::fill(v.begin(), v.end(), 0.0f);
+                    for (int q = 0; q < valid; ++q) {
+                        const int64_t r = (int64_t)t * rows + first + q;
+                        for (int j = 0; j < n; ++j) v[j * TILE + q] = nu[r * n + j];
+                    }
+                    rc[g] = rec + ((int64_t)t * K * tiles_per + (int64_t)k * tiles_per + tile) * L.size;
+                    inputs_forward_tile(M, L, P, x.data() + (int64_t)g * n * TILE, v.data(),
+                                        bytes[t] + (int64_t)first * nb, valid, keep_t,
+                                        keep_scale, rc[g], W[g]);
                 }
-                float *rc = rec + ((int64_t)t * K * tiles_per + (int64_t)k * tiles_per + tile) * L.size;
-                step_forward_tile(M, L, P, x.data(), e.data(), v.data(),
-                                  bytes[t] + (int64_t)first * nb, valid, keep_t, keep_scale, rc,
-                                  W, cost);
-                for (int q = 0; q < valid; ++q) costs[(int64_t)t * rows + first + q] = cost[q];
+                clock.lap(STAGE_FWD_INPUTS);
+                for (int b = 0; b < m; ++b)
+                    for (int g = 0; g < g_n; ++g) gp_forward_tile(M, L, b, rc[g], W[g], clock);
+                for (int g = 0; g < g_n; ++g) {
+                    const int tile = tile0 + g, first = k * per + tile * TILE;
+                    const int valid = per - tile * TILE < TILE ? per - tile * TILE : TILE;
+                    std::fill(e.begin(), e.end(), 0.0f);
+                    for (int q = 0; q < valid; ++q) {
+                        const int64_t r = (int64_t)t * rows + first + q;
+                        for (int j = 0; j < m; ++j) e[j * TILE + q] = eps[r * m + j];
+                    }
+                    sample_forward_tile(M, L, x.data() + (int64_t)g * n * TILE, e.data(), rc[g],
+                                        W[g], cost);
+                    for (int q = 0; q < valid; ++q) costs[(int64_t)t * rows + first + q] = cost[q];
+                }
+                clock.lap(STAGE_FWD_SAMPLE);
             }
         }
     }
@@ -876,29 +1087,47 @@ void forward(const Model &M, int horizon, int K, int per, const float *x0, const
 void backward(const Model &M, int horizon, int K, int per, const float *rec,
               const float *centers, const float *log_l, const float *w, const float *g_costs,
               float *g_centers, float *g_log_l, float *g_w) {
-    const int n = M.n, nb = M.nb, fp = M.fp, rows = K * per, tiles_per = (per + TILE - 1) / TILE;
+    const FlushDenormals ftz;
+    const int n = M.n, m = M.m, nb = M.nb, fp = M.fp, rows = K * per,
+              tiles_per = (per + TILE - 1) / TILE;
+    const int G = M.group < tiles_per ? M.group : tiles_per;
     const Lay L(M);
-    Work W(M);
+    std::vector<Work> W(G, Work(M));
     Pol P(M);
     PolGrad PG(M);
-    std::vector<float> g(n * TILE);
+    std::vector<float> g((int64_t)G * n * TILE);
+    std::vector<const float *> rc(G), prev(G);
     float gc[TILE];
     Prefetch pf;
+    StageClock clock;
+    const int64_t stride = (int64_t)K * tiles_per;
     for (int k = 0; k < K; ++k) {
         P.load(M, centers + (int64_t)k * nb * fp, log_l + (int64_t)k * fp,
                w + (int64_t)k * nb * M.A);
         PG.zero();
-        for (int tile = 0; tile < tiles_per; ++tile) {
-            const int first = k * per + tile * TILE;
-            const int valid = per - tile * TILE < TILE ? per - tile * TILE : TILE;
+        for (int tile0 = 0; tile0 < tiles_per; tile0 += G) {
+            const int g_n = tiles_per - tile0 < G ? tiles_per - tile0 : G;
             std::fill(g.begin(), g.end(), 0.0f);
+            rc.resize(g_n);
+            prev.resize(g_n);
             for (int t = horizon - 1; t >= 0; --t) {
-                for (int q = 0; q < TILE; ++q)
-                    gc[q] = q < valid ? g_costs[(int64_t)t * rows + first + q] : 0.0f;
-                const int64_t at = (int64_t)k * tiles_per + tile, stride = (int64_t)K * tiles_per;
-                const float *rc = rec + (t * stride + at) * L.size;
-                pf.start(t > 0 ? rec + ((t - 1) * stride + at) * L.size : nullptr, L.size);
-                step_backward_tile(M, L, P, rc, W, g.data(), gc, PG, pf);
+                for (int q = 0; q < g_n; ++q) {
+                    const int tile = tile0 + q, first = k * per + tile * TILE;
+                    const int valid = per - tile * TILE < TILE ? per - tile * TILE : TILE;
+                    for (int j = 0; j < TILE; ++j)
+                        gc[j] = j < valid ? g_costs[(int64_t)t * rows + first + j] : 0.0f;
+                    const int64_t at = (int64_t)k * tiles_per + tile;
+                    rc[q] = rec + (t * stride + at) * L.size;
+                    prev[q] = t > 0 ? rec + ((t - 1) * stride + at) * L.size : nullptr;
+                    sample_backward_tile(M, L, rc[q], W[q], g.data() + (int64_t)q * n * TILE, gc);
+                }
+                pf.start(prev, L.size);
+                clock.lap(STAGE_BWD_SAMPLE);
+                for (int b = 0; b < m; ++b)
+                    for (int q = 0; q < g_n; ++q) gp_backward_tile(M, L, b, rc[q], W[q], pf, clock);
+                for (int q = 0; q < g_n; ++q)
+                    inputs_backward_tile(M, L, P, rc[q], W[q], g.data() + (int64_t)q * n * TILE, PG);
+                clock.lap(STAGE_BWD_INPUTS);
             }
         }
         // g_b = G^T a - b o colsum(G); g_c = g_b / l; g_log_l = -(sum g_a o a + sum g_b o b)

@@ -11,6 +11,22 @@ namespace mcp {
 constexpr int TILE = 16;  // particles per tile (two 8-float vectors)
 constexpr int RB = 6;     // rows per block of a packed constant matrix (6 x 16 accumulators)
 
+constexpr int MAX_GROUP = 8;  // most tiles per group (default_group)
+constexpr int64_t FALLBACK_L2_BYTES = 256 << 10;  // L2 size assumed where none can be read
+
+// the stages of the loops, each with its own clock (stage_seconds)
+enum Stage {
+    STAGE_FWD_INPUTS,  // forward: policy, GP inputs, MPK features psi
+    STAGE_FWD_RBF,     // forward: E = W_aug x_aug and r = exp(E), per output
+    STAGE_FWD_TRI,     // forward: [V; mean] = [B; alpha_aug] [psi; r] and the variance, per output
+    STAGE_FWD_SAMPLE,  // forward: sample, clip, integrate, cost
+    STAGE_BWD_SAMPLE,  // backward: cost, integration, sample
+    STAGE_BWD_TRI,     // backward: dR = B^T V (-2 g_v) + alpha_aug g_m, per output
+    STAGE_BWD_RBF,     // backward: W_t dE and dJ/dx^, per output
+    STAGE_BWD_INPUTS,  // backward: MPK features, GP inputs, policy
+    NUM_STAGES
+};
+
 // one packed constant matrix: block b holds rows RB b .. RB b + RB - 1, columns beg[b] ..
 // end[b] - 1, column by column with its RB rows' entries together, from a + off[b]
 struct Packed {
@@ -52,6 +68,7 @@ struct Model {
     const float *bound;             // (m) clip bound of Delta, or null
     const float *alpha_aug;         // (m, F + N): [alpha^T Phi, alpha^T] per output
     const Packed *w_aug, *fwd, *bwd, *w_t;  // (m) each
+    int group;  // tiles that run each time step together (cache blocking, >= 1)
 };
 
 // floats of one tile's record of one time step (what its backward reads)
@@ -64,6 +81,17 @@ int64_t record_floats(const Model &M);
 void forward(const Model &M, int horizon, int K, int per, const float *x0, const float *eps,
              const float *nu, const uint8_t *const *bytes, float keep_t, float keep_scale,
              const float *centers, const float *log_l, const float *w, float *costs, float *rec);
+
+// the per-core L2 cache of this CPU in bytes (sysconf, else Linux's /sys), 0 if unknown
+int64_t l2_cache_bytes();
+
+// tiles per group for model M on a core with an L2 cache of l2_bytes (<= 0: FALLBACK_L2_BYTES):
+// as many tiles as fit, with one output's constant matrices, in half of it, at most MAX_GROUP
+int default_group(const Model &M, int64_t l2_bytes);
+
+// seconds spent in each Stage since the last reset, summed over threads, into out
+// (NUM_STAGES); reset: start the clocks again from zero
+void stage_seconds(double *out, bool reset);
 
 // Backward rollout of that shard from g_costs (H, K per): adds dJ/dtheta to g_centers,
 // g_log_l, g_w (shapes of the parameters).

@@ -148,6 +148,15 @@ class NativeModel {
         M.fwd = packs_[1].data();
         M.bwd = packs_[2].data();
         M.w_t = packs_[3].data();
+        M.group = mcp::default_group(M, mcp::l2_cache_bytes());
+    }
+
+    int group() const { return model_.group; }
+
+    // tiles per group (cache blocking); the default is default_group's for this CPU
+    void set_group(int64_t group) {
+        TORCH_CHECK(group >= 1, "group must be >= 1, got ", group);
+        model_.group = (int)group;
     }
 
     int64_t record_floats() const { return mcp::record_floats(model_); }
@@ -217,10 +226,22 @@ PYBIND11_MODULE(TORCH_EXTENSION_NAME, m) {
     m.doc() = "MC-PILCO particle rollout, forward and backward through time, for one shard";
     m.def("tile", [] { return mcp::TILE; }, "particles per tile");
     m.def("row_block", [] { return mcp::RB; }, "rows per block of a packed matrix");
+    m.def("l2_cache_bytes", &mcp::l2_cache_bytes, "this CPU's per-core L2 cache in bytes (0: unknown)");
+    m.def(
+        "stage_seconds",
+        [](bool reset) {
+            std::vector<double> out(mcp::NUM_STAGES);
+            mcp::stage_seconds(out.data(), reset);
+            return out;
+        },
+        pybind11::arg("reset") = false,
+        "seconds spent in each stage of the loops (summed over threads) since the last reset");
     pybind11::class_<NativeModel>(m, "NativeModel")
         .def(pybind11::init<std::vector<int64_t>, std::vector<Tensor>, std::vector<Tensor>,
                             double, std::vector<std::vector<Tensor>>>())
         .def("record_floats", &NativeModel::record_floats)
+        .def("group", &NativeModel::group)
+        .def("set_group", &NativeModel::set_group)
         .def("forward", &NativeModel::forward)
         .def("backward", &NativeModel::backward);
 }

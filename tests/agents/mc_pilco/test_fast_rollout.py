@@ -681,3 +681,50 @@ def test_build_lock_removes_a_killed_builds_lock_and_excludes_other_processes(tm
     fd = os.open(lock, os.O_RDWR)  # released: this process can take it at once
     fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
     os.close(fd)
+
+
+def test_native_rollout_of_a_wide_arm_spec_in_groups_of_tiles():
+    """The UR10 tracking spec (24 states, more policy features than the unrolled kernels
+    take, 12 GP outputs, degree-1 MPK, known oscillators) against the eager rollout; its 40
+    particles (three tiles) run in groups of 1, 2 (a full and a partial group) and 3 tiles
+    give the same floats: each tile's arithmetic does not depend on the group. 45 basis
+    functions: a block of 32, one of 8 and 5 single ones in the policy's loops."""
+    from mcpilco.agents.mc_pilco.fast import native as native_rollout
+
+    task = TaskSpec.for_env("mcpilco/UR10-v0")
+    layout = StateLayout.from_task(task)
+    model = GPDynamicsModel(task, kernel="rbf+mpk", mpk_degree=1, adam_iters=5, lbfgs_iters=0)
+    gen = torch.Generator().manual_seed(5)
+    mu = torch.tensor(task.init_mean, dtype=f64)
+    s = mu + 0.05 * torch.randn(40, task.state_dim, generator=gen, dtype=f64)
+    a = torch.rand(40, task.action_dim, generator=gen, dtype=f64) * 2 - 1
+    model.fit(s, a, s + 0.01 * torch.randn(40, task.state_dim, generator=gen, dtype=f64))
+    pol = SquashedRBFPolicy(layout, task.action_low, task.action_high, num_basis=45, seed=0)
+    pol.train()
+    dyn = model.particle_dynamics()
+    cost = SaturatingCost.from_task(task)
+    loss = MCPilcoLoss(make_policy_module(pol), dyn, cost, 12, 40, task.init_mean)
+    assert layout.feature_dim > 16 and dyn.delta_model.p == 1 and layout.oscillators
+    torch.manual_seed(7)
+    J_e = loss()["loss_cost"]
+    g_e = torch.autograd.grad(J_e, list(pol.parameters()))
+    used = _use(loss, backend="native", shards=1)
+    assert used.backend == "native"
+    engine = loss.fast_rollout[0]
+    out = []
+    for group in (1, 2, 3):
+        engine.model.set_group(group)
+        native_rollout.stage_seconds(reset=True)
+        torch.manual_seed(7)
+        J = loss()["loss_cost"]
+        out.append((J, torch.autograd.grad(J, list(pol.parameters()))))
+        assert all(sec > 0 for sec in native_rollout.stage_seconds().values())
+    for J, g in out:
+        torch.testing.assert_close(J, out[0][0], rtol=0, atol=0)
+        for a_, b_ in zip(g, out[0][1], strict=True):
+            torch.testing.assert_close(a_, b_, rtol=0, atol=0)
+    torch.testing.assert_close(out[0][0], J_e, rtol=1e-4, atol=0)
+    for a_, b_ in zip(out[0][1], g_e, strict=True):
+        torch.testing.assert_close(a_, b_, rtol=0, atol=1e-3 * b_.abs().max().item())
+    with pytest.raises(RuntimeError, match="group must be >= 1"):
+        engine.model.set_group(0)
