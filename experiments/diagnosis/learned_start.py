@@ -24,9 +24,9 @@ Variants (each isolates one suspected cause of the learned start's excess error)
 ``nystrom``        every row: exact hyperparameters on ``hyper_all`` random rows, Nystroem
                    features on ``inducing`` rows, Bayesian linear regression over all rows
                    (:class:`~mcpilco.models.inverse_dynamics.NystromGIPEstimator`)
-``rigid``          every row: Bayesian linear regression over the GIP's rigid-body terms of
-                   the serial chain (:class:`~mcpilco.models.inverse_dynamics.
-                   RigidSpanEstimator`; the default start where its size allows)
+``rigid``          every row: Bayesian linear regression over the rigid-body terms of the
+                   chain's Lagrangian (:class:`~mcpilco.models.inverse_dynamics.
+                   LagrangianEstimator`; the default start where its size allows)
 =================  ===========================================================================
 
 Also recorded: the diagnosis's own noise floor of the nominal model
@@ -154,8 +154,8 @@ def run_case(
     from mcpilco.models.diagnosis import DiagnosisModel, NominalStart, heldout_floor
     from mcpilco.models.inverse_dynamics import (
         GIPEstimator,
+        LagrangianEstimator,
         NystromGIPEstimator,
-        RigidSpanEstimator,
     )
 
     bad = [v for v in variants if v not in VARIANTS]
@@ -204,7 +204,7 @@ def run_case(
             est = NystromGIPEstimator(jt, inducing=inducing, hyper_points=hyper_all, **opt)
             fit_rows = np.arange(Xv.shape[0])
         elif v == "rigid":
-            est = RigidSpanEstimator(jt)
+            est = LagrangianEstimator(jt)
             fit_rows = np.arange(Xv.shape[0])
         else:
             npts = big_points if v == "gip_rows" else points
@@ -253,7 +253,13 @@ def loop_case(seed: int, n_joints: int, kind: str | None, rows: int) -> dict[str
     return rec
 
 
-CASES = {"3R": (3, "RRR"), "RRPR": (4, "RRPR"), "7R": (7, "RRRRRRR")}
+CASES = {
+    "3R": (3, "RRR"),
+    "RRPR": (4, "RRPR"),
+    "5R": (5, "RRRRR"),
+    "6R": (6, "RRRRRR"),
+    "7R": (7, "RRRRRRR"),
+}
 """Arms of the benchmark (joint count, joint types)."""
 
 

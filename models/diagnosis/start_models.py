@@ -96,8 +96,7 @@ ALL_ROWS_HYPER_POINTS = 600
 """Rows of the exact hyperparameter fit of a GIP start fitted on every row
 (:class:`GIPStart` with ``inducing``)."""
 RIGID_BODY_EFFECTS = ("armature", "inertia", "payload")
-"""Effect keys whose torques are rigid-body torques of the chain (spanned by
-``GIPStart(span="rigid")``)."""
+"""Effect keys whose torques ``GIPStart(span="rigid")`` spans (rigid-body torques)."""
 HYPER_POINTS = 200
 """Training rows on which a learned start fits its kernel's hyperparameters (of the 600 it
 is conditioned on by default; :class:`LearnedStart`)."""

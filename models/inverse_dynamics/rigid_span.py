@@ -67,9 +67,12 @@ MAX_RIGID_FEATURES = 3000
 MIN_RELATIVE_NOISE = 1e-10
 """Smallest noise variance of a joint in the row weights, relative to its mean square torque
 (noise-free torques would otherwise weigh one joint's rows without bound)."""
-NOISE_PASSES = 3
-"""Passes of :class:`LagrangianEstimator`'s fit, each weighting a joint's rows by the
-inverse of its noise variance from the previous pass."""
+MAX_PASSES = 60
+"""Most passes of :class:`LagrangianEstimator`'s fit, each weighting a joint's rows by the
+inverse of its noise variance (and scaling them by its output scale) from the previous
+pass."""
+PASS_TOLERANCE = 1e-6
+"""The passes stop when no output scale or noise variance moves by more than this fraction."""
 
 
 def _inertia_degree(i: int, j: int, n: int) -> list[int]:
@@ -165,7 +168,7 @@ class LagrangianEstimator(InverseDynamicsEstimator):
     parameters of the chain's Lagrangian (module docstring), on every row.
 
     The rows of joint ``a`` are weighted by ``1 / sigma_a`` (its noise from the previous
-    pass, :data:`NOISE_PASSES`), the columns scaled to unit root mean square, and the prior
+    pass, :data:`MAX_PASSES`), the columns scaled to unit root mean square, and the prior
     scale and noise fitted by type-II maximum likelihood
     (:class:`~mcpilco.models.gp.blr.BayesianLinearRegression`: float64 normal equations
     accumulated in chunks, ``O(n N P^2)``, the rows never all in memory as features).
@@ -175,9 +178,15 @@ class LagrangianEstimator(InverseDynamicsEstimator):
         chunk: rows per chunk (memory ``n x chunk x P``).
         noise_min: lower bound of the weighted noise variance.
         max_features: refuse a chain with more parameters (``ValueError``).
+        output_scales: fit ``y_a = s_a tau_a(theta)`` with a free scale ``s_a`` per joint
+            (``s_1 = 1``: the common scale is the parameters'): motor currents are torques
+            over per-joint torque constants, ``i_a = tau_a / k_a``, which one parameter vector
+            shared by every joint cannot follow otherwise. Off by default: on torque logs
+            a free scale takes up part of an effect on its joint (a damping on a 3-joint
+            arm was left at 1.6x the noise floor instead of 1.03x).
 
-    Fitted attributes: ``blr_``, ``weights_`` ``(P,)`` (natural units),
-    ``noise_variance_`` ``(n,)`` (units of ``y`` squared), ``n_features_`` (``P``).
+    Fitted attributes: ``blr_``, ``weights_`` ``(P,)`` (natural units), ``output_scale_``
+    ``(n,)``, ``noise_variance_`` ``(n,)`` (units of ``y`` squared), ``n_features_`` (``P``).
     ``predict`` returns the posterior mean and a zero latent variance.
 
     Raises:
@@ -193,9 +202,11 @@ class LagrangianEstimator(InverseDynamicsEstimator):
         chunk: int = 2000,
         noise_min: float = 1e-12,
         max_features: int = MAX_RIGID_FEATURES,
+        output_scales: bool = False,
     ) -> None:
         self.joint_types = check_joint_types(joint_types)
         super().__init__(len(self.joint_types))
+        self.output_scales = bool(output_scales)
         if chunk < 1:
             raise ValueError(f"chunk must be >= 1, got {chunk}")
         self.chunk, self.noise_min = int(chunk), float(noise_min)
@@ -240,20 +251,31 @@ class LagrangianEstimator(InverseDynamicsEstimator):
         return A, b, np.sum(y**2, axis=0)
 
     def _solve(self, b: FloatArray, yy: FloatArray) -> None:
-        """The weighted regression (noise passes, class docstring)."""
+        """The weighted regression with the output scales (class docstring): passes that
+        refit the parameters at the current scales and noise, then each scale (its least
+        squares value given the parameters) and each joint's noise."""
         A, d, N = self._A, self.scales_, self._rows
+        n = len(self.joint_types)
         var = np.maximum(yy / N, 1e-300)  # first pass: each output's own scale
-        for _ in range(NOISE_PASSES):
+        scale = np.ones(n)
+        for _ in range(MAX_PASSES):
+            before = np.concatenate([scale, var])
             blr = BayesianLinearRegression(self.n_features_, 1)
-            blr.A[0] = np.einsum("apq,a->pq", A, 1.0 / var) / (d[:, None] * d[None, :])
-            blr.b[0] = (b / var[:, None]).sum(0) / d
+            blr.A[0] = np.einsum("apq,a->pq", A, scale**2 / var) / (d[:, None] * d[None, :])
+            blr.b[0] = (b * (scale / var)[:, None]).sum(0) / d
             blr.yy[0] = float(np.sum(yy / var))
-            blr.n = N * len(self.joint_types)
+            blr.n = N * n
             blr.fit(noise_min=self.noise_min)
             w = blr.weights_[0] / d
-            resid = yy - 2 * np.einsum("ap,p->a", b, w) + np.einsum("p,apq,q->a", w, A, w)
+            bw, wAw = np.einsum("ap,p->a", b, w), np.einsum("p,apq,q->a", w, A, w)
+            if self.output_scales and n > 1:
+                scale[1:] = bw[1:] / np.maximum(wAw[1:], 1e-300)
+            resid = yy - 2 * scale * bw + scale**2 * wAw
             var = np.maximum(resid / N, MIN_RELATIVE_NOISE * np.maximum(yy / N, 1e-300))
+            if np.max(np.abs(np.concatenate([scale, var]) / before - 1.0)) < PASS_TOLERANCE:
+                break
         self.blr_, self.weights_, self.noise_variance_ = blr, w, var
+        self.output_scale_ = scale
 
     def _fit(self, states: JointStates, y: FloatArray) -> None:
         A, b, yy = self._statistics(states, y, normal=True)
@@ -279,7 +301,7 @@ class LagrangianEstimator(InverseDynamicsEstimator):
         if self.n_joints_ is None:
             raise RuntimeError(f"{type(self).__name__} is not fitted; call fit(X, y) first")
         states = as_joint_states(X, self.n_joints_)
-        return np.concatenate(
+        return self.output_scale_ * np.concatenate(
             [np.einsum("anp,p->na", C, self.weights_) for _, C in self._chunks(states)]
         )
 
