@@ -115,33 +115,40 @@ class CaseSet(NamedTuple):
 
     Attributes:
         arm: a table of :data:`mcpilco.envs.arms.ARMS`.
-        cases: ``(role, kinds)`` of each case, in order; a kind listed twice acts on two
-            different joints (links).
+        cases: ``(role, kinds, logs)`` of each case, in order; a kind listed twice acts on
+            two different joints (links); ``logs``: ``"torque"`` or ``"current"`` (motor
+            currents with unknown torque constants, :func:`run_case`).
         sizes: kind -> ``(low, high)``: its value is drawn uniformly in this range instead of
             from ``snr`` (or :data:`MASS_FACTOR_RANGE`, :data:`PAYLOAD_RANGE`).
     """
 
     arm: str
-    cases: tuple[tuple[str, tuple[str, ...]], ...]
+    cases: tuple[tuple[str, tuple[str, ...], str], ...]
     sizes: dict[str, tuple[float, float]]
 
 
+LOG_KINDS = ("torque", "current")
+"""What a case's files log: joint torques, or motor currents with unknown torque constants."""
+_PANDA_CASES: tuple[tuple[str, tuple[str, ...]], ...] = (
+    ("control", ()),
+    ("single", ("payload",)),
+    ("multi", ("armature", "armature", "armature")),
+    ("multi", ("frictionloss", "frictionloss")),
+    ("single", ("mass",)),
+    ("single", ("damping",)),
+    ("off_library", ("position_friction",)),
+)  # the Panda set's effects, on torque logs and then on current logs
 CASE_SETS: dict[str, CaseSet] = {
     "panda": CaseSet(
         arm="panda",
-        cases=(
-            ("control", ()),
-            ("single", ("payload",)),
-            ("multi", ("armature", "armature", "armature")),
-            ("multi", ("frictionloss", "frictionloss")),
-            ("single", ("mass",)),
-            ("single", ("damping",)),
-            ("off_library", ("position_friction",)),
-        ),
+        cases=tuple((role, kinds, logs) for logs in LOG_KINDS for role, kinds in _PANDA_CASES),
         sizes={"armature": (0.05, 0.3), "frictionloss": (2.0, 3.0)},
     ),
 }
 """Named case sets (``--case-set``)."""
+TORQUE_CONSTANT_RANGE = (-1.0, 0.5)
+"""Range of ``log10 |k_t|`` [N m/A or N/A] of a current case's joints (uniform; random sign:
+a motor mounted reversed)."""
 
 
 # ----------------------------------------------------------------------------- the plan
@@ -321,6 +328,7 @@ def run_case(
     inducing: int | None = None,
     arm: str = "random",
     sizes: dict[str, Sequence[float]] | None = None,
+    logs: str = "torque",
 ) -> dict[str, Any]:
     """Simulate one case (module docstring), run the loop on it and score it.
 
@@ -341,6 +349,12 @@ def run_case(
             (its table without friction the nominal robot file).
         sizes: kind -> ``(low, high)``, the range its value is drawn from
             (:func:`draw_effect`); other kinds as in the module docstring.
+        logs: ``"torque"``, or ``"current"``: the files hold motor currents ``i = tau / k_t``
+            instead (``k_t`` per joint, ``log10 |k_t|`` uniform in
+            :data:`TORQUE_CONSTANT_RANGE`, random sign; current noise ``tau_noise / |k_t|``,
+            the same noise in torque units), the constants unknown to the loop: estimated
+            against the nominal model (:func:`~mcpilco.models.diagnosis.currents_to_torque`),
+            a joint whose constant is not identifiable diagnosed in A.
 
     Returns:
         the record: the case (arm, noise, effects and their realised size), the loop's
@@ -351,11 +365,14 @@ def run_case(
     from mcpilco.envs.arm_builder import arm_to_xml
     from mcpilco.envs.arms import ARMS, random_arm
     from mcpilco.envs.robot_logs import SimulationDiverged, simulate_log
-    from mcpilco.models.diagnosis import DiagnosisModel, auto_improve
+    from mcpilco.models.diagnosis import DiagnosisModel, auto_improve, currents_to_torque
+    from mcpilco.models.diagnosis.effects import MODEL_ONLY_EFFECTS
 
     for k in kinds:
         if k not in EFFECT_KINDS:
             raise ValueError(f"unknown hidden-effect kind {k!r}; use one of {EFFECT_KINDS}")
+    if logs not in LOG_KINDS:
+        raise ValueError(f"logs must be one of {LOG_KINDS}, got {logs!r}")
     if not 1 <= min_joints <= max_joints:
         raise ValueError(f"need 1 <= min_joints <= max_joints, got {min_joints}, {max_joints}")
     if arm != "random" and arm not in ARMS:
@@ -381,6 +398,8 @@ def run_case(
             continue
     else:
         raise RuntimeError(f"seed {seed}: {MAX_DRAWS} draws of the arm all diverged")
+    k_true: np.ndarray | None = None
+    units: dict[str, Any] = {}
     for _ in range(MAX_DRAWS):
         effects: list[Any] = []
         for k in kinds:
@@ -389,23 +408,28 @@ def run_case(
                 e = draw_effect(k, robot, probe, rng, tau_noise, ranges.get(k))
             effects.append(e)
         try:
-            logs = [simulate_log(robot, effects, seed=s, **sim) for s in log_seeds]
+            if logs == "current":  # the same motion and effects, logged as motor currents
+                k_true = 10 ** rng.uniform(*TORQUE_CONSTANT_RANGE, n) * rng.choice([-1.0, 1.0], n)
+                units = {"torque_constants": k_true, "current_noise": tau_noise / np.abs(k_true)}
+            sims = [simulate_log(robot, effects, seed=s, **sim, **units) for s in log_seeds]
             break
         except SimulationDiverged:  # a draw the simulated arm cannot follow: draw again
             continue
     else:
         raise RuntimeError(f"seed {seed}: {MAX_DRAWS} draws of {list(kinds)} all diverged")
     size = np.sqrt(
-        np.mean(np.concatenate([effect_torque(robot, effects, log) for log in logs]) ** 2, axis=0)
+        np.mean(np.concatenate([effect_torque(robot, effects, log) for log in sims]) ** 2, axis=0)
     )
     names = [f"seed{seed}_train{k + 1}" for k in range(train_files)] + [f"seed{seed}_test"]
-    train = _trajectories(logs[:-1], names[:-1])
-    test = _trajectories(logs[-1:], names[-1:])
+    train = _trajectories(sims[:-1], names[:-1])
+    test = _trajectories(sims[-1:], names[-1:])
     t_sim = time.perf_counter() - t0
 
     xml = arm_to_xml(robot, friction=False)
+    start_model = make_start(start, xml, robot.joint_types, iters, inducing)
+    train, test, constants = currents_to_torque(train, test, start_model)
     model = DiagnosisModel(
-        make_start(start, xml, robot.joint_types, iters, inducing), max_points=max_points
+        start_model, [] if constants is None else constants.effects(), max_points=max_points
     )
     model.fit(train)
     versions, diags = auto_improve(model, test, max_steps=max_steps)
@@ -432,7 +456,7 @@ def run_case(
         truth.append(d)
     ranking = [[c.effect.key, c.effect.joint] for c in first.candidates[:RANKING_KEPT]]
     named = None if first.best is None else [first.best.effect.key, first.best.effect.joint]
-    added = [[e.key, e.joint] for e in final.effects]
+    added = [[e.key, e.joint] for e in final.effects if e.key not in MODEL_ONLY_EFFECTS]
     verdict = last.verdict()
     rec: dict[str, Any] = {
         "seed": seed,
@@ -445,6 +469,15 @@ def run_case(
         "rows": {"train": int(train.n_samples), "test": int(test.n_samples)},
         "start": start,
         "inducing": inducing,
+        "logs": logs,
+        "torque_constants": None if k_true is None else k_true.tolist(),
+        "torque_constants_estimated": None if constants is None else constants.value.tolist(),
+        "torque_constants_ci95": None if constants is None else constants.ci95.tolist(),
+        "torque_constants_in_current": (
+            None
+            if constants is None
+            else [int(j) + 1 for j in np.flatnonzero(constants.in_current)]
+        ),
         "effects": truth,
         "size_over_noise": (size / tau_noise).round(2).tolist(),
         "ranking": ranking,
@@ -517,10 +550,10 @@ def run_benchmark(
         raise ValueError(f"case_set must be one of {sorted(CASE_SETS)}, got {case_set!r}")
     named = CASE_SETS.get(case_set) if case_set is not None else None
     if named is None:
-        plan = case_plan(per_kind, controls, multi, off_library)
+        plan = [(r, k, "torque") for r, k in case_plan(per_kind, controls, multi, off_library)]
         arm, sizes = "random", None
     else:
-        plan = [(role, list(kinds)) for role, kinds in named.cases]
+        plan = [(role, list(kinds), logs) for role, kinds, logs in named.cases]
         arm, sizes = named.arm, dict(named.sizes)
     if cases is not None:
         plan = plan[:cases]
@@ -539,8 +572,12 @@ def run_benchmark(
         "sizes": sizes,
     }
     jobs = [
-        Job(f"seed{s}", run_case, {**common, "seed": s, "role": role, "kinds": list(kinds)})
-        for s, (role, kinds) in zip(seeds, plan, strict=True)
+        Job(
+            f"seed{s}",
+            run_case,
+            {**common, "seed": s, "role": role, "kinds": list(kinds), "logs": logs},
+        )
+        for s, (role, kinds, logs) in zip(seeds, plan, strict=True)
     ]
     sweep = runner.run(jobs, Path(runs_dir) / arm / start, desc="cases")
     print(sweep.summary())

@@ -145,6 +145,7 @@ __all__ = [
     "Candidate",
     "Diagnosis",
     "FloorCheck",
+    "Misfit",
     "Removal",
     "auto_improve",
     "backward_step",
@@ -158,6 +159,7 @@ __all__ = [
     "refine_shape",
     "score_candidates",
     "score_effect",
+    "shape_check",
     "stepwise",
 ]
 
@@ -730,6 +732,8 @@ class Diagnosis:
     learned_start: bool = False
     """Whether the model's start is a learned GP (its own error cannot be told apart from a
     missing effect, module docstring)."""
+    misfits: list[Misfit] = field(default_factory=list)
+    """Effects of the model whose level varies with position (:func:`shape_check`)."""
 
     @property
     def significant(self) -> list[Candidate]:
@@ -803,6 +807,13 @@ class Diagnosis:
                 f"improvement above {self.min_heldout_gain:g}% that explains more than "
                 f"{100 * self.min_explained:g}% of a joint's noise-floor variance"
             )
+            if self.misfits:
+                text = f"{self.model_name}: unexplained: " + "; ".join(
+                    m.text() for m in self.misfits
+                )
+                if check is not None and check.failing:
+                    text += f"; {check.failing_text()}"
+                return text + f"; {rule}"
             if check is not None and check.failing:
                 text = f"{self.model_name}: unexplained: {check.failing_text()}; {rule}"
                 if ref is not None:
@@ -965,6 +976,7 @@ class Diagnosis:
             "heldout": None if self.base is None else self.base.to_dict(),
             "heldout_with_lead": None if self.after is None else self.after.to_dict(),
             "learned_start": self.learned_start,
+            "misfits": [m.to_dict() for m in self.misfits],
             "candidates": [
                 {
                     "effect": c.effect.variant_label,
@@ -1170,6 +1182,82 @@ def backward_step(
     return found
 
 
+@dataclass(frozen=True)
+class Misfit:
+    """An effect of the model whose level varies with its joint's position
+    (:func:`shape_check`): the torque has its shape but not its form.
+
+    Attributes:
+        label, variant: the effect's label and variant label.
+        joint: its joint (1-based).
+        evidence: log-evidence the position-dependent level adds on the joint [nats].
+        heldout_delta_pct: held-out RMSE change it makes there [%].
+        explained: share of the joint's floor variance it explains on held-out data.
+    """
+
+    label: str
+    variant: str
+    joint: int
+    evidence: float
+    heldout_delta_pct: float
+    explained: float
+
+    def text(self) -> str:
+        return (
+            f"{self.variant} explains part of the torque on joint {self.joint}, but its level "
+            f"varies with q{self.joint} (a position-dependent level adds {self.evidence:+.1f} "
+            f"nats, changes the held-out RMSE by {self.heldout_delta_pct:+.1f}% and explains "
+            f"{100 * self.explained:.0f}% of the joint's floor variance): the torque there is "
+            "not of a form in the library"
+        )
+
+    def to_dict(self) -> dict[str, Any]:
+        return dataclasses.asdict(self)
+
+
+def shape_check(
+    model: DiagnosisModel,
+    heldout: Any,
+    *,
+    threshold: float = EVIDENCE_THRESHOLD,
+    min_heldout_gain: float = MIN_HELDOUT_GAIN,
+    min_explained: float = MIN_EXPLAINED,
+) -> list[Misfit]:
+    """Whether each joint effect of ``model`` has the form it is named for: its level made a
+    smooth function of its joint's position (:class:`~.effects.PositionLevel`, added beside
+    it, refitted) must fail one of the three tests of significance (module docstring: more
+    than ``threshold`` nats on the joint, a held-out RMSE lower by more than
+    ``min_heldout_gain`` percent, more than ``min_explained`` of the floor variance
+    explained). A library effect has a constant level; an effect outside the library that
+    the nearest library form was fitted to (friction that varies along the joint's travel)
+    passes them, and the named effect then only explains part of the torque: the verdict
+    says "unexplained" rather than force it into the library. Rigid-body effects, delays
+    and the loop's own blocks are not checked (their form is the robot's kinematics)."""
+    from mcpilco.models.diagnosis.effects import MODEL_ONLY_EFFECTS, PositionLevel
+
+    held = as_trajectories(heldout, model.n_joints).interior()
+    if not model.effects:
+        return []
+    base = heldout_rmse(model, held)
+    floor = heldout_floor(model, held)
+    out: list[Misfit] = []
+    for e in model.effects:
+        if e.shared or e.all_joints or e.is_shift or e.key in MODEL_ONLY_EFFECTS:
+            continue
+        try:
+            new = model.with_effect(PositionLevel(e.joint, of=e))
+        except ValueError:
+            continue
+        j = e.joint - 1
+        evidence = float(new.evidence_[j] - model.evidence_[j])
+        rmse = heldout_rmse(new, held)
+        pct = heldout_change_pct(base, rmse, model.noise_std_, np.array([j]))
+        explained = explained_share(base, rmse, floor, [j])
+        if evidence > threshold and pct < -min_heldout_gain and explained > min_explained:
+            out.append(Misfit(e.label, e.variant_label, e.joint, evidence, pct, explained))
+    return out
+
+
 def auto_improve(
     model: DiagnosisModel, heldout: Any, max_steps: int = 4, **kwargs: Any
 ) -> tuple[list[DiagnosisModel], list[Diagnosis | None]]:
@@ -1194,6 +1282,8 @@ def auto_improve(
         d = diagnose(versions[-1], held, alternatives=alternatives, **kwargs)
         diags.append(d)
         if d.lead is None or added >= max_steps:
+            if d.lead is None:
+                d.misfits = shape_check(versions[-1], held, **tests)
             break
         steps = stepwise(versions[-1], d, held, alternatives, **tests)
         added += 1
