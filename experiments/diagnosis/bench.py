@@ -378,7 +378,7 @@ def run_case(
     if arm != "random" and arm not in ARMS:
         raise ValueError(f"arm must be 'random' or one of {sorted(ARMS)}, got {arm!r}")
     ranges = {k: (float(v[0]), float(v[1])) for k, v in (sizes or {}).items()}
-    t0 = time.perf_counter()
+    t0, c0 = time.perf_counter(), time.process_time()
     rng = np.random.default_rng(seed)
     table = None if arm == "random" else ARMS[arm]().without_friction()
     for _ in range(MAX_DRAWS):
@@ -473,6 +473,7 @@ def run_case(
         "torque_constants": None if k_true is None else k_true.tolist(),
         "torque_constants_estimated": None if constants is None else constants.value.tolist(),
         "torque_constants_ci95": None if constants is None else constants.ci95.tolist(),
+        "torque_constants_joint": _joint_constants(constants, final),
         "torque_constants_in_current": (
             None
             if constants is None
@@ -495,7 +496,22 @@ def run_case(
         "simulate_seconds": t_sim,
     }
     rec["seconds"] = time.perf_counter() - t0
+    rec["cpu_seconds"] = time.process_time() - c0  # every thread of this process
     return rec
+
+
+def _joint_constants(constants: Any, model: Any) -> list[float] | None:
+    """``k_t`` per joint as the final ``model`` has it: the estimate ``k_hat`` corrected by
+    the free scale fitted jointly with the effects, ``k_hat / (1 + alpha)`` (``k_hat`` where
+    the model holds no scale; ``None`` without constants)."""
+    if constants is None:
+        return None
+    alpha = {
+        p["effect"]: p["value"] for p in model.parameters() if p["effect"].startswith("scale:")
+    }
+    return [
+        float(k / (1.0 + alpha.get(f"scale:{j + 1}", 0.0))) for j, k in enumerate(constants.value)
+    ]
 
 
 def score_record(rec: dict[str, Any]) -> dict[str, Any]:

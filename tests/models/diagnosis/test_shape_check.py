@@ -11,14 +11,21 @@ from __future__ import annotations
 
 import warnings
 
+import numpy as np
 import pytest
 
 from mcpilco.envs.arm_builder import arm_to_xml
 from mcpilco.envs.arms import random_arm
 from mcpilco.envs.robot_logs import HiddenEffect, simulate_log
 from mcpilco.models.diagnosis import DiagnosisModel, NominalStart, as_trajectories, floor_check
-from mcpilco.models.diagnosis.effects import CoulombFriction, PositionLevel
-from mcpilco.models.diagnosis.search import FLOOR_FACTOR, shape_check
+from mcpilco.models.diagnosis.effects import CoulombFriction, PositionLevel, StribeckFriction
+from mcpilco.models.diagnosis.search import (
+    FLOOR_FACTOR,
+    Candidate,
+    Diagnosis,
+    FloorCheck,
+    shape_check,
+)
 from mcpilco.models.robot_data import from_frame
 
 
@@ -57,3 +64,26 @@ def test_position_level_needs_the_effect_on_its_joint():
         PositionLevel(2)
     with pytest.raises(ValueError, match="level"):
         PositionLevel(2, of=CoulombFriction(joint=1))
+
+
+def _candidate(effect, delta, rmse, n_weights):
+    return Candidate(
+        effect, delta, delta, 1, [], [j + 1 for j in effect.outputs(3)],
+        heldout_rmse=np.array(rmse), heldout_delta_pct=-10.0, significant=True, group=1,
+        n_weights=n_weights,
+    )  # fmt: skip
+
+
+def test_the_simpler_of_two_indistinct_candidates_is_kept():
+    """Two missing candidates with correlated torques, evidences 1 nat apart and the same
+    held-out gain: the data cannot tell them apart, so the one with fewer parameters is the
+    missing effect and the verdict says so; with a held-out gain clearly larger (5 points)
+    the richer one stays."""
+    base = FloorCheck("v0", np.array([1.0, 2.0, 1.0]), np.array([1.0, 1.0, 1.0]), 500)
+    rich = _candidate(StribeckFriction(2, velocity=0.1, eps=0.01), 31.0, [1.0, 1.0, 1.0], 2)
+    simple = _candidate(CoulombFriction(2, eps=0.01), 30.0, [1.0, 1.01, 1.0], 1)
+    d = Diagnosis("v0", [rich, simple], 5.0, 1.0, 2.0, base=base, noise_std=np.ones(3))
+    assert d.best is simple
+    assert "the simpler one, with 2 parameters, is kept" in d.verdict()
+    simple.heldout_rmse = np.array([1.0, 1.2, 1.0])
+    assert d.best is rich
