@@ -50,7 +50,10 @@ set's ``sizes`` with its value uniform in the given range instead. ``panda``: th
 Panda of :func:`~mcpilco.envs.arms.panda` (MuJoCo Menagerie's frames and inertials), with a
 payload at the flange, rotor inertia of 0.05-0.3 kg m^2 on three joints (a half to three
 times the table's armature), dry friction of 2-3 N m on two joints, a heavier link, damping,
-position-dependent friction (off-library) and a control.
+position-dependent friction (off-library) and a control, first on torque logs, then the same
+seven on motor-current logs with unknown torque constants (``logs="current"``,
+:func:`run_case`: the constants estimated against the nominal model, jointly with a payload
+at the flange, and left free in the loop's first version).
 
 Seeds: :data:`DEVELOPMENT_SEEDS` may be looked at while developing the loop; results are
 reported on evaluation seeds from :data:`EVALUATION_FIRST_SEED`, on which no setting is chosen.
@@ -629,7 +632,13 @@ def run_benchmark(
     intro = (
         f"{arms_text} simulated in MuJoCo under PD + gravity "
         f"compensation; {train_files} training logs and 1 held-out log of {duration:g} s each, "
-        "t, q and tau only. Roles: control (no effect), single, multi (two effects), "
+        + (
+            "t, q and tau only"
+            if all(r.get("logs", "torque") == "torque" for r in records)
+            else "t, q and tau, or t, q and motor currents i with unknown torque constants "
+            "(logs: current)"
+        )
+        + ". Roles: control (no effect), single, multi (two effects), "
         'off_library (position-dependent friction: correct verdict "unexplained"). '
         f"Confusion of hidden effect against the effect named first: ![confusion]({png.name})."
         + (f" Failed cases: {', '.join(payload['failed'])}." if sweep.failed else "")
@@ -920,6 +929,21 @@ def _diagnosis_row(r: Result) -> str:
     )
 
 
+def _case_set_row(r: Result) -> str:
+    s = r["summary"]
+    ci = s["verdict_correct_rate"]["ci95"]
+    logs = "; ".join(
+        f"{k.split('_')[2]} logs {v['k']}/{v['n']}"
+        for k, v in s.items()
+        if k.startswith("verdict_correct_") and k.endswith("_logs")
+    )
+    return (
+        f"verdict right in {s['verdict_correct_counts']} cases (95 % CI {ci[0]:.2f}-{ci[1]:.2f}; "
+        f"{logs}); false alarms {s['false_alarm_counts']} controls; held-out error at the "
+        f"floor in {s['at_floor_after_counts']} cases with library effects"
+    )
+
+
 def _speed_row(r: Result) -> str:
     rows = r["case"].get("training_rows", "?")
     times = ", ".join(
@@ -934,6 +958,12 @@ HEADLINES = (
         "diagnosis_robot_logs.json",
         _diagnosis_row,
         "diagnosis_robot_logs.md",
+    ),
+    Headline(
+        "Diagnosis on the Franka Emika Panda (7 joints, torque and current logs), nominal start",
+        "diagnosis_panda.json",
+        _case_set_row,
+        "diagnosis_panda.md",
     ),
     Headline("Diagnosis speed", "diagnosis_speed.json", _speed_row, "diagnosis_speed.md"),
 )

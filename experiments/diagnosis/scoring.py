@@ -440,7 +440,8 @@ def markdown(
         ratio = f"{max(r['ratio_before']):.2f} → {max(r['ratio_after']):.2f}"
         verdict = s["verdict_category"] + ("" if s["verdict_correct"] else " ✗")
         lines.append(
-            f"| {r['seed']} | {r['arm']} | {r['role']} | {truth} | {ranks} | {named} | {added} "
+            f"| {r['seed']} | {r['arm']}{' (currents)' if r.get('logs') == 'current' else ''} "
+            f"| {r['role']} | {truth} | {ranks} | {named} | {added} "
             f"| {ratio} | {verdict} | {r['seconds']:.0f} |"
         )
     params = [(r["seed"], p) for r in records for p in r["score"]["parameters"]]

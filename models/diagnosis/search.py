@@ -97,8 +97,8 @@ Simpler of two that the data cannot tell apart
     parameters (block weights plus shape values, :attr:`Candidate.complexity`) is named, and
     the verdict says that the data cannot tell them apart and the simpler one is kept: one
     effect per physical cause, the simpler description where the data do not choose (an
-    armature before a link's inertia, a payload before the last link's, Coulomb before
-    Stribeck friction). This holds for every kind, not only inertias.
+    armature before a link's inertia). This holds for every pair of kinds, not only
+    inertias; two forms of one family are left to the alternatives' rule below.
 Shape of a named effect (off-library effects are unexplained)
     An effect outside the library (friction whose level varies along the joint's travel)
     is fitted by the nearest library form, which may leave the joint within
@@ -847,9 +847,16 @@ class Diagnosis:
         """Of ``best`` and the missing candidates the data cannot tell apart from it
         (:meth:`_indistinct`), the one with the fewest parameters (:attr:`Candidate.
         complexity`; ties: ``best``): one effect per physical cause, and where the data do
-        not choose, the simpler description (an armature before a link's inertia, a payload
-        before the last link's, Coulomb before Stribeck friction)."""
-        alike = [c for c in missing if c is not best and self._indistinct(best, c)]
+        not choose, the simpler description (an armature before a link's inertia, a damping
+        before a dead-zone). Two forms of one family (Coulomb and Stribeck friction, a
+        payload and the last link's inertia) are left to the alternatives' rule (module
+        docstring): the block with fewer weights is not the simpler body (a payload's point
+        mass has five, the last link's identifiable part may have four)."""
+        alike = [
+            c
+            for c in missing
+            if c is not best and not c.effect.same_family(best.effect) and self._indistinct(best, c)
+        ]
         simpler = [c for c in alike if c.complexity < best.complexity]
         return min(simpler, key=lambda c: (c.complexity, -c.delta)) if simpler else best
 

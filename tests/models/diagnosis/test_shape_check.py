@@ -18,7 +18,13 @@ from mcpilco.envs.arm_builder import arm_to_xml
 from mcpilco.envs.arms import random_arm
 from mcpilco.envs.robot_logs import HiddenEffect, simulate_log
 from mcpilco.models.diagnosis import DiagnosisModel, NominalStart, as_trajectories, floor_check
-from mcpilco.models.diagnosis.effects import CoulombFriction, PositionLevel, StribeckFriction
+from mcpilco.models.diagnosis.effects import (
+    Armature,
+    CoulombFriction,
+    LinkInertia,
+    PositionLevel,
+    StribeckFriction,
+)
 from mcpilco.models.diagnosis.search import (
     FLOOR_FACTOR,
     Candidate,
@@ -75,15 +81,20 @@ def _candidate(effect, delta, rmse, n_weights):
 
 
 def test_the_simpler_of_two_indistinct_candidates_is_kept():
-    """Two missing candidates with correlated torques, evidences 1 nat apart and the same
-    held-out gain: the data cannot tell them apart, so the one with fewer parameters is the
-    missing effect and the verdict says so; with a held-out gain clearly larger (5 points)
-    the richer one stays."""
+    """Two missing candidates with correlated torques (a link's inertia and an armature),
+    evidences 1 nat apart and the same held-out gain: the data cannot tell them apart, so
+    the one with fewer parameters is the missing effect and the verdict says so; with a
+    held-out gain clearly larger (20 points) the richer one stays. Two forms of one family
+    (Stribeck and Coulomb friction) are not judged by this rule."""
     base = FloorCheck("v0", np.array([1.0, 2.0, 1.0]), np.array([1.0, 1.0, 1.0]), 500)
-    rich = _candidate(StribeckFriction(2, velocity=0.1, eps=0.01), 31.0, [1.0, 1.0, 1.0], 2)
-    simple = _candidate(CoulombFriction(2, eps=0.01), 30.0, [1.0, 1.01, 1.0], 1)
+    rich = _candidate(LinkInertia(2), 31.0, [1.0, 1.0, 1.0], 4)
+    simple = _candidate(Armature(2), 30.0, [1.0, 1.01, 1.0], 1)
     d = Diagnosis("v0", [rich, simple], 5.0, 1.0, 2.0, base=base, noise_std=np.ones(3))
     assert d.best is simple
-    assert "the simpler one, with 2 parameters, is kept" in d.verdict()
+    assert "the simpler one, with 1 parameters, is kept" in d.verdict()
     simple.heldout_rmse = np.array([1.0, 1.2, 1.0])
     assert d.best is rich
+    same = _candidate(StribeckFriction(2, velocity=0.1, eps=0.01), 30.0, [1.0, 1.0, 1.0], 2)
+    coulomb = _candidate(CoulombFriction(2, eps=0.01), 31.0, [1.0, 1.0, 1.0], 1)
+    d = Diagnosis("v0", [same, coulomb], 5.0, 1.0, 2.0, base=base, noise_std=np.ones(3))
+    assert d.best is same  # two forms of one family: the alternatives' rule, not this one
