@@ -404,11 +404,12 @@ def _flange_payload(
     payload that loads a joint is taken into its ``k_j`` (on a wrist by a factor of 2). The
     payload is kept when it raises the joints' Gaussian log-likelihood by more than
     :data:`PAYLOAD_EVIDENCE` nats beyond the BIC penalty ``(p / 2) log N`` of its ``p``
-    weights, and when every ``k_j`` of the joint fit keeps a 95% interval within
-    :data:`MAX_RELATIVE_CI` of its value (where the last body carries most of every joint's
-    torque, a payload and a common scale of the constants trade off: the constants are then
-    fitted one joint at a time). The current's own noise, now in a regressor, biases ``k_j``
-    by its share of the current's variance (small against a loaded joint's)."""
+    weights, with a positive mass, and when every ``k_j`` of the joint fit keeps a 95%
+    interval within :data:`MAX_RELATIVE_CI` of its value (where the last body carries most of
+    every joint's torque, a payload and a common scale of the constants trade off: the
+    constants are then fitted one joint at a time). The current's own noise, now in a
+    regressor, biases ``k_j`` by its share of the current's variance (small against a loaded
+    joint's)."""
     n_rows, n, p = cols.shape
     zero = np.zeros((n_rows, n))
     sig: dict[int, float] = {}
@@ -451,6 +452,8 @@ def _flange_payload(
     if gain - 0.5 * p * math.log(n_rows * m) <= PAYLOAD_EVIDENCE:
         return zero
     if not np.all(rel < MAX_RELATIVE_CI):  # the payload takes the place of a common scale
+        return zero
+    if not theta[m] > 0:  # an unphysical mass: the fit took another direction for a payload
         return zero
     return np.einsum("tjp,p->tj", cols, theta[m : m + p])
 
