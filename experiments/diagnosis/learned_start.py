@@ -24,11 +24,22 @@ Variants (each isolates one suspected cause of the learned start's excess error)
 ``nystrom``        every row: exact hyperparameters on ``hyper_all`` random rows, Nystroem
                    features on ``inducing`` rows, Bayesian linear regression over all rows
                    (:class:`~mcpilco.models.inverse_dynamics.NystromGIPEstimator`)
+``rigid``          every row: Bayesian linear regression over the rigid-body terms of the
+                   chain's Lagrangian (:class:`~mcpilco.models.inverse_dynamics.
+                   LagrangianEstimator`; the default start where its size allows)
 =================  ===========================================================================
 
 Also recorded: the diagnosis's own noise floor of the nominal model
 (:func:`~mcpilco.models.diagnosis.heldout_floor`), CPU and wall seconds of each fit.
-Development seeds only (:data:`DEVELOPMENT_SEEDS`); :func:`main` writes JSON and Markdown.
+
+The loop on top of the learned start (``--loop``, :func:`loop_case`): the diagnosis
+benchmark's case (:func:`mcpilco.experiments.diagnosis.bench.run_case`: a random arm of the
+same joint count, effect-free or with one hidden effect of each ``--loop`` kind) with the
+default learned GIP start (:class:`~mcpilco.models.diagnosis.GIPStart`, no robot file's
+physics): what the loop names and the held-out RMSE over the floor after it.
+
+Settings are chosen on development seeds (:data:`DEVELOPMENT_SEEDS`); ``--report`` runs
+seeds from :data:`REPORT_SEEDS_FROM` on. :func:`main` writes JSON, Markdown and PNG.
 """
 
 from __future__ import annotations
@@ -53,11 +64,13 @@ from mcpilco.models.files import write_atomic
 
 DEVELOPMENT_SEEDS = range(0, 100)
 """Seeds on which the learned start's settings may be chosen."""
+REPORT_SEEDS_FROM = 1000
+"""First seed of a report run (``--report``), never used to choose a setting."""
 SAMPLE_TIMES = (0.002, 0.004)
 """Sample times a case draws from [s] (physics step 1 ms)."""
 EDGE_ROWS = 20
 """Rows dropped at each end of every file (the derivative filter's edge fit)."""
-VARIANTS = ("gip", "gip_true_x", "gip_span", "gip_hyper_all", "gip_rows", "nystrom")
+VARIANTS = ("gip", "gip_true_x", "gip_span", "gip_hyper_all", "gip_rows", "nystrom", "rigid")
 """Every variant :func:`run_case` knows (module docstring)."""
 
 
@@ -139,7 +152,11 @@ def run_case(
 ) -> dict[str, Any]:
     """One case (module docstring): per variant the held-out RMSE / floor per joint, seconds."""
     from mcpilco.models.diagnosis import DiagnosisModel, NominalStart, heldout_floor
-    from mcpilco.models.inverse_dynamics import GIPEstimator, NystromGIPEstimator
+    from mcpilco.models.inverse_dynamics import (
+        GIPEstimator,
+        LagrangianEstimator,
+        NystromGIPEstimator,
+    )
 
     bad = [v for v in variants if v not in VARIANTS]
     if bad:
@@ -186,6 +203,9 @@ def run_case(
         if v == "nystrom":
             est = NystromGIPEstimator(jt, inducing=inducing, hyper_points=hyper_all, **opt)
             fit_rows = np.arange(Xv.shape[0])
+        elif v == "rigid":
+            est = LagrangianEstimator(jt)
+            fit_rows = np.arange(Xv.shape[0])
         else:
             npts = big_points if v == "gip_rows" else points
             fit_rows = np.unique(
@@ -204,15 +224,52 @@ def run_case(
             "cpu_s": cpu,
             "wall_s": wall,
         }
+        print(f"  {jt} seed {seed} {v:14s} {np.round(rmse / ref, 2)} cpu {cpu:.0f}s", flush=True)
     return rec
 
 
-CASES = {"3R": (3, "RRR"), "RRPR": (4, "RRPR"), "7R": (7, "RRRRRRR")}
+def loop_case(seed: int, n_joints: int, kind: str | None, rows: int) -> dict[str, Any]:
+    """The diagnosis loop with the default learned GIP start on the diagnosis benchmark's
+    case of a random ``n_joints``-joint arm (module docstring): ``kind`` one hidden effect,
+    ``None`` a control. ``rows``: samples per file (at the benchmark's 2 ms)."""
+    from mcpilco.experiments.diagnosis.bench import run_case as bench_case
+    from mcpilco.experiments.diagnosis.bench import score_record
+
+    kinds = [] if kind is None else [kind]
+    c0 = time.process_time()
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        rec = bench_case(
+            seed,
+            "control" if kind is None else "single",
+            kinds,
+            duration=rows * 0.002,
+            min_joints=n_joints,
+            max_joints=n_joints,
+            start="gip",
+        )
+    rec["cpu_s"] = time.process_time() - c0
+    rec["score"] = score_record(rec)
+    return rec
+
+
+CASES = {
+    "3R": (3, "RRR"),
+    "RRPR": (4, "RRPR"),
+    "5R": (5, "RRRRR"),
+    "6R": (6, "RRRRRR"),
+    "7R": (7, "RRRRRRR"),
+}
 """Arms of the benchmark (joint count, joint types)."""
 
 
-def markdown(info: dict[str, Any], records: list[dict[str, Any]]) -> str:
-    """The comparison as a Markdown table (ratio per joint, max, CPU seconds)."""
+def markdown(
+    info: dict[str, Any],
+    records: list[dict[str, Any]],
+    loops: Sequence[dict[str, Any]] = (),
+) -> str:
+    """The comparison as a Markdown table (ratio per joint, max, CPU seconds), and the loop
+    cases (:func:`loop_case`) when given."""
     lines = [
         "# Learned GIP start: held-out RMSE over the noise floor",
         "",
@@ -237,7 +294,62 @@ def markdown(info: dict[str, Any], records: list[dict[str, Any]]) -> str:
                 f"{r['encoder_counts_per_rev']} | {r['train_rows']} | {v} | {d['rows']} | "
                 f"{ratios} | {max(d['ratio']):.2f} | {d['cpu_s']:.0f} | {d['wall_s']:.0f} |"
             )
+    if loops:
+        lines += [
+            "",
+            "## The loop on top of the default learned GIP start",
+            "",
+            "The diagnosis benchmark's cases (random arm, one hidden effect or none) with the "
+            "default learned GIP start; named = the first effect the loop names (none: "
+            "nothing); ratio = held-out RMSE / floor per joint after the loop.",
+            "",
+            "| seed | arm | hidden effect | named | added | ratio after per joint | right | "
+            "CPU s |",
+            "|---|---|---|---|---|---|---|---|",
+        ]
+        for r in loops:
+            hidden = ", ".join(f"{e['kind']}:{e['joint']}" for e in r["effects"]) or "none"
+            named = "none" if r["named"] is None else f"{r['named'][0]}:{r['named'][1]}"
+            added = ", ".join(f"{k}:{j}" for k, j in r["added"]) or "none"
+            ratios = " ".join(f"{x:.2f}" for x in r["ratio_after"])
+            right = r["score"].get("verdict_correct")
+            lines.append(
+                f"| {r['seed']} | {r['arm']} | {hidden} | {named} | {added} | {ratios} | "
+                f"{'yes' if right else 'no'} | {r['cpu_s']:.0f} |"
+            )
     return "\n".join(lines) + "\n"
+
+
+def plot(records: list[dict[str, Any]], path: Path) -> Path:
+    """Worst joint's held-out RMSE / floor (log scale) and CPU seconds of each variant,
+    case by case."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, (ax, bx) = plt.subplots(1, 2, figsize=(10, 3.6))
+    labels = [f"{r['arm']} s{r['seed']}" for r in records]
+    names = sorted({v for r in records for v in r["variants"]})
+    width = 0.8 / max(len(names), 1)
+    for k, v in enumerate(names):
+        xs = [i + k * width for i, r in enumerate(records) if v in r["variants"]]
+        worst = [max(r["variants"][v]["ratio"]) for r in records if v in r["variants"]]
+        cpu = [r["variants"][v]["cpu_s"] for r in records if v in r["variants"]]
+        ax.bar(xs, worst, width, label=v)
+        bx.bar(xs, cpu, width, label=v)
+    for a in (ax, bx):
+        a.set_xticks([i + 0.4 - width / 2 for i in range(len(records))], labels, fontsize=8)
+    ax.axhline(1.2, color="k", lw=0.8, ls="--")
+    ax.set_yscale("log")
+    ax.set_ylabel("worst joint: held-out RMSE / floor")
+    bx.set_ylabel("CPU seconds of the fit")
+    ax.legend(fontsize=7)
+    fig.tight_layout()
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path
 
 
 def main(argv: Sequence[str] | None = None) -> int:
@@ -251,12 +363,28 @@ def main(argv: Sequence[str] | None = None) -> int:
     p.add_argument("--variants", nargs="+", default=list(VARIANTS), choices=list(VARIANTS))
     p.add_argument("--inducing", type=int, default=1500)
     p.add_argument("--hyper-all", type=int, default=600)
+    p.add_argument(
+        "--loop",
+        nargs="*",
+        default=None,
+        metavar="KIND",
+        help="also run the loop with the default learned start: a control and one case per "
+        "hidden-effect kind (e.g. damping frictionloss)",
+    )
+    p.add_argument("--loop-rows", type=int, default=5000, help="samples per file of a loop case")
+    p.add_argument("--report", action="store_true", help=f"seeds >= {REPORT_SEEDS_FROM}")
     p.add_argument("--out", default="results/diagnosis_learned_start")
     a = p.parse_args(argv)
-    bad = [s for s in a.seeds if s not in DEVELOPMENT_SEEDS]
-    if bad:
-        print(f"seeds {bad} are not development seeds (0-99)", file=sys.stderr)
-        return 2
+    if a.report:
+        bad = [s for s in a.seeds if s < REPORT_SEEDS_FROM]
+        if bad:
+            print(f"--report: seeds {bad} are below {REPORT_SEEDS_FROM}", file=sys.stderr)
+            return 2
+    else:
+        bad = [s for s in a.seeds if s not in DEVELOPMENT_SEEDS]
+        if bad:
+            print(f"seeds {bad} are not development seeds (0-99)", file=sys.stderr)
+            return 2
     info = {
         "command": "python -m mcpilco.experiments.diagnosis.learned_start "
         + " ".join(sys.argv[1:] if argv is None else argv),
@@ -279,13 +407,26 @@ def main(argv: Sequence[str] | None = None) -> int:
             )
             records.append(rec)
             print(json.dumps({k: rec[k] for k in ("seed", "arm", "train_rows")}), flush=True)
-            for v, d in rec["variants"].items():
-                print(f"  {v:14s} {np.round(d['ratio'], 2)} cpu {d['cpu_s']:.0f}s", flush=True)
+    loops = []
+    for arm in a.arms if a.loop is not None else []:
+        n, _ = CASES[arm]
+        for s in a.seeds:
+            for kind in [None, *a.loop]:
+                rec = loop_case(s, n, kind, a.loop_rows)
+                loops.append(rec)
+                print(
+                    f"  loop {rec['arm']} seed {s} {kind}: named {rec['named']} added "
+                    f"{rec['added']} ratio {np.round(rec['ratio_after'], 2)} "
+                    f"cpu {rec['cpu_s']:.0f}s",
+                    flush=True,
+                )
     out = Path(a.out)
     out.parent.mkdir(parents=True, exist_ok=True)
-    payload = {"info": info, "records": records}
+    payload = {"info": info, "records": records, "loops": loops}
     write_result(out.with_suffix(".json"), RESULT_LAYOUTS[0], payload, command=info["command"])
-    write_atomic(out.with_suffix(".md"), markdown(info, records))
+    write_atomic(out.with_suffix(".md"), markdown(info, records, loops))
+    if records:
+        plot(records, out.with_suffix(".png"))
     return 0
 
 
@@ -293,8 +434,10 @@ RESULT_LAYOUTS = (
     ResultLayout(
         "diagnosis_learned_start",
         config=("info",),
-        cases=("records",),
-        seeds=lambda p: [int(r["seed"]) for r in p.get("records", [])],
+        cases=("records", "loops"),
+        seeds=lambda p: sorted(
+            {int(r["seed"]) for key in ("records", "loops") for r in p.get(key, [])}
+        ),
     ),
 )
 """The layout of ``diagnosis_learned_start.json`` (:mod:`mcpilco.experiments.results`)."""

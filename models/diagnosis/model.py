@@ -845,11 +845,11 @@ class DiagnosisModel:
                 converge_nats=start_spec.get("converge_nats", 0.5),
                 max_rounds=start_spec.get("max_rounds", 10),
                 hyper_points=start_spec.get("hyper_points"),
-                **(
-                    {"inducing": start_spec["inducing"]}
-                    if start_spec.get("inducing") is not None
-                    else {}
-                ),
+                **{
+                    key: start_spec[key]
+                    for key in ("inducing", "span")
+                    if start_spec.get(key) is not None
+                },
             )
         else:
             raise ValueError(f"unknown start model kind {start_spec['kind']!r}")

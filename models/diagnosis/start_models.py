@@ -32,11 +32,14 @@ from numpy.typing import NDArray
 
 from mcpilco.models.diagnosis.effects import RigidBody
 from mcpilco.models.inverse_dynamics import (
+    MAX_RIGID_FEATURES,
     GIPEstimator,
     GPInverseDynamics,
     JointStates,
+    LagrangianEstimator,
     NystromGIPEstimator,
     RBFEstimator,
+    lagrangian_parameters,
     load_pinocchio_model,
 )
 from mcpilco.models.robot_files import read_robot_file, refuse_includes
@@ -92,6 +95,8 @@ def check_robot_text(text: str, source: str) -> None:
 ALL_ROWS_HYPER_POINTS = 600
 """Rows of the exact hyperparameter fit of a GIP start fitted on every row
 (:class:`GIPStart` with ``inducing``)."""
+RIGID_BODY_EFFECTS = ("armature", "inertia", "payload")
+"""Effect keys whose torques ``GIPStart(span="rigid")`` spans (rigid-body torques)."""
 HYPER_POINTS = 200
 """Training rows on which a learned start fits its kernel's hyperparameters (of the 600 it
 is conditioned on by default; :class:`LearnedStart`)."""
@@ -214,6 +219,22 @@ class _Robot:
         return RigidBody(
             params, np.array(pose.placement.translation), np.array(pose.placement.rotation)
         )
+
+
+def rigid_span_fits(joint_types: str, strict: bool = False) -> bool:
+    """Whether the chain's Lagrangian (:func:`~mcpilco.models.inverse_dynamics.
+    lagrangian_parameters`) has at most :data:`~mcpilco.models.inverse_dynamics.
+    MAX_RIGID_FEATURES` parameters; ``strict``: raise ValueError naming the size instead of
+    returning False."""
+    size = len(lagrangian_parameters(joint_types))
+    if size <= MAX_RIGID_FEATURES:
+        return True
+    if strict:
+        raise ValueError(
+            f"the Lagrangian of joint types {joint_types!r} has {size} parameters (at most "
+            f"{MAX_RIGID_FEATURES}); use span='gip' with inducing rows"
+        )
+    return False
 
 
 class StartModel:
@@ -493,20 +514,37 @@ class GIPStart(LearnedStart):
     """A GIP GP (thesis eq. 3.8/3.11): ``K_0`` = the GIP kernel of the joint types
     (:class:`~mcpilco.models.inverse_dynamics.GIPEstimator`); see :class:`LearnedStart`.
 
-    Every row (``inducing`` given): the start is fitted on every training row, not on the
-    diagnosis GP's ``max_points`` (:attr:`all_rows`):
-    :class:`~mcpilco.models.inverse_dynamics.NystromGIPEstimator` fits the GIP kernel's
-    hyperparameters exactly on ``hyper_points`` random rows, then a Bayesian linear
-    regression over ``inducing`` Nystroem features of that kernel on all rows
-    (``O(N M^2)``). Its posterior mean is the prior mean ``m_j``; ``K_0`` (same kernel) then
-    models what the mean leaves on the diagnosis GP's rows (its scale ``alpha`` refitted per
-    joint), and backfitting refits the regression on ``y`` minus the effects at the same
-    hyperparameters. A subset of a few hundred rows leaves the GIP's large feature space
-    under-determined (7 joints: about ``5^7 x 36`` monomials); all rows bring the start to
-    the noise floor where the subset does not (``mcpilco.experiments.diagnosis.learned_start``).
+    Three fits, by ``span`` and ``inducing``:
+
+    ``span="rigid"``
+        The rigid-body terms of the serial chain's Lagrangian
+        ``1/2 qd^T M(q) qd - V(q)`` (:func:`~mcpilco.models.inverse_dynamics.
+        lagrangian_parameters`: the monomials of ``M`` and ``V`` these joint types allow,
+        a subspace of the GIP span with one parameter vector for every joint), by Bayesian
+        linear regression on **every** training row
+        (:class:`~mcpilco.models.inverse_dynamics.LagrangianEstimator`). Its posterior mean
+        is the start's torque and prior mean, as a nominal model's RNEA is (no ``K_0``), so
+        that effects outside rigid-body dynamics (viscous and dry friction, offsets,
+        springs, cogging, delays) stay in the residual for the search, as on a nominal
+        start; rigid-body effects (armature, payload, link inertia) it holds, as
+        :meth:`spans` says. Backfitting refits the regression on ``y`` minus the effects.
+        The default where the chain has at most
+        :data:`~mcpilco.models.inverse_dynamics.MAX_RIGID_FEATURES` parameters (up to 5
+        joints: 84 for ``RRR``, 2,013 for ``RRRRR``; 9,947 for 6 and 49,374 for 7 revolute
+        joints, where ``"auto"`` keeps ``span="gip"``).
+    ``span="gip"`` with ``inducing``
+        Every row: :class:`~mcpilco.models.inverse_dynamics.NystromGIPEstimator` fits the
+        GIP kernel's hyperparameters exactly on ``hyper_points`` random rows, then a
+        Bayesian linear regression over ``inducing`` Nystroem features of that kernel on
+        all rows (``O(N M^2)``). Its posterior mean is the prior mean ``m_j``; ``K_0``
+        (same kernel) models what the mean leaves on the diagnosis GP's rows.
+    ``span="gip"`` without ``inducing``
+        The exact GP on the diagnosis GP's ``max_points`` rows.
 
     Args:
-        inducing: Nystroem rows ``M`` (``None``: the exact GP on the training rows).
+        span: ``"rigid"``, ``"gip"`` or ``"auto"`` (default: ``"rigid"`` where its size
+            allows and no ``inducing`` is given, else ``"gip"``).
+        inducing: Nystroem rows ``M`` of ``span="gip"`` (``None``: the exact GP).
         hyper_points: with ``inducing``, rows of the exact hyperparameter fit (default
             :data:`ALL_ROWS_HYPER_POINTS`); otherwise as in :class:`LearnedStart`.
         **kwargs: as in :class:`LearnedStart`.
@@ -519,19 +557,37 @@ class GIPStart(LearnedStart):
         joint_types: str,
         robot: str | Path | None = None,
         *,
+        span: str = "auto",
         inducing: int | None = None,
         hyper_points: int | None = HYPER_POINTS,
         **kwargs: Any,
     ) -> None:
+        if span not in ("auto", "rigid", "gip"):
+            raise ValueError(f"span must be 'auto', 'rigid' or 'gip', got {span!r}")
         if inducing is not None and inducing < 1:
             raise ValueError(f"inducing must be >= 1 or None, got {inducing}")
+        if span == "rigid" and inducing is not None:
+            raise ValueError("inducing is a setting of span='gip', not of span='rigid'")
+        if span == "auto":
+            span = "rigid" if inducing is None and rigid_span_fits(joint_types) else "gip"
         if inducing is not None and hyper_points == HYPER_POINTS:
             hyper_points = ALL_ROWS_HYPER_POINTS
         super().__init__(joint_types, robot, hyper_points=hyper_points, **kwargs)
+        if span == "rigid":
+            rigid_span_fits(self.joint_types, strict=True)
+        self.span = span
         self.inducing = inducing
-        self.all_rows = inducing is not None
+        self.all_rows = span == "rigid" or inducing is not None
+        self.torque_is_prior_mean = span == "rigid"
 
-    def make_estimator(self) -> GPInverseDynamics:
+    @property
+    def has_kernel(self) -> bool:
+        """No ``K_0`` with ``span="rigid"`` (its mean is the whole start, as RNEA is)."""
+        return self.span != "rigid"
+
+    def make_estimator(self) -> GPInverseDynamics | LagrangianEstimator:
+        if self.span == "rigid":
+            return LagrangianEstimator(self.joint_types)
         opt = dict(adam_iters=self.adam_iters, lbfgs_iters=self.lbfgs_iters)
         if self.inducing is not None:
             return NystromGIPEstimator(
@@ -570,7 +626,8 @@ class GIPStart(LearnedStart):
     def torque(self, q: FloatArray, qd: FloatArray, qdd: FloatArray) -> FloatArray:
         if not self.all_rows:
             return super().torque(q, qd, qdd)
-        self._gp()
+        if self.estimator_ is None:
+            raise RuntimeError(f"the {self.kind} start model is not fitted")
         return _memo(
             self._memo,
             "torque",
@@ -584,14 +641,21 @@ class GIPStart(LearnedStart):
         return self.estimator_.noise_variance_
 
     def spec(self) -> dict[str, Any]:
-        return {**super().spec(), "inducing": self.inducing}
+        return {**super().spec(), "span": self.span, "inducing": self.inducing}
 
     def spans(self, effect: Any) -> bool:
-        """:meth:`Effect.in_gip_span` of the joint types (the GIP feature space is finite
-        and known: offset, armature, payload, prismatic spring, cogging of order <= 2)."""
+        """Whether the start's function space holds every torque of ``effect``: with
+        ``span="gip"`` :meth:`Effect.in_gip_span` (offset, armature, payload, prismatic
+        spring, cogging of order <= 2); with ``span="rigid"`` the rigid-body effects
+        (:data:`RIGID_BODY_EFFECTS`: armature, link inertia, payload), which a
+        Lagrangian of these joints already holds."""
+        if self.span == "rigid":
+            return effect.key in RIGID_BODY_EFFECTS
         return bool(effect.in_gip_span(self.joint_types))
 
     def describe(self) -> str:
+        if self.span == "rigid":
+            return f"learned rigid-body GIP span (joints {self.joint_types}, every row)"
         return f"learned GIP GP (joints {self.joint_types})"
 
 

@@ -40,6 +40,10 @@ __all__ = ["BayesianLinearRegression"]
 
 LOG_BOUNDS = (-30.0, 30.0)
 """Bounds of ``log lambda`` and ``log sigma^2`` relative to the target's variance."""
+EIG_TOLERANCE = 1e-11
+"""Eigenvalues of ``A`` below this fraction of the largest are taken as zero, with their
+``c_i``: in exact arithmetic ``b`` lies in the range of ``A``, so there ``c_i`` is round-off,
+and ``c_i^2 / (e_i + s)`` would let the evidence grow without bound as ``sigma^2 -> 0``."""
 
 
 class BayesianLinearRegression:
@@ -111,8 +115,9 @@ class BayesianLinearRegression:
         for j in range(m):
             A = 0.5 * (self.A[j] + self.A[j].T)
             e, V = np.linalg.eigh(A)
-            e = np.clip(e, 0.0, None)
-            c = V.T @ self.b[j]
+            null = e <= EIG_TOLERANCE * max(float(e[-1]), 1e-300)
+            e = np.where(null, 0.0, e)
+            c = np.where(null, 0.0, V.T @ self.b[j])
             yy = float(self.yy[j])
             var = max(yy / self.n, 1e-300)
             lo_noise = math.log(max(noise_min, var * 1e-13))

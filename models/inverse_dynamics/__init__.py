@@ -11,6 +11,7 @@ estimator                          model
 :class:`GIPEstimator`              GP, GIP kernel on ``F(q, qd, qdd)`` (eq. 3.8, 3.11)
 :class:`GIPFrictionEstimator`      GIP + linear kernel on the joint's ``[qd, sign qd]``
 :class:`NystromGIPEstimator`       GIP on every row: Nystroem features, Bayesian linear reg.
+:class:`LagrangianEstimator`       the rigid-body terms of a chain's Lagrangian, every row
 :class:`RBFEstimator`              GP, RBF-ARD kernel on ``[q, qd, qdd]``
 :class:`NNEstimator`               MLP 2 x 400, Adam, early stopping
 :class:`FisherianEstimator`        least squares on the nominal regressor (FE, eq. 3.2)
@@ -51,9 +52,16 @@ from mcpilco.models.inverse_dynamics.rigid_body import (
     load_pinocchio_model,
     pseudo_inertia,
 )
+from mcpilco.models.inverse_dynamics.rigid_span import (
+    MAX_RIGID_FEATURES,
+    LagrangianEstimator,
+    lagrangian_columns,
+    lagrangian_parameters,
+)
 
 __all__ = [
     "FEATURE_BLOCKS",
+    "MAX_RIGID_FEATURES",
     "LOCAL_BLOCKS",
     "FisherianEstimator",
     "GIPEstimator",
@@ -62,6 +70,7 @@ __all__ = [
     "GPInverseDynamics",
     "InverseDynamicsEstimator",
     "JointStates",
+    "LagrangianEstimator",
     "NNEstimator",
     "PPEstimator",
     "RBFEstimator",
@@ -72,6 +81,8 @@ __all__ = [
     "as_targets",
     "gmse",
     "input_names",
+    "lagrangian_columns",
+    "lagrangian_parameters",
     "load_pinocchio_model",
     "pseudo_inertia",
     "nmse",

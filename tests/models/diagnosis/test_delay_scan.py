@@ -21,7 +21,7 @@ from mcpilco.models.diagnosis.search import (
 
 
 def _gip_model(case, max_points=200):
-    start = GIPStart(case.joint_types, adam_iters=20, lbfgs_iters=5, max_rounds=0)
+    start = GIPStart(case.joint_types, span="gip", adam_iters=20, lbfgs_iters=5, max_rounds=0)
     return DiagnosisModel(start, max_points=max_points).fit(case.datasets("train"))
 
 
@@ -32,7 +32,7 @@ def test_the_delay_scan_reads_only_the_training_samples():
     noisy = make_case("scara", [], seed=0, duration=8.0)
     clean = make_case("scara", [], seed=0, duration=8.0, noise_frac=1e-6)  # same draws
     train = as_trajectories(noisy.datasets("train"))
-    start = GIPStart(noisy.joint_types, adam_iters=20, lbfgs_iters=5, max_rounds=0)
+    start = GIPStart(noisy.joint_types, span="gip", adam_iters=20, lbfgs_iters=5, max_rounds=0)
     model = DiagnosisModel(start, max_points=200)
     rows = model._training_rows(train)
     assert rows.size == 200 and np.all(np.diff(rows) > 5)  # a subset: rows + k are others

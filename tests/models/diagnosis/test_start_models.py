@@ -95,7 +95,7 @@ def test_hyperparameters_on_a_subset_then_the_posterior_of_every_row():
     posterior mean conditioned on all 80 (closed form with the start's own kernel, noise
     and prior mean), and convergence rounds keep to the subset."""
     q, qd, qdd, y = _planar_data(80, 1)
-    start = GIPStart("RR", adam_iters=5, lbfgs_iters=2, max_rounds=1, hyper_points=30)
+    start = GIPStart("RR", span="gip", adam_iters=5, lbfgs_iters=2, max_rounds=1, hyper_points=30)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", RuntimeWarning)  # one round of a tiny budget
         start.fit(q, qd, qdd, y)
@@ -152,3 +152,43 @@ def test_gip_start_on_every_row_reads_them_all_and_backfits_its_regression():
     assert moved.estimator_.gp_ is not start.estimator_.gp_
     with pytest.raises(ValueError, match="inducing"):
         GIPStart("RR", inducing=0)
+
+
+def _arm_case(effects: list, seed: int, duration: float = 8.0) -> tuple:
+    """Training (2 files) and held-out (1 file) q-only logs of a random 3-joint arm
+    forward-simulated with ``effects`` (closed loop, quantised encoder)."""
+    from mcpilco.envs.arms import random_arm
+    from mcpilco.envs.robot_logs import simulate_log
+    from mcpilco.models.diagnosis import as_trajectories
+    from mcpilco.models.robot_data import from_frame
+
+    arm = random_arm(3, seed=seed, joint_types="RRR").rigid()
+    logs = [
+        simulate_log(arm, effects, duration=duration, seed=s, tau_noise=0.05) for s in (1, 2, 3)
+    ]
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)
+        frames = [from_frame(g.table, source=f"log{k}") for k, g in enumerate(logs)]
+        return arm, as_trajectories(frames[:2]), as_trajectories(frames[2:])
+
+
+@pytest.mark.slow
+def test_rigid_gip_start_leaves_damping_for_the_search_and_names_nothing_without_it():
+    """The default learned start of a 3-joint arm (the rigid-body span, every row) holds no
+    viscous term, so damping on one joint is named on that joint on top of it, as with a
+    nominal model; on the same arm without the effect nothing is named."""
+    from mcpilco.envs.robot_logs import HiddenEffect
+    from mcpilco.models.diagnosis import diagnose
+
+    arm, train, test = _arm_case([], seed=4)
+    start = GIPStart("RRR")
+    assert start.span == "rigid" and not start.has_kernel
+    model = DiagnosisModel(start).fit(train)
+    d = diagnose(model, test)
+    assert d.best is None, d.table()
+    qd = np.concatenate([train.qd[:, 1]])
+    damping = 6 * 0.05 / np.sqrt(np.mean(qd**2))  # about six noise stds of torque
+    _, train, test = _arm_case([HiddenEffect("damping", 2, float(damping))], seed=4)
+    model = DiagnosisModel(GIPStart("RRR")).fit(train)
+    d = diagnose(model, test)
+    assert d.best is not None and d.best.label == "viscous:2", d.table()

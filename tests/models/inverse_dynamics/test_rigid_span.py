@@ -1,0 +1,90 @@
+"""The rigid-body terms of a serial chain's Lagrangian from its joint types: they hold the
+inverse dynamics of random arms exactly (pinocchio RNEA, an independent implementation),
+hold no viscous, Coulomb or offset torque on one joint, lie in the GIP kernel's span, and
+the regression over them refits on new targets as a fresh fit does."""
+
+import numpy as np
+import pytest
+
+from mcpilco.models.inverse_dynamics import (
+    GIPEstimator,
+    JointStates,
+    LagrangianEstimator,
+    lagrangian_columns,
+    lagrangian_parameters,
+)
+
+
+def _random_states(n: int, rows: int, seed: int) -> np.ndarray:
+    rng = np.random.default_rng(seed)
+    q = rng.uniform(-2.5, 2.5, (rows, n))
+    return np.concatenate([q, rng.normal(0, 1.5, (rows, n)), rng.normal(0, 4, (rows, n))], 1)
+
+
+def _rnea(joint_types: str, seed: int):
+    from mcpilco.envs.arm_builder import arm_to_xml
+    from mcpilco.envs.arms import random_arm
+    from mcpilco.models.diagnosis import NominalStart
+
+    arm = random_arm(len(joint_types), seed=seed, joint_types=joint_types).rigid()
+    nominal = NominalStart(arm_to_xml(arm, friction=False))
+    n = len(joint_types)
+    return lambda X: nominal.torque(X[:, :n], X[:, n : 2 * n], X[:, 2 * n :])
+
+
+@pytest.mark.parametrize(
+    ("joint_types", "seed"), [("RR", 1), ("RRR", 2), ("RRR", 5), ("PRR", 3), ("RRPR", 4)]
+)
+def test_lagrangian_holds_the_inverse_dynamics_of_random_arms(joint_types, seed):
+    rnea = _rnea(joint_types, seed)
+    n = len(joint_types)
+    X, Xt = _random_states(n, 1500, 0), _random_states(n, 500, 1)
+    est = LagrangianEstimator(joint_types).fit(X, rnea(X))
+    yt = rnea(Xt)
+    err = np.sqrt(np.mean((est.predict(Xt)[0] - yt) ** 2, axis=0)) / yt.std(axis=0)
+    assert np.all(err < 1e-7), err
+
+
+@pytest.mark.parametrize("joint", [0, 2])
+def test_lagrangian_holds_no_viscous_coulomb_or_offset_torque_on_one_joint(joint):
+    """Each torque on one joint alone, fitted: most of it is left on new states (a
+    rigid-body torque would leave nothing: the previous test)."""
+    X, Xt = _random_states(3, 1500, 0), _random_states(3, 500, 1)
+    for make in (
+        lambda X: X[:, 3 + joint],
+        lambda X: np.sign(X[:, 3 + joint]),
+        lambda X: np.ones(len(X)),
+    ):
+        y, yt = np.zeros((len(X), 3)), np.zeros((len(Xt), 3))
+        y[:, joint], yt[:, joint] = make(X), make(Xt)
+        est = LagrangianEstimator("RRR").fit(
+            X, y + 0.01 * np.random.default_rng(2).normal(size=y.shape)
+        )
+        err = np.sqrt(np.mean((est.predict(Xt)[0][:, joint] - yt[:, joint]) ** 2))
+        assert err > 0.7 * np.sqrt(np.mean(yt[:, joint] ** 2)), err
+
+
+def test_lagrangian_columns_lie_in_the_gip_span():
+    """An exact GIP GP (thesis eq. 3.11) fitted on noise-free parameter torques reproduces
+    them on new states."""
+    params = lagrangian_parameters("RR")
+    X, Xt = _random_states(2, 400, 0), _random_states(2, 100, 1)
+    cols = [lagrangian_columns(JointStates(*np.split(A, 3, axis=1)), params, "RR") for A in (X, Xt)]
+    pick = [0, 5, len(params) - 1]
+    gp = GIPEstimator("RR", adam_iters=60, lbfgs_iters=30, noise_min=1e-10)
+    gp.fit(X, cols[0][:, :, pick].sum(axis=2).T)
+    want = cols[1][:, :, pick].sum(axis=2).T
+    err = np.abs(gp.predict(Xt)[0] - want).max(axis=0) / np.abs(want).max(axis=0)
+    assert np.all(err < 1e-2), err
+
+
+def test_refit_targets_equals_a_fresh_fit_and_big_chains_are_refused():
+    X = _random_states(2, 600, 0)
+    rnea = _rnea("RR", 1)
+    noise = 0.01 * np.random.default_rng(0).normal(size=(600, 2))
+    est = LagrangianEstimator("RR").fit(X, rnea(X))
+    est.refit_targets(X, rnea(X) + noise)
+    fresh = LagrangianEstimator("RR").fit(X, rnea(X) + noise)
+    np.testing.assert_allclose(est.predict_mean(X), fresh.predict_mean(X), rtol=1e-8, atol=1e-10)
+    with pytest.raises(ValueError, match="parameters"):
+        LagrangianEstimator("RRRRRR")
