@@ -19,7 +19,8 @@ Example::
 
 ``--case-set panda`` runs a fixed list of cases on the Franka Emika Panda (MuJoCo Menagerie's
 frames and inertials) instead: payload, rotor inertia on three joints, dry friction of 2-3 N m
-on two joints, a heavier link, damping, position-dependent friction and a control::
+on two joints, a heavier link, damping, position-dependent friction and a control, on torque
+logs and again on motor-current logs with unknown torque constants (14 cases)::
 
     nice -n 10 mcpilco-bench-diagnosis --case-set panda --first-seed 0 --out runs/panda
 

@@ -50,7 +50,10 @@ set's ``sizes`` with its value uniform in the given range instead. ``panda``: th
 Panda of :func:`~mcpilco.envs.arms.panda` (MuJoCo Menagerie's frames and inertials), with a
 payload at the flange, rotor inertia of 0.05-0.3 kg m^2 on three joints (a half to three
 times the table's armature), dry friction of 2-3 N m on two joints, a heavier link, damping,
-position-dependent friction (off-library) and a control.
+position-dependent friction (off-library) and a control, first on torque logs, then the same
+seven on motor-current logs with unknown torque constants (``logs="current"``,
+:func:`run_case`: the constants estimated against the nominal model, jointly with a payload
+at the flange, and left free in the loop's first version).
 
 Seeds: :data:`DEVELOPMENT_SEEDS` may be looked at while developing the loop; results are
 reported on evaluation seeds from :data:`EVALUATION_FIRST_SEED`, on which no setting is chosen.
@@ -115,33 +118,40 @@ class CaseSet(NamedTuple):
 
     Attributes:
         arm: a table of :data:`mcpilco.envs.arms.ARMS`.
-        cases: ``(role, kinds)`` of each case, in order; a kind listed twice acts on two
-            different joints (links).
+        cases: ``(role, kinds, logs)`` of each case, in order; a kind listed twice acts on
+            two different joints (links); ``logs``: ``"torque"`` or ``"current"`` (motor
+            currents with unknown torque constants, :func:`run_case`).
         sizes: kind -> ``(low, high)``: its value is drawn uniformly in this range instead of
             from ``snr`` (or :data:`MASS_FACTOR_RANGE`, :data:`PAYLOAD_RANGE`).
     """
 
     arm: str
-    cases: tuple[tuple[str, tuple[str, ...]], ...]
+    cases: tuple[tuple[str, tuple[str, ...], str], ...]
     sizes: dict[str, tuple[float, float]]
 
 
+LOG_KINDS = ("torque", "current")
+"""What a case's files log: joint torques, or motor currents with unknown torque constants."""
+_PANDA_CASES: tuple[tuple[str, tuple[str, ...]], ...] = (
+    ("control", ()),
+    ("single", ("payload",)),
+    ("multi", ("armature", "armature", "armature")),
+    ("multi", ("frictionloss", "frictionloss")),
+    ("single", ("mass",)),
+    ("single", ("damping",)),
+    ("off_library", ("position_friction",)),
+)  # the Panda set's effects, on torque logs and then on current logs
 CASE_SETS: dict[str, CaseSet] = {
     "panda": CaseSet(
         arm="panda",
-        cases=(
-            ("control", ()),
-            ("single", ("payload",)),
-            ("multi", ("armature", "armature", "armature")),
-            ("multi", ("frictionloss", "frictionloss")),
-            ("single", ("mass",)),
-            ("single", ("damping",)),
-            ("off_library", ("position_friction",)),
-        ),
+        cases=tuple((role, kinds, logs) for logs in LOG_KINDS for role, kinds in _PANDA_CASES),
         sizes={"armature": (0.05, 0.3), "frictionloss": (2.0, 3.0)},
     ),
 }
 """Named case sets (``--case-set``)."""
+TORQUE_CONSTANT_RANGE = (-1.0, 0.5)
+"""Range of ``log10 |k_t|`` [N m/A or N/A] of a current case's joints (uniform; random sign:
+a motor mounted reversed)."""
 
 
 # ----------------------------------------------------------------------------- the plan
@@ -321,6 +331,7 @@ def run_case(
     inducing: int | None = None,
     arm: str = "random",
     sizes: dict[str, Sequence[float]] | None = None,
+    logs: str = "torque",
 ) -> dict[str, Any]:
     """Simulate one case (module docstring), run the loop on it and score it.
 
@@ -341,6 +352,12 @@ def run_case(
             (its table without friction the nominal robot file).
         sizes: kind -> ``(low, high)``, the range its value is drawn from
             (:func:`draw_effect`); other kinds as in the module docstring.
+        logs: ``"torque"``, or ``"current"``: the files hold motor currents ``i = tau / k_t``
+            instead (``k_t`` per joint, ``log10 |k_t|`` uniform in
+            :data:`TORQUE_CONSTANT_RANGE`, random sign; current noise ``tau_noise / |k_t|``,
+            the same noise in torque units), the constants unknown to the loop: estimated
+            against the nominal model (:func:`~mcpilco.models.diagnosis.currents_to_torque`),
+            a joint whose constant is not identifiable diagnosed in A.
 
     Returns:
         the record: the case (arm, noise, effects and their realised size), the loop's
@@ -351,17 +368,20 @@ def run_case(
     from mcpilco.envs.arm_builder import arm_to_xml
     from mcpilco.envs.arms import ARMS, random_arm
     from mcpilco.envs.robot_logs import SimulationDiverged, simulate_log
-    from mcpilco.models.diagnosis import DiagnosisModel, auto_improve
+    from mcpilco.models.diagnosis import DiagnosisModel, auto_improve, currents_to_torque
+    from mcpilco.models.diagnosis.effects import MODEL_ONLY_EFFECTS
 
     for k in kinds:
         if k not in EFFECT_KINDS:
             raise ValueError(f"unknown hidden-effect kind {k!r}; use one of {EFFECT_KINDS}")
+    if logs not in LOG_KINDS:
+        raise ValueError(f"logs must be one of {LOG_KINDS}, got {logs!r}")
     if not 1 <= min_joints <= max_joints:
         raise ValueError(f"need 1 <= min_joints <= max_joints, got {min_joints}, {max_joints}")
     if arm != "random" and arm not in ARMS:
         raise ValueError(f"arm must be 'random' or one of {sorted(ARMS)}, got {arm!r}")
     ranges = {k: (float(v[0]), float(v[1])) for k, v in (sizes or {}).items()}
-    t0 = time.perf_counter()
+    t0, c0 = time.perf_counter(), time.process_time()
     rng = np.random.default_rng(seed)
     table = None if arm == "random" else ARMS[arm]().without_friction()
     for _ in range(MAX_DRAWS):
@@ -381,6 +401,8 @@ def run_case(
             continue
     else:
         raise RuntimeError(f"seed {seed}: {MAX_DRAWS} draws of the arm all diverged")
+    k_true: np.ndarray | None = None
+    units: dict[str, Any] = {}
     for _ in range(MAX_DRAWS):
         effects: list[Any] = []
         for k in kinds:
@@ -389,23 +411,28 @@ def run_case(
                 e = draw_effect(k, robot, probe, rng, tau_noise, ranges.get(k))
             effects.append(e)
         try:
-            logs = [simulate_log(robot, effects, seed=s, **sim) for s in log_seeds]
+            if logs == "current":  # the same motion and effects, logged as motor currents
+                k_true = 10 ** rng.uniform(*TORQUE_CONSTANT_RANGE, n) * rng.choice([-1.0, 1.0], n)
+                units = {"torque_constants": k_true, "current_noise": tau_noise / np.abs(k_true)}
+            sims = [simulate_log(robot, effects, seed=s, **sim, **units) for s in log_seeds]
             break
         except SimulationDiverged:  # a draw the simulated arm cannot follow: draw again
             continue
     else:
         raise RuntimeError(f"seed {seed}: {MAX_DRAWS} draws of {list(kinds)} all diverged")
     size = np.sqrt(
-        np.mean(np.concatenate([effect_torque(robot, effects, log) for log in logs]) ** 2, axis=0)
+        np.mean(np.concatenate([effect_torque(robot, effects, log) for log in sims]) ** 2, axis=0)
     )
     names = [f"seed{seed}_train{k + 1}" for k in range(train_files)] + [f"seed{seed}_test"]
-    train = _trajectories(logs[:-1], names[:-1])
-    test = _trajectories(logs[-1:], names[-1:])
+    train = _trajectories(sims[:-1], names[:-1])
+    test = _trajectories(sims[-1:], names[-1:])
     t_sim = time.perf_counter() - t0
 
     xml = arm_to_xml(robot, friction=False)
+    start_model = make_start(start, xml, robot.joint_types, iters, inducing)
+    train, test, constants = currents_to_torque(train, test, start_model)
     model = DiagnosisModel(
-        make_start(start, xml, robot.joint_types, iters, inducing), max_points=max_points
+        start_model, [] if constants is None else constants.effects(), max_points=max_points
     )
     model.fit(train)
     versions, diags = auto_improve(model, test, max_steps=max_steps)
@@ -432,7 +459,7 @@ def run_case(
         truth.append(d)
     ranking = [[c.effect.key, c.effect.joint] for c in first.candidates[:RANKING_KEPT]]
     named = None if first.best is None else [first.best.effect.key, first.best.effect.joint]
-    added = [[e.key, e.joint] for e in final.effects]
+    added = [[e.key, e.joint] for e in final.effects if e.key not in MODEL_ONLY_EFFECTS]
     verdict = last.verdict()
     rec: dict[str, Any] = {
         "seed": seed,
@@ -445,6 +472,16 @@ def run_case(
         "rows": {"train": int(train.n_samples), "test": int(test.n_samples)},
         "start": start,
         "inducing": inducing,
+        "logs": logs,
+        "torque_constants": None if k_true is None else k_true.tolist(),
+        "torque_constants_estimated": None if constants is None else constants.value.tolist(),
+        "torque_constants_ci95": None if constants is None else constants.ci95.tolist(),
+        "torque_constants_joint": _joint_constants(constants, final),
+        "torque_constants_in_current": (
+            None
+            if constants is None
+            else [int(j) + 1 for j in np.flatnonzero(constants.in_current)]
+        ),
         "effects": truth,
         "size_over_noise": (size / tau_noise).round(2).tolist(),
         "ranking": ranking,
@@ -462,7 +499,22 @@ def run_case(
         "simulate_seconds": t_sim,
     }
     rec["seconds"] = time.perf_counter() - t0
+    rec["cpu_seconds"] = time.process_time() - c0  # every thread of this process
     return rec
+
+
+def _joint_constants(constants: Any, model: Any) -> list[float] | None:
+    """``k_t`` per joint as the final ``model`` has it: the estimate ``k_hat`` corrected by
+    the free scale fitted jointly with the effects, ``k_hat / (1 + alpha)`` (``k_hat`` where
+    the model holds no scale; ``None`` without constants)."""
+    if constants is None:
+        return None
+    alpha = {
+        p["effect"]: p["value"] for p in model.parameters() if p["effect"].startswith("scale:")
+    }
+    return [
+        float(k / (1.0 + alpha.get(f"scale:{j + 1}", 0.0))) for j, k in enumerate(constants.value)
+    ]
 
 
 def score_record(rec: dict[str, Any]) -> dict[str, Any]:
@@ -517,10 +569,10 @@ def run_benchmark(
         raise ValueError(f"case_set must be one of {sorted(CASE_SETS)}, got {case_set!r}")
     named = CASE_SETS.get(case_set) if case_set is not None else None
     if named is None:
-        plan = case_plan(per_kind, controls, multi, off_library)
+        plan = [(r, k, "torque") for r, k in case_plan(per_kind, controls, multi, off_library)]
         arm, sizes = "random", None
     else:
-        plan = [(role, list(kinds)) for role, kinds in named.cases]
+        plan = [(role, list(kinds), logs) for role, kinds, logs in named.cases]
         arm, sizes = named.arm, dict(named.sizes)
     if cases is not None:
         plan = plan[:cases]
@@ -539,8 +591,12 @@ def run_benchmark(
         "sizes": sizes,
     }
     jobs = [
-        Job(f"seed{s}", run_case, {**common, "seed": s, "role": role, "kinds": list(kinds)})
-        for s, (role, kinds) in zip(seeds, plan, strict=True)
+        Job(
+            f"seed{s}",
+            run_case,
+            {**common, "seed": s, "role": role, "kinds": list(kinds), "logs": logs},
+        )
+        for s, (role, kinds, logs) in zip(seeds, plan, strict=True)
     ]
     sweep = runner.run(jobs, Path(runs_dir) / arm / start, desc="cases")
     print(sweep.summary())
@@ -576,7 +632,13 @@ def run_benchmark(
     intro = (
         f"{arms_text} simulated in MuJoCo under PD + gravity "
         f"compensation; {train_files} training logs and 1 held-out log of {duration:g} s each, "
-        "t, q and tau only. Roles: control (no effect), single, multi (two effects), "
+        + (
+            "t, q and tau only"
+            if all(r.get("logs", "torque") == "torque" for r in records)
+            else "t, q and tau, or t, q and motor currents i with unknown torque constants "
+            "(logs: current)"
+        )
+        + ". Roles: control (no effect), single, multi (two effects), "
         'off_library (position-dependent friction: correct verdict "unexplained"). '
         f"Confusion of hidden effect against the effect named first: ![confusion]({png.name})."
         + (f" Failed cases: {', '.join(payload['failed'])}." if sweep.failed else "")
@@ -867,6 +929,21 @@ def _diagnosis_row(r: Result) -> str:
     )
 
 
+def _case_set_row(r: Result) -> str:
+    s = r["summary"]
+    ci = s["verdict_correct_rate"]["ci95"]
+    logs = "; ".join(
+        f"{k.split('_')[2]} logs {v['k']}/{v['n']}"
+        for k, v in s.items()
+        if k.startswith("verdict_correct_") and k.endswith("_logs")
+    )
+    return (
+        f"verdict right in {s['verdict_correct_counts']} cases (95 % CI {ci[0]:.2f}-{ci[1]:.2f}; "
+        f"{logs}); false alarms {s['false_alarm_counts']} controls; held-out error at the "
+        f"floor in {s['at_floor_after_counts']} cases with library effects"
+    )
+
+
 def _speed_row(r: Result) -> str:
     rows = r["case"].get("training_rows", "?")
     times = ", ".join(
@@ -881,6 +958,12 @@ HEADLINES = (
         "diagnosis_robot_logs.json",
         _diagnosis_row,
         "diagnosis_robot_logs.md",
+    ),
+    Headline(
+        "Diagnosis on the Franka Emika Panda (7 joints, torque and current logs), nominal start",
+        "diagnosis_panda.json",
+        _case_set_row,
+        "diagnosis_panda.md",
     ),
     Headline("Diagnosis speed", "diagnosis_speed.json", _speed_row, "diagnosis_speed.md"),
 )

@@ -371,7 +371,27 @@ def summarise(records: Sequence[Mapping[str, Any]]) -> dict[str, Any]:
         "missed_at_floor_counts": _count([r["score"]["missed_at_floor"] for r in lib_cases]),
         "verdict_categories": dict(sorted(cats.items())),
         "seconds_per_case": float(np.mean([r["seconds"] for r in records])) if records else None,
+        **_by_logs(records),
     }
+
+
+def _by_logs(records: Sequence[Mapping[str, Any]]) -> dict[str, Any]:
+    """Where the records say what their files log (``logs``: torque or current): the verdict
+    rate of each with its 95 % Wilson interval, and the most seconds (wall, CPU) of a case."""
+    from mcpilco.experiments.results import rate
+
+    if not records or not all("logs" in r for r in records):
+        return {}
+    out: dict[str, Any] = {}
+    for logs in sorted({r["logs"] for r in records}):
+        flags = [bool(r["score"]["verdict_correct"]) for r in records if r["logs"] == logs]
+        out[f"verdict_correct_{logs}_logs"] = rate(sum(flags), len(flags))
+    flags = [bool(r["score"]["verdict_correct"]) for r in records]
+    out["verdict_correct_rate"] = rate(sum(flags), len(flags))
+    out["max_seconds_per_case"] = float(max(r["seconds"] for r in records))
+    if all("cpu_seconds" in r for r in records):
+        out["max_cpu_seconds_per_case"] = float(max(r["cpu_seconds"] for r in records))
+    return out
 
 
 # ----------------------------------------------------------------------------- report
@@ -420,7 +440,8 @@ def markdown(
         ratio = f"{max(r['ratio_before']):.2f} → {max(r['ratio_after']):.2f}"
         verdict = s["verdict_category"] + ("" if s["verdict_correct"] else " ✗")
         lines.append(
-            f"| {r['seed']} | {r['arm']} | {r['role']} | {truth} | {ranks} | {named} | {added} "
+            f"| {r['seed']} | {r['arm']}{' (currents)' if r.get('logs') == 'current' else ''} "
+            f"| {r['role']} | {truth} | {ranks} | {named} | {added} "
             f"| {ratio} | {verdict} | {r['seconds']:.0f} |"
         )
     params = [(r["seed"], p) for r in records for p in r["score"]["parameters"]]

@@ -77,6 +77,7 @@ Whiteness and cross-correlation tests
 from __future__ import annotations
 
 import dataclasses
+import functools
 import math
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
@@ -85,6 +86,8 @@ from typing import Any
 import numpy as np
 from numpy.lib.stride_tricks import sliding_window_view
 from numpy.typing import NDArray
+from scipy.integrate import quad
+from scipy.optimize import brentq
 from scipy.signal import lfilter, savgol_coeffs
 from scipy.stats import norm
 
@@ -208,10 +211,16 @@ def at_rest(traj: Trajectories) -> NDArray[np.bool_]:
 
     Where ``qd`` was estimated from ``q`` (noise std ``sigma_q``, :func:`position_noise`):
     ``|qd| <= REST_FACTOR sigma_qd`` (``sigma_qd = ||c_1|| sigma_q``, the filter's noise gain,
-    :class:`.data.DerivativeFilter`), or ``q`` stays within a range
-    of ``REST_FACTOR sigma_q`` over :data:`REST_SPAN` around the row. The second test is the
-    local one: the derivative filter spreads a stop over its whole window, so that near a stick
-    phase its ``qd`` is small but not within the noise. Where ``qd`` was given: ``qd == 0``."""
+    :class:`.data.DerivativeFilter`), or ``q`` stays over the ``m`` samples of
+    :data:`REST_SPAN` around the row within the range that ``m`` samples of its noise keep
+    with probability ``1 - REST_MISS`` (:func:`noise_range_quantile` times ``sigma_q``; at
+    least one encoder step, the smallest change of ``q`` in the segment). The second test is
+    the local one: the derivative filter spreads a stop over its whole window, so that near a
+    stick phase its ``qd`` is small but not within the noise. The range of ``m`` noise samples
+    exceeds a fixed few ``sigma_q`` often (3 ``sigma_q`` in about one window of 5 in 4): a
+    joint held still by dry friction whose encoder dithers over two steps would be taken as
+    sliding, and its held torque, anywhere in ``[-F_s, F_s]``, as ``F_s`` times the sign of a
+    velocity that is noise. Where ``qd`` was given: ``qd == 0``."""
     rest = traj.qd == 0.0
     pos = position_noise(traj)
     for a, b in traj.segments:
@@ -223,9 +232,36 @@ def at_rest(traj: Trajectories) -> NDArray[np.bool_]:
         half = max(int(round(0.5 * REST_SPAN / est.filter.sample_time)), 1)
         q = np.pad(traj.q[a:b], ((half, half), (0, 0)), mode="edge")
         win = sliding_window_view(q, 2 * half + 1, axis=0)
-        still = win.max(axis=-1) - win.min(axis=-1) <= REST_FACTOR * pos[s]
+        bound = np.maximum(noise_range_quantile(2 * half + 1) * pos[s], _encoder_step(traj.q[a:b]))
+        still = win.max(axis=-1) - win.min(axis=-1) <= bound * (1 + 1e-9)
         rest[a:b] = still | (np.abs(traj.qd[a:b]) <= REST_FACTOR * sigma_qd)
     return rest
+
+
+@functools.lru_cache(maxsize=32)
+def noise_range_quantile(m: int, miss: float | None = None) -> float:
+    """The range ``r`` that ``m`` independent standard normal samples stay within with
+    probability ``1 - miss`` (default :data:`REST_MISS`): the root of
+    ``P(R <= r) = m int phi(x) (Phi(x + r) - Phi(x))^(m - 1) dx = 1 - miss`` (the
+    distribution of the sample range)."""
+    if m < 2:
+        return 0.0
+    miss = REST_MISS if miss is None else miss
+
+    def cdf(r: float) -> float:
+        f = lambda x: norm.pdf(x) * (norm.cdf(x + r) - norm.cdf(x)) ** (m - 1)  # noqa: E731
+        return m * quad(f, -10.0, 10.0, limit=200)[0]
+
+    return float(brentq(lambda r: cdf(r) - (1.0 - miss), 1e-6, 20.0))
+
+
+def _encoder_step(q: FloatArray) -> FloatArray:
+    """``(n,)`` the smallest nonzero change of each column of ``q`` between samples (an
+    encoder's step when ``q`` is quantised; 0 for a column that never changes)."""
+    d = np.abs(np.diff(q, axis=0))
+    d = np.where(d > 0, d, np.inf)
+    step = d.min(axis=0) if d.size else np.zeros(q.shape[1])
+    return np.where(np.isfinite(step), step, 0.0)
 
 
 def input_noise(
@@ -296,6 +332,8 @@ REST_FACTOR = 3.0
 """Noise stds within which a joint's ``qd`` (or its ``q``'s range) counts as at rest."""
 REST_SPAN = 0.02
 """Span [s] over which a joint at rest keeps ``q`` within its noise (:func:`at_rest`)."""
+REST_MISS = 1e-3
+"""Chance that a joint at rest leaves the range its noise keeps over :data:`REST_SPAN`."""
 EXPLAINED_FRACTION = 0.05
 """Share of the residual variance that a state variable's bin means must explain to be named."""
 CORRELATION_LEVEL = 0.01

@@ -98,6 +98,7 @@ __all__ = [
     "Param",
     "ParamEstimate",
     "Payload",
+    "PositionLevel",
     "RigidBody",
     "Spring",
     "StribeckFriction",
@@ -1135,6 +1136,58 @@ class TorqueScale(Effect):
 
     def columns(self, ctx: FeatureContext, output: int) -> FloatArray:
         return _col(ctx.start_torque()[:, self.joint - 1])
+
+
+LEVEL_DEGREE = 3
+"""Highest Legendre degree in ``q_j`` of :class:`PositionLevel`."""
+
+
+@dataclass(frozen=True)
+class PositionLevel(Effect):
+    """The level of an effect in the model varying with its joint's position; not a
+    candidate: the shape check of a named effect (:func:`~.search.shape_check`).
+
+    ``phi_e(x) [P_1(s), ..., P_K(s)]`` (every column of the effect's block ``phi_e`` times
+    the Legendre polynomials of ``s = (2 q_j - lo - hi) / (hi - lo)``, clipped to
+    ``[-1, 1]``; ``[lo, hi]`` the training range of ``q_j``; ``K`` =
+    :data:`LEVEL_DEGREE`): with the effect itself, its parameters become smooth functions of
+    ``q_j`` over the range the data visit. A library effect has a constant level (a
+    friction, an armature, a damping do not change along the joint's travel): when this
+    block is significant beside it, the torque has the effect's shape but not its form
+    (friction that varies with position, a position-dependent inertia), and the named
+    effect only explains part of it.
+    """
+
+    of: Effect | None = None
+    lo: float | None = None
+    hi: float | None = None
+    key: ClassVar[str] = "level"
+    title: ClassVar[str] = "position-dependent level"
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        if self.of is None or self.of.joint != self.joint:
+            raise ValueError("level: give the effect it modulates (of) on the same joint")
+
+    def shape_text(self) -> str:
+        return "" if self.of is None else f"of {self.of.variant_label}"
+
+    def calibrate(self, ctx: FeatureContext) -> Effect:
+        if self.lo is not None:
+            return self
+        q = ctx.q[:, self.joint - 1]
+        return dataclasses.replace(
+            self, of=self.of.calibrate(ctx), lo=float(q.min()), hi=float(q.max())
+        )
+
+    def columns(self, ctx: FeatureContext, output: int) -> FloatArray | None:
+        base = self.of.columns(ctx, output)
+        if base is None or self.lo is None or not self.hi > self.lo:
+            return None
+        q = ctx.q[:, self.joint - 1]
+        x = np.clip((2.0 * q - self.lo - self.hi) / (self.hi - self.lo), -1.0, 1.0)
+        legendre = np.polynomial.legendre.legvander(x, LEVEL_DEGREE)[:, 1:]
+        return np.concatenate([base * legendre[:, [k]] for k in range(LEVEL_DEGREE)], axis=1)
 
 
 MODEL_ONLY_EFFECTS: dict[str, type[Effect]] = {TorqueScale.key: TorqueScale}

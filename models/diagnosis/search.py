@@ -90,6 +90,33 @@ Backward elimination (stepwise both ways)
     apart this way by the joints each acts on (one joint's ``qdd``; the joints up to the
     link; every joint); where the data cannot tell the later effect from the earlier one,
     the earlier one is kept only if it still earns its place, and the removal says so.
+Simpler of two that the data cannot tell apart
+    Within a group, a missing candidate whose evidence is within ``indistinct_nats`` of the
+    chosen one and whose held-out change is within ``min_heldout_gain`` percentage points of
+    it cannot be told apart from it by these data; of such candidates the one with the fewest
+    parameters (block weights plus shape values, :attr:`Candidate.complexity`) is named, and
+    the verdict says that the data cannot tell them apart and the simpler one is kept: one
+    effect per physical cause, the simpler description where the data do not choose (an
+    armature before a link's inertia). This holds for every pair of kinds, not only
+    inertias; two forms of one family are left to the alternatives' rule below.
+Shape of a named effect (off-library effects are unexplained)
+    An effect outside the library (friction whose level varies along the joint's travel)
+    is fitted by the nearest library form, which may leave the joint within
+    :data:`FLOOR_FACTOR` floors. When the loop stops, :func:`shape_check` adds beside every
+    joint effect of the final model its level as a smooth function of the joint's position
+    (:class:`~.effects.PositionLevel`: the block times Legendre polynomials of ``q_j`` up to
+    degree 3 over the training range) and applies the three tests of significance; a library
+    effect has a constant level, so when the position-dependent level passes them the verdict
+    is "unexplained": the named effect explains part of the torque, not in the library's form.
+Torque constants estimated with the effects
+    On motor-current logs whose constants were estimated, the loop's first version holds a
+    free scale of the model torque on those joints (:class:`~.effects.TorqueScale`): every
+    candidate is scored and fitted jointly with it, so an effect that loads a joint (a
+    payload on the wrist loads every joint) is not absorbed into that joint's ``k_t``. A
+    rigid-body candidate is refused as confounded with the constants only where it cannot be
+    told apart on any of its joints: each holds an estimated constant without a free scale,
+    or the candidate's torque there is a scaled copy of the model torque
+    (``|corr| >`` :data:`CONSTANT_COLLINEARITY`).
 Verdict against the noise floor
     A verdict the data cannot support is not given. The held-out RMSE of the diagnosed model,
     and of that model with the lead (the missing effect, else the refinement) added, is
@@ -145,6 +172,7 @@ __all__ = [
     "Candidate",
     "Diagnosis",
     "FloorCheck",
+    "Misfit",
     "Removal",
     "auto_improve",
     "backward_step",
@@ -158,6 +186,7 @@ __all__ = [
     "refine_shape",
     "score_candidates",
     "score_effect",
+    "shape_check",
     "stepwise",
 ]
 
@@ -202,6 +231,8 @@ class Candidate:
     replace_delta: float | None = None
     confounded: str | None = None
     unreliable: str | None = None
+    n_weights: int = 0
+    """Weights of the best variant's block (its linear parameters; :attr:`complexity`)."""
 
     @property
     def missing(self) -> bool:
@@ -212,6 +243,12 @@ class Candidate:
     @property
     def label(self) -> str:
         return self.effect.label
+
+    @property
+    def complexity(self) -> int:
+        """Parameters the candidate fits: its block's weights plus its shape values (the
+        simpler of two candidates the data cannot tell apart is kept)."""
+        return self.n_weights + len(self.effect.shape_grid)
 
     @property
     def wrong_sign(self) -> bool:
@@ -407,8 +444,17 @@ def score_effect(
             if (c := _contribution(model, variants[k], j, p)) is not None
         },
         in_start_span=model.start.spans(v),
+        n_weights=_block_width(model, v, outputs),
     )
     return refine_shape(model, cand) if refine else cand
+
+
+def _block_width(model: DiagnosisModel, effect: Effect, outputs: Sequence[int]) -> int:
+    """Columns of ``effect``'s block (its weights; 0 for a delay or without a block)."""
+    if effect.is_shift:
+        return 0
+    cols = effect.columns(model.joint_context(outputs[0]), outputs[0])
+    return 0 if cols is None else int(cols.shape[1])
 
 
 REFINE_XTOL = 0.01
@@ -674,19 +720,38 @@ def explained_share(
     return float(np.max(gain))
 
 
+CONSTANT_COLLINEARITY = 0.99
+"""``|corr|`` of an inertial candidate's torque with a joint's model torque above which the
+two cannot be told apart on that joint (a torque-constant error is a scaled model torque)."""
+
+
 def _confounded_with_constants(model: DiagnosisModel, cand: Candidate) -> str | None:
     """Why ``cand`` cannot be told apart from an estimated torque constant, or ``None``.
 
     A change of a body's inertia scales the rigid-body torque of the joints that move it, as
-    an error of their torque constants ``k_t`` does (``k_hat i = k/k_hat tau``): with ``k_t``
-    estimated from the same logs the two trade off, so an inertial candidate on such a joint
-    is reported as not identifiable (give the constants to score it)."""
+    an error of their torque constants ``k_t`` does (``k_hat i = k/k_hat tau``). Where the
+    model holds a free scale of the joint's torque (:class:`~.effects.TorqueScale`), the
+    candidate was scored and is fitted jointly with that scale (``k_t`` estimated with the
+    effect, so an effect that loads the joint does not bias its constant): it is told apart
+    from it unless its torque there is a scaled copy of the model torque (``|corr| >``
+    :data:`CONSTANT_COLLINEARITY`). An inertial candidate is reported as not identifiable
+    (give the constants to score it) when on none of its joints it can be told apart: each
+    has an estimated constant held fixed, or a torque collinear with the model's."""
     tc = getattr(model.train_, "torque_constants", None)
     if tc is None or cand.effect.family != "body inertia":
         return None
     estimated = [j for j in cand.outputs if not bool(tc.given[j - 1])]
-    if not estimated:
-        return None
+    if not estimated or len(estimated) < len(cand.outputs):
+        return None  # a joint with a given constant tells the effect apart
+    scaled = {e.joint for e in model.effects if e.key == "scale"}
+    for j in estimated:
+        con = cand.contributions.get(j - 1)
+        if j not in scaled or con is None:
+            continue
+        tau = model.joint_context(j - 1).start_torque()[:, j - 1]
+        if np.std(con) > 0 and np.std(tau) > 0 and con.shape == tau.shape:
+            if abs(float(np.corrcoef(con, tau)[0, 1])) <= CONSTANT_COLLINEARITY:
+                return None
     joints = ", ".join(str(j) for j in estimated)
     return f"confounded with the estimated torque constant of joint {joints}"
 
@@ -730,6 +795,8 @@ class Diagnosis:
     learned_start: bool = False
     """Whether the model's start is a learned GP (its own error cannot be told apart from a
     missing effect, module docstring)."""
+    misfits: list[Misfit] = field(default_factory=list)
+    """Effects of the model whose level varies with position (:func:`shape_check`)."""
 
     @property
     def significant(self) -> list[Candidate]:
@@ -751,13 +818,47 @@ class Diagnosis:
         for c in missing[1:]:
             if c.group != first.group or c.heldout_rmse is None:
                 continue
-            # both judged on the joints either acts on (a payload moves every joint)
-            outs = np.array(sorted(set(first.outputs) | set(c.outputs))) - 1
-            mine = heldout_change_pct(self.base.rmse, first.heldout_rmse, self.noise_std, outs)
-            theirs = heldout_change_pct(self.base.rmse, c.heldout_rmse, self.noise_std, outs)
+            mine, theirs = self._heldout_pair(first, c)
             if mine - theirs > max(self.min_heldout_gain, gain):
                 best, gain = c, mine - theirs
-        return best
+        return self._simplest_alike(best, missing)
+
+    def _heldout_pair(self, a: Candidate, b: Candidate) -> tuple[float, float]:
+        """Held-out changes [%] of ``a`` and ``b``, both judged on the joints either acts on
+        (a payload moves every joint)."""
+        outs = np.array(sorted(set(a.outputs) | set(b.outputs))) - 1
+        return (
+            heldout_change_pct(self.base.rmse, a.heldout_rmse, self.noise_std, outs),
+            heldout_change_pct(self.base.rmse, b.heldout_rmse, self.noise_std, outs),
+        )
+
+    def _indistinct(self, a: Candidate, b: Candidate) -> bool:
+        """Whether the data cannot tell ``a`` and ``b`` apart: one group (correlated
+        torques), evidences within ``indistinct_nats``, held-out changes within
+        ``min_heldout_gain`` percentage points."""
+        if a.group != b.group or a.heldout_rmse is None or b.heldout_rmse is None:
+            return False
+        if abs(a.delta - b.delta) >= self.indistinct_nats:
+            return False
+        mine, theirs = self._heldout_pair(a, b)
+        return abs(mine - theirs) <= self.min_heldout_gain
+
+    def _simplest_alike(self, best: Candidate, missing: Sequence[Candidate]) -> Candidate:
+        """Of ``best`` and the missing candidates the data cannot tell apart from it
+        (:meth:`_indistinct`), the one with the fewest parameters (:attr:`Candidate.
+        complexity`; ties: ``best``): one effect per physical cause, and where the data do
+        not choose, the simpler description (an armature before a link's inertia, a damping
+        before a dead-zone). Two forms of one family (Coulomb and Stribeck friction, a
+        payload and the last link's inertia) are left to the alternatives' rule (module
+        docstring): the block with fewer weights is not the simpler body (a payload's point
+        mass has five, the last link's identifiable part may have four)."""
+        alike = [
+            c
+            for c in missing
+            if c is not best and not c.effect.same_family(best.effect) and self._indistinct(best, c)
+        ]
+        simpler = [c for c in alike if c.complexity < best.complexity]
+        return min(simpler, key=lambda c: (c.complexity, -c.delta)) if simpler else best
 
     @property
     def refinement(self) -> Candidate | None:
@@ -803,6 +904,13 @@ class Diagnosis:
                 f"improvement above {self.min_heldout_gain:g}% that explains more than "
                 f"{100 * self.min_explained:g}% of a joint's noise-floor variance"
             )
+            if self.misfits:
+                text = f"{self.model_name}: unexplained: " + "; ".join(
+                    m.text() for m in self.misfits
+                )
+                if check is not None and check.failing:
+                    text += f"; {check.failing_text()}"
+                return text + f"; {rule}"
             if check is not None and check.failing:
                 text = f"{self.model_name}: unexplained: {check.failing_text()}; {rule}"
                 if ref is not None:
@@ -851,6 +959,8 @@ class Diagnosis:
         if alike:
             names = ", ".join(c.effect.variant_label for c in alike)
             text += f"; the data cannot tell it apart from {names}"
+            if any(c.complexity > best.complexity for c in alike):
+                text += f" (the simpler one, with {best.complexity} parameters, is kept)"
         if forms:
             names = ", ".join(f"{c.effect.variant_label} (+{c.delta:.1f} nats)" for c in forms)
             text += (
@@ -965,6 +1075,7 @@ class Diagnosis:
             "heldout": None if self.base is None else self.base.to_dict(),
             "heldout_with_lead": None if self.after is None else self.after.to_dict(),
             "learned_start": self.learned_start,
+            "misfits": [m.to_dict() for m in self.misfits],
             "candidates": [
                 {
                     "effect": c.effect.variant_label,
@@ -1170,6 +1281,82 @@ def backward_step(
     return found
 
 
+@dataclass(frozen=True)
+class Misfit:
+    """An effect of the model whose level varies with its joint's position
+    (:func:`shape_check`): the torque has its shape but not its form.
+
+    Attributes:
+        label, variant: the effect's label and variant label.
+        joint: its joint (1-based).
+        evidence: log-evidence the position-dependent level adds on the joint [nats].
+        heldout_delta_pct: held-out RMSE change it makes there [%].
+        explained: share of the joint's floor variance it explains on held-out data.
+    """
+
+    label: str
+    variant: str
+    joint: int
+    evidence: float
+    heldout_delta_pct: float
+    explained: float
+
+    def text(self) -> str:
+        return (
+            f"{self.variant} explains part of the torque on joint {self.joint}, but its level "
+            f"varies with q{self.joint} (a position-dependent level adds {self.evidence:+.1f} "
+            f"nats, changes the held-out RMSE by {self.heldout_delta_pct:+.1f}% and explains "
+            f"{100 * self.explained:.0f}% of the joint's floor variance): the torque there is "
+            "not of a form in the library"
+        )
+
+    def to_dict(self) -> dict[str, Any]:
+        return dataclasses.asdict(self)
+
+
+def shape_check(
+    model: DiagnosisModel,
+    heldout: Any,
+    *,
+    threshold: float = EVIDENCE_THRESHOLD,
+    min_heldout_gain: float = MIN_HELDOUT_GAIN,
+    min_explained: float = MIN_EXPLAINED,
+) -> list[Misfit]:
+    """Whether each joint effect of ``model`` has the form it is named for: its level made a
+    smooth function of its joint's position (:class:`~.effects.PositionLevel`, added beside
+    it, refitted) must fail one of the three tests of significance (module docstring: more
+    than ``threshold`` nats on the joint, a held-out RMSE lower by more than
+    ``min_heldout_gain`` percent, more than ``min_explained`` of the floor variance
+    explained). A library effect has a constant level; an effect outside the library that
+    the nearest library form was fitted to (friction that varies along the joint's travel)
+    passes them, and the named effect then only explains part of the torque: the verdict
+    says "unexplained" rather than force it into the library. Rigid-body effects, delays
+    and the loop's own blocks are not checked (their form is the robot's kinematics)."""
+    from mcpilco.models.diagnosis.effects import MODEL_ONLY_EFFECTS, PositionLevel
+
+    held = as_trajectories(heldout, model.n_joints).interior()
+    if not model.effects:
+        return []
+    base = heldout_rmse(model, held)
+    floor = heldout_floor(model, held)
+    out: list[Misfit] = []
+    for e in model.effects:
+        if e.shared or e.all_joints or e.is_shift or e.key in MODEL_ONLY_EFFECTS:
+            continue
+        try:
+            new = model.with_effect(PositionLevel(e.joint, of=e))
+        except ValueError:
+            continue
+        j = e.joint - 1
+        evidence = float(new.evidence_[j] - model.evidence_[j])
+        rmse = heldout_rmse(new, held)
+        pct = heldout_change_pct(base, rmse, model.noise_std_, np.array([j]))
+        explained = explained_share(base, rmse, floor, [j])
+        if evidence > threshold and pct < -min_heldout_gain and explained > min_explained:
+            out.append(Misfit(e.label, e.variant_label, e.joint, evidence, pct, explained))
+    return out
+
+
 def auto_improve(
     model: DiagnosisModel, heldout: Any, max_steps: int = 4, **kwargs: Any
 ) -> tuple[list[DiagnosisModel], list[Diagnosis | None]]:
@@ -1194,6 +1381,8 @@ def auto_improve(
         d = diagnose(versions[-1], held, alternatives=alternatives, **kwargs)
         diags.append(d)
         if d.lead is None or added >= max_steps:
+            if d.lead is None:
+                d.misfits = shape_check(versions[-1], held, **tests)
             break
         steps = stepwise(versions[-1], d, held, alternatives, **tests)
         added += 1

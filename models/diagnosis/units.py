@@ -381,11 +381,90 @@ def _ratio(num: float, den: float, cov: FloatArray, i: int, k: int) -> tuple[flo
     return num / den, math.sqrt(max(float(g @ sub @ g), 0.0))
 
 
+PAYLOAD_EVIDENCE = 5.0
+"""Log-likelihood gain (less its BIC penalty) for which the payload is kept in that fit."""
+
+
+def _flange_payload(
+    x: Callable[[int, FloatArray], tuple[FloatArray | None, FloatArray | None]],
+    baseline: Callable[[int], FloatArray],
+    y: FloatArray,
+    tau_hat: FloatArray,
+    cols: FloatArray,
+    joints: Sequence[int],
+) -> FloatArray:
+    """``(N, n)`` the torque ``P_j w`` of a payload at the flange fitted jointly with the
+    torque constants (module docstring), or zeros where the data do not show one.
+
+    In torque units the joints' equations are linear in every unknown at once,
+    ``k_j i_j - P_j w - B_j c_j = tau_hat_j`` (``B_j`` the baseline's friction and offset
+    columns, ``baseline(j)``, ``c_j`` their torques; ``w`` one weight vector for every joint):
+    one least-squares fit over the stacked joints, each scaled by its residual std in torque
+    units from the per-joint fit without the payload (``x(j, tau)``: ``(beta, cov)`` of joint
+    ``j`` against model torque ``tau``). Fitting the joints one at a time cannot do this: a
+    payload that loads a joint is taken into its ``k_j`` (on a wrist by a factor of 2). The
+    payload is kept when it raises the joints' Gaussian log-likelihood by more than
+    :data:`PAYLOAD_EVIDENCE` nats beyond the BIC penalty ``(p / 2) log N`` of its ``p``
+    weights, with a positive mass, and when every ``k_j`` of the joint fit keeps a 95%
+    interval within :data:`MAX_RELATIVE_CI` of its value (where the last body carries most of
+    every joint's torque, a payload and a common scale of the constants trade off: the
+    constants are then fitted one joint at a time). The current's own noise, now in a
+    regressor, biases ``k_j`` by its share of the current's variance (small against a loaded
+    joint's)."""
+    n_rows, n, p = cols.shape
+    zero = np.zeros((n_rows, n))
+    sig: dict[int, float] = {}
+    for j in joints:
+        beta, _ = x(j, tau_hat[:, j])
+        if beta is None or beta[0] == 0:
+            continue
+        pred = beta[0] * tau_hat[:, j] + baseline(j) @ beta[1:]
+        sd = math.sqrt(float(np.mean((y[:, j] - pred) ** 2))) / abs(float(beta[0]))
+        if sd > 0:
+            sig[j] = sd
+    js = list(sig)
+    if not js:
+        return zero
+    m, nb = len(js), baseline(js[0]).shape[1]
+
+    def solve(with_w: bool) -> tuple[FloatArray, FloatArray]:
+        pw = p if with_w else 0
+        a = np.zeros((n_rows * m, m + pw + nb * m))
+        b = np.zeros(n_rows * m)
+        for k, j in enumerate(js):
+            r = slice(k * n_rows, (k + 1) * n_rows)
+            a[r, k] = y[:, j] / sig[j]
+            if with_w:
+                a[r, m : m + p] = -cols[:, j] / sig[j]
+            a[r, m + pw + nb * k : m + pw + nb * (k + 1)] = -baseline(j) / sig[j]
+            b[r] = tau_hat[:, j] / sig[j]
+        norm = np.linalg.norm(a, axis=0)
+        norm[norm == 0] = 1.0
+        theta = np.linalg.lstsq(a / norm, b, rcond=None)[0] / norm
+        rss = np.mean(np.square(b - a @ theta).reshape(m, n_rows), axis=1)
+        an = a / norm
+        cov = np.linalg.pinv(an.T @ an) * float(np.mean(rss)) / np.outer(norm, norm)
+        sd_k = np.sqrt(np.clip(np.diag(cov)[:m], 0.0, None))
+        return theta, rss, Z95 * sd_k / np.maximum(np.abs(theta[:m]), 1e-300)
+
+    _, rss0, _ = solve(False)
+    theta, rss1, rel = solve(True)
+    gain = 0.5 * n_rows * float(np.sum(np.log(rss0 / np.maximum(rss1, 1e-300))))
+    if gain - 0.5 * p * math.log(n_rows * m) <= PAYLOAD_EVIDENCE:
+        return zero
+    if not np.all(rel < MAX_RELATIVE_CI):  # the payload takes the place of a common scale
+        return zero
+    if not theta[m] > 0:  # an unphysical mass: the fit took another direction for a payload
+        return zero
+    return np.einsum("tjp,p->tj", cols, theta[m : m + p])
+
+
 def estimate_torque_constants(
     traj: Trajectories,
     torque: Callable[[FloatArray, FloatArray, FloatArray], FloatArray],
     joint_types: str,
     given: Any = None,
+    payload: Callable[[FloatArray, FloatArray, FloatArray], FloatArray] | None = None,
 ) -> TorqueConstants:
     """Estimate ``k_t`` per joint from a current log and the model torque (module docstring).
 
@@ -395,6 +474,9 @@ def estimate_torque_constants(
         joint_types: e.g. ``"RRPR"``.
         given: optional per-joint ``k_t`` the user knows, ``None``/``nan`` for the joints to
             estimate (e.g. a wrist whose torque is too small to pin its constant down).
+        payload: ``(q, qd, qdd) -> (N, n, p)``, the columns of a payload at the flange
+            (one weight vector for every joint): fitted jointly with the constants
+            (:func:`_flange_payload`), so that a payload the model lacks does not bias them.
 
     Returns:
         the constants; a joint whose ``k_t`` the data cannot pin down has ``value`` 1, its
@@ -419,8 +501,27 @@ def estimate_torque_constants(
     known = np.full(traj.n_joints, np.nan) if given is None else _given_values(given, joint_types)
     value, ci95, baseline, reasons, free = [], [], [], [], []
     names = ("F_v", "F_c", "tau_0")
+
+    def baseline_cols(j: int) -> FloatArray:
+        return np.concatenate(
+            [
+                ViscousFriction(j + 1).columns(ctx, j),
+                CoulombFriction(j + 1, eps=BASELINE_EPS).columns(ctx, j),
+                TorqueOffset(j + 1).columns(ctx, j),
+            ],
+            axis=1,
+        )
+
+    def fit(j: int, tau: FloatArray) -> tuple[FloatArray | None, FloatArray | None]:
+        x = np.concatenate([tau[:, None], baseline_cols(j)], axis=1)
+        return _corrected_least_squares(x, traj.y[rows, j], sigma_in[j] ** 2, ranges, lags)
+
+    unknown = [j for j in range(traj.n_joints) if not np.isfinite(known[j])]
+    if payload is not None and unknown:
+        tau_hat = tau_hat + _flange_payload(
+            fit, baseline_cols, traj.y[rows], tau_hat, np.asarray(payload(q, qd, qdd)), unknown
+        )
     for j in range(traj.n_joints):
-        joint = j + 1
         if np.isfinite(known[j]):
             value.append(float(known[j]))
             ci95.append(0.0)
@@ -428,16 +529,7 @@ def estimate_torque_constants(
             free.append(False)
             reasons.append(None)
             continue
-        x = np.concatenate(
-            [
-                tau_hat[:, [j]],
-                ViscousFriction(joint).columns(ctx, j),
-                CoulombFriction(joint, eps=BASELINE_EPS).columns(ctx, j),
-                TorqueOffset(joint).columns(ctx, j),
-            ],
-            axis=1,
-        )
-        beta, cov = _corrected_least_squares(x, traj.y[rows, j], sigma_in[j] ** 2, ranges, lags)
+        beta, cov = fit(j, tau_hat[:, j])
         unit = "N/A" if joint_types[j] == "P" else "N·m/A"
         why = None
         if beta is None:
@@ -529,7 +621,9 @@ def currents_to_torque(
     if np.isfinite(known).all():
         constants = given_torque_constants(known, start.joint_types)
     elif start.robot is not None:
-        constants = estimate_torque_constants(train, start.robot.rnea, start.joint_types, known)
+        constants = estimate_torque_constants(
+            train, start.robot.rnea, start.joint_types, known, payload=_payload_columns(start)
+        )
     elif torque_constants is None:
         return train, test, None
     else:
@@ -539,6 +633,28 @@ def currents_to_torque(
             "estimate them against; give every joint's constant or a robot file (--model)"
         )
     return constants.to_torque(train), constants.to_torque(test), constants
+
+
+def _payload_columns(start: Any) -> Callable[[FloatArray, FloatArray, FloatArray], FloatArray]:
+    """``(q, qd, qdd) -> (N, n, p)``: the columns of :class:`~.effects.Payload` on every joint
+    of ``start``'s robot file (a payload at the flange, one weight vector)."""
+    from mcpilco.models.diagnosis.effects import Payload
+
+    robot = start.robot
+
+    def columns(q: FloatArray, qd: FloatArray, qdd: FloatArray) -> FloatArray:
+        ctx = FeatureContext(
+            q=q,
+            qd=qd,
+            qdd=qdd,
+            base=None,
+            joint_types=start.joint_types,
+            regressor=lambda: robot.regressor(q, qd, qdd),
+            rigid=robot.rigid_body(),
+        )
+        return np.stack([Payload().columns(ctx, j) for j in range(q.shape[1])], axis=1)
+
+    return columns
 
 
 def widen_estimates(

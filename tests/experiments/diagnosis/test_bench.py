@@ -260,7 +260,8 @@ def test_a_value_range_replaces_the_snr_draw():
 def test_panda_case_set_draws_its_effects_on_the_panda():
     """The Panda set's dry-friction case: two frictionloss effects of 2-3 N m on two
     different joints of the 7-joint Panda, whose torque shows on those joints only."""
-    role, kinds = CASE_SETS["panda"].cases[3]
+    role, kinds, logs = CASE_SETS["panda"].cases[3]
+    assert logs == "torque"
     assert kinds == ("frictionloss", "frictionloss")
     rec = run_case(seed=3, role=role, kinds=list(kinds), duration=1.0, train_files=1,
                    arm="panda", sizes=CASE_SETS["panda"].sizes, max_steps=1)  # fmt: skip
