@@ -202,9 +202,9 @@ class Trainer:
             self._set_up_parts()
             if self.resume:
                 self._load_checkpoint()
-            self.cost_fn = self._optimised_cost()
+            self.cost_fn = optimised_cost(self.config, self.task)
             self.success_level = success_cost_level(self.task, self.cost_fn)
-            self.init_std = self._init_std()
+            self.init_std = initial_std(self.config, self.task, self.layout)
         except BaseException:
             if self.env is not None:
                 self.env.close()
@@ -482,34 +482,11 @@ class Trainer:
             )
         torch.manual_seed(config.seed)
         self.np_rng = np.random.default_rng(config.seed)
-        scales = (
-            config.candidate_weight_scales or [config.policy_weight_scale] * config.num_candidates
-        )
-        candidates = [
-            SquashedRBFPolicy(
-                self.layout,
-                task.action_low,
-                task.action_high,
-                num_basis=config.num_basis,
-                centers_box=config.policy_centers_box,
-                weight_scale=scale,
-                seed=config.seed + CANDIDATE_SEED_STRIDE * k,
-            )
-            for k, scale in enumerate(scales)
-        ]
+        candidates = policy_candidates(config, task, self.layout)
         self.policy = candidates[0].to(self.device)  # the policy applied (the chosen one)
         self.population = PolicyPopulation(candidates).to(self.device)
         self.policy_module = make_policy_module(self.population)
-        self.model = GPDynamicsModel(
-            task,
-            kernel=config.kernel,
-            max_points=config.max_points,
-            adam_iters=config.gp_adam_iters,
-            lbfgs_iters=config.gp_lbfgs_iters,
-            noise_min=config.gp_noise_min,
-            min_lengthscale=config.gp_min_lengthscale,
-            mpk_degree=config.mpk_degree,
-        )
+        self.model = dynamics_model(config, task)
 
     def _load_checkpoint(self) -> None:
         """Continue after the checkpoint's last trial (same data, policy, GP, RNG states)."""
@@ -528,31 +505,6 @@ class Trainer:
         self.start_trial = self.resumed_from = int(ckpt["next_trial"])
         if self.log:
             self.log(f"resumed {self.checkpoint_path}: trials 0..{self.start_trial - 1} done")
-
-    def _optimised_cost(self) -> torch.nn.Module:
-        """The cost the policy optimisation minimises: the task's cost function, or its
-        saturating cost terms with the config's length scales, angle mode and barriers."""
-        task, config = self.task, self.config
-        if task.cost_fn is not None:
-            if config.cost_limit_widths:
-                raise ValueError(
-                    "cost_limit_widths adds barriers to the task's cost terms; the task has a "
-                    "cost function instead (put the barrier in it)"
-                )
-            return task.cost_fn if isinstance(task.cost_fn, torch.nn.Module) else _CostFn(task)
-        return SaturatingCost.from_task(
-            task, config.cost_length_scales, config.cost_angle_mode, config.cost_limit_widths
-        )
-
-    def _init_std(self) -> np.ndarray:
-        """``sigma_0`` per state of the initial particles (0 on a known reference)."""
-        task, config = self.task, self.config
-        init_std = np.broadcast_to(
-            np.asarray(task.init_std if config.init_std is None else config.init_std, float),
-            (task.state_dim,),
-        ).copy()
-        init_std[list(self.layout.oscillator_idx)] = 0.0  # a known reference starts on it
-        return init_std
 
     def _loss(self, module: torch.nn.Module, dynamics: torch.nn.Module) -> MCPilcoLoss:
         """The particle estimate ``J^`` of the policy ``module`` under ``dynamics``."""
@@ -638,6 +590,65 @@ class _CostFn(torch.nn.Module):
 
     def forward(self, state: torch.Tensor) -> torch.Tensor:
         return self.fn(state)
+
+
+def policy_candidates(
+    config: MCPilcoConfig, task: TaskSpec, layout: StateLayout
+) -> list[SquashedRBFPolicy]:
+    """The ``K`` candidate policies of a run (``config.num_candidates``), candidate ``k``
+    with initial weight scale ``s_k`` and seed ``seed + CANDIDATE_SEED_STRIDE k``."""
+    scales = config.candidate_weight_scales or [config.policy_weight_scale] * config.num_candidates
+    return [
+        SquashedRBFPolicy(
+            layout,
+            task.action_low,
+            task.action_high,
+            num_basis=config.num_basis,
+            centers_box=config.policy_centers_box,
+            weight_scale=scale,
+            seed=config.seed + CANDIDATE_SEED_STRIDE * k,
+        )
+        for k, scale in enumerate(scales)
+    ]
+
+
+def dynamics_model(config: MCPilcoConfig, task: TaskSpec) -> GPDynamicsModel:
+    """The GP dynamics model of a run, with the config's kernel, subset size and fit."""
+    return GPDynamicsModel(
+        task,
+        kernel=config.kernel,
+        max_points=config.max_points,
+        adam_iters=config.gp_adam_iters,
+        lbfgs_iters=config.gp_lbfgs_iters,
+        noise_min=config.gp_noise_min,
+        min_lengthscale=config.gp_min_lengthscale,
+        mpk_degree=config.mpk_degree,
+    )
+
+
+def initial_std(config: MCPilcoConfig, task: TaskSpec, layout: StateLayout) -> np.ndarray:
+    """``sigma_0`` per state of the initial particles (0 on a known reference)."""
+    init_std = np.broadcast_to(
+        np.asarray(task.init_std if config.init_std is None else config.init_std, float),
+        (task.state_dim,),
+    ).copy()
+    init_std[list(layout.oscillator_idx)] = 0.0  # a known reference starts on it
+    return init_std
+
+
+def optimised_cost(config: MCPilcoConfig, task: TaskSpec) -> torch.nn.Module:
+    """The cost the policy optimisation minimises: the task's cost function, or its
+    saturating cost terms with the config's length scales, angle mode and barriers."""
+    if task.cost_fn is not None:
+        if config.cost_limit_widths:
+            raise ValueError(
+                "cost_limit_widths adds barriers to the task's cost terms; the task has a "
+                "cost function instead (put the barrier in it)"
+            )
+        return task.cost_fn if isinstance(task.cost_fn, torch.nn.Module) else _CostFn(task)
+    return SaturatingCost.from_task(
+        task, config.cost_length_scales, config.cost_angle_mode, config.cost_limit_widths
+    )
 
 
 MAX_GOAL_CORNERS = 4096  # corners of a goal box evaluated by success_cost_level (2^12)

@@ -44,11 +44,8 @@ from tensordict.nn import TensorDictModule
 from torchrl.data import LazyTensorStorage, ReplayBuffer
 
 from mcpilco.agents.mc_pilco import (
-    GPDynamicsModel,
     MCPilcoLoss,
     PolicyPopulation,
-    SaturatingCost,
-    SquashedRBFPolicy,
     StateLayout,
     load_config,
     optimize_policy,
@@ -59,7 +56,12 @@ from mcpilco.agents.mc_pilco.loss import TerminationSet
 from mcpilco.agents.mc_pilco.optimize import choose_policy
 from mcpilco.agents.mc_pilco.policy import data_init
 from mcpilco.agents.mc_pilco.torchrl_parts import STATE_KEY, ParticleWorldModel, make_torchrl_env
-from mcpilco.agents.mc_pilco.trainer import CANDIDATE_SEED_STRIDE
+from mcpilco.agents.mc_pilco.trainer import (
+    dynamics_model,
+    initial_std,
+    optimised_cost,
+    policy_candidates,
+)
 from mcpilco.envs.yaml_files import read_yaml
 
 try:  # TorchRL >= 0.11 names its single-process collector Collector
@@ -108,39 +110,11 @@ def train(cfg: dict[str, Any], log=print) -> list[dict[str, Any]]:
     steps = task.steps_per_trial
 
     # the package's parts: policy candidates, GP dynamics model, cost
-    candidates = [
-        SquashedRBFPolicy(
-            layout,
-            task.action_low,
-            task.action_high,
-            num_basis=config.num_basis,
-            centers_box=config.policy_centers_box,
-            weight_scale=scale,
-            seed=config.seed + CANDIDATE_SEED_STRIDE * k,
-        )
-        for k, scale in enumerate(
-            config.candidate_weight_scales or [config.policy_weight_scale] * config.num_candidates
-        )
-    ]
+    candidates = policy_candidates(config, task, layout)
     policy, population = candidates[0], PolicyPopulation(candidates)
-    model = GPDynamicsModel(
-        task,
-        kernel=config.kernel,
-        max_points=config.max_points,
-        adam_iters=config.gp_adam_iters,
-        lbfgs_iters=config.gp_lbfgs_iters,
-        noise_min=config.gp_noise_min,
-        min_lengthscale=config.gp_min_lengthscale,
-        mpk_degree=config.mpk_degree,
-    )
-    cost = SaturatingCost.from_task(
-        task, config.cost_length_scales, config.cost_angle_mode, config.cost_limit_widths
-    )
-    init_std = np.broadcast_to(
-        np.asarray(task.init_std if config.init_std is None else config.init_std, float),
-        (task.state_dim,),
-    ).copy()
-    init_std[list(layout.oscillator_idx)] = 0.0  # a known reference starts on it
+    model = dynamics_model(config, task)
+    cost = optimised_cost(config, task)
+    init_std = initial_std(config, task, layout)
 
     # TorchRL's objects: env, actor, collector, replay buffer, loss
     env = make_torchrl_env(task, config.seed, config.env_kwargs)
