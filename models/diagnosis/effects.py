@@ -65,8 +65,8 @@ floor alike.
 
 ``tau_hat`` is the torque predicted by the start model (nominal physics or the learned
 model of version 0). A fitted parameter has the *wrong sign* when its posterior mean lies
-more than 1.96 posterior standard deviations on the unphysical side; such candidates are
-shown but never recommended.
+more than ``Z95`` (1.96) posterior standard deviations on the unphysical side; such
+candidates are shown but never recommended.
 """
 
 from __future__ import annotations
@@ -129,7 +129,7 @@ class Param:
 class ParamEstimate:
     """Estimate ``value +- ci95`` of one parameter, with its unit.
 
-    A weight's estimate is its posterior mean and 1.96 posterior standard deviations. A
+    A weight's estimate is its posterior mean and ``Z95`` posterior standard deviations. A
     shape value fitted by profile log-evidence (:mod:`.profile`) carries its 95%
     likelihood-ratio ``interval`` ``(lo, hi)`` (not symmetric; ``ci95`` is then the larger
     distance from ``value`` to an end), ``limited`` when an end is the search limit rather
