@@ -308,6 +308,15 @@ def optimize_policy(
             config.monitor_threshold_min,
         )
 
+    def fresh_start(seed: int | None):
+        """A new draw of the policy (seeded, or from the global generator) with the initial
+        learning rate and dropout, a new Adam and monitor: (lr, dropout, step_fn, opt,
+        monitor)."""
+        policy.reset_parameters(seed)
+        _set_dropout(policy, config.dropout)
+        fresh_opt = torch.optim.Adam(params, lr=config.lr)
+        return config.lr, config.dropout, None, fresh_opt, new_monitor()
+
     monitor = new_monitor()
     _set_dropout(policy, dropout)
     policy.train()
@@ -328,12 +337,7 @@ def optimize_policy(
                         f"expected cost is not finite after {config.max_reinits} policy "
                         "re-initialisations; check the GP model (noise, data) and the policy"
                     )
-                policy.reset_parameters()
-                lr, dropout = config.lr, config.dropout
-                _set_dropout(policy, dropout)
-                step_fn = None
-                opt = torch.optim.Adam(params, lr=lr)
-                monitor = new_monitor()
+                lr, dropout, step_fn, opt, monitor = fresh_start(None)
                 continue
             opt.step()
             res.costs.append(cost)
@@ -349,12 +353,7 @@ def optimize_policy(
             if stalled and _plateau_restart(res, config, success_level, num_candidates):
                 if not res.snapshots or res.snapshots[-1][0] != res.num_steps:  # keep the plateau
                     res.snapshots.append((res.num_steps, [p.detach().clone() for p in params]))
-                policy.reset_parameters(int(torch.randint(2**31 - 1, ())))
-                lr, dropout = config.lr, config.dropout
-                _set_dropout(policy, dropout)
-                step_fn = None
-                opt = torch.optim.Adam(params, lr=lr)
-                monitor = new_monitor()
+                lr, dropout, step_fn, opt, monitor = fresh_start(int(torch.randint(2**31 - 1, ())))
                 continue
             if stalled:
                 if lr <= config.lr_min:

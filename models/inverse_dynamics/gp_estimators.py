@@ -135,10 +135,11 @@ class GPInverseDynamics(InverseDynamicsEstimator):
     def gp_input_names(self, n_joints: int) -> list[str] | None:
         return None
 
-    def _fit(self, states: JointStates, y: FloatArray) -> None:
-        n = states.n_joints
-        X = self.gp_inputs(states)
-        self.gp_ = GPRegressor(
+    def new_gp(self, n_joints: int) -> GPRegressor:
+        """An unfitted GP with this estimator's kernel, noise settings and names: one output
+        ``tau_j`` per joint."""
+        n = n_joints
+        return GPRegressor(
             lambda batch: self.kernel(batch, n),
             standardize_x=self.standardize_x,
             noise_init=self.noise_init,
@@ -146,6 +147,11 @@ class GPInverseDynamics(InverseDynamicsEstimator):
             input_names=self.gp_input_names(n),
             output_names=[f"tau{j}" for j in range(1, n + 1)],
         )
+
+    def _fit(self, states: JointStates, y: FloatArray) -> None:
+        n = states.n_joints
+        X = self.gp_inputs(states)
+        self.gp_ = self.new_gp(n)
         opt = dict(adam_iters=self.adam_iters, adam_lr=self.adam_lr, lbfgs_iters=self.lbfgs_iters)
         self.hyper_rows_ = None  # rows of the hyperparameter fit (None: all)
         if self.hyper_points is not None and X.shape[0] > self.hyper_points:
@@ -252,14 +258,7 @@ class NystromGIPEstimator(GIPEstimator):
         n = states.n_joints
         X = self.gp_inputs(states)
         N = X.shape[0]
-        self.gp_ = GPRegressor(
-            lambda batch: self.kernel(batch, n),
-            standardize_x=self.standardize_x,
-            noise_init=self.noise_init,
-            noise_min=self.noise_min,
-            input_names=self.gp_input_names(n),
-            output_names=[f"tau{j}" for j in range(1, n + 1)],
-        )
+        self.gp_ = self.new_gp(n)
         rows = np.arange(N)
         if self.hyper_points is not None and N > self.hyper_points:
             rng = np.random.default_rng(self.seed)
