@@ -83,8 +83,17 @@ SOURCES = tuple(
 
 HEADER = Path(__file__).with_name("native_rollout.h")  # included by both sources
 
-CXX_FLAGS = ("-O3", "-march=native", "-fno-math-errno")
-"""Compiler flags (no ``-ffast-math``: NaN must propagate, the loss restarts on a NaN cost)."""
+BASE_FLAGS = ("-O3", "-fno-math-errno")
+"""Compiler flags of every build (no ``-ffast-math``: NaN must propagate, the loss restarts on
+a NaN cost); :data:`ISA_FLAGS` adds the instruction set."""
+
+ISA_FLAGS = {"native": ("-march=native",), "avx2": ("-march=x86-64-v3",)}
+"""The instruction sets the extension is built for, by name: ``native``, the CPU it is built
+on (its AVX-512 where it has it; the default), and ``avx2``, x86-64-v3 (AVX2 and FMA, no
+AVX-512: what every x86-64 CPU from about 2015 on runs). The kernels use 8-float vectors, so
+both builds run the same code; ``avx2`` is how a CPU without AVX-512 is timed on one with it."""
+
+ISA_ENV = "MCPILCO_NATIVE_ISA"  # the environment variable that names the default build's ISA
 
 STAGE_NAMES = (
     "forward: policy and GP inputs",
@@ -98,9 +107,24 @@ STAGE_NAMES = (
 )
 """The stages of the loops that :func:`stage_seconds` clocks, in the C++ ``Stage`` order."""
 
-_LIB: ModuleType | None = None
-_LIB_ERROR: str | None = None
+_LIBS: dict[str, ModuleType] = {}  # the loaded extensions by ISA name
+_LIB_ERRORS: dict[str, str] = {}  # why building one failed, by ISA name
 _LIB_LOCK = threading.Lock()
+
+
+def native_isa(isa: str | None = None) -> str:
+    """The instruction set of :data:`ISA_FLAGS` to build for: ``isa``, else
+    ``$MCPILCO_NATIVE_ISA``, else ``native``."""
+    name = isa or os.environ.get(ISA_ENV) or "native"
+    if name not in ISA_FLAGS:
+        where = "isa" if isa else f"${ISA_ENV}"
+        raise ValueError(f"{where} must be one of {', '.join(ISA_FLAGS)}, got {name!r}")
+    return name
+
+
+def cxx_flags(isa: str | None = None) -> tuple[str, ...]:
+    """The compiler flags of the build for ``isa`` (:func:`native_isa`)."""
+    return (*BASE_FLAGS[:1], *ISA_FLAGS[native_isa(isa)], *BASE_FLAGS[1:])
 
 
 def cache_dir() -> Path:
@@ -128,18 +152,20 @@ def _cpu_key() -> str:
         return platform.machine() + platform.processor()
 
 
-def extension_name(cxx: str) -> str:
-    """The extension's module name for compiler ``cxx``: a hash of the compiler, the flags,
-    the CPU, the torch version and the sources' contents (one build folder each), so that
-    two installed versions of the package sharing a cache never rebuild each other's."""
+def extension_name(cxx: str, isa: str | None = None) -> str:
+    """The extension's module name for compiler ``cxx`` and instruction set ``isa``
+    (:func:`native_isa`): a hash of the compiler, the flags, the CPU, the torch version and
+    the sources' contents (one build folder each), so that two installed versions of the
+    package sharing a cache never rebuild each other's."""
     sources = b"".join(path.read_bytes() for path in (*SOURCES, HEADER))
-    key = repr((cxx, CXX_FLAGS, _cpu_key(), torch.__version__)).encode() + sources
+    key = repr((cxx, cxx_flags(isa), _cpu_key(), torch.__version__)).encode() + sources
     return f"mcpilco_native_rollout_{hashlib.sha256(key).hexdigest()[:16]}"
 
 
-def build_error() -> str | None:
-    """Why building the extension failed in this process (None: it did not fail)."""
-    return _LIB_ERROR
+def build_error(isa: str | None = None) -> str | None:
+    """Why building the extension for ``isa`` (:func:`native_isa`) failed in this process
+    (None: it did not fail)."""
+    return _LIB_ERRORS.get(native_isa(isa))
 
 
 def cpp_compiler_names() -> list[str]:
@@ -187,25 +213,26 @@ def build_lock(build: Path) -> Iterator[None]:
         os.close(fd)  # releases the flock
 
 
-def load_library() -> ModuleType:
-    """The compiled rollout extension, built on first use (see the module docstring).
+def load_library(isa: str | None = None) -> ModuleType:
+    """The compiled rollout extension for instruction set ``isa`` (:func:`native_isa`),
+    built on first use (see the module docstring).
 
     Raises ``RuntimeError`` (with the compiler's message) if no C++ compiler is found, the
     build fails or the extension does not load (e.g. an unwritable cache folder); a failure
     other than a missing compiler is remembered for the process."""
-    global _LIB, _LIB_ERROR
+    isa = native_isa(isa)
     with _LIB_LOCK:
-        if _LIB is not None:
-            return _LIB
-        if _LIB_ERROR is not None:
-            raise RuntimeError(_LIB_ERROR)
+        if isa in _LIBS:
+            return _LIBS[isa]
+        if isa in _LIB_ERRORS:
+            raise RuntimeError(_LIB_ERRORS[isa])
         cxx = cpp_compiler()
         if cxx is None:
             # not remembered: a compiler installed (or CXX set) later in the process is used
             raise RuntimeError(f"no C++ compiler found ({' or '.join(cpp_compiler_names())})")
         from torch.utils import cpp_extension
 
-        name = extension_name(cxx)
+        name = extension_name(cxx, isa)
         build = cache_dir() / name
         before = {key: os.environ.get(key) for key in ("CXX", "PATH")}
         try:
@@ -217,26 +244,26 @@ def load_library() -> ModuleType:
                 lib = cpp_extension.load(
                     name,
                     [str(p) for p in SOURCES],
-                    extra_cflags=list(CXX_FLAGS),
+                    extra_cflags=list(cxx_flags(isa)),
                     build_directory=str(build),
                     verbose=False,
                 )
         except (OSError, ImportError) as err:  # unwritable cache, unloadable module
-            _LIB_ERROR = f"{type(err).__name__}: {err}"
-            raise RuntimeError(_LIB_ERROR) from err
+            _LIB_ERRORS[isa] = f"{type(err).__name__}: {err}"
+            raise RuntimeError(_LIB_ERRORS[isa]) from err
         except (RuntimeError, subprocess.SubprocessError) as err:  # the compiler's message
             said = [getattr(err, key, None) for key in ("stderr", "output")]
             said = [x.decode(errors="replace") if isinstance(x, bytes) else x for x in said]
             detail = " ".join(x.strip() for x in said if x)
-            _LIB_ERROR = f"{cxx}: {err} {detail}".strip()[:4000]
-            raise RuntimeError(_LIB_ERROR) from err
+            _LIB_ERRORS[isa] = f"{cxx}: {err} {detail}".strip()[:4000]
+            raise RuntimeError(_LIB_ERRORS[isa]) from err
         finally:
             for key, value in before.items():
                 if value is None:
                     os.environ.pop(key, None)
                 else:
                     os.environ[key] = value
-        _LIB = lib
+        _LIBS[isa] = lib
         return lib
 
 
@@ -246,6 +273,17 @@ def stage_seconds(reset: bool = False) -> dict[str, float]:
     Every loop keeps these clocks (two clock reads per output and tile step, well under one
     percent of a step)."""
     return dict(zip(STAGE_NAMES, load_library().stage_seconds(reset), strict=True))
+
+
+def kernel_rows(reset: bool = False) -> tuple[int, int]:
+    """``(taken, all)``: the rows of RBF kernel values (one per training point, GP output,
+    tile of particles and time step) that the forward loops took into the products with the
+    GP's constant matrices since the last reset (or the library's load), and all of them. A
+    row is left out, forward and backward, where every particle of the tile has its kernel
+    value at or below ``exp(-69)`` (``KERNEL_FLOOR``, 1e-30): it would add less than 1e-20
+    to the posterior. ``reset``: count again from zero."""
+    taken, total = load_library().kernel_rows(reset)
+    return int(taken), int(total)
 
 
 def native_unsupported_reason(
@@ -421,7 +459,14 @@ class NativeRollout(ShardedRollout):
     returned to a pool by its backward."""
 
     def __init__(
-        self, policy, dynamics, cost, rows: int, delta_dim: int | None = None, shards: int = 1
+        self,
+        policy,
+        dynamics,
+        cost,
+        rows: int,
+        delta_dim: int | None = None,
+        shards: int = 1,
+        isa: str | None = None,
     ) -> None:
         reason = native_unsupported_reason(policy, dynamics, cost, torch.device("cpu"))
         if reason is not None:
@@ -430,7 +475,8 @@ class NativeRollout(ShardedRollout):
         if delta_dim is not None and delta_dim != out:
             raise ValueError(f"the native rollout needs delta_dim {out}, got {delta_dim}")
         super().__init__(policy, dynamics, cost, rows, shards)
-        self.lib = load_library()
+        self.isa = native_isa(isa)
+        self.lib = load_library(self.isa)
         self.model = native_model(self.lib, policy, dynamics, cost)
         self._per = self.shard_rows // self.candidates
         self.tiles_per = -(-self._per // int(self.lib.tile()))
@@ -471,14 +517,19 @@ class NativeRollout(ShardedRollout):
 
 
 __all__ = [
+    "BASE_FLAGS",
+    "ISA_FLAGS",
     "STAGE_NAMES",
     "NativeRollout",
     "build_error",
     "cache_dir",
     "cpp_compiler",
     "cpp_compiler_names",
+    "cxx_flags",
     "extension_name",
+    "kernel_rows",
     "load_library",
+    "native_isa",
     "native_model",
     "native_unsupported_reason",
     "pack_blocks",

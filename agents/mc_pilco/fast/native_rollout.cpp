@@ -42,6 +42,10 @@ constexpr int POLICY_CHAINS = 4;  // independent sums the policy's loops keep (F
 static_assert(POLICY_CHAINS == 4, "the policy loops add their 4 sums by hand");
 constexpr float EXP_FLOOR = -87.0f;  // exp's argument floor (models/numerics.py)
 constexpr float VAR_FLOOR = 1e-12f;  // variance floor of the sample (dynamics.py)
+// RBF kernel values at or below this are left out of the products where every particle of a
+// tile has them (active_row): exp(-69); times the GP's constants they are below 1e-20, far
+// under the float32 rounding of the posterior they would add to
+constexpr float KERNEL_FLOOR = 1e-30f;
 constexpr float PI_F = 3.14159265358979323846f;  // pi rounded to float, as torch rounds it
 constexpr float TWO_PI_F = 6.28318530717958647692f;  // 2 pi rounded to float
 
@@ -81,13 +85,35 @@ inline float exp_floor(float x) { return std::exp(x < EXP_FLOOR ? EXP_FLOOR : x)
 
 inline int pad_rows(int rows) { return (rows + RB - 1) / RB * RB; }
 
+// whether a row of kernel values of a tile (r0: particles 0-7, r1: 8-15) takes part in the
+// products: some particle's value is above KERNEL_FLOOR, or NaN (which must propagate)
+inline bool active_row(v8 r0, v8 r1) {
+    const v8i low = (r0 <= bc(KERNEL_FLOOR)) & (r1 <= bc(KERNEL_FLOOR));
+    uint64_t u[4];
+    std::memcpy(u, &low, sizeof(u));
+    return (u[0] & u[1] & u[2] & u[3]) != ~uint64_t(0);
+}
+
+// The columns of a tile's X2 (below) that a product uses: those listed in idx[0 .. n - 1]
+// (ascending); idx null: all of them.
+struct Cols {
+    const int32_t *idx = nullptr;
+    int n = 0;
+};
+
 // C_r[16] = sum_{k in [beg_b, end_b)} A[r][k] X(k)[16] for the rows r of every block b of
 // the packed matrix P, where X(k) = X1 + 16 k for k < split, X2 + 16 (k - split) after;
 // each block's RB x 16 results go, still in registers, to epi(first row, c0, c1) (c0[r],
 // c1[r]: particles 0-7 and 8-15 of row first + r), which stores or consumes them.
-template <class Epi>
-inline void gemm_tile(const Packed &P, const float *X1, int split, const float *X2, Epi &&epi) {
+// LIST: only the columns k >= split listed in cols are taken (the others are zero for every
+// particle of the tile); skip (one byte per block, or null): blocks whose rows are not
+// needed, left out without a call of epi.  (Each instantiation has one loop over X2: with
+// both, GCC keeps the accumulators in memory.)
+template <bool LIST, class Epi>
+inline void gemm_tile_t(const Packed &P, const float *X1, int split, const float *X2, Epi &&epi,
+                        Cols cols, const uint8_t *skip) {
     for (int b = 0; b < P.blocks; ++b) {
+        if (skip && skip[b]) continue;
         v8 c0[RB], c1[RB];
 #pragma GCC unroll 8
         for (int r = 0; r < RB; ++r) c0[r] = c1[r] = bc(0.0f);
@@ -103,7 +129,20 @@ inline void gemm_tile(const Packed &P, const float *X1, int split, const float *
                 c1[r] += ar * x1;
             }
         }
-        if (k < e) {
+        if constexpr (LIST) {  // the listed columns of X2 in [k, e), column j at a0 + RB j
+            const float *a0 = a - (int64_t)(k - split) * RB;
+            const int32_t *q = std::lower_bound(cols.idx, cols.idx + cols.n, k - split);
+            for (const int32_t *qe = cols.idx + cols.n; q < qe && *q < e - split; ++q) {
+                const float *x = X2 + (int64_t)*q * TILE, *aj = a0 + (int64_t)*q * RB;
+                v8 x0 = ld(x), x1 = ld(x + 8);
+#pragma GCC unroll 8
+                for (int r = 0; r < RB; ++r) {
+                    v8 ar = bc(aj[r]);
+                    c0[r] += ar * x0;
+                    c1[r] += ar * x1;
+                }
+            }
+        } else if (k < e) {
             const float *x = X2 + (int64_t)(k - split) * TILE;
             for (; k < e; ++k, a += RB, x += TILE) {
                 v8 x0 = ld(x), x1 = ld(x + 8);
@@ -115,21 +154,37 @@ inline void gemm_tile(const Packed &P, const float *X1, int split, const float *
                 }
             }
         }
-        epi(b * RB, c0, c1);
+        v8 o0[RB], o1[RB];  // copies: the accumulators' addresses are never taken
+#pragma GCC unroll 8
+        for (int r = 0; r < RB; ++r) o0[r] = c0[r], o1[r] = c1[r];
+        epi(b * RB, o0, o1);
     }
 }
 
-// gemm_tile storing every row (the padding rows too) in C (rows x 16)
+// gemm_tile_t over the columns cols lists (idx null: all of them)
+template <class Epi>
+inline void gemm_tile(const Packed &P, const float *X1, int split, const float *X2, Epi &&epi,
+                      Cols cols = {}, const uint8_t *skip = nullptr) {
+    if (cols.idx)
+        gemm_tile_t<true>(P, X1, split, X2, epi, cols, skip);
+    else
+        gemm_tile_t<false>(P, X1, split, X2, epi, cols, skip);
+}
+
+// gemm_tile storing every row it computes (the padding rows too) in C (rows x 16)
 inline void gemm_tile_store(const Packed &P, const float *X1, int split, const float *X2,
-                            float *C) {
-    gemm_tile(P, X1, split, X2, [C](int first, const v8 *c0, const v8 *c1) {
-        float *c = C + (int64_t)first * TILE;
+                            float *C, Cols cols = {}) {
+    gemm_tile(
+        P, X1, split, X2,
+        [C](int first, const v8 *c0, const v8 *c1) {
+            float *c = C + (int64_t)first * TILE;
 #pragma GCC unroll 8
-        for (int r = 0; r < RB; ++r) {
-            st(c + r * TILE, c0[r]);
-            st(c + r * TILE + 8, c1[r]);
-        }
-    });
+            for (int r = 0; r < RB; ++r) {
+                st(c + r * TILE, c0[r]);
+                st(c + r * TILE + 8, c1[r]);
+            }
+        },
+        cols);
 }
 
 constexpr int NO_SPLIT = 1 << 30;  // split of a gemm_tile whose X is one block of rows
@@ -164,6 +219,8 @@ struct Prefetch {
 // Stage clocks: nanoseconds spent in each stage of the loops, summed over every thread and
 // call since the last reset (stage_names() in native_rollout.h names them).
 std::atomic<int64_t> STAGE_NS[NUM_STAGES];
+// rows of RBF kernel values of the forward loops' tiles (per output and step): taken, all
+std::atomic<int64_t> KERNEL_ROWS[2];
 
 inline int64_t now_ns() {
     return std::chrono::duration_cast<std::chrono::nanoseconds>(
@@ -174,6 +231,7 @@ inline int64_t now_ns() {
 // a loop's own stage clocks, added to STAGE_NS once when it ends
 struct StageClock {
     int64_t ns[NUM_STAGES] = {};
+    int64_t rows[2] = {};  // kernel rows taken, all (KERNEL_ROWS)
     int64_t last = now_ns();
     void lap(int stage) {  // the time since the last lap goes to `stage`
         const int64_t t = now_ns();
@@ -182,6 +240,7 @@ struct StageClock {
     }
     ~StageClock() {
         for (int i = 0; i < NUM_STAGES; ++i) STAGE_NS[i].fetch_add(ns[i]);
+        for (int i = 0; i < 2; ++i) KERNEL_ROWS[i].fetch_add(rows[i]);
     }
 };
 
@@ -260,6 +319,8 @@ struct Pol {
 struct Work {
     std::vector<float> xa, mean, var, u, usum, feat, dR, dx, dxs, dpsi, wprior, gmean, gvar,
         gstate, G, gs, gin, gf, ga, gx, csum, delta;
+    std::vector<int32_t> act;   // the active rows of r (active_row) of the output in hand
+    std::vector<uint8_t> skip;  // blocks of B^T whose rows are all inactive kernel rows
     explicit Work(const Model &M)
         : xa((M.d + 2) * TILE), mean(M.m * TILE), var(M.m * TILE),
           u(M.A * TILE), usum(M.A), feat(M.fp),
@@ -267,7 +328,7 @@ struct Work {
           dxs(M.d * TILE), dpsi((M.f > 0 ? M.f : 1) * TILE), wprior(M.d * TILE),
           gmean(M.m * TILE), gvar(M.m * TILE), gstate(M.n * TILE), G((int64_t)TILE * M.nb),
           gs(M.A * TILE), gin(M.d * TILE), gf(M.fp * TILE), ga(M.fp), gx(M.n * TILE),
-          csum(TILE), delta(M.m * TILE) {}
+          csum(TILE), delta(M.m * TILE), act(M.N), skip(pad_rows(M.f + M.N) / RB) {}
 };
 
 // One particle's policy activations phi_i = exp(-1/2 |a - b_i|^2) D_i (i < nb) from
@@ -593,15 +654,25 @@ void gp_forward_tile(const Model &M, const Lay &L, int b, float *rec, Work &W,
             st(xa + d * TILE + h, bc(1.0f));
             st(xa + (d + 1) * TILE + h, sq * bc(-0.5f));
         }
-        gemm_tile(M.w_aug[b], xa, NO_SPLIT, xa, [r, N](int first, const v8 *c0, const v8 *c1) {
-            const int rows = N - first < RB ? N - first : RB;  // the padding rows are dropped
-            for (int q = 0; q < rows; ++q) {
-                st(r + (first + q) * TILE, vexp_floor(c0[q]));
-                st(r + (first + q) * TILE + 8, vexp_floor(c1[q]));
-            }
-        });
+        // (and the list of active rows, active_row)
+        int32_t *act = W.act.data();
+        int n_act = 0;
+        gemm_tile(M.w_aug[b], xa, NO_SPLIT, xa,
+                  [r, N, act, &n_act](int first, const v8 *c0, const v8 *c1) {
+                      const int rows = N - first < RB ? N - first : RB;  // padding rows dropped
+                      for (int q = 0; q < rows; ++q) {
+                          const v8 e0 = vexp_floor(c0[q]), e1 = vexp_floor(c1[q]);
+                          st(r + (first + q) * TILE, e0);
+                          st(r + (first + q) * TILE + 8, e1);
+                          if (active_row(e0, e1)) act[n_act++] = first + q;
+                      }
+                  });
         clock.lap(STAGE_FWD_RBF);
-        // [V; mean] = [B; alpha_aug] [psi; r], and ||V||^2 summed over the rows in order
+        clock.rows[0] += n_act;
+        clock.rows[1] += N;
+        // [V; mean] = [B; alpha_aug] [psi; r] over the active rows of r, and ||V||^2 summed
+        // over the rows in order
+        const Cols cols = n_act < N ? Cols{act, n_act} : Cols{};
         v8 vv2[2] = {bc(0.0f), bc(0.0f)};
         gemm_tile(M.fwd[b], psi, F, r, [V, N, &vv2](int first, const v8 *c0, const v8 *c1) {
             float *c = V + (int64_t)first * TILE;
@@ -615,7 +686,7 @@ void gp_forward_tile(const Model &M, const Lay &L, int b, float *rec, Work &W,
                     vv2[1] += c1[q] * c1[q];
                 }
             }
-        });
+        }, cols);
         for (int h = 0; h < TILE; h += 8) {
             const v8 vv = vv2[h / 8];
             v8 prior = bc(M.outputscale[b]);
@@ -863,6 +934,21 @@ void gp_backward_tile(const Model &M, const Lay &L, int b, const float *rec, Wor
                 }
             }
         }
+        // the forward's active rows of r (active_row on the same values); a block of B^T whose
+        // rows are all inactive ones is skipped (their dE = dr o r is not used: W_t dE below
+        // takes the active rows only)
+        int32_t *act = W.act.data();
+        int n_act = 0;
+        uint8_t *skip = W.skip.data();
+        const int nblk = (int)W.skip.size();
+        std::fill(skip, skip + nblk, uint8_t(1));
+        for (int bb = 0; bb < nblk && bb * RB < F; ++bb) skip[bb] = 0;  // rows of dpsi
+        for (int j = 0; j < N; ++j)
+            if (active_row(ld(r + j * TILE), ld(r + j * TILE + 8))) {
+                act[n_act++] = j;
+                skip[(F + j) / RB] = 0;
+            }
+        const Cols cols = n_act < N ? Cols{act, n_act} : Cols{};
         // dR = B^T dV + alpha_aug g_m with dV = -2 g_v V: (B^T V) (-2 g_v) + alpha_aug g_m,
         // row by row as the kernel hands them over: dpsi += dR (rows < F), dE = dr o r
         float *dE = dR + (int64_t)F * TILE;
@@ -883,10 +969,13 @@ void gp_backward_tile(const Model &M, const Lay &L, int b, const float *rec, Wor
                     st(dE + (j - F) * TILE + 8, v1 * ld(rj + 8));
                 }
             }
-        });
+        }, {}, n_act < N ? skip : nullptr);
+        if (n_act < N)  // the skipped blocks' share of the next record's prefetch
+            for (int bb = 0; bb < nblk; ++bb)
+                if (skip[bb]) pf.next();
         clock.lap(STAGE_BWD_TRI);
         // [(X/l^2)^T dE; 1^T dE] = W_t dE
-        gemm_tile_store(M.w_t[b], dE, NO_SPLIT, dE, dx);
+        gemm_tile_store(M.w_t[b], dE, 0, dE, dx, cols);
         for (int h = 0; h < TILE; h += 8) {
             v8 sumE = ld(dx + d * TILE + h);
             for (int j = 0; j < d; ++j) {
@@ -1019,6 +1108,10 @@ int default_group(const Model &M, int64_t l2_bytes) {
 void stage_seconds(double *out, bool reset) {
     for (int i = 0; i < NUM_STAGES; ++i)
         out[i] = 1e-9 * (double)(reset ? STAGE_NS[i].exchange(0) : STAGE_NS[i].load());
+}
+
+void kernel_rows(int64_t *out, bool reset) {
+    for (int i = 0; i < 2; ++i) out[i] = reset ? KERNEL_ROWS[i].exchange(0) : KERNEL_ROWS[i].load();
 }
 
 void forward(const Model &M, int horizon, int K, int per, const float *x0, const float *eps,

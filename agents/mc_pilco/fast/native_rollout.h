@@ -93,6 +93,12 @@ int default_group(const Model &M, int64_t l2_bytes);
 // (NUM_STAGES); reset: start the clocks again from zero
 void stage_seconds(double *out, bool reset);
 
+// rows of RBF kernel values (one per training point, output, tile and step) the forward loops
+// took into the products since the last reset, and all of them, into out (2): a row is left
+// out where every particle of the tile has its value at or below KERNEL_FLOOR (1e-30);
+// reset: count again from zero
+void kernel_rows(int64_t *out, bool reset);
+
 // Backward rollout of that shard from g_costs (H, K per): adds dJ/dtheta to g_centers,
 // g_log_l, g_w (shapes of the parameters).
 void backward(const Model &M, int horizon, int K, int per, const float *rec,

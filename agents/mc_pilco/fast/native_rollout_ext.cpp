@@ -236,6 +236,15 @@ PYBIND11_MODULE(TORCH_EXTENSION_NAME, m) {
         },
         pybind11::arg("reset") = false,
         "seconds spent in each stage of the loops (summed over threads) since the last reset");
+    m.def(
+        "kernel_rows",
+        [](bool reset) {
+            int64_t out[2];
+            mcp::kernel_rows(out, reset);
+            return std::vector<int64_t>(out, out + 2);
+        },
+        pybind11::arg("reset") = false,
+        "RBF kernel rows the forward loops took into the products since the last reset, and all");
     pybind11::class_<NativeModel>(m, "NativeModel")
         .def(pybind11::init<std::vector<int64_t>, std::vector<Tensor>, std::vector<Tensor>,
                             double, std::vector<std::vector<Tensor>>>())

@@ -608,8 +608,8 @@ def test_native_backend_knows_its_limits_and_drops_a_wrong_gradient(monkeypatch)
     assert use_fast_rollout(loss, verify=False).backend == "dynamo"
     monkeypatch.undo()
     # a compiler that fails to build the library: "auto" says so, then runs dynamo
-    monkeypatch.setattr(native_rollout, "_LIB", None)
-    monkeypatch.setattr(native_rollout, "_LIB_ERROR", "g++ ... failed: error: oops")
+    monkeypatch.setattr(native_rollout, "_LIBS", {})
+    monkeypatch.setattr(native_rollout, "_LIB_ERRORS", {"native": "g++ ... failed: error: oops"})
     with pytest.warns(RuntimeWarning, match="native rollout was not used.*failed: error: oops"):
         assert use_fast_rollout(loss, verify=False).backend == "dynamo"
 
@@ -634,8 +634,8 @@ def test_native_library_builds_once_and_its_failures_are_clear_errors(tmp_path, 
     assert built.stat().st_mtime_ns == mtime  # a new process loads the built extension
 
     def fresh(cache):
-        monkeypatch.setattr(nr, "_LIB", None)
-        monkeypatch.setattr(nr, "_LIB_ERROR", None)
+        monkeypatch.setattr(nr, "_LIBS", {})
+        monkeypatch.setattr(nr, "_LIB_ERRORS", {})
         monkeypatch.setenv("MCPILCO_NATIVE_CACHE", str(cache))
 
     fake = tmp_path / "fake-c++"
@@ -728,3 +728,48 @@ def test_native_rollout_of_a_wide_arm_spec_in_groups_of_tiles():
         torch.testing.assert_close(a_, b_, rtol=0, atol=1e-3 * b_.abs().max().item())
     with pytest.raises(RuntimeError, match="group must be >= 1"):
         engine.model.set_group(0)
+
+
+def test_native_rollout_leaves_out_vanishing_kernel_rows_and_matches_the_eager_rollout():
+    """A GP with short RBF lengthscales (a fifth of the fitted ones), so that most training
+    points are so far from every particle of a tile that their kernel values are below
+    ``exp(-69)``: the native loops leave those rows out of the products, forward and backward
+    (:func:`~mcpilco.agents.mc_pilco.fast.native.kernel_rows` counts them), and still give
+    the eager rollout's ``J^`` and policy gradient, which takes every row."""
+    from gpytorch.kernels import RBFKernel
+
+    from mcpilco.agents.mc_pilco.fast import native as native_rollout
+
+    model = GPDynamicsModel(TASK, kernel="rbf+mpk", adam_iters=10, lbfgs_iters=0)
+    gen = torch.Generator().manual_seed(4)
+    s = torch.randn(61, 4, generator=gen, dtype=f64) * torch.tensor([0.5, 1.0, 2.0, 2.0], dtype=f64)
+    a = torch.rand(61, 1, generator=gen, dtype=f64) * 2 - 1
+    model.fit(s, a, s + 0.05 * torch.randn(61, 4, generator=gen, dtype=f64))
+    (rbf,) = [k for k in model.gp_.model_.covar_module.modules() if isinstance(k, RBFKernel)]
+    with torch.no_grad():
+        rbf.lengthscale = rbf.lengthscale / 5
+    pol = SquashedRBFPolicy(LAYOUT, num_basis=27, weight_scale=1.0, seed=0, dropout=0.25)
+    pol.train()
+    loss = MCPilcoLoss(
+        make_policy_module(pol), model.particle_dynamics(), swingup_cost(l_theta=3.0), 25, 40,
+        MU0, obs_noise_std=0.01,
+    )  # fmt: skip
+    out = []
+    for backend, shards in ((None, 1), ("native", 1), ("native", 2)):
+        enable = backend is not None
+        assert _use(loss, enable, backend=backend or "auto", shards=shards).in_use is enable
+        native_rollout.kernel_rows(reset=True)
+        torch.manual_seed(7)
+        J = loss()["loss_cost"]
+        out.append((J, torch.autograd.grad(J, list(pol.parameters()))))
+        if enable:
+            taken, total = native_rollout.kernel_rows()
+            # 25 steps, 40 particles in 3 or 4 tiles (1 or 2 shards), 2 outputs, 61 points
+            assert total == 25 * (3 if shards == 1 else 4) * 2 * 61
+            assert 0 < taken < total / 2  # most rows left out, some taken
+    (J_e, g_e), *native = out
+    assert max(g.abs().max().item() for g in g_e) > 1e-3
+    for J_n, g_n in native:
+        torch.testing.assert_close(J_n, J_e, rtol=1e-4, atol=0)
+        for a_, b_ in zip(g_n, g_e, strict=True):
+            torch.testing.assert_close(a_, b_, rtol=0, atol=1e-3 * b_.abs().max().item())
