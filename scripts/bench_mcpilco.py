@@ -178,6 +178,13 @@ def build_parser() -> argparse.ArgumentParser:
         help="timing part: also time the eager step with glibc's initial heap thresholds "
         "(128 KiB) instead of the retained heap, alternating in the same rounds",
     )  # fmt: skip
+    p.add_argument(
+        "--reference-repo", type=Path, default=None,
+        help="timing part: a checkout of the reference implementation (merlresearch/MC-PILCO, "
+        "commit 82013d6; never downloaded): its own policy optimisation step on its UR5 task "
+        "(beside the arm specs) or its cart-pole (beside the cart-pole) is timed in the same "
+        "rounds as every row, with the same N, particles, horizon and threads",
+    )  # fmt: skip
     p.add_argument("--rmse-seeds", type=int, default=10)
     p.add_argument(
         "--rmse-policy",
@@ -225,6 +232,11 @@ def main(argv: list[str] | None = None) -> int:
     for name in ("timing_n", "timing_threads", "timing_particles"):
         if min(getattr(args, name)) < 1:
             parser.error(f"--{name.replace('_', '-')} values must be >= 1")
+    if args.reference_repo is not None and not (args.reference_repo / "policy_learning").is_dir():
+        parser.error(
+            f"--reference-repo {args.reference_repo}: not a checkout of merlresearch/MC-PILCO "
+            "(no policy_learning folder)"
+        )
     try:
         configs = bench_configs(
             args.env,
@@ -272,7 +284,7 @@ def main(argv: list[str] | None = None) -> int:
             device=args.device, compile_rollout=bool(args.compile_rollout),
             heap_contrast=bool(args.timing_heap_contrast), env_ids=args.timing_env,
             append=bool(args.timing_append), kernel=args.kernel, mpk_degree=args.mpk_degree,
-            variants=args.timing_variants,
+            variants=args.timing_variants, reference_repo=args.reference_repo,
         )  # fmt: skip
     if "rmse" in args.parts:
         try:

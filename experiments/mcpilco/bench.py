@@ -59,6 +59,7 @@ __all__ = [
     "runs_part",
     "section_key",
     "section_table",
+    "reference_step",
     "reference_table",
     "timing_key",
     "timing_part",
@@ -353,6 +354,7 @@ def timing_part(
     kernel: str | None = None,
     mpk_degree: int | None = None,
     variants: Sequence[str] | None = None,
+    reference_repo: Path | None = None,
 ) -> list[dict[str, Any]]:
     """Part ``timing``: :func:`~mcpilco.experiments.mcpilco.timing.time_opt_step` for every
     task spec (``env_ids``, each over its own horizon and with its config's GP kernel), GP
@@ -362,7 +364,11 @@ def timing_part(
     and writes the report. ``env_ids`` may name a timing spec of
     :func:`~mcpilco.experiments.mcpilco.timing.timing_task` (it uses its env's config);
     ``variants``: the fast steps to time (None: all of
-    :data:`~mcpilco.experiments.mcpilco.timing.VARIANTS`)."""
+    :data:`~mcpilco.experiments.mcpilco.timing.VARIANTS`). ``reference_repo``: a checkout of
+    the reference implementation, whose own step is timed in the same rounds as every row
+    (:mod:`~mcpilco.experiments.mcpilco.reference`) and recorded in
+    ``results["reference_steps"]`` too, where the reference table divides the row's step
+    into it."""
     from mcpilco.experiments.mcpilco.timing import VARIANTS, time_opt_step, timing_task
 
     rows = []
@@ -387,6 +393,7 @@ def timing_part(
             compile_rollout=compile_rollout, heap_contrast=heap_contrast, env_id=env_id,
             kernel=cfg.kernel, mpk_degree=cfg.mpk_degree,
             variants=tuple(VARIANTS if variants is None else variants),
+            reference_repo=None if reference_repo is None else str(reference_repo),
         )  # fmt: skip
         comp = t.get("compiled_s_per_step_wall")
         log(
@@ -399,6 +406,11 @@ def timing_part(
                 if "heap128k_s_per_step_wall" in t
                 else ""
             )
+            + (
+                f", reference ({t['reference_task']}) {t['reference_s_per_step_wall']:.3f}"
+                if "reference_s_per_step_wall" in t
+                else ""
+            )
         )
         rows.append(t)
     if append:  # keep the rows not timed again now
@@ -407,8 +419,33 @@ def timing_part(
         results["timing"] = kept + rows
     else:
         results["timing"] = rows
+    measured = [reference_step(t) for t in rows if "reference_s_per_step_wall" in t]
+    if measured:  # replaces the reference's steps timed again now
+        key = lambda m: (m["env_id"], m["n_points"], m["num_particles"], m["threads"])  # noqa: E731
+        timed = {key(m) for m in measured}
+        kept = [m for m in results.get("reference_steps", []) if key(m) not in timed]
+        results["reference_steps"] = kept + measured
     write_report(results, out_dir)
     return rows
+
+
+REFERENCE_TASK_NAMES = {"ur5": "UR5", "cartpole": "cart-pole"}  # the reference's tasks' names
+
+
+def reference_step(t: dict) -> dict[str, Any]:
+    """The entry of ``results["reference_steps"]`` for a timing row ``t`` with the
+    reference's own step timed beside it (:func:`reference_table`)."""
+    return {
+        "env_id": t["env_id"],
+        "task": REFERENCE_TASK_NAMES.get(t["reference_task"], t["reference_task"]),
+        "n_points": t["n_points"],
+        "num_particles": t["num_particles"],
+        "threads": t["threads"],
+        "s_per_step": t["reference_s_per_step_wall"],
+        "reference_n_points": t["reference_n_points"],
+        "data": t["reference_data"],
+        "same_run": True,
+    }
 
 
 def rmse_part(
@@ -652,6 +689,11 @@ def timing_row(t: dict) -> str:
         comp += f" | {t['dynamo_s_per_step_wall']:.3f} | {t['dynamo_s_per_step_cpu']:.3f}"
     else:
         comp += " | - | -"
+    comp += f" | {t['avx2_s_per_step_wall']:.3f}" if "avx2_s_per_step_wall" in t else " | -"
+    if "reference_s_per_step_wall" in t:
+        comp += f" | {t['reference_s_per_step_wall']:.3f} ({t['reference_task']})"
+    else:
+        comp += " | -"
     faults = t.get("page_faults_per_step")
     heap = "| - | -"
     if "heap128k_s_per_step_wall" in t:
@@ -757,7 +799,10 @@ def write_report(results: dict, out_dir: Path) -> None:
             "rollout is split over, by particles (two threads: 2 at 400 particles, 1 at 25). "
             "Torch: the same chained maths in PyTorch ops (backend `torch`) in the same "
             "rounds, where the default is `native`. Dynamo: the time step `torch.compile`-d "
-            "instead, in the same rounds. Floor: the flops of the GP posterior variance "
+            "instead, in the same rounds. Avx2 build: the `native` rollout built for AVX2 "
+            "without AVX-512 (x86-64-v3), in the same rounds. Reference: the reference "
+            "implementation's own step on its matching task (`--reference-repo`), in the same "
+            "rounds. Floor: the flops of the GP posterior variance "
             "(2 N^2 per particle, output and step, forward and backward) at this machine's "
             "float32 matmul rate (column GFLOP/s, 512 x 512 product on the same threads); "
             "products floor: every product with the GP's constant matrices (the RBF's "
@@ -788,10 +833,11 @@ def write_report(results: dict, out_dir: Path) -> None:
                 "| particles M | GP points N | device | CUDA graph | threads | wall s/step "
                 "| CPU s/step | faults | fast: backend | wall s/step | CPU s/step "
                 "| speed-up (CPU) | build s | shards | torch: wall s/step | CPU s/step "
-                "| dynamo: wall s/step | CPU s/step | 128 KiB heap: wall s/step | faults "
+                "| dynamo: wall s/step | CPU s/step | avx2 build: wall s/step "
+                "| reference: wall s/step | 128 KiB heap: wall s/step | faults "
                 "| floor s/step | GFLOP/s | products floor s/step | CPU |",
                 "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"
-                "---|---|---|---|",
+                "---|---|---|---|---|---|",
             ]
             md += [timing_row(t) for t in rows]
             md.append("")

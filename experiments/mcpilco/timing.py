@@ -17,7 +17,11 @@ the RBF's exponents ``N (d + 2)``, the MPK's ``N x F`` feature block and the tri
 factor's ``N^2 / 2`` multiply-adds forward, as many backward, per particle, output and step.
 
 Every row records the machine it ran on (:func:`cpu_info`: CPU model, ISA, L2 cache, the
-native build's compiler and flags), since the ratios hold for that CPU only.
+native build's compiler and flags), since the ratios hold for that CPU only. The ``avx2``
+variant times the native rollout built for AVX2 without AVX-512 (x86-64-v3) in the same
+rounds, the stand-in for a CPU without AVX-512. With ``reference_repo`` (a checkout of the
+reference implementation) the reference's own step on its matching task is timed in the same
+rounds too (:mod:`~mcpilco.experiments.mcpilco.reference`).
 
 Besides the registered envs' task specs, :func:`timing_task` knows :data:`JOINTS_SPEC`, a
 12-state arm spec between the cart-pole and the UR10 tracking task.
@@ -55,7 +59,7 @@ the positions integrated (6 GP outputs over 18 inputs; the layout of the referen
 implementation's UR5 task). Its data are the first 12 coordinates of ``mcpilco/UR10-v0``'s
 random exploration; it times the step, it is not a task to learn."""
 
-VARIANTS = ("compiled", "torch", "dynamo")  # the fast steps time_opt_step can time
+VARIANTS = ("compiled", "torch", "dynamo", "avx2")  # the fast steps time_opt_step can time
 
 MATMUL_SIZE = 512  # rows and columns of the square float32 product that measures the rate
 
@@ -153,6 +157,7 @@ def cpu_info() -> dict[str, object]:
     except OSError:
         pass
     isa = [x for x in ("avx512f", "avx2", "fma") if x in flags]
+    isa_name = native.native_isa()
     cxx = native.cpp_compiler()
     version = None
     if cxx:
@@ -172,7 +177,8 @@ def cpu_info() -> dict[str, object]:
         "cpu_isa": " ".join(isa) or "none of avx512f, avx2, fma",
         "l2_cache_bytes": l2,
         "build_compiler": version,
-        "build_flags": " ".join(native.CXX_FLAGS),
+        "build_isa": isa_name,
+        "build_flags": " ".join(native.cxx_flags(isa_name)),
         "torch_version": torch.__version__,
     }
 
@@ -222,6 +228,7 @@ def time_opt_step(
     compile_rollout: bool = False,
     heap_contrast: bool = False,
     variants: tuple[str, ...] = VARIANTS,
+    reference_repo: str | None = None,
 ) -> dict[str, float]:
     """Median wall and CPU seconds of one optimisation step (rollout, backward, Adam) on the
     task of ``env_id`` (its :class:`~mcpilco.agents.mc_pilco.TaskSpec`: state and action
@@ -236,7 +243,18 @@ def time_opt_step(
     not already that), each on its own loss module sharing the policy and the GP posterior;
     the eager and the fast steps alternate within each round, so their ratios hold on a busy
     machine. ``variants``: which of :data:`VARIANTS` to time (``compiled`` is built first in
-    any case: the others are timed where it is ``native``, as above).
+    any case: the others are timed where it is ``native``, as above); ``avx2`` (``avx2_*``):
+    the native rollout built for x86-64-v3 (AVX2, FMA, no AVX-512;
+    :data:`~mcpilco.agents.mc_pilco.fast.native.ISA_FLAGS`), on its own loss, checked
+    against the eager rollout like the others (``avx2_compile_check``, its flags in
+    ``avx2_build_flags``).
+    ``reference_repo``: a checkout of the reference implementation; its own policy
+    optimisation step (:class:`~mcpilco.experiments.mcpilco.reference.ReferenceStep`) on its
+    matching task (:func:`~mcpilco.experiments.mcpilco.reference.reference_task`) with the
+    same ``N``, particles, horizon and threads runs in the same rounds (``reference_*``:
+    its seconds, task, data, points; ``reference_ratio``: its wall seconds over the fast
+    step's, else the eager step's). The cart-pole's GP gets this run's transitions, the UR5's
+    synthetic ones.
     ``compile_s``: the time of ``use_fast_rollout`` (the build and its check against
     the eager rollout, one step of each); ``compile_check`` its figures. A fast rollout that
     fails the check is not timed (``compiled_rejected``).
@@ -245,8 +263,10 @@ def time_opt_step(
     (``matmul_gflops``), the time the ``N``-squared part of a step needs at the least;
     ``products_floor_s``: :func:`product_flops` at that rate. ``native_stage_s``: with the
     native rollout, the seconds per step of each stage of its loops
-    (:func:`~mcpilco.agents.mc_pilco.fast.native.stage_seconds`, summed over its threads), and
-    ``native_group`` the tiles it runs together. The row holds :func:`cpu_info` too.
+    (:func:`~mcpilco.agents.mc_pilco.fast.native.stage_seconds`, summed over its threads),
+    ``native_group`` the tiles it runs together and ``native_kernel_rows_taken`` the share of
+    RBF kernel rows its products took
+    (:func:`~mcpilco.agents.mc_pilco.fast.native.kernel_rows`). The row holds :func:`cpu_info` too.
 
     The process keeps its freed memory (:func:`~mcpilco.models.device.retain_host_memory`,
     as a training run does); ``page_faults_per_step`` counts the minor page faults of each
@@ -335,16 +355,59 @@ def time_opt_step(
                 step_fns[name] = loss_and_grad_fn(compiled, params, cuda_graph=cuda_graph)
             if fast.backend == "dynamo" and name == "compiled":
                 break  # the default already is dynamo here
+    if "avx2" in variants and compile_info.get("compile_backend") == "native":
+        from mcpilco.agents.mc_pilco.fast.check import check_against_eager, passes
+        from mcpilco.agents.mc_pilco.fast.native import NativeRollout, cxx_flags
+
+        compiled = make_loss()
+        t_compile = time.perf_counter()
+        compile_info["avx2_build_flags"] = " ".join(cxx_flags("avx2"))
+        try:
+            engine = NativeRollout(
+                compiled.policy_module, compiled.dynamics, compiled.cost,
+                compiled.num_candidates * num_particles, compiled.delta_dim,
+                shards=int(compile_info["rollout_shards"]), isa="avx2",
+            )  # fmt: skip
+            compiled.set_fast_rollout(engine)
+            check = check_against_eager(compiled)
+            compile_info.update(
+                {"avx2_compile_s": time.perf_counter() - t_compile, "avx2_compile_check": check}
+            )
+            if passes(check):
+                step_fns["avx2"] = loss_and_grad_fn(compiled, params, cuda_graph=cuda_graph)
+                compiled_losses.append(compiled)
+            else:
+                compile_info["avx2_compiled_rejected"] = True
+        except (RuntimeError, ValueError) as err:  # no AVX2 build on this CPU or compiler
+            compile_info["avx2_compile_error"] = str(err).splitlines()[0][:500]
+    reference = None
+    if reference_repo is not None:
+        from mcpilco.experiments.mcpilco.reference import ReferenceStep, reference_task
+
+        ref_task = reference_task(env_id)
+        reference = ReferenceStep(
+            reference_repo, ref_task, n_points, num_particles, horizon,
+            transitions=(s, a, s1) if ref_task == "cartpole" else None,
+        )  # fmt: skip
+        torch.set_num_threads(threads)
+        step_fns["reference"] = reference
     if heap_contrast:
         step_fns["heap128k"] = step_fns["eager"]
     engine = compiled_losses[0].fast_rollout[0] if compiled_losses else None
     native_engine = engine if type(engine).__name__ == "NativeRollout" else None
     stage_totals: dict[str, float] = {}
+    rows_taken = [0, 0]
     walls: dict[str, list[float]] = {k: [] for k in step_fns}
     cpus: dict[str, list[float]] = {k: [] for k in step_fns}
     faults: dict[str, list[int]] = {k: [] for k in step_fns}
     for i in range(repeats + 1):
         for name, step_fn in step_fns.items():
+            if name == "reference":  # it clocks its own step (its setup calls untimed)
+                wall, cpu = step_fn()
+                if i:
+                    walls[name].append(wall)
+                    cpus[name].append(cpu)
+                continue
             if name == "heap128k":
                 retain_host_memory(GLIBC_INITIAL_THRESHOLD, GLIBC_INITIAL_THRESHOLD)
             if heap_contrast:  # one untimed step after each switch: the heap settles first
@@ -354,15 +417,17 @@ def time_opt_step(
             t, c = time.perf_counter(), time.process_time()
             f0 = resource.getrusage(resource.RUSAGE_SELF).ru_minflt
             if native_engine is not None and name == "compiled":
-                from mcpilco.agents.mc_pilco.fast.native import stage_seconds
+                from mcpilco.agents.mc_pilco.fast.native import kernel_rows, stage_seconds
 
                 stage_seconds(reset=True)
+                kernel_rows(reset=True)
             step_fn()
             opt.step()
             sync()
             if i and native_engine is not None and name == "compiled":
                 for stage, sec in stage_seconds().items():
                     stage_totals[stage] = stage_totals.get(stage, 0.0) + sec / repeats
+                rows_taken = [x + y for x, y in zip(rows_taken, kernel_rows(), strict=True)]
             if i:  # the first round is a warm-up
                 walls[name].append(time.perf_counter() - t)
                 cpus[name].append(time.process_time() - c)
@@ -401,8 +466,10 @@ def time_opt_step(
     if native_engine is not None:
         out["native_group"] = int(native_engine.model.group())
         out["native_stage_s"] = stage_totals
+        if rows_taken[1]:
+            out["native_kernel_rows_taken"] = rows_taken[0] / rows_taken[1]
     out.update(compile_info)
-    for name in ("compiled", "torch", "dynamo", "heap128k"):
+    for name in ("compiled", "torch", "dynamo", "avx2", "heap128k"):
         if name in step_fns:
             out.update(
                 {
@@ -411,6 +478,21 @@ def time_opt_step(
                     f"{name}_page_faults_per_step": statistics.median(faults[name]),
                 }
             )
+    if reference is not None:
+        wall = statistics.median(walls["reference"])
+        fast = out.get("compiled_s_per_step_wall", out["s_per_step_wall"])
+        out.update(
+            {
+                "reference_task": reference.task,
+                "reference_n_points": reference.n_points,
+                "reference_data": (
+                    "this run's transitions" if reference.task == "cartpole" else "synthetic"
+                ),
+                "reference_s_per_step_wall": wall,
+                "reference_s_per_step_cpu": statistics.median(cpus["reference"]),
+                "reference_ratio": wall / fast,
+            }
+        )
     for compiled in compiled_losses:
         compiled.set_fast_rollout(None)
     return out
