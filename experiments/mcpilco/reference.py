@@ -190,6 +190,13 @@ class _TimedAdam:
                 super().zero_grad(set_to_none=set_to_none)
 
             def step(self, closure: Any = None) -> Any:
+                grads = [p.grad for group in self.param_groups for p in group["params"]]
+                if not all(bool(g.isfinite().all()) for g in grads if g is not None):
+                    # its loop would re-initialise the policy and start again, for ever here
+                    raise RuntimeError(
+                        "the reference's rollout gave a NaN cost on these data (its sampler "
+                        "or its variance failed); its step is not timed"
+                    )
                 out = super().step(closure)
                 wall, cpu = self._t0
                 record.append((time.perf_counter() - wall, time.process_time() - cpu))

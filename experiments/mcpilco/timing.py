@@ -390,7 +390,12 @@ def time_opt_step(
             transitions=(s, a, s1) if ref_task == "cartpole" else None,
         )  # fmt: skip
         torch.set_num_threads(threads)
-        step_fns["reference"] = reference
+        try:  # one step first: a reference step that fails is recorded, not timed
+            reference()
+            step_fns["reference"] = reference
+        except (RuntimeError, ValueError) as err:  # its NaN guard, its sampler's check
+            compile_info["reference_error"] = str(err).splitlines()[0][:500]
+            reference = None
     if heap_contrast:
         step_fns["heap128k"] = step_fns["eager"]
     engine = compiled_losses[0].fast_rollout[0] if compiled_losses else None

@@ -11,6 +11,7 @@ from mcpilco.experiments.mcpilco.bench import bench_configs, run_seed
 from mcpilco.experiments.mcpilco.timing import JOINTS_SPEC
 from mcpilco.experiments.results import read_result
 from tests.experiments.mcpilco.test_bench import _fake_runs
+from tests.experiments.mcpilco.test_reference import STEP_SLEEP, fake_reference_repo
 
 BENCH_CONFIG = load_config(DEFAULT_ENV_ID, preset="bench")
 
@@ -120,6 +121,9 @@ def test_timing_part_reports_each_particle_count(tmp_path, capsys, command):
     assert t["products_floor_s"] == pytest.approx(per * 3 * 2 * 60 / rate)
     # the machine and the build, and the native loops' stages
     assert t["cpu_model"] and t["build_flags"] == "-O3 -march=native -fno-math-errno"
+    assert t["avx2_build_flags"] == "-O3 -march=x86-64-v3 -fno-math-errno"
+    assert t["avx2_s_per_step_wall"] > 0 and t["avx2_compile_check"]["grad_rel"] < 1e-2
+    assert 0 < t["native_kernel_rows_taken"] <= 1 and t["build_isa"] == "native"
     assert t["native_group"] >= 1 and t["torch_version"] == torch.__version__
     assert set(t["native_stage_s"]) == set(STAGE_NAMES)
     assert all(v >= 0 for v in t["native_stage_s"].values())
@@ -140,19 +144,29 @@ def test_timing_part_reports_each_particle_count(tmp_path, capsys, command):
     wall = t["compiled_s_per_step_wall"]
     assert f"| {wall:.3f} | {t['compiled_s_per_step_cpu']:.3f} | {t['floor_s']:.4f} " in md
     assert f"| {0.45 / wall:.0f}-{0.58 / wall:.0f}x |" in md
-    # --timing-heap-contrast: the eager step again under glibc's initial heap thresholds
-    assert (
-        command(
-            "mcpilco-bench-mcpilco", [*argv, "--timing-particles", "3", "--timing-heap-contrast"]
-        )
-        == 0
-    )
-    (t,) = read_result(tmp_path / "mcpilco_cartpole.json").payload()["timing"]
+    # --timing-heap-contrast: the eager step again under glibc's initial heap thresholds;
+    # --reference-repo: the reference's own step (a fake checkout) in the same rounds
+    assert command("mcpilco-bench-mcpilco", [*argv, "--reference-repo", str(tmp_path)]) == 2
+    assert "not a checkout of merlresearch/MC-PILCO" in capsys.readouterr().err
+    ref = fake_reference_repo(tmp_path / "reference")
+    argv_ref = [*argv, "--timing-particles", "3", "--timing-heap-contrast"]
+    assert command("mcpilco-bench-mcpilco", [*argv_ref, "--reference-repo", str(ref)]) == 0
+    payload = read_result(tmp_path / "mcpilco_cartpole.json").payload()
+    (t,) = payload["timing"]
     assert t["heap128k_s_per_step_wall"] > 0 and t["heap128k_page_faults_per_step"] >= 0
     assert t["page_faults_per_step"] >= 0 and "compiled_s_per_step_wall" not in t
+    assert t["reference_task"] == "cartpole" and t["reference_n_points"] == 20
+    assert t["reference_s_per_step_wall"] >= STEP_SLEEP
+    assert t["reference_ratio"] == pytest.approx(
+        t["reference_s_per_step_wall"] / t["s_per_step_wall"]
+    )
+    (m,) = payload["reference_steps"]
+    assert (m["task"], m["n_points"], m["num_particles"], m["threads"]) == ("cart-pole", 20, 3, 1)
     md = (tmp_path / "mcpilco_cartpole.md").read_text()
     row = next(line for line in md.splitlines() if line.startswith("| 3 | 20 | cpu | no | 1 |"))
-    assert row.count("|") == 25 and f"| {t['heap128k_s_per_step_wall']:.3f} |" in row
+    assert row.count("|") == 27 and f"| {t['heap128k_s_per_step_wall']:.3f} |" in row
+    assert f"| {t['reference_s_per_step_wall']:.3f} (cartpole) |" in row
+    assert f"(cart-pole: {m['s_per_step']:.2f} s) |" in md
     # --mpk-degree with --timing-append: the spec with another kernel, beside the first rows
     argv1 = [*argv, "--timing-particles", "3", "--mpk-degree", "1", "--timing-append"]
     assert command("mcpilco-bench-mcpilco", argv1) == 0

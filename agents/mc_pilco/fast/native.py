@@ -30,6 +30,11 @@ loop reads. What the loop buys:
   multiply-adds per particle and output, each way). Each block's results are consumed in
   registers: ``r = exp(E)`` of the kernel's exponents, ``||V||^2`` of the variance, ``dpsi``
   and ``dE = dr o r`` of the backward, without a second pass over the tile;
+* a training point whose RBF kernel value is below ``exp(-69)`` for every particle of a
+  tile is left out of that tile's products, forward (its column) and backward (its block of
+  rows, when the whole block is such points): with the degree-1 MPK the products are the
+  exact posterior's floor, so leaving out what adds nothing is the arithmetic left to save
+  (:func:`kernel_rows` counts the rows taken);
 * the backward loop requests the record of the step it runs next (written in the forward
   loop, long since evicted to memory) a few cache lines between the kernel's blocks, so
   that reading it overlaps the arithmetic;
@@ -38,8 +43,9 @@ loop reads. What the loop buys:
 Build: a PyTorch C++ extension (:func:`torch.utils.cpp_extension.load`, with ninja) of
 ``native_rollout.cpp`` (the loops, no torch headers) and ``native_rollout_ext.cpp`` (the
 pybind11 binding: ``torch::Tensor`` arguments, the GIL released while a shard runs, so the
-shards run in parallel threads), compiled on first use with ``-O3 -march=native`` into
-:func:`cache_dir` and rebuilt by ninja only when a source changes. Float32 on the CPU, the
+shards run in parallel threads), compiled on first use with ``-O3 -march=native`` (or
+for another instruction set of :data:`ISA_FLAGS`: :func:`native_isa`) into :func:`cache_dir`
+and rebuilt by ninja only when a source changes. Float32 on the CPU, the
 fused RBF (+ MPK of degree 1 or 2) posterior and :class:`~.cost.SaturatingCost` only
 (:func:`native_unsupported_reason`); ``use_fast_rollout`` checks the result against the
 eager rollout like every fast path.
