@@ -7,14 +7,11 @@ Parts, each optional (``tracking`` and ``tracking_kernels`` only when named):
    wall-clock per trial and per optimisation step. Seeds are sweep jobs
    (:mod:`mcpilco.experiments.infra.sweep`) with one torch thread each, in ``--jobs`` local
    processes or on Ray (``--ray [ADDRESS]``); a finished seed is not rerun.
-2. ``timing``: seconds per policy optimisation step (forward + backward through the
-   ``M x H`` particle rollout + Adam step) at ``M = 400`` particles (``--timing-particles``:
-   e.g. ``25 400``, where the few-particle step is the fixed, op-by-op cost of the horizon),
-   the task's horizon ``H`` (60 on the cart-pole), for several GP sizes ``N`` (GP fitted on
-   random-exploration data), 1 torch thread and 2 threads, on the task specs of
-   ``--timing-env`` (default: the cart-pole), with each step's floor and its ratio to the
-   reference implementation's seconds per step. With ``--device cuda`` each step is timed
-   both as one replayed CUDA graph (what the optimiser does on a GPU) and launched op by op.
+2. ``timing``: seconds per policy optimisation step (the ``M x H`` particle rollout forward
+   and backward, Adam) for the particle counts ``--timing-particles``, GP sizes ``N`` (fitted
+   on random-exploration data), threads and task specs of ``--timing-env``, with each step's
+   floor; ``--reference-repo``: the reference implementation's own step beside each. With
+   ``--device cuda`` each step is timed as one replayed CUDA graph and op by op.
 3. ``rmse``: RBF+MPK vs RBF-only (thesis Fig. 5.5): both GPs fitted on the same 3 s of
    random exploration (actions held the preset's ``explore_hold`` steps, ``--explore-hold``);
    a fixed learned swing-up policy (the final policy of a successful run of part 1, or
@@ -74,6 +71,7 @@ from mcpilco.experiments.mcpilco.bench import (
     runs_part,
     timing_part,
 )
+from mcpilco.experiments.mcpilco.reference import reference_checkout
 from mcpilco.experiments.mcpilco.timing import JOINTS_SPEC, VARIANTS
 from mcpilco.experiments.mcpilco.tracking import PUSH_VARIANTS, tracking_kernels_part, tracking_part
 
@@ -178,13 +176,8 @@ def build_parser() -> argparse.ArgumentParser:
         help="timing part: also time the eager step with glibc's initial heap thresholds "
         "(128 KiB) instead of the retained heap, alternating in the same rounds",
     )  # fmt: skip
-    p.add_argument(
-        "--reference-repo", type=Path, default=None,
-        help="timing part: a checkout of the reference implementation (merlresearch/MC-PILCO, "
-        "commit 82013d6; never downloaded): its own policy optimisation step on its UR5 task "
-        "(beside the arm specs) or its cart-pole (beside the cart-pole) is timed in the same "
-        "rounds as every row, with the same N, particles, horizon and threads",
-    )  # fmt: skip
+    p.add_argument("--reference-repo", type=reference_checkout, help="timing part: a checkout "
+                   "of merlresearch/MC-PILCO whose own step is timed beside every row")  # fmt: skip
     p.add_argument("--rmse-seeds", type=int, default=10)
     p.add_argument(
         "--rmse-policy",
@@ -232,11 +225,6 @@ def main(argv: list[str] | None = None) -> int:
     for name in ("timing_n", "timing_threads", "timing_particles"):
         if min(getattr(args, name)) < 1:
             parser.error(f"--{name.replace('_', '-')} values must be >= 1")
-    if args.reference_repo is not None and not (args.reference_repo / "policy_learning").is_dir():
-        parser.error(
-            f"--reference-repo {args.reference_repo}: not a checkout of merlresearch/MC-PILCO "
-            "(no policy_learning folder)"
-        )
     try:
         configs = bench_configs(
             args.env,

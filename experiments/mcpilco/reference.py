@@ -44,6 +44,7 @@ __all__ = [
     "REFERENCE_MODULE",
     "REFERENCE_SCRIPTS",
     "ReferenceStep",
+    "reference_checkout",
     "reference_setting",
     "reference_task",
     "synthetic_transitions",
@@ -61,6 +62,18 @@ SKIPPED_LINES = ("PL_obj = ", "pkl.dump(")  # one-line statements left out: obje
 TIMED_OPTIMIZER = "_mcpilco_timed_adam"  # the name the timed optimiser gets in that module
 GP_EPOCHS = 200  # epochs of the reference's own GP hyperparameter optimiser before timing
 STUB_GYM = ("gym", "gym.envs", "gym.envs.registration", "gym.wrappers")  # stubbed without gym
+
+
+def reference_checkout(path: str) -> Path:
+    """The type of ``--reference-repo``: ``path`` if it holds a checkout of the reference (its
+    ``policy_learning`` folder), else an ``argparse.ArgumentTypeError`` saying what it is not."""
+    import argparse
+
+    if not (Path(path) / "policy_learning").is_dir():
+        raise argparse.ArgumentTypeError(
+            f"{path}: not a checkout of merlresearch/MC-PILCO (no policy_learning folder)"
+        )
+    return Path(path)
 
 
 def reference_task(env_id: str) -> str:
