@@ -444,12 +444,6 @@ CHAIN_SEARCH_ROWS = 600
 """Rows (evenly spaced) on which :class:`ChainEstimator` searches the kinematics."""
 CHAIN_ITERATIONS = 400
 """Most L-BFGS iterations of one start of the kinematics search."""
-CHAIN_ROUND = 25
-"""L-BFGS iterations of one round of a start: a start stops after a round that raises the
-log likelihood by less than :data:`CHAIN_ROUND_NATS` (on noisy logs the loss keeps moving
-in its last digits long after the fit has converged)."""
-CHAIN_ROUND_NATS = 0.01
-"""Least log-likelihood gain [nats] of a round for a start to go on."""
 CHAIN_AGREEMENT = 1.0
 """Two starts agree on the best minimum when their log likelihoods (Gaussian residuals at
 the best loss's variance) differ by less than this many nats (or their losses by less than
@@ -572,7 +566,7 @@ class ChainEstimator(LagrangianEstimator):
             x = torch.cat([x0.reshape(-1), g0]).requires_grad_(True)
             opt = torch.optim.LBFGS(
                 [x],
-                max_iter=CHAIN_ROUND,
+                max_iter=CHAIN_ITERATIONS,
                 history_size=50,
                 line_search_fn="strong_wolfe",
                 tolerance_grad=1e-12,
@@ -585,15 +579,7 @@ class ChainEstimator(LagrangianEstimator):
                 value.backward()
                 return value
 
-            before = math.inf
-            for _ in range(CHAIN_ITERATIONS // CHAIN_ROUND):  # rounds until one gains little
-                opt.step(closure)
-                with torch.no_grad():
-                    now = float(loss(x))
-                gain = target.numel() * (before - now) / (2.0 * max(now, 1e-300))
-                if not math.isfinite(now) or gain < CHAIN_ROUND_NATS:
-                    break
-                before = now
+            opt.step(closure)
             with torch.no_grad():
                 value = float(loss(x))
             if math.isfinite(value):
