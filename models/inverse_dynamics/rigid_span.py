@@ -444,11 +444,9 @@ CHAIN_SEARCH_ROWS = 600
 """Rows (evenly spaced) on which :class:`ChainEstimator` searches the kinematics."""
 CHAIN_ITERATIONS = 400
 """Most L-BFGS iterations of one start of the kinematics search."""
-CHAIN_AGREEMENT = 1.0
-"""Two starts agree on the best minimum when their log likelihoods (Gaussian residuals at
-the best loss's variance) differ by less than this many nats (or their losses by less than
-``1e-12``, noise-free data): the search stops there. On noisy logs distinct minima this
-close are equally good fits, and a relative tolerance on the loss would never stop."""
+CHAIN_AGREEMENT = 1e-3
+"""Two starts agree on the best minimum when their losses differ by less than this
+fraction (plus ``1e-12``): the search stops there."""
 
 
 class ChainEstimator(LagrangianEstimator):
@@ -464,7 +462,7 @@ class ChainEstimator(LagrangianEstimator):
     divided by their root mean square, L-BFGS minimises
     :math:`\\min_\\pi \\lVert y - C(\\kappa)\\pi \\rVert^2` (``pi`` by ridge least squares
     inside, differentiated through) from random starts, up to :data:`CHAIN_RESTARTS`, until
-    two reach the best loss within :data:`CHAIN_AGREEMENT` nats: the problem is not convex, and
+    two reach the same best loss (:data:`CHAIN_AGREEMENT`): the problem is not convex, and
     on random 7-joint arms a start reaches the exact minimum about one time in four. Then
     the parameters are fitted on every row as :class:`LagrangianEstimator` does (row
     weights, prior scale, noise); :meth:`refit_targets` keeps the kinematics.
@@ -585,9 +583,7 @@ class ChainEstimator(LagrangianEstimator):
             if math.isfinite(value):
                 found.append((value, x.detach().clone()))
             best = min(v for v, _ in found) if found else math.inf
-            # log-likelihood gap of loss v over the m residuals: m (v - best) / (2 best)
-            slack = max(2.0 * best * CHAIN_AGREEMENT / target.numel(), 1e-12)
-            if sum(v <= best + slack for v, _ in found) >= 2:
+            if sum(v <= best * (1 + CHAIN_AGREEMENT) + 1e-12 for v, _ in found) >= 2:
                 break
         if not found:
             raise ValueError("the kinematics search diverged from every start; check the data")
