@@ -444,9 +444,10 @@ CHAIN_SEARCH_ROWS = 600
 """Rows (evenly spaced) on which :class:`ChainEstimator` searches the kinematics."""
 CHAIN_ITERATIONS = 400
 """Most L-BFGS iterations of one start of the kinematics search."""
-CHAIN_AGREEMENT = 1e-3
-"""Two starts agree on the best minimum when their losses differ by less than this
-fraction (plus ``1e-12``): the search stops there."""
+CHAIN_EXACT = 1e-12
+"""Relative loss of an exact fit: the search stops early once two starts reach it (noise-free
+torques); otherwise every start runs (a local minimum is often found twice, so agreement
+between starts does not show the global one)."""
 
 
 class ChainEstimator(LagrangianEstimator):
@@ -461,8 +462,8 @@ class ChainEstimator(LagrangianEstimator):
     projection: on :data:`CHAIN_SEARCH_ROWS` evenly spaced rows, each joint's torques
     divided by their root mean square, L-BFGS minimises
     :math:`\\min_\\pi \\lVert y - C(\\kappa)\\pi \\rVert^2` (``pi`` by ridge least squares
-    inside, differentiated through) from random starts, up to :data:`CHAIN_RESTARTS`, until
-    two reach the same best loss (:data:`CHAIN_AGREEMENT`): the problem is not convex, and
+    inside, differentiated through) from :data:`CHAIN_RESTARTS` random starts (fewer when two
+    fit exactly, :data:`CHAIN_EXACT`), keeping the best: the problem is not convex, and
     on random 7-joint arms a start reaches the exact minimum about one time in four. Then
     the parameters are fitted on every row as :class:`LagrangianEstimator` does (row
     weights, prior scale, noise); :meth:`refit_targets` keeps the kinematics.
@@ -583,8 +584,8 @@ class ChainEstimator(LagrangianEstimator):
             if math.isfinite(value):
                 found.append((value, x.detach().clone()))
             best = min(v for v, _ in found) if found else math.inf
-            if sum(v <= best * (1 + CHAIN_AGREEMENT) + 1e-12 for v, _ in found) >= 2:
-                break
+            if best < CHAIN_EXACT and sum(v < CHAIN_EXACT for v, _ in found) >= 2:
+                break  # two exact fits (noise-free torques): nothing left to find
         if not found:
             raise ValueError("the kinematics search diverged from every start; check the data")
         value, x = min(found, key=lambda t: t[0])
