@@ -132,7 +132,7 @@ class CaseSet(NamedTuple):
 
 LOG_KINDS = ("torque", "current")
 """What a case's files log: joint torques, or motor currents with unknown torque constants."""
-_PANDA_CASES: tuple[tuple[str, tuple[str, ...]], ...] = (
+_ARM_CASES: tuple[tuple[str, tuple[str, ...]], ...] = (
     ("control", ()),
     ("single", ("payload",)),
     ("multi", ("armature", "armature", "armature")),
@@ -140,11 +140,16 @@ _PANDA_CASES: tuple[tuple[str, tuple[str, ...]], ...] = (
     ("single", ("mass",)),
     ("single", ("damping",)),
     ("off_library", ("position_friction",)),
-)  # the Panda set's effects, on torque logs and then on current logs
+)  # a 7-joint arm set's effects, on torque logs and then on current logs
 CASE_SETS: dict[str, CaseSet] = {
     "panda": CaseSet(
         arm="panda",
-        cases=tuple((role, kinds, logs) for logs in LOG_KINDS for role, kinds in _PANDA_CASES),
+        cases=tuple((role, kinds, logs) for logs in LOG_KINDS for role, kinds in _ARM_CASES),
+        sizes={"armature": (0.05, 0.3), "frictionloss": (2.0, 3.0)},
+    ),
+    "iiwa": CaseSet(
+        arm="iiwa14",
+        cases=tuple((role, kinds, logs) for logs in LOG_KINDS for role, kinds in _ARM_CASES),
         sizes={"armature": (0.05, 0.3), "frictionloss": (2.0, 3.0)},
     ),
 }
