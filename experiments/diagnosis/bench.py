@@ -53,7 +53,10 @@ times the table's armature), dry friction of 2-3 N m on two joints, a heavier li
 position-dependent friction (off-library) and a control, first on torque logs, then the same
 seven on motor-current logs with unknown torque constants (``logs="current"``,
 :func:`run_case`: the constants estimated against the nominal model, jointly with a payload
-at the flange, and left free in the loop's first version).
+at the flange, and left free in the loop's first version). ``iiwa``: the same fourteen cases
+on the KUKA LBR iiwa 14 of :func:`~mcpilco.envs.arms.iiwa14` (MuJoCo Menagerie's frames and
+inertials; no armature in the table, so the rotor inertias are all missing inertia), a
+second 7-joint arm whose table the loop was not developed on.
 
 Seeds: :data:`DEVELOPMENT_SEEDS` may be looked at while developing the loop; results are
 reported on evaluation seeds from :data:`EVALUATION_FIRST_SEED`, on which no setting is chosen.
@@ -367,6 +370,8 @@ def run_case(
     Returns:
         the record: the case (arm, noise, effects and their realised size), the loop's
         answer (first ranking, named effect, added effects and their parameters, verdicts,
+        the parameters of a joint diagnosed in A put back into torque units by the loop's own
+        fitted ``k_t`` of that joint and marked ``in_current``,
         held-out RMSE over the noise floor before and after) and seconds; scored by
         :func:`score_record`.
     """
@@ -456,6 +461,13 @@ def run_case(
         for p in final.parameters()
         if p["effect"] in by_label
     ]
+    joint_k = _joint_constants(constants, final)
+    if constants is not None and joint_k is not None:  # joints in A: parameters in N m again
+        for p in parameters:
+            out = p["output"]
+            if isinstance(out, int) and p["key"] != "scale" and constants.in_current[out - 1]:
+                scale = abs(joint_k[out - 1])
+                p.update(value=p["value"] * scale, ci95=p["ci95"] * scale, in_current=True)
     truth = []
     for e in effects:
         d = dataclasses.asdict(e)
@@ -481,7 +493,7 @@ def run_case(
         "torque_constants": None if k_true is None else k_true.tolist(),
         "torque_constants_estimated": None if constants is None else constants.value.tolist(),
         "torque_constants_ci95": None if constants is None else constants.ci95.tolist(),
-        "torque_constants_joint": _joint_constants(constants, final),
+        "torque_constants_joint": joint_k,
         "torque_constants_in_current": (
             None
             if constants is None
@@ -969,6 +981,12 @@ HEADLINES = (
         "diagnosis_panda.json",
         _case_set_row,
         "diagnosis_panda.md",
+    ),
+    Headline(
+        "Diagnosis on the KUKA LBR iiwa 14 (7 joints, torque and current logs), nominal start",
+        "diagnosis_iiwa.json",
+        _case_set_row,
+        "diagnosis_iiwa.md",
     ),
     Headline("Diagnosis speed", "diagnosis_speed.json", _speed_row, "diagnosis_speed.md"),
 )
