@@ -659,6 +659,14 @@ def run_benchmark(
         'off_library (position-dependent friction: correct verdict "unexplained"). '
         f"Confusion of hidden effect against the effect named first: ![confusion]({png.name})."
         + (f" Failed cases: {', '.join(payload['failed'])}." if sweep.failed else "")
+        + (
+            f" Seeds {seeds[0]}..{seeds[-1]} are evaluation seeds (from "
+            f"{EVALUATION_FIRST_SEED}), run with settings chosen on the development seeds "
+            f"{DEVELOPMENT_SEEDS.start}..{DEVELOPMENT_SEEDS.stop - 1} only."
+            if seeds[0] >= EVALUATION_FIRST_SEED
+            else f" Seeds {seeds[0]}..{seeds[-1]} are not evaluation seeds (from "
+            f"{EVALUATION_FIRST_SEED}): not a report."
+        )
     )
     text = markdown(records, summary, title, intro)
     out.with_suffix(".md").write_text(text)
