@@ -507,6 +507,7 @@ def run_case(
         "first_verdict": first.verdict(),
         "added": added,
         "added_variants": [e.variant_label for e in final.effects],
+        "versions": [v.describe() for v in versions],
         "parameters": parameters,
         "verdict": verdict,
         "ratio_before": first.base.ratio.tolist(),
