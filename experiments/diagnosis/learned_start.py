@@ -27,6 +27,10 @@ Variants (each isolates one suspected cause of the learned start's excess error)
 ``rigid``          every row: Bayesian linear regression over the rigid-body terms of the
                    chain's Lagrangian (:class:`~mcpilco.models.inverse_dynamics.
                    LagrangianEstimator`; the default start where its size allows)
+``chain``          every row: Bayesian linear regression over the inertial parameters of a
+                   serial chain whose DH kinematics and gravity direction are searched
+                   from random starts (:class:`~mcpilco.models.inverse_dynamics.
+                   ChainEstimator`; the default start where the Lagrangian is too large)
 =================  ===========================================================================
 
 Also recorded: the diagnosis's own noise floor of the nominal model
@@ -70,7 +74,16 @@ SAMPLE_TIMES = (0.002, 0.004)
 """Sample times a case draws from [s] (physics step 1 ms)."""
 EDGE_ROWS = 20
 """Rows dropped at each end of every file (the derivative filter's edge fit)."""
-VARIANTS = ("gip", "gip_true_x", "gip_span", "gip_hyper_all", "gip_rows", "nystrom", "rigid")
+VARIANTS = (
+    "gip",
+    "gip_true_x",
+    "gip_span",
+    "gip_hyper_all",
+    "gip_rows",
+    "nystrom",
+    "rigid",
+    "chain",
+)
 """Every variant :func:`run_case` knows (module docstring)."""
 
 
@@ -149,13 +162,19 @@ def run_case(
     inducing: int = 1500,
     iters: int = 100,
     variants: Sequence[str] = VARIANTS,
+    diagnosis_floor: bool = True,
 ) -> dict[str, Any]:
-    """One case (module docstring): per variant the held-out RMSE / floor per joint, seconds."""
+    """One case (module docstring): per variant the held-out RMSE / floor per joint, seconds
+    (``diagnosis_floor``: also the diagnosis's own floor, a GP fit per joint). ``rigid`` is
+    left out where the Lagrangian has more than ``MAX_RIGID_FEATURES`` parameters."""
     from mcpilco.models.diagnosis import DiagnosisModel, NominalStart, heldout_floor
     from mcpilco.models.inverse_dynamics import (
+        MAX_RIGID_FEATURES,
+        ChainEstimator,
         GIPEstimator,
         LagrangianEstimator,
         NystromGIPEstimator,
+        lagrangian_parameters,
     )
 
     bad = [v for v in variants if v not in VARIANTS]
@@ -178,9 +197,10 @@ def run_case(
 
     X, y, Xt, yt = data(False, False)
     f_est = floor(Xt, yt)
-    nom = DiagnosisModel(nominal).fit(case["train"])
-    test = case["trajs"][train_files].interior()
-    diag_floor = heldout_floor(nom, test)
+    diag_floor = np.full(n, np.nan)
+    if diagnosis_floor:
+        nom = DiagnosisModel(nominal).fit(case["train"])
+        diag_floor = heldout_floor(nom, case["trajs"][train_files].interior())
     rec: dict[str, Any] = {
         "seed": seed,
         "arm": jt,
@@ -195,7 +215,8 @@ def run_case(
         "variants": {},
     }
     opt = dict(adam_iters=iters, lbfgs_iters=max(iters // 3, 1))
-    for v in variants:
+    too_big = len(lagrangian_parameters(jt)) > MAX_RIGID_FEATURES
+    for v in [v for v in variants if not (v == "rigid" and too_big)]:
         true_x = v in ("gip_true_x", "gip_span")
         clean = v == "gip_span"
         Xv, yv, Xtv, ytv = (X, y, Xt, yt) if not true_x else data(True, clean)
@@ -203,8 +224,8 @@ def run_case(
         if v == "nystrom":
             est = NystromGIPEstimator(jt, inducing=inducing, hyper_points=hyper_all, **opt)
             fit_rows = np.arange(Xv.shape[0])
-        elif v == "rigid":
-            est = LagrangianEstimator(jt)
+        elif v in ("rigid", "chain"):
+            est = LagrangianEstimator(jt) if v == "rigid" else ChainEstimator(jt)
             fit_rows = np.arange(Xv.shape[0])
         else:
             npts = big_points if v == "gip_rows" else points
@@ -219,6 +240,7 @@ def run_case(
         rmse = _rmse(pred, ytv)
         rec["variants"][v] = {
             "rows": int(fit_rows.size),
+            "parameters": int(getattr(est, "n_features_", 0)) or None,
             "rmse": rmse.tolist(),
             "ratio": (rmse / ref).tolist(),
             "cpu_s": cpu,
@@ -279,12 +301,13 @@ def markdown(
         "2-4 ms). Ratio = held-out RMSE / held-out RMSE of the true rigid-body model on the "
         "same rows and estimated derivatives (the floor); `gip_true_x` and `gip_span` use "
         "the generator's true derivatives (`gip_span` also noise-free torques, so its "
-        "ratio is against the measured-torque floor). CPU and wall seconds of the fit on "
+        "ratio is against the measured-torque floor). Parameters: of the linear regressions "
+        "(`-`: a GP). CPU and wall seconds of the fit on "
         f"{info['cpus']} cores shared with other jobs.",
         "",
-        "| seed | arm | T [ms] | counts/rev | train rows | variant | rows | RMSE / floor per "
-        "joint | max | CPU s | wall s |",
-        "|---|---|---|---|---|---|---|---|---|---|---|",
+        "| seed | arm | T [ms] | counts/rev | train rows | variant | rows | parameters | "
+        "RMSE / floor per joint | max | CPU s | wall s |",
+        "|---|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     for r in records:
         for v, d in r["variants"].items():
@@ -292,7 +315,8 @@ def markdown(
             lines.append(
                 f"| {r['seed']} | {r['arm']} | {1000 * r['sample_time']:.0f} | "
                 f"{r['encoder_counts_per_rev']} | {r['train_rows']} | {v} | {d['rows']} | "
-                f"{ratios} | {max(d['ratio']):.2f} | {d['cpu_s']:.0f} | {d['wall_s']:.0f} |"
+                f"{d.get('parameters') or '-'} | {ratios} | {max(d['ratio']):.2f} | "
+                f"{d['cpu_s']:.0f} | {d['wall_s']:.0f} |"
             )
     if loops:
         lines += [
@@ -364,6 +388,11 @@ def main(argv: Sequence[str] | None = None) -> int:
     p.add_argument("--inducing", type=int, default=1500)
     p.add_argument("--hyper-all", type=int, default=600)
     p.add_argument(
+        "--no-diagnosis-floor",
+        action="store_true",
+        help="skip the diagnosis's own noise floor (a GP fit per joint of the nominal model)",
+    )
+    p.add_argument(
         "--loop",
         nargs="*",
         default=None,
@@ -404,6 +433,7 @@ def main(argv: Sequence[str] | None = None) -> int:
                 inducing=a.inducing,
                 hyper_all=a.hyper_all,
                 variants=a.variants,
+                diagnosis_floor=not a.no_diagnosis_floor,
             )
             records.append(rec)
             print(json.dumps({k: rec[k] for k in ("seed", "arm", "train_rows")}), flush=True)

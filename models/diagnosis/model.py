@@ -420,6 +420,7 @@ class DiagnosisModel:
         q, qd, qdd = traj.q[start_rows], traj.qd[start_rows], traj.qdd[start_rows]
         fitted = getattr(self.start, "estimator_", True) is not None
         if refit_start or (refit_start is None and not fitted):
+            self.start.output = traj.output  # torques or motor currents
             self.start.fit(q, qd, qdd, self._start_targets(start_rows))
             _parent = None
         self.ctx_ = self._shifted(0)[0]

@@ -33,6 +33,7 @@ from numpy.typing import NDArray
 from mcpilco.models.diagnosis.effects import RigidBody
 from mcpilco.models.inverse_dynamics import (
     MAX_RIGID_FEATURES,
+    ChainEstimator,
     GIPEstimator,
     GPInverseDynamics,
     JointStates,
@@ -96,7 +97,12 @@ ALL_ROWS_HYPER_POINTS = 600
 """Rows of the exact hyperparameter fit of a GIP start fitted on every row
 (:class:`GIPStart` with ``inducing``)."""
 RIGID_BODY_EFFECTS = ("armature", "inertia", "payload")
-"""Effect keys whose torques ``GIPStart(span="rigid")`` spans (rigid-body torques)."""
+"""Effect keys whose torques ``GIPStart(span="rigid")`` and ``span="chain"`` span
+(rigid-body torques)."""
+SPANS = ("auto", "rigid", "chain", "gip")
+"""The fits of :class:`GIPStart` (its ``span``)."""
+RIGID_SPANS = ("rigid", "chain")
+"""Spans of rigid-body torques only: the start's torque is its prior mean, no ``K_0``."""
 HYPER_POINTS = 200
 """Training rows on which a learned start fits its kernel's hyperparameters (of the 600 it
 is conditioned on by default; :class:`LearnedStart`)."""
@@ -232,7 +238,7 @@ def rigid_span_fits(joint_types: str, strict: bool = False) -> bool:
     if strict:
         raise ValueError(
             f"the Lagrangian of joint types {joint_types!r} has {size} parameters (at most "
-            f"{MAX_RIGID_FEATURES}); use span='gip' with inducing rows"
+            f"{MAX_RIGID_FEATURES}); use span='chain'"
         )
     return False
 
@@ -243,6 +249,7 @@ class StartModel:
     kind = "start"
     torque_is_prior_mean: bool = False  # tau_hat = m (physics); a learned start's differ
     all_rows: bool = False  # fit() reads every training row, not the kernel's subset
+    output: str = "tau"  # what fit() is given: "tau" torques or "i" motor currents
     joint_types: str = ""
     n_joints: int = 0
     robot: _Robot | None = None
@@ -514,7 +521,7 @@ class GIPStart(LearnedStart):
     """A GIP GP (thesis eq. 3.8/3.11): ``K_0`` = the GIP kernel of the joint types
     (:class:`~mcpilco.models.inverse_dynamics.GIPEstimator`); see :class:`LearnedStart`.
 
-    Three fits, by ``span`` and ``inducing``:
+    Four fits, by ``span`` and ``inducing``:
 
     ``span="rigid"``
         The rigid-body terms of the serial chain's Lagrangian
@@ -531,7 +538,22 @@ class GIPStart(LearnedStart):
         The default where the chain has at most
         :data:`~mcpilco.models.inverse_dynamics.MAX_RIGID_FEATURES` parameters (up to 5
         joints: 84 for ``RRR``, 2,013 for ``RRRRR``; 9,947 for 6 and 49,374 for 7 revolute
-        joints, where ``"auto"`` keeps ``span="gip"``).
+        joints).
+    ``span="chain"``
+        The same torques (every rigid-body torque of a serial chain of these joint types)
+        with the chain's kinematics fitted too: ``10 n`` inertial parameters by Bayesian
+        linear regression on every row, the DH numbers and the gravity direction by a
+        search from random starts
+        (:class:`~mcpilco.models.inverse_dynamics.ChainEstimator`). Not convex, but
+        ``70`` parameters for 7 joints instead of 49,374: the default (``"auto"``) where
+        the Lagrangian is too large. Used as ``span="rigid"`` is (torque = prior mean, no
+        ``K_0``, rigid-body effects spanned, backfitting keeps the kinematics).
+
+        On motor-current logs (``output == "i"``, set by
+        :class:`~mcpilco.models.diagnosis.DiagnosisModel`) one parameter vector for every
+        joint cannot follow ``i_a = tau_a / k_a`` with per-joint constants: ``"rigid"``
+        fits a free output scale per joint (``output_scales``), ``"chain"`` a parameter
+        vector per joint (``per_joint``).
     ``span="gip"`` with ``inducing``
         Every row: :class:`~mcpilco.models.inverse_dynamics.NystromGIPEstimator` fits the
         GIP kernel's hyperparameters exactly on ``hyper_points`` random rows, then a
@@ -542,8 +564,9 @@ class GIPStart(LearnedStart):
         The exact GP on the diagnosis GP's ``max_points`` rows.
 
     Args:
-        span: ``"rigid"``, ``"gip"`` or ``"auto"`` (default: ``"rigid"`` where its size
-            allows and no ``inducing`` is given, else ``"gip"``).
+        span: ``"rigid"``, ``"chain"``, ``"gip"`` or ``"auto"`` (default: with
+            ``inducing`` ``"gip"``, else ``"rigid"`` where its size allows, else
+            ``"chain"``).
         inducing: Nystroem rows ``M`` of ``span="gip"`` (``None``: the exact GP).
         hyper_points: with ``inducing``, rows of the exact hyperparameter fit (default
             :data:`ALL_ROWS_HYPER_POINTS`); otherwise as in :class:`LearnedStart`.
@@ -562,14 +585,17 @@ class GIPStart(LearnedStart):
         hyper_points: int | None = HYPER_POINTS,
         **kwargs: Any,
     ) -> None:
-        if span not in ("auto", "rigid", "gip"):
-            raise ValueError(f"span must be 'auto', 'rigid' or 'gip', got {span!r}")
+        if span not in SPANS:
+            raise ValueError(f"span must be one of {SPANS}, got {span!r}")
         if inducing is not None and inducing < 1:
             raise ValueError(f"inducing must be >= 1 or None, got {inducing}")
-        if span == "rigid" and inducing is not None:
-            raise ValueError("inducing is a setting of span='gip', not of span='rigid'")
+        if span in RIGID_SPANS and inducing is not None:
+            raise ValueError(f"inducing is a setting of span='gip', not of span={span!r}")
         if span == "auto":
-            span = "rigid" if inducing is None and rigid_span_fits(joint_types) else "gip"
+            if inducing is not None:
+                span = "gip"
+            else:
+                span = "rigid" if rigid_span_fits(joint_types) else "chain"
         if inducing is not None and hyper_points == HYPER_POINTS:
             hyper_points = ALL_ROWS_HYPER_POINTS
         super().__init__(joint_types, robot, hyper_points=hyper_points, **kwargs)
@@ -577,17 +603,21 @@ class GIPStart(LearnedStart):
             rigid_span_fits(self.joint_types, strict=True)
         self.span = span
         self.inducing = inducing
-        self.all_rows = span == "rigid" or inducing is not None
-        self.torque_is_prior_mean = span == "rigid"
+        self.all_rows = span in RIGID_SPANS or inducing is not None
+        self.torque_is_prior_mean = span in RIGID_SPANS
 
     @property
     def has_kernel(self) -> bool:
-        """No ``K_0`` with ``span="rigid"`` (its mean is the whole start, as RNEA is)."""
-        return self.span != "rigid"
+        """No ``K_0`` with ``span="rigid"`` or ``"chain"`` (its mean is the whole start, as
+        RNEA is)."""
+        return self.span not in RIGID_SPANS
 
     def make_estimator(self) -> GPInverseDynamics | LagrangianEstimator:
+        currents = self.output == "i"  # each joint i = tau / k_t: its own output scale
         if self.span == "rigid":
-            return LagrangianEstimator(self.joint_types)
+            return LagrangianEstimator(self.joint_types, output_scales=currents)
+        if self.span == "chain":
+            return ChainEstimator(self.joint_types, per_joint=currents)
         opt = dict(adam_iters=self.adam_iters, lbfgs_iters=self.lbfgs_iters)
         if self.inducing is not None:
             return NystromGIPEstimator(
@@ -646,16 +676,18 @@ class GIPStart(LearnedStart):
     def spans(self, effect: Any) -> bool:
         """Whether the start's function space holds every torque of ``effect``: with
         ``span="gip"`` :meth:`Effect.in_gip_span` (offset, armature, payload, prismatic
-        spring, cogging of order <= 2); with ``span="rigid"`` the rigid-body effects
-        (:data:`RIGID_BODY_EFFECTS`: armature, link inertia, payload), which a
-        Lagrangian of these joints already holds."""
-        if self.span == "rigid":
+        spring, cogging of order <= 2); with ``span="rigid"`` or ``"chain"`` the
+        rigid-body effects (:data:`RIGID_BODY_EFFECTS`: armature, link inertia, payload),
+        which a Lagrangian of these joints already holds."""
+        if self.span in RIGID_SPANS:
             return effect.key in RIGID_BODY_EFFECTS
         return bool(effect.in_gip_span(self.joint_types))
 
     def describe(self) -> str:
         if self.span == "rigid":
             return f"learned rigid-body GIP span (joints {self.joint_types}, every row)"
+        if self.span == "chain":
+            return f"learned rigid-body chain (joints {self.joint_types}, every row)"
         return f"learned GIP GP (joints {self.joint_types})"
 
 

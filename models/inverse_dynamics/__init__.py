@@ -12,6 +12,7 @@ estimator                          model
 :class:`GIPFrictionEstimator`      GIP + linear kernel on the joint's ``[qd, sign qd]``
 :class:`NystromGIPEstimator`       GIP on every row: Nystroem features, Bayesian linear reg.
 :class:`LagrangianEstimator`       the rigid-body terms of a chain's Lagrangian, every row
+:class:`ChainEstimator`            a serial chain's inertias and kinematics, every row
 :class:`RBFEstimator`              GP, RBF-ARD kernel on ``[q, qd, qdd]``
 :class:`NNEstimator`               MLP 2 x 400, Adam, early stopping
 :class:`FisherianEstimator`        least squares on the nominal regressor (FE, eq. 3.2)
@@ -54,7 +55,9 @@ from mcpilco.models.inverse_dynamics.rigid_body import (
 )
 from mcpilco.models.inverse_dynamics.rigid_span import (
     MAX_RIGID_FEATURES,
+    ChainEstimator,
     LagrangianEstimator,
+    chain_columns,
     lagrangian_columns,
     lagrangian_parameters,
 )
@@ -70,6 +73,7 @@ __all__ = [
     "GPInverseDynamics",
     "InverseDynamicsEstimator",
     "JointStates",
+    "ChainEstimator",
     "LagrangianEstimator",
     "NNEstimator",
     "PPEstimator",
@@ -81,6 +85,7 @@ __all__ = [
     "as_targets",
     "gmse",
     "input_names",
+    "chain_columns",
     "lagrangian_columns",
     "lagrangian_parameters",
     "load_pinocchio_model",

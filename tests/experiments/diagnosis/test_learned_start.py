@@ -22,9 +22,17 @@ def test_markdown_lists_every_variant() -> None:
         "train_rows": 2000,
         "variants": {
             "gip": {"rows": 600, "ratio": [1.5, 1.1, 2.0], "cpu_s": 10.0, "wall_s": 12.0},
-            "nystrom": {"rows": 2000, "ratio": [1.0, 1.05, 1.1], "cpu_s": 30.0, "wall_s": 31.0},
+            "chain": {
+                "rows": 2000,
+                "parameters": 30,
+                "ratio": [1.0, 1.05, 1.1],
+                "cpu_s": 30.0,
+                "wall_s": 31.0,
+            },
         },
     }
     text = markdown({"command": "python -m x", "cpus": 2}, [rec])
-    assert "| 3 | RRR | 4 | 32768 | 2000 | gip | 600 | 1.50 1.10 2.00 | 2.00 | 10 | 12 |" in text
-    assert "| nystrom | 2000 | 1.00 1.05 1.10 | 1.10 | 30 | 31 |" in text
+    assert (
+        "| 3 | RRR | 4 | 32768 | 2000 | gip | 600 | - | 1.50 1.10 2.00 | 2.00 | 10 | 12 |" in text
+    )
+    assert "| chain | 2000 | 30 | 1.00 1.05 1.10 | 1.10 | 30 | 31 |" in text

@@ -192,3 +192,51 @@ def test_rigid_gip_start_leaves_damping_for_the_search_and_names_nothing_without
     model = DiagnosisModel(GIPStart("RRR")).fit(train)
     d = diagnose(model, test)
     assert d.best is not None and d.best.label == "viscous:2", d.table()
+
+
+def test_gip_start_beyond_the_lagrangian_size_is_the_chain_and_round_trips():
+    """Six and seven joints: ``"auto"`` is the chain with fitted kinematics (the Lagrangian
+    has 9,947 / 49,374 parameters), with no start kernel; save/load keeps it; the
+    Lagrangian span is refused there, naming the chain."""
+    for jt in ("RRRRRR", "RRRPRRR"):
+        start = GIPStart(jt)
+        assert start.span == "chain" and start.all_rows and not start.has_kernel
+        again = DiagnosisModel.from_spec(DiagnosisModel(start).spec())
+        assert again.start.span == "chain"
+    assert GIPStart("RRR").span == "rigid"
+    with pytest.raises(ValueError, match="chain"):
+        GIPStart("RRRRRRR", span="rigid")
+    with pytest.raises(ValueError, match="inducing"):
+        GIPStart("RRRRRR", span="chain", inducing=100)
+
+
+@pytest.mark.slow
+def test_chain_start_names_nothing_without_an_effect_and_damping_with_one():
+    """The default learned start of a 6-joint arm (the chain with fitted kinematics, every
+    row) holds no viscous term: on an effect-free log nothing is named, and damping on one
+    joint is named on that joint, as with a nominal model."""
+    from mcpilco.envs.arms import random_arm
+    from mcpilco.envs.robot_logs import HiddenEffect, simulate_log
+    from mcpilco.models.diagnosis import as_trajectories, diagnose
+    from mcpilco.models.robot_data import from_frame
+
+    arm = random_arm(6, seed=3, joint_types="RRRRRR").rigid()
+
+    def case(effects):
+        logs = [
+            simulate_log(arm, effects, duration=20.0, seed=s, tau_noise=0.05) for s in (1, 2, 3)
+        ]
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", RuntimeWarning)
+            frames = [from_frame(g.table, source=f"log{k}") for k, g in enumerate(logs)]
+            return as_trajectories(frames[:2]), as_trajectories(frames[2:])
+
+    train, test = case([])
+    start = GIPStart("RRRRRR")
+    assert start.span == "chain"
+    d = diagnose(DiagnosisModel(start).fit(train), test)
+    assert d.best is None, d.table()
+    damping = 6 * 0.05 / np.sqrt(np.mean(train.qd[:, 3] ** 2))  # about six noise stds
+    train, test = case([HiddenEffect("damping", 4, float(damping))])
+    d = diagnose(DiagnosisModel(GIPStart("RRRRRR")).fit(train), test)
+    assert d.best is not None and d.best.label == "viscous:4", d.table()
