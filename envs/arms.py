@@ -1,5 +1,5 @@
 """Robot tables for :mod:`mcpilco.envs.arm_builder`: UR10, an AdeptOne-like SCARA, the Franka
-Emika Panda, random arms.
+Emika Panda, the KUKA LBR iiwa 14, random arms.
 
 Every function returns an :class:`~mcpilco.envs.arm_builder.ArmSpec` (pure data; nothing is
 compiled here). Units: m, rad, kg, kg m^2, N m (N for prismatic joints), A.
@@ -50,6 +50,24 @@ Franka Emika Panda (7 revolute joints)
     (5-7) are Menagerie's actuator force ranges; speed limits 2.175 rad/s (joints 1-4) and
     2.61 rad/s (5-7) are Franka's datasheet values (not in the Menagerie file); torque
     constants are not published (1 N m/A, gear 1).
+KUKA LBR iiwa 14 R820 (7 revolute joints)
+    Bodies, frames, joint ranges and inertials transcribed from MuJoCo Menagerie's
+    ``kuka_iiwa_14/iiwa14.xml`` (google-deepmind/mujoco_menagerie, commit
+    ``28ffb48b5c1d409a37fbfbb01c023c12e61cdefd``, BSD 3-Clause licence, Copyright 2012-2022
+    Robot Locomotion Group @ CSAIL: the Drake model). No meshes. Menagerie's body ``M_{i+1}
+    = M_i Rz(q_i) T(p_{i+1}) R_{i+1}`` puts each joint axis on the body's z axis; every
+    ``p_{i+1}`` lies along joint ``i``'s or joint ``i+1``'s axis and every ``R_{i+1}`` is
+    ``Rx(alpha) Rz(theta0)``, so the builder's body ``B_i = M_i Tz(s_i)`` (the same
+    orientation, shifted along its own axis by ``s = 0.2025, 0, 0.2155, 0, 0.2155, 0,
+    0.045`` m) follows the standard DH rows ``d = 0.36, 0, 0.42, 0, 0.4, 0, 0.126`` m, ``a =
+    0``, ``alpha = -pi/2, -pi/2, pi/2, -pi/2, pi/2, -pi/2, 0``, ``theta0 = 0, pi, pi, 0, pi,
+    0, pi`` (Menagerie's ``q = 0`` is the table's ``q = 0``); ``link7``'s body sits at the
+    flange (Menagerie's ``attachment_site``, 0.045 m along joint 7's axis). The base body is
+    fixed to the world and left out. Menagerie's joints have no armature, damping or
+    friction, so the table has none either. Torque limits 320, 320, 176, 176, 110, 40, 40
+    N m and speed limits 85, 85, 100, 75, 130, 135, 135 deg/s are KUKA's datasheet values
+    for the LBR iiwa 14 R820 (not in the Menagerie file); torque constants are not published
+    (1 N m/A, gear 1).
 Random arms
     :func:`random_arm` draws joint types, DH parameters, masses and centres of mass from
     documented uniform ranges (seeded), for Monte Carlo studies.
@@ -282,6 +300,61 @@ def panda() -> ArmSpec:
     )
 
 
+# Menagerie iiwa14.xml inertials, each in its body's frame M_i: (mass, pos, diaginertia)
+IIWA14_INERTIALS: tuple[tuple[float, tuple[float, ...], tuple[float, ...]], ...] = (
+    (5.76, (0.0, -0.03, 0.12), (0.0333, 0.033, 0.0123)),
+    (6.35, (0.0003, 0.059, 0.042), (0.0305, 0.0304, 0.011)),
+    (3.5, (0.0, 0.03, 0.13), (0.025, 0.0238, 0.0076)),
+    (3.5, (0.0, 0.067, 0.034), (0.017, 0.0164, 0.006)),
+    (3.5, (0.0001, 0.021, 0.076), (0.01, 0.0087, 0.00449)),
+    (1.8, (0.0, 0.0006, 0.0004), (0.0049, 0.0047, 0.0036)),
+    (1.2, (0.0, 0.0, 0.02), (0.001, 0.001, 0.001)),
+)
+IIWA14_SHIFT = (0.2025, 0.0, 0.2155, 0.0, 0.2155, 0.0, 0.045)  # s_i: B_i = M_i Tz(s_i) [m]
+
+
+def iiwa14() -> ArmSpec:
+    """The KUKA LBR iiwa 14 R820 (7 revolute joints) from MuJoCo Menagerie's ``iiwa14.xml``;
+    see the module docstring for the source, the licence and the frames."""
+    d = (0.36, 0.0, 0.42, 0.0, 0.4, 0.0, 0.126)
+    alpha = (-math.pi / 2, -math.pi / 2, math.pi / 2, -math.pi / 2, math.pi / 2, -math.pi / 2, 0.0)
+    theta = (0.0, math.pi, math.pi, 0.0, math.pi, 0.0, math.pi)
+    ranges = ((-2.96706, 2.96706), (-2.0944, 2.0944), (-2.96706, 2.96706), (-2.0944, 2.0944),
+              (-2.96706, 2.96706), (-2.0944, 2.0944), (-3.05433, 3.05433))  # fmt: skip
+    torque_limit = (320.0, 320.0, 176.0, 176.0, 110.0, 40.0, 40.0)
+    velocity_limit = tuple(math.radians(v) for v in (85, 85, 100, 75, 130, 135, 135))
+    joints = tuple(
+        DHJoint(
+            a=0.0,
+            alpha=alpha[i],
+            d=d[i],
+            theta=theta[i],
+            type="R",
+            range=ranges[i],
+            torque_limit=torque_limit[i],
+            velocity_limit=velocity_limit[i],
+        )
+        for i in range(7)
+    )
+    links = tuple(
+        _in_dh_frame(
+            mass,
+            np.array(pos) - np.array([0.0, 0.0, IIWA14_SHIFT[i]]),
+            np.diag(diag),
+            0.0,
+            alpha[i],
+        )
+        for i, (mass, pos, diag) in enumerate(IIWA14_INERTIALS)
+    )
+    return ArmSpec(
+        name="iiwa14",
+        joints=joints,
+        links=links,
+        radius=0.06,
+        description="KUKA LBR iiwa 14: MuJoCo Menagerie iiwa14.xml (BSD-3-Clause)",
+    )
+
+
 RANDOM_ARM_RANGES: dict[str, tuple[float, float]] = dict(
     a=(-0.4, 0.4),  # link length [m]
     d=(0.0, 0.3),  # link offset [m] (offset d0 of prismatic joints too)
@@ -369,5 +442,5 @@ def random_arm(
     )
 
 
-ARMS = {"ur10": ur10, "scara": scara, "panda": panda}
+ARMS = {"ur10": ur10, "scara": scara, "panda": panda, "iiwa14": iiwa14}
 """Named robot tables (factories)."""

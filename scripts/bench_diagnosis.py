@@ -24,6 +24,9 @@ logs and again on motor-current logs with unknown torque constants (14 cases)::
 
     nice -n 10 mcpilco-bench-diagnosis --case-set panda --first-seed 0 --out runs/panda
 
+``--case-set iiwa`` runs the same fourteen cases on the KUKA LBR iiwa 14 (MuJoCo Menagerie's
+frames and inertials).
+
 ``--speed`` times the loop instead on one 3-joint case of 7,503 training rows with a nominal
 and a GIP start (:func:`~mcpilco.experiments.diagnosis.bench.run_speed`) and writes
 ``results/diagnosis_speed.json`` and ``.md``.
@@ -59,9 +62,10 @@ def main(argv: Sequence[str] | None = None) -> int:
         "--case-set",
         choices=sorted(CASE_SETS),
         default=None,
-        help="a named, fixed list of cases on one arm (e.g. panda: the Franka Emika Panda "
-        "from MuJoCo Menagerie) instead of random arms; --per-kind, --controls, --multi, "
-        "--off-library, --min-joints and --max-joints are then unused",
+        help="a named, fixed list of cases on one arm (panda: the Franka Emika Panda, iiwa: "
+        "the KUKA LBR iiwa 14, both from MuJoCo Menagerie) instead of random arms; "
+        "--per-kind, --controls, --multi, --off-library, --min-joints and --max-joints are "
+        "then unused",
     )
     p.add_argument("--cases", type=int, default=None, help="run only the first N of the plan")
     p.add_argument("--first-seed", type=int, default=EVALUATION_FIRST_SEED)

@@ -53,7 +53,10 @@ times the table's armature), dry friction of 2-3 N m on two joints, a heavier li
 position-dependent friction (off-library) and a control, first on torque logs, then the same
 seven on motor-current logs with unknown torque constants (``logs="current"``,
 :func:`run_case`: the constants estimated against the nominal model, jointly with a payload
-at the flange, and left free in the loop's first version).
+at the flange, and left free in the loop's first version). ``iiwa``: the same fourteen cases
+on the KUKA LBR iiwa 14 of :func:`~mcpilco.envs.arms.iiwa14` (MuJoCo Menagerie's frames and
+inertials; no armature in the table, so the rotor inertias are all missing inertia), a
+second 7-joint arm whose table the loop was not developed on.
 
 Seeds: :data:`DEVELOPMENT_SEEDS` may be looked at while developing the loop; results are
 reported on evaluation seeds from :data:`EVALUATION_FIRST_SEED`, on which no setting is chosen.
@@ -132,7 +135,7 @@ class CaseSet(NamedTuple):
 
 LOG_KINDS = ("torque", "current")
 """What a case's files log: joint torques, or motor currents with unknown torque constants."""
-_PANDA_CASES: tuple[tuple[str, tuple[str, ...]], ...] = (
+_ARM_CASES: tuple[tuple[str, tuple[str, ...]], ...] = (
     ("control", ()),
     ("single", ("payload",)),
     ("multi", ("armature", "armature", "armature")),
@@ -140,11 +143,16 @@ _PANDA_CASES: tuple[tuple[str, tuple[str, ...]], ...] = (
     ("single", ("mass",)),
     ("single", ("damping",)),
     ("off_library", ("position_friction",)),
-)  # the Panda set's effects, on torque logs and then on current logs
+)  # a 7-joint arm set's effects, on torque logs and then on current logs
 CASE_SETS: dict[str, CaseSet] = {
     "panda": CaseSet(
         arm="panda",
-        cases=tuple((role, kinds, logs) for logs in LOG_KINDS for role, kinds in _PANDA_CASES),
+        cases=tuple((role, kinds, logs) for logs in LOG_KINDS for role, kinds in _ARM_CASES),
+        sizes={"armature": (0.05, 0.3), "frictionloss": (2.0, 3.0)},
+    ),
+    "iiwa": CaseSet(
+        arm="iiwa14",
+        cases=tuple((role, kinds, logs) for logs in LOG_KINDS for role, kinds in _ARM_CASES),
         sizes={"armature": (0.05, 0.3), "frictionloss": (2.0, 3.0)},
     ),
 }
@@ -362,6 +370,8 @@ def run_case(
     Returns:
         the record: the case (arm, noise, effects and their realised size), the loop's
         answer (first ranking, named effect, added effects and their parameters, verdicts,
+        the parameters of a joint diagnosed in A put back into torque units by the loop's own
+        fitted ``k_t`` of that joint and marked ``in_current``,
         held-out RMSE over the noise floor before and after) and seconds; scored by
         :func:`score_record`.
     """
@@ -451,6 +461,13 @@ def run_case(
         for p in final.parameters()
         if p["effect"] in by_label
     ]
+    joint_k = _joint_constants(constants, final)
+    if constants is not None and joint_k is not None:  # joints in A: parameters in N m again
+        for p in parameters:
+            out = p["output"]
+            if isinstance(out, int) and p["key"] != "scale" and constants.in_current[out - 1]:
+                scale = abs(joint_k[out - 1])
+                p.update(value=p["value"] * scale, ci95=p["ci95"] * scale, in_current=True)
     truth = []
     for e in effects:
         d = dataclasses.asdict(e)
@@ -476,7 +493,7 @@ def run_case(
         "torque_constants": None if k_true is None else k_true.tolist(),
         "torque_constants_estimated": None if constants is None else constants.value.tolist(),
         "torque_constants_ci95": None if constants is None else constants.ci95.tolist(),
-        "torque_constants_joint": _joint_constants(constants, final),
+        "torque_constants_joint": joint_k,
         "torque_constants_in_current": (
             None
             if constants is None
@@ -490,6 +507,7 @@ def run_case(
         "first_verdict": first.verdict(),
         "added": added,
         "added_variants": [e.variant_label for e in final.effects],
+        "versions": [v.describe() for v in versions],
         "parameters": parameters,
         "verdict": verdict,
         "ratio_before": first.base.ratio.tolist(),
@@ -642,6 +660,14 @@ def run_benchmark(
         'off_library (position-dependent friction: correct verdict "unexplained"). '
         f"Confusion of hidden effect against the effect named first: ![confusion]({png.name})."
         + (f" Failed cases: {', '.join(payload['failed'])}." if sweep.failed else "")
+        + (
+            f" Seeds {seeds[0]}..{seeds[-1]} are evaluation seeds (from "
+            f"{EVALUATION_FIRST_SEED}), run with settings chosen on the development seeds "
+            f"{DEVELOPMENT_SEEDS.start}..{DEVELOPMENT_SEEDS.stop - 1} only."
+            if seeds[0] >= EVALUATION_FIRST_SEED
+            else f" Seeds {seeds[0]}..{seeds[-1]} are not evaluation seeds (from "
+            f"{EVALUATION_FIRST_SEED}): not a report."
+        )
     )
     text = markdown(records, summary, title, intro)
     out.with_suffix(".md").write_text(text)
@@ -964,6 +990,12 @@ HEADLINES = (
         "diagnosis_panda.json",
         _case_set_row,
         "diagnosis_panda.md",
+    ),
+    Headline(
+        "Diagnosis on the KUKA LBR iiwa 14 (7 joints, torque and current logs), nominal start",
+        "diagnosis_iiwa.json",
+        _case_set_row,
+        "diagnosis_iiwa.md",
     ),
     Headline("Diagnosis speed", "diagnosis_speed.json", _speed_row, "diagnosis_speed.md"),
 )

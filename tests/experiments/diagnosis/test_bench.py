@@ -276,6 +276,17 @@ def test_panda_case_set_draws_its_effects_on_the_panda():
         run_case(seed=0, role="control", kinds=[], arm="kuka")
 
 
+def test_iiwa_case_set_is_the_panda_cases_on_the_iiwa():
+    """The iiwa set runs the Panda set's fourteen cases (seven effects, torque then current
+    logs) on the 7-joint KUKA LBR iiwa 14 table."""
+    from mcpilco.envs.arms import ARMS
+
+    iiwa, panda = CASE_SETS["iiwa"], CASE_SETS["panda"]
+    assert iiwa.cases == panda.cases and len(iiwa.cases) == 14
+    arm = ARMS[iiwa.arm]()
+    assert arm.name == "iiwa14" and arm.joint_types == "R" * 7
+
+
 def test_an_effect_below_the_noise_is_not_scored_as_missed():
     truth = [_effect("mass", 1, 1.4, nominal_link_mass=4.0)]
     s = score_case(truth, 2, [["viscous", 1]], None, [], AT_FLOOR, size_over_noise=[0.02, 0.0])
