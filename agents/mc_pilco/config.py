@@ -47,7 +47,6 @@ _LEGACY_FIELD_VALUES: dict[str, Any] = {
     "explore_hold": 1,
     "explore_limits": "none",
     "policy_init": "box",
-    "policy_linear": False,
     "push_filter": None,
 }  # value of each field added after results were saved, for configs that lack it
 POLICY_INITS = ("box", "data")  # MCPilcoConfig.policy_init

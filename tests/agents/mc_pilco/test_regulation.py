@@ -100,3 +100,13 @@ def test_policy_linear_is_derived_from_the_task_unless_set(env_id, setting, line
 def test_policy_linear_rejects_non_booleans():
     with pytest.raises(ValueError, match="policy_linear"):
         MCPilcoConfig(policy_linear="yes")
+
+
+def test_the_loaded_config_derives_policy_linear_where_no_file_sets_it():
+    """A config built from the shipped files leaves ``policy_linear`` to the task (None)
+    unless a file sets it: ``InvertedPendulum-v5``'s sets false."""
+    from mcpilco.agents.mc_pilco.config import load_config
+
+    assert load_config("InvertedDoublePendulum-v5").policy_linear is None
+    assert load_config("mcpilco/CartpoleSwingUp-v0").policy_linear is None
+    assert load_config("InvertedPendulum-v5").policy_linear is False
