@@ -76,6 +76,8 @@ class SquashedRBFPolicy(nn.Module):
         linear_ref: (F,) the regulation point ``x~*`` of the linear feedback term (module
             glossary); None: no linear term (the thesis's policy).
         linear_scale: (F,) the feature scales ``s`` of the linear term (None: ones).
+        gains_init: (F, A) the gains ``G`` of the linear term at initialisation (None: 0;
+            the LQR of a learned model, :mod:`~mcpilco.agents.mc_pilco.regulator`).
 
     Shapes:
         ``forward(obs (..., n)) -> action (..., A)``.
@@ -96,6 +98,7 @@ class SquashedRBFPolicy(nn.Module):
         center_std: Sequence[float] | None = None,
         linear_ref: Sequence[float] | None = None,
         linear_scale: Sequence[float] | None = None,
+        gains_init: Sequence[Sequence[float]] | None = None,
     ) -> None:
         super().__init__()
         if isinstance(layout, dict):
@@ -145,6 +148,14 @@ class SquashedRBFPolicy(nn.Module):
         ref, scale, self.gains = _linear_parts(linear_ref, linear_scale, F, self.action_dim)
         self.register_buffer("linear_ref", ref)
         self.register_buffer("linear_scale", scale)
+        self.register_buffer("gains_init", None if ref is None else torch.zeros(F, self.action_dim))
+        if gains_init is not None:
+            if ref is None:
+                raise ValueError("gains_init needs linear_ref (the linear term's reference)")
+            g = torch.as_tensor(gains_init, dtype=torch.float32)
+            if g.shape != self.gains_init.shape:
+                raise ValueError(f"gains_init must have shape {tuple(self.gains_init.shape)}")
+            self.gains_init.copy_(g)
         self.reset_parameters(seed)
 
     @property
@@ -173,7 +184,7 @@ class SquashedRBFPolicy(nn.Module):
         w = torch.rand(self.num_basis, self.action_dim, generator=gen) * 2.0 - 1.0
         self.weights.copy_(w * self.weight_scale * self.u_half)
         if self.gains is not None:
-            self.gains.zero_()
+            self.gains.copy_(self.gains_init)
 
     @property
     def linear(self) -> bool:
@@ -195,13 +206,14 @@ class SquashedRBFPolicy(nn.Module):
             "center_std": None if self.center_std is None else self.center_std.tolist(),
             "linear_ref": None if self.linear_ref is None else self.linear_ref.tolist(),
             "linear_scale": None if self.linear_scale is None else self.linear_scale.tolist(),
+            "gains_init": None if self.gains_init is None else self.gains_init.tolist(),
         }
 
     @torch.no_grad()
     def use_data_init(self, init: dict[str, list[float] | None]) -> None:
         """Take the entries of ``init`` (:func:`data_init`'s centre distribution and initial
-        lengthscales; ``linear_scale``, the linear term's feature scales) for the next
-        :meth:`reset_parameters` (and :meth:`settings`)."""
+        lengthscales; ``linear_scale``, the linear term's feature scales; ``gains_init``, its
+        initial gains) for the next :meth:`reset_parameters` (and :meth:`settings`)."""
         if init.get("center_mean") is not None:
             self.center_mean = torch.as_tensor(init["center_mean"], dtype=torch.float32)
             self.center_std = torch.as_tensor(init["center_std"], dtype=torch.float32)
@@ -211,6 +223,10 @@ class SquashedRBFPolicy(nn.Module):
             if self.linear_scale is None:
                 raise ValueError("linear_scale needs a policy with a linear term (linear_ref)")
             self.linear_scale.copy_(torch.as_tensor(init["linear_scale"]))
+        if init.get("gains_init") is not None:
+            if self.gains_init is None:
+                raise ValueError("gains_init needs a policy with a linear term (linear_ref)")
+            self.gains_init.copy_(torch.as_tensor(init["gains_init"]))
 
     def basis(self, features: Tensor) -> Tensor:
         """Activations ``phi(x~)`` (..., n_b), matmul form of ``||(x~ - c)/l||^2``."""
@@ -382,6 +398,7 @@ class PolicyPopulation(nn.Module):
         if self.gains is not None:
             policy.gains.copy_(self.gains[k])
             policy.linear_scale.copy_(self.linear_scale)
+            policy.gains_init.copy_(torch.as_tensor(self._settings["gains_init"]))
 
     @torch.no_grad()
     def use_data_init(self, init: dict[str, list[float] | None]) -> None:

@@ -91,6 +91,7 @@ from mcpilco.agents.mc_pilco.policy import (
     make_policy_module,
     policy_act,
 )
+from mcpilco.agents.mc_pilco.regulator import regulator_gains
 from mcpilco.agents.mc_pilco.viz import (
     plot_optimisation,
     plot_trial_particles,
@@ -183,6 +184,7 @@ class Trainer:
         else:
             self.init_policy_from_data(k)
             dynamics = self.fit_model(rec)
+            self.init_regulator(k, dynamics)
             self.improve_policy(k, dynamics, rec, arr)
             episodes = self.apply_policy(k, rec, arr)
             self.evaluate_policy(k, rec)
@@ -259,6 +261,40 @@ class Trainer:
         if k == 1:  # the first policy starts there
             self.population.reset_parameters(self.config.seed)
             self.population.copy_to(0, self.policy)
+
+    def init_regulator(self, k: int, dynamics: torch.nn.Module) -> None:
+        """With a linear feedback term, before the first policy optimisation: start its gains
+        at the LQR of the first model linearised at the regulation point
+        (:func:`~mcpilco.agents.mc_pilco.regulator.regulator_gains`), for every candidate
+        and for the policy's later re-draws (restarts); zero where the linearised model has
+        no stabilising LQR. Later trials refine the optimised gains instead."""
+        if not (self.policy.linear and k == 1):
+            return
+        task = self.task
+        x_star = linear_reference(self.config, task)
+        gains = regulator_gains(
+            dynamics,
+            self.cost_fn,
+            self.layout,
+            x_star,
+            self.policy.u_mid.cpu().numpy(),
+            self.policy.u_half.cpu().numpy(),
+            self.policy.linear_scale.cpu().numpy(),
+        )
+        if self.log:
+            self.log(
+                "linear feedback: no stabilising LQR of the model at the regulation point, "
+                "gains start at 0"
+                if gains is None
+                else "linear feedback: gains start at the LQR of the model at the regulation point"
+            )
+        if gains is None:
+            return
+        init = {"gains_init": gains.tolist()}
+        self.population.use_data_init(init)
+        self.policy.use_data_init(init)
+        self.population.reset_parameters(self.config.seed)
+        self.population.copy_to(0, self.policy)
 
     def fit_model(self, rec: TrialRecord) -> torch.nn.Module:
         """Model learning: fit the GP dynamics on the transitions of all episodes (less those
@@ -607,12 +643,7 @@ def policy_candidates(
     linear feedback term around the task's regulation point where ``config.policy_linear``
     says so (None: for a regulation task, :func:`regulation_point`)."""
     scales = config.candidate_weight_scales or [config.policy_weight_scale] * config.num_candidates
-    ref = regulation_point(task)
-    if config.policy_linear is not None:
-        if config.policy_linear and ref is None:
-            ref = task.features(_target_state(task))
-        elif not config.policy_linear:
-            ref = None
+    ref = linear_reference(config, task)
     return [
         SquashedRBFPolicy(
             layout,
@@ -622,7 +653,7 @@ def policy_candidates(
             centers_box=config.policy_centers_box,
             weight_scale=scale,
             seed=config.seed + CANDIDATE_SEED_STRIDE * k,
-            linear_ref=None if ref is None else [float(v) for v in ref],
+            linear_ref=None if ref is None else [float(v) for v in task.features(ref)],
         )
         for k, scale in enumerate(scales)
     ]
@@ -638,9 +669,18 @@ def _target_state(task: TaskSpec) -> np.ndarray:
     return x
 
 
+def linear_reference(config: MCPilcoConfig, task: TaskSpec) -> np.ndarray | None:
+    """The state ``x*`` the policy's linear feedback term acts around, or None for a policy
+    without one: ``config.policy_linear`` None derives it (:func:`regulation_point`), true
+    takes the point the cost pulls the state to, false has none."""
+    if config.policy_linear is None:
+        return regulation_point(task)
+    return _target_state(task) if config.policy_linear else None
+
+
 def regulation_point(task: TaskSpec) -> np.ndarray | None:
-    """The features ``x~*`` of the point a regulation task holds the state at, or None when
-    ``task`` is no regulation task.
+    """The state ``x*`` a regulation task holds, or None when ``task`` is no regulation
+    task.
 
     A regulation task starts inside the set it must stay in for the whole episode: its
     success is ``full_horizon`` and the initial mean lies in its goal box (``success.bounds``,
@@ -659,7 +699,7 @@ def regulation_point(task: TaskSpec) -> np.ndarray | None:
     x0 = np.asarray(task.init_mean, dtype=np.float64)
     if not all(lo <= x0[task.index(k)] <= hi for k, (lo, hi) in box.items()):
         return None
-    return task.features(_target_state(task))
+    return _target_state(task)
 
 
 def dynamics_model(config: MCPilcoConfig, task: TaskSpec) -> GPDynamicsModel:
