@@ -110,3 +110,53 @@ def test_the_loaded_config_derives_policy_linear_where_no_file_sets_it():
     assert load_config("InvertedDoublePendulum-v5").policy_linear is None
     assert load_config("mcpilco/CartpoleSwingUp-v0").policy_linear is None
     assert load_config("InvertedPendulum-v5").policy_linear is False
+
+
+def test_lqr_gain_solves_the_scalar_riccati_equation():
+    """``x+ = a x + b u``: ``p = q + a^2 p - (a b p)^2 / (r + b^2 p)`` is the quadratic
+    ``b^2 p^2 + (r - a^2 r - q b^2) p - q r = 0``; ``k = a b p / (r + b^2 p)``."""
+    from mcpilco.agents.mc_pilco.regulator import Q_FLOOR, lqr_gain
+
+    a, b, q, r = 1.2, 0.5, 3.0, 0.7
+    qf = q + Q_FLOOR * q  # the floor lqr_gain adds (relative to the largest entry of Q)
+    c1 = r - a * a * r - qf * b * b
+    p = (-c1 + np.sqrt(c1 * c1 + 4 * b * b * qf * r)) / (2 * b * b)
+    k = lqr_gain(np.array([[a]]), np.array([[b]]), np.array([[q]]), np.array([[r]]))
+    assert k[0, 0] == pytest.approx(a * b * p / (r + b * b * p), rel=1e-9)
+    assert abs(a - b * k[0, 0]) < 1.0
+    # no control authority on an unstable mode: no stabilising solution
+    assert lqr_gain(np.array([[1.5]]), np.array([[0.0]]), np.array([[1.0]]), np.eye(1)) is None
+
+
+def test_model_jacobians_and_cost_hessian_of_known_parts():
+    from mcpilco.agents.mc_pilco.cost import SaturatingCost
+    from mcpilco.agents.mc_pilco.regulator import cost_hessian, model_jacobians
+
+    A = np.array([[1.0, 0.1], [-0.3, 0.9]])
+    B = np.array([[0.0], [0.2]])
+    At, Bt = torch.tensor(A, dtype=torch.float32), torch.tensor(B, dtype=torch.float32)
+    ja, jb = model_jacobians(lambda x, u: x @ At.T + u @ Bt.T, np.array([0.3, -1.0]), [0.5])
+    assert np.allclose(ja, A, atol=1e-6) and np.allclose(jb, B, atol=1e-6)
+    cost = SaturatingCost(3, [0, 2], [0.5, -1.0], [0.3, 2.0], [0, 0])  # plain terms
+    q = cost_hessian(cost, np.array([0.5, 7.0, -1.0]))  # at the targets: diag(2 / l^2)
+    assert np.allclose(q, np.diag([2 / 0.3**2, 0.0, 2 / 2.0**2]), atol=1e-4)
+
+
+def test_feature_gains_reproduce_the_state_feedback_to_first_order():
+    """A policy whose RBF weights are 0 and whose gains are ``feature_gains(K)`` applies
+    ``u = u_mid - K (x - x*)`` near ``x*``, an angle (features sin, cos) included."""
+    from mcpilco.agents.mc_pilco.regulator import feature_gains
+
+    layout = _layout()  # [x, x_dot, theta, theta_dot]; theta (index 2) an angle
+    x_star = np.array([0.2, 0.0, 2.5, 0.0])
+    k = np.array([[0.7, -1.3, 2.1, 0.4]])
+    scale = np.linspace(0.3, 1.5, layout.feature_dim)
+    g = feature_gains(k, layout, x_star, scale, np.array([3.0]))
+    ref = [0.2, 0.0, 0.0, np.sin(2.5), np.cos(2.5)]  # [x, x_dot, theta_dot, sin, cos]
+    p = SquashedRBFPolicy(
+        layout, [-2.0], [4.0], num_basis=3, weight_scale=0.0, linear_ref=ref,
+        linear_scale=scale, gains_init=g,
+    )  # fmt: skip
+    d = 1e-3 * np.array([1.0, -2.0, 1.5, 0.5])
+    u = p.eval()(torch.as_tensor(x_star + d, dtype=torch.float32)[None])[0].detach().numpy()
+    assert u - 1.0 == pytest.approx(-(k @ d), rel=2e-3)
