@@ -37,7 +37,7 @@ from mcpilco.experiments.results import (
 RESULT_LAYOUTS = (
     ResultLayout(
         kind="mcpilco-balance",
-        config=("env_id", "trials", "episodes", "episode_steps", "config"),
+        config=("env_id", "trials", "episodes", "episode_steps", "seeds_planned", "config"),
         cases=("runs",),
     ),
 )
@@ -120,32 +120,39 @@ def balance_bench(
     from mcpilco.agents.common.trials import resolve_env_id
     from mcpilco.agents.mc_pilco.config import load_config
 
-    runs = []
-    for seed in seeds:
+    stem = f"balance_{env_id.split('/')[-1]}" + (f"_{tag}" if tag else "")
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    steps = int(gym.spec(resolve_env_id(env_id)).max_episode_steps)
+    runs: list[dict[str, Any]] = []
+    for seed in seeds:  # the files are rewritten after every seed (a stopped bench keeps them)
         runs.append(balance_run(env_id, seed, trials, episodes, Path(runs_dir) / f"seed{seed}"))
         print(
             f"seed {seed}: "
             + ", ".join(f"trial {t['trial']} {t['episode_steps']}" for t in runs[-1]["trials"])
         )
-    payload = {
-        "env_id": env_id,
-        "trials": int(trials),
-        "episodes": int(episodes),
-        "episode_steps": int(gym.spec(resolve_env_id(env_id)).max_episode_steps),
-        "config": load_config(env_id).to_dict(),
-        "per_trial": summarise(runs, trials),
-        "runs": runs,
-    }
-    stem = f"balance_{env_id.split('/')[-1]}" + (f"_{tag}" if tag else "")
-    out_dir = Path(out_dir)
-    out_dir.mkdir(parents=True, exist_ok=True)
-    path = write_result(
-        out_dir / f"{stem}.json", RESULT_LAYOUTS[0], payload, seeds=seeds, command=command
-    )
-    res = read_result(path)
-    md = out_dir / f"{stem}.md"
-    md.write_text(markdown(res))
-    return {"json": path, "md": md, "png": plot(res, out_dir / f"{stem}.png")}
+        payload = {
+            "env_id": env_id,
+            "trials": int(trials),
+            "episodes": int(episodes),
+            "episode_steps": steps,
+            "seeds_planned": [int(s) for s in seeds],
+            "config": load_config(env_id).to_dict(),
+            "per_trial": summarise(runs, trials),
+            "runs": runs,
+        }
+        path = write_result(
+            out_dir / f"{stem}.json",
+            RESULT_LAYOUTS[0],
+            payload,
+            seeds=[r["seed"] for r in runs],
+            command=command,
+        )
+        res = read_result(path)
+        md = out_dir / f"{stem}.md"
+        md.write_text(markdown(res))
+        png = plot(res, out_dir / f"{stem}.png")
+    return {"json": path, "md": md, "png": png}
 
 
 def _seed_kind(res: Result) -> str:
@@ -161,12 +168,18 @@ def _seed_kind(res: Result) -> str:
 def markdown(res: Result) -> str:
     """The result as a Markdown page."""
     full = res["episode_steps"]
+    planned = res.payload().get("seeds_planned") or [r["seed"] for r in res["runs"]]
     lines = [
         f"# MC-PILCO balance on {res['env_id']}",
         "",
         f"Command: `{res.command}`  ",
         f"Date: {res.date}; commit {res.commit}  ",
-        f"Seeds: {_seed_kind(res)}.",
+        f"Seeds: {_seed_kind(res)}"
+        + (
+            f"; {len(res['runs'])} of the {len(planned)} planned ({seed_ranges(planned)}) ran."
+            if len(planned) > len(res["runs"])
+            else "."
+        ),
         "",
         f"Each seed: the package's derived defaults and the task file only; after each policy "
         f"trial the applied policy runs {res['episodes']} episodes of the env's own "
