@@ -679,8 +679,10 @@ class _SquashedRBF(torch.autograd.Function):
     def backward(ctx, g_u):  # noqa: D102
         saved = PolicyStepSaved(*ctx.saved_tensors)
         grads = squashed_rbf_backward(saved, g_u, ctx.layout, tuple(ctx.needs_input_grad[:4]))
-        g_z = g_u * (1.0 - saved.t * saved.t) if ctx.needs_input_grad[7] else None
-        return (*grads, None, None, None, g_z)
+        out = (*grads, None, None, None)
+        if len(ctx.needs_input_grad) == 7:  # called without z
+            return out
+        return (*out, g_u * (1.0 - saved.t * saved.t) if ctx.needs_input_grad[7] else None)
 
 
 def make_policy_module(
