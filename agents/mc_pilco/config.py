@@ -35,6 +35,7 @@ RESUME_FIXED = (
     "explore_steps",
     "env_kwargs",
     "policy_init",
+    "policy_linear",
     "push_filter",
 )
 """Config fields that must not change when a run is resumed."""
@@ -120,6 +121,12 @@ class MCPilcoConfig:
             re-drawn from the spread of the exploration trial's states
             (:func:`~mcpilco.agents.mc_pilco.policy.data_init`), which a state of many
             coordinates needs.
+        policy_linear: give the policy a linear feedback term around the task's regulation
+            point, the RBF network a residual on it (:mod:`~mcpilco.agents.mc_pilco.policy`,
+            "linear feedback"; its feature scales are the spread of the exploration trial's
+            states). None (default): derived from the task, on for a regulation task
+            (:func:`~mcpilco.agents.mc_pilco.trainer.regulation_point`: it starts inside the
+            set it must stay in for the whole episode, a balance), off otherwise.
         cost_length_scales: length scales of the optimised cost by state name (None: the
             task's evaluation cost's). Success and the reported cost always come from the
             task's evaluation cost.
@@ -188,6 +195,7 @@ class MCPilcoConfig:
     policy_weight_scale: float = 0.01
     policy_centers_box: float = math.pi
     policy_init: str = "box"
+    policy_linear: bool | None = None
     push_filter: str | None = None
     push_filter_margin: int = 1
     cost_length_scales: dict[str, float] | None = None
@@ -257,6 +265,10 @@ class MCPilcoConfig:
         if self.rollout_dtype not in ROLLOUT_DTYPES:
             raise ValueError(
                 f"rollout_dtype must be one of {ROLLOUT_DTYPES}, got {self.rollout_dtype!r}"
+            )
+        if self.policy_linear is not None and not isinstance(self.policy_linear, bool):
+            raise ValueError(
+                f"policy_linear must be true, false or null, got {self.policy_linear!r}"
             )
         if self.policy_init not in POLICY_INITS:
             raise ValueError(f"policy_init must be one of {POLICY_INITS}, got {self.policy_init!r}")

@@ -14,6 +14,16 @@ Glossary
     the squashed policy, per action coordinate; ``theta = {w, c, l}``; output in the
     action bounds ``(u_mid - u_half, u_mid + u_half)`` (``u_max = u_half`` for symmetric
     bounds, the thesis's form).
+linear feedback (optional)
+    ``pi_theta(x) = u_mid + u_half tanh((sum_i w_i phi_i(x~) + u_half G^T ((x~ - x~*) / s))
+    / u_half)``: a gain matrix ``G`` (F, A) on the features' deviation from a regulation
+    point ``x~*``, in units of the feature scales ``s``, added before the squashing; the RBF
+    network is then a residual. ``theta = {w, c, l, G}``, ``G = 0`` at initialisation (the
+    same ``u`` as without). Why: a task that starts inside the set it must stay in (a
+    balance) needs a feedback that is near linear around ``x~*``; from ``w ~ 0`` the RBF
+    network can only build it from the few basis functions that happen to lie near
+    ``x~*`` (in a box of 6 or more dimensions, hardly any), while ``G`` has a gradient from
+    the first step on (classic PILCO balances the double pendulum with a linear policy).
 dropout
     during policy optimisation, at every call (every simulated time step) each basis
     activation ``phi_i(x~^(m))`` of each particle ``m`` is zeroed with probability ``p`` and the
@@ -63,6 +73,11 @@ class SquashedRBFPolicy(nn.Module):
         center_mean, center_std: (F,) each: draw the centres ``c_i ~ N(center_mean,
             diag(center_std^2))`` in feature space instead of the box (the spread of the
             states the system visits, :func:`data_init`); None: the box.
+        linear_ref: (F,) the regulation point ``x~*`` of the linear feedback term (module
+            glossary); None: no linear term (the thesis's policy).
+        linear_scale: (F,) the feature scales ``s`` of the linear term (None: ones).
+        gains_init: (F, A) the gains ``G`` of the linear term at initialisation (None: 0;
+            the LQR of a learned model, :mod:`~mcpilco.agents.mc_pilco.regulator`).
 
     Shapes:
         ``forward(obs (..., n)) -> action (..., A)``.
@@ -81,6 +96,9 @@ class SquashedRBFPolicy(nn.Module):
         seed: int | None = None,
         center_mean: Sequence[float] | None = None,
         center_std: Sequence[float] | None = None,
+        linear_ref: Sequence[float] | None = None,
+        linear_scale: Sequence[float] | None = None,
+        gains_init: Sequence[Sequence[float]] | None = None,
     ) -> None:
         super().__init__()
         if isinstance(layout, dict):
@@ -127,6 +145,17 @@ class SquashedRBFPolicy(nn.Module):
         self.centers = nn.Parameter(torch.empty(self.num_basis, self.input_dim))
         self.log_lengthscales = nn.Parameter(torch.empty(self.input_dim))
         self.weights = nn.Parameter(torch.empty(self.num_basis, self.action_dim))
+        ref, scale, self.gains = _linear_parts(linear_ref, linear_scale, F, self.action_dim)
+        self.register_buffer("linear_ref", ref)
+        self.register_buffer("linear_scale", scale)
+        self.register_buffer("gains_init", None if ref is None else torch.zeros(F, self.action_dim))
+        if gains_init is not None:
+            if ref is None:
+                raise ValueError("gains_init needs linear_ref (the linear term's reference)")
+            g = torch.as_tensor(gains_init, dtype=torch.float32)
+            if g.shape != self.gains_init.shape:
+                raise ValueError(f"gains_init must have shape {tuple(self.gains_init.shape)}")
+            self.gains_init.copy_(g)
         self.reset_parameters(seed)
 
     @property
@@ -154,6 +183,13 @@ class SquashedRBFPolicy(nn.Module):
         self.log_lengthscales.copy_(self.lengthscale_init.log())
         w = torch.rand(self.num_basis, self.action_dim, generator=gen) * 2.0 - 1.0
         self.weights.copy_(w * self.weight_scale * self.u_half)
+        if self.gains is not None:
+            self.gains.copy_(self.gains_init)
+
+    @property
+    def linear(self) -> bool:
+        """Whether the policy has the linear feedback term (module glossary)."""
+        return self.gains is not None
 
     def settings(self) -> dict[str, Any]:
         """Constructor arguments that define the architecture and initialisation."""
@@ -168,15 +204,29 @@ class SquashedRBFPolicy(nn.Module):
             "dropout": self.dropout,
             "center_mean": None if self.center_mean is None else self.center_mean.tolist(),
             "center_std": None if self.center_std is None else self.center_std.tolist(),
+            "linear_ref": None if self.linear_ref is None else self.linear_ref.tolist(),
+            "linear_scale": None if self.linear_scale is None else self.linear_scale.tolist(),
+            "gains_init": None if self.gains_init is None else self.gains_init.tolist(),
         }
 
     @torch.no_grad()
-    def use_data_init(self, init: dict[str, list[float]]) -> None:
-        """Take the centre distribution and initial lengthscales of :func:`data_init` for the
-        next :meth:`reset_parameters` (and :meth:`settings`)."""
-        self.center_mean = torch.as_tensor(init["center_mean"], dtype=torch.float32)
-        self.center_std = torch.as_tensor(init["center_std"], dtype=torch.float32)
-        self.lengthscale_init.copy_(torch.as_tensor(init["lengthscale_init"]))
+    def use_data_init(self, init: dict[str, list[float] | None]) -> None:
+        """Take the entries of ``init`` (:func:`data_init`'s centre distribution and initial
+        lengthscales; ``linear_scale``, the linear term's feature scales; ``gains_init``, its
+        initial gains) for the next :meth:`reset_parameters` (and :meth:`settings`)."""
+        if init.get("center_mean") is not None:
+            self.center_mean = torch.as_tensor(init["center_mean"], dtype=torch.float32)
+            self.center_std = torch.as_tensor(init["center_std"], dtype=torch.float32)
+        if init.get("lengthscale_init") is not None:
+            self.lengthscale_init.copy_(torch.as_tensor(init["lengthscale_init"]))
+        if init.get("linear_scale") is not None:
+            if self.linear_scale is None:
+                raise ValueError("linear_scale needs a policy with a linear term (linear_ref)")
+            self.linear_scale.copy_(torch.as_tensor(init["linear_scale"]))
+        if init.get("gains_init") is not None:
+            if self.gains_init is None:
+                raise ValueError("gains_init needs a policy with a linear term (linear_ref)")
+            self.gains_init.copy_(torch.as_tensor(init["gains_init"]))
 
     def basis(self, features: Tensor) -> Tensor:
         """Activations ``phi(x~)`` (..., n_b), matmul form of ``||(x~ - c)/l||^2``."""
@@ -212,7 +262,8 @@ class SquashedRBFPolicy(nn.Module):
         flat = obs.reshape(1, -1, n)
         if mask is None:
             mask = self.draw_dropout_mask(obs)
-        u = _SquashedRBF.apply(
+        gains = None if self.gains is None else self.gains.unsqueeze(0)
+        u = _squashed_rbf(
             flat,
             self.centers.unsqueeze(0),
             self.log_lengthscales.unsqueeze(0),
@@ -220,12 +271,13 @@ class SquashedRBFPolicy(nn.Module):
             (self.u_mid, self.u_half),
             mask,
             self.layout,
+            (gains, self.linear_ref, self.linear_scale),
         )
         return u.reshape(*lead, self.action_dim)
 
     def extra_repr(self) -> str:
         return (
-            f"num_basis={self.num_basis}, action_dim={self.action_dim}, "
+            f"num_basis={self.num_basis}, action_dim={self.action_dim}, linear={self.linear}, "
             f"bounds=({self.action_low.tolist()}, {self.action_high.tolist()}), "
             f"dropout={self.dropout}"
         )
@@ -278,6 +330,18 @@ class PolicyPopulation(nn.Module):
             torch.stack([p.log_lengthscales.detach() for p in candidates])
         )
         self.weights = nn.Parameter(torch.stack([p.weights.detach() for p in candidates]))
+        ref, scale, self.gains = _linear_parts(
+            first.linear_ref, first.linear_scale, first.input_dim, first.action_dim
+        )
+        self.register_buffer("linear_ref", ref)
+        self.register_buffer("linear_scale", scale)
+        if self.gains is not None:
+            self.gains = nn.Parameter(torch.stack([p.gains.detach() for p in candidates]))
+
+    @property
+    def linear(self) -> bool:
+        """Whether the candidates have the linear feedback term."""
+        return self.gains is not None
 
     def draw_dropout_mask(self, obs: Tensor) -> Tensor | None:
         """The dropout mask ``(K, M, n_b)`` for ``obs (K M, n)``, or None outside training or
@@ -305,7 +369,7 @@ class PolicyPopulation(nn.Module):
         flat = obs.reshape(self.num_candidates, -1, n)
         if mask is None:
             mask = self.draw_dropout_mask(obs)
-        u = _SquashedRBF.apply(
+        u = _squashed_rbf(
             flat,
             self.centers,
             self.log_lengthscales,
@@ -313,6 +377,7 @@ class PolicyPopulation(nn.Module):
             (self.u_mid, self.u_half),
             mask,
             self.layout,
+            (self.gains, self.linear_ref, self.linear_scale),
         )
         return u.reshape(*lead, self.action_dim)
 
@@ -330,11 +395,20 @@ class PolicyPopulation(nn.Module):
         policy.centers.copy_(self.centers[k])
         policy.log_lengthscales.copy_(self.log_lengthscales[k])
         policy.weights.copy_(self.weights[k])
+        if self.gains is not None:
+            policy.gains.copy_(self.gains[k])
+            policy.linear_scale.copy_(self.linear_scale)
+            policy.gains_init.copy_(torch.as_tensor(self._settings["gains_init"]))
 
-    def use_data_init(self, init: dict[str, list[float]]) -> None:
-        """Take :func:`data_init`'s centre distribution and lengthscales for the candidates
-        of the next :meth:`reset_parameters`."""
-        self._settings = {**self._settings, **init}
+    @torch.no_grad()
+    def use_data_init(self, init: dict[str, list[float] | None]) -> None:
+        """Take the entries of ``init`` (as :meth:`SquashedRBFPolicy.use_data_init`) for the
+        candidates of the next :meth:`reset_parameters`; ``linear_scale`` at once."""
+        self._settings = {**self._settings, **{k: v for k, v in init.items() if v is not None}}
+        if init.get("linear_scale") is not None:
+            if self.linear_scale is None:
+                raise ValueError("linear_scale needs a policy with a linear term (linear_ref)")
+            self.linear_scale.copy_(torch.as_tensor(init["linear_scale"]))
 
     @torch.no_grad()
     def reset_parameters(self, seed: int | None = None) -> None:
@@ -346,12 +420,63 @@ class PolicyPopulation(nn.Module):
             self.centers[k] = pol.centers
             self.log_lengthscales[k] = pol.log_lengthscales
             self.weights[k] = pol.weights
+            if self.gains is not None:
+                self.gains[k] = pol.gains
 
     def extra_repr(self) -> str:
         return (
             f"num_candidates={self.num_candidates}, num_basis={self.num_basis}, "
+            f"linear={self.linear}, "
             f"action_dim={self.action_dim}, dropout={self.dropout}"
         )
+
+
+def _linear_parts(
+    ref: Sequence[float] | Tensor | None,
+    scale: Sequence[float] | Tensor | None,
+    features: int,
+    actions: int,
+) -> tuple[Tensor | None, Tensor | None, nn.Parameter | None]:
+    """``(x~*, s, G)`` of the linear feedback term: the reference and scales as float32
+    tensors (F,) and zero gains (F, A); ``(None, None, None)`` without a reference."""
+    if ref is None:
+        if scale is not None:
+            raise ValueError("linear_scale needs linear_ref (the linear term's reference)")
+        return None, None, None
+    r = torch.as_tensor(ref, dtype=torch.float32).reshape(-1).clone()
+    s = (
+        torch.ones(features)
+        if scale is None
+        else torch.as_tensor(scale, dtype=torch.float32).reshape(-1).clone()
+    )
+    if r.numel() != features or s.numel() != features:
+        raise ValueError(f"linear_ref and linear_scale need {features} entries (one per feature)")
+    if not bool((s > 0).all()):
+        raise ValueError(f"linear_scale must be > 0, got {s.tolist()}")
+    return r, s, nn.Parameter(torch.zeros(features, actions))
+
+
+def _squashed_rbf(
+    obs: Tensor,
+    centers: Tensor,
+    log_l: Tensor,
+    w: Tensor,
+    bounds: tuple[Tensor, Tensor],
+    mask: Tensor | None,
+    layout: StateLayout,
+    linear: tuple[Tensor | None, Tensor | None, Tensor | None],
+) -> Tensor:
+    """The squashed policy of ``K`` policies (:func:`squashed_rbf_forward`'s shapes) with the
+    linear feedback term ``z = u_half ((x~ - x~*) / s) G`` (``linear = (G (K, F, A), x~*,
+    s)``; ``G`` None: none) added before the squashing; ``z`` is differentiated by autograd,
+    the rest by the policy's own backward."""
+    gains, ref, scale = linear
+    z = None
+    if gains is not None:
+        feats = layout.features(obs)[0]
+        z = torch.bmm((feats - ref.to(feats.dtype)) / scale.to(feats.dtype), gains)
+        z = z * bounds[1]
+    return _SquashedRBF.apply(obs, centers, log_l, w, bounds, mask, layout, z)
 
 
 DATA_STD_FLOOR = 1e-6  # a feature that spreads less than this over the data counts as constant
@@ -474,22 +599,28 @@ def squashed_rbf_forward(
     bounds: tuple[Tensor, Tensor],
     mask: Tensor | None,
     layout: StateLayout,
+    z: Tensor | None = None,
 ) -> tuple[Tensor, PolicyStepSaved]:
-    """``u = u_mid + u_half tanh((D o phi(f(obs))) w / u_half)`` for ``K`` policies at once,
+    """``u = u_mid + u_half tanh(((D o phi(f(obs))) w + z) / u_half)`` for ``K`` policies at once,
     and what its backward needs (the policy's step protocol: :func:`squashed_rbf_backward`
     is its exact derivative; its autograd node and the chained rollouts of
     :mod:`mcpilco.agents.mc_pilco.fast` both call this pair).
 
     Shapes: ``obs (K, k, n)``, ``centers c (K, n_b, F)``, ``log l (K, F)``,
     ``w (K, n_b, A)``, ``bounds = (u_mid, u_half)`` (A,) each, ``D (K, k, n_b)`` the dropout
-    mask (None: all ones); ``u (K, k, A)``."""
+    mask (None: all ones), ``z (K, k, A)`` a pre-activation added before the squashing (the
+    linear feedback term; None: none, its gradient is ``g_u (1 - tanh^2)``, the backward's
+    ``gs``); ``u (K, k, A)``."""
     u_mid, u_half = bounds
     feats, s, c = layout.features(obs)  # (K, k, F)
     a, b, inv_l, log_phi = _log_basis(feats, centers, log_l)
     phi = exp_floor_(log_phi)  # (K, k, n_b)
     if mask is not None:
         phi.mul_(mask)
-    t = torch.tanh(torch.bmm(phi, w).div_(u_half))  # (K, k, A)
+    pre = torch.bmm(phi, w)
+    if z is not None:
+        pre = pre.add_(z)
+    t = torch.tanh(pre.div_(u_half))  # (K, k, A)
     return torch.addcmul(u_mid, u_half, t), PolicyStepSaved(a, b, phi, t, w, s, c, inv_l, u_half)
 
 
@@ -534,11 +665,12 @@ def squashed_rbf_backward(
 class _SquashedRBF(torch.autograd.Function):
     """The policy's step protocol (:func:`squashed_rbf_forward`, :func:`squashed_rbf_backward`)
     as one autograd node per call instead of about fifteen (the rollout calls the policy at
-    every time step). ``apply(obs, centers, log_l, w, bounds, mask, layout)``."""
+    every time step). ``apply(obs, centers, log_l, w, bounds, mask, layout, z)``, ``z`` the
+    pre-activation of the linear term (None: none)."""
 
     @staticmethod
-    def forward(ctx, obs, centers, log_l, w, bounds, mask, layout):  # noqa: D102
-        u, saved = squashed_rbf_forward(obs, centers, log_l, w, bounds, mask, layout)
+    def forward(ctx, obs, centers, log_l, w, bounds, mask, layout, z=None):  # noqa: D102
+        u, saved = squashed_rbf_forward(obs, centers, log_l, w, bounds, mask, layout, z)
         ctx.save_for_backward(*saved)
         ctx.layout = layout
         return u
@@ -547,7 +679,10 @@ class _SquashedRBF(torch.autograd.Function):
     def backward(ctx, g_u):  # noqa: D102
         saved = PolicyStepSaved(*ctx.saved_tensors)
         grads = squashed_rbf_backward(saved, g_u, ctx.layout, tuple(ctx.needs_input_grad[:4]))
-        return (*grads, None, None, None)
+        out = (*grads, None, None, None)
+        if len(ctx.needs_input_grad) == 7:  # called without z
+            return out
+        return (*out, g_u * (1.0 - saved.t * saved.t) if ctx.needs_input_grad[7] else None)
 
 
 def make_policy_module(

@@ -91,6 +91,7 @@ from mcpilco.agents.mc_pilco.policy import (
     make_policy_module,
     policy_act,
 )
+from mcpilco.agents.mc_pilco.regulator import regulator_gains
 from mcpilco.agents.mc_pilco.viz import (
     plot_optimisation,
     plot_trial_particles,
@@ -183,6 +184,7 @@ class Trainer:
         else:
             self.init_policy_from_data(k)
             dynamics = self.fit_model(rec)
+            self.init_regulator(k, dynamics)
             self.improve_policy(k, dynamics, rec, arr)
             episodes = self.apply_policy(k, rec, arr)
             self.evaluate_policy(k, rec)
@@ -239,19 +241,60 @@ class Trainer:
 
     def init_policy_from_data(self, k: int) -> None:
         """With ``policy_init="data"``: draw the policy's centres and lengthscales from the
-        exploration trial's states (once; the same settings on a resumed run)."""
-        if self.config.policy_init != "data" or self.policy.center_mean is not None:
+        exploration trial's states; with a linear feedback term: its feature scales ``s``,
+        the spread of those states (once, before the first policy trial; the same settings
+        on a resumed run, whose checkpoint holds them)."""
+        from_data = self.config.policy_init == "data" and self.policy.center_mean is None
+        if not (from_data or (self.policy.linear and k == 1)):
             return
         task = self.task
         n_explore = self.records[0].episodes or 1  # the exploration trial's episodes
         init = data_init(
             task.features(np.concatenate([e["obs"] for e in self.episodes[:n_explore]]))
         )
+        if self.policy.linear:
+            init["linear_scale"] = init["center_std"]
+        if not from_data:
+            init.update(center_mean=None, center_std=None, lengthscale_init=None)
         self.population.use_data_init(init)
         self.policy.use_data_init(init)
         if k == 1:  # the first policy starts there
             self.population.reset_parameters(self.config.seed)
             self.population.copy_to(0, self.policy)
+
+    def init_regulator(self, k: int, dynamics: torch.nn.Module) -> None:
+        """With a linear feedback term, before the first policy optimisation: start its gains
+        at the LQR of the first model linearised at the regulation point
+        (:func:`~mcpilco.agents.mc_pilco.regulator.regulator_gains`), for every candidate
+        and for the policy's later re-draws (restarts); zero where the linearised model has
+        no stabilising LQR. Later trials refine the optimised gains instead."""
+        if not (self.policy.linear and k == 1):
+            return
+        task = self.task
+        x_star = linear_reference(self.config, task)
+        gains = regulator_gains(
+            dynamics,
+            self.cost_fn,
+            self.layout,
+            x_star,
+            self.policy.u_mid.cpu().numpy(),
+            self.policy.u_half.cpu().numpy(),
+            self.policy.linear_scale.cpu().numpy(),
+        )
+        if self.log:
+            self.log(
+                "linear feedback: no stabilising LQR of the model at the regulation point, "
+                "gains start at 0"
+                if gains is None
+                else "linear feedback: gains start at the LQR of the model at the regulation point"
+            )
+        if gains is None:
+            return
+        init = {"gains_init": gains.tolist()}
+        self.population.use_data_init(init)
+        self.policy.use_data_init(init)
+        self.population.reset_parameters(self.config.seed)
+        self.population.copy_to(0, self.policy)
 
     def fit_model(self, rec: TrialRecord) -> torch.nn.Module:
         """Model learning: fit the GP dynamics on the transitions of all episodes (less those
@@ -596,8 +639,11 @@ def policy_candidates(
     config: MCPilcoConfig, task: TaskSpec, layout: StateLayout
 ) -> list[SquashedRBFPolicy]:
     """The ``K`` candidate policies of a run (``config.num_candidates``), candidate ``k``
-    with initial weight scale ``s_k`` and seed ``seed + CANDIDATE_SEED_STRIDE k``."""
+    with initial weight scale ``s_k`` and seed ``seed + CANDIDATE_SEED_STRIDE k``; with a
+    linear feedback term around the task's regulation point where ``config.policy_linear``
+    says so (None: for a regulation task, :func:`regulation_point`)."""
     scales = config.candidate_weight_scales or [config.policy_weight_scale] * config.num_candidates
+    ref = linear_reference(config, task)
     return [
         SquashedRBFPolicy(
             layout,
@@ -607,9 +653,53 @@ def policy_candidates(
             centers_box=config.policy_centers_box,
             weight_scale=scale,
             seed=config.seed + CANDIDATE_SEED_STRIDE * k,
+            linear_ref=None if ref is None else [float(v) for v in task.features(ref)],
         )
         for k, scale in enumerate(scales)
     ]
+
+
+def _target_state(task: TaskSpec) -> np.ndarray:
+    """The task's initial mean with each cost term's state at its target (a term that
+    tracks another state leaves it as is): the point the cost pulls the state to."""
+    x = np.asarray(task.init_mean, dtype=np.float64).copy()
+    for term in task.cost_terms:
+        if term.reference is None:
+            x[task.index(term.state)] = term.target
+    return x
+
+
+def linear_reference(config: MCPilcoConfig, task: TaskSpec) -> np.ndarray | None:
+    """The state ``x*`` the policy's linear feedback term acts around, or None for a policy
+    without one: ``config.policy_linear`` None derives it (:func:`regulation_point`), true
+    takes the point the cost pulls the state to, false has none."""
+    if config.policy_linear is None:
+        return regulation_point(task)
+    return _target_state(task) if config.policy_linear else None
+
+
+def regulation_point(task: TaskSpec) -> np.ndarray | None:
+    """The state ``x*`` a regulation task holds, or None when ``task`` is no regulation
+    task.
+
+    A regulation task starts inside the set it must stay in for the whole episode: its
+    success is ``full_horizon`` and the initial mean lies in its goal box (``success.bounds``,
+    else the ``termination`` box), as a balance from upright. Its policy needs a feedback
+    that is near linear around the point the cost pulls the state to (the initial mean with
+    the cost terms at their targets), the linear feedback term of the policy
+    (:mod:`~mcpilco.agents.mc_pilco.policy`). A swing-up (its start outside the goal) or a
+    task judged at its end is none."""
+    s = task.success
+    if not s.full_horizon:
+        return None
+    box = {k: (b.target - b.tol, b.target + b.tol) for k, b in s.bounds.items()}
+    box = box or dict(task.termination)
+    if not box:
+        return None
+    x0 = np.asarray(task.init_mean, dtype=np.float64)
+    if not all(lo <= x0[task.index(k)] <= hi for k, (lo, hi) in box.items()):
+        return None
+    return _target_state(task)
 
 
 def dynamics_model(config: MCPilcoConfig, task: TaskSpec) -> GPDynamicsModel:

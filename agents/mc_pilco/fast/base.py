@@ -71,13 +71,16 @@ MIN_SHARD_PARTICLES = 50  # fewest particles per candidate and thread worth a th
 def unsupported_reason(policy: Any, dynamics: Any, cost: Any, device: torch.device) -> str | None:
     """Why the chained rollout (torch or native backend) cannot run this loss (None: it can).
     It chains the hand-written backward passes of the package's own parts, so it needs
-    exactly those: a :class:`SquashedRBFPolicy` or :class:`PolicyPopulation`,
+    exactly those: a :class:`SquashedRBFPolicy` or :class:`PolicyPopulation` (without a
+    linear feedback term),
     :class:`SpeedIntegrationDynamics` over a :class:`FusedRBFMPKPredictor`,
     :class:`SaturatingCost`, on the CPU."""
     if device.type != "cpu":
         return f"it runs on the CPU only (the rollout is on {device})"
     if type(policy) not in (SquashedRBFPolicy, PolicyPopulation):
         return f"unsupported policy {type(policy).__name__}"
+    if policy.linear:
+        return "the policy's linear feedback term has no chained backward"
     if type(dynamics) is not SpeedIntegrationDynamics:
         return f"unsupported dynamics {type(dynamics).__name__}"
     if dynamics.joint_inputs is not None:
