@@ -59,9 +59,11 @@ def run_seeds(
     eval_episodes: int,
     runs_dir: Path,
     log: Callable[[str], None] = print,
+    on_seed: Callable[[list[dict[str, Any]]], None] | None = None,
 ) -> list[dict[str, Any]]:
     """Each seed's run in ``runs_dir/seed<s>`` (:func:`~mcpilco.experiments.mcpilco.bench.
-    run_seed`: a finished run is read back, a killed one resumed), one after the other."""
+    run_seed`: a finished run is read back, a killed one resumed), one after the other;
+    ``on_seed(runs so far)`` after each (e.g. to write the report of the seeds finished)."""
     from mcpilco.experiments.mcpilco.bench import run_seed
 
     runs = []
@@ -74,6 +76,8 @@ def run_seeds(
             f"seed {s}: eval {last.get('eval_successes')}/{last.get('eval_counted')} after "
             f"{last['experience_s']:.0f} s of experience ({run['seconds']:.0f} s)"
         )
+        if on_seed is not None:
+            on_seed(runs)
     return runs
 
 
@@ -133,8 +137,10 @@ def make_payload(
     eval_episodes: int,
     budget_s: float,
     command: str | None = None,
+    planned: Sequence[int] | None = None,
 ) -> dict[str, Any]:
-    """The result payload of ``runs`` (:func:`run_seeds`)."""
+    """The result payload of ``runs`` (:func:`run_seeds`); ``planned``: the seeds asked for
+    (the report says which of them have not finished)."""
     seeds = [per_seed(r) for r in runs]
     rows = per_trial(seeds)
     cfg = eval_config(env_id, trials, eval_episodes, 0).to_dict()
@@ -149,10 +155,16 @@ def make_payload(
         "per_trial": rows,
         "headline": at_budget(rows, budget_s),
         "per_seed": seeds,
+        "seeds_planned": [int(s) for s in (planned or payload_seeds(seeds))],
     }
     if command is not None:
         payload["command"] = command
     return payload
+
+
+def payload_seeds(seeds: list[dict[str, Any]]) -> list[int]:
+    """The seeds of :func:`per_seed` rows."""
+    return [int(s["seed"]) for s in seeds]
 
 
 def report(payload: dict[str, Any]) -> str:
@@ -171,6 +183,7 @@ def report(payload: dict[str, Any]) -> str:
         "own episode length, not experience. A seed is solved when all its evaluation "
         "episodes succeed.",
         "",
+        *_unfinished(payload),
         "| experience | seeds solved [95 % Wilson] | evaluation episodes [95 % Wilson] "
         "| float64 rollouts |",
         "|---|---|---|---|",
@@ -200,6 +213,18 @@ def report(payload: dict[str, Any]) -> str:
         )
         md.append(f"- seed {s['seed']}: {cells} ({s['seconds']:.0f} s)")
     return "\n".join(md) + "\n"
+
+
+def _unfinished(payload: dict[str, Any]) -> list[str]:
+    """A paragraph naming the planned seeds that have not finished (none: nothing)."""
+    missing = sorted(set(payload.get("seeds_planned", [])) - set(payload["seeds"]))
+    if not missing:
+        return []
+    return [
+        f"Not finished: seeds {seed_ranges(missing)} of the {len(payload['seeds_planned'])} "
+        "planned; the rates below are over the finished seeds only.",
+        "",
+    ]
 
 
 def _pct(ci: Sequence[float]) -> str:
