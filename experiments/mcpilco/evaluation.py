@@ -171,7 +171,7 @@ def report(payload: dict[str, Any]) -> str:
     """The Markdown report of a payload (:func:`make_payload`)."""
     seeds = payload["seeds"]
     dev = [s for s in seeds if s in DEVELOPMENT_SEEDS]
-    kind = "development seeds (defaults chosen on them)" if dev else "report seeds (run once)"
+    kind = "development seed(s) (defaults chosen on them)" if dev else "report seed(s), run once"
     cfg = payload["run_config"]
     md = [
         f"# MC-PILCO on {payload['env_id']}: evaluation episodes",
@@ -205,6 +205,11 @@ def report(payload: dict[str, Any]) -> str:
             f"{s['k']} of {s['n']} seeds solved ({100 * s['rate']:.0f} %, 95 % CI "
             f"{_pct(s['ci95'])}) after {h['experience_s']:.0f} s."
         )
+        if h is payload["per_trial"][-1] and h["experience_s"] < payload["budget_s"] - 1e-9:
+            md[-1] += (
+                f" The runs end there, short of the budget: nothing is known of the trials "
+                f"up to {payload['budget_s']:.0f} s."
+            )
     md += ["", "Per seed (evaluation successes after each policy trial):", ""]
     for s in payload["per_seed"]:
         cells = ", ".join(

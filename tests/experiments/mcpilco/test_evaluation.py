@@ -38,4 +38,4 @@ def test_seeds_solved_and_headline(tmp_path):
     assert data["kind"] == "mcpilco_eval" and data["seeds"]["development"] == [0, 1]
     assert (tmp_path / "mcpilco_eval_Pendulum_v1_dev.png").is_file()
     md = (tmp_path / "mcpilco_eval_Pendulum_v1_dev.md").read_text()
-    assert "development seeds" in md and "1 of 2 seeds solved" in md
+    assert "development seed(s)" in md and "1 of 2 seeds solved" in md
