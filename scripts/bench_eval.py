@@ -40,7 +40,20 @@ def main(argv: list[str]) -> None:
     args = build_parser().parse_args(argv)
     seeds = list(range(args.first_seed, args.first_seed + args.seeds))
     tag = args.env.split("/")[-1] + (f"_{args.label}" if args.label else "")
-    runs = run_seeds(args.env, seeds, args.trials, args.eval_episodes, args.runs_dir / tag)
     command = "mcpilco-bench-eval " + shlex.join(argv)
-    payload = make_payload(args.env, runs, args.trials, args.eval_episodes, args.budget_s, command)
-    print(f"wrote {write_report(payload, args.out, args.label)}")
+
+    def write(runs: list[dict]) -> None:  # after every seed: the seeds finished so far
+        payload = make_payload(
+            args.env, runs, args.trials, args.eval_episodes, args.budget_s, command, seeds
+        )
+        print(f"wrote {write_report(payload, args.out, args.label)}", flush=True)
+
+    run_seeds(
+        args.env,
+        seeds,
+        args.trials,
+        args.eval_episodes,
+        args.runs_dir / tag,
+        log=lambda line: print(line, flush=True),
+        on_seed=write,
+    )

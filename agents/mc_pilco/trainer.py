@@ -160,6 +160,7 @@ class Trainer:
         self.pngs: list[Path] = []
         self.start_trial = 0
         self.resumed_from: int | None = None
+        self.eval_env = None  # the evaluation episodes' env (set_up, with eval_episodes)
 
     # ------------------------------------------------------------------------ the loop
     def run(self) -> RunSummary:
