@@ -19,6 +19,7 @@ that ``import mcpilco.envs`` does not import dm-control; it is imported when an 
 from __future__ import annotations
 
 import warnings
+from collections.abc import Mapping
 from typing import Any
 
 import gymnasium as gym
@@ -162,7 +163,10 @@ class DMControlEnv(gym.Env):
 
     ## Starting State
     dm-control's own, drawn from a ``numpy.random.RandomState`` owned by the adapter and
-    reseeded by ``reset(seed=...)`` (unseeded resets continue its stream).
+    reseeded by ``reset(seed=...)`` (unseeded resets continue its stream; a seed of 2^32 or
+    more, which ``RandomState`` refuses, through ``numpy.random.SeedSequence``).
+    :meth:`set_physics_state` then sets named entries of the state (an episode started
+    from a given state).
 
     ## Episode End
     Truncated at dm-control's own time limit, or after ``episode_steps`` env steps when
@@ -237,6 +241,14 @@ class DMControlEnv(gym.Env):
         """Name of each entry of ``info["physics"]`` (module docstring)."""
         self.observation_space = Box(-np.inf, np.inf, shape=obs.shape, dtype=np.float64)
         self._steps = 0
+        limit = self._dmc._step_limit  # dm-control's time limit / control timestep (inf: none)
+        self.episode_limit: int | None = (
+            None
+            if self.episode_steps is None and not np.isfinite(limit)
+            else self.episode_steps or -(-int(round(limit)) // self.action_repeat)
+        )
+        """Env steps of an episode: ``episode_steps``, else dm-control's own time limit
+        (None: no limit)."""
 
     @property
     def physics(self):
@@ -251,11 +263,40 @@ class DMControlEnv(gym.Env):
 
     def reset(self, *, seed: int | None = None, options: dict | None = None):
         super().reset(seed=seed)
-        if seed is not None:
-            self._random.seed(seed)
+        if seed is not None:  # RandomState takes seeds below 2^32; a larger one is hashed
+            self._random.seed(
+                seed if seed < 2**32 else int(np.random.SeedSequence(seed).generate_state(1)[0])
+            )
         ts = self._dmc.reset()
         self._steps = 0
         return self._get_obs(ts.observation), {"physics": self.physics_state}
+
+    def set_physics_state(
+        self, values: Mapping[str, float]
+    ) -> tuple[NDArray[np.float64], dict[str, Any]]:
+        """Set the physics entries named in ``values`` (:attr:`physics_names`, e.g.
+        ``{"qpos[hinge]": 3.1, "qvel[hinge]": 0.0}``) and return the observation and ``info``
+        of the new state (dm-control's own observation of it); the other entries keep their
+        values. Used after :meth:`reset` to start an episode from a given state
+        (:func:`mcpilco.envs.reset_state.set_env_state`).
+
+        Raises:
+            ValueError: a name that is not one of :attr:`physics_names`.
+        """
+        state = self.physics_state
+        for name, v in values.items():
+            if name not in self.physics_names:
+                raise ValueError(
+                    f"task.eval_init.{name}: not a physics entry of {self.domain}/{self.task} "
+                    f"(entries: {', '.join(self.physics_names)})"
+                )
+            state[self.physics_names.index(name)] = float(v)
+        nq = self.physics.model.nq
+        with self.physics.reset_context():  # sets the state and recomputes what follows from it
+            self.physics.data.qpos[:] = state[:nq]
+            self.physics.data.qvel[:] = state[nq:]
+        obs = self._get_obs(self._dmc.task.get_observation(self.physics))
+        return obs, {"physics": self.physics_state}
 
     def step(self, action: ArrayLike):
         ts, reward, terminated, truncated = self._advance(action)

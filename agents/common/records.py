@@ -66,6 +66,10 @@ class TrialRecord:
             parameters were compared, their best ``J^``, and the step applied.
         gp_rmse: one-step RMSE of the model (fitted before the trial) per output on the
             trial's transitions.
+        rollout_dtype, rollout_dtype_error: dtype of the GP posterior in the trial's particle
+            rollouts (float64 where the config's dtype lost the posterior to round-off) and
+            that dtype's error
+            (:meth:`~mcpilco.agents.mc_pilco.dynamics.GPDynamicsModel.posterior_dtype_error`).
         n_contact, n_filtered, n_filtered_contact: steps the env reports a contact (a
             push), transitions a push filter left out, and those of them that overlap one.
         episodes: episodes the trial spanned (more than one where the env ended one early and
@@ -93,6 +97,8 @@ class TrialRecord:
     gp_points: int | None = None
     n_data: int | None = None
     n_at_limits: int | None = None
+    rollout_dtype: str | None = None
+    rollout_dtype_error: float | None = None
     compiled_step: bool | None = None
     compile_check: dict[str, Any] | None = None
     compile_error: str | None = None

@@ -158,11 +158,14 @@ def run_episode(
     horizon: int,
     task: TaskSpec,
     record_info: bool = False,
+    init_state: Mapping[str, float] | None = None,
 ) -> dict[str, Any]:
     """One episode of at most ``horizon`` control steps under ``act(state)``, each action held
     for the task's ``action_repeat`` env steps (the observation after the last is the next
     state). ``record_info``: also return ``infos``, per control step the ``info`` dicts of
     its env steps (what a push filter reads, :mod:`mcpilco.agents.mc_pilco.filters`).
+    ``init_state``: entries of the env's state set after the reset
+    (:func:`mcpilco.envs.reset_state.set_env_state`; an evaluation episode's start).
 
     Returns the observed states ``obs`` (T+1, n) (read from the observations by the task),
     the true states ``states`` (T+1, n), ``actions`` (T, A), per-step evaluation ``costs``,
@@ -178,6 +181,10 @@ def run_episode(
             its own, shorter than the horizon; a termination ends the episode normally).
     """
     obs, info = env.reset(seed=seed, options=task.reset_options())
+    if init_state is not None:
+        from mcpilco.envs.reset_state import set_env_state
+
+        obs, info = set_env_state(env, init_state, obs, info)
     observed = [task.state_from_obs(obs, info)]
     states = [task.true_state(obs, info)]
     actions = []
@@ -454,10 +461,13 @@ def evaluate(
     k: int,
     episodes: int,
     task: TaskSpec,
+    steps: int | None = None,
 ) -> dict[str, Any]:
-    """``episodes`` evaluation episodes of the policy ``act`` after trial ``k``, each from the
-    task's initial distribution (reset seeds :func:`eval_seed`), not counted as experience.
-    The success rate counts the episodes that started outside the goal set
+    """``episodes`` evaluation episodes of the policy ``act`` after trial ``k``, each of
+    ``steps`` control steps (None: the horizon; ``env`` must allow them) from the task's
+    evaluation start (reset seeds :func:`eval_seed`; the env's state entries of
+    ``task.eval_init`` drawn from a generator seeded by the same seed), not counted as
+    experience. The success rate counts the episodes that started outside the goal set
     (``started_in_goal`` ones are left out) with its 95 % Wilson interval.
 
     Returns the record fields ``eval_episodes`` (run), ``eval_counted`` (started outside
@@ -469,7 +479,9 @@ def evaluate(
         raise ValueError(f"eval episodes must be in 1..{MAX_EVAL_EPISODES}, got {episodes!r}")
     counted = successes = 0
     for i in range(int(episodes)):
-        ep = run_episode(env, act, eval_seed(seed, k, i), task.horizon, task)
+        s = eval_seed(seed, k, i)
+        init = task.sample_eval_init(np.random.default_rng(s))
+        ep = run_episode(env, act, s, steps or task.horizon, task, init_state=init)
         if not ep["started_in_goal"]:
             counted += 1
             successes += bool(ep["success"])

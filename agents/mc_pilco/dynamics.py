@@ -568,6 +568,28 @@ class GPDynamicsModel:
         )
 
     @torch.no_grad()
+    def posterior_dtype_error(self, dtype: torch.dtype) -> float:
+        """How far the particle dynamics' posterior mean at ``dtype`` is from the float64
+        one, on the GP's own training inputs ``x_i``::
+
+            e = max_j sqrt(mean_i (mu_j^dtype(x_i) - mu_j^f64(x_i))^2) / std_i(y_ij)
+
+        (``j`` the outputs, ``y`` the training targets). The mean is ``k(x, X) alpha``
+        with ``alpha = K^-1 y``; on noise-free data (a simulator without measurement
+        noise) ``K`` is close to singular, ``alpha`` is large with alternating signs, and
+        in float32 the sum cancels into round-off: the rollout then follows a model that
+        is not the fitted one. 0 at float64."""
+        self._check_fitted()
+        if dtype == torch.float64:
+            return 0.0
+        x = torch.as_tensor(self.gp_.train_x_, dtype=torch.float64)
+        ref = self.particle_dynamics(torch.float64).delta_model(x)[0]
+        low = self.particle_dynamics(dtype).delta_model(x.to(dtype))[0].to(torch.float64)
+        spread = torch.as_tensor(self.gp_.train_y_, dtype=torch.float64).std(dim=0)
+        rms = ((low - ref) ** 2).mean(dim=0).sqrt() / spread.clamp_min(1e-300)
+        return float(rms.max()) if torch.isfinite(rms).all() else math.inf
+
+    @torch.no_grad()
     def one_step_rmse(self, states, actions, next_states) -> np.ndarray:
         """RMSE of the posterior mean of ``Delta`` on the given transitions, per output (m,)."""
         self._check_fitted()

@@ -8,7 +8,8 @@ Algorithm 1, one method each::
         fit_model()                 GP dynamics on all transitions D (marginal likelihood)
         improve_policy()            minimise the particle estimate J^ (5.8), monitoring rule
         apply_policy()              run the policy on the system for H steps, D += its data
-        evaluate_policy()           E evaluation episodes (eval_episodes; not in D)
+        evaluate_policy()           E evaluation episodes (eval_episodes; not in D), from
+                                    the task's eval_init, of the env's own episode length
         commit_trial()              record, plots, checkpoint (the trial's commit point)
 
 Glossary
@@ -100,6 +101,12 @@ from mcpilco.agents.mc_pilco.viz import (
 from mcpilco.envs.tasks.spec import TaskSpec
 from mcpilco.models.device import resolve_device
 
+ROLLOUT_DTYPE_TOL = 0.01
+"""Largest RMS error of the rollout-dtype GP posterior mean, as a fraction of each output's
+spread on the training data, before the rollout runs in float64 instead (a model that
+misses by 1 % per step is not the model fitted; round-off on data with measurement noise
+is 1e-4 of the spread and below)."""
+
 CANDIDATE_SEED_STRIDE = 7919
 """Candidate ``k`` of run ``seed`` is initialised with seed ``seed + 7919 k``."""
 
@@ -154,6 +161,7 @@ class Trainer:
         self.pngs: list[Path] = []
         self.start_trial = 0
         self.resumed_from: int | None = None
+        self.eval_env = None  # the evaluation episodes' env (set_up, with eval_episodes)
 
     # ------------------------------------------------------------------------ the loop
     def run(self) -> RunSummary:
@@ -171,6 +179,8 @@ class Trainer:
             if bar is not None:
                 bar.close()
             self.env.close()
+            if self.eval_env is not None:
+                self.eval_env.close()
             self.run_folder.close()
         return self.summary(time.perf_counter() - t_start)
 
@@ -197,10 +207,15 @@ class Trainer:
         config = self.config
         check_dynamics_task(self.task if self.task is not None else config.task_spec())
         self.run_folder = open_run_folder(self.out, resume=self.resume, overwrite=self.overwrite)
-        self.env = None
+        self.env = self.eval_env = None
         try:
             self._set_up_task()
             self.env = make_env(config.env_id, self.horizon, self.task, config.env_kwargs)
+            self.eval_steps = evaluation_steps(self.task, self.env)
+            if config.eval_episodes:  # episodes of the evaluation's length
+                self.eval_env = make_env(
+                    config.env_id, self.eval_steps, self.task, config.env_kwargs
+                )
             self._set_up_parts()
             if self.resume:
                 self._load_checkpoint()
@@ -208,8 +223,9 @@ class Trainer:
             self.success_level = success_cost_level(self.task, self.cost_fn)
             self.init_std = initial_std(self.config, self.task, self.layout)
         except BaseException:
-            if self.env is not None:
-                self.env.close()
+            for env in (self.env, self.eval_env):
+                if env is not None:
+                    env.close()
             self.run_folder.close()
             raise
 
@@ -298,7 +314,11 @@ class Trainer:
 
     def fit_model(self, rec: TrialRecord) -> torch.nn.Module:
         """Model learning: fit the GP dynamics on the transitions of all episodes (less those
-        at the task's limits or marked by a push filter); returns the particle dynamics."""
+        at the task's limits or marked by a push filter); returns the particle dynamics, in
+        the config's ``rollout_dtype`` unless its posterior mean misses the float64 one by
+        more than :data:`ROLLOUT_DTYPE_TOL`
+        (:meth:`~mcpilco.agents.mc_pilco.dynamics.GPDynamicsModel.posterior_dtype_error`:
+        noise-free data), then in float64; the record says which."""
         t_fit = time.perf_counter()
         data = transitions(self.episodes, self.task)
         self.model.fit(*data)
@@ -306,13 +326,19 @@ class Trainer:
         n_filtered = sum(
             int(np.sum(e["filtered"])) for e in self.episodes if e.get("filtered") is not None
         )
+        dtype = getattr(torch, self.config.rollout_dtype)
+        dtype_error = self.model.posterior_dtype_error(dtype)
+        if dtype_error > ROLLOUT_DTYPE_TOL:  # the posterior lost to round-off: float64
+            dtype = torch.float64
         rec.update(
             gp_fit_s=time.perf_counter() - t_fit,
             gp_points=int(self.model.gp_.train_x_.shape[0]),
             n_data=n_data,
             n_at_limits=int(sum(len(e["actions"]) for e in self.episodes)) - n_data - n_filtered,
+            rollout_dtype=str(dtype).removeprefix("torch."),
+            rollout_dtype_error=dtype_error,
         )
-        return self.model.particle_dynamics(getattr(torch, self.config.rollout_dtype))
+        return self.model.particle_dynamics(dtype)
 
     def improve_policy(
         self, k: int, dynamics: torch.nn.Module, rec: TrialRecord, arr: dict[str, Any]
@@ -407,12 +433,25 @@ class Trainer:
         return episodes
 
     def evaluate_policy(self, k: int, rec: TrialRecord) -> None:
-        """With ``eval_episodes`` ``E``: ``E`` episodes of the applied policy from the task's
-        initial distribution, not added to ``D``; their success rate goes to the record."""
+        """With ``eval_episodes`` ``E``: ``E`` episodes of the applied policy, each started
+        from the task's evaluation start (``eval_init``, else the env's own reset) and run
+        for :func:`evaluation_steps` control steps (the env's full episode, which may be
+        longer than the horizon the policy was optimised over), not added to ``D``; their
+        success rate (the task's success test) goes to the record."""
         cfg = self.config
         if cfg.eval_episodes:
             act = policy_act(self.policy)
-            rec.update(**evaluate(self.env, act, cfg.seed, k, cfg.eval_episodes, self.task))
+            rec.update(
+                **evaluate(
+                    self.eval_env,
+                    act,
+                    cfg.seed,
+                    k,
+                    cfg.eval_episodes,
+                    self.task,
+                    self.eval_steps,
+                )
+            )
 
     def commit_trial(
         self,
@@ -714,6 +753,22 @@ def dynamics_model(config: MCPilcoConfig, task: TaskSpec) -> GPDynamicsModel:
         min_lengthscale=config.gp_min_lengthscale,
         mpk_degree=config.mpk_degree,
     )
+
+
+def evaluation_steps(task: TaskSpec, env: Any) -> int:
+    """Control steps of an evaluation episode: the task's ``eval_steps``, else the env's own
+    episode length (its registered ``max_episode_steps``, or an adapter's own limit such as
+    dm-control's time limit, :attr:`mcpilco.envs.dmc.DMControlEnv.episode_limit`) in
+    control steps of ``action_repeat`` env steps, else the horizon."""
+    if task.eval_steps is not None:
+        return int(task.eval_steps)
+    import gymnasium as gym
+
+    spec = getattr(env, "spec", None)  # the made env's spec holds the horizon's limit
+    own = gym.spec(spec.id).max_episode_steps if spec is not None else None
+    if own is None:
+        own = getattr(env.unwrapped, "episode_limit", None)
+    return task.horizon if own is None else max(1, int(own) // task.action_repeat)
 
 
 def initial_std(config: MCPilcoConfig, task: TaskSpec, layout: StateLayout) -> np.ndarray:

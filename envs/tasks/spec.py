@@ -76,6 +76,13 @@ termination
     particle rollout then treats the set outside as absorbing
     (:class:`~mcpilco.agents.mc_pilco.loss.MCPilcoLoss`): a particle that leaves it stays
     where it left and pays the cost's maximum for every remaining step.
+evaluation episodes (``eval_init``, ``eval_steps``)
+    episodes of a policy that are not experience, judged by the same success test: each
+    starts from the env's reset with the entries of the env's state that ``eval_init``
+    names set to ``v ~ U(lo, hi)`` (e.g. a pendulum started hanging, ``theta = pi +- 0.1``;
+    :func:`mcpilco.envs.reset_state.set_env_state` says how each kind of env takes them),
+    and lasts ``eval_steps`` control steps (default: the env's own episode length, so that a
+    policy optimised over a shorter horizon is judged over the env's full episode).
 ``trial_steps``
     control steps of experience each trial collects: an episode that ends early is followed
     by further episodes (reset by the env's own generator) until that many steps were taken
@@ -228,6 +235,11 @@ class TaskSpec:
             episode (module glossary; an angle by its wrapped value).
         trial_steps: control steps of experience per trial, across resets (None: the
             horizon; module glossary).
+        eval_init: env state entry name -> ``(lo, hi)``: evaluation episodes start with each
+            named entry of the env's state drawn from ``U(lo, hi)`` (module glossary); None:
+            the env's own reset distribution.
+        eval_steps: control steps of an evaluation episode (None: the env's own episode
+            length, else the horizon).
     """
 
     env_id: str
@@ -257,6 +269,8 @@ class TaskSpec:
     env_reset_options: Mapping[str, Any] | None = None
     termination: Mapping[str, tuple[float, float]] = field(default_factory=dict)
     trial_steps: int | None = None
+    eval_init: Mapping[str, tuple[float, float]] | None = None
+    eval_steps: int | None = None
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "_entry_names", {})  # source -> entry names, by check_env
@@ -388,9 +402,11 @@ class TaskSpec:
         object.__setattr__(
             self, "termination", self._check_ranges("termination", self.termination, True)
         )
-        ts = self.trial_steps
-        if ts is not None and (not isinstance(ts, int) or isinstance(ts, bool) or ts < 1):
-            raise _fail("trial_steps", f"expected a positive integer number of steps, got {ts!r}")
+        for key in ("trial_steps", "eval_steps"):
+            v = getattr(self, key)
+            if v is not None and (not isinstance(v, int) or isinstance(v, bool) or v < 1):
+                raise _fail(key, f"expected a positive integer number of steps, got {v!r}")
+        self._check_eval_init()
         self._check_arm()
         self._check_state_from()
         if self.env_reset_options is not None and not isinstance(self.env_reset_options, Mapping):
@@ -440,6 +456,32 @@ class TaskSpec:
                 raise _fail(f"{key}.{name}", f"needs finite lo < hi, got [{lo}, {hi}]")
             out[str(name)] = (lo, hi)
         return out
+
+    def _check_eval_init(self) -> None:
+        """``eval_init``: env state entry names, each with finite ``lo <= hi`` (equal: a
+        fixed value); stored as a plain dict."""
+        if self.eval_init is None:
+            return
+        if not isinstance(self.eval_init, Mapping) or not self.eval_init:
+            got = repr(self.eval_init)
+            raise _fail("eval_init", f"expected a mapping env state entry -> [lo, hi], got {got}")
+        out = {}
+        for name, lim in self.eval_init.items():
+            ok = isinstance(lim, Sequence) and not isinstance(lim, str) and len(lim) == 2
+            if not ok or not all(_is_number(v) for v in lim):
+                raise _fail(f"eval_init.{name}", f"needs [lo, hi], got {lim!r}")
+            lo, hi = float(lim[0]), float(lim[1])
+            if not (math.isfinite(lo) and math.isfinite(hi) and lo <= hi):
+                raise _fail(f"eval_init.{name}", f"needs finite lo <= hi, got [{lo}, {hi}]")
+            out[str(name)] = (lo, hi)
+        object.__setattr__(self, "eval_init", out)
+
+    def sample_eval_init(self, rng: np.random.Generator) -> dict[str, float] | None:
+        """One draw of ``eval_init`` (entry -> ``v ~ U(lo, hi)``, in the file's order), or
+        None without it."""
+        if self.eval_init is None:
+            return None
+        return {k: float(rng.uniform(lo, hi)) for k, (lo, hi) in self.eval_init.items()}
 
     def _check_arm(self) -> None:
         """The arm fields (module glossary); errors name the field."""
@@ -979,6 +1021,7 @@ TASK_NUMBER_RANGES: dict[str, dict[str, Any]] = {
     "success.tracking_rms": {"lo": 0.0, "hi": 1e9, "lo_open": True},
     "limits": {"lo": -1e9, "hi": 1e9},
     "trial_steps": {"lo": 1, "hi": 10_000_000, "integer": True},
+    "eval_steps": {"lo": 1, "hi": 10_000_000, "integer": True},
 }
 """Range of each number of a task file (a list's entries each): a control period of at most
 an hour, magnitudes of at most 1e9, length scales in [1e-9, 1e9] (a smaller one underflows
@@ -1036,8 +1079,12 @@ def _check_numbers(d: Mapping[str, Any]) -> None:
         ranges = d.get(key)
         for name, v in ranges.items() if isinstance(ranges, Mapping) else ():
             check(v, f"{key}.{name}", "limits")
-    if d.get("trial_steps") is not None:
-        check(d["trial_steps"], "trial_steps", "trial_steps")
+    for key in ("trial_steps", "eval_steps"):
+        if d.get(key) is not None:
+            check(d[key], key, key)
+    init = d.get("eval_init")
+    for name, v in init.items() if isinstance(init, Mapping) else ():
+        check(v, f"eval_init.{name}", "limits")
 
 
 def _check_types(d: Mapping[str, Any]) -> None:
