@@ -24,7 +24,6 @@ BENCH_MODULES: tuple[str, ...] = (
     "mcpilco.experiments.mcpilco.tracking",
     "mcpilco.experiments.mcpilco.gp_predictor",
     "mcpilco.experiments.mcpilco.budget_model",
-    "mcpilco.experiments.mcpilco.balance",
     "mcpilco.experiments.mcpilco.evaluation",
     "mcpilco.experiments.identification.volterra",
     "mcpilco.experiments.identification.inverse_dynamics",

@@ -225,7 +225,7 @@ def run_episode(
         "states": states_arr,
         "actions": np.stack(actions) if actions else np.zeros((0, task.action_dim)),
         "costs": np.asarray(costs),
-        "success": task.is_success(states_arr[1:], info, steps),
+        "success": task.is_success(states_arr[1:], info, steps, planned=horizon),
         "started_in_goal": task.starts_in_goal(states_arr[0]),
         "cost": float(np.sum(costs)),
         "time_in_goal": float(np.sum(task.in_goal(states_arr[1:])) * task.dt),

@@ -911,13 +911,21 @@ class TaskSpec:
             return False
         return bool(self.in_goal(np.asarray(x0, dtype=np.float64)))
 
-    def is_success(self, states: np.ndarray, last_info: Mapping[str, Any], steps: int) -> bool:
+    def is_success(
+        self,
+        states: np.ndarray,
+        last_info: Mapping[str, Any],
+        steps: int,
+        planned: int | None = None,
+    ) -> bool:
         """Success of one episode from its true states after each step ``(T, n)``, the last
-        ``info`` and the number of steps taken."""
+        ``info``, the number of steps taken and the number ``planned`` (None: the horizon;
+        an evaluation episode of the env's own length plans more). A ``full_horizon`` task
+        fails an episode that ended before its planned length."""
         s = self.success
         if s.info_key is not None and s.info_key in last_info:
             return bool(last_info[s.info_key])
-        if s.full_horizon and steps < self.horizon:
+        if s.full_horizon and steps < (self.horizon if planned is None else int(planned)):
             return False
         states = np.asarray(states, dtype=np.float64)
         if s.tracking_rms:

@@ -205,6 +205,9 @@ def test_success_rules():
     up = np.zeros((task.horizon, 4))
     assert task.is_success(up, {}, task.horizon)
     assert not task.is_success(up[:10], {}, 10)  # terminated early
+    long = np.zeros((10 * task.horizon, 4))  # an evaluation episode of 10 horizons
+    assert task.is_success(long, {}, len(long), planned=len(long))
+    assert not task.is_success(long[:200], {}, 200, planned=len(long))  # fell after 4 horizons
     tipped = up.copy()
     tipped[5, 1] = 0.3
     assert not task.is_success(tipped, {}, task.horizon)
