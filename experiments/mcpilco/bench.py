@@ -995,11 +995,12 @@ def _dmc_row(r: Result) -> str:
 
 def _step_row(r: Result) -> str:
     timing = r["timing"]
-    row = next(
+    row = next(  # the cart-pole's row (arm specs time the same N, M and threads)
         t
         for t in timing
         if t["n_points"] == 100 and t["num_particles"] == 400 and t["threads"] == 2
-    )
+        and t.get("env_id", DEFAULT_ENV_ID) == DEFAULT_ENV_ID
+    )  # fmt: skip
     line = (
         f"{row['compiled_s_per_step_wall']:.3f} s per policy-optimisation step "
         f"(`{row['compile_backend']}`, 400 particles, N = 100, 2 threads; eager "

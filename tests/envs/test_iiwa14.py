@@ -17,6 +17,7 @@ import pytest
 
 from mcpilco.envs.arm_builder import build_arm_model
 from mcpilco.envs.arms import iiwa14
+from tests.envs.test_panda import mass_matrix
 
 MENAGERIE_IIWA14 = """
 <mujoco model="iiwa14_menagerie">
@@ -67,15 +68,6 @@ def inverse(model: mujoco.MjModel, q: np.ndarray, qd: np.ndarray, qdd: np.ndarra
     data.qpos[:], data.qvel[:], data.qacc[:] = q, qd, qdd
     mujoco.mj_inverse(model, data)
     return data.qfrc_inverse.copy()
-
-
-def mass_matrix(model: mujoco.MjModel, q: np.ndarray) -> np.ndarray:
-    data = mujoco.MjData(model)
-    data.qpos[:] = q
-    mujoco.mj_forward(model, data)
-    out = np.zeros((model.nv, model.nv))
-    mujoco.mj_fullM(model, data, out)
-    return out
 
 
 def random_states(model: mujoco.MjModel, count: int) -> list[tuple[np.ndarray, ...]]:
