@@ -65,8 +65,10 @@ KUKA LBR iiwa 14 R820 (7 revolute joints)
     flange (Menagerie's ``attachment_site``, 0.045 m along joint 7's axis). The base body is
     fixed to the world and left out. Menagerie's joints have no armature, damping or
     friction, so the table has none either. Torque limits 320, 320, 176, 176, 110, 40, 40
-    N m and speed limits 85, 85, 100, 75, 130, 135, 135 deg/s are KUKA's datasheet values
-    for the LBR iiwa 14 R820 (not in the Menagerie file); torque constants are not published
+    N m and speed limits 85, 85, 100, 75, 130, 135, 135 deg/s are the values KUKA publishes
+    for the LBR iiwa 14 R820 (not in the Menagerie file), written here without the datasheet
+    at hand: check them against it before relying on them (they bound the simulated actuators'
+    torques and the generated trajectories' speeds). Torque constants are not published
     (1 N m/A, gear 1).
 Random arms
     :func:`random_arm` draws joint types, DH parameters, masses and centres of mass from
