@@ -29,6 +29,7 @@ from mcpilco.models.diagnosis.analysis import (
     at_rest,
     cross_correlation_test,
     fit_metrics,
+    held_still,
     input_noise,
     metrics_table,
     noise_floor,
@@ -101,6 +102,7 @@ from mcpilco.models.robot_data import Trajectories
 __all__ = [
     "add_effect",
     "at_rest",
+    "held_still",
     "EFFECTS",
     "LEARNED_STARTS",
     "Armature",

@@ -85,7 +85,7 @@ from typing import Any
 
 import numpy as np
 from numpy.lib.stride_tricks import sliding_window_view
-from numpy.typing import NDArray
+from numpy.typing import ArrayLike, NDArray
 from scipy.integrate import quad
 from scipy.optimize import brentq
 from scipy.signal import lfilter, savgol_coeffs
@@ -110,6 +110,7 @@ __all__ = [
     "noise_floor",
     "position_noise",
     "at_rest",
+    "held_still",
     "residual_report",
     "whiteness_test",
 ]
@@ -238,6 +239,17 @@ def at_rest(traj: Trajectories) -> NDArray[np.bool_]:
     return rest
 
 
+def held_still(rest_share: ArrayLike) -> list[int]:
+    """Joints (1-based) held still: at rest (:func:`at_rest`) on at least
+    :data:`HELD_STILL_SHARE` of a log's rows (``rest_share``: ``(n,)``, each joint's share of
+    rows at rest). On such a joint the torques that act in motion (friction, damping,
+    inertia) do not show, and a torque that holds it (dry friction at rest, a brake, a
+    preloaded spring) is one unknown value per row: no effect on it can be identified from
+    these rows."""
+    share = np.asarray(rest_share, dtype=float)
+    return [int(j) + 1 for j in np.flatnonzero(share >= HELD_STILL_SHARE)]
+
+
 @functools.lru_cache(maxsize=32)
 def noise_range_quantile(m: int, miss: float | None = None) -> float:
     """The range ``r`` that ``m`` independent standard normal samples stay within with
@@ -334,6 +346,8 @@ REST_SPAN = 0.02
 """Span [s] over which a joint at rest keeps ``q`` within its noise (:func:`at_rest`)."""
 REST_MISS = 1e-3
 """Chance that a joint at rest leaves the range its noise keeps over :data:`REST_SPAN`."""
+HELD_STILL_SHARE = 0.95
+"""Share of a log's rows at rest from which on a joint counts as held still (:func:`held_still`)."""
 EXPLAINED_FRACTION = 0.05
 """Share of the residual variance that a state variable's bin means must explain to be named."""
 CORRELATION_LEVEL = 0.01

@@ -127,6 +127,15 @@ Verdict against the noise floor
     residual's structure in words (binned against ``q``, ``qd``, ``qdd``; whiteness). A missing
     effect that leaves a joint above the floor is said to explain part of the residual. With
     fewer than :data:`MIN_VERDICT_ROWS` held-out rows the verdict is "not enough data".
+Joints held still
+    A joint at rest on nearly every row of a log (:func:`.analysis.held_still`: dry friction
+    that the controller's torque never overcomes, a brake, a joint the reference leaves
+    alone) shows neither the torques that act in motion nor what holds it: its held torque
+    is one unknown value per row. A candidate acting only on joints held still in the
+    training logs is not confirmed (a viscous term fitted to a velocity that is noise fits
+    the held torque with an absurd coefficient); a verdict whose only unexplained joints were
+    held still (in the training or the held-out log) is "not enough data", naming the joint
+    and what to record; an at-floor verdict says which joints it cannot speak for.
 Identifiability
     The estimates of every confirmed candidate (and of every effect in a model,
     :meth:`.DiagnosisModel.estimates`) say "not identifiable from these data" with the reason
@@ -146,7 +155,13 @@ from numpy.typing import NDArray
 from scipy.optimize import minimize_scalar
 from scipy.special import logsumexp
 
-from mcpilco.models.diagnosis.analysis import input_noise, noise_floor, residual_report
+from mcpilco.models.diagnosis.analysis import (
+    at_rest,
+    held_still,
+    input_noise,
+    noise_floor,
+    residual_report,
+)
 from mcpilco.models.diagnosis.data import (
     MIN_HELDOUT_ROWS,
     as_trajectories,
@@ -231,6 +246,8 @@ class Candidate:
     replace_delta: float | None = None
     confounded: str | None = None
     unreliable: str | None = None
+    unmoved: str | None = None
+    """Why the candidate was not confirmed: its joints were held still in the training logs."""
     n_weights: int = 0
     """Weights of the best variant's block (its linear parameters; :attr:`complexity`)."""
 
@@ -621,6 +638,16 @@ class FloorCheck:
     floor: FloatArray
     rows: int
     structure: dict[int, str] = field(default_factory=dict)
+    rest_share: FloatArray | None = None
+    """``(n,)`` share of the held-out rows on which each joint is at rest
+    (:func:`.analysis.at_rest`)."""
+
+    @property
+    def still(self) -> list[int]:
+        """Joints (1-based) held still in the held-out rows (:func:`.analysis.held_still`)."""
+        if self.rest_share is None:
+            return []
+        return held_still(self.rest_share)
 
     @property
     def ratio(self) -> FloatArray:
@@ -656,6 +683,7 @@ class FloorCheck:
             "rmse_over_floor": self.ratio.tolist(),
             "rows": self.rows,
             "unexplained_joints": self.failing,
+            "held_still_joints": self.still,
             "structure": {str(k): v for k, v in self.structure.items()},
         }
 
@@ -669,7 +697,10 @@ def floor_check(
     floor = heldout_floor(model, heldout, raw)
     mean, _ = model.set_valued(heldout, raw)
     rmse = np.sqrt(np.mean((heldout.y - mean) ** 2, axis=0))
-    check = FloorCheck(name or model.name, rmse, floor, heldout.n_samples)
+    rest = at_rest(heldout)
+    check = FloorCheck(
+        name or model.name, rmse, floor, heldout.n_samples, rest_share=rest.mean(axis=0)
+    )
     if check.failing:
         rep = residual_report(
             heldout,
@@ -797,6 +828,33 @@ class Diagnosis:
     missing effect, module docstring)."""
     misfits: list[Misfit] = field(default_factory=list)
     """Effects of the model whose level varies with position (:func:`shape_check`)."""
+    train_rest_share: FloatArray | None = field(default=None, repr=False)
+    """``(n,)`` share of the training rows on which each joint is at rest."""
+
+    def still_joints(self, check: FloorCheck | None = None) -> list[int]:
+        """Joints (1-based) held still in the training logs or in ``check``'s held-out rows
+        (module docstring)."""
+        train = [] if self.train_rest_share is None else held_still(self.train_rest_share)
+        return sorted(set(train) | set([] if check is None else check.still))
+
+    def _still_text(self, joints: Sequence[int], check: FloorCheck | None) -> str:
+        """What a joint held still means for the verdict, and what to record."""
+        parts = []
+        for j in joints:
+            shares = []
+            if self.train_rest_share is not None:
+                shares.append(f"{100 * self.train_rest_share[j - 1]:.0f}% of the training rows")
+            if check is not None and check.rest_share is not None:
+                shares.append(f"{100 * check.rest_share[j - 1]:.0f}% of the held-out rows")
+            parts.append(f"joint {j} did not move (at rest on {' and '.join(shares)})")
+        names = ", ".join(str(j) for j in joints)
+        return (
+            "; ".join(parts)
+            + ": a torque that holds a joint at rest (dry friction, a brake, a preloaded "
+            "spring) cannot be identified there and torques that act in motion do not show; "
+            f"record logs in which joint {names} moves (a larger reference on it, or a "
+            "controller whose torque overcomes its friction)"
+        )
 
     @property
     def significant(self) -> list[Candidate]:
@@ -904,17 +962,28 @@ class Diagnosis:
                 f"improvement above {self.min_heldout_gain:g}% that explains more than "
                 f"{100 * self.min_explained:g}% of a joint's noise-floor variance"
             )
+            failing = [] if check is None else check.failing
+            still = [j for j in failing if j in self.still_joints(check)]
             if self.misfits:
                 text = f"{self.model_name}: unexplained: " + "; ".join(
                     m.text() for m in self.misfits
                 )
-                if check is not None and check.failing:
+                if failing:
                     text += f"; {check.failing_text()}"
+                if still:
+                    text += f"; {self._still_text(still, check)}"
                 return text + f"; {rule}"
-            if check is not None and check.failing:
+            if failing and len(still) == len(failing):
+                return (
+                    f"{self.model_name}: not enough data: {self._still_text(still, check)}; "
+                    f"{check.failing_text()}"
+                )
+            if failing:
                 text = f"{self.model_name}: unexplained: {check.failing_text()}; {rule}"
                 if ref is not None:
                     text += f", and the refinement {ref.effect.variant_label} leaves it there"
+                if still:
+                    text += f"; {self._still_text(still, check)}"
                 return text + self._learned_text(check)
             text = f"{self.model_name}: no significant missing effect ({rule})"
             if ref is not None:
@@ -925,6 +994,13 @@ class Diagnosis:
                 )
             if check is not None:
                 text += self._at_floor_text(check)
+            still = self.still_joints(check)
+            if still:
+                names = ", ".join(str(j) for j in still)
+                text += (
+                    f"; it cannot speak for joint {names}: held still in these logs, an effect "
+                    "there that acts in motion would not show"
+                )
             return text
         alike = [
             c
@@ -976,6 +1052,9 @@ class Diagnosis:
                 text += "; it explains part of the residual: with it, " + self.after.failing_text(
                     " remains unexplained"
                 )
+                still = [j for j in self.after.failing if j in self.still_joints(self.after)]
+                if still:
+                    text += f"; {self._still_text(still, self.after)}"
             else:
                 text += self._at_floor_text(self.after, " with it")
         if self.after is not None:
@@ -1037,6 +1116,8 @@ class Diagnosis:
             return "not identifiable"
         if c.unreliable is not None:
             return "not reliable (learned start)"
+        if c.unmoved is not None:
+            return "joint held still"
         if c.alternative_to is not None:
             return f"alternative to {c.alternative_to}"
         if c.delta <= self.threshold:
@@ -1091,6 +1172,7 @@ class Diagnosis:
                     "wrong_sign": c.wrong_sign,
                     "confounded": c.confounded,
                     "unreliable": c.unreliable,
+                    "unmoved": c.unmoved,
                     "explained_floor_variance": c.explained,
                     "estimates": [p.__dict__ for p in c.estimates],
                 }
@@ -1145,6 +1227,8 @@ def diagnose(
         elif other in in_model:
             c.alternative_to = other
     base = floor_check(model, held)
+    train_rest = model.rest_.mean(axis=0)
+    still_train = set(held_still(train_rest))
     learned = model.start.has_kernel
     noise = model.noise_std_
     confirmed = 0
@@ -1153,6 +1237,14 @@ def diagnose(
         if confirmed >= n_confirm or c.delta <= threshold:
             break
         if c.wrong_sign:
+            continue
+        if set(c.outputs) <= still_train:
+            joints = ", ".join(str(j) for j in c.outputs)
+            c.unmoved = (
+                f"joint {joints} at rest on "
+                + ", ".join(f"{100 * train_rest[j - 1]:.0f}%" for j in c.outputs)
+                + " of the training rows"
+            )
             continue
         refine_shape(model, c)
         if c.wrong_sign:
@@ -1196,6 +1288,7 @@ def diagnose(
     d.base = base
     d.noise_std = noise
     d.learned_start = learned
+    d.train_rest_share = train_rest
     lead = d.lead
     if lead is not None:
         d.after = floor_check(
