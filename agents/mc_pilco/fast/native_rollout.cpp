@@ -38,6 +38,19 @@ typedef float v8u __attribute__((vector_size(32), aligned(4)));
 typedef int32_t v8i __attribute__((vector_size(32), aligned(32)));
 typedef uint8_t v8b __attribute__((vector_size(8), aligned(1)));
 
+// The products' accumulators: with AVX-512 one 16-float vector per row of a tile (the 16
+// particles), else two 8-float vectors.  Per lane the same multiply-adds in the same order,
+// so both give the same bits; the wide one issues half the instructions (the difference on
+// cores with two 512-bit multiply-add units, e.g. Intel's server cores; Zen 4 splits a
+// 512-bit operation into two 256-bit halves and runs both at the same rate).
+#if defined(__AVX512F__)
+#define MCP_WIDE 1
+typedef float v16 __attribute__((vector_size(64), aligned(64)));
+typedef float v16u __attribute__((vector_size(64), aligned(4)));
+#else
+#define MCP_WIDE 0
+#endif
+
 constexpr int POLICY_CHAINS = 4;  // independent sums the policy's loops keep (FMA latency)
 static_assert(POLICY_CHAINS == 4, "the policy loops add their 4 sums by hand");
 constexpr float EXP_FLOOR = -87.0f;  // exp's argument floor (models/numerics.py)
@@ -52,6 +65,12 @@ constexpr float TWO_PI_F = 6.28318530717958647692f;  // 2 pi rounded to float
 inline v8 ld(const float *p) { return *(const v8u *)p; }
 inline void st(float *p, v8 v) { *(v8u *)p = v; }
 inline v8 bc(float a) { return (v8){a, a, a, a, a, a, a, a}; }
+#if MCP_WIDE
+inline v16 ld16(const float *p) { return *(const v16u *)p; }
+inline v16 bc16(float a) { return (v16){a, a, a, a, a, a, a, a, a, a, a, a, a, a, a, a}; }
+inline v8 lo8(v16 v) { return __builtin_shufflevector(v, v, 0, 1, 2, 3, 4, 5, 6, 7); }
+inline v8 hi8(v16 v) { return __builtin_shufflevector(v, v, 8, 9, 10, 11, 12, 13, 14, 15); }
+#endif
 
 // exp(x) for x >= -87 (the callers clamp first; NaN passes through), about 1 ulp:
 // x = n ln2 + r, |r| <= ln2/2, exp(r) by a degree-6 polynomial, 2^n by the exponent bits.
@@ -161,14 +180,64 @@ inline void gemm_tile_t(const Packed &P, const float *X1, int split, const float
     }
 }
 
+#if MCP_WIDE
+// gemm_tile_t with one 16-float accumulator per row: the same sums, lane by lane
+template <bool LIST, class Epi>
+inline void gemm_tile_w(const Packed &P, const float *X1, int split, const float *X2, Epi &&epi,
+                        Cols cols, const uint8_t *skip) {
+    for (int b = 0; b < P.blocks; ++b) {
+        if (skip && skip[b]) continue;
+        v16 c[RB];
+#pragma GCC unroll 8
+        for (int r = 0; r < RB; ++r) c[r] = v16{};
+        const float *a = P.a + P.off[b];
+        int k = P.beg[b];
+        const int e = P.end[b], e1 = e < split ? e : split;
+        for (; k < e1; ++k, a += RB) {
+            const v16 x = ld16(X1 + k * TILE);
+#pragma GCC unroll 8
+            for (int r = 0; r < RB; ++r) c[r] += bc16(a[r]) * x;
+        }
+        if constexpr (LIST) {
+            const float *a0 = a - (int64_t)(k - split) * RB;
+            const int32_t *q = std::lower_bound(cols.idx, cols.idx + cols.n, k - split);
+            for (const int32_t *qe = cols.idx + cols.n; q < qe && *q < e - split; ++q) {
+                const v16 x = ld16(X2 + (int64_t)*q * TILE);
+                const float *aj = a0 + (int64_t)*q * RB;
+#pragma GCC unroll 8
+                for (int r = 0; r < RB; ++r) c[r] += bc16(aj[r]) * x;
+            }
+        } else if (k < e) {
+            const float *x = X2 + (int64_t)(k - split) * TILE;
+            for (; k < e; ++k, a += RB, x += TILE) {
+                const v16 xv = ld16(x);
+#pragma GCC unroll 8
+                for (int r = 0; r < RB; ++r) c[r] += bc16(a[r]) * xv;
+            }
+        }
+        v8 o0[RB], o1[RB];
+#pragma GCC unroll 8
+        for (int r = 0; r < RB; ++r) o0[r] = lo8(c[r]), o1[r] = hi8(c[r]);
+        epi(b * RB, o0, o1);
+    }
+}
+#endif
+
 // gemm_tile_t over the columns cols lists (idx null: all of them)
 template <class Epi>
 inline void gemm_tile(const Packed &P, const float *X1, int split, const float *X2, Epi &&epi,
                       Cols cols = {}, const uint8_t *skip = nullptr) {
+#if MCP_WIDE
+    if (cols.idx)
+        gemm_tile_w<true>(P, X1, split, X2, epi, cols, skip);
+    else
+        gemm_tile_w<false>(P, X1, split, X2, epi, cols, skip);
+#else
     if (cols.idx)
         gemm_tile_t<true>(P, X1, split, X2, epi, cols, skip);
     else
         gemm_tile_t<false>(P, X1, split, X2, epi, cols, skip);
+#endif
 }
 
 // gemm_tile storing every row it computes (the padding rows too) in C (rows x 16)
@@ -1068,6 +1137,8 @@ void inputs_backward_tile(const Model &M, const Lay &L, const Pol &P, const floa
 }  // namespace
 
 int64_t record_floats(const Model &M) { return Lay(M).size; }
+
+int vector_floats() { return MCP_WIDE ? 16 : 8; }
 
 int64_t l2_cache_bytes() {
 #if defined(_SC_LEVEL2_CACHE_SIZE)
