@@ -113,6 +113,15 @@ inline bool active_row(v8 r0, v8 r1) {
     return (u[0] & u[1] & u[2] & u[3]) != ~uint64_t(0);
 }
 
+// whether every exponent of a row of a tile (x0: particles 0-7, x1: 8-15) is below EXP_FLOOR
+// (false where one is NaN), so that its kernel values are all exp(EXP_FLOOR)
+inline bool below_exp_floor(v8 x0, v8 x1) {
+    const v8i low = (x0 < bc(EXP_FLOOR)) & (x1 < bc(EXP_FLOOR));
+    uint64_t u[4];
+    std::memcpy(u, &low, sizeof(u));
+    return (u[0] & u[1] & u[2] & u[3]) == ~uint64_t(0);
+}
+
 // The columns of a tile's X2 (below) that a product uses: those listed in idx[0 .. n - 1]
 // (ascending); idx null: all of them.
 struct Cols {
@@ -723,13 +732,20 @@ void gp_forward_tile(const Model &M, const Lay &L, int b, float *rec, Work &W,
             st(xa + d * TILE + h, bc(1.0f));
             st(xa + (d + 1) * TILE + h, sq * bc(-0.5f));
         }
-        // (and the list of active rows, active_row)
+        // (and the list of active rows, active_row); a row whose exponents are all below
+        // EXP_FLOOR gets exp(EXP_FLOOR) without evaluating it (the same bits; not active)
         int32_t *act = W.act.data();
         int n_act = 0;
+        const v8 at_floor = vexp(bc(EXP_FLOOR));
         gemm_tile(M.w_aug[b], xa, NO_SPLIT, xa,
-                  [r, N, act, &n_act](int first, const v8 *c0, const v8 *c1) {
+                  [r, N, act, &n_act, at_floor](int first, const v8 *c0, const v8 *c1) {
                       const int rows = N - first < RB ? N - first : RB;  // padding rows dropped
                       for (int q = 0; q < rows; ++q) {
+                          if (below_exp_floor(c0[q], c1[q])) {
+                              st(r + (first + q) * TILE, at_floor);
+                              st(r + (first + q) * TILE + 8, at_floor);
+                              continue;
+                          }
                           const v8 e0 = vexp_floor(c0[q]), e1 = vexp_floor(c1[q]);
                           st(r + (first + q) * TILE, e0);
                           st(r + (first + q) * TILE + 8, e1);
