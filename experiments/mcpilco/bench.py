@@ -727,7 +727,8 @@ def stage_table(timing: list[dict]) -> list[str]:
         "",
         "Seconds per step of each stage of the `native` loops that runs products with the GP's "
         "constant matrices (the engine's stage clocks, summed over its threads) and, in "
-        "brackets, that time over the stage's floor (its flops at the row's matmul rate); "
+        "brackets, that time over the stage's floor (its flops at the row's matmul rate per "
+        "thread, summed over the threads likewise); "
         "rest: the other stages (policy, GP inputs, sampling, integration, cost).",
         "",
         "| spec | N | M | threads | " + " | ".join(stages) + " | rest | all stages |",

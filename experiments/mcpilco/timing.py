@@ -290,7 +290,8 @@ def time_opt_step(
     native rollout, the seconds per step of each stage of its loops
     (:func:`~mcpilco.agents.mc_pilco.fast.native.stage_seconds`, summed over its threads),
     ``native_stage_floor_s`` the floor of each stage that runs products
-    (:func:`stage_product_flops` at that rate),
+    (:func:`stage_product_flops` at that rate per thread, summed over the threads like the
+    clocks),
     ``native_group`` the tiles it runs together and ``native_kernel_rows_taken`` the share of
     RBF kernel rows its products took
     (:func:`~mcpilco.agents.mc_pilco.fast.native.kernel_rows`). The row holds :func:`cpu_info` too.
@@ -498,8 +499,8 @@ def time_opt_step(
     if native_engine is not None:
         out["native_group"] = int(native_engine.model.group())
         out["native_stage_s"] = stage_totals
-        out["native_stage_floor_s"] = {
-            stage: f / rate
+        out["native_stage_floor_s"] = {  # thread-seconds, as the stage clocks sum them
+            stage: f * threads / rate
             for stage, f in stage_product_flops(
                 n_points, features, inputs, num_particles, dynamics.layout.output_dim, horizon
             ).items()
