@@ -59,6 +59,7 @@ __all__ = [
     "runs_part",
     "section_key",
     "section_table",
+    "stage_table",
     "reference_step",
     "reference_table",
     "timing_key",
@@ -711,6 +712,42 @@ def timing_row(t: dict) -> str:
     )
 
 
+def stage_table(timing: list[dict]) -> list[str]:
+    """Markdown lines: where the ``native`` step's time goes, for every timing row that
+    recorded it (``native_stage_s``, ``native_stage_floor_s`` of
+    :func:`~mcpilco.experiments.mcpilco.timing.time_opt_step`): each stage that runs products
+    with the GP's constant matrices, its seconds per step (summed over the threads) and how
+    many times its floor that is, then the rest of the loops (policy, sampling, cost)."""
+    rows = [t for t in timing if t.get("native_stage_floor_s") and t.get("native_stage_s")]
+    if not rows:
+        return []
+    stages = list(rows[0]["native_stage_floor_s"])
+    md = [
+        "### Where the `native` step's time goes",
+        "",
+        "Seconds per step of each stage of the `native` loops that runs products with the GP's "
+        "constant matrices (the engine's stage clocks, summed over its threads) and, in "
+        "brackets, that time over the stage's floor (its flops at the row's matmul rate per "
+        "thread, summed over the threads likewise); "
+        "rest: the other stages (policy, GP inputs, sampling, integration, cost).",
+        "",
+        "| spec | N | M | threads | " + " | ".join(stages) + " | rest | all stages |",
+        "|---|---|---|---|" + "---|" * (len(stages) + 2),
+    ]
+    for t in rows:
+        sec, floor = t["native_stage_s"], t["native_stage_floor_s"]
+        cells = [
+            f"{sec.get(s, 0.0):.3f} ({sec.get(s, 0.0) / floor[s]:.1f}x)" if floor[s] else "-"
+            for s in stages
+        ]
+        rest = sum(v for s, v in sec.items() if s not in floor)
+        md.append(
+            f"| {timing_spec(t)[0]} | {t['n_points']} | {t['num_particles']} | {t['threads']} "
+            f"| {' | '.join(cells)} | {rest:.3f} | {sum(sec.values()):.3f} |"
+        )
+    return [*md, ""]
+
+
 def _ratio(x: float) -> str:
     """A speed-up ratio: whole numbers from 10 on, two significant digits below."""
     return f"{x:.0f}" if x >= 10 else f"{x:.2g}"
@@ -841,6 +878,7 @@ def write_report(results: dict, out_dir: Path) -> None:
             ]
             md += [timing_row(t) for t in rows]
             md.append("")
+        md += stage_table(results["timing"])
         md += reference_table(results["timing"], results.get("reference_steps", ()))
         if results.get("reference_steps_note"):
             md += [f"The reference's own steps: {results['reference_steps_note']}.", ""]

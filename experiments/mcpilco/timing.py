@@ -46,6 +46,7 @@ __all__ = [
     "matmul_rate",
     "product_flops",
     "reference_speedup",
+    "stage_product_flops",
     "time_opt_step",
     "timing_task",
     "variance_flops",
@@ -139,7 +140,8 @@ def cpu_info() -> dict[str, object]:
     """What a timing row ran on: the CPU model, its vector ISA (``avx512f``, ``avx2`` or
     neither, from ``/proc/cpuinfo``), its per-core L2 cache (bytes, as the native rollout reads
     it; None without the extension), the native build's compiler and flags (``-march=native``:
-    the code is built for this CPU), and the torch version."""
+    the code is built for this CPU) and the width of its products' vectors (16 floats with
+    AVX-512, else 8), and the torch version."""
     import platform
 
     import torch
@@ -169,9 +171,10 @@ def cpu_info() -> dict[str, object]:
         except (OSError, subprocess.SubprocessError):
             version = None
     try:
-        l2 = int(native.load_library().l2_cache_bytes())
+        lib = native.load_library()
+        l2, width = int(lib.l2_cache_bytes()), int(lib.vector_floats())
     except RuntimeError:
-        l2 = None
+        l2 = width = None
     return {
         "cpu_model": model,
         "cpu_isa": " ".join(isa) or "none of avx512f, avx2, fma",
@@ -179,20 +182,42 @@ def cpu_info() -> dict[str, object]:
         "build_compiler": version,
         "build_isa": isa_name,
         "build_flags": " ".join(native.cxx_flags(isa_name)),
+        "build_vector_floats": width,
         "torch_version": torch.__version__,
     }
+
+
+def stage_product_flops(
+    n_points: int, features: int, inputs: int, num_particles: int, outputs: int, horizon: int
+) -> dict[str, float]:
+    """Flops of the products with the GP's constant matrices in one optimisation step, by the
+    native rollout's stage that runs them
+    (:data:`~mcpilco.agents.mc_pilco.fast.native.STAGE_NAMES`; the stages without such a
+    product are left out), per particle, output and step: the RBF's exponents
+    ``2 N (d + 2)``; the MPK's ``N x F`` feature block and the triangular factor
+    ``2 (N F + N^2 / 2)`` forward and as many backward; the RBF inputs' ``2 N (d + 1)``
+    backward (``d`` GP inputs, ``F`` MPK features)."""
+    from mcpilco.agents.mc_pilco.fast.native import STAGE_NAMES
+
+    N, F, d = n_points, features, inputs
+    per = {
+        STAGE_NAMES[1]: 2.0 * N * (d + 2),
+        STAGE_NAMES[2]: 2.0 * (N * F + N * N / 2),
+        STAGE_NAMES[5]: 2.0 * (N * F + N * N / 2),
+        STAGE_NAMES[6]: 2.0 * N * (d + 1),
+    }
+    return {stage: f * num_particles * outputs * horizon for stage, f in per.items()}
 
 
 def product_flops(
     n_points: int, features: int, inputs: int, num_particles: int, outputs: int, horizon: int
 ) -> float:
     """Flops of the products with the GP's constant matrices in one optimisation step,
-    forward and backward: per particle, output and step ``2 (N (d + 2) + N F + N^2 / 2)``
-    forward (the RBF's exponents, the MPK's ``N x F`` feature block, the triangular factor)
-    and ``2 (N F + N^2 / 2 + N (d + 1))`` backward (``d`` GP inputs, ``F`` MPK features)."""
-    N, F, d = n_points, features, inputs
-    per = 2.0 * (N * (d + 2) + N * F + N * N / 2) + 2.0 * (N * F + N * N / 2 + N * (d + 1))
-    return per * num_particles * outputs * horizon
+    forward and backward: the sum of :func:`stage_product_flops`, per particle, output and
+    step ``2 (N (d + 2) + N F + N^2 / 2)`` forward (the RBF's exponents, the MPK's ``N x F``
+    feature block, the triangular factor) and ``2 (N F + N^2 / 2 + N (d + 1))`` backward."""
+    args = (n_points, features, inputs, num_particles, outputs, horizon)
+    return sum(stage_product_flops(*args).values())
 
 
 def exploration_data(env_id: str, n_points: int, seed: int, hold: int = 1):
@@ -264,6 +289,9 @@ def time_opt_step(
     ``products_floor_s``: :func:`product_flops` at that rate. ``native_stage_s``: with the
     native rollout, the seconds per step of each stage of its loops
     (:func:`~mcpilco.agents.mc_pilco.fast.native.stage_seconds`, summed over its threads),
+    ``native_stage_floor_s`` the floor of each stage that runs products
+    (:func:`stage_product_flops` at that rate per thread, summed over the threads like the
+    clocks),
     ``native_group`` the tiles it runs together and ``native_kernel_rows_taken`` the share of
     RBF kernel rows its products took
     (:func:`~mcpilco.agents.mc_pilco.fast.native.kernel_rows`). The row holds :func:`cpu_info` too.
@@ -471,6 +499,12 @@ def time_opt_step(
     if native_engine is not None:
         out["native_group"] = int(native_engine.model.group())
         out["native_stage_s"] = stage_totals
+        out["native_stage_floor_s"] = {  # thread-seconds, as the stage clocks sum them
+            stage: f * threads / rate
+            for stage, f in stage_product_flops(
+                n_points, features, inputs, num_particles, dynamics.layout.output_dim, horizon
+            ).items()
+        }
         if rows_taken[1]:
             out["native_kernel_rows_taken"] = rows_taken[0] / rows_taken[1]
     out.update(compile_info)

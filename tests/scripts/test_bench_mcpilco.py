@@ -127,6 +127,13 @@ def test_timing_part_reports_each_particle_count(tmp_path, capsys, command):
     assert t["native_group"] >= 1 and t["torch_version"] == torch.__version__
     assert set(t["native_stage_s"]) == set(STAGE_NAMES)
     assert all(v >= 0 for v in t["native_stage_s"].values())
+    # the product stages' floors sum to the products floor; the report's stage table
+    floors = t["native_stage_floor_s"]
+    assert set(floors) < set(STAGE_NAMES) and len(floors) == 4
+    assert sum(floors.values()) == pytest.approx(t["products_floor_s"])
+    assert floors[STAGE_NAMES[1]] == pytest.approx(2 * 20 * 8 * 3 * 2 * 60 / rate)
+    assert t["build_vector_floats"] in (8, 16)
+    assert "### Where the `native` step's time goes" in md
     assert f"| {t['products_floor_s']:.3f} | {t['cpu_model']} ({t['cpu_isa']}) |" in md
     assert f"| {t['dynamo_s_per_step_wall']:.3f} | {t['dynamo_s_per_step_cpu']:.3f} |" in md
     # the spec's table heading, and the step against the reference implementation's 0.45-0.58 s

@@ -25,11 +25,14 @@ loop reads. What the loop buys:
   backward (glossary of :mod:`~mcpilco.models.gp.fused`; ``dV = -2 g_v V`` is never formed:
   the per-particle factor is applied to the product), per output, use one register-blocked
   kernel over the constant matrix packed once per GP fit, by blocks of 6 rows
-  (``row_block()``; 6 x 16 accumulators) with each block's own range of columns: the zeros
+  (``row_block()``; 6 x 16 accumulators: one 16-float vector per row with AVX-512, two
+  8-float vectors without, the same sums lane by lane and so the same bits,
+  ``vector_floats()``) with each block's own range of columns: the zeros
   of the triangular factor are skipped row block by row block (about ``N^2 / 2 + F N``
   multiply-adds per particle and output, each way). Each block's results are consumed in
-  registers: ``r = exp(E)`` of the kernel's exponents, ``||V||^2`` of the variance, ``dpsi``
-  and ``dE = dr o r`` of the backward, without a second pass over the tile;
+  registers: ``r = exp(E)`` of the kernel's exponents (a row whose exponents are all below
+  the exponential's floor gets ``exp(-87)`` without evaluating it), ``||V||^2`` of the
+  variance, ``dpsi`` and ``dE = dr o r`` of the backward, without a second pass over the tile;
 * a training point whose RBF kernel value is below ``exp(-69)`` for every particle of a
   tile is left out of that tile's products, forward (its column) and backward (its block of
   rows, when the whole block is such points): with the degree-1 MPK the products are the
@@ -96,8 +99,10 @@ a NaN cost); :data:`ISA_FLAGS` adds the instruction set."""
 ISA_FLAGS = {"native": ("-march=native",), "avx2": ("-march=x86-64-v3",)}
 """The instruction sets the extension is built for, by name: ``native``, the CPU it is built
 on (its AVX-512 where it has it; the default), and ``avx2``, x86-64-v3 (AVX2 and FMA, no
-AVX-512: what every x86-64 CPU from about 2015 on runs). The kernels use 8-float vectors, so
-both builds run the same code; ``avx2`` is how a CPU without AVX-512 is timed on one with it."""
+AVX-512: what every x86-64 CPU from about 2015 on runs). The products' kernel keeps 16-float
+accumulators where the build has AVX-512 and 8-float ones where it has not, with the same
+multiply-adds per lane in the same order (the same results); ``avx2`` is how a CPU without
+AVX-512 is timed on one with it."""
 
 ISA_ENV = "MCPILCO_NATIVE_ISA"  # the environment variable that names the default build's ISA
 

@@ -38,6 +38,19 @@ typedef float v8u __attribute__((vector_size(32), aligned(4)));
 typedef int32_t v8i __attribute__((vector_size(32), aligned(32)));
 typedef uint8_t v8b __attribute__((vector_size(8), aligned(1)));
 
+// The products' accumulators: with AVX-512 one 16-float vector per row of a tile (the 16
+// particles), else two 8-float vectors.  Per lane the same multiply-adds in the same order,
+// so both give the same bits; the wide one issues half the instructions (the difference on
+// cores with two 512-bit multiply-add units, e.g. Intel's server cores; Zen 4 splits a
+// 512-bit operation into two 256-bit halves and runs both at the same rate).
+#if defined(__AVX512F__)
+#define MCP_WIDE 1
+typedef float v16 __attribute__((vector_size(64), aligned(64)));
+typedef float v16u __attribute__((vector_size(64), aligned(4)));
+#else
+#define MCP_WIDE 0
+#endif
+
 constexpr int POLICY_CHAINS = 4;  // independent sums the policy's loops keep (FMA latency)
 static_assert(POLICY_CHAINS == 4, "the policy loops add their 4 sums by hand");
 constexpr float EXP_FLOOR = -87.0f;  // exp's argument floor (models/numerics.py)
@@ -52,6 +65,12 @@ constexpr float TWO_PI_F = 6.28318530717958647692f;  // 2 pi rounded to float
 inline v8 ld(const float *p) { return *(const v8u *)p; }
 inline void st(float *p, v8 v) { *(v8u *)p = v; }
 inline v8 bc(float a) { return (v8){a, a, a, a, a, a, a, a}; }
+#if MCP_WIDE
+inline v16 ld16(const float *p) { return *(const v16u *)p; }
+inline v16 bc16(float a) { return (v16){a, a, a, a, a, a, a, a, a, a, a, a, a, a, a, a}; }
+inline v8 lo8(v16 v) { return __builtin_shufflevector(v, v, 0, 1, 2, 3, 4, 5, 6, 7); }
+inline v8 hi8(v16 v) { return __builtin_shufflevector(v, v, 8, 9, 10, 11, 12, 13, 14, 15); }
+#endif
 
 // exp(x) for x >= -87 (the callers clamp first; NaN passes through), about 1 ulp:
 // x = n ln2 + r, |r| <= ln2/2, exp(r) by a degree-6 polynomial, 2^n by the exponent bits.
@@ -92,6 +111,15 @@ inline bool active_row(v8 r0, v8 r1) {
     uint64_t u[4];
     std::memcpy(u, &low, sizeof(u));
     return (u[0] & u[1] & u[2] & u[3]) != ~uint64_t(0);
+}
+
+// whether every exponent of a row of a tile (x0: particles 0-7, x1: 8-15) is below EXP_FLOOR
+// (false where one is NaN), so that its kernel values are all exp(EXP_FLOOR)
+inline bool below_exp_floor(v8 x0, v8 x1) {
+    const v8i low = (x0 < bc(EXP_FLOOR)) & (x1 < bc(EXP_FLOOR));
+    uint64_t u[4];
+    std::memcpy(u, &low, sizeof(u));
+    return (u[0] & u[1] & u[2] & u[3]) == ~uint64_t(0);
 }
 
 // The columns of a tile's X2 (below) that a product uses: those listed in idx[0 .. n - 1]
@@ -161,14 +189,64 @@ inline void gemm_tile_t(const Packed &P, const float *X1, int split, const float
     }
 }
 
+#if MCP_WIDE
+// gemm_tile_t with one 16-float accumulator per row: the same sums, lane by lane
+template <bool LIST, class Epi>
+inline void gemm_tile_w(const Packed &P, const float *X1, int split, const float *X2, Epi &&epi,
+                        Cols cols, const uint8_t *skip) {
+    for (int b = 0; b < P.blocks; ++b) {
+        if (skip && skip[b]) continue;
+        v16 c[RB];
+#pragma GCC unroll 8
+        for (int r = 0; r < RB; ++r) c[r] = v16{};
+        const float *a = P.a + P.off[b];
+        int k = P.beg[b];
+        const int e = P.end[b], e1 = e < split ? e : split;
+        for (; k < e1; ++k, a += RB) {
+            const v16 x = ld16(X1 + k * TILE);
+#pragma GCC unroll 8
+            for (int r = 0; r < RB; ++r) c[r] += bc16(a[r]) * x;
+        }
+        if constexpr (LIST) {
+            const float *a0 = a - (int64_t)(k - split) * RB;
+            const int32_t *q = std::lower_bound(cols.idx, cols.idx + cols.n, k - split);
+            for (const int32_t *qe = cols.idx + cols.n; q < qe && *q < e - split; ++q) {
+                const v16 x = ld16(X2 + (int64_t)*q * TILE);
+                const float *aj = a0 + (int64_t)*q * RB;
+#pragma GCC unroll 8
+                for (int r = 0; r < RB; ++r) c[r] += bc16(aj[r]) * x;
+            }
+        } else if (k < e) {
+            const float *x = X2 + (int64_t)(k - split) * TILE;
+            for (; k < e; ++k, a += RB, x += TILE) {
+                const v16 xv = ld16(x);
+#pragma GCC unroll 8
+                for (int r = 0; r < RB; ++r) c[r] += bc16(a[r]) * xv;
+            }
+        }
+        v8 o0[RB], o1[RB];
+#pragma GCC unroll 8
+        for (int r = 0; r < RB; ++r) o0[r] = lo8(c[r]), o1[r] = hi8(c[r]);
+        epi(b * RB, o0, o1);
+    }
+}
+#endif
+
 // gemm_tile_t over the columns cols lists (idx null: all of them)
 template <class Epi>
 inline void gemm_tile(const Packed &P, const float *X1, int split, const float *X2, Epi &&epi,
                       Cols cols = {}, const uint8_t *skip = nullptr) {
+#if MCP_WIDE
+    if (cols.idx)
+        gemm_tile_w<true>(P, X1, split, X2, epi, cols, skip);
+    else
+        gemm_tile_w<false>(P, X1, split, X2, epi, cols, skip);
+#else
     if (cols.idx)
         gemm_tile_t<true>(P, X1, split, X2, epi, cols, skip);
     else
         gemm_tile_t<false>(P, X1, split, X2, epi, cols, skip);
+#endif
 }
 
 // gemm_tile storing every row it computes (the padding rows too) in C (rows x 16)
@@ -654,13 +732,20 @@ void gp_forward_tile(const Model &M, const Lay &L, int b, float *rec, Work &W,
             st(xa + d * TILE + h, bc(1.0f));
             st(xa + (d + 1) * TILE + h, sq * bc(-0.5f));
         }
-        // (and the list of active rows, active_row)
+        // (and the list of active rows, active_row); a row whose exponents are all below
+        // EXP_FLOOR gets exp(EXP_FLOOR) without evaluating it (the same bits; not active)
         int32_t *act = W.act.data();
         int n_act = 0;
+        const v8 at_floor = vexp(bc(EXP_FLOOR));
         gemm_tile(M.w_aug[b], xa, NO_SPLIT, xa,
-                  [r, N, act, &n_act](int first, const v8 *c0, const v8 *c1) {
+                  [r, N, act, &n_act, at_floor](int first, const v8 *c0, const v8 *c1) {
                       const int rows = N - first < RB ? N - first : RB;  // padding rows dropped
                       for (int q = 0; q < rows; ++q) {
+                          if (below_exp_floor(c0[q], c1[q])) {
+                              st(r + (first + q) * TILE, at_floor);
+                              st(r + (first + q) * TILE + 8, at_floor);
+                              continue;
+                          }
                           const v8 e0 = vexp_floor(c0[q]), e1 = vexp_floor(c1[q]);
                           st(r + (first + q) * TILE, e0);
                           st(r + (first + q) * TILE + 8, e1);
@@ -1068,6 +1153,8 @@ void inputs_backward_tile(const Model &M, const Lay &L, const Pol &P, const floa
 }  // namespace
 
 int64_t record_floats(const Model &M) { return Lay(M).size; }
+
+int vector_floats() { return MCP_WIDE ? 16 : 8; }
 
 int64_t l2_cache_bytes() {
 #if defined(_SC_LEVEL2_CACHE_SIZE)

@@ -82,6 +82,9 @@ void forward(const Model &M, int horizon, int K, int per, const float *x0, const
              const float *nu, const uint8_t *const *bytes, float keep_t, float keep_scale,
              const float *centers, const float *log_l, const float *w, float *costs, float *rec);
 
+// floats per vector of the products' accumulators in this build: 16 with AVX-512, else 8
+int vector_floats();
+
 // the per-core L2 cache of this CPU in bytes (sysconf, else Linux's /sys), 0 if unknown
 int64_t l2_cache_bytes();
 

@@ -226,6 +226,7 @@ PYBIND11_MODULE(TORCH_EXTENSION_NAME, m) {
     m.doc() = "MC-PILCO particle rollout, forward and backward through time, for one shard";
     m.def("tile", [] { return mcp::TILE; }, "particles per tile");
     m.def("row_block", [] { return mcp::RB; }, "rows per block of a packed matrix");
+    m.def("vector_floats", &mcp::vector_floats, "floats per vector of the products' accumulators");
     m.def("l2_cache_bytes", &mcp::l2_cache_bytes, "this CPU's per-core L2 cache in bytes (0: unknown)");
     m.def(
         "stage_seconds",
