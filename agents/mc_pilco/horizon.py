@@ -88,10 +88,11 @@ def next_horizon(horizon: int, fraction: float, max_horizon: int) -> int:
     return int(min(max_horizon, math.ceil(HORIZON_GROWTH * horizon)))
 
 
-def scaled_opt_steps(steps: int, horizon0: int, horizon: int, least: int) -> int:
+def scaled_opt_steps(steps: int, horizon0: int, horizon: int) -> int:
     """Optimisation steps of a trial over ``horizon`` when ``steps`` were budgeted over
-    ``horizon0``: ``steps H_0 / H``, no more than ``steps`` and no fewer than ``least``
-    (nor than ``steps`` when that is already below ``least``)."""
+    ``horizon0``: ``round(steps H_0 / H)`` (at least 1) for a longer horizon, else
+    ``steps``. The step time is linear in ``H`` (:func:`~.budget.step_seconds`), so the
+    trial's optimisation keeps its budgeted seconds."""
     if horizon <= horizon0:
         return int(steps)
-    return int(max(min(steps, least), round(steps * horizon0 / horizon)))
+    return int(max(1, round(steps * horizon0 / horizon)))

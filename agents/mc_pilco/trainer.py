@@ -375,9 +375,7 @@ class Trainer:
         if self.horizon > self.horizon0:  # a grown horizon: the trial's budgeted seconds
             opt_cfg = dataclasses.replace(
                 opt_cfg,
-                max_steps=scaled_opt_steps(
-                    opt_cfg.max_steps, self.horizon0, self.horizon, opt_cfg.min_steps
-                ),
+                max_steps=scaled_opt_steps(opt_cfg.max_steps, self.horizon0, self.horizon),
             )
         obar = self._progress_bar(opt_cfg.max_steps, f"trial {k} policy opt")
 
