@@ -155,6 +155,16 @@ def test_a_run_grows_its_horizon_and_runs_the_next_trial_over_it(tmp_path):
     assert records[1]["next_horizon"] == 12 and records[1]["goal_fraction"] < GOAL_FRACTION
     assert [r["steps"] for r in records] == [8, 8, 12]  # the trial runs its horizon
     assert any("horizon 8 -> 12 steps" in line for line in lines)
+    resumed = Trainer(
+        cfg.with_overrides(num_trials=3),
+        tmp_path / "run",
+        resume=True,
+        progress=False,
+        log=None,
+        write_rrd=False,
+    ).run()
+    assert resumed.records[3]["horizon"] == records[2]["next_horizon"]  # the grown one
+    assert resumed.records[3]["steps"] == records[2]["next_horizon"]
     fixed = Trainer(
         cfg.with_overrides(grow_horizon=False, num_trials=1),
         tmp_path / "fixed",
