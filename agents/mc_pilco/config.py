@@ -92,8 +92,8 @@ class MCPilcoConfig:
         num_trials: policy trials after the exploration trial.
         horizon: ``H``, steps per trial and of the particle rollout (None: the task's); the
             first trial's, when ``grow_horizon`` lets it grow.
-        grow_horizon: grow the horizon over trials while the model's particles do not
-            hold the goal at its end, up to the env's episode length
+        grow_horizon: grow the horizon over trials while too few of the model's particles
+            reach the goal a success window before its end, up to the env's episode length
             (:mod:`~mcpilco.agents.mc_pilco.horizon`; only for a goal held over a success
             window).
         num_particles: ``M``.

@@ -10,8 +10,8 @@ Algorithm 1, one method each::
         apply_policy()              run the policy on the system for H steps, D += its data
         evaluate_policy()           E evaluation episodes (eval_episodes; not in D), from
                                     the task's eval_init, of the env's own episode length
-        plan_horizon()              the next trial's horizon (grown while the predicted
-                                    particles do not hold the goal at its end)
+        plan_horizon()              the next trial's horizon (grown while too few predicted
+                                    particles reach the goal a success window before its end)
         commit_trial()              record, plots, checkpoint (the trial's commit point)
 
 Glossary
@@ -29,7 +29,8 @@ trial ``k >= 1``
     the particle estimate ``J^`` (5.8) with the monitoring rule, apply the policy (no dropout)
     to the env for ``H`` steps, append the transitions to ``D``.
 experience
-    ``H T_s (k + 1)`` seconds after trial ``k`` (3, 6, 9, 12, 15 s ... on the cart-pole).
+    ``H T_s (k + 1)`` seconds after trial ``k`` (3, 6, 9, 12, 15 s ... on the cart-pole);
+    ``sum_j H_j T_s`` where the horizon grew (:mod:`~mcpilco.agents.mc_pilco.horizon`).
     An env that ends an episode early (the task's ``termination``) is reset until the trial
     has taken the task's ``trial_steps`` (default ``H``) steps: every step counts, and the
     record says how many ``episodes`` the trial spanned; the trial's outcome (cost,
@@ -104,6 +105,7 @@ from mcpilco.agents.mc_pilco.viz import (
 from mcpilco.envs.tasks.spec import TaskSpec
 from mcpilco.models.device import resolve_device
 
+PLAN_PARTICLES = 100  # predicted particles the next trial's horizon is judged on (at least)
 ROLLOUT_DTYPE_TOL = 0.01
 """Largest RMS error of the rollout-dtype GP posterior mean, as a fraction of each output's
 spread on the training data, before the rollout runs in float64 instead (a model that
@@ -717,9 +719,6 @@ class Trainer:
         for old_gp in self.out.glob("gp_trial*.pt"):
             if old_gp.name != gp_file:
                 old_gp.unlink(missing_ok=True)
-
-
-PLAN_PARTICLES = 100  # predicted particles the next trial's horizon is judged on (at least)
 
 
 class _CostFn(torch.nn.Module):
