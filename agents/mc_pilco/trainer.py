@@ -496,7 +496,8 @@ class Trainer:
 
     def use_horizon(self, horizon: int) -> None:
         """Optimise and run the following trials over ``horizon`` steps: the task's horizon
-        replaced and the env's episodes that long."""
+        replaced, the plateau restarts' success level ``J_succ`` of that horizon, and the
+        env's episodes that long."""
         config = self.config
         if self.log:
             self.log(
@@ -505,6 +506,8 @@ class Trainer:
             )
         self.task = self.task.replace(horizon=int(horizon))
         self.horizon = self.task.horizon
+        if hasattr(self, "cost_fn"):  # J_succ of the new horizon (set_up computes it on resume)
+            self.success_level = success_cost_level(self.task, self.cost_fn)
         self.env.close()
         self.env = make_env(config.env_id, self.horizon, self.task, config.env_kwargs)
 
