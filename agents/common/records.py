@@ -80,6 +80,10 @@ class TrialRecord:
             trial (not experience), those that started outside the goal set, their
             successes, and the 95 % Wilson interval of the success rate
             (:func:`~mcpilco.agents.common.trials.evaluate`).
+        horizon, goal_fraction, next_horizon: the particle horizon ``H_k`` of the trial
+            (steps), the fraction of the applied policy's predicted particles that reach the
+            goal a success window before its end, and the horizon of the next trial
+            (:mod:`~mcpilco.agents.mc_pilco.horizon`).
         extra: keys of a record this version does not know, kept as read.
     """
 
@@ -132,6 +136,9 @@ class TrialRecord:
     eval_counted: int | None = None
     eval_successes: int | None = None
     eval_ci: list[float] | None = None
+    horizon: int | None = None
+    goal_fraction: float | None = None
+    next_horizon: int | None = None
     extra: dict[str, Any] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
@@ -237,6 +244,13 @@ def record_line(r: TrialRecord) -> str:
             f"x {r.s_per_opt_step:.3f} s (CPU {r.cpu_s_per_opt_step:.3f} s), "
             f"J^ {r.opt_final_cost:.2f})"
         )
+        if r.goal_fraction is not None:
+            line += (
+                f"; horizon {r.horizon}: {100 * r.goal_fraction:.0f} % of the particles reach "
+                "the goal a success window before its end"
+            )
+            if r.next_horizon is not None and r.next_horizon != r.horizon:
+                line += f", next horizon {r.next_horizon}"
         if r.n_filtered is not None:
             line += f"; {r.n_filtered} transitions filtered as pushes"
             if r.n_contact is not None:

@@ -30,16 +30,23 @@ up. :data:`OPT_TIME_BUDGET_S` is the
 optimisation's share of :data:`RUN_TIME_BUDGET_S`, a 5-trial run on two cores; the rest is
 the GP fits, the env and the plots. :func:`shipped_budgets` checks every shipped task file
 against it.
+
+A run may grow its horizon over trials (:mod:`.horizon`): a trial over ``H_k > H`` runs
+``S H / H_k`` optimisation steps, which take the seconds of ``S`` steps over ``H`` because
+``t_step`` is linear in ``H``; only the GP points come sooner (the longer trials give more
+data). :func:`grown_run_seconds` bounds such a run by ``N = N_max`` in every trial.
 """
 
 from __future__ import annotations
 
+import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 
+from mcpilco.agents.mc_pilco.horizon import grows
 from mcpilco.envs.tasks.spec import TaskSpec
 
 CH_S = 1.44e-3  # c_H [s] per time step (fit_step_constants; results/mcpilco_budget.md)
@@ -92,6 +99,12 @@ def run_seconds(task: TaskSpec, particles: int, steps: int, max_points: int) -> 
         steps * step_seconds(task, particles, min(max_points, k * per_trial))
         for k in range(1, BUDGET_TRIALS + 1)
     )
+
+
+def grown_run_seconds(task: TaskSpec, particles: int, steps: int, max_points: int) -> float:
+    """Predicted optimisation seconds of :data:`BUDGET_TRIALS` policy trials whose horizon
+    grows (module docstring): at most ``K S t_step(M, N_max)``."""
+    return BUDGET_TRIALS * steps * step_seconds(task, particles, max_points)
 
 
 def derive_budget(task: TaskSpec, seconds: float = OPT_TIME_BUDGET_S) -> Budget:
@@ -155,8 +168,10 @@ def fit_step_constants(rows: Sequence[Mapping[str, float]]) -> tuple[float, floa
 def shipped_budgets() -> list[dict[str, Any]]:
     """The derived budget of every shipped task file that learns dynamics
     (:func:`mcpilco.envs.tasks.task_ids`), with the predicted optimisation seconds of
-    :data:`BUDGET_TRIALS` trials and whether they fit :data:`OPT_TIME_BUDGET_S` (a budget
-    already at its floors may not: ``at_floor``)."""
+    :data:`BUDGET_TRIALS` trials, whether they fit :data:`OPT_TIME_BUDGET_S` (a budget
+    already at its floors may not: ``at_floor``), and their bound when the horizon grows
+    (``grown_s``, :func:`grown_run_seconds`; None for a task whose horizon stays: no goal
+    held over a window, or an episode no longer than the horizon)."""
     from mcpilco.envs.tasks import task_ids
 
     out = []
@@ -176,12 +191,30 @@ def shipped_budgets() -> list[dict[str, Any]]:
                 "opt_steps": b.opt_steps,
                 "max_points": b.max_points,
                 "predicted_s": b.predicted_s,
+                "grown_s": grown_run_seconds(task, b.num_particles, b.opt_steps, b.max_points)
+                if grows(task) and _episode_steps(task) > task.horizon
+                else None,
                 "fits": b.predicted_s <= OPT_TIME_BUDGET_S,
                 "at_floor": (b.num_particles, b.opt_steps, b.max_points)
                 == (MIN_PARTICLES, MIN_OPT_STEPS, MIN_POINTS),
             }
         )
     return out
+
+
+def _episode_steps(task: TaskSpec) -> float:
+    """Control steps of the task's evaluation episodes as far as known without making the
+    env (``eval_steps``, else the registered ``max_episode_steps``; inf where neither says):
+    the most its horizon may grow to."""
+    import gymnasium as gym
+
+    if task.eval_steps is not None:
+        return float(task.eval_steps)
+    try:
+        steps = gym.spec(task.env_id).max_episode_steps
+    except gym.error.Error:
+        steps = None
+    return math.inf if steps is None else float(steps // task.action_repeat)
 
 
 def budget_line(task: TaskSpec, budget: Budget, overridden: dict[str, int]) -> str:

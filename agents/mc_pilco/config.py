@@ -90,7 +90,12 @@ class MCPilcoConfig:
         task: the task as plain data (a task file's content) for an env without a shipped
             task; None: the task that ships for ``env_id``.
         num_trials: policy trials after the exploration trial.
-        horizon: ``H``, steps per trial and of the particle rollout (None: the task's).
+        horizon: ``H``, steps per trial and of the particle rollout (None: the task's); the
+            first trial's, when ``grow_horizon`` lets it grow.
+        grow_horizon: grow the horizon over trials while too few of the model's particles
+            reach the goal a success window before its end, up to the env's episode length
+            (:mod:`~mcpilco.agents.mc_pilco.horizon`; only for a goal held over a success
+            window).
         num_particles: ``M``.
         kernel: ``"rbf+mpk"``, ``"rbf"`` or ``"rigid_body"`` (an arm task's structured
             kernel on ``[q, qd, tau, w]``; :mod:`.dynamics`). The chained rollouts (native,
@@ -183,6 +188,7 @@ class MCPilcoConfig:
     task: dict[str, Any] | None = None
     num_trials: int = 5
     horizon: int | None = None
+    grow_horizon: bool = True
     num_particles: int = 400
     kernel: str = "rbf+mpk"
     max_points: int | None = 300
@@ -235,6 +241,8 @@ class MCPilcoConfig:
             raise ValueError(
                 f"explore_limits must be one of {EXPLORE_LIMITS}, got {self.explore_limits!r}"
             )
+        if not isinstance(self.grow_horizon, bool):
+            raise ValueError(f"grow_horizon must be true or false, got {self.grow_horizon!r}")
         if not isinstance(self.compile_rollout, bool):
             raise ValueError(f"compile_rollout must be true or false, got {self.compile_rollout!r}")
         if isinstance(self.opt, dict):

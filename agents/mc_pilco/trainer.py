@@ -10,6 +10,8 @@ Algorithm 1, one method each::
         apply_policy()              run the policy on the system for H steps, D += its data
         evaluate_policy()           E evaluation episodes (eval_episodes; not in D), from
                                     the task's eval_init, of the env's own episode length
+        plan_horizon()              the next trial's horizon (grown while too few predicted
+                                    particles reach the goal a success window before its end)
         commit_trial()              record, plots, checkpoint (the trial's commit point)
 
 Glossary
@@ -27,7 +29,8 @@ trial ``k >= 1``
     the particle estimate ``J^`` (5.8) with the monitoring rule, apply the policy (no dropout)
     to the env for ``H`` steps, append the transitions to ``D``.
 experience
-    ``H T_s (k + 1)`` seconds after trial ``k`` (3, 6, 9, 12, 15 s ... on the cart-pole).
+    ``H T_s (k + 1)`` seconds after trial ``k`` (3, 6, 9, 12, 15 s ... on the cart-pole);
+    ``sum_j H_j T_s`` where the horizon grew (:mod:`~mcpilco.agents.mc_pilco.horizon`).
     An env that ends an episode early (the task's ``termination``) is reset until the trial
     has taken the task's ``trial_steps`` (default ``H``) steps: every step counts, and the
     record says how many ``episodes`` the trial spanned; the trial's outcome (cost,
@@ -83,6 +86,7 @@ from mcpilco.agents.mc_pilco.dynamics import GPDynamicsModel
 from mcpilco.agents.mc_pilco.fast import cpp_compiler, cpp_compiler_names, use_fast_rollout
 from mcpilco.agents.mc_pilco.features import StateLayout
 from mcpilco.agents.mc_pilco.filters import CollisionFilter, contact_steps
+from mcpilco.agents.mc_pilco.horizon import goal_fraction, grows, next_horizon, scaled_opt_steps
 from mcpilco.agents.mc_pilco.loss import MCPilcoLoss, TerminationSet
 from mcpilco.agents.mc_pilco.optimize import choose_policy, optimize_policy
 from mcpilco.agents.mc_pilco.policy import (
@@ -101,6 +105,7 @@ from mcpilco.agents.mc_pilco.viz import (
 from mcpilco.envs.tasks.spec import TaskSpec
 from mcpilco.models.device import resolve_device
 
+PLAN_PARTICLES = 100  # predicted particles the next trial's horizon is judged on (at least)
 ROLLOUT_DTYPE_TOL = 0.01
 """Largest RMS error of the rollout-dtype GP posterior mean, as a fraction of each output's
 spread on the training data, before the rollout runs in float64 instead (a model that
@@ -198,7 +203,10 @@ class Trainer:
             self.improve_policy(k, dynamics, rec, arr)
             episodes = self.apply_policy(k, rec, arr)
             self.evaluate_policy(k, rec)
+            self.plan_horizon(rec, arr)
         self.commit_trial(k, episodes, rec, arr, t0)
+        if rec.next_horizon is not None and rec.next_horizon != self.horizon:
+            self.use_horizon(rec.next_horizon)
 
     # ----------------------------------------------------------------------- the steps
     def set_up(self) -> None:
@@ -212,6 +220,11 @@ class Trainer:
             self._set_up_task()
             self.env = make_env(config.env_id, self.horizon, self.task, config.env_kwargs)
             self.eval_steps = evaluation_steps(self.task, self.env)
+            self.max_horizon = (
+                max(self.horizon, self.eval_steps)
+                if config.grow_horizon and grows(self.task)
+                else self.horizon
+            )
             if config.eval_episodes:  # episodes of the evaluation's length
                 self.eval_env = make_env(
                     config.env_id, self.eval_steps, self.task, config.env_kwargs
@@ -361,6 +374,11 @@ class Trainer:
             opt_cfg = dataclasses.replace(
                 opt_cfg, max_steps=min(opt_cfg.max_steps, config.opt_steps_first)
             )
+        if self.horizon > self.horizon0:  # a grown horizon: the trial's budgeted seconds
+            opt_cfg = dataclasses.replace(
+                opt_cfg,
+                max_steps=scaled_opt_steps(opt_cfg.max_steps, self.horizon0, self.horizon),
+            )
         obar = self._progress_bar(opt_cfg.max_steps, f"trial {k} policy opt")
 
         def on_step(i, c, s, lr):
@@ -408,6 +426,12 @@ class Trainer:
         with torch.no_grad():
             n_log = min(config.log_particles, config.num_particles)
             arr["particles"] = predict.rollout(num_particles=n_log).states.cpu().numpy()
+            if grows(self.task):  # the particles the next horizon is judged on
+                arr["plan_particles"] = (
+                    arr["particles"]
+                    if n_log >= PLAN_PARTICLES
+                    else predict.rollout(num_particles=PLAN_PARTICLES).states.cpu().numpy()
+                )
 
     def apply_policy(self, k: int, rec: TrialRecord, arr: dict[str, Any]) -> list[dict[str, Any]]:
         """Apply the chosen policy (no dropout) to the system for ``H`` steps (episodes of
@@ -452,6 +476,40 @@ class Trainer:
                     self.eval_steps,
                 )
             )
+
+    def plan_horizon(self, rec: TrialRecord, arr: dict[str, Any]) -> None:
+        """The next trial's horizon (:mod:`~mcpilco.agents.mc_pilco.horizon`): judged on the
+        applied policy's predicted particles (``arr["plan_particles"]``, set by
+        :meth:`improve_policy` for a task whose horizon can grow), grown while fewer than
+        :data:`~mcpilco.agents.mc_pilco.horizon.GOAL_FRACTION` of them reach the goal a
+        success window before its end, up to the env's episode length; the record holds the
+        horizon, the fraction and the next horizon."""
+        states = arr.pop("plan_particles", None)
+        if states is None:
+            return
+        fraction = goal_fraction(states, self.task)
+        rec.update(
+            horizon=self.horizon,
+            goal_fraction=fraction,
+            next_horizon=next_horizon(self.horizon, fraction, self.max_horizon),
+        )
+
+    def use_horizon(self, horizon: int) -> None:
+        """Optimise and run the following trials over ``horizon`` steps: the task's horizon
+        replaced, the plateau restarts' success level ``J_succ`` of that horizon, and the
+        env's episodes that long."""
+        config = self.config
+        if self.log:
+            self.log(
+                f"horizon {self.horizon} -> {horizon} steps ({horizon * self.task.dt:.2f} s): "
+                "too few predicted particles reach the goal a success window before its end"
+            )
+        self.task = self.task.replace(horizon=int(horizon))
+        self.horizon = self.task.horizon
+        if hasattr(self, "cost_fn"):  # J_succ of the new horizon (set_up computes it on resume)
+            self.success_level = success_cost_level(self.task, self.cost_fn)
+        self.env.close()
+        self.env = make_env(config.env_id, self.horizon, self.task, config.env_kwargs)
 
     def commit_trial(
         self,
@@ -542,7 +600,7 @@ class Trainer:
             self.task = config.task_spec()
         elif config.horizon is not None and config.horizon != self.task.horizon:
             self.task = self.task.replace(horizon=int(config.horizon))
-        self.horizon = self.task.horizon
+        self.horizon = self.horizon0 = self.task.horizon
         if config.explore_steps is not None and config.explore_steps > self.horizon:
             raise ValueError(
                 f"explore_steps ({config.explore_steps}) exceeds the horizon ({self.horizon} steps)"
@@ -585,6 +643,9 @@ class Trainer:
             self.model.load(self.out / ckpt["gp_file"])
         set_rng_state(ckpt["rng"], self.np_rng)
         self.start_trial = self.resumed_from = int(ckpt["next_trial"])
+        grown = self.records[-1].next_horizon if self.records else None
+        if grown is not None and grown != self.horizon:  # the horizon the run had grown to
+            self.use_horizon(int(grown))
         if self.log:
             self.log(f"resumed {self.checkpoint_path}: trials 0..{self.start_trial - 1} done")
 

@@ -83,7 +83,8 @@ def run_seeds(
 
 def per_seed(run: dict[str, Any]) -> dict[str, Any]:
     """One seed's trials: experience, evaluation successes of ``counted`` episodes, whether
-    all succeeded (``solved``), the trial's own success and start, the rollout dtype."""
+    all succeeded (``solved``), the trial's own success and start, the rollout dtype, the
+    trial's horizon (steps; it grows over trials where the task lets it)."""
     rows = []
     for r in run["records"]:
         if r["kind"] != "policy":
@@ -98,6 +99,7 @@ def per_seed(run: dict[str, Any]) -> dict[str, Any]:
                 "solved": bool(counted) and ok == counted,
                 "trial_success": bool(r["success"]) and not r.get("started_in_goal", False),
                 "rollout_dtype": r.get("rollout_dtype"),
+                "horizon": r.get("horizon"),
             }
         )
     return {"seed": run["seed"], "seconds": run["seconds"], "trials": rows}
@@ -105,7 +107,10 @@ def per_seed(run: dict[str, Any]) -> dict[str, Any]:
 
 def per_trial(seeds: list[dict[str, Any]]) -> list[dict[str, Any]]:
     """Per policy trial over the seeds: seeds solved (95 % Wilson) and evaluation episodes
-    that succeeded (95 % Wilson, episodes pooled over seeds)."""
+    that succeeded (95 % Wilson, episodes pooled over seeds). Seeds whose horizons grew
+    differently reach a trial with different experience: the row's ``experience_s`` is the
+    most of them (the trial's rates hold by that much experience), ``experience_min_s``
+    the least."""
     n_trials = min(len(s["trials"]) for s in seeds)
     rows = []
     for k in range(n_trials):
@@ -115,7 +120,8 @@ def per_trial(seeds: list[dict[str, Any]]) -> list[dict[str, Any]]:
         rows.append(
             {
                 "trial": ts[0]["trial"],
-                "experience_s": ts[0]["experience_s"],
+                "experience_s": max(t["experience_s"] for t in ts),
+                "experience_min_s": min(t["experience_s"] for t in ts),
                 "seeds_solved": rate(sum(t["solved"] for t in ts), len(ts)),
                 "episodes": rate(ok, counted) if counted else None,
                 "float64_rollouts": sum(t["rollout_dtype"] == "float64" for t in ts),
@@ -191,9 +197,14 @@ def report(payload: dict[str, Any]) -> str:
     for r in payload["per_trial"]:
         s, e = r["seeds_solved"], r["episodes"]
         ep = "-" if e is None else f"{e['k']}/{e['n']} [{_pct(e['ci95'])}]"
+        lo_s = r.get("experience_min_s", r["experience_s"])
+        when = (
+            f"{r['experience_s']:.0f} s"
+            if lo_s == r["experience_s"]
+            else (f"{lo_s:.0f}-{r['experience_s']:.0f} s")
+        )
         md.append(
-            f"| {r['experience_s']:.0f} s | {s['k']}/{s['n']} [{_pct(s['ci95'])}] | {ep} "
-            f"| {r['float64_rollouts']} |"
+            f"| {when} | {s['k']}/{s['n']} [{_pct(s['ci95'])}] | {ep} | {r['float64_rollouts']} |"
         )
     h = payload["headline"]
     md += ["", f"Within {payload['budget_s']:.0f} s of experience: "]
@@ -214,6 +225,7 @@ def report(payload: dict[str, Any]) -> str:
     for s in payload["per_seed"]:
         cells = ", ".join(
             f"{t['experience_s']:.0f} s: {t['eval_successes']}/{t['eval_counted']}"
+            + (f" (H = {t['horizon']})" if t.get("horizon") else "")
             for t in s["trials"]
         )
         md.append(f"- seed {s['seed']}: {cells} ({s['seconds']:.0f} s)")

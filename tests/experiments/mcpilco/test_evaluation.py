@@ -39,3 +39,15 @@ def test_seeds_solved_and_headline(tmp_path):
     assert (tmp_path / "mcpilco_eval_Pendulum_v1_dev.png").is_file()
     md = (tmp_path / "mcpilco_eval_Pendulum_v1_dev.md").read_text()
     assert "development seed(s)" in md and "1 of 2 seeds solved" in md
+
+
+def test_seeds_with_grown_horizons_count_at_their_most_experience(tmp_path):
+    # seed 1's horizon grew: its second policy trial ends at 14 s instead of 12 s
+    grown = _run(1, [(0, 5), (5, 5)])
+    grown["records"][2].update(experience_s=14.0, horizon=120)
+    payload = make_payload("Pendulum-v1", [_run(0, [(0, 5), (5, 5)]), grown], 2, 5, 12.0)
+    rows = payload["per_trial"]
+    assert [(r["experience_min_s"], r["experience_s"]) for r in rows] == [(8, 8), (12, 14)]
+    assert payload["headline"]["experience_s"] == 8.0  # trial 2 is not by 12 s for seed 1
+    md = write_report(payload, tmp_path).with_suffix(".md").read_text()
+    assert "| 12-14 s | 2/2" in md and "14 s: 5/5 (H = 120)" in md
