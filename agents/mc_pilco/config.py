@@ -523,7 +523,12 @@ def budget_report(config: MCPilcoConfig) -> str:
     if every:
         line += (
             f"; applied each trial: the lowest J^ without dropout among the previous policy "
-            f"and a copy every {every} opt steps (opt.snapshot_every"
-            f"{'' if config.opt.snapshot_every is not None else ' derived: steps / 20'})"
+            f"and a copy every {every} opt steps ("
+            + (
+                "opt.snapshot_every"
+                if config.opt.snapshot_every is not None
+                else "derived: ceil(N_opt / 20) of each optimisation's steps"
+            )
+            + ")"
         )
     return line
