@@ -19,7 +19,11 @@ from typing import Any
 from mcpilco.agents.common.trials import DEFAULT_ENV_ID, plain_env_id
 from mcpilco.agents.mc_pilco.dynamics import KERNEL_CHOICES, check_mpk_degree
 from mcpilco.agents.mc_pilco.fast import BACKENDS
-from mcpilco.agents.mc_pilco.optimize import PolicyOptConfig, snapshot_interval
+from mcpilco.agents.mc_pilco.optimize import (
+    SNAPSHOTS_PER_OPTIMISATION,
+    PolicyOptConfig,
+    snapshot_interval,
+)
 from mcpilco.envs.tasks.spec import ANGLE_MODES, TaskSpec
 from mcpilco.models.device import check_device_name
 
@@ -527,7 +531,7 @@ def budget_report(config: MCPilcoConfig) -> str:
             + (
                 "opt.snapshot_every"
                 if config.opt.snapshot_every is not None
-                else "derived: ceil(N_opt / 20) of each optimisation's steps"
+                else f"derived: ceil(N_opt / {SNAPSHOTS_PER_OPTIMISATION}) of each optimisation"
             )
             + ")"
         )

@@ -29,7 +29,8 @@ snapshot
     ``S = ceil(N_opt / n_snap)`` with ``n_snap =`` :data:`SNAPSHOTS_PER_OPTIMISATION`
     (:func:`snapshot_interval`); 0 keeps the final parameters only. The caller evaluates
     them without dropout on common random numbers and applies the best
-    (:func:`choose_policy`): Adam on a noisy ``J^`` can leave a good policy late in the run
+    (:func:`choose_policy`, :data:`CHOOSE_REPEATS` rollouts of ``M`` particles per copy):
+    Adam on a noisy ``J^`` can leave a good policy late in the run
     (a sudden rise of ``J^`` that later steps do not undo), and the last parameters are
     then not the best ones seen; and a new model can judge the previous policy better than
     anything the optimisation reached, which then stays applied.
@@ -142,7 +143,8 @@ _OPT_NUMBER_RANGES: dict[str, dict] = {
 }  # range of each number of PolicyOptConfig (mcpilco.envs.numbers.check_number keywords)
 _OPT_DERIVED = ("snapshot_every",)  # numbers of PolicyOptConfig whose None means derived
 
-SNAPSHOTS_PER_OPTIMISATION = 20  # n_snap: parameter copies a derived snapshot_every keeps
+SNAPSHOTS_PER_OPTIMISATION = 10  # n_snap: parameter copies a derived snapshot_every keeps
+CHOOSE_REPEATS = 2  # rollouts of M particles per copy and candidate in choose_policy
 
 
 def snapshot_interval(config: PolicyOptConfig, max_steps: int | None = None) -> int:
@@ -437,7 +439,7 @@ def choose_policy(
     population: PolicyPopulation,
     policy: SquashedRBFPolicy,
     snapshots: Sequence[tuple[int, Sequence[Tensor]]] = (),
-    repeats: int = 4,
+    repeats: int = CHOOSE_REPEATS,
 ) -> tuple[Tensor, int]:
     """The policy to apply: the candidate and parameter snapshot with the lowest ``J^``.
 
