@@ -63,7 +63,10 @@ class TrialRecord:
         candidate_costs, chosen_candidate, chosen_cost: ``J^`` of each candidate policy of
             the chosen snapshot, the applied one and its ``J^``.
         snapshot_steps, snapshot_costs, chosen_step: the optimisation steps whose
-            parameters were compared, their best ``J^``, and the step applied.
+            parameters were compared, their best ``J^``, and the step applied (0: the
+            parameters the optimisation started from, the previous trial's, were kept);
+            ``opt_snapshot_every``: the steps between the compared copies (0: the final
+            parameters only); ``choose_s``: seconds of that comparison.
         gp_rmse: one-step RMSE of the model (fitted before the trial) per output on the
             trial's transitions.
         rollout_dtype, rollout_dtype_error: dtype of the GP posterior in the trial's particle
@@ -126,6 +129,8 @@ class TrialRecord:
     snapshot_steps: list[int] | None = None
     snapshot_costs: list[float] | None = None
     chosen_step: int | None = None
+    opt_snapshot_every: int | None = None
+    choose_s: float | None = None
     gp_rmse: list[float] | None = None
     n_contact: int | None = None
     n_filtered: int | None = None
@@ -251,6 +256,12 @@ def record_line(r: TrialRecord) -> str:
             )
             if r.next_horizon is not None and r.next_horizon != r.horizon:
                 line += f", next horizon {r.next_horizon}"
+        if r.snapshot_steps and len(r.snapshot_steps) > 1:
+            kept = " (the previous policy kept)" if r.chosen_step == 0 else ""
+            line += (
+                f"; applied the step-{r.chosen_step} parameters{kept}, J^ {r.chosen_cost:.2f} "
+                f"without dropout, the best of {len(r.snapshot_steps)} copies"
+            )
         if r.n_filtered is not None:
             line += f"; {r.n_filtered} transitions filtered as pushes"
             if r.n_contact is not None:

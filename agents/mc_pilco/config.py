@@ -19,7 +19,11 @@ from typing import Any
 from mcpilco.agents.common.trials import DEFAULT_ENV_ID, plain_env_id
 from mcpilco.agents.mc_pilco.dynamics import KERNEL_CHOICES, check_mpk_degree
 from mcpilco.agents.mc_pilco.fast import BACKENDS
-from mcpilco.agents.mc_pilco.optimize import PolicyOptConfig
+from mcpilco.agents.mc_pilco.optimize import (
+    SNAPSHOTS_PER_OPTIMISATION,
+    PolicyOptConfig,
+    snapshot_interval,
+)
 from mcpilco.envs.tasks.spec import ANGLE_MODES, TaskSpec
 from mcpilco.models.device import check_device_name
 
@@ -526,4 +530,17 @@ def budget_report(config: MCPilcoConfig) -> str:
         "opt.max_steps": (config.opt.max_steps, budget.opt_steps),
         "max_points": (config.max_points, budget.max_points),
     }
-    return budget_line(task, budget, {k: v for k, (v, d) in used.items() if v != d})
+    line = budget_line(task, budget, {k: v for k, (v, d) in used.items() if v != d})
+    every = snapshot_interval(config.opt)
+    if every:
+        line += (
+            f"; applied each trial: the lowest J^ without dropout among the previous policy "
+            f"and a copy every {every} opt steps ("
+            + (
+                "opt.snapshot_every"
+                if config.opt.snapshot_every is not None
+                else f"derived: ceil(N_opt / {SNAPSHOTS_PER_OPTIMISATION}) of each optimisation"
+            )
+            + ")"
+        )
+    return line

@@ -22,12 +22,18 @@ stall
     moments) and the count reset (the filters run on). A stall at ``a = a_min`` ends the
     optimisation, as does ``N_opt`` steps.
 snapshot
-    with ``snapshot_every = S > 0``, a copy of the policy parameters after every ``S``-th
-    step (:attr:`OptimizationResult.snapshots`, the final parameters always last). The
-    caller evaluates them without dropout and applies the best
-    (:func:`choose_policy`): Adam on a noisy ``J^`` can leave
-    a good policy late in the run (a sudden rise of ``J^`` that later steps do not undo),
-    and the last parameters are then not the best ones seen.
+    a copy of the policy parameters after every ``S``-th step
+    (:attr:`OptimizationResult.snapshots`), preceded by the parameters the optimisation
+    starts from (step 0: the previous trial's policy) and ended by the final ones. ``S`` is
+    ``opt.snapshot_every``; None (the default) derives it from the step budget,
+    ``S = ceil(N_opt / n_snap)`` with ``n_snap =`` :data:`SNAPSHOTS_PER_OPTIMISATION`
+    (:func:`snapshot_interval`); 0 keeps the final parameters only. The caller evaluates
+    them without dropout on common random numbers and applies the best
+    (:func:`choose_policy`, :data:`CHOOSE_REPEATS` rollouts of ``M`` particles per copy):
+    Adam on a noisy ``J^`` can leave a good policy late in the run
+    (a sudden rise of ``J^`` that later steps do not undo), and the last parameters are
+    then not the best ones seen; and a new model can judge the previous policy better than
+    anything the optimisation reached, which then stays applied.
 NaN restart
     a non-finite ``J^`` re-initialises the policy parameters and Adam (at most
     ``max_reinits`` times, then ``FloatingPointError``).
@@ -89,12 +95,14 @@ class PolicyOptConfig:
     max_reinits: int = 3
     max_restarts: int = 2  # plateau restarts per optimisation (module glossary)
     cuda_graph: bool = True
-    snapshot_every: int = 0  # steps between kept parameter copies (0: the final ones only)
+    snapshot_every: int | None = None  # steps between kept copies (None: derived; 0: final only)
 
     def __post_init__(self) -> None:
         from mcpilco.envs.numbers import check_number
 
         for name, rule in _OPT_NUMBER_RANGES.items():
+            if getattr(self, name) is None and name in _OPT_DERIVED:
+                continue
             setattr(self, name, check_number(getattr(self, name), f"opt.{name}", **rule))
         if not isinstance(self.cuda_graph, bool):
             raise ValueError(f"opt.cuda_graph must be true or false, got {self.cuda_graph!r}")
@@ -110,8 +118,12 @@ class PolicyOptConfig:
             raise ValueError(f"monitor_patience must be >= 1, got {self.monitor_patience}")
         if self.min_steps < 0:
             raise ValueError(f"min_steps must be >= 0, got {self.min_steps}")
-        if int(self.snapshot_every) != self.snapshot_every or self.snapshot_every < 0:
-            raise ValueError(f"snapshot_every must be an integer >= 0, got {self.snapshot_every!r}")
+        if self.snapshot_every is not None and (
+            int(self.snapshot_every) != self.snapshot_every or self.snapshot_every < 0
+        ):
+            raise ValueError(
+                f"snapshot_every must be an integer >= 0 or null, got {self.snapshot_every!r}"
+            )
 
 
 _OPT_NUMBER_RANGES: dict[str, dict] = {
@@ -129,6 +141,22 @@ _OPT_NUMBER_RANGES: dict[str, dict] = {
     "max_restarts": {"lo": 0, "hi": 1_000, "integer": True},
     "snapshot_every": {"lo": 0, "hi": 10_000_000, "integer": True},
 }  # range of each number of PolicyOptConfig (mcpilco.envs.numbers.check_number keywords)
+_OPT_DERIVED = ("snapshot_every",)  # numbers of PolicyOptConfig whose None means derived
+
+SNAPSHOTS_PER_OPTIMISATION = 10  # n_snap: parameter copies a derived snapshot_every keeps
+CHOOSE_REPEATS = 2  # rollouts of M particles per copy and candidate in choose_policy
+
+
+def snapshot_interval(config: PolicyOptConfig, max_steps: int | None = None) -> int:
+    """``S``, the steps between kept parameter copies (module glossary, snapshot): the
+    config's ``snapshot_every``, else ``ceil(N_opt / n_snap)`` for an optimisation of
+    ``max_steps`` ``N_opt`` steps (default: the config's), so that every optimisation keeps
+    about :data:`SNAPSHOTS_PER_OPTIMISATION` copies whatever its budget. 0: none but the
+    final parameters."""
+    if config.snapshot_every is not None:
+        return int(config.snapshot_every)
+    steps = config.max_steps if max_steps is None else int(max_steps)
+    return max(1, math.ceil(steps / SNAPSHOTS_PER_OPTIMISATION))
 
 
 class CostMonitor:
@@ -192,7 +220,10 @@ class OptimizationResult:
     cpu_seconds: float = 0.0
     stop_reason: str = "max_steps"
     snapshots: list[tuple[int, list[Tensor]]] = field(default_factory=list)
-    """``(steps done, parameter copies)``, every ``snapshot_every`` steps and at the end."""
+    """``(steps done, parameter copies)``: with snapshots (:func:`snapshot_interval`), the
+    starting parameters (step 0) and every ``S`` steps; always the final ones last."""
+    snapshot_every: int = 0
+    """``S`` of this optimisation (0: the final parameters only)."""
 
     @property
     def num_steps(self) -> int:
@@ -293,7 +324,8 @@ def optimize_policy(
         num_candidates: ``K``, the candidates whose ``J^`` the loss sums (the plateau is
             compared per candidate).
     """
-    res = OptimizationResult(success_level=success_level)
+    every = snapshot_interval(config)
+    res = OptimizationResult(success_level=success_level, snapshot_every=every)
     lr = config.lr
     dropout = config.dropout
     params = [p for p in policy.parameters() if p.requires_grad]
@@ -321,6 +353,8 @@ def optimize_policy(
     _set_dropout(policy, dropout)
     policy.train()
     step_fn: StepFn | None = None  # rebuilt whenever the dropout rate changes (CUDA graph)
+    if every:  # the starting point (the previous trial's policy) competes with the iterates
+        res.snapshots.append((0, [p.detach().clone() for p in params]))
     t0, c0 = time.perf_counter(), time.process_time()
     try:
         for k in range(config.max_steps):
@@ -348,7 +382,7 @@ def optimize_policy(
             res.signals.append(monitor.signal)
             if on_step is not None:
                 on_step(k, cost, std, lr)
-            if config.snapshot_every and res.num_steps % config.snapshot_every == 0:
+            if every and res.num_steps % every == 0:
                 res.snapshots.append((res.num_steps, [p.detach().clone() for p in params]))
             if stalled and _plateau_restart(res, config, success_level, num_candidates):
                 if not res.snapshots or res.snapshots[-1][0] != res.num_steps:  # keep the plateau
@@ -405,7 +439,7 @@ def choose_policy(
     population: PolicyPopulation,
     policy: SquashedRBFPolicy,
     snapshots: Sequence[tuple[int, Sequence[Tensor]]] = (),
-    repeats: int = 4,
+    repeats: int = CHOOSE_REPEATS,
 ) -> tuple[Tensor, int]:
     """The policy to apply: the candidate and parameter snapshot with the lowest ``J^``.
 

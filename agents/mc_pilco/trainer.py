@@ -398,7 +398,9 @@ class Trainer:
         )
         if obar is not None:
             obar.close()
+        t_choose = time.perf_counter()
         snap_costs, snap = choose_policy(loss, self.population, self.policy, res.snapshots)
+        rec.choose_s = time.perf_counter() - t_choose
         cand_costs = snap_costs[snap]
         rec.update(
             opt_steps=res.num_steps,
@@ -418,6 +420,7 @@ class Trainer:
             snapshot_steps=[step for step, _ in res.snapshots],
             snapshot_costs=snap_costs.min(1).values.tolist(),
             chosen_step=res.snapshots[snap][0],
+            opt_snapshot_every=res.snapshot_every,
         )
         # mean J^_k over candidates per step (J^ itself for one candidate)
         arr["opt_costs"] = np.asarray(res.costs, dtype=np.float32) / config.num_candidates

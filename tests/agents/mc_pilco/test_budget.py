@@ -77,7 +77,11 @@ def test_config_files_and_overrides_keep_their_values(tmp_path):
         f"N <= {derived.max_points} GP points (derived from 6 states, 1 action, 3 GP outputs, "
         "horizon 100"
     )
-    assert line.endswith("; the config sets num_particles=60, opt.max_steps=70")
+    assert "; the config sets num_particles=60, opt.max_steps=70; " in line
+    # the policy applied: a copy every ceil(70 / 10) = 7 steps (derived snapshot interval)
+    assert line.endswith(
+        "a copy every 7 opt steps (derived: ceil(N_opt / 10) of each optimisation)"
+    )
     shipped = load_config("mcpilco/CartpoleSwingUp-v0")  # its config file sets M = 400
     assert shipped.num_particles == 400 and "num_particles=400" in budget_report(shipped)
 

@@ -24,6 +24,7 @@ from mcpilco.agents.mc_pilco import (
     optimize_policy,
     speed_integration,
 )
+from mcpilco.agents.mc_pilco.optimize import choose_policy, snapshot_interval
 from mcpilco.agents.mc_pilco.policy import dropout_mask
 from mcpilco.envs.cartpole_task import cartpole_cost
 
@@ -366,26 +367,118 @@ def test_optimizer_reinitialises_policy_on_nan_cost():
 
 
 def test_optimizer_keeps_snapshots_of_the_parameters_it_had_after_those_steps():
-    """``snapshot_every = 4`` over 10 steps: copies after steps 4 and 8 and the final ones
-    (10), each equal to the parameters seen by ``on_step`` after that step."""
+    """``snapshot_every = 4`` over 10 steps: the starting parameters (step 0), copies after
+    steps 4 and 8 and the final ones (10), each equal to the parameters seen by ``on_step``
+    after that step (before the first step for step 0)."""
     pol = SquashedRBFPolicy(LAYOUT, num_basis=5, seed=0)
-    seen = {}
+    seen = {0: [p.detach().clone() for p in pol.parameters() if p.requires_grad]}
 
     def on_step(k, *_):
         seen[k + 1] = [p.detach().clone() for p in pol.parameters() if p.requires_grad]
 
     cfg = PolicyOptConfig(max_steps=10, monitor_patience=100, snapshot_every=4)
     res = optimize_policy(StalledLoss(pol), pol, cfg, on_step=on_step)
-    assert [step for step, _ in res.snapshots] == [4, 8, 10]
+    assert [step for step, _ in res.snapshots] == [0, 4, 8, 10]
     for step, values in res.snapshots:
         for v, w in zip(values, seen[step], strict=True):
             torch.testing.assert_close(v, w, rtol=0, atol=0)
     first, last = res.snapshots[0][1], res.snapshots[-1][1]
     assert any(not torch.equal(v, w) for v, w in zip(first, last, strict=True))
-    only_final = optimize_policy(StalledLoss(pol), pol, PolicyOptConfig(max_steps=3))
+    only_final = optimize_policy(
+        StalledLoss(pol), pol, PolicyOptConfig(max_steps=3, snapshot_every=0)
+    )
     assert [step for step, _ in only_final.snapshots] == [3]
     with pytest.raises(ValueError, match="snapshot_every must be an integer"):
         PolicyOptConfig(snapshot_every=-1)
+
+
+@pytest.mark.parametrize(("steps", "every"), [(1000, 100), (500, 50), (25, 3), (7, 1)])
+def test_derived_snapshot_interval_keeps_about_ten_copies(steps, every):
+    """``snapshot_every`` None: ``S = ceil(N_opt / 10)``, so the copies kept are the start,
+    ``floor(N_opt / S)`` iterates and the final ones (counted on a run of ``N_opt`` steps)."""
+    cfg = PolicyOptConfig(max_steps=steps, monitor_patience=10_000)
+    assert cfg.snapshot_every is None and snapshot_interval(cfg) == every
+    assert snapshot_interval(PolicyOptConfig(snapshot_every=7), 1000) == 7
+    if steps <= 30:
+        pol = SquashedRBFPolicy(LAYOUT, num_basis=5, seed=0)
+        res = optimize_policy(StalledLoss(pol), pol, cfg)
+        expected = [0, *range(every, steps + 1, every)]
+        expected += [] if expected[-1] == steps else [steps]
+        assert [step for step, _ in res.snapshots] == expected and res.snapshot_every == every
+
+
+class ToyPopulation(nn.Module):
+    """K candidate points ``w`` (K, 2) with the policy interface :func:`choose_policy` and
+    :func:`optimize_policy` use; ``copy_to`` writes a candidate into a ``ToyPolicy``."""
+
+    def __init__(self, w: torch.Tensor) -> None:
+        super().__init__()
+        self.w = nn.Parameter(w.clone())
+
+    def copy_to(self, k: int, policy: nn.Module) -> None:
+        with torch.no_grad():
+            policy.w.copy_(self.w[k])
+
+    def reset_parameters(self, seed: int | None = None) -> None:
+        raise AssertionError("no restart expected")
+
+
+class ToyCost(nn.Module):
+    """``J(w) = |w - w*|^2`` per candidate, the known minimum ``w*``. While the population
+    trains, a random tilt ``noise eps^T w`` (``eps ~ N(0, I)`` per call) makes the gradient
+    noisy, as dropout does; in evaluation mode only a draw shared by every candidate is
+    added (a Monte Carlo estimate's noise), which common random numbers cancel between
+    snapshots."""
+
+    def __init__(self, pop: ToyPopulation, target: torch.Tensor, noise: float) -> None:
+        super().__init__()
+        self.pop, self.target, self.noise = pop, target, noise
+
+    def forward(self):
+        w = self.pop.w
+        per = ((w - self.target) ** 2).sum(1)
+        if self.pop.training:
+            per = per + self.noise * (torch.randn(w.shape[1]) * w).sum(1)
+        else:
+            per = per + self.noise * torch.randn(())
+        return {"loss_cost": per.sum(), "cost_std": torch.tensor(0.0), "candidate_costs": per}
+
+
+def _apply_best(start: torch.Tensor, target: torch.Tensor, lr: float, steps: int):
+    """Adam from ``start`` on the noisy toy cost, snapshots every step, then choose_policy:
+    (chosen point, snapshot points, result)."""
+    torch.manual_seed(0)
+    pop = ToyPopulation(start)
+    cost = ToyCost(pop, target, noise=0.5)
+    cfg = PolicyOptConfig(max_steps=steps, lr=lr, monitor_patience=10_000, snapshot_every=1)
+    res = optimize_policy(cost, pop, cfg)
+    applied = nn.Module()
+    applied.w = nn.Parameter(torch.zeros(2))
+    table, s = choose_policy(cost, pop, applied, res.snapshots)
+    return applied.w.detach(), [v[0][0] for _, v in res.snapshots], res, table, s
+
+
+def test_choose_policy_applies_the_iterate_nearest_the_known_minimum():
+    """Adam with a large step overshoots and oscillates around ``w*``: the last iterate is
+    not the best one. The applied point is the snapshot nearest ``w*`` (the analytic cost,
+    not the noisy estimate the optimiser saw), strictly better than the last iterate."""
+    target = torch.tensor([1.0, -2.0])
+    chosen, points, res, table, s = _apply_best(torch.zeros(1, 2), target, lr=0.8, steps=40)
+    true = [float(((p - target) ** 2).sum()) for p in points]
+    best = min(range(len(true)), key=true.__getitem__)
+    assert s == best and true[best] < true[-1]
+    torch.testing.assert_close(chosen, points[best])
+    torch.testing.assert_close(table[:, 0] - table[best, 0], torch.tensor(true) - true[best])
+
+
+def test_choose_policy_keeps_the_starting_policy_when_it_is_the_best():
+    """Started at the minimum (the previous trial's policy already optimal), noisy Adam
+    steps only move away: the step-0 snapshot, the starting point, is applied unchanged."""
+    target = torch.tensor([0.5, 0.25])
+    chosen, points, res, _, s = _apply_best(target[None].clone(), target, lr=0.3, steps=20)
+    assert res.snapshots[0][0] == 0 and s == 0
+    assert float(((points[-1] - target) ** 2).sum()) > 1e-3  # the optimiser did move away
+    torch.testing.assert_close(chosen, target, rtol=0, atol=0)
 
 
 def test_unwrapped_cost_penalises_full_rotations():

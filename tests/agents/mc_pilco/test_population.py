@@ -146,6 +146,11 @@ def test_loop_with_two_candidates_applies_the_chosen_one_and_resumes(tmp_path):
     rec = summary.records[1]
     assert len(rec["candidate_costs"]) == 2
     assert rec["chosen_candidate"] == int(torch.tensor(rec["candidate_costs"]).argmin())
+    # derived snapshots: the previous policy (step 0), then every S steps, the final last
+    every, steps = rec["opt_snapshot_every"], rec["snapshot_steps"]
+    assert every >= 1 and steps[0] == 0 and steps[-1] == rec["opt_steps"]
+    assert all(s % every == 0 for s in steps[1:-1]) and rec["chosen_step"] in steps
+    assert rec["chosen_cost"] == min(rec["snapshot_costs"]) and rec["choose_s"] >= 0
     ckpt = load_checkpoint(summary.checkpoint)
     pop = ckpt["population"]
     torch.testing.assert_close(ckpt["policy"]["weights"], pop["weights"][rec["chosen_candidate"]])

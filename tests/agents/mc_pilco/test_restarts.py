@@ -51,7 +51,13 @@ def _run(level: float | None, seed: int = 0):
     torch.manual_seed(seed)
     policy = TwoBasins(2.0)
     cfg = PolicyOptConfig(
-        max_steps=3000, lr=0.05, lr_min=0.01, min_steps=50, monitor_patience=50, cuda_graph=False
+        max_steps=3000,
+        lr=0.05,
+        lr_min=0.01,
+        min_steps=50,
+        monitor_patience=50,
+        cuda_graph=False,
+        snapshot_every=0,  # the snapshots are the plateaus' (and the final parameters)
     )
     return optimize_policy(NoisyJ(policy), policy, cfg, success_level=level), policy
 
