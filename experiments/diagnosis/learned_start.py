@@ -311,6 +311,17 @@ CASES: dict[str, tuple[int, str, str | None]] = {
 :data:`~mcpilco.envs.arms.ARMS` or ``None`` for a random arm per seed)."""
 
 
+def _seed_label(seeds: Sequence[int]) -> str:
+    """Whether the seeds are development seeds (settings may have been chosen on them) or
+    report seeds."""
+    if seeds and min(seeds) >= REPORT_SEEDS_FROM:
+        return f"Report seeds {sorted(set(seeds))} (no setting chosen on them)."
+    return (
+        f"Development seeds {sorted(set(seeds))}: settings may have been chosen on them; "
+        f"report runs use seeds from {REPORT_SEEDS_FROM}."
+    )
+
+
 def markdown(
     info: dict[str, Any],
     records: list[dict[str, Any]],
@@ -322,6 +333,8 @@ def markdown(
         "# Learned GIP start: held-out RMSE over the noise floor",
         "",
         f"Command: `{info['command']}`",
+        "",
+        _seed_label([r["seed"] for r in [*records, *loops]]),
         "",
         "Effect-free forward-simulated logs (closed loop, q only, quantised encoder, "
         "2-4 ms). Ratio = held-out RMSE / held-out RMSE of the true rigid-body model on the "
