@@ -31,6 +31,10 @@ Variants (each isolates one suspected cause of the learned start's excess error)
                    serial chain whose DH kinematics and gravity direction are searched
                    from random starts (:class:`~mcpilco.models.inverse_dynamics.
                    ChainEstimator`; the default start where the Lagrangian is too large)
+``chain_true_x``   ``chain`` on the generator's true ``qd``, ``qdd``: the share of the chain's
+                   error due to the estimated derivatives
+``chain_known``    ``chain`` at the arm's own DH numbers and gravity (no search): the share
+                   due to the kinematics search
 =================  ===========================================================================
 
 Also recorded: the diagnosis's own noise floor of the nominal model
@@ -83,21 +87,31 @@ VARIANTS = (
     "nystrom",
     "rigid",
     "chain",
+    "chain_true_x",
+    "chain_known",
 )
 """Every variant :func:`run_case` knows (module docstring)."""
 
 
-def _simulate(n_joints: int, joint_types: str, seed: int, rows: int, files: int) -> dict:
-    """An effect-free random arm and ``files`` logs of ``rows`` samples (module docstring)."""
+def _simulate(
+    n_joints: int, joint_types: str, seed: int, rows: int, files: int, table: str | None = None
+) -> dict:
+    """An effect-free arm and ``files`` logs of ``rows`` samples (module docstring): a random
+    arm of these joint types, or ``table`` (of :data:`~mcpilco.envs.arms.ARMS`) without
+    friction (its rotor inertias kept, as the diagnosis benchmark's nominal robot file)."""
     from mcpilco.envs.arm_builder import arm_to_xml
-    from mcpilco.envs.arms import random_arm
+    from mcpilco.envs.arms import ARMS, random_arm
     from mcpilco.envs.robot_logs import SimulationDiverged, simulate_log
     from mcpilco.models.diagnosis import as_trajectories
     from mcpilco.models.robot_data import from_frame
 
     rng = np.random.default_rng(seed)
     for _ in range(20):
-        arm = random_arm(n_joints, seed=int(rng.integers(2**31)), joint_types=joint_types).rigid()
+        if table is not None:
+            arm = ARMS[table]().without_friction()
+        else:
+            arm = random_arm(n_joints, seed=int(rng.integers(2**31)), joint_types=joint_types)
+            arm = arm.rigid()
         counts = int(rng.choice(ENCODER_COUNTS))
         tau_noise = float(math.exp(rng.uniform(*np.log(TAU_NOISE_RANGE))))
         T = float(rng.choice(SAMPLE_TIMES))
@@ -163,6 +177,7 @@ def run_case(
     iters: int = 100,
     variants: Sequence[str] = VARIANTS,
     diagnosis_floor: bool = True,
+    table: str | None = None,
 ) -> dict[str, Any]:
     """One case (module docstring): per variant the held-out RMSE / floor per joint, seconds
     (``diagnosis_floor``: also the diagnosis's own floor, a GP fit per joint). ``rigid`` is
@@ -180,7 +195,7 @@ def run_case(
     bad = [v for v in variants if v not in VARIANTS]
     if bad:
         raise ValueError(f"unknown variants {bad}; use some of {VARIANTS}")
-    case = _simulate(n_joints, joint_types, seed, rows, train_files + 1)
+    case = _simulate(n_joints, joint_types, seed, rows, train_files + 1, table)
     jt = case["arm"].joint_types
     nominal = NominalStart(case["xml"])
     n = n_joints
@@ -204,6 +219,7 @@ def run_case(
     rec: dict[str, Any] = {
         "seed": seed,
         "arm": jt,
+        "table": table,
         "n_joints": n,
         "encoder_counts_per_rev": case["counts"],
         "tau_noise": case["tau_noise"],
@@ -217,15 +233,22 @@ def run_case(
     opt = dict(adam_iters=iters, lbfgs_iters=max(iters // 3, 1))
     too_big = len(lagrangian_parameters(jt)) > MAX_RIGID_FEATURES
     for v in [v for v in variants if not (v == "rigid" and too_big)]:
-        true_x = v in ("gip_true_x", "gip_span")
+        true_x = v in ("gip_true_x", "gip_span", "chain_true_x")
         clean = v == "gip_span"
         Xv, yv, Xtv, ytv = (X, y, Xt, yt) if not true_x else data(True, clean)
         ref = f_est if not true_x else floor(Xtv, data(True, False)[3])
         if v == "nystrom":
             est = NystromGIPEstimator(jt, inducing=inducing, hyper_points=hyper_all, **opt)
             fit_rows = np.arange(Xv.shape[0])
-        elif v in ("rigid", "chain"):
-            est = LagrangianEstimator(jt) if v == "rigid" else ChainEstimator(jt)
+        elif v == "rigid":
+            est = LagrangianEstimator(jt)
+            fit_rows = np.arange(Xv.shape[0])
+        elif v.startswith("chain"):
+            arm = case["arm"]
+            known = dict(
+                kinematics=[[j.alpha, j.a, j.theta, j.d] for j in arm.joints], gravity=[0.0, 0.0]
+            )
+            est = ChainEstimator(jt, **(known if v == "chain_known" else {}))
             fit_rows = np.arange(Xv.shape[0])
         else:
             npts = big_points if v == "gip_rows" else points
@@ -275,14 +298,28 @@ def loop_case(seed: int, n_joints: int, kind: str | None, rows: int) -> dict[str
     return rec
 
 
-CASES = {
-    "3R": (3, "RRR"),
-    "RRPR": (4, "RRPR"),
-    "5R": (5, "RRRRR"),
-    "6R": (6, "RRRRRR"),
-    "7R": (7, "RRRRRRR"),
+CASES: dict[str, tuple[int, str, str | None]] = {
+    "3R": (3, "RRR", None),
+    "RRPR": (4, "RRPR", None),
+    "5R": (5, "RRRRR", None),
+    "6R": (6, "RRRRRR", None),
+    "7R": (7, "RRRRRRR", None),
+    "panda": (7, "RRRRRRR", "panda"),
+    "iiwa14": (7, "RRRRRRR", "iiwa14"),
 }
-"""Arms of the benchmark (joint count, joint types)."""
+"""Arms of the benchmark (joint count, joint types, a table of
+:data:`~mcpilco.envs.arms.ARMS` or ``None`` for a random arm per seed)."""
+
+
+def _seed_label(seeds: Sequence[int]) -> str:
+    """Whether the seeds are development seeds (settings may have been chosen on them) or
+    report seeds."""
+    if seeds and min(seeds) >= REPORT_SEEDS_FROM:
+        return f"Report seeds {sorted(set(seeds))} (no setting chosen on them)."
+    return (
+        f"Development seeds {sorted(set(seeds))}: settings may have been chosen on them; "
+        f"report runs use seeds from {REPORT_SEEDS_FROM}."
+    )
 
 
 def markdown(
@@ -296,6 +333,8 @@ def markdown(
         "# Learned GIP start: held-out RMSE over the noise floor",
         "",
         f"Command: `{info['command']}`",
+        "",
+        _seed_label([r["seed"] for r in [*records, *loops]]),
         "",
         "Effect-free forward-simulated logs (closed loop, q only, quantised encoder, "
         "2-4 ms). Ratio = held-out RMSE / held-out RMSE of the true rigid-body model on the "
@@ -313,7 +352,7 @@ def markdown(
         for v, d in r["variants"].items():
             ratios = " ".join(f"{x:.2f}" for x in d["ratio"])
             lines.append(
-                f"| {r['seed']} | {r['arm']} | {1000 * r['sample_time']:.0f} | "
+                f"| {r['seed']} | {r.get('table') or r['arm']} | {1000 * r['sample_time']:.0f} | "
                 f"{r['encoder_counts_per_rev']} | {r['train_rows']} | {v} | {d['rows']} | "
                 f"{d.get('parameters') or '-'} | {ratios} | {max(d['ratio']):.2f} | "
                 f"{d['cpu_s']:.0f} | {d['wall_s']:.0f} |"
@@ -353,7 +392,7 @@ def plot(records: list[dict[str, Any]], path: Path) -> Path:
     import matplotlib.pyplot as plt
 
     fig, (ax, bx) = plt.subplots(1, 2, figsize=(10, 3.6))
-    labels = [f"{r['arm']} s{r['seed']}" for r in records]
+    labels = [f"{r.get('table') or r['arm']} s{r['seed']}" for r in records]
     names = sorted({v for r in records for v in r["variants"]})
     width = 0.8 / max(len(names), 1)
     for k, v in enumerate(names):
@@ -422,7 +461,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     }
     records = []
     for arm in a.arms:
-        n, jt = CASES[arm]
+        n, jt, table = CASES[arm]
         for s in a.seeds:
             rec = run_case(
                 s,
@@ -434,12 +473,13 @@ def main(argv: Sequence[str] | None = None) -> int:
                 hyper_all=a.hyper_all,
                 variants=a.variants,
                 diagnosis_floor=not a.no_diagnosis_floor,
+                table=table,
             )
             records.append(rec)
             print(json.dumps({k: rec[k] for k in ("seed", "arm", "train_rows")}), flush=True)
     loops = []
     for arm in a.arms if a.loop is not None else []:
-        n, _ = CASES[arm]
+        n = CASES[arm][0]
         for s in a.seeds:
             for kind in [None, *a.loop]:
                 rec = loop_case(s, n, kind, a.loop_rows)

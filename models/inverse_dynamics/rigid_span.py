@@ -59,6 +59,7 @@ __all__ = [
     "MAX_RIGID_FEATURES",
     "ChainEstimator",
     "LagrangianEstimator",
+    "armature_columns",
     "chain_columns",
     "lagrangian_columns",
     "lagrangian_parameters",
@@ -403,9 +404,6 @@ def chain_columns(
             )
         p = p_new
         frames.append((R, p, w, wd, acc, z, axis_point))
-    E = torch.zeros(6, 3, 3, dtype=q.dtype)
-    for e, (i, k) in enumerate(_SYMMETRIC):
-        E[e, i, k] = E[e, k, i] = 1.0
     forces, moments = [], []
     for R, _, w, wd, acc, _, _ in frames:
         f, m = [acc], [torch.zeros_like(acc)]
@@ -413,11 +411,17 @@ def chain_columns(
             u = R[:, :, e]
             f.append(torch.cross(wd, u, dim=-1) + torch.cross(w, torch.cross(w, u, dim=-1), dim=-1))
             m.append(torch.cross(u, acc, dim=-1))
-        RE = torch.einsum("nij,ejk,nlk->enil", R, E, R)
-        Iwd, Iw = torch.einsum("enil,nl->eni", RE, wd), torch.einsum("enil,nl->eni", RE, w)
-        for e in range(6):
+        # unit inertia entry E_e (symmetric, entries (i, k) and (k, i)) in the base frame
+        # applied to v: R E_e R^T v = R_i (R^T v)_k + R_k (R^T v)_i (once where i = k)
+        bwd, bw = (R * wd[:, :, None]).sum(1), (R * w[:, :, None]).sum(1)
+        for i, k in _SYMMETRIC:
+            Iwd = R[:, :, i] * bwd[:, k : k + 1]
+            Iw = R[:, :, i] * bw[:, k : k + 1]
+            if i != k:
+                Iwd = Iwd + R[:, :, k] * bwd[:, i : i + 1]
+                Iw = Iw + R[:, :, k] * bw[:, i : i + 1]
             f.append(torch.zeros_like(acc))
-            m.append(Iwd[e] + torch.cross(w, Iw[e], dim=-1))
+            m.append(Iwd + torch.cross(w, Iw, dim=-1))
         forces.append(torch.stack(f, -1))
         moments.append(torch.stack(m, -1))
     zero = torch.zeros(N, CHAIN_PARAMETERS, dtype=q.dtype)
@@ -438,13 +442,41 @@ def chain_columns(
     return torch.stack(cols)
 
 
+def armature_columns(qdd: Any) -> Any:
+    r"""``(n, N, n)`` torch tensor: the torque of every joint for a unit armature (rotor
+    inertia reflected through the gear, :math:`J_a = J_{m,a} K_{r,a}^2`) on each joint,
+    :math:`\tau_a = J_a \ddot q_a` on that joint alone (the thesis's reduced model of a
+    geared motor, and MuJoCo's ``armature``). A rotor turning with joint ``a`` on the
+    previous body is not one of the chain's bodies: its kinetic energy
+    :math:`\tfrac12 J_a \dot q_a^2` adds a constant to :math:`M_{aa}` only, which no body
+    of the chain beyond joint 1 gives (a body's inertia about joint ``a``'s axis also loads
+    every joint before ``a``)."""
+    import torch
+
+    n = qdd.shape[1]
+    out = torch.zeros(n, qdd.shape[0], n, dtype=qdd.dtype)
+    idx = torch.arange(n)
+    out[idx, :, idx] = qdd.T
+    return out
+
+
 CHAIN_RESTARTS = 12
 """Most random starts of :class:`ChainEstimator`'s kinematics search."""
 CHAIN_SEARCH_ROWS = 600
 """Rows (evenly spaced) on which :class:`ChainEstimator` searches the kinematics."""
 CHAIN_ITERATIONS = 400
 """Most L-BFGS iterations of one start of the kinematics search."""
-CHAIN_EXACT = 1e-12
+CHAIN_REFINE_ROWS = 4000
+"""Rows (evenly spaced) on which :class:`ChainEstimator` refines the best start's
+kinematics: the search's rows leave the kinematics off by their noise (estimated ``qdd``)."""
+CHAIN_REFINE_ITERATIONS = 100
+"""Most L-BFGS iterations of the refinement."""
+CHAIN_SEARCH_TOLERANCE = 1e-10
+"""A start of the search stops once an L-BFGS step changes its relative loss by less than
+this: on noisy torques the loss levels off at the noise's share (about 1e-2), where further
+steps only move the kinematics within their noise (the refinement polishes the best start
+to ``1e-14``)."""
+CHAIN_EXACT = 1e-9
 """Relative loss of an exact fit: the search stops early once two starts reach it (noise-free
 torques); otherwise every start runs (a local minimum is often found twice, so agreement
 between starts does not show the global one)."""
@@ -452,10 +484,13 @@ between starts does not show the global one)."""
 
 class ChainEstimator(LagrangianEstimator):
     """Bayesian linear regression of all joints' torques over the inertial parameters of a
-    serial chain whose kinematics are fitted too (:func:`chain_columns`): ``10 n``
-    parameters and ``4 n + 2`` kinematic numbers, against the Lagrangian's monomials
-    (:func:`lagrangian_parameters`: 9,947 for 6 and 49,374 for 7 revolute joints) that
-    span the same torques linearly.
+    serial chain whose kinematics are fitted too (:func:`chain_columns`) and each joint's
+    armature (:func:`armature_columns`): ``11 n`` parameters and ``4 n + 2`` kinematic
+    numbers, against the Lagrangian's monomials (:func:`lagrangian_parameters`: 9,947 for 6
+    and 49,374 for 7 revolute joints) that span the same torques linearly (a constant in
+    :math:`M_{aa}` is one of them). Without the armatures a geared arm's reflected rotor
+    inertia (the Panda table's 0.1 kg m^2 on every joint, ten times its wrist links')
+    is no torque of the chain: the wrist stays at many times the noise floor.
 
     The torque is linear in the inertial parameters ``pi`` for fixed kinematics ``kappa``
     (DH numbers and the gravity direction), so the kinematics are searched by variable
@@ -464,7 +499,9 @@ class ChainEstimator(LagrangianEstimator):
     :math:`\\min_\\pi \\lVert y - C(\\kappa)\\pi \\rVert^2` (``pi`` by ridge least squares
     inside, differentiated through) from :data:`CHAIN_RESTARTS` random starts (fewer when two
     fit exactly, :data:`CHAIN_EXACT`), keeping the best: the problem is not convex, and
-    on random 7-joint arms a start reaches the exact minimum about one time in four. Then
+    on random 7-joint arms a start reaches the exact minimum about one time in four. The
+    best start is then refined by L-BFGS on :data:`CHAIN_REFINE_ROWS` rows, where the
+    estimated accelerations' noise moves the minimum less. Then
     the parameters are fitted on every row as :class:`LagrangianEstimator` does (row
     weights, prior scale, noise); :meth:`refit_targets` keeps the kinematics.
 
@@ -480,11 +517,17 @@ class ChainEstimator(LagrangianEstimator):
         per_joint: one parameter vector per joint (above).
         restarts: most random starts.
         search_rows: rows of the kinematics search.
+        refine_rows: rows of the refinement of the best start (none when not more than
+            ``search_rows``).
         seed: seed of the random starts.
+        kinematics, gravity: known DH rows ``(n, 4)`` ``(alpha_i, a_i, theta0_i, d0_i)`` and
+            gravity direction ``(b, c)`` (:func:`chain_columns`): no search, only the
+            inertial parameters are fitted (a robot whose kinematics are known but not its
+            inertias; both or neither).
 
     Fitted attributes (besides :class:`LagrangianEstimator`'s): ``kinematics_`` ``(n, 4)``,
-    ``gravity_`` ``(2,)``, ``search_loss_`` (the best relative loss), ``starts_`` (starts
-    used).
+    ``gravity_`` ``(2,)``, ``search_loss_`` (the best relative loss), ``refine_loss_`` (the
+    refinement's; NaN without one), ``starts_`` (starts used).
     """
 
     name = "GIP-chain"
@@ -498,10 +541,25 @@ class ChainEstimator(LagrangianEstimator):
         per_joint: bool = False,
         restarts: int = CHAIN_RESTARTS,
         search_rows: int = CHAIN_SEARCH_ROWS,
+        refine_rows: int = CHAIN_REFINE_ROWS,
         seed: int = 0,
+        kinematics: Any = None,
+        gravity: Any = None,
     ) -> None:
         self.joint_types = check_joint_types(joint_types)
         InverseDynamicsEstimator.__init__(self, len(self.joint_types))
+        n = len(self.joint_types)
+        if (kinematics is None) != (gravity is None):
+            raise ValueError("give both kinematics and gravity, or neither")
+        self.known = None
+        if kinematics is not None:
+            kin = np.asarray(kinematics, dtype=np.float64)
+            grav = np.asarray(gravity, dtype=np.float64)
+            if kin.shape != (n, 4) or grav.shape != (2,):
+                raise ValueError(
+                    f"kinematics must be ({n}, 4) and gravity (2,); got {kin.shape}, {grav.shape}"
+                )
+            self.known = (kin, grav)
         if chunk < 1 or restarts < 1 or search_rows < 2:
             raise ValueError(
                 "need chunk >= 1, restarts >= 1 and search_rows >= 2; got "
@@ -510,7 +568,17 @@ class ChainEstimator(LagrangianEstimator):
         self.chunk, self.noise_min = int(chunk), float(noise_min)
         self.output_scales, self.per_joint = False, bool(per_joint)
         self.restarts, self.search_rows, self.seed = int(restarts), int(search_rows), int(seed)
-        self.n_features_ = CHAIN_PARAMETERS * len(self.joint_types)
+        self.refine_rows = int(refine_rows)
+        self.refine_loss_ = math.nan
+        self.n_features_ = (CHAIN_PARAMETERS + 1) * len(self.joint_types)
+
+    def _columns(self, kinematics: Any, gravity: Any, q: Any, qd: Any, qdd: Any) -> Any:
+        """``(n, N, 11 n)``: the bodies' inertial parameters (:func:`chain_columns`) and the
+        joints' armatures (:func:`armature_columns`)."""
+        import torch
+
+        body = chain_columns(kinematics, gravity, self.joint_types, q, qd, qdd)
+        return torch.cat([body, armature_columns(qdd)], 2)
 
     def _chunks(self, states: JointStates) -> list[tuple[int, FloatArray]]:
         import torch
@@ -523,15 +591,17 @@ class ChainEstimator(LagrangianEstimator):
                     torch.as_tensor(np.ascontiguousarray(x[a : a + self.chunk]))
                     for x in (states.q, states.qd, states.qdd)
                 )
-                out.append((a, chain_columns(kin, grav, self.joint_types, *parts).numpy()))
+                out.append((a, self._columns(kin, grav, *parts).numpy()))
         return out
 
-    def _search(self, states: JointStates, y: FloatArray) -> None:
-        """The kinematics by variable projection from random starts (class docstring)."""
+    def _projection_loss(self, states: JointStates, y: FloatArray, count: int) -> Any:
+        """The variable-projection loss of the kinematics on ``count`` evenly spaced rows
+        (class docstring): each joint's torques over their root mean square, the inertial
+        parameters by ridge least squares inside, differentiated through."""
         import torch
 
         N, n = states.q.shape[0], len(self.joint_types)
-        rows = np.unique(np.round(np.linspace(0, N - 1, min(self.search_rows, N))).astype(int))
+        rows = np.unique(np.round(np.linspace(0, N - 1, min(count, N))).astype(int))
         q, qd, qdd = (torch.as_tensor(x[rows]) for x in (states.q, states.qd, states.qdd))
         scale = np.sqrt(np.maximum(np.mean(y[rows] ** 2, axis=0), 1e-300))
         target = torch.as_tensor((y[rows] / scale).T.reshape(-1))
@@ -539,7 +609,7 @@ class ChainEstimator(LagrangianEstimator):
         ridge = 1e-8 * target.numel() * torch.eye(self.n_features_, dtype=torch.float64)
 
         def loss(x: Any) -> Any:
-            C = chain_columns(x[: 4 * n].view(n, 4), x[4 * n :], self.joint_types, q, qd, qdd)
+            C = self._columns(x[: 4 * n].view(n, 4), x[4 * n :], q, qd, qdd)
             if self.per_joint:  # each joint its own parameters: free of its units
                 A = C * weight
                 A = A / A.detach().pow(2).mean(1, keepdim=True).sqrt().clamp_min(1e-12)
@@ -552,6 +622,42 @@ class ChainEstimator(LagrangianEstimator):
             pi = torch.linalg.solve(A.T @ A + ridge, A.T @ target)
             return (target - A @ pi).pow(2).mean()
 
+        return loss
+
+    @staticmethod
+    def _descend(loss: Any, x0: Any, iterations: int, tolerance: float) -> tuple[float, Any]:
+        """L-BFGS (strong Wolfe line search) on ``loss`` from ``x0`` until a step changes the
+        loss by less than ``tolerance``: the final loss and point."""
+        import torch
+
+        x = x0.detach().clone().requires_grad_(True)
+        opt = torch.optim.LBFGS(
+            [x],
+            max_iter=iterations,
+            history_size=50,
+            line_search_fn="strong_wolfe",
+            tolerance_grad=1e-12,
+            tolerance_change=tolerance,
+        )
+
+        def closure() -> Any:
+            opt.zero_grad()
+            value = loss(x)
+            value.backward()
+            return value
+
+        opt.step(closure)
+        with torch.no_grad():
+            return float(loss(x)), x.detach().clone()
+
+    def _search(self, states: JointStates, y: FloatArray) -> None:
+        """The kinematics by variable projection from random starts on
+        :data:`CHAIN_SEARCH_ROWS` rows, the best refined on :data:`CHAIN_REFINE_ROWS` (class
+        docstring)."""
+        import torch
+
+        n = len(self.joint_types)
+        loss = self._projection_loss(states, y, self.search_rows)
         gen = torch.Generator().manual_seed(self.seed)
         found: list[tuple[float, Any]] = []
         for _ in range(self.restarts):
@@ -562,39 +668,31 @@ class ChainEstimator(LagrangianEstimator):
             g0 = torch.rand(2, generator=gen, dtype=torch.float64) * torch.tensor(
                 [math.pi, 2 * math.pi]
             )
-            x = torch.cat([x0.reshape(-1), g0]).requires_grad_(True)
-            opt = torch.optim.LBFGS(
-                [x],
-                max_iter=CHAIN_ITERATIONS,
-                history_size=50,
-                line_search_fn="strong_wolfe",
-                tolerance_grad=1e-12,
-                tolerance_change=1e-14,
-            )
-
-            def closure(x: Any = x, opt: Any = opt) -> Any:
-                opt.zero_grad()
-                value = loss(x)
-                value.backward()
-                return value
-
-            opt.step(closure)
-            with torch.no_grad():
-                value = float(loss(x))
+            x0 = torch.cat([x0.reshape(-1), g0])
+            value, x = self._descend(loss, x0, CHAIN_ITERATIONS, CHAIN_SEARCH_TOLERANCE)
             if math.isfinite(value):
-                found.append((value, x.detach().clone()))
+                found.append((value, x))
             best = min(v for v, _ in found) if found else math.inf
             if best < CHAIN_EXACT and sum(v < CHAIN_EXACT for v, _ in found) >= 2:
                 break  # two exact fits (noise-free torques): nothing left to find
         if not found:
             raise ValueError("the kinematics search diverged from every start; check the data")
         value, x = min(found, key=lambda t: t[0])
+        self.search_loss_, self.starts_ = value, len(found)
+        if self.refine_rows > self.search_rows and states.q.shape[0] > self.search_rows:
+            refine = self._projection_loss(states, y, self.refine_rows)
+            fine, x_fine = self._descend(refine, x, CHAIN_REFINE_ITERATIONS, 1e-14)
+            if math.isfinite(fine):
+                x, self.refine_loss_ = x_fine, fine
         self.kinematics_ = x[: 4 * n].view(n, 4).numpy().copy()
         self.gravity_ = x[4 * n :].numpy().copy()
-        self.search_loss_, self.starts_ = value, len(found)
 
     def _fit(self, states: JointStates, y: FloatArray) -> None:
-        self._search(states, y)
+        if self.known is None:
+            self._search(states, y)
+        else:
+            self.kinematics_, self.gravity_ = (x.copy() for x in self.known)
+            self.search_loss_, self.starts_ = math.nan, 0
         super()._fit(states, y)
 
     def _solve(self, b: FloatArray, yy: FloatArray) -> None:

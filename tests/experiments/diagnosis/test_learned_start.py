@@ -36,3 +36,5 @@ def test_markdown_lists_every_variant() -> None:
         "| 3 | RRR | 4 | 32768 | 2000 | gip | 600 | - | 1.50 1.10 2.00 | 2.00 | 10 | 12 |" in text
     )
     assert "| chain | 2000 | 30 | 1.00 1.05 1.10 | 1.10 | 30 | 31 |" in text
+    assert "Development seeds [3]" in text
+    assert "Report seeds [1003]" in markdown({"command": "x", "cpus": 2}, [{**rec, "seed": 1003}])
