@@ -963,7 +963,8 @@ class Diagnosis:
                 f"{100 * self.min_explained:g}% of a joint's noise-floor variance"
             )
             failing = [] if check is None else check.failing
-            still = [j for j in failing if j in self.still_joints(check)]
+            held = set(self.still_joints(check))
+            still = [j for j in failing if j in held]
             if self.misfits:
                 text = f"{self.model_name}: unexplained: " + "; ".join(
                     m.text() for m in self.misfits
@@ -1052,7 +1053,8 @@ class Diagnosis:
                 text += "; it explains part of the residual: with it, " + self.after.failing_text(
                     " remains unexplained"
                 )
-                still = [j for j in self.after.failing if j in self.still_joints(self.after)]
+                held = set(self.still_joints(self.after))
+                still = [j for j in self.after.failing if j in held]
                 if still:
                     text += f"; {self._still_text(still, self.after)}"
             else:
