@@ -543,7 +543,7 @@ class GIPStart(LearnedStart):
         The same torques (every rigid-body torque of a serial chain of these joint types)
         with the chain's kinematics fitted too: ``10 n`` inertial parameters by Bayesian
         linear regression on every row with an armature per joint, the DH numbers and the
-        gravity direction by a search from random starts
+        gravity direction by a search from a grid of right-angle twists and random starts
         (:class:`~mcpilco.models.inverse_dynamics.ChainEstimator`). Not convex, but
         ``77`` parameters for 7 joints instead of 49,374: the default (``"auto"``) where
         the Lagrangian is too large. Used as ``span="rigid"`` is (torque = prior mean, no
