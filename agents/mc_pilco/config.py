@@ -101,6 +101,12 @@ class MCPilcoConfig:
             (:mod:`~mcpilco.agents.mc_pilco.horizon`; only for a goal held over a success
             window).
         num_particles: ``M``.
+        window_objective: where the task's success keeps the state in a goal for a final
+            window of ``W`` steps (:func:`~mcpilco.agents.mc_pilco.horizon.success_window`),
+            optimise ``J^_W``, the summed cost with each particle's window cost replaced by
+            ``W`` times its worst step's (:mod:`~mcpilco.agents.mc_pilco.loss` glossary), so
+            that a swing-up must be in the goal a window before the horizon's end; false:
+            the plain sum (5.8). No effect on a task without a success window.
         kernel: ``"rbf+mpk"``, ``"rbf"`` or ``"rigid_body"`` (an arm task's structured
             kernel on ``[q, qd, tau, w]``; :mod:`.dynamics`). The chained rollouts (native,
             torch) have no backward for the rigid-body posterior: with it,
@@ -194,6 +200,7 @@ class MCPilcoConfig:
     horizon: int | None = None
     grow_horizon: bool = True
     num_particles: int = 400
+    window_objective: bool = True
     kernel: str = "rbf+mpk"
     max_points: int | None = 300
     gp_adam_iters: int = 200
@@ -244,6 +251,10 @@ class MCPilcoConfig:
         if self.explore_limits not in EXPLORE_LIMITS:
             raise ValueError(
                 f"explore_limits must be one of {EXPLORE_LIMITS}, got {self.explore_limits!r}"
+            )
+        if not isinstance(self.window_objective, bool):
+            raise ValueError(
+                f"window_objective must be true or false, got {self.window_objective!r}"
             )
         if not isinstance(self.grow_horizon, bool):
             raise ValueError(f"grow_horizon must be true or false, got {self.grow_horizon!r}")

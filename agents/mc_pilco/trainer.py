@@ -6,7 +6,8 @@ Algorithm 1, one method each::
     explore()                       trial 0: random actions u ~ U(low, high) for H steps
     for trial k = 1 .. num_trials:
         fit_model()                 GP dynamics on all transitions D (marginal likelihood)
-        improve_policy()            minimise the particle estimate J^ (5.8), monitoring rule
+        improve_policy()            minimise the particle estimate J^ (5.8; J^_W with a
+                                    success window), monitoring rule
         apply_policy()              run the policy on the system for H steps, D += its data
         evaluate_policy()           E evaluation episodes (eval_episodes; not in D), from
                                     the task's eval_init, of the env's own episode length
@@ -86,7 +87,14 @@ from mcpilco.agents.mc_pilco.dynamics import GPDynamicsModel
 from mcpilco.agents.mc_pilco.fast import cpp_compiler, cpp_compiler_names, use_fast_rollout
 from mcpilco.agents.mc_pilco.features import StateLayout
 from mcpilco.agents.mc_pilco.filters import CollisionFilter, contact_steps
-from mcpilco.agents.mc_pilco.horizon import goal_fraction, grows, next_horizon, scaled_opt_steps
+from mcpilco.agents.mc_pilco.horizon import (
+    goal_fraction,
+    grows,
+    next_horizon,
+    predicted_success,
+    scaled_opt_steps,
+    success_window,
+)
 from mcpilco.agents.mc_pilco.loss import MCPilcoLoss, TerminationSet
 from mcpilco.agents.mc_pilco.optimize import choose_policy, optimize_policy
 from mcpilco.agents.mc_pilco.policy import (
@@ -429,12 +437,17 @@ class Trainer:
         with torch.no_grad():
             n_log = min(config.log_particles, config.num_particles)
             arr["particles"] = predict.rollout(num_particles=n_log).states.cpu().numpy()
-            if grows(self.task):  # the particles the next horizon is judged on
-                arr["plan_particles"] = (
+            judged = None  # the particles the success and the next horizon are judged on
+            if grows(self.task) or success_window(self.task) is not None:
+                judged = (
                     arr["particles"]
                     if n_log >= PLAN_PARTICLES
                     else predict.rollout(num_particles=PLAN_PARTICLES).states.cpu().numpy()
                 )
+            if grows(self.task):
+                arr["plan_particles"] = judged
+        if success_window(self.task) is not None:
+            rec.predicted_success = predicted_success(judged, self.task)
 
     def apply_policy(self, k: int, rec: TrialRecord, arr: dict[str, Any]) -> list[dict[str, Any]]:
         """Apply the chosen policy (no dropout) to the system for ``H`` steps (episodes of
@@ -665,6 +678,7 @@ class Trainer:
             init_std=self.init_std,
             obs_noise_std=config.sim_obs_noise_std,
             termination=TerminationSet.from_task(task),
+            success_window=success_window(task) if config.window_objective else None,
         ).to(self.device)  # with the policy module and the dynamics in it
 
     def _progress_bar(self, total: int, desc: str | None = None):
