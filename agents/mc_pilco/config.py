@@ -542,6 +542,14 @@ def budget_report(config: MCPilcoConfig) -> str:
         "max_points": (config.max_points, budget.max_points),
     }
     line = budget_line(task, budget, {k: v for k, (v, d) in used.items() if v != d})
+    from mcpilco.agents.mc_pilco.horizon import success_window
+
+    window = success_window(task) if config.window_objective else None
+    if window is not None:
+        line += (
+            f"; objective J^_W: each particle's last {window} steps (the success window) "
+            "charged at their worst step's cost"
+        )
     every = snapshot_interval(config.opt)
     if every:
         line += (
