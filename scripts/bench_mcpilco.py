@@ -138,6 +138,11 @@ def build_parser() -> argparse.ArgumentParser:
         "backend and torch.compile",
     )  # fmt: skip
     p.add_argument(
+        "--window-objective", choices=("on", "off"), default=None,
+        help="runs: optimise J^_W over the task's success window (on) or the plain summed "
+        "cost (off); default: the config's (window_objective)",
+    )  # fmt: skip
+    p.add_argument(
         "--explore-hold", type=int,
         help="steps each random exploration action is held (override; default: the env's, 2 "
         "on mcpilco/CartpoleSwingUp-v0, 1 = i.i.d. per step on mcpilco/DMCCartpoleSwingUp-v0; "
@@ -237,6 +242,9 @@ def main(argv: list[str] | None = None) -> int:
             mpk_degree=args.mpk_degree,
             rollout_dtype=args.rollout_dtype,
             compile_rollout=args.compile_rollout,
+            window_objective=None
+            if args.window_objective is None
+            else args.window_objective == "on",
             explore_hold=args.explore_hold,
             candidate_weight_scales=args.candidate_scales,
             device=args.device,
