@@ -18,23 +18,16 @@ Glossary (thesis sections 5.4.1-5.4.2; Amadio et al. 2022, sec. III)
     through the whole horizon (5.4.2).
 ``J^_W`` (success window)
     with ``success_window = W`` (a task whose success keeps the state in a goal for the last
-    ``W`` steps, :func:`~mcpilco.agents.mc_pilco.horizon.success_window`), each particle's
-    cost over the window is its worst step's, ``W`` times, through a soft maximum:
-    ``J^_W = 1/M sum_m [sum_{t=1}^{H-W} c(x_t^(m)) + W smax_tau(c(x_t^(m)), H-W < t <= H)]``
-    with ``smax_tau(c) = tau log(1/W sum_t exp(c_t / tau))`` (:data:`WINDOW_TEMPERATURE`),
-    which lies between the window's mean and its maximum, within ``tau log W`` of the
-    latter, and equals ``c`` for a constant cost. ``J^_W >= J^``, with equality for a
-    particle whose cost is constant over the window (held in the goal). The plain sum ranks
-    a trajectory that reaches the goal after ``H - W`` (and so fails the window) with one
-    that reaches it earlier and costs the same in sum; the soft maximum charges the late
-    one about the cost of its window's first steps, ``W`` times, and its gradient acts on
-    the steps that break the window. The soft maximum (not the maximum) keeps the
-    gradient continuous where window costs tie (a pole still hanging: every step costs
-    about 1), so rollouts that agree in ``J^`` agree in its gradient. A successful
-    trajectory whose cost in the goal is at most ``c_G`` keeps
-    ``J^_W <= (H - W) c_0 + W c_G`` (the plateau restarts' success level is unchanged).
-    A rollout shorter than ``W`` steps takes all its steps as the window. ``W = None``:
-    the plain sum (5.8).
+    ``W`` steps, :func:`~mcpilco.agents.mc_pilco.horizon.success_window`), the steps of the
+    window count twice:
+    ``J^_W = sum_{t=1}^{H} 1/M sum_m c(x_t^(m)) + sum_{t=H-W+1}^{H} 1/M sum_m c(x_t^(m))``.
+    The plain sum ranks a trajectory that reaches the goal after ``H - W`` (and so fails the
+    window) with one that reaches it earlier and costs the same in sum; the second count
+    charges the late one its costly arrival inside the window once more. A successful
+    trajectory whose cost in the goal is at most ``c_G`` has ``J^_W <= J^ + W c_G`` (the
+    plateau restarts' success level adds that term,
+    :func:`~mcpilco.agents.mc_pilco.trainer.success_cost_level`). A rollout shorter than
+    ``W`` steps counts all its steps twice. ``W = None``: the plain sum (5.8).
 ``s_J``
     standard deviation over particles of the per-particle cumulative cost
     ``sum_t c(x_t^(m))`` (of ``J^_W``'s per-particle term with a success window; reported
@@ -104,11 +97,6 @@ class RolloutEngine(Protocol):
 
     def costs(self, x: Tensor, noise: Tensor, nu: Tensor | None) -> Tensor: ...
 
-
-WINDOW_TEMPERATURE = 0.05
-"""``tau`` of the window's soft maximum in ``J^_W`` (cost units; the saturating cost lies in
-``[0, 1]``): within ``tau log W`` of the maximum (0.15 for ``W = 20``), smooth where step
-costs tie."""
 
 TERMINATION_COST = 1.0
 """``c_max``: the cost of each step a particle spends in the absorbing set (the saturating
@@ -482,15 +470,12 @@ class MCPilcoLoss(LossModule):
 
     def particle_costs(self, costs: Tensor) -> Tensor:
         """Per particle, the term of ``J^`` from its step costs ``(..., T)``: ``sum_t c_t``,
-        or with a success window ``W`` (at most ``T``)
-        ``sum_{t <= T-W} c_t + W smax_tau(c_{T-W+1..T})`` (module glossary, ``J^_W``)."""
+        and with a success window ``W`` (at most ``T``) also ``sum_{t > T-W} c_t`` (module
+        glossary, ``J^_W``)."""
+        total = costs.sum(dim=-1)
         if self.success_window is None:
-            return costs.sum(dim=-1)
-        w = min(self.success_window, costs.shape[-1])
-        head, window = costs[..., : costs.shape[-1] - w], costs[..., -w:]
-        tau = WINDOW_TEMPERATURE
-        smax = tau * (torch.logsumexp(window / tau, dim=-1) - math.log(w))
-        return head.sum(dim=-1) + w * smax
+            return total
+        return total + costs[..., -min(self.success_window, costs.shape[-1]) :].sum(dim=-1)
 
     def forward(self, tensordict: TensorDictBase | None = None) -> TensorDict:
         keys = self.tensor_keys

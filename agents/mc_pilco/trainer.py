@@ -241,7 +241,9 @@ class Trainer:
             if self.resume:
                 self._load_checkpoint()
             self.cost_fn = optimised_cost(self.config, self.task)
-            self.success_level = success_cost_level(self.task, self.cost_fn)
+            self.success_level = success_cost_level(
+                self.task, self.cost_fn, self.config.window_objective
+            )
             self.init_std = initial_std(self.config, self.task, self.layout)
         except BaseException:
             for env in (self.env, self.eval_env):
@@ -523,7 +525,9 @@ class Trainer:
         self.task = self.task.replace(horizon=int(horizon))
         self.horizon = self.task.horizon
         if hasattr(self, "cost_fn"):  # J_succ of the new horizon (set_up computes it on resume)
-            self.success_level = success_cost_level(self.task, self.cost_fn)
+            self.success_level = success_cost_level(
+                self.task, self.cost_fn, self.config.window_objective
+            )
         self.env.close()
         self.env = make_env(config.env_id, self.horizon, self.task, config.env_kwargs)
 
@@ -879,7 +883,7 @@ MAX_GOAL_CORNERS = 4096  # corners of a goal box evaluated by success_cost_level
 
 @torch.no_grad()
 def success_cost_level(
-    task: TaskSpec, cost: Callable[[torch.Tensor], torch.Tensor]
+    task: TaskSpec, cost: Callable[[torch.Tensor], torch.Tensor], window_objective: bool = False
 ) -> float | None:
     """``J_succ``: the largest cumulative cost ``cost`` gives a trajectory that succeeds on
     ``task`` and is never costlier than its start before it reaches the goal (the level of
@@ -894,6 +898,10 @@ def success_cost_level(
     targets) and ``c_0 = c(x_0)``::
 
         J_succ = (H - W) max(c_0, c_G) + W c_G
+
+    With ``window_objective`` (the objective ``J^_W`` counts a final success window twice,
+    :mod:`~mcpilco.agents.mc_pilco.loss`) and a task that has such a window
+    (:func:`~mcpilco.agents.mc_pilco.horizon.success_window`), ``W c_G`` more.
 
     A plateau above it is a trajectory that stays costlier than its start for the whole
     approach or misses the goal at the end. None where the task's success set is no box
@@ -914,7 +922,8 @@ def success_cost_level(
     c_start = float(cost(x0[None])[0])
     h = task.horizon
     w = h if s.full_horizon or s.window is None else min(int(s.window), h)
-    return (h - w) * max(c_start, c_goal) + w * c_goal
+    again = w * c_goal if window_objective and success_window(task) is not None else 0.0
+    return (h - w) * max(c_start, c_goal) + w * c_goal + again
 
 
 def check_compile_toolchain(device: torch.device, backend: str = "auto") -> None:
