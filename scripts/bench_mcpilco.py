@@ -19,16 +19,14 @@ Parts, each optional (``tracking`` and ``tracking_kernels`` only when named):
    reported: the RMSE of theta between particles and the real trajectory per time step
    and averaged over the 60 steps, over ``--rmse-seeds`` exploration seeds.
 4. ``rmse_runs``: the same comparison on the data of finished runs (``--rmse-runs``, default
-   every run under ``--runs-dir`` whose last trial swung up): both GPs fitted on the run's
-   data before its last trial, particles under the last trial's policy from that trial's real
-   initial state, against its real trajectory. Grouped by the kernel each run learned with
-   and its env.
-5. ``tracking``: for a tracking task (``--env mcpilco/UR10-v0``), the tracking RMS per joint
-   after each policy trial against the env's controller alone; ``tracking_kernels``: on the
-   tracking runs under ``--rmse-runs``, each GP kernel of ``--kernels`` refitted on a run's
-   data before its last trial (``--fit-trials K``: its first K trials'), the RMSE per joint
-   of its particles against that trial (:mod:`mcpilco.experiments.mcpilco.tracking`); both
-   write ``results/mcpilco_tracking.*``.
+   every run under ``--runs-dir`` whose last trial swung up): both GPs fitted on the run's data
+   before its last trial, particles under the last trial's policy from that trial's real initial
+   state, against its real trajectory. Grouped by the kernel each run learned with and its env.
+5. ``tracking``: for a tracking task (``--env mcpilco/UR10-v0``), the tracking RMS per joint after
+   each policy trial against the env's controller alone; ``tracking_kernels``: on the tracking runs
+   under ``--rmse-runs``, each GP kernel of ``--kernels`` refitted on a run's data before its last
+   trial (``--fit-trials K``: its first K trials'), the RMSE per joint of its particles against that
+   trial (:mod:`mcpilco.experiments.mcpilco.tracking`); both write ``results/mcpilco_tracking.*``.
 
 Writes ``results/mcpilco_cartpole.json`` (merged with an existing file, one section per
 env), ``results/mcpilco_cartpole.md`` and ``results/mcpilco_cartpole.png``. ``--pool`` merges
@@ -137,6 +135,7 @@ def build_parser() -> argparse.ArgumentParser:
         "timing part then also times every setting with the default backend, the torch "
         "backend and torch.compile",
     )  # fmt: skip
+    p.add_argument("--window-objective", choices=("on", "off"), help="J^_W or J^")  # fmt: skip
     p.add_argument(
         "--explore-hold", type=int,
         help="steps each random exploration action is held (override; default: the env's, 2 "
@@ -237,6 +236,7 @@ def main(argv: list[str] | None = None) -> int:
             mpk_degree=args.mpk_degree,
             rollout_dtype=args.rollout_dtype,
             compile_rollout=args.compile_rollout,
+            window_objective={"on": True, "off": False}.get(args.window_objective),
             explore_hold=args.explore_hold,
             candidate_weight_scales=args.candidate_scales,
             device=args.device,

@@ -87,6 +87,10 @@ class TrialRecord:
             (steps), the fraction of the applied policy's predicted particles that reach the
             goal a success window before its end, and the horizon of the next trial
             (:mod:`~mcpilco.agents.mc_pilco.horizon`).
+        predicted_success: the fraction of the applied policy's predicted particles that
+            stay in the goal over the task's final success window (the model's success
+            rate, :func:`~mcpilco.agents.mc_pilco.horizon.predicted_success`; None: the task
+            has no success window).
         extra: keys of a record this version does not know, kept as read.
     """
 
@@ -144,6 +148,7 @@ class TrialRecord:
     horizon: int | None = None
     goal_fraction: float | None = None
     next_horizon: int | None = None
+    predicted_success: float | None = None
     extra: dict[str, Any] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
@@ -249,6 +254,8 @@ def record_line(r: TrialRecord) -> str:
             f"x {r.s_per_opt_step:.3f} s (CPU {r.cpu_s_per_opt_step:.3f} s), "
             f"J^ {r.opt_final_cost:.2f})"
         )
+        if r.predicted_success is not None:
+            line += f"; predicted success {100 * r.predicted_success:.0f} % of the particles"
         if r.goal_fraction is not None:
             line += (
                 f"; horizon {r.horizon}: {100 * r.goal_fraction:.0f} % of the particles reach "

@@ -101,6 +101,12 @@ class MCPilcoConfig:
             (:mod:`~mcpilco.agents.mc_pilco.horizon`; only for a goal held over a success
             window).
         num_particles: ``M``.
+        window_objective: where the task's success keeps the state in a goal for a final
+            window of ``W`` steps (:func:`~mcpilco.agents.mc_pilco.horizon.success_window`),
+            optimise ``J^_W``, the summed cost with the window's steps counted twice
+            (:mod:`~mcpilco.agents.mc_pilco.loss` glossary), which asks a swing-up to be in
+            the goal before the window starts; false (default): the plain sum (5.8). No
+            effect on a task without a success window.
         kernel: ``"rbf+mpk"``, ``"rbf"`` or ``"rigid_body"`` (an arm task's structured
             kernel on ``[q, qd, tau, w]``; :mod:`.dynamics`). The chained rollouts (native,
             torch) have no backward for the rigid-body posterior: with it,
@@ -194,6 +200,7 @@ class MCPilcoConfig:
     horizon: int | None = None
     grow_horizon: bool = True
     num_particles: int = 400
+    window_objective: bool = False
     kernel: str = "rbf+mpk"
     max_points: int | None = 300
     gp_adam_iters: int = 200
@@ -244,6 +251,10 @@ class MCPilcoConfig:
         if self.explore_limits not in EXPLORE_LIMITS:
             raise ValueError(
                 f"explore_limits must be one of {EXPLORE_LIMITS}, got {self.explore_limits!r}"
+            )
+        if not isinstance(self.window_objective, bool):
+            raise ValueError(
+                f"window_objective must be true or false, got {self.window_objective!r}"
             )
         if not isinstance(self.grow_horizon, bool):
             raise ValueError(f"grow_horizon must be true or false, got {self.grow_horizon!r}")
@@ -531,6 +542,11 @@ def budget_report(config: MCPilcoConfig) -> str:
         "max_points": (config.max_points, budget.max_points),
     }
     line = budget_line(task, budget, {k: v for k, (v, d) in used.items() if v != d})
+    from mcpilco.agents.mc_pilco.horizon import success_window
+
+    window = success_window(task) if config.window_objective else None
+    if window is not None:
+        line += f"; objective J^_W: the last {window} steps (the success window) counted twice"
     every = snapshot_interval(config.opt)
     if every:
         line += (

@@ -36,6 +36,16 @@ A longer horizon makes every optimisation step longer (``t_step`` is linear in `
 :mod:`.budget`): the optimisation steps of a trial are scaled by ``H_0 / H_k``
 (:func:`scaled_opt_steps`), so that a trial's optimisation takes the seconds the derived
 budget gave it at ``H_0``.
+
+Success window in the objective
+-------------------------------
+The same goal held over the last ``W`` steps (:func:`success_window`) shapes the objective:
+the summed cost of (5.8) does not ask a swing-up to be in the goal by ``H - W``: a
+trajectory that arrives at ``H - W/2`` can have the lowest sum and still fail.
+:class:`~mcpilco.agents.mc_pilco.loss.MCPilcoLoss` with ``success_window=W`` replaces the
+window's summed cost of each particle by ``W`` times its largest step cost (module glossary
+of :mod:`.loss`). The trainer records :func:`predicted_success`, the fraction of the applied
+policy's particles that the task's success test would pass.
 """
 
 from __future__ import annotations
@@ -57,6 +67,40 @@ def grows(task: TaskSpec) -> bool:
     return bool(
         s.bounds and s.window is not None and not s.full_horizon and s.info_key is None
     ) and not bool(s.tracking_rms)
+
+
+def success_window(task: TaskSpec) -> int | None:
+    """``W``: the steps at the end of the horizon over which the task's success keeps the
+    state within its goal bounds (success bounds with a window, no ``full_horizon``, no
+    tracking bound; an env success flag beside the bounds is the same test), at most the
+    horizon ``H``. None where success is no goal held over a final window (a balance task
+    judged over the whole episode, tracking, an env flag alone): there the objective is the
+    plain sum."""
+    s = task.success
+    if not s.bounds or s.window is None or s.full_horizon or s.tracking_rms:
+        return None
+    return min(int(s.window), int(task.horizon))
+
+
+def predicted_success(states: np.ndarray, task: TaskSpec) -> float:
+    """The fraction of particles ``(M, H + 1, n)`` (``x_0 .. x_H``) within the task's goal
+    bounds at each of their last ``W`` states ``x_{H-W+1} .. x_H`` (:func:`success_window`,
+    ``W`` at most ``H``): the model's estimate of the success rate.
+
+    Raises:
+        ValueError: ``states`` is not ``(M, T, n)`` with ``n`` the task's states, or the task
+            has no success window.
+    """
+    states = np.asarray(states, dtype=np.float64)
+    if states.ndim != 3 or states.shape[-1] != task.state_dim or states.shape[1] < 2:
+        raise ValueError(
+            f"states must be (particles, steps + 1, {task.state_dim}), got {states.shape}"
+        )
+    window = success_window(task)
+    if window is None:
+        raise ValueError(f"task {task.env_id} has no goal held over a success window")
+    w = min(window, states.shape[1] - 1)
+    return float(task.in_goal(states[:, -w:]).all(axis=1).mean())
 
 
 def goal_fraction(states: np.ndarray, task: TaskSpec) -> float:

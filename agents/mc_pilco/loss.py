@@ -16,9 +16,22 @@ Glossary (thesis sections 5.4.1-5.4.2; Amadio et al. 2022, sec. III)
     Monte Carlo estimate of the expected cumulative cost, eq. (5.8) (the ``t = 0`` term
     does not depend on ``theta`` and is left out). Its gradient is computed by backprop
     through the whole horizon (5.4.2).
+``J^_W`` (success window)
+    with ``success_window = W`` (a task whose success keeps the state in a goal for the last
+    ``W`` steps, :func:`~mcpilco.agents.mc_pilco.horizon.success_window`), the steps of the
+    window count twice:
+    ``J^_W = sum_{t=1}^{H} 1/M sum_m c(x_t^(m)) + sum_{t=H-W+1}^{H} 1/M sum_m c(x_t^(m))``.
+    The plain sum ranks a trajectory that reaches the goal after ``H - W`` (and so fails the
+    window) with one that reaches it earlier and costs the same in sum; the second count
+    charges the late one its costly arrival inside the window once more. A successful
+    trajectory whose cost in the goal is at most ``c_G`` has ``J^_W <= J^ + W c_G`` (the
+    plateau restarts' success level adds that term,
+    :func:`~mcpilco.agents.mc_pilco.trainer.success_cost_level`). A rollout shorter than
+    ``W`` steps counts all its steps twice. ``W = None``: the plain sum (5.8).
 ``s_J``
     standard deviation over particles of the per-particle cumulative cost
-    ``sum_t c(x_t^(m))`` (reported with the loss).
+    ``sum_t c(x_t^(m))`` (of ``J^_W``'s per-particle term with a success window; reported
+    with the loss).
 termination (an absorbing set)
     a task whose env ends an episode when the state leaves a set ``X_ok``
     (:class:`TerminationSet`, the task file's ``termination``) is rolled out with an alive
@@ -162,6 +175,8 @@ class MCPilcoLoss(LossModule):
             env ends an episode (:class:`TerminationSet`); a particle there is absorbed
             (module glossary). None: the env never ends an episode early.
         termination_cost: ``c_max``, the cost of each absorbed step.
+        success_window: ``W``, steps of the task's success window at the horizon's end: the
+            loss is ``J^_W`` (module glossary); None: the plain sum ``J^``.
 
     ``forward(td)`` reads optional entries ``initial_state`` (K M, n) and ``noise``
     (H, K M, delta_dim) (common random numbers, tests); otherwise it samples them. It returns
@@ -211,6 +226,7 @@ class MCPilcoLoss(LossModule):
         delta_dim: int | None = None,
         termination: nn.Module | None = None,
         termination_cost: float = TERMINATION_COST,
+        success_window: int | None = None,
     ) -> None:
         super().__init__()
         if int(horizon) != horizon or horizon < 1:
@@ -218,6 +234,13 @@ class MCPilcoLoss(LossModule):
         if int(num_particles) != num_particles or num_particles < 1:
             raise ValueError(
                 f"num_particles must be a positive integer, got {num_particles!r}; use e.g. 400"
+            )
+        if success_window is not None and (
+            int(success_window) != success_window or not 1 <= success_window <= horizon
+        ):
+            raise ValueError(
+                f"success_window must be an integer in 1..horizon ({horizon}) or None, got "
+                f"{success_window!r}"
             )
         if obs_noise_std < 0:
             raise ValueError(f"obs_noise_std must be >= 0, got {obs_noise_std}")
@@ -231,6 +254,7 @@ class MCPilcoLoss(LossModule):
         self.obs_noise_std = float(obs_noise_std)
         self.termination = termination
         self.termination_cost = float(termination_cost)
+        self.success_window = None if success_window is None else int(success_window)
         if delta_dim is None:
             layout = getattr(dynamics, "layout", None)
             if layout is None:
@@ -444,6 +468,15 @@ class MCPilcoLoss(LossModule):
         td.set(("next", "cost"), ro.costs[..., None])
         return td
 
+    def particle_costs(self, costs: Tensor) -> Tensor:
+        """Per particle, the term of ``J^`` from its step costs ``(..., T)``: ``sum_t c_t``,
+        and with a success window ``W`` (at most ``T``) also ``sum_{t > T-W} c_t`` (module
+        glossary, ``J^_W``)."""
+        total = costs.sum(dim=-1)
+        if self.success_window is None:
+            return total
+        return total + costs[..., -min(self.success_window, costs.shape[-1]) :].sum(dim=-1)
+
     def forward(self, tensordict: TensorDictBase | None = None) -> TensorDict:
         keys = self.tensor_keys
         self.check_part_keys()
@@ -458,7 +491,7 @@ class MCPilcoLoss(LossModule):
                 costs = engine.costs(x, noise, obs_noise).T  # (K M, H)
         else:
             costs = self.rollout(initial_state=init, noise=noise, keep_states=False).costs
-        per_particle = costs.sum(dim=1).view(self.num_candidates, -1)  # sum_t c, (K, M)
+        per_particle = self.particle_costs(costs).view(self.num_candidates, -1)  # (K, M)
         per_candidate = per_particle.mean(dim=1)  # J^_k
         with torch.no_grad():
             std = (

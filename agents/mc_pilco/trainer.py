@@ -6,7 +6,8 @@ Algorithm 1, one method each::
     explore()                       trial 0: random actions u ~ U(low, high) for H steps
     for trial k = 1 .. num_trials:
         fit_model()                 GP dynamics on all transitions D (marginal likelihood)
-        improve_policy()            minimise the particle estimate J^ (5.8), monitoring rule
+        improve_policy()            minimise the particle estimate J^ (5.8; J^_W with a
+                                    success window), monitoring rule
         apply_policy()              run the policy on the system for H steps, D += its data
         evaluate_policy()           E evaluation episodes (eval_episodes; not in D), from
                                     the task's eval_init, of the env's own episode length
@@ -86,7 +87,14 @@ from mcpilco.agents.mc_pilco.dynamics import GPDynamicsModel
 from mcpilco.agents.mc_pilco.fast import cpp_compiler, cpp_compiler_names, use_fast_rollout
 from mcpilco.agents.mc_pilco.features import StateLayout
 from mcpilco.agents.mc_pilco.filters import CollisionFilter, contact_steps
-from mcpilco.agents.mc_pilco.horizon import goal_fraction, grows, next_horizon, scaled_opt_steps
+from mcpilco.agents.mc_pilco.horizon import (
+    goal_fraction,
+    grows,
+    next_horizon,
+    predicted_success,
+    scaled_opt_steps,
+    success_window,
+)
 from mcpilco.agents.mc_pilco.loss import MCPilcoLoss, TerminationSet
 from mcpilco.agents.mc_pilco.optimize import choose_policy, optimize_policy
 from mcpilco.agents.mc_pilco.policy import (
@@ -233,7 +241,9 @@ class Trainer:
             if self.resume:
                 self._load_checkpoint()
             self.cost_fn = optimised_cost(self.config, self.task)
-            self.success_level = success_cost_level(self.task, self.cost_fn)
+            self.success_level = success_cost_level(
+                self.task, self.cost_fn, self.config.window_objective
+            )
             self.init_std = initial_std(self.config, self.task, self.layout)
         except BaseException:
             for env in (self.env, self.eval_env):
@@ -429,12 +439,17 @@ class Trainer:
         with torch.no_grad():
             n_log = min(config.log_particles, config.num_particles)
             arr["particles"] = predict.rollout(num_particles=n_log).states.cpu().numpy()
-            if grows(self.task):  # the particles the next horizon is judged on
-                arr["plan_particles"] = (
+            judged = None  # the particles the success and the next horizon are judged on
+            if grows(self.task) or success_window(self.task) is not None:
+                judged = (
                     arr["particles"]
                     if n_log >= PLAN_PARTICLES
                     else predict.rollout(num_particles=PLAN_PARTICLES).states.cpu().numpy()
                 )
+            if grows(self.task):
+                arr["plan_particles"] = judged
+        if success_window(self.task) is not None:
+            rec.predicted_success = predicted_success(judged, self.task)
 
     def apply_policy(self, k: int, rec: TrialRecord, arr: dict[str, Any]) -> list[dict[str, Any]]:
         """Apply the chosen policy (no dropout) to the system for ``H`` steps (episodes of
@@ -510,7 +525,9 @@ class Trainer:
         self.task = self.task.replace(horizon=int(horizon))
         self.horizon = self.task.horizon
         if hasattr(self, "cost_fn"):  # J_succ of the new horizon (set_up computes it on resume)
-            self.success_level = success_cost_level(self.task, self.cost_fn)
+            self.success_level = success_cost_level(
+                self.task, self.cost_fn, self.config.window_objective
+            )
         self.env.close()
         self.env = make_env(config.env_id, self.horizon, self.task, config.env_kwargs)
 
@@ -665,6 +682,7 @@ class Trainer:
             init_std=self.init_std,
             obs_noise_std=config.sim_obs_noise_std,
             termination=TerminationSet.from_task(task),
+            success_window=success_window(task) if config.window_objective else None,
         ).to(self.device)  # with the policy module and the dynamics in it
 
     def _progress_bar(self, total: int, desc: str | None = None):
@@ -865,7 +883,7 @@ MAX_GOAL_CORNERS = 4096  # corners of a goal box evaluated by success_cost_level
 
 @torch.no_grad()
 def success_cost_level(
-    task: TaskSpec, cost: Callable[[torch.Tensor], torch.Tensor]
+    task: TaskSpec, cost: Callable[[torch.Tensor], torch.Tensor], window_objective: bool = False
 ) -> float | None:
     """``J_succ``: the largest cumulative cost ``cost`` gives a trajectory that succeeds on
     ``task`` and is never costlier than its start before it reaches the goal (the level of
@@ -880,6 +898,10 @@ def success_cost_level(
     targets) and ``c_0 = c(x_0)``::
 
         J_succ = (H - W) max(c_0, c_G) + W c_G
+
+    With ``window_objective`` (the objective ``J^_W`` counts a final success window twice,
+    :mod:`~mcpilco.agents.mc_pilco.loss`) and a task that has such a window
+    (:func:`~mcpilco.agents.mc_pilco.horizon.success_window`), ``W c_G`` more.
 
     A plateau above it is a trajectory that stays costlier than its start for the whole
     approach or misses the goal at the end. None where the task's success set is no box
@@ -900,7 +922,8 @@ def success_cost_level(
     c_start = float(cost(x0[None])[0])
     h = task.horizon
     w = h if s.full_horizon or s.window is None else min(int(s.window), h)
-    return (h - w) * max(c_start, c_goal) + w * c_goal
+    again = w * c_goal if window_objective and success_window(task) is not None else 0.0
+    return (h - w) * max(c_start, c_goal) + w * c_goal + again
 
 
 def check_compile_toolchain(device: torch.device, backend: str = "auto") -> None:

@@ -129,6 +129,11 @@ def aggregate_runs(runs: list[dict[str, Any]]) -> list[dict[str, Any]]:
                 np.mean([r.get("cpu_s_per_opt_step", np.nan) for r in recs])
             )
             row["gp_fit_s"] = float(np.mean([r["gp_fit_s"] for r in recs]))
+            predicted = [
+                r["predicted_success"] for r in recs if r.get("predicted_success") is not None
+            ]
+            if predicted:  # the model's success rate of the applied policies (mean)
+                row["predicted_success"] = float(np.mean(predicted))
         rows.append(row)
     return rows
 

@@ -153,6 +153,7 @@ def test_a_run_grows_its_horizon_and_runs_the_next_trial_over_it(tmp_path):
     records = summary.run().records
     assert [r.get("horizon") for r in records] == [None, 8, 12]
     assert records[1]["next_horizon"] == 12 and records[1]["goal_fraction"] < GOAL_FRACTION
+    assert 0.0 <= records[1]["predicted_success"] <= records[1]["goal_fraction"]
     levels = [r["opt_success_level"] for r in records[1:]]
     assert levels[1] > levels[0]  # J_succ of the longer horizon: more steps before the goal
     assert [r["steps"] for r in records] == [8, 8, 12]  # the trial runs its horizon
