@@ -527,7 +527,7 @@ def _squashed_rbf(
     if gains is not None:
         feats = layout.features(obs)[0]
         dev = feats - ref.to(feats.dtype)
-        z = torch.bmm(dev / scale.to(feats.dtype), gains)
+        z = torch.bmm(dev / scale.to(feats.dtype), gains.to(feats.dtype))
         z = z * bounds[1]
         if gate is not None and not bool(torch.isinf(gate).all()):
             z = z * torch.exp(-0.5 * (dev / gate.to(feats.dtype)).square().sum(-1, keepdim=True))
