@@ -318,12 +318,11 @@ class Trainer:
         if gated:
             init["linear_gate"] = catch_gate(lqr, self.layout, u_half).tolist()
         if self.log:
-            names = ", ".join(
-                f"{n} {v:.3g}" for n, v in zip(task.state_names, lqr.reshape(-1), strict=False)
-            )
+            gain = np.array2string(lqr, precision=3, separator=", ")
             self.log(
                 f"linear feedback: gains start at the LQR of the model at the "
-                f"{'goal (a catch, gated)' if gated else 'regulation point'}: K = [{names}]"
+                f"{'goal (a catch, gated)' if gated else 'regulation point'}: K = {gain} "
+                f"(states {', '.join(task.state_names)})"
                 + (
                     f"; gate widths {[round(v, 3) for v in init['linear_gate']]} (features)"
                     if gated
