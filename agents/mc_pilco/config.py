@@ -141,7 +141,10 @@ class MCPilcoConfig:
             "linear feedback"; its feature scales are the spread of the exploration trial's
             states). None (default): derived from the task, on for a regulation task
             (:func:`~mcpilco.agents.mc_pilco.trainer.regulation_point`: it starts inside the
-            set it must stay in for the whole episode, a balance), off otherwise.
+            set it must stay in for the whole episode, a balance) and, gated around the
+            goal, for a fully actuated swing-up (a catch,
+            :func:`~mcpilco.agents.mc_pilco.trainer.catch_point`), off otherwise. A task
+            that starts outside its goal gets the gated term whenever it has one.
         cost_length_scales: length scales of the optimised cost by state name (None: the
             task's evaluation cost's). Success and the reported cost always come from the
             task's evaluation cost.

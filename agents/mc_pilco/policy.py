@@ -24,6 +24,19 @@ linear feedback (optional)
     network can only build it from the few basis functions that happen to lie near
     ``x~*`` (in a box of 6 or more dimensions, hardly any), while ``G`` has a gradient from
     the first step on (classic PILCO balances the double pendulum with a linear policy).
+gated linear feedback (optional, a catch)
+    ``z = g(x~) u_half G^T ((x~ - x~*) / s)`` with the gate
+    ``g(x~) = exp(-1/2 sum_f ((x~_f - x~*_f) / v_f)^2)``, widths ``v`` (F,): the linear term
+    acts only near ``x~*`` (``g = 1`` there, ``g -> 0`` far from it) and the RBF network
+    alone acts elsewhere. Why: a swing-up must pump energy far from the goal, where a linear
+    feedback around the goal would fight the pump, and then hold the goal, which needs the
+    same near-linear feedback as a balance; a motor too weak to hold the pole more than a few
+    degrees from upright leaves the RBF network (basis functions of width ``l`` ~ 0.7 in
+    feature units) no room to build that feedback from its few basis functions near the
+    goal. No gate (``v = None``): ``g = 1``, the ungated term of a balance. An angle's
+    ``(sin, cos)`` features get the same width: ``(sin psi - sin psi*)^2 + (cos psi -
+    cos psi*)^2 = 4 sin^2((psi - psi*) / 2)``, so the gate is ``exp(-(psi - psi*)^2 / (2
+    v^2))`` near ``psi*`` and periodic in ``psi``.
 dropout
     during policy optimisation, at every call (every simulated time step) each basis
     activation ``phi_i(x~^(m))`` of each particle ``m`` is zeroed with probability ``p`` and the
@@ -78,6 +91,8 @@ class SquashedRBFPolicy(nn.Module):
         linear_scale: (F,) the feature scales ``s`` of the linear term (None: ones).
         gains_init: (F, A) the gains ``G`` of the linear term at initialisation (None: 0;
             the LQR of a learned model, :mod:`~mcpilco.agents.mc_pilco.regulator`).
+        linear_gate: (F,) the gate widths ``v`` of the linear term (module glossary, gated
+            linear feedback); None: no gate.
 
     Shapes:
         ``forward(obs (..., n)) -> action (..., A)``.
@@ -99,6 +114,7 @@ class SquashedRBFPolicy(nn.Module):
         linear_ref: Sequence[float] | None = None,
         linear_scale: Sequence[float] | None = None,
         gains_init: Sequence[Sequence[float]] | None = None,
+        linear_gate: Sequence[float] | None = None,
     ) -> None:
         super().__init__()
         if isinstance(layout, dict):
@@ -156,6 +172,7 @@ class SquashedRBFPolicy(nn.Module):
             if g.shape != self.gains_init.shape:
                 raise ValueError(f"gains_init must have shape {tuple(self.gains_init.shape)}")
             self.gains_init.copy_(g)
+        self.register_buffer("linear_gate", _gate_widths(linear_gate, ref, F))
         self.reset_parameters(seed)
 
     @property
@@ -207,13 +224,15 @@ class SquashedRBFPolicy(nn.Module):
             "linear_ref": None if self.linear_ref is None else self.linear_ref.tolist(),
             "linear_scale": None if self.linear_scale is None else self.linear_scale.tolist(),
             "gains_init": None if self.gains_init is None else self.gains_init.tolist(),
+            "linear_gate": _gate_setting(self.linear_gate),
         }
 
     @torch.no_grad()
     def use_data_init(self, init: dict[str, list[float] | None]) -> None:
         """Take the entries of ``init`` (:func:`data_init`'s centre distribution and initial
         lengthscales; ``linear_scale``, the linear term's feature scales; ``gains_init``, its
-        initial gains) for the next :meth:`reset_parameters` (and :meth:`settings`)."""
+        initial gains; ``linear_gate``, its gate widths, at once) for the next
+        :meth:`reset_parameters` (and :meth:`settings`)."""
         if init.get("center_mean") is not None:
             self.center_mean = torch.as_tensor(init["center_mean"], dtype=torch.float32)
             self.center_std = torch.as_tensor(init["center_std"], dtype=torch.float32)
@@ -227,6 +246,10 @@ class SquashedRBFPolicy(nn.Module):
             if self.gains_init is None:
                 raise ValueError("gains_init needs a policy with a linear term (linear_ref)")
             self.gains_init.copy_(torch.as_tensor(init["gains_init"]))
+        if init.get("linear_gate") is not None:
+            if self.linear_gate is None:
+                raise ValueError("linear_gate needs a policy with a linear term (linear_ref)")
+            self.linear_gate.copy_(torch.as_tensor(init["linear_gate"]))
 
     def basis(self, features: Tensor) -> Tensor:
         """Activations ``phi(x~)`` (..., n_b), matmul form of ``||(x~ - c)/l||^2``."""
@@ -271,7 +294,7 @@ class SquashedRBFPolicy(nn.Module):
             (self.u_mid, self.u_half),
             mask,
             self.layout,
-            (gains, self.linear_ref, self.linear_scale),
+            (gains, self.linear_ref, self.linear_scale, self.linear_gate),
         )
         return u.reshape(*lead, self.action_dim)
 
@@ -335,6 +358,7 @@ class PolicyPopulation(nn.Module):
         )
         self.register_buffer("linear_ref", ref)
         self.register_buffer("linear_scale", scale)
+        self.register_buffer("linear_gate", _gate_widths(first.linear_gate, ref, first.input_dim))
         if self.gains is not None:
             self.gains = nn.Parameter(torch.stack([p.gains.detach() for p in candidates]))
 
@@ -377,7 +401,7 @@ class PolicyPopulation(nn.Module):
             (self.u_mid, self.u_half),
             mask,
             self.layout,
-            (self.gains, self.linear_ref, self.linear_scale),
+            (self.gains, self.linear_ref, self.linear_scale, self.linear_gate),
         )
         return u.reshape(*lead, self.action_dim)
 
@@ -399,16 +423,22 @@ class PolicyPopulation(nn.Module):
             policy.gains.copy_(self.gains[k])
             policy.linear_scale.copy_(self.linear_scale)
             policy.gains_init.copy_(torch.as_tensor(self._settings["gains_init"]))
+            policy.linear_gate.copy_(self.linear_gate)
 
     @torch.no_grad()
     def use_data_init(self, init: dict[str, list[float] | None]) -> None:
         """Take the entries of ``init`` (as :meth:`SquashedRBFPolicy.use_data_init`) for the
-        candidates of the next :meth:`reset_parameters`; ``linear_scale`` at once."""
+        candidates of the next :meth:`reset_parameters`; ``linear_scale`` and ``linear_gate``
+        at once."""
         self._settings = {**self._settings, **{k: v for k, v in init.items() if v is not None}}
         if init.get("linear_scale") is not None:
             if self.linear_scale is None:
                 raise ValueError("linear_scale needs a policy with a linear term (linear_ref)")
             self.linear_scale.copy_(torch.as_tensor(init["linear_scale"]))
+        if init.get("linear_gate") is not None:
+            if self.linear_gate is None:
+                raise ValueError("linear_gate needs a policy with a linear term (linear_ref)")
+            self.linear_gate.copy_(torch.as_tensor(init["linear_gate"]))
 
     @torch.no_grad()
     def reset_parameters(self, seed: int | None = None) -> None:
@@ -456,6 +486,28 @@ def _linear_parts(
     return r, s, nn.Parameter(torch.zeros(features, actions))
 
 
+def _gate_setting(gate: Tensor | None) -> list[float] | None:
+    """The ``linear_gate`` setting of gate widths ``v``: None for no gate (all infinite)."""
+    return None if gate is None or bool(torch.isinf(gate).all()) else gate.tolist()
+
+
+def _gate_widths(
+    widths: Sequence[float] | Tensor | None, ref: Tensor | None, features: int
+) -> Tensor | None:
+    """The gate widths ``v`` of the linear term as a float32 tensor (F,): infinite (``g = 1``,
+    no gate) for None; None without a linear term (``ref`` None)."""
+    if ref is None:
+        if widths is not None:
+            raise ValueError("linear_gate needs linear_ref (the linear term's reference)")
+        return None
+    if widths is None:
+        return torch.full((features,), math.inf)
+    v = torch.as_tensor(widths, dtype=torch.float32).reshape(-1).clone()
+    if v.numel() != features or not bool((v > 0).all()):
+        raise ValueError(f"linear_gate needs {features} entries > 0 (one per feature)")
+    return v
+
+
 def _squashed_rbf(
     obs: Tensor,
     centers: Tensor,
@@ -464,18 +516,21 @@ def _squashed_rbf(
     bounds: tuple[Tensor, Tensor],
     mask: Tensor | None,
     layout: StateLayout,
-    linear: tuple[Tensor | None, Tensor | None, Tensor | None],
+    linear: tuple[Tensor | None, Tensor | None, Tensor | None, Tensor | None],
 ) -> Tensor:
     """The squashed policy of ``K`` policies (:func:`squashed_rbf_forward`'s shapes) with the
-    linear feedback term ``z = u_half ((x~ - x~*) / s) G`` (``linear = (G (K, F, A), x~*,
-    s)``; ``G`` None: none) added before the squashing; ``z`` is differentiated by autograd,
-    the rest by the policy's own backward."""
-    gains, ref, scale = linear
+    linear feedback term ``z = g(x~) u_half ((x~ - x~*) / s) G`` (``linear = (G (K, F, A),
+    x~*, s, v)``; ``G`` None: none; ``v`` None: ``g = 1``) added before the squashing; ``z``
+    is differentiated by autograd, the rest by the policy's own backward."""
+    gains, ref, scale, gate = linear
     z = None
     if gains is not None:
         feats = layout.features(obs)[0]
-        z = torch.bmm((feats - ref.to(feats.dtype)) / scale.to(feats.dtype), gains)
+        dev = feats - ref.to(feats.dtype)
+        z = torch.bmm(dev / scale.to(feats.dtype), gains.to(feats.dtype))
         z = z * bounds[1]
+        if gate is not None and not bool(torch.isinf(gate).all()):
+            z = z * torch.exp(-0.5 * (dev / gate.to(feats.dtype)).square().sum(-1, keepdim=True))
     return _SquashedRBF.apply(obs, centers, log_l, w, bounds, mask, layout, z)
 
 

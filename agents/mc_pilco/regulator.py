@@ -27,6 +27,17 @@ Glossary
     an angle ``psi`` with target ``psi*`` has features ``(sin psi, cos psi)``, and
     ``K_psi (cos psi*, -sin psi*)`` on them gives ``K_psi (psi - psi*)`` to first order.
 
+``v_j = GATE_REACH min_a u_half_a / |K_aj|``
+    the gate widths of a catch (:mod:`~mcpilco.agents.mc_pilco.policy`, gated linear
+    feedback, for a swing-up that must end held at ``x*``): ``u_half / |K_j|`` is the
+    deviation of state ``j`` at which the LQR alone reaches the action bound. The gated
+    feedback ``g K d`` of one state, ``y = K d / u_half``, is ``y exp(-y^2 / (2 c^2))`` with
+    ``c = GATE_REACH``: it peaks at ``y = c`` with ``c exp(-1/2)``, which reaches the bound
+    (``>= 1``) for ``c >= exp(1/2) ~ 1.65``; ``c = 2`` keeps the LQR near full strength
+    where it does not saturate (``g >= exp(-1/8) = 0.88`` at ``y <= 1``) and lets it act
+    out to about three times that deviation, and no farther: far from ``x*`` the RBF
+    network alone pumps. An angle's two features get its width (the gate is periodic).
+
 Why: from ``G = 0`` the policy gradient of a task whose particles all fall within a few
 steps (the double pendulum under ``u = 0``) points nowhere useful, and Adam's steps of
 ``a = 0.01`` take hundreds of steps to reach gains of order 1 even where it does. The LQR of
@@ -47,6 +58,7 @@ from torch import Tensor
 
 from mcpilco.agents.mc_pilco.features import StateLayout
 
+GATE_REACH = 2.0  # gate width of a catch in units of the deviation where the LQR saturates
 Q_FLOOR = 1e-6  # added to Q's diagonal (relative to its largest entry): detectability of (A, Q)
 
 
@@ -121,22 +133,35 @@ def feature_gains(
     return -d * np.asarray(scale, dtype=np.float64)[:, None] / np.asarray(u_half)[None, :]
 
 
-def regulator_gains(
+def catch_gate(k: np.ndarray, layout: StateLayout, u_half: np.ndarray) -> np.ndarray:
+    """The gate widths ``v`` (F,) of a catch around ``x*`` from the LQR gain ``K`` (A, n):
+    ``v_j = GATE_REACH min_a u_half_a / |K_aj|`` (module glossary; infinite where no action
+    feeds state ``j`` back), in the feature order of ``layout`` (an angle's ``sin, cos`` both
+    get its width)."""
+    k = np.abs(np.asarray(k, dtype=np.float64))
+    half = np.asarray(u_half, dtype=np.float64).reshape(-1, 1)
+    with np.errstate(divide="ignore"):
+        v = GATE_REACH * np.min(half / k, axis=0)  # (n,)
+    widths = [v[i] for i in layout.plain_idx]
+    for i in layout.angle_idx:
+        widths += [v[i], v[i]]
+    return np.asarray(widths)
+
+
+def regulator_lqr(
     dynamics: Callable[[Tensor, Tensor], Tensor],
     cost: Callable[[Tensor], Tensor],
-    layout: StateLayout,
     x_star: np.ndarray,
     u_mid: np.ndarray,
     u_half: np.ndarray,
-    scale: np.ndarray,
 ) -> np.ndarray | None:
-    """The initial ``G`` of the linear term: the LQR of the model linearised at ``(x*,
-    u_mid)`` with ``Q`` the cost's Hessian and ``R = 2 / u_half^2`` (module glossary), in the
-    policy's units; None when the linearised model has no stabilising LQR."""
+    """``K`` (A, n): the LQR of the model linearised at ``(x*, u_mid)`` with ``Q`` the cost's
+    Hessian and ``R = 2 / u_half^2`` (module glossary); None when the linearised model has no
+    stabilising LQR. :func:`feature_gains` turns it into the policy's initial ``G``,
+    :func:`catch_gate` into a catch's gate."""
     a, b = model_jacobians(dynamics, x_star, u_mid)
     q = cost_hessian(cost, x_star)
     r = np.diag(2.0 / np.asarray(u_half, dtype=np.float64) ** 2)
     if not (np.all(np.isfinite(a)) and np.all(np.isfinite(b)) and np.all(np.isfinite(q))):
         return None
-    k = lqr_gain(a, b, q, r)
-    return None if k is None else feature_gains(k, layout, x_star, scale, u_half)
+    return lqr_gain(a, b, q, r)

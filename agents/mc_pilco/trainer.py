@@ -104,7 +104,7 @@ from mcpilco.agents.mc_pilco.policy import (
     make_policy_module,
     policy_act,
 )
-from mcpilco.agents.mc_pilco.regulator import regulator_gains
+from mcpilco.agents.mc_pilco.regulator import catch_gate, feature_gains, regulator_lqr
 from mcpilco.agents.mc_pilco.viz import (
     plot_optimisation,
     plot_trial_particles,
@@ -303,33 +303,42 @@ class Trainer:
 
     def init_regulator(self, k: int, dynamics: torch.nn.Module) -> None:
         """With a linear feedback term, before the first policy optimisation: start its gains
-        at the LQR of the first model linearised at the regulation point
-        (:func:`~mcpilco.agents.mc_pilco.regulator.regulator_gains`), for every candidate
-        and for the policy's later re-draws (restarts); zero where the linearised model has
-        no stabilising LQR. Later trials refine the optimised gains instead."""
+        at the LQR ``K`` of the first model linearised at the regulation point
+        (:func:`~mcpilco.agents.mc_pilco.regulator.regulator_lqr`), for every candidate and
+        for the policy's later re-draws (restarts); a catch (a task that starts outside its
+        goal, :func:`catch_point`) also gates the term around that point with widths from
+        ``K`` (:func:`~mcpilco.agents.mc_pilco.regulator.catch_gate`). Zero gains where the
+        linearised model has no stabilising LQR. Later trials refine the optimised gains."""
         if not (self.policy.linear and k == 1):
             return
         task = self.task
         x_star = linear_reference(self.config, task)
-        gains = regulator_gains(
-            dynamics,
-            self.cost_fn,
-            self.layout,
-            x_star,
-            self.policy.u_mid.cpu().numpy(),
-            self.policy.u_half.cpu().numpy(),
-            self.policy.linear_scale.cpu().numpy(),
-        )
-        if self.log:
-            self.log(
-                "linear feedback: no stabilising LQR of the model at the regulation point, "
-                "gains start at 0"
-                if gains is None
-                else "linear feedback: gains start at the LQR of the model at the regulation point"
-            )
-        if gains is None:
+        u_half = self.policy.u_half.cpu().numpy()
+        lqr = regulator_lqr(dynamics, self.cost_fn, x_star, self.policy.u_mid.cpu().numpy(), u_half)
+        if lqr is None:
+            if self.log:
+                self.log(
+                    "linear feedback: no stabilising LQR of the model at the regulation point, "
+                    "gains start at 0"
+                )
             return
-        init = {"gains_init": gains.tolist()}
+        scale = self.policy.linear_scale.cpu().numpy()
+        init = {"gains_init": feature_gains(lqr, self.layout, x_star, scale, u_half).tolist()}
+        gated = regulation_point(task) is None
+        if gated:
+            init["linear_gate"] = catch_gate(lqr, self.layout, u_half).tolist()
+        if self.log:
+            gain = np.array2string(lqr, precision=3, separator=", ")
+            self.log(
+                f"linear feedback: gains start at the LQR of the model at the "
+                f"{'goal (a catch, gated)' if gated else 'regulation point'}: K = {gain} "
+                f"(states {', '.join(task.state_names)})"
+                + (
+                    f"; gate widths {[round(v, 3) for v in init['linear_gate']]} (features)"
+                    if gated
+                    else ""
+                )
+            )
         self.population.use_data_init(init)
         self.policy.use_data_init(init)
         self.population.reset_parameters(self.config.seed)
@@ -762,7 +771,8 @@ def policy_candidates(
     """The ``K`` candidate policies of a run (``config.num_candidates``), candidate ``k``
     with initial weight scale ``s_k`` and seed ``seed + CANDIDATE_SEED_STRIDE k``; with a
     linear feedback term around the task's regulation point where ``config.policy_linear``
-    says so (None: for a regulation task, :func:`regulation_point`)."""
+    says so (None: for a regulation task, :func:`regulation_point`, and a catch,
+    :func:`catch_point`)."""
     scales = config.candidate_weight_scales or [config.policy_weight_scale] * config.num_candidates
     ref = linear_reference(config, task)
     return [
@@ -792,10 +802,11 @@ def _target_state(task: TaskSpec) -> np.ndarray:
 
 def linear_reference(config: MCPilcoConfig, task: TaskSpec) -> np.ndarray | None:
     """The state ``x*`` the policy's linear feedback term acts around, or None for a policy
-    without one: ``config.policy_linear`` None derives it (:func:`regulation_point`), true
-    takes the point the cost pulls the state to, false has none."""
+    without one: ``config.policy_linear`` None derives it (:func:`regulation_point`, else
+    :func:`catch_point`), true takes the point the cost pulls the state to, false has none."""
     if config.policy_linear is None:
-        return regulation_point(task)
+        x_star = regulation_point(task)
+        return catch_point(task) if x_star is None else x_star
     return _target_state(task) if config.policy_linear else None
 
 
@@ -819,6 +830,26 @@ def regulation_point(task: TaskSpec) -> np.ndarray | None:
         return None
     x0 = np.asarray(task.init_mean, dtype=np.float64)
     if not all(lo <= x0[task.index(k)] <= hi for k, (lo, hi) in box.items()):
+        return None
+    return _target_state(task)
+
+
+def catch_point(task: TaskSpec) -> np.ndarray | None:
+    """The state ``x*`` a swing-up must end held at, where its policy gets a gated linear
+    feedback term (a catch, :mod:`~mcpilco.agents.mc_pilco.policy`), or None.
+
+    A catch task's success is a goal held over a window from a start outside it
+    (:func:`~mcpilco.agents.mc_pilco.horizon.grows`; not a regulation task,
+    :func:`regulation_point`), and it has an action per position coordinate (``len(pairs)``
+    actions or more: fully actuated, as a pendulum with a motor at its hinge). Holding such
+    a goal is a near-linear feedback around the point the cost pulls the state to; a motor
+    too weak to hold the pole a few degrees from upright must arrive slowly and then hold,
+    which the gated linear term started at the model's LQR gives the optimisation from the
+    first step. An underactuated swing-up (a cart-pole: one force, two positions) keeps the
+    RBF policy alone."""
+    if not grows(task) or regulation_point(task) is not None:
+        return None
+    if not task.pairs or len(task.action_low) < len(task.pairs):
         return None
     return _target_state(task)
 
