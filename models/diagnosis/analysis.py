@@ -110,6 +110,7 @@ __all__ = [
     "noise_floor",
     "position_noise",
     "at_rest",
+    "friction_kinks",
     "held_still",
     "residual_report",
     "whiteness_test",
@@ -237,6 +238,34 @@ def at_rest(traj: Trajectories) -> NDArray[np.bool_]:
         still = win.max(axis=-1) - win.min(axis=-1) <= bound * (1 + 1e-9)
         rest[a:b] = still | (np.abs(traj.qd[a:b]) <= REST_FACTOR * sigma_qd)
     return rest
+
+
+def friction_kinks(traj: Trajectories, rest: ArrayLike, joint: int) -> NDArray[np.bool_]:
+    """``(N,)``: rows within the derivative filter's half window ``m`` (``window // 2``) of a
+    stick/slip transition or a velocity reversal of joint ``joint`` (1-based), ``rest``
+    ``(N,)`` its rows at rest (:func:`at_rest`).
+
+    With dry friction the joint's torque switches between ``-F``, the held value and ``+F``
+    within a physics step at these instants, so its acceleration jumps; ``qd``/``qdd``
+    estimated from ``q`` by a filter whose window spans the jump are biased on the ``2 m``
+    rows around it (:class:`.data.DerivativeFilter`), as they are at a file's edges. The
+    state ``-1 / 0 / +1`` (``sign(qd)``, 0 at rest) changes between two rows at each such
+    instant. Rows of segments whose derivatives were given are never marked."""
+    rest = np.asarray(rest, dtype=bool)
+    out = np.zeros(traj.n_samples, dtype=bool)
+    for a, b in traj.segments:
+        s = int(traj.segment[a])
+        est = traj.estimated[s] if traj.estimated and s < len(traj.estimated) else None
+        if est is None or b - a < 2:
+            continue
+        m = est.filter.window // 2
+        state = np.where(rest[a:b], 0.0, np.sign(traj.qd[a:b, joint - 1]))
+        switch = np.zeros(b - a)
+        switch[1:] = state[1:] != state[:-1]  # row i: the state changed from row i - 1
+        # rows i - m .. i + m - 1 around a switch at row i (between rows i - 1 and i)
+        near = np.convolve(switch, np.ones(2 * m), mode="full")[m : m + b - a]
+        out[a:b] = near > 0
+    return out
 
 
 def held_still(rest_share: ArrayLike) -> list[int]:
