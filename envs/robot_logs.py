@@ -31,8 +31,10 @@ Controller (inner loop at the physics rate, exact state)
   the torque limit: ``Kp_j = M_jj w_c^2``, raised to ``tau_max_j / e_sat``
   (:data:`SATURATION_ERROR`: a stiff joint servo asks for its full torque at a small tracking
   error, so that a light wrist joint is not held still by a few N m of friction) and capped
-  at ``M_jj (MAX_SERVO_STEP / dt)^2`` (:data:`MAX_SERVO_STEP`: the loop stays well inside
-  the stability limit of the explicit servo at the physics rate); ``w_j = sqrt(Kp_j /
+  at ``m_j w_max^2`` (``m_j`` the joint's lightest ``M_jj`` at :data:`LIGHTEST_SAMPLES`
+  points of the reference), ``w_max = min(4 w_c, 0.2 / dt)`` (:data:`MAX_SERVO_BANDWIDTH`: no
+  stick-slip hunting faster than the log resolves; :data:`MAX_SERVO_STEP`: the loop stays
+  well inside the stability limit of the explicit servo at the physics rate); ``w_j = sqrt(Kp_j /
   M_jj)`` the joint's closed-loop bandwidth, ``Kd_j = 2 M_jj w_j`` (critical damping) and
   ``Ki_j = INTEGRAL_SHARE w_j Kp_j`` (:data:`INTEGRAL_SHARE`): integral action, which breaks
   a joint loose that static friction holds against the proportional term.
@@ -154,9 +156,17 @@ SUBSTEPS = 4
 SATURATION_ERROR = {"R": 0.1, "P": 0.01}
 """Tracking error [rad, m] at which a joint servo's position gain alone asks for the joint's
 torque limit: the floor ``Kp_j >= tau_max_j / e_sat`` (:func:`servo_gains`)."""
+MAX_SERVO_BANDWIDTH = 4.0
+"""Largest closed-loop bandwidth of a joint over the design bandwidth ``w_c`` (20 Hz at 5 Hz):
+the cap ``Kp_j <= M_jj (4 w_c)^2``. Faster loops on a light joint (the iiwa 14's first joint,
+0.1 kg m^2 about its axis upright, at 28 Hz) hunt in stick-slip against dry friction at a
+rate the log's samples do not resolve."""
 MAX_SERVO_STEP = 0.2
 """Largest ``w_j dt`` of a joint's closed loop: the cap ``Kp_j <= M_jj (0.2 / dt)^2`` keeps the
 explicit servo, evaluated once per physics step, far from its stability limit."""
+LIGHTEST_SAMPLES = 50
+"""Configurations along the reference at which :func:`simulate_log` reads each joint's
+lightest inertia for the cap of :func:`servo_gains`."""
 INTEGRAL_SHARE = 0.1
 """Integral gain over ``w_j Kp_j`` (:func:`servo_gains`): integral time ``10 / w_j``, slow
 against the PD loop, which it leaves critically damped in all but the slowest pole."""
@@ -368,13 +378,16 @@ def servo_gains(
     joint_types: str,
     bandwidth: float = 5.0,
     timestep: float = PHYSICS_TIMESTEP,
+    lightest: ArrayLike | None = None,
 ) -> tuple[FloatArray, FloatArray, FloatArray]:
     """``(Kp, Kd, Ki)`` per joint of the generator's joint servo (module docstring).
 
-    ``Kp_j = clip(max(M_jj w_c^2, tau_max_j / e_sat), None, M_jj (MAX_SERVO_STEP / dt)^2)``
-    with ``w_c = 2 pi bandwidth``, ``e_sat`` :data:`SATURATION_ERROR` of the joint's type and no
-    floor where ``tau_max`` is infinite; ``w_j = sqrt(Kp_j / M_jj)``; ``Kd_j = 2 M_jj w_j``;
-    ``Ki_j = INTEGRAL_SHARE w_j Kp_j``.
+    ``Kp_j = min(max(M_jj w_c^2, tau_max_j / e_sat), m_j w_max^2)`` with ``w_c = 2 pi
+    bandwidth``, ``w_max = min(MAX_SERVO_BANDWIDTH w_c, MAX_SERVO_STEP / dt)`` and ``e_sat``
+    :data:`SATURATION_ERROR` of the joint's type (no floor where ``tau_max`` is infinite);
+    ``w_j = sqrt(Kp_j / M_jj)``; ``Kd_j = 2 M_jj w_j``; ``Ki_j = INTEGRAL_SHARE w_j Kp_j``;
+    ``m_j``: the joint's lightest inertia along the motion (``M_jj`` when not given), so that
+    the cap holds wherever the arm goes; the cap never takes ``Kp_j`` below ``M_jj w_c^2``.
 
     Args:
         inertia: ``M_jj`` (n,) [kg m^2 or kg], the nominal mass matrix's diagonal (> 0).
@@ -382,10 +395,13 @@ def servo_gains(
         joint_types: ``"R"``/``"P"`` per joint.
         bandwidth: ``f_c`` [Hz] on the joint's own inertia.
         timestep: the physics timestep ``dt`` [s] at which the servo runs.
+        lightest: ``m_j`` (n,), each joint's smallest ``M_jj`` along the motion (> 0).
     """
     m = np.asarray(inertia, dtype=np.float64)
+    low = m if lightest is None else np.minimum(np.asarray(lightest, dtype=np.float64), m)
     limit = np.asarray(torque_limit, dtype=np.float64)
-    if m.shape != limit.shape or m.shape != (len(joint_types),) or not (m > 0).all():
+    shapes = {m.shape, limit.shape, low.shape, (len(joint_types),)}
+    if len(shapes) > 1 or not (low > 0).all():
         raise ValueError(
             f"inertia {m} must be > 0, one per joint like torque_limit {limit} and joint_types "
             f"{joint_types!r}"
@@ -395,7 +411,8 @@ def servo_gains(
     w_c = 2.0 * math.pi * bandwidth
     e_sat = np.array([SATURATION_ERROR[t] for t in joint_types])
     floor = np.where(np.isfinite(limit), limit / e_sat, 0.0)
-    kp = np.minimum(np.maximum(m * w_c**2, floor), m * (MAX_SERVO_STEP / timestep) ** 2)
+    w_max = min(MAX_SERVO_BANDWIDTH * w_c, MAX_SERVO_STEP / timestep)
+    kp = np.minimum(np.maximum(m * w_c**2, floor), np.maximum(low * w_max**2, m * w_c**2))
     w = np.sqrt(kp / m)
     return kp, 2.0 * m * w, INTEGRAL_SHARE * w * kp
 
@@ -475,8 +492,17 @@ def simulate_log(
     mujoco.mj_forward(nominal, nom_data)
     mass = np.zeros((n, n))
     mujoco.mj_fullM(nominal, nom_data, mass)
+    lightest = np.diag(mass).copy()  # each joint's smallest M_jj along the reference
+    for t in np.linspace(0.0, duration, LIGHTEST_SAMPLES):
+        nom_data.qpos[:] = ref(float(t))[0]
+        mujoco.mj_forward(nominal, nom_data)
+        full = np.zeros((n, n))
+        mujoco.mj_fullM(nominal, nom_data, full)
+        lightest = np.minimum(lightest, np.diag(full))
     limit = arm.joint_array("torque_limit")
-    kp, kd, ki = servo_gains(np.diag(mass), limit, arm.joint_types, bandwidth, timestep)
+    kp, kd, ki = servo_gains(
+        np.diag(mass), limit, arm.joint_types, bandwidth, timestep, lightest=lightest
+    )
     integral = np.zeros(n)  # z: the integral of the tracking error
     applied = any(e.kind in APPLIED_KINDS for e in effects)
 
