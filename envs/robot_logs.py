@@ -20,15 +20,27 @@ MJCF) comes back separately (:class:`LogTruth`).
 
 Controller (inner loop at the physics rate, exact state)
 --------------------------------------------------------
-``tau_c = Kp (q_ref - q) + Kd (qd_ref - qd) + g_nom(q)``, ``tau = clip(tau_c, +-tau_max)``
+``tau_c = Kp e + Kd (qd_ref - qd) + Ki z + g_nom(q)``, ``e = q_ref - q``,
+``tau = clip(tau_c, +-tau_max)``, ``z`` the integral of ``e`` (:func:`servo_gains`)
 
 * ``g_nom(q)``: gravity torques of the *nominal* model (MuJoCo RNE at zero velocity and
   acceleration, ``qfrc_bias`` with ``qd = 0``), so every hidden effect shows up as a
   tracking error and in the torque the controller has to apply.
-* gains per joint from the nominal mass matrix ``M_nom(q_ref(0))``:
-  ``Kp_j = M_jj w_c^2``, ``Kd_j = 2 zeta M_jj w_c`` with ``w_c = 2 pi f_c`` (``f_c =``
-  ``bandwidth`` Hz, default 5) and ``zeta = 1``.
-* ``tau_max``: the table's ``torque_limit`` (no limit when ``None``).
+* gains per joint (:func:`servo_gains`) from the nominal inertia ``M_jj`` of
+  ``M_nom(q_ref(0))``, the bandwidth ``w_c = 2 pi f_c`` (``f_c = bandwidth`` Hz, default 5) and
+  the torque limit: ``Kp_j = M_jj w_c^2``, raised to ``tau_max_j / e_sat``
+  (:data:`SATURATION_ERROR`: a stiff joint servo asks for its full torque at a small tracking
+  error, so that a light wrist joint is not held still by a few N m of friction) and capped
+  at ``m_j w_max^2`` (``m_j`` the joint's lightest ``M_jj`` at :data:`LIGHTEST_SAMPLES`
+  points of the reference), ``w_max = min(4 w_c, 0.2 / dt)`` (:data:`MAX_SERVO_BANDWIDTH`: no
+  stick-slip hunting faster than the log resolves; :data:`MAX_SERVO_STEP`: the loop stays
+  well inside the stability limit of the explicit servo at the physics rate); ``w_j = sqrt(Kp_j /
+  M_jj)`` the joint's closed-loop bandwidth, ``Kd_j = 2 M_jj w_j`` (critical damping) and
+  ``Ki_j = INTEGRAL_SHARE w_j Kp_j`` (:data:`INTEGRAL_SHARE`): integral action, which breaks
+  a joint loose that static friction holds against the proportional term.
+* ``z`` integrates ``e`` at the physics rate while ``tau_c`` is within the limit
+  (conditional integration: no wind-up while the torque saturates); it starts at 0.
+* ``tau_max``: the table's ``torque_limit`` (no limit when ``None``; no floor then).
 * reference: :class:`~mcpilco.envs.arm_env.SumOfSinusoids` per joint (random amplitudes,
   frequencies and phases from the seed), centred in the joint range (revolute ranges cut to
   ``+-pi``) with ``sum |A| <= 0.3`` of the half range (and ``<= 1`` rad) and
@@ -119,6 +131,7 @@ __all__ = [
     "RobotLog",
     "build_models",
     "gravity_torque",
+    "servo_gains",
     "simulate_log",
     "write_log",
 ]
@@ -140,6 +153,23 @@ PHYSICS_TIMESTEP = 1e-3
 """Default physics timestep [s]."""
 SUBSTEPS = 4
 """Default physics steps per logged sample (``T = 4`` ms)."""
+SATURATION_ERROR = {"R": 0.1, "P": 0.01}
+"""Tracking error [rad, m] at which a joint servo's position gain alone asks for the joint's
+torque limit: the floor ``Kp_j >= tau_max_j / e_sat`` (:func:`servo_gains`)."""
+MAX_SERVO_BANDWIDTH = 4.0
+"""Largest closed-loop bandwidth of a joint over the design bandwidth ``w_c`` (20 Hz at 5 Hz):
+the cap ``Kp_j <= M_jj (4 w_c)^2``. Faster loops on a light joint (the iiwa 14's first joint,
+0.1 kg m^2 about its axis upright, at 28 Hz) hunt in stick-slip against dry friction at a
+rate the log's samples do not resolve."""
+MAX_SERVO_STEP = 0.2
+"""Largest ``w_j dt`` of a joint's closed loop: the cap ``Kp_j <= M_jj (0.2 / dt)^2`` keeps the
+explicit servo, evaluated once per physics step, far from its stability limit."""
+LIGHTEST_SAMPLES = 50
+"""Configurations along the reference at which :func:`simulate_log` reads each joint's
+lightest inertia for the cap of :func:`servo_gains`."""
+INTEGRAL_SHARE = 0.1
+"""Integral gain over ``w_j Kp_j`` (:func:`servo_gains`): integral time ``10 / w_j``, slow
+against the PD loop, which it leaves critically damped in all but the slowest pole."""
 TRACKING_LIMIT = {"R": math.pi, "P": 1.0}
 """Largest tracking error |q - q_ref| [rad, m] of a joint under the controller before the
 simulation counts as diverged (the arm out of control, e.g. an effect too stiff for ``dt``)."""
@@ -342,6 +372,49 @@ def _torque_constants(value: ArrayLike, n: int) -> FloatArray:
 
 
 # ----------------------------------------------------------------------------- simulation
+def servo_gains(
+    inertia: ArrayLike,
+    torque_limit: ArrayLike,
+    joint_types: str,
+    bandwidth: float = 5.0,
+    timestep: float = PHYSICS_TIMESTEP,
+    lightest: ArrayLike | None = None,
+) -> tuple[FloatArray, FloatArray, FloatArray]:
+    """``(Kp, Kd, Ki)`` per joint of the generator's joint servo (module docstring).
+
+    ``Kp_j = min(max(M_jj w_c^2, tau_max_j / e_sat), m_j w_max^2)`` with ``w_c = 2 pi
+    bandwidth``, ``w_max = min(MAX_SERVO_BANDWIDTH w_c, MAX_SERVO_STEP / dt)`` and ``e_sat``
+    :data:`SATURATION_ERROR` of the joint's type (no floor where ``tau_max`` is infinite);
+    ``w_j = sqrt(Kp_j / M_jj)``; ``Kd_j = 2 M_jj w_j``; ``Ki_j = INTEGRAL_SHARE w_j Kp_j``;
+    ``m_j``: the joint's lightest inertia along the motion (``M_jj`` when not given), so that
+    the cap holds wherever the arm goes; the cap never takes ``Kp_j`` below ``M_jj w_c^2``.
+
+    Args:
+        inertia: ``M_jj`` (n,) [kg m^2 or kg], the nominal mass matrix's diagonal (> 0).
+        torque_limit: ``tau_max`` (n,) [N m or N], ``inf`` where unlimited.
+        joint_types: ``"R"``/``"P"`` per joint.
+        bandwidth: ``f_c`` [Hz] on the joint's own inertia.
+        timestep: the physics timestep ``dt`` [s] at which the servo runs.
+        lightest: ``m_j`` (n,), each joint's smallest ``M_jj`` along the motion (> 0).
+    """
+    m = np.asarray(inertia, dtype=np.float64)
+    low = m if lightest is None else np.minimum(np.asarray(lightest, dtype=np.float64), m)
+    limit = np.asarray(torque_limit, dtype=np.float64)
+    shapes = {m.shape, limit.shape, low.shape, (len(joint_types),)}
+    if len(shapes) > 1 or not (low > 0).all():
+        raise ValueError(
+            f"inertia {m} must be > 0, one per joint like torque_limit {limit} and joint_types "
+            f"{joint_types!r}"
+        )
+    if not (bandwidth > 0 and timestep > 0):
+        raise ValueError(f"bandwidth and timestep must be > 0, got {bandwidth}, {timestep}")
+    w_c = 2.0 * math.pi * bandwidth
+    e_sat = np.array([SATURATION_ERROR[t] for t in joint_types])
+    floor = np.where(np.isfinite(limit), limit / e_sat, 0.0)
+    w_max = min(MAX_SERVO_BANDWIDTH * w_c, MAX_SERVO_STEP / timestep)
+    kp = np.minimum(np.maximum(m * w_c**2, floor), np.maximum(low * w_max**2, m * w_c**2))
+    w = np.sqrt(kp / m)
+    return kp, 2.0 * m * w, INTEGRAL_SHARE * w * kp
 
 
 def simulate_log(
@@ -372,7 +445,8 @@ def simulate_log(
         seed: seeds the reference and the measurement noise; same seed, same log.
         timestep: physics timestep ``dt`` [s].
         substeps: physics steps per sample (``T = substeps dt``).
-        bandwidth: controller bandwidth ``f_c`` [Hz].
+        bandwidth: controller bandwidth ``f_c`` [Hz] on each joint's nominal inertia
+            (:func:`servo_gains`).
         counts_per_rev: encoder counts per revolution (revolute joints).
         counts_per_metre: encoder counts per metre (prismatic joints).
         encoder_noise: standard deviation of the encoder's reading noise [counts] before
@@ -418,10 +492,18 @@ def simulate_log(
     mujoco.mj_forward(nominal, nom_data)
     mass = np.zeros((n, n))
     mujoco.mj_fullM(nominal, nom_data, mass)
-    omega = 2.0 * math.pi * bandwidth
-    kp = np.diag(mass) * omega**2
-    kd = 2.0 * np.diag(mass) * omega
+    lightest = np.diag(mass).copy()  # each joint's smallest M_jj along the reference
+    for t in np.linspace(0.0, duration, LIGHTEST_SAMPLES):
+        nom_data.qpos[:] = ref(float(t))[0]
+        mujoco.mj_forward(nominal, nom_data)
+        full = np.zeros((n, n))
+        mujoco.mj_fullM(nominal, nom_data, full)
+        lightest = np.minimum(lightest, np.diag(full))
     limit = arm.joint_array("torque_limit")
+    kp, kd, ki = servo_gains(
+        np.diag(mass), limit, arm.joint_types, bandwidth, timestep, lightest=lightest
+    )
+    integral = np.zeros(n)  # z: the integral of the tracking error
     applied = any(e.kind in APPLIED_KINDS for e in effects)
 
     n_samples = int(math.floor(duration / (timestep * substeps))) + 1
@@ -435,8 +517,12 @@ def simulate_log(
             t = (k * substeps + s) * timestep
             q, qd = data.qpos.copy(), data.qvel.copy()
             q_ref, qd_ref, _ = ref(t)
-            tau_c = kp * (q_ref - q) + kd * (qd_ref - qd) + gravity_torque(nominal, nom_data, q)
+            e = q_ref - q
+            tau_c = (
+                kp * e + kd * (qd_ref - qd) + ki * integral + gravity_torque(nominal, nom_data, q)
+            )
             tau = np.clip(tau_c, -limit, limit)
+            integral += np.where(np.abs(tau_c) < limit, e * timestep, 0.0)
             data.ctrl[:] = tau
             if applied:
                 data.qfrc_applied[:] = _applied_force(effects, q, qd)
@@ -494,6 +580,7 @@ def simulate_log(
         "bandwidth": bandwidth,
         "kp": kp.tolist(),
         "kd": kd.tolist(),
+        "ki": ki.tolist(),
         "encoder_step": step.tolist(),
         "encoder_noise": encoder_noise,
         "tau_delay": delay.tolist(),

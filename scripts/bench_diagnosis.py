@@ -1,7 +1,7 @@
 """Benchmark the diagnosis loop on simulated robot logs: random arms, random hidden effects.
 
-Each case is a random arm forward-simulated in MuJoCo under PD + gravity compensation with
-hidden effects as MuJoCo physics or applied forces, logged as ``t, q, tau`` only
+Each case is a random arm forward-simulated in MuJoCo under a PID joint servo + gravity
+compensation with hidden effects as MuJoCo physics or applied forces, logged as ``t, q, tau`` only
 (:mod:`mcpilco.experiments.diagnosis.bench`): ``--per-kind`` cases of each effect kind of
 the library, ``--controls`` without an effect, ``--multi`` with two effects and
 ``--off-library`` with position-dependent friction (correct verdict: "unexplained"). The loop

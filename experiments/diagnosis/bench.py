@@ -648,7 +648,7 @@ def run_benchmark(
         else f"The {arm} table (nominal: without friction)"
     )
     intro = (
-        f"{arms_text} simulated in MuJoCo under PD + gravity "
+        f"{arms_text} simulated in MuJoCo under a PID joint servo + gravity "
         f"compensation; {train_files} training logs and 1 held-out log of {duration:g} s each, "
         + (
             "t, q and tau only"

@@ -110,6 +110,7 @@ __all__ = [
     "noise_floor",
     "position_noise",
     "at_rest",
+    "friction_kinks",
     "held_still",
     "residual_report",
     "whiteness_test",
@@ -239,6 +240,40 @@ def at_rest(traj: Trajectories) -> NDArray[np.bool_]:
     return rest
 
 
+def friction_kinks(traj: Trajectories, rest: ArrayLike, joint: int) -> NDArray[np.bool_]:
+    """``(N,)``: rows within the derivative filter's half window ``m`` (``window // 2``) of
+    the start or the end of a stick phase of joint ``joint`` (1-based): a run of at least
+    ``m`` rows at rest (``rest`` ``(N,)``, :func:`at_rest`).
+
+    Dry friction holds a sticking joint with an unknown torque in ``[-F_s, F_s]`` and slides
+    at ``+-F``; where the joint stops it switches within a physics step, so its acceleration
+    jumps, and ``qd``/``qdd`` estimated from ``q`` by a filter whose window spans the jump
+    are biased on the ``2 m`` rows around it (:class:`.data.DerivativeFilter`), as they are at
+    a file's edges; the held torque, unknown, is spread over the same rows. A shorter run at
+    rest is a reversal seen through the noise (the velocity crosses zero), whose rows stay
+    scored: there the friction's form is what the data show. Rows of segments whose
+    derivatives were given are never marked."""
+    rest = np.asarray(rest, dtype=bool)
+    out = np.zeros(traj.n_samples, dtype=bool)
+    for a, b in traj.segments:
+        s = int(traj.segment[a])
+        est = traj.estimated[s] if traj.estimated and s < len(traj.estimated) else None
+        if est is None or b - a < 2:
+            continue
+        m = est.filter.window // 2
+        r = rest[a:b]
+        edges = np.flatnonzero(np.diff(np.concatenate([[0], r.astype(np.int8), [0]])))
+        switch = np.zeros(b - a + 1)  # row i: the state changed from row i - 1
+        for start, stop in zip(edges[::2], edges[1::2], strict=True):  # at rest start..stop-1
+            if stop - start >= STICK_ROWS:
+                switch[[start, stop]] = 1.0
+        switch[[0, b - a]] = 0.0  # a file's ends are no transition
+        # rows i - m .. i + m - 1 around a switch at row i
+        near = np.convolve(switch[: b - a], np.ones(2 * m), mode="full")[m : m + b - a]
+        out[a:b] = near > 0
+    return out
+
+
 def held_still(rest_share: ArrayLike) -> list[int]:
     """Joints (1-based) held still: at rest (:func:`at_rest`) on at least
     :data:`HELD_STILL_SHARE` of a log's rows (``rest_share``: ``(n,)``, each joint's share of
@@ -346,6 +381,8 @@ REST_SPAN = 0.02
 """Span [s] over which a joint at rest keeps ``q`` within its noise (:func:`at_rest`)."""
 REST_MISS = 1e-3
 """Chance that a joint at rest leaves the range its noise keeps over :data:`REST_SPAN`."""
+STICK_ROWS = 2
+"""Fewest consecutive rows at rest that :func:`friction_kinks` takes for a stick phase."""
 HELD_STILL_SHARE = 0.95
 """Share of a log's rows at rest from which on a joint counts as held still (:func:`held_still`)."""
 EXPLAINED_FRACTION = 0.05

@@ -39,6 +39,16 @@ Coulomb or Stribeck block is at rest (:func:`.analysis.at_rest`), its torque is 
 ``[-F_s, F_s]``. The fit takes the point of that interval nearest to the residual of the rest
 of the model off the joint's target and refits (:data:`STICK_ROUNDS` times); held-out
 predictions are projected onto the interval the same way (:meth:`DiagnosisModel.set_valued`).
+Where ``qd``/``qdd`` were estimated from ``q``, the rows within the derivative filter's half
+window of the start or end of such a joint's stick phase (:func:`.analysis.friction_kinks`)
+are set-valued on every *other* joint: dry friction switches there within a physics step, so
+the joint's acceleration jumps, a filter whose window spans the jump smears it, and a joint
+``j`` that the sticking joint ``k`` couples to inherits ``M_jk`` times the error of the
+estimated ``qdd_k`` (no function of the estimated states predicts those rows; as with the
+filter's edge rows, those joints are held to the rows whose inputs the data gives). The
+sticking joint's own rows stay scored: near zero velocity they are what tells one
+friction form from another (a sharp sign from a smoothed one, a level that varies with
+position).
 
 Training rows: every sample except the first and last ``max_delay_samples`` of each file
 (so that any scanned delay reads states, and the start model's backfit reads outputs,
@@ -59,7 +69,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from mcpilco.models.diagnosis.analysis import at_rest
+from mcpilco.models.diagnosis.analysis import at_rest, friction_kinks
 from mcpilco.models.diagnosis.data import (
     MIN_FIT_ROWS,
     as_trajectories,
@@ -568,12 +578,15 @@ class DiagnosisModel:
         """The prediction ``mean (N, n)`` on ``traj`` with set-valued dry friction: where a
         joint with one is at rest (:meth:`.FeatureContext.rest`), any torque in ``[-F_s,
         F_s]`` is predicted, so the prediction is the measurement projected onto
-        ``[mean - F_s, mean + F_s]`` and its error the residual's distance to that interval.
-        Returns it and the ``(N, n)`` rows where that holds."""
+        ``[mean - F_s, mean + F_s]`` and its error the residual's distance to that interval;
+        on the other joints, the rows around its stick phases
+        (:func:`.analysis.friction_kinks`) are predicted as measured (module docstring).
+        Returns it and the ``(N, n)`` rows where either holds."""
         self._check_fitted()
         out = np.array(mean, dtype=np.float64, copy=True)
         rest = np.zeros(out.shape, dtype=bool)
         ctx = None
+        kinks = np.zeros(out.shape, dtype=bool)
         for j in range(self.n_joints):
             hit = self._stick(j)
             if hit is None:
@@ -584,6 +597,10 @@ class DiagnosisModel:
             r = ctx.rest(effect.joint)
             out[r, j] += np.clip(traj.y[r, j] - out[r, j], -bound, bound)
             rest[:, j] = r
+            others = np.arange(self.n_joints) != effect.joint - 1  # the joints it couples to
+            kinks[:, others] |= friction_kinks(traj, r, effect.joint)[:, None]
+        out[kinks] = traj.y[kinks]
+        rest |= kinks
         return out, rest
 
     def _effect_part(self, output: int, ctx: FeatureContext) -> FloatArray:

@@ -209,5 +209,6 @@ def test_a_spring_too_stiff_for_the_time_step_is_reported_as_diverged(arm):
     mujoco.mj_fullM(nominal, data, mass)
     dt = 1e-3
     k = 25.0 * (2.0 / dt) ** 2 * mass[2, 2]  # w dt = 10
-    with pytest.raises(SimulationDiverged, match="joint 3 .* too stiff for the time step"):
+    # the first joint past its tracking limit may be one the spring's joint shakes
+    with pytest.raises(SimulationDiverged, match=r"'stiffness', 3, .* too stiff for the time step"):
         simulate_log(arm, [HiddenEffect("stiffness", 3, k)], duration=0.5, timestep=dt, seed=0)

@@ -4,7 +4,7 @@
 Independent truth: the logs are made here with MuJoCo alone (not with
 :func:`mcpilco.envs.robot_logs.simulate_log`): the file with its default joint damping set to 0
 is the nominal model; the true robot has a viscous damping of 0.3 N m s/rad on ``hinge2`` and
-is forward-simulated (Euler, 1 ms) under PD + gravity compensation computed from the nominal
+is forward-simulated (Euler, 1 ms) under a PID joint servo + gravity compensation from the nominal
 model, logged every 4 ms with encoder quantisation and torque noise, only t, q and tau kept.
 """
 
