@@ -521,7 +521,9 @@ def _squashed_rbf(
     """The squashed policy of ``K`` policies (:func:`squashed_rbf_forward`'s shapes) with the
     linear feedback term ``z = g(x~) u_half ((x~ - x~*) / s) G`` (``linear = (G (K, F, A),
     x~*, s, v)``; ``G`` None: none; ``v`` None: ``g = 1``) added before the squashing; ``z``
-    is differentiated by autograd, the rest by the policy's own backward."""
+    is differentiated by autograd, the rest by the policy's own backward. Infinite widths (no
+    gate) give ``g = exp(0) = 1`` exactly, so the gate is applied without asking its values:
+    no host sync in a step that a CUDA graph may capture."""
     gains, ref, scale, gate = linear
     z = None
     if gains is not None:
@@ -529,7 +531,7 @@ def _squashed_rbf(
         dev = feats - ref.to(feats.dtype)
         z = torch.bmm(dev / scale.to(feats.dtype), gains.to(feats.dtype))
         z = z * bounds[1]
-        if gate is not None and not bool(torch.isinf(gate).all()):
+        if gate is not None:
             z = z * torch.exp(-0.5 * (dev / gate.to(feats.dtype)).square().sum(-1, keepdim=True))
     return _SquashedRBF.apply(obs, centers, log_l, w, bounds, mask, layout, z)
 
