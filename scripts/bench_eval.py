@@ -9,6 +9,8 @@ Usage::
     mcpilco-bench-eval --env Pendulum-v1 --seeds 10 --first-seed 1000 --trials 2 --budget-s 12
     mcpilco-bench-eval --env dm_control/pendulum-swingup-v0 --seeds 3 --trials 7 --budget-s 40 \\
         --label dev
+    mcpilco-bench-eval --env dm_control/pendulum-swingup-v0 --seed-list 1002 1004 --trials 5 \\
+        --budget-s 40 --label continued
 """
 
 from __future__ import annotations
@@ -26,6 +28,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--env", required=True, help="env id with a shipped task file")
     p.add_argument("--seeds", type=int, default=10, help="number of seeds")
     p.add_argument("--first-seed", type=int, default=1000)
+    p.add_argument(
+        "--seed-list", type=int, nargs="+", help="these seeds instead of --seeds/--first-seed"
+    )
     p.add_argument("--trials", type=int, required=True, help="policy trials per seed")
     p.add_argument("--eval-episodes", type=int, default=5, help="evaluation episodes per trial")
     p.add_argument("--budget-s", type=float, required=True, help="experience budget [s]")
@@ -38,7 +43,7 @@ def build_parser() -> argparse.ArgumentParser:
 @console_main("mcpilco-bench-eval")
 def main(argv: list[str]) -> None:
     args = build_parser().parse_args(argv)
-    seeds = list(range(args.first_seed, args.first_seed + args.seeds))
+    seeds = args.seed_list or list(range(args.first_seed, args.first_seed + args.seeds))
     tag = args.env.split("/")[-1] + (f"_{args.label}" if args.label else "")
     command = "mcpilco-bench-eval " + shlex.join(argv)
 
