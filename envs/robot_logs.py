@@ -38,6 +38,11 @@ Controller (inner loop at the physics rate, exact state)
   M_jj)`` the joint's closed-loop bandwidth, ``Kd_j = 2 M_jj w_j`` (critical damping) and
   ``Ki_j = INTEGRAL_SHARE w_j Kp_j`` (:data:`INTEGRAL_SHARE`): integral action, which breaks
   a joint loose that static friction holds against the proportional term.
+* the coupled loop (:func:`coupled_servo_cap`): where joint axes line up, a joint's effective
+  inertia ``1 / (M^-1)_jj`` falls far below ``M_jj``; the bandwidths of the joints in the
+  worst mode are lowered until ``dt lambda_max(M(q)^-1 K_d) <= 1``
+  (:data:`MAX_DAMPING_STEP`) at :data:`COUPLING_SAMPLES` points of the reference, so that
+  the servo never chatters at the physics rate.
 * ``z`` integrates ``e`` at the physics rate while ``tau_c`` is within the limit
   (conditional integration: no wind-up while the torque saturates); it starts at 0.
 * ``tau_max``: the table's ``torque_limit`` (no limit when ``None``; no floor then).
@@ -131,6 +136,7 @@ __all__ = [
     "RobotLog",
     "build_models",
     "gravity_torque",
+    "coupled_servo_cap",
     "servo_gains",
     "simulate_log",
     "write_log",
@@ -167,6 +173,16 @@ explicit servo, evaluated once per physics step, far from its stability limit.""
 LIGHTEST_SAMPLES = 50
 """Configurations along the reference at which :func:`simulate_log` reads each joint's
 lightest inertia for the cap of :func:`servo_gains`."""
+MAX_DAMPING_STEP = 1.0
+"""Largest ``dt lambda_max(M(q)^-1 K_d)`` along the reference (:func:`coupled_servo_cap`): the
+explicit damping term never reverses a velocity mode within one physics step (2 is the
+stability limit, where the servo chatters at the physics rate)."""
+COUPLING_SAMPLES = 500
+"""Configurations along the reference at which :func:`simulate_log` checks the coupled loop
+(:func:`coupled_servo_cap`): every 10 ms of a 5 s log, dense enough to catch the brief pass of
+a 7-joint arm through a configuration where two joint axes line up."""
+COUPLING_ITERATIONS = 50
+"""Most rescaling rounds of :func:`coupled_servo_cap` before the uniform fallback."""
 INTEGRAL_SHARE = 0.1
 """Integral gain over ``w_j Kp_j`` (:func:`servo_gains`): integral time ``10 / w_j``, slow
 against the PD loop, which it leaves critically damped in all but the slowest pole."""
@@ -417,6 +433,63 @@ def servo_gains(
     return kp, 2.0 * m * w, INTEGRAL_SHARE * w * kp
 
 
+def coupled_servo_cap(
+    kp: ArrayLike,
+    kd: ArrayLike,
+    ki: ArrayLike,
+    masses: ArrayLike,
+    timestep: float = PHYSICS_TIMESTEP,
+    limit: float = MAX_DAMPING_STEP,
+) -> tuple[FloatArray, FloatArray, FloatArray]:
+    """Servo gains whose coupled loop stays within ``limit`` at every configuration.
+
+    :func:`servo_gains` caps each joint on its own inertia ``M_jj``, but the explicit servo
+    acts on the whole arm: one physics step maps the velocity through ``I - dt M(q)^-1 K_d``
+    (``K_p`` adds ``dt^2 M^-1 K_p``, negligible at the capped gains), which reverses a mode
+    when ``rho = dt lambda_max(M^-1 K_d) > 1`` and diverges (chatters at the physics rate,
+    the torque bang-bang at its limit) beyond 2. Where two joint axes line up (a 7-joint
+    arm's first and third joints with the second near 0) the first joint's effective inertia
+    ``1 / (M^-1)_11`` falls far below ``M_11``, and ``rho`` past 2. The eigenvalues of
+    ``M^-1 K_d`` are those of the symmetric ``A = K_d^(1/2) M^-1 K_d^(1/2)``; while the worst
+    configuration's ``rho`` exceeds ``limit``, each joint's bandwidth is scaled by
+    ``f_j = (limit / rho)^(u_j^2)`` (``u`` the unit eigenvector of that mode: the joints in
+    the mode share the reduction in proportion to their share ``u_j^2`` of it, with
+    ``prod_j f_j = limit / rho``), i.e. ``K_d`` by ``f_j``, ``K_p`` by ``f_j^2`` and ``K_i``
+    by ``f_j^3`` (damping ratios kept). Gains that already satisfy the cap come back unchanged.
+
+    Args:
+        kp, kd, ki: the gains (n,) of :func:`servo_gains`.
+        masses: ``M(q)`` (S, n, n) of the nominal model at configurations along the motion.
+        timestep: the physics timestep ``dt`` [s].
+        limit: the largest ``rho`` (:data:`MAX_DAMPING_STEP`).
+    """
+    kp, kd, ki = (np.array(x, dtype=np.float64) for x in (kp, kd, ki))
+    m = np.asarray(masses, dtype=np.float64)
+    if m.ndim != 3 or m.shape[1:] != (kd.size, kd.size) or not limit > 0:
+        raise ValueError(
+            f"masses must be (S, {kd.size}, {kd.size}) and limit > 0, got {m.shape}, {limit}"
+        )
+    inv = np.linalg.inv(m)
+
+    def worst() -> tuple[float, FloatArray]:
+        r = np.sqrt(kd)
+        w, v = np.linalg.eigh(r[:, None] * inv * r[None, :])
+        s = int(np.argmax(w[:, -1]))
+        return float(timestep * w[s, -1]), v[s, :, -1]
+
+    for _ in range(COUPLING_ITERATIONS):
+        rho, u = worst()
+        if rho <= limit:
+            return kp, kd, ki
+        f = (limit / rho) ** (u**2)
+        kd, kp, ki = kd * f, kp * f**2, ki * f**3
+    rho, _ = worst()
+    if rho > limit:  # the rounds did not converge: scale every joint alike
+        f = np.full_like(kd, limit / rho)
+        kd, kp, ki = kd * f, kp * f**2, ki * f**3
+    return kp, kd, ki
+
+
 def simulate_log(
     arm: ArmSpec,
     effects: Sequence[HiddenEffect] = (),
@@ -503,6 +576,12 @@ def simulate_log(
     kp, kd, ki = servo_gains(
         np.diag(mass), limit, arm.joint_types, bandwidth, timestep, lightest=lightest
     )
+    masses = np.zeros((COUPLING_SAMPLES, n, n))  # M(q_ref(t)) for the coupled loop's cap
+    for i, t in enumerate(np.linspace(0.0, duration, COUPLING_SAMPLES)):
+        nom_data.qpos[:] = ref(float(t))[0]
+        mujoco.mj_forward(nominal, nom_data)
+        mujoco.mj_fullM(nominal, nom_data, masses[i])
+    kp, kd, ki = coupled_servo_cap(kp, kd, ki, masses, timestep)
     integral = np.zeros(n)  # z: the integral of the tracking error
     applied = any(e.kind in APPLIED_KINDS for e in effects)
 

@@ -212,3 +212,59 @@ def test_a_spring_too_stiff_for_the_time_step_is_reported_as_diverged(arm):
     # the first joint past its tracking limit may be one the spring's joint shakes
     with pytest.raises(SimulationDiverged, match=r"'stiffness', 3, .* too stiff for the time step"):
         simulate_log(arm, [HiddenEffect("stiffness", 3, k)], duration=0.5, timestep=dt, seed=0)
+
+
+def coaxial_masses(light: float, heavy: float, angles: np.ndarray) -> np.ndarray:
+    """``M(q)`` of two joints whose axes line up at ``angle = 0``: joint 1 turns bodies 1 and
+    2, joint 2 only body 2 (inertia ``heavy`` about both axes when aligned, less as the axes
+    part), so that ``1 / (M^-1)_11`` falls to ``light`` at alignment."""
+    c = np.cos(angles)
+    m = np.zeros((angles.size, 2, 2))
+    m[:, 0, 0] = light + heavy * (0.5 + 0.5 * c**2)
+    m[:, 0, 1] = m[:, 1, 0] = heavy * c
+    m[:, 1, 1] = heavy
+    return m
+
+
+def test_coupled_servo_cap_bounds_the_coupled_damping_step():
+    from mcpilco.envs.robot_logs import coupled_servo_cap
+
+    dt, light, heavy = 1e-3, 0.01, 1.0
+    masses = coaxial_masses(light, heavy, np.linspace(-0.5, 0.5, 41))
+    kd = np.array([0.4 * masses[0, 0, 0] / dt, 0.4 * heavy / dt])  # each at 0.4 on its own M_jj
+    kp = (kd / 2) ** 2 / np.array([masses[0, 0, 0], heavy])  # critically damped on M_jj
+    ki = 0.1 * kp
+
+    def rho(kd_):  # the non-symmetric product's spectrum, computed directly
+        return max(
+            dt * np.abs(np.linalg.eigvals(np.linalg.inv(m) @ np.diag(kd_))).max() for m in masses
+        )
+
+    assert rho(kd) > 2.0  # the diagonal caps alone leave the aligned loop unstable
+    kp2, kd2, ki2 = coupled_servo_cap(kp, kd, ki, masses, dt, limit=1.0)
+    assert rho(kd2) <= 1.0 + 1e-9
+    np.testing.assert_allclose(kd2**2 / kp2, kd**2 / kp)  # damping ratios kept
+    np.testing.assert_allclose(ki2 / kp2**1.5, ki / kp**1.5)  # integral time in units of 1/w
+    assert (kd2 <= kd).all() and (kd2 < kd).any()
+
+    far = coaxial_masses(light, heavy, np.linspace(1.2, 1.5, 5))  # axes apart: M^-1 Kd small
+    small = 0.1 * kd
+    assert (
+        max(dt * np.abs(np.linalg.eigvals(np.linalg.inv(m) @ np.diag(small))).max() for m in far)
+        < 1.0
+    )
+    out = coupled_servo_cap(kp * 1e-2, small, ki, far, dt, limit=1.0)
+    np.testing.assert_array_equal(out[1], small)  # within the cap: unchanged
+
+
+def test_iiwa_log_through_aligned_axes_does_not_chatter():
+    """A reference of the iiwa 14 that passes its first and third joints' axes through
+    alignment: with the diagonal caps alone the servo chattered there at the physics rate
+    (|qdd| ~ 6,000 rad/s^2, the first joint's torque at its limit for 0.4 s)."""
+    from mcpilco.envs.arms import iiwa14
+
+    arm = iiwa14().without_friction()
+    log = simulate_log(arm, duration=5.0, seed=1234240068, **QUIET)
+    limit = arm.joint_array("torque_limit")
+    assert np.abs(log.truth.qdd).max() < 100.0
+    assert (np.abs(log.truth.tau) < 0.999 * limit).all()
