@@ -460,8 +460,10 @@ def armature_columns(qdd: Any) -> Any:
     return out
 
 
-CHAIN_RESTARTS = 2
-"""Random starts of :class:`ChainEstimator`'s kinematics search, besides the grid's."""
+CHAIN_RESTARTS = 10
+"""Random starts of :class:`ChainEstimator`'s kinematics search, besides the grid's: on a
+random 7R arm's log (twists off the quarter-turn grid) about one in five reaches the
+global minimum, the others a few local minima at 15-25 times its loss."""
 CHAIN_TWISTS = (0.0, math.pi / 2, -math.pi / 2, math.pi)
 """Twists ``alpha_i`` and joint offsets ``theta0_i`` of the grid search: a real arm's axes
 are parallel or at right angles, so its DH twists and offsets almost always lie here."""
@@ -481,8 +483,10 @@ CHAIN_GRID_STARTS = 6
 :data:`CHAIN_TWISTS`, lengths zero, gravity along ``-z``)."""
 CHAIN_GRID_SWEEPS = 8
 """Most sweeps of one coordinate descent on the grid."""
-CHAIN_GRID_ROWS = 300
-"""Rows (evenly spaced) of the grid search's loss (the kinematics fixed: no gradient)."""
+CHAIN_GRID_ROWS = 1000
+"""Rows (evenly spaced) of the grid search's loss (the kinematics fixed: no gradient): on
+300 rows of a noisy log (relative loss 0.13 at the true kinematics) the grid's best point
+fits the noise below the true kinematics' loss and its descent ends in a wrong minimum."""
 CHAIN_GRID_KEEP = 3
 """Best distinct grid points refined by L-BFGS."""
 CHAIN_SEARCH_ROWS = 600
@@ -499,6 +503,12 @@ CHAIN_SEARCH_TOLERANCE = 1e-10
 this: on noisy torques the loss levels off at the noise's share (about 1e-2), where further
 steps only move the kinematics within their noise (the refinement polishes the best start
 to ``1e-14``)."""
+CHAIN_THREADS = 1
+"""Torch threads of :class:`ChainEstimator`'s fit (the count before it restored after): its
+matrices are small (``11 n`` parameters, 600-4000 rows), so a second thread gains little
+and, on cores shared with other jobs, spent 5-18 times the CPU and 5-18 times the wall
+time of one thread (grid evaluations, L-BFGS descents and the refinement of a 7-joint
+chain measured both ways)."""
 CHAIN_EXACT = 1e-9
 """Relative loss of an exact fit: the search stops early once two starts reach it (noise-free
 torques); otherwise every start runs (a local minimum is often found twice, so agreement
@@ -531,8 +541,8 @@ class ChainEstimator(LagrangianEstimator):
        gravity; per joint its 16 twist-and-offset pairs, its length ``a_i``, its offset
        ``d0_i``), each block set to its best value given the others, sweeps until none
        moves (at most :data:`CHAIN_GRID_SWEEPS`), from ``grid_starts`` random grid points;
-       the loss on :data:`CHAIN_GRID_ROWS` rows without gradient (about 10 ms for 7 joints;
-       about 1,000 evaluations per start, ``grid_evaluations_``).
+       the loss on :data:`CHAIN_GRID_ROWS` rows without gradient (about 14 ms for 7 joints
+       on one thread; about 1,000-1,500 evaluations per start, ``grid_evaluations_``).
     2. The :data:`CHAIN_GRID_KEEP` best distinct grid points and ``restarts`` random starts
        (for arms whose axes are at other angles) descended by L-BFGS on ``search_rows``
        rows, keeping the best (fewer starts when two fit exactly, :data:`CHAIN_EXACT`).
@@ -563,6 +573,8 @@ class ChainEstimator(LagrangianEstimator):
             gravity direction ``(b, c)`` (:func:`chain_columns`): no search, only the
             inertial parameters are fitted (a robot whose kinematics are known but not its
             inertias; both or neither).
+        threads: torch threads of the fit (:data:`CHAIN_THREADS`; the count before it
+            restored after; ``None``: leave as is).
 
     Fitted attributes (besides :class:`LagrangianEstimator`'s): ``kinematics_`` ``(n, 4)``,
     ``gravity_`` ``(2,)``, ``search_loss_`` (the best relative loss), ``refine_loss_`` (the
@@ -586,9 +598,13 @@ class ChainEstimator(LagrangianEstimator):
         seed: int = 0,
         kinematics: Any = None,
         gravity: Any = None,
+        threads: int | None = CHAIN_THREADS,
     ) -> None:
         self.joint_types = check_joint_types(joint_types)
         InverseDynamicsEstimator.__init__(self, len(self.joint_types))
+        if threads is not None and threads < 1:
+            raise ValueError(f"threads must be >= 1 or None, got {threads}")
+        self.threads = threads
         n = len(self.joint_types)
         if (kinematics is None) != (gravity is None):
             raise ValueError("give both kinematics and gravity, or neither")
@@ -808,12 +824,20 @@ class ChainEstimator(LagrangianEstimator):
         self.gravity_ = x[4 * n :].numpy().copy()
 
     def _fit(self, states: JointStates, y: FloatArray) -> None:
-        if self.known is None:
-            self._search(states, y)
-        else:
-            self.kinematics_, self.gravity_ = (x.copy() for x in self.known)
-            self.search_loss_, self.starts_ = math.nan, 0
-        super()._fit(states, y)
+        import torch
+
+        before = torch.get_num_threads()
+        if self.threads is not None:
+            torch.set_num_threads(self.threads)
+        try:
+            if self.known is None:
+                self._search(states, y)
+            else:
+                self.kinematics_, self.gravity_ = (x.copy() for x in self.known)
+                self.search_loss_, self.starts_ = math.nan, 0
+            super()._fit(states, y)
+        finally:
+            torch.set_num_threads(before)
 
     def _solve(self, b: FloatArray, yy: FloatArray) -> None:
         """Shared parameters: :meth:`LagrangianEstimator._solve`; ``per_joint``: one
