@@ -217,10 +217,18 @@ def report(payload: dict[str, Any]) -> str:
             f"{_pct(s['ci95'])}) after {h['experience_s']:.0f} s."
         )
         if h is payload["per_trial"][-1] and h["experience_s"] < payload["budget_s"] - 1e-9:
-            md[-1] += (
-                f" The runs end there, short of the budget: nothing is known of the trials "
-                f"up to {payload['budget_s']:.0f} s."
-            )
+            after = next_trial_ends(payload["per_seed"])
+            if after is not None and after > payload["budget_s"] + 1e-9:
+                md[-1] += (
+                    f" A further trial would end at {after:.1f} s or later on every seed (it "
+                    "lasts at least as long as the seed's last: the horizon never shrinks), "
+                    "past the budget."
+                )
+            else:
+                md[-1] += (
+                    f" The runs end there, short of the budget: nothing is known of the "
+                    f"trials up to {payload['budget_s']:.0f} s."
+                )
     md += ["", "Per seed (evaluation successes after each policy trial):", ""]
     for s in payload["per_seed"]:
         cells = ", ".join(
@@ -230,6 +238,19 @@ def report(payload: dict[str, Any]) -> str:
         )
         md.append(f"- seed {s['seed']}: {cells} ({s['seconds']:.0f} s)")
     return "\n".join(md) + "\n"
+
+
+def next_trial_ends(seeds: list[dict[str, Any]]) -> float | None:
+    """The earliest experience [s] at which any seed's next policy trial could end: each
+    seed's last trial end plus that trial's length (a horizon never shrinks); ``None`` when
+    a seed has fewer than two policy trials (its last trial's length is not known)."""
+    ends = []
+    for s in seeds:
+        t = [float(x["experience_s"]) for x in s["trials"]]
+        if len(t) < 2:
+            return None
+        ends.append(2.0 * t[-1] - t[-2])
+    return min(ends) if ends else None
 
 
 def _unfinished(payload: dict[str, Any]) -> list[str]:

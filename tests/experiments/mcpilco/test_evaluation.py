@@ -51,3 +51,14 @@ def test_seeds_with_grown_horizons_count_at_their_most_experience(tmp_path):
     assert payload["headline"]["experience_s"] == 8.0  # trial 2 is not by 12 s for seed 1
     md = write_report(payload, tmp_path).with_suffix(".md").read_text()
     assert "| 12-14 s | 2/2" in md and "14 s: 5/5 (H = 120)" in md
+
+
+def test_a_further_trial_past_the_budget_is_said_so(tmp_path):
+    # trials end at 8, 12, 16 s (4 s each): with a 18 s budget the next would end at 20 s
+    runs = [_run(0, [(0, 5), (0, 5), (0, 5)]), _run(1, [(0, 5), (5, 5), (5, 5)])]
+    md = write_report(make_payload("Pendulum-v1", runs, 3, 5, 18.0), tmp_path)
+    text = md.with_suffix(".md").read_text()
+    assert "would end at 20.0 s or later on every seed" in text and "nothing is known" not in text
+    # with a 25 s budget a further trial (ending at 20 s) would have fitted
+    md = write_report(make_payload("Pendulum-v1", runs, 3, 5, 25.0), tmp_path, "b")
+    assert "nothing is known of the trials up to 25 s" in md.with_suffix(".md").read_text()
