@@ -59,6 +59,7 @@ from mcpilco.models.inverse_dynamics.rigid_span import (
     LagrangianEstimator,
     armature_columns,
     chain_columns,
+    difference_noise,
     lagrangian_columns,
     lagrangian_parameters,
 )
@@ -87,6 +88,7 @@ __all__ = [
     "gmse",
     "input_names",
     "armature_columns",
+    "difference_noise",
     "chain_columns",
     "lagrangian_columns",
     "lagrangian_parameters",

@@ -60,6 +60,7 @@ __all__ = [
     "ChainEstimator",
     "LagrangianEstimator",
     "armature_columns",
+    "difference_noise",
     "chain_columns",
     "lagrangian_columns",
     "lagrangian_parameters",
@@ -492,17 +493,39 @@ CHAIN_ITERATIONS = 400
 CHAIN_REFINE_ROWS = 4000
 """Rows (evenly spaced) on which :class:`ChainEstimator` refines the best start's
 kinematics: the search's rows leave the kinematics off by their noise (estimated ``qdd``)."""
-CHAIN_REFINE_ITERATIONS = 100
+CHAIN_REFINE_ITERATIONS = 400
 """Most L-BFGS iterations of the refinement."""
 CHAIN_SEARCH_TOLERANCE = 1e-10
-"""A start of the search stops once an L-BFGS step changes its relative loss by less than
-this: on noisy torques the loss levels off at the noise's share (about 1e-2), where further
-steps only move the kinematics within their noise (the refinement polishes the best start
-to ``1e-14``)."""
+"""A start of the search stops once an L-BFGS step changes its loss (in units of each
+joint's noise variance: about 1 at the noise floor) by less than this; further steps only
+move the kinematics within their noise (the refinement polishes the best start to
+``1e-14``)."""
+NOISE_DIFFERENCE = (1.0, -2.0, 1.0)
+"""Second difference whose median absolute value estimates a column's white-noise std
+(:func:`difference_noise`; a smooth signal's share is ``O(dt^2)``)."""
+MAD_TO_STD = 1.4826
+"""Median absolute deviation of a normal variable over its standard deviation, inverted."""
+MIN_SEARCH_SCALE = 1e-6
+"""Smallest weight scale of a joint in the kinematics search, relative to its root mean
+square (noise-free torques would otherwise weigh one joint without bound)."""
 CHAIN_EXACT = 1e-9
 """Relative loss of an exact fit: the search stops early once two starts reach it (noise-free
 torques); otherwise every start runs (a local minimum is often found twice, so agreement
 between starts does not show the global one)."""
+
+
+def difference_noise(y: FloatArray) -> FloatArray:
+    """``(n,)`` white-noise std of each column of ``y`` ``(N, n)`` (rows in time order), from
+    the median absolute second difference (:data:`NOISE_DIFFERENCE`, :data:`MAD_TO_STD`):
+    a smooth signal's curvature adds ``O(dt^2)``, and the median ignores the few jumps
+    (file boundaries, impacts). Rows out of time order give about the signal's own scale."""
+    c = np.asarray(NOISE_DIFFERENCE)
+    y = np.asarray(y, dtype=np.float64)
+    if y.shape[0] < c.size:
+        return np.sqrt(np.mean(y**2, axis=0))
+    d = sum(c[k] * y[k : y.shape[0] - c.size + 1 + k] for k in range(c.size))
+    mad = np.median(np.abs(d - np.median(d, axis=0)), axis=0)
+    return MAD_TO_STD * mad / math.sqrt(float(np.sum(c**2)))
 
 
 class ChainEstimator(LagrangianEstimator):
@@ -517,9 +540,15 @@ class ChainEstimator(LagrangianEstimator):
 
     The torque is linear in the inertial parameters ``pi`` for fixed kinematics ``kappa``
     (DH numbers and the gravity direction), so the kinematics are searched by variable
-    projection: each joint's torques divided by their root mean square, the loss is
-    :math:`\\min_\\pi \\lVert y - C(\\kappa)\\pi \\rVert^2 / \\lVert y \\rVert^2` (``pi`` by
-    ridge least squares inside, differentiated through by torch autograd). The problem is
+    projection: each joint's torques divided by its noise std ``s_a``
+    (:func:`difference_noise` of its rows in time order, clipped to at most its root mean
+    square), the loss is :math:`\\min_\\pi \\lVert y - C(\\kappa)\\pi \\rVert^2` of these
+    whitened torques (``pi`` by ridge least squares inside, differentiated through by torch
+    autograd; reported relative to :math:`\\lVert y \\rVert^2`). Whitening weighs each joint
+    as the likelihood does: with each joint over its own root mean square instead, a joint
+    that carries little more than noise (the Panda's last joint) fills the loss
+    and a kinematics that leaves the shoulder at 20-40 times its noise scores as well as
+    the arm's own (Panda, 2 x 5 s log). The problem is
     not convex: from random starts L-BFGS ends in a local minimum most of the time (on the
     Panda's log about 1.4 times the loss at its own kinematics). The search starts where
     real arms lie:
@@ -565,7 +594,8 @@ class ChainEstimator(LagrangianEstimator):
             inertias; both or neither).
 
     Fitted attributes (besides :class:`LagrangianEstimator`'s): ``kinematics_`` ``(n, 4)``,
-    ``gravity_`` ``(2,)``, ``search_loss_`` (the best relative loss), ``refine_loss_`` (the
+    ``gravity_`` ``(2,)``, ``search_scale_`` ``(n,)`` (each joint's ``s_a``),
+    ``search_loss_`` (the best relative loss), ``refine_loss_`` (the
     refinement's; NaN without one), ``starts_`` (starts descended), ``grid_loss_`` (the
     grid search's best; NaN without one), ``grid_evaluations_``.
     """
@@ -641,14 +671,14 @@ class ChainEstimator(LagrangianEstimator):
 
     def _projection_loss(self, states: JointStates, y: FloatArray, count: int) -> Any:
         """The variable-projection loss of the kinematics on ``count`` evenly spaced rows
-        (class docstring): each joint's torques over their root mean square, the inertial
+        (class docstring): each joint's torques over ``search_scale_``, the inertial
         parameters by ridge least squares inside, differentiated through."""
         import torch
 
         N, n = states.q.shape[0], len(self.joint_types)
         rows = np.unique(np.round(np.linspace(0, N - 1, min(count, N))).astype(int))
         q, qd, qdd = (torch.as_tensor(x[rows]) for x in (states.q, states.qd, states.qdd))
-        scale = np.sqrt(np.maximum(np.mean(y[rows] ** 2, axis=0), 1e-300))
+        scale = self.search_scale_
         target = torch.as_tensor((y[rows] / scale).T.reshape(-1))
         weight = torch.as_tensor(1.0 / scale)[:, None, None]
         ridge = 1e-8 * target.numel() * torch.eye(self.n_features_, dtype=torch.float64)
@@ -667,6 +697,7 @@ class ChainEstimator(LagrangianEstimator):
             pi = torch.linalg.solve(A.T @ A + ridge, A.T @ target)
             return (target - A @ pi).pow(2).mean()
 
+        loss.total = float(target.pow(2).mean().clamp_min(1e-300))  # relative loss = loss / total
         return loss
 
     @staticmethod
@@ -766,7 +797,7 @@ class ChainEstimator(LagrangianEstimator):
             if math.isfinite(best) and not any(torch.equal(x, z) for _, z in found):
                 found.append((best, x))
         self.grid_evaluations_ = count
-        self.grid_loss_ = min((v for v, _ in found), default=math.nan)
+        self.grid_loss_ = min((v for v, _ in found), default=math.nan) / loss.total
         return sorted(found, key=lambda t: t[0])
 
     def _search(self, states: JointStates, y: FloatArray) -> None:
@@ -776,6 +807,8 @@ class ChainEstimator(LagrangianEstimator):
         import torch
 
         n = len(self.joint_types)
+        rms = np.sqrt(np.maximum(np.mean(y**2, axis=0), 1e-300))
+        self.search_scale_ = np.clip(difference_noise(y), MIN_SEARCH_SCALE * rms, rms)
         loss = self._projection_loss(states, y, self.search_rows)
         starts = [x for _, x in self._grid_search(states, y)[:CHAIN_GRID_KEEP]]
         gen = torch.Generator().manual_seed(self.seed)
@@ -793,17 +826,17 @@ class ChainEstimator(LagrangianEstimator):
             value, x = self._descend(loss, x0, CHAIN_ITERATIONS, CHAIN_SEARCH_TOLERANCE)
             if math.isfinite(value):
                 found.append((value, x))
-            if sum(v < CHAIN_EXACT for v, _ in found) >= 2:
+            if sum(v < CHAIN_EXACT * loss.total for v, _ in found) >= 2:
                 break  # two exact fits (noise-free torques): nothing left to find
         if not found:
             raise ValueError("the kinematics search diverged from every start; check the data")
         value, x = min(found, key=lambda t: t[0])
-        self.search_loss_, self.starts_ = value, len(found)
+        self.search_loss_, self.starts_ = value / loss.total, len(found)
         if self.refine_rows > self.search_rows and states.q.shape[0] > self.search_rows:
             refine = self._projection_loss(states, y, self.refine_rows)
             fine, x_fine = self._descend(refine, x, CHAIN_REFINE_ITERATIONS, 1e-14)
             if math.isfinite(fine):
-                x, self.refine_loss_ = x_fine, fine
+                x, self.refine_loss_ = x_fine, fine / refine.total
         self.kinematics_ = x[: 4 * n].view(n, 4).numpy().copy()
         self.gravity_ = x[4 * n :].numpy().copy()
 

@@ -271,3 +271,46 @@ def test_chain_grid_search_recovers_an_arm_with_right_angle_twists():
     assert est.grid_evaluations_ > 0 and np.all(err < 1e-5), err
     with pytest.raises(ValueError, match="one start at least"):
         ChainEstimator("RR", restarts=0, grid_starts=0)
+
+
+def test_difference_noise_recovers_white_noise_on_smooth_signals():
+    """Smooth signals of very different sizes (0.05 to 50, sampled at 4 ms) plus white
+    Gaussian noise of known std per column, with jumps where files are joined: the median
+    second difference gives each column's noise std (to 5%); rows out of time order give
+    about the signal's own scale instead."""
+    from mcpilco.models.inverse_dynamics import difference_noise
+
+    rng = np.random.default_rng(0)
+    t = np.arange(20000) * 0.004
+    amp = np.array([0.05, 1.0, 50.0])
+    sigma = np.array([0.03, 0.01, 0.2])
+    clean = amp * np.sin(2 * np.pi * np.array([0.3, 0.7, 0.5]) * t[:, None] + 1.0)
+    clean[10000:] += 5 * amp  # two files joined: one jump
+    y = clean + sigma * rng.standard_normal(clean.shape)
+    assert np.allclose(difference_noise(y), sigma, rtol=0.05), difference_noise(y)
+    shuffled = difference_noise(y[rng.permutation(y.shape[0])])
+    assert np.all(shuffled > 0.5 * np.sqrt(np.mean((y - y.mean(0)) ** 2, axis=0))), shuffled
+
+
+def test_chain_search_weighs_joints_by_their_noise():
+    """Noise-free torques on random rows (no time order): each joint's search scale is of
+    the size of its torques; the same arm along a smooth trajectory with white noise of
+    known std: its noise std (to 10%)."""
+    from mcpilco.models.inverse_dynamics import ChainEstimator
+
+    rnea = _rnea("RR", 1)
+    X = _random_states(2, 400, 0)
+    y = rnea(X)
+    fast = dict(restarts=0, grid_starts=1, search_rows=200, refine_rows=200)
+    est = ChainEstimator("RR", **fast).fit(X, y)
+    rms = np.sqrt(np.mean(y**2, axis=0))
+    assert np.all(est.search_scale_ <= rms) and np.all(est.search_scale_ > 0.5 * rms)
+    t = np.arange(2000)[:, None] * 0.004
+    q = np.sin(2 * np.pi * np.array([0.4, 0.6]) * t)
+    qd = 2 * np.pi * np.array([0.4, 0.6]) * np.cos(2 * np.pi * np.array([0.4, 0.6]) * t)
+    qdd = -((2 * np.pi * np.array([0.4, 0.6])) ** 2) * q
+    Xs = np.concatenate([q, qd, qdd], 1)
+    sigma = np.array([0.05, 0.01])
+    ys = rnea(Xs) + sigma * np.random.default_rng(1).standard_normal((2000, 2))
+    est = ChainEstimator("RR", **fast).fit(Xs, ys)
+    assert np.allclose(est.search_scale_, sigma, rtol=0.1), est.search_scale_
