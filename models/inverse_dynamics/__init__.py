@@ -60,6 +60,7 @@ from mcpilco.models.inverse_dynamics.rigid_span import (
     armature_columns,
     chain_columns,
     difference_noise,
+    joint_local_columns,
     lagrangian_columns,
     lagrangian_parameters,
 )
@@ -89,6 +90,7 @@ __all__ = [
     "input_names",
     "armature_columns",
     "difference_noise",
+    "joint_local_columns",
     "chain_columns",
     "lagrangian_columns",
     "lagrangian_parameters",

@@ -61,6 +61,7 @@ __all__ = [
     "LagrangianEstimator",
     "armature_columns",
     "difference_noise",
+    "joint_local_columns",
     "chain_columns",
     "lagrangian_columns",
     "lagrangian_parameters",
@@ -500,6 +501,13 @@ CHAIN_SEARCH_TOLERANCE = 1e-10
 joint's noise variance: about 1 at the noise floor) by less than this; further steps only
 move the kinematics within their noise (the refinement polishes the best start to
 ``1e-14``)."""
+SEARCH_FRICTION_VELOCITY = 0.01
+"""Velocity [rad/s or m/s] of the ``tanh`` of the dry-friction column of the kinematics
+search's joint-local terms (:func:`joint_local_columns`)."""
+SEARCH_REST_VELOCITY = 0.05
+"""A joint's rows with ``|qd_a|`` below this [rad/s or m/s] are left out of its part of the
+kinematics search's loss: at rest a dry friction's torque is set-valued (anything that
+holds the joint), which no column follows."""
 NOISE_DIFFERENCE = (1.0, -2.0, 1.0)
 """Second difference whose median absolute value estimates a column's white-noise std
 (:func:`difference_noise`; a smooth signal's share is ``O(dt^2)``)."""
@@ -512,6 +520,23 @@ CHAIN_EXACT = 1e-9
 """Relative loss of an exact fit: the search stops early once two starts reach it (noise-free
 torques); otherwise every start runs (a local minimum is often found twice, so agreement
 between starts does not show the global one)."""
+
+
+def joint_local_columns(q: Any, qd: Any) -> Any:
+    """``(n, N, 4 n)``: on each joint ``a`` alone an offset, a spring ``q_a``, a viscous
+    ``qd_a`` and a dry friction ``tanh(qd_a / v)`` (:data:`SEARCH_FRICTION_VELOCITY`)
+    column (torch tensors): torques no chain holds, which :class:`ChainEstimator`'s
+    kinematics search projects out so that they do not bend the kinematics."""
+    import torch
+
+    n = qd.shape[1]
+    feats = torch.stack(
+        [torch.ones_like(qd), q, qd, torch.tanh(qd / SEARCH_FRICTION_VELOCITY)], 2
+    )  # (N, n, 4)
+    out = torch.zeros(n, qd.shape[0], 4 * n, dtype=qd.dtype)
+    for a in range(n):
+        out[a, :, 4 * a : 4 * a + 4] = feats[:, a]
+    return out
 
 
 def difference_noise(y: FloatArray) -> FloatArray:
@@ -548,7 +573,13 @@ class ChainEstimator(LagrangianEstimator):
     as the likelihood does: with each joint over its own root mean square instead, a joint
     that carries little more than noise (the Panda's last joint) fills the loss
     and a kinematics that leaves the shoulder at 20-40 times its noise scores as well as
-    the arm's own (Panda, 2 x 5 s log). The problem is
+    the arm's own (Panda, 2 x 5 s log). Torques no chain holds are projected out with the
+    inertial parameters: an offset, a spring, a viscous and a dry friction on each joint
+    alone (:func:`joint_local_columns`, in the search only: the fitted start leaves them in
+    its residual), and a joint's rows at rest (:data:`SEARCH_REST_VELOCITY`: a dry
+    friction's set-valued torque) are left out of its part of the loss; otherwise dry
+    friction of 2-3 N m on two Panda joints bent the kinematics until the other joints
+    stood at 7-49 times their noise. The problem is
     not convex: from random starts L-BFGS ends in a local minimum most of the time (on the
     Panda's log about 1.4 times the loss at its own kinematics). The search starts where
     real arms lie:
@@ -679,12 +710,16 @@ class ChainEstimator(LagrangianEstimator):
         rows = np.unique(np.round(np.linspace(0, N - 1, min(count, N))).astype(int))
         q, qd, qdd = (torch.as_tensor(x[rows]) for x in (states.q, states.qd, states.qdd))
         scale = self.search_scale_
-        target = torch.as_tensor((y[rows] / scale).T.reshape(-1))
-        weight = torch.as_tensor(1.0 / scale)[:, None, None]
-        ridge = 1e-8 * target.numel() * torch.eye(self.n_features_, dtype=torch.float64)
+        moving = torch.as_tensor(np.abs(states.qd[rows]) > SEARCH_REST_VELOCITY).T  # (n, N)
+        target = torch.as_tensor((y[rows] / scale).T * moving.numpy()).reshape(-1)
+        weight = torch.as_tensor(1.0 / scale)[:, None, None] * moving[:, :, None]
+        local = joint_local_columns(q, qd)
+        P = self.n_features_ + local.shape[2]
+        ridge = 1e-8 * target.numel() * torch.eye(P, dtype=torch.float64)
 
         def loss(x: Any) -> Any:
             C = self._columns(x[: 4 * n].view(n, 4), x[4 * n :], q, qd, qdd)
+            C = torch.cat([C, local], 2)
             if self.per_joint:  # each joint its own parameters: free of its units
                 A = C * weight
                 A = A / A.detach().pow(2).mean(1, keepdim=True).sqrt().clamp_min(1e-12)
@@ -692,7 +727,7 @@ class ChainEstimator(LagrangianEstimator):
                 H = A.transpose(1, 2) @ A + ridge / n
                 pi = torch.linalg.solve(H, A.transpose(1, 2) @ t)
                 return (t - A @ pi).pow(2).mean()
-            A = (C * weight).reshape(-1, self.n_features_)
+            A = (C * weight).reshape(-1, P)
             A = A / A.detach().pow(2).mean(0).sqrt().clamp_min(1e-12)
             pi = torch.linalg.solve(A.T @ A + ridge, A.T @ target)
             return (target - A @ pi).pow(2).mean()

@@ -314,3 +314,35 @@ def test_chain_search_weighs_joints_by_their_noise():
     ys = rnea(Xs) + sigma * np.random.default_rng(1).standard_normal((2000, 2))
     est = ChainEstimator("RR", **fast).fit(Xs, ys)
     assert np.allclose(est.search_scale_, sigma, rtol=0.1), est.search_scale_
+
+
+@pytest.mark.slow
+def test_chain_search_is_not_bent_by_friction_springs_and_offsets():
+    """Torques of a random RRR arm along a smooth trajectory plus, on one joint, dry
+    friction far above the noise, damping, a spring and an offset (no chain holds them):
+    the kinematics search projects them out, so that the chain refitted on the torques
+    without them (``refit_targets`` keeps the kinematics) predicts the arm's inverse
+    dynamics on new states to within the noise."""
+    from mcpilco.models.inverse_dynamics import ChainEstimator
+
+    rnea = _rnea("RRR", 2)
+
+    def trajectory(rows, phase):
+        t = np.arange(rows)[:, None] * 0.004
+        w = 2 * np.pi * np.array([0.35, 0.5, 0.65])
+        q = 1.2 * np.sin(w * t + phase)
+        qd, qdd = 1.2 * w * np.cos(w * t + phase), -(w**2) * q
+        return np.concatenate([q, qd, qdd], 1)
+
+    X, Xt = trajectory(3000, 0.0), trajectory(1000, 1.0)
+    qd2 = X[:, 4]
+    local = 2.0 * np.tanh(qd2 / 0.01) + 0.5 * qd2 + 1.5 * X[:, 1] + 0.7
+    sigma = 0.02
+    y = rnea(X) + sigma * np.random.default_rng(0).standard_normal(X[:, :3].shape)
+    y[:, 1] += local
+    est = ChainEstimator("RRR", restarts=0, grid_starts=2, search_rows=300).fit(X, y)
+    y_clean = y.copy()
+    y_clean[:, 1] -= local
+    est.refit_targets(X, y_clean)
+    err = np.sqrt(np.mean((est.predict_mean(Xt) - rnea(Xt)) ** 2, axis=0))
+    assert np.all(err < sigma), err
