@@ -523,19 +523,19 @@ between starts does not show the global one)."""
 
 
 def joint_local_columns(q: Any, qd: Any) -> Any:
-    """``(n, N, 4 n)``: on each joint ``a`` alone an offset, a spring ``q_a``, a viscous
-    ``qd_a`` and a dry friction ``tanh(qd_a / v)`` (:data:`SEARCH_FRICTION_VELOCITY`)
-    column (torch tensors): torques no chain holds, which :class:`ChainEstimator`'s
-    kinematics search projects out so that they do not bend the kinematics."""
+    """``(n, N, 2 n)``: on each joint ``a`` alone a viscous ``qd_a`` and a dry friction
+    ``tanh(qd_a / v)`` (:data:`SEARCH_FRICTION_VELOCITY`) column (torch tensors): torques
+    no chain holds, which :class:`ChainEstimator`'s kinematics search projects out so that
+    they do not bend the kinematics (an offset and a spring ``q_a`` are left out: over a
+    joint's range they mimic gravity torques, and an effect-free Panda log then named an
+    offset)."""
     import torch
 
     n = qd.shape[1]
-    feats = torch.stack(
-        [torch.ones_like(qd), q, qd, torch.tanh(qd / SEARCH_FRICTION_VELOCITY)], 2
-    )  # (N, n, 4)
-    out = torch.zeros(n, qd.shape[0], 4 * n, dtype=qd.dtype)
+    feats = torch.stack([qd, torch.tanh(qd / SEARCH_FRICTION_VELOCITY)], 2)  # (N, n, 2)
+    out = torch.zeros(n, qd.shape[0], 2 * n, dtype=qd.dtype)
     for a in range(n):
-        out[a, :, 4 * a : 4 * a + 4] = feats[:, a]
+        out[a, :, 2 * a : 2 * a + 2] = feats[:, a]
     return out
 
 
@@ -574,12 +574,12 @@ class ChainEstimator(LagrangianEstimator):
     that carries little more than noise (the Panda's last joint) fills the loss
     and a kinematics that leaves the shoulder at 20-40 times its noise scores as well as
     the arm's own (Panda, 2 x 5 s log). Torques no chain holds are projected out with the
-    inertial parameters: an offset, a spring, a viscous and a dry friction on each joint
-    alone (:func:`joint_local_columns`, in the search only: the fitted start leaves them in
-    its residual), and a joint's rows at rest (:data:`SEARCH_REST_VELOCITY`: a dry
-    friction's set-valued torque) are left out of its part of the loss; otherwise dry
-    friction of 2-3 N m on two Panda joints bent the kinematics until the other joints
-    stood at 7-49 times their noise. The problem is
+    inertial parameters: a viscous and a dry friction on each joint alone
+    (:func:`joint_local_columns`, in the search only: the fitted start leaves them in its
+    residual), and a joint's rows at rest (:data:`SEARCH_REST_VELOCITY`: a dry friction's
+    set-valued torque) are left out of its part of the loss; otherwise dry friction of
+    2-3 N m on two Panda joints bent the kinematics until the other joints stood at 7-49
+    times their noise (1.1-1.6 times with them). The problem is
     not convex: from random starts L-BFGS ends in a local minimum most of the time (on the
     Panda's log about 1.4 times the loss at its own kinematics). The search starts where
     real arms lie:
