@@ -269,6 +269,9 @@ class Effect:
     shared: ClassVar[bool] = False  # one weight vector for all its output joints
     needs_robot: ClassVar[bool] = False  # its columns come from the robot file's regressor
     shape_params: ClassVar[dict[str, Param]] = {}  # how a shape field is reported
+    # shape fields whose lower limit is the physical form (a smoothing width): refined to
+    # the smallest value of their likelihood interval (:func:`~.search.refine_shape`)
+    sharp_shapes: ClassVar[tuple[str, ...]] = ()
 
     def __post_init__(self) -> None:
         if self.all_joints:
@@ -448,6 +451,7 @@ class _DryFriction(Effect):
     """Dry friction: a set-valued torque (module docstring, *dry friction at rest*)."""
 
     family: ClassVar[str] = "dry friction"
+    sharp_shapes: ClassVar[tuple[str, ...]] = ("eps",)  # eps -> 0: the sign of Coulomb's law
 
     def _sliding(self, ctx: FeatureContext) -> FloatArray:
         """``tanh(qd_j / eps)`` while sliding, 0 (the centre of the set) at rest."""

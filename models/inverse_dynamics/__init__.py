@@ -59,6 +59,8 @@ from mcpilco.models.inverse_dynamics.rigid_span import (
     LagrangianEstimator,
     armature_columns,
     chain_columns,
+    difference_noise,
+    joint_local_columns,
     lagrangian_columns,
     lagrangian_parameters,
 )
@@ -87,6 +89,8 @@ __all__ = [
     "gmse",
     "input_names",
     "armature_columns",
+    "difference_noise",
+    "joint_local_columns",
     "chain_columns",
     "lagrangian_columns",
     "lagrangian_parameters",

@@ -60,6 +60,8 @@ __all__ = [
     "ChainEstimator",
     "LagrangianEstimator",
     "armature_columns",
+    "difference_noise",
+    "joint_local_columns",
     "chain_columns",
     "lagrangian_columns",
     "lagrangian_parameters",
@@ -460,8 +462,10 @@ def armature_columns(qdd: Any) -> Any:
     return out
 
 
-CHAIN_RESTARTS = 2
-"""Random starts of :class:`ChainEstimator`'s kinematics search, besides the grid's."""
+CHAIN_RESTARTS = 10
+"""Random starts of :class:`ChainEstimator`'s kinematics search, besides the grid's: on a
+random 7R arm's log (twists off the quarter-turn grid) about one in five reaches the
+global minimum, the others a few local minima at 15-25 times its loss."""
 CHAIN_TWISTS = (0.0, math.pi / 2, -math.pi / 2, math.pi)
 """Twists ``alpha_i`` and joint offsets ``theta0_i`` of the grid search: a real arm's axes
 are parallel or at right angles, so its DH twists and offsets almost always lie here."""
@@ -481,8 +485,10 @@ CHAIN_GRID_STARTS = 6
 :data:`CHAIN_TWISTS`, lengths zero, gravity along ``-z``)."""
 CHAIN_GRID_SWEEPS = 8
 """Most sweeps of one coordinate descent on the grid."""
-CHAIN_GRID_ROWS = 300
-"""Rows (evenly spaced) of the grid search's loss (the kinematics fixed: no gradient)."""
+CHAIN_GRID_ROWS = 1000
+"""Rows (evenly spaced) of the grid search's loss (the kinematics fixed: no gradient): on
+300 rows of a noisy log (relative loss 0.13 at the true kinematics) the grid's best point
+fits the noise below the true kinematics' loss and its descent ends in a wrong minimum."""
 CHAIN_GRID_KEEP = 3
 """Best distinct grid points refined by L-BFGS."""
 CHAIN_SEARCH_ROWS = 600
@@ -492,17 +498,69 @@ CHAIN_ITERATIONS = 400
 CHAIN_REFINE_ROWS = 4000
 """Rows (evenly spaced) on which :class:`ChainEstimator` refines the best start's
 kinematics: the search's rows leave the kinematics off by their noise (estimated ``qdd``)."""
-CHAIN_REFINE_ITERATIONS = 100
+CHAIN_REFINE_ITERATIONS = 400
 """Most L-BFGS iterations of the refinement."""
 CHAIN_SEARCH_TOLERANCE = 1e-10
-"""A start of the search stops once an L-BFGS step changes its relative loss by less than
-this: on noisy torques the loss levels off at the noise's share (about 1e-2), where further
-steps only move the kinematics within their noise (the refinement polishes the best start
-to ``1e-14``)."""
+"""A start of the search stops once an L-BFGS step changes its loss (in units of each
+joint's noise variance: about 1 at the noise floor) by less than this; further steps only
+move the kinematics within their noise (the refinement polishes the best start to
+``1e-14``)."""
+SEARCH_FRICTION_VELOCITY = 0.01
+"""Velocity [rad/s or m/s] of the ``tanh`` of the dry-friction column of the kinematics
+search's joint-local terms (:func:`joint_local_columns`)."""
+SEARCH_REST_VELOCITY = 0.05
+"""A joint's rows with ``|qd_a|`` below this [rad/s or m/s] are left out of its part of the
+kinematics search's loss: at rest a dry friction's torque is set-valued (anything that
+holds the joint), which no column follows."""
+NOISE_DIFFERENCE = (1.0, -2.0, 1.0)
+"""Second difference whose median absolute value estimates a column's white-noise std
+(:func:`difference_noise`; a smooth signal's share is ``O(dt^2)``)."""
+MAD_TO_STD = 1.4826
+"""Median absolute deviation of a normal variable over its standard deviation, inverted."""
+MIN_SEARCH_SCALE = 1e-6
+"""Smallest weight scale of a joint in the kinematics search, relative to its root mean
+square (noise-free torques would otherwise weigh one joint without bound)."""
+CHAIN_THREADS = 1
+"""Torch threads of :class:`ChainEstimator`'s fit (the count before it restored after): its
+matrices are small (``11 n`` parameters, 600-4000 rows), so a second thread gains little
+and, on cores shared with other jobs, spent 5-18 times the CPU and 5-18 times the wall
+time of one thread (grid evaluations, L-BFGS descents and the refinement of a 7-joint
+chain measured both ways)."""
 CHAIN_EXACT = 1e-9
 """Relative loss of an exact fit: the search stops early once two starts reach it (noise-free
 torques); otherwise every start runs (a local minimum is often found twice, so agreement
 between starts does not show the global one)."""
+
+
+def joint_local_columns(q: Any, qd: Any) -> Any:
+    """``(n, N, 2 n)``: on each joint ``a`` alone a viscous ``qd_a`` and a dry friction
+    ``tanh(qd_a / v)`` (:data:`SEARCH_FRICTION_VELOCITY`) column (torch tensors): torques
+    no chain holds, which :class:`ChainEstimator`'s kinematics search projects out so that
+    they do not bend the kinematics (an offset and a spring ``q_a`` are left out: over a
+    joint's range they mimic gravity torques, and an effect-free Panda log then named an
+    offset)."""
+    import torch
+
+    n = qd.shape[1]
+    feats = torch.stack([qd, torch.tanh(qd / SEARCH_FRICTION_VELOCITY)], 2)  # (N, n, 2)
+    out = torch.zeros(n, qd.shape[0], 2 * n, dtype=qd.dtype)
+    for a in range(n):
+        out[a, :, 2 * a : 2 * a + 2] = feats[:, a]
+    return out
+
+
+def difference_noise(y: FloatArray) -> FloatArray:
+    """``(n,)`` white-noise std of each column of ``y`` ``(N, n)`` (rows in time order), from
+    the median absolute second difference (:data:`NOISE_DIFFERENCE`, :data:`MAD_TO_STD`):
+    a smooth signal's curvature adds ``O(dt^2)``, and the median ignores the few jumps
+    (file boundaries, impacts). Rows out of time order give about the signal's own scale."""
+    c = np.asarray(NOISE_DIFFERENCE)
+    y = np.asarray(y, dtype=np.float64)
+    if y.shape[0] < c.size:
+        return np.sqrt(np.mean(y**2, axis=0))
+    d = sum(c[k] * y[k : y.shape[0] - c.size + 1 + k] for k in range(c.size))
+    mad = np.median(np.abs(d - np.median(d, axis=0)), axis=0)
+    return MAD_TO_STD * mad / math.sqrt(float(np.sum(c**2)))
 
 
 class ChainEstimator(LagrangianEstimator):
@@ -517,9 +575,21 @@ class ChainEstimator(LagrangianEstimator):
 
     The torque is linear in the inertial parameters ``pi`` for fixed kinematics ``kappa``
     (DH numbers and the gravity direction), so the kinematics are searched by variable
-    projection: each joint's torques divided by their root mean square, the loss is
-    :math:`\\min_\\pi \\lVert y - C(\\kappa)\\pi \\rVert^2 / \\lVert y \\rVert^2` (``pi`` by
-    ridge least squares inside, differentiated through by torch autograd). The problem is
+    projection: each joint's torques divided by its noise std ``s_a``
+    (:func:`difference_noise` of its rows in time order, clipped to at most its root mean
+    square), the loss is :math:`\\min_\\pi \\lVert y - C(\\kappa)\\pi \\rVert^2` of these
+    whitened torques (``pi`` by ridge least squares inside, differentiated through by torch
+    autograd; reported relative to :math:`\\lVert y \\rVert^2`). Whitening weighs each joint
+    as the likelihood does: with each joint over its own root mean square instead, a joint
+    that carries little more than noise (the Panda's last joint) fills the loss
+    and a kinematics that leaves the shoulder at 20-40 times its noise scores as well as
+    the arm's own (Panda, 2 x 5 s log). Torques no chain holds are projected out with the
+    inertial parameters: a viscous and a dry friction on each joint alone
+    (:func:`joint_local_columns`, in the search only: the fitted start leaves them in its
+    residual), and a joint's rows at rest (:data:`SEARCH_REST_VELOCITY`: a dry friction's
+    set-valued torque) are left out of its part of the loss; otherwise dry friction of
+    2-3 N m on two Panda joints bent the kinematics until the other joints stood at 7-49
+    times their noise (1.1-1.6 times with them). The problem is
     not convex: from random starts L-BFGS ends in a local minimum most of the time (on the
     Panda's log about 1.4 times the loss at its own kinematics). The search starts where
     real arms lie:
@@ -531,8 +601,8 @@ class ChainEstimator(LagrangianEstimator):
        gravity; per joint its 16 twist-and-offset pairs, its length ``a_i``, its offset
        ``d0_i``), each block set to its best value given the others, sweeps until none
        moves (at most :data:`CHAIN_GRID_SWEEPS`), from ``grid_starts`` random grid points;
-       the loss on :data:`CHAIN_GRID_ROWS` rows without gradient (about 10 ms for 7 joints;
-       about 1,000 evaluations per start, ``grid_evaluations_``).
+       the loss on :data:`CHAIN_GRID_ROWS` rows without gradient (about 14 ms for 7 joints
+       on one thread; about 1,000-1,500 evaluations per start, ``grid_evaluations_``).
     2. The :data:`CHAIN_GRID_KEEP` best distinct grid points and ``restarts`` random starts
        (for arms whose axes are at other angles) descended by L-BFGS on ``search_rows``
        rows, keeping the best (fewer starts when two fit exactly, :data:`CHAIN_EXACT`).
@@ -563,9 +633,12 @@ class ChainEstimator(LagrangianEstimator):
             gravity direction ``(b, c)`` (:func:`chain_columns`): no search, only the
             inertial parameters are fitted (a robot whose kinematics are known but not its
             inertias; both or neither).
+        threads: torch threads of the fit (:data:`CHAIN_THREADS`; the count before it
+            restored after; ``None``: leave as is).
 
     Fitted attributes (besides :class:`LagrangianEstimator`'s): ``kinematics_`` ``(n, 4)``,
-    ``gravity_`` ``(2,)``, ``search_loss_`` (the best relative loss), ``refine_loss_`` (the
+    ``gravity_`` ``(2,)``, ``search_scale_`` ``(n,)`` (each joint's ``s_a``),
+    ``search_loss_`` (the best relative loss), ``refine_loss_`` (the
     refinement's; NaN without one), ``starts_`` (starts descended), ``grid_loss_`` (the
     grid search's best; NaN without one), ``grid_evaluations_``.
     """
@@ -586,9 +659,13 @@ class ChainEstimator(LagrangianEstimator):
         seed: int = 0,
         kinematics: Any = None,
         gravity: Any = None,
+        threads: int | None = CHAIN_THREADS,
     ) -> None:
         self.joint_types = check_joint_types(joint_types)
         InverseDynamicsEstimator.__init__(self, len(self.joint_types))
+        if threads is not None and threads < 1:
+            raise ValueError(f"threads must be >= 1 or None, got {threads}")
+        self.threads = threads
         n = len(self.joint_types)
         if (kinematics is None) != (gravity is None):
             raise ValueError("give both kinematics and gravity, or neither")
@@ -641,20 +718,24 @@ class ChainEstimator(LagrangianEstimator):
 
     def _projection_loss(self, states: JointStates, y: FloatArray, count: int) -> Any:
         """The variable-projection loss of the kinematics on ``count`` evenly spaced rows
-        (class docstring): each joint's torques over their root mean square, the inertial
+        (class docstring): each joint's torques over ``search_scale_``, the inertial
         parameters by ridge least squares inside, differentiated through."""
         import torch
 
         N, n = states.q.shape[0], len(self.joint_types)
         rows = np.unique(np.round(np.linspace(0, N - 1, min(count, N))).astype(int))
         q, qd, qdd = (torch.as_tensor(x[rows]) for x in (states.q, states.qd, states.qdd))
-        scale = np.sqrt(np.maximum(np.mean(y[rows] ** 2, axis=0), 1e-300))
-        target = torch.as_tensor((y[rows] / scale).T.reshape(-1))
-        weight = torch.as_tensor(1.0 / scale)[:, None, None]
-        ridge = 1e-8 * target.numel() * torch.eye(self.n_features_, dtype=torch.float64)
+        scale = self.search_scale_
+        moving = torch.as_tensor(np.abs(states.qd[rows]) > SEARCH_REST_VELOCITY).T  # (n, N)
+        target = torch.as_tensor((y[rows] / scale).T * moving.numpy()).reshape(-1)
+        weight = torch.as_tensor(1.0 / scale)[:, None, None] * moving[:, :, None]
+        local = joint_local_columns(q, qd)
+        P = self.n_features_ + local.shape[2]
+        ridge = 1e-8 * target.numel() * torch.eye(P, dtype=torch.float64)
 
         def loss(x: Any) -> Any:
             C = self._columns(x[: 4 * n].view(n, 4), x[4 * n :], q, qd, qdd)
+            C = torch.cat([C, local], 2)
             if self.per_joint:  # each joint its own parameters: free of its units
                 A = C * weight
                 A = A / A.detach().pow(2).mean(1, keepdim=True).sqrt().clamp_min(1e-12)
@@ -662,11 +743,12 @@ class ChainEstimator(LagrangianEstimator):
                 H = A.transpose(1, 2) @ A + ridge / n
                 pi = torch.linalg.solve(H, A.transpose(1, 2) @ t)
                 return (t - A @ pi).pow(2).mean()
-            A = (C * weight).reshape(-1, self.n_features_)
+            A = (C * weight).reshape(-1, P)
             A = A / A.detach().pow(2).mean(0).sqrt().clamp_min(1e-12)
             pi = torch.linalg.solve(A.T @ A + ridge, A.T @ target)
             return (target - A @ pi).pow(2).mean()
 
+        loss.total = float(target.pow(2).mean().clamp_min(1e-300))  # relative loss = loss / total
         return loss
 
     @staticmethod
@@ -766,7 +848,7 @@ class ChainEstimator(LagrangianEstimator):
             if math.isfinite(best) and not any(torch.equal(x, z) for _, z in found):
                 found.append((best, x))
         self.grid_evaluations_ = count
-        self.grid_loss_ = min((v for v, _ in found), default=math.nan)
+        self.grid_loss_ = min((v for v, _ in found), default=math.nan) / loss.total
         return sorted(found, key=lambda t: t[0])
 
     def _search(self, states: JointStates, y: FloatArray) -> None:
@@ -776,6 +858,8 @@ class ChainEstimator(LagrangianEstimator):
         import torch
 
         n = len(self.joint_types)
+        rms = np.sqrt(np.maximum(np.mean(y**2, axis=0), 1e-300))
+        self.search_scale_ = np.clip(difference_noise(y), MIN_SEARCH_SCALE * rms, rms)
         loss = self._projection_loss(states, y, self.search_rows)
         starts = [x for _, x in self._grid_search(states, y)[:CHAIN_GRID_KEEP]]
         gen = torch.Generator().manual_seed(self.seed)
@@ -793,27 +877,35 @@ class ChainEstimator(LagrangianEstimator):
             value, x = self._descend(loss, x0, CHAIN_ITERATIONS, CHAIN_SEARCH_TOLERANCE)
             if math.isfinite(value):
                 found.append((value, x))
-            if sum(v < CHAIN_EXACT for v, _ in found) >= 2:
+            if sum(v < CHAIN_EXACT * loss.total for v, _ in found) >= 2:
                 break  # two exact fits (noise-free torques): nothing left to find
         if not found:
             raise ValueError("the kinematics search diverged from every start; check the data")
         value, x = min(found, key=lambda t: t[0])
-        self.search_loss_, self.starts_ = value, len(found)
+        self.search_loss_, self.starts_ = value / loss.total, len(found)
         if self.refine_rows > self.search_rows and states.q.shape[0] > self.search_rows:
             refine = self._projection_loss(states, y, self.refine_rows)
             fine, x_fine = self._descend(refine, x, CHAIN_REFINE_ITERATIONS, 1e-14)
             if math.isfinite(fine):
-                x, self.refine_loss_ = x_fine, fine
+                x, self.refine_loss_ = x_fine, fine / refine.total
         self.kinematics_ = x[: 4 * n].view(n, 4).numpy().copy()
         self.gravity_ = x[4 * n :].numpy().copy()
 
     def _fit(self, states: JointStates, y: FloatArray) -> None:
-        if self.known is None:
-            self._search(states, y)
-        else:
-            self.kinematics_, self.gravity_ = (x.copy() for x in self.known)
-            self.search_loss_, self.starts_ = math.nan, 0
-        super()._fit(states, y)
+        import torch
+
+        before = torch.get_num_threads()
+        if self.threads is not None:
+            torch.set_num_threads(self.threads)
+        try:
+            if self.known is None:
+                self._search(states, y)
+            else:
+                self.kinematics_, self.gravity_ = (x.copy() for x in self.known)
+                self.search_loss_, self.starts_ = math.nan, 0
+            super()._fit(states, y)
+        finally:
+            torch.set_num_threads(before)
 
     def _solve(self, b: FloatArray, yy: FloatArray) -> None:
         """Shared parameters: :meth:`LagrangianEstimator._solve`; ``per_joint``: one
