@@ -295,7 +295,10 @@ def make_start(
     kind: str, nominal_xml: str, joint_types: str, iters: int, inducing: int | None = None
 ) -> Any:
     """The start model of a case: nominal physics from the arm's table (``"nominal"``), or a
-    GIP / RBF GP learned on the training files (the table then only serves the payload);
+    GIP / RBF GP learned on the training files (the table then serves the payload candidate's
+    frame and, on current logs, the torque-constant estimate of
+    :func:`~mcpilco.models.diagnosis.currents_to_torque`: such a case is not one without a
+    robot file);
     ``inducing``: a GIP start fitted on every row with that many Nystroem rows
     (:class:`~mcpilco.models.diagnosis.GIPStart`)."""
     from mcpilco.models.diagnosis import LEARNED_STARTS, NominalStart
