@@ -565,23 +565,24 @@ def simulate_log(
     mujoco.mj_forward(nominal, nom_data)
     mass = np.zeros((n, n))
     mujoco.mj_fullM(nominal, nom_data, mass)
-    lightest = np.diag(mass).copy()  # each joint's smallest M_jj along the reference
-    for t in np.linspace(0.0, duration, LIGHTEST_SAMPLES):
-        nom_data.qpos[:] = ref(float(t))[0]
-        mujoco.mj_forward(nominal, nom_data)
-        full = np.zeros((n, n))
-        mujoco.mj_fullM(nominal, nom_data, full)
-        lightest = np.minimum(lightest, np.diag(full))
+
+    def masses_along(samples: int) -> FloatArray:  # M_nom(q_ref(t)) at evenly spaced t
+        out = np.zeros((samples, n, n))
+        for i, t in enumerate(np.linspace(0.0, duration, samples)):
+            nom_data.qpos[:] = ref(float(t))[0]
+            mujoco.mj_forward(nominal, nom_data)
+            mujoco.mj_fullM(nominal, nom_data, out[i])
+        return out
+
+    # each joint's smallest M_jj along the reference
+    lightest = np.minimum(
+        np.diag(mass), np.diagonal(masses_along(LIGHTEST_SAMPLES), 0, 1, 2).min(0)
+    )
     limit = arm.joint_array("torque_limit")
     kp, kd, ki = servo_gains(
         np.diag(mass), limit, arm.joint_types, bandwidth, timestep, lightest=lightest
     )
-    masses = np.zeros((COUPLING_SAMPLES, n, n))  # M(q_ref(t)) for the coupled loop's cap
-    for i, t in enumerate(np.linspace(0.0, duration, COUPLING_SAMPLES)):
-        nom_data.qpos[:] = ref(float(t))[0]
-        mujoco.mj_forward(nominal, nom_data)
-        mujoco.mj_fullM(nominal, nom_data, masses[i])
-    kp, kd, ki = coupled_servo_cap(kp, kd, ki, masses, timestep)
+    kp, kd, ki = coupled_servo_cap(kp, kd, ki, masses_along(COUPLING_SAMPLES), timestep)
     integral = np.zeros(n)  # z: the integral of the tracking error
     applied = any(e.kind in APPLIED_KINDS for e in effects)
 

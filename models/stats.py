@@ -12,6 +12,9 @@ rates, percentile-bootstrap intervals over seeds for medians and interquartile m
 
   which stays inside :math:`[0, 1]` and is sensible at :math:`k = 0` or :math:`k = n` where the
   normal approximation collapses to a point.
+* :func:`mad_std`: the standard deviation of a normal sample from its median absolute
+  deviation, :math:`1.4826\,\mathrm{median}|x - \mathrm{median}\,x|`, which the rare
+  outliers (jumps at file boundaries, impacts) do not move.
 * :func:`bootstrap_interval`: the percentile bootstrap of a statistic (median, :func:`iqm`,
   mean) over independent units, the seeds (rliable's convention, Agarwal et al. 2021: a run is
   the unit, never a time step or an episode of the same run).
@@ -26,9 +29,20 @@ import numpy as np
 # Two-sided 95 % standard-normal quantile z_0.975, rounded as the thesis writes it.
 Z95 = 1.96
 
+# Median absolute deviation of a normal variable over its standard deviation, inverted.
+MAD_TO_STD = 1.4826
+
 # Bootstrap resamples of bootstrap_interval (the percentile ends move by < 1 % of the
 # interval's width between repeated draws at this count for 10-100 seeds).
 BOOTSTRAP_RESAMPLES = 2000
+
+
+def mad_std(x: np.ndarray, axis: int = 0) -> np.ndarray:
+    """Robust standard deviation along ``axis``: :data:`MAD_TO_STD` times the median absolute
+    deviation from the median (module docstring)."""
+    x = np.asarray(x, dtype=np.float64)
+    med = np.median(x, axis=axis, keepdims=True)
+    return MAD_TO_STD * np.median(np.abs(x - med), axis=axis)
 
 
 def wilson_interval(successes: int, trials: int, z: float = Z95) -> tuple[float, float]:

@@ -94,7 +94,7 @@ from scipy.stats import norm
 from mcpilco.models.diagnosis.data import derivative_filter, smoother_noise_std
 from mcpilco.models.gp.linear_gp import single_thread
 from mcpilco.models.robot_data import Trajectories
-from mcpilco.models.stats import Z95
+from mcpilco.models.stats import Z95, mad_std
 
 FloatArray = NDArray[np.float64]
 
@@ -149,7 +149,7 @@ def noise_floor(
     sigma = np.zeros(e.shape[1])
     for j in range(e.shape[1]):
         dj = d[ok[:, j], j] if ok[:, j].sum() > 2 else d[:, j]
-        sigma[j] = 1.4826 * np.median(np.abs(dj - np.median(dj))) / np.sqrt(2.0)
+        sigma[j] = mad_std(dj) / np.sqrt(2.0)
     if inputs is None:
         return sigma
     meas2 = np.maximum(sigma**2 - inputs.diff_std**2, 0.0)

@@ -52,6 +52,7 @@ from mcpilco.models.gp.blr import BayesianLinearRegression
 from mcpilco.models.inverse_dynamics.base import InverseDynamicsEstimator
 from mcpilco.models.inverse_dynamics.inputs import JointStates, as_joint_states
 from mcpilco.models.kernels import check_joint_types
+from mcpilco.models.stats import mad_std
 
 FloatArray = NDArray[np.float64]
 
@@ -515,8 +516,6 @@ holds the joint), which no column follows."""
 NOISE_DIFFERENCE = (1.0, -2.0, 1.0)
 """Second difference whose median absolute value estimates a column's white-noise std
 (:func:`difference_noise`; a smooth signal's share is ``O(dt^2)``)."""
-MAD_TO_STD = 1.4826
-"""Median absolute deviation of a normal variable over its standard deviation, inverted."""
 MIN_SEARCH_SCALE = 1e-6
 """Smallest weight scale of a joint in the kinematics search, relative to its root mean
 square (noise-free torques would otherwise weigh one joint without bound)."""
@@ -551,16 +550,16 @@ def joint_local_columns(q: Any, qd: Any) -> Any:
 
 def difference_noise(y: FloatArray) -> FloatArray:
     """``(n,)`` white-noise std of each column of ``y`` ``(N, n)`` (rows in time order), from
-    the median absolute second difference (:data:`NOISE_DIFFERENCE`, :data:`MAD_TO_STD`):
-    a smooth signal's curvature adds ``O(dt^2)``, and the median ignores the few jumps
+    the median absolute second difference (:data:`NOISE_DIFFERENCE`,
+    :func:`~mcpilco.models.stats.mad_std`): a smooth signal's curvature adds ``O(dt^2)``, and
+    the median ignores the few jumps
     (file boundaries, impacts). Rows out of time order give about the signal's own scale."""
     c = np.asarray(NOISE_DIFFERENCE)
     y = np.asarray(y, dtype=np.float64)
     if y.shape[0] < c.size:
         return np.sqrt(np.mean(y**2, axis=0))
     d = sum(c[k] * y[k : y.shape[0] - c.size + 1 + k] for k in range(c.size))
-    mad = np.median(np.abs(d - np.median(d, axis=0)), axis=0)
-    return MAD_TO_STD * mad / math.sqrt(float(np.sum(c**2)))
+    return mad_std(d) / math.sqrt(float(np.sum(c**2)))
 
 
 class ChainEstimator(LagrangianEstimator):
