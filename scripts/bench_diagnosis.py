@@ -69,6 +69,13 @@ def main(argv: Sequence[str] | None = None) -> int:
     )
     p.add_argument("--cases", type=int, default=None, help="run only the first N of the plan")
     p.add_argument("--first-seed", type=int, default=EVALUATION_FIRST_SEED)
+    p.add_argument(
+        "--seeds",
+        type=int,
+        nargs="+",
+        default=None,
+        help="run only these seeds, seed S as case (S - first seed) mod N of the N-case plan",
+    )
     p.add_argument("--duration", type=float, default=5.0, help="seconds per log")
     p.add_argument("--train-files", type=int, default=2, help="training logs per case")
     p.add_argument("--min-joints", type=int, default=2)
@@ -109,6 +116,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         max_points=args.max_points,
         iters=args.iters,
         case_set=args.case_set,
+        seeds=args.seeds,
         out=args.out,
         runs_dir=args.runs_dir,
         command=shlex.join(["mcpilco-bench-diagnosis", *(argv or [])]),

@@ -575,10 +575,13 @@ def run_benchmark(
     command: str | None = None,
     config: dict[str, Any] | None = None,
     case_set: str | None = None,
+    seeds: Sequence[int] | None = None,
 ) -> dict[str, Any] | None:
     """Run the cases of :func:`case_plan`, or of the named :data:`CASE_SETS` entry
     ``case_set`` (the first ``cases`` of either when given; seeds ``first_seed, first_seed +
-    1, ...`` in plan order) as sweep jobs of ``runner``, each record kept in
+    1, ...`` in plan order; with ``seeds``, only those, seed ``s`` as the plan's case
+    ``(s - first_seed) mod len(plan)``, the case it is when the plan repeats from
+    ``first_seed`` on) as sweep jobs of ``runner``, each record kept in
     ``runs_dir/<arm>/<start>/seed<s>.json`` (``<arm>``: ``random`` or the case set's arm; a
     rerun computes only the cases without one), and write ``out`` + ``.json`` (``command``,
     ``measured`` date, ``config``, ``seeds``, the summary, every record, the failed cases),
@@ -599,7 +602,11 @@ def run_benchmark(
         plan = plan[:cases]
     if not plan:
         raise ValueError("the plan has no case: give --per-kind, --controls, --multi or --cases")
-    seeds = [first_seed + k for k in range(len(plan))]
+    if seeds is None:
+        seeds = [first_seed + k for k in range(len(plan))]
+    else:
+        seeds = list(dict.fromkeys(int(x) for x in seeds))
+        plan = [plan[(x - first_seed) % len(plan)] for x in seeds]
     common = {
         "duration": duration,
         "train_files": train_files,
@@ -630,7 +637,7 @@ def run_benchmark(
     title = (
         f"Diagnosis on simulated robot logs ({len(records)} cases"
         + ("" if named is None else f", case set {case_set}")
-        + f", seeds {seeds[0]}..{seeds[-1]}, {start} start)"
+        + f", seeds {min(seeds)}..{max(seeds)}, {start} start)"
     )
     png = plot_confusion(records, out.with_name(out.name + "_confusion.png"), title)
     payload: dict[str, Any] = {
@@ -664,11 +671,11 @@ def run_benchmark(
         f"Confusion of hidden effect against the effect named first: ![confusion]({png.name})."
         + (f" Failed cases: {', '.join(payload['failed'])}." if sweep.failed else "")
         + (
-            f" Seeds {seeds[0]}..{seeds[-1]} are evaluation seeds (from "
+            f" Seeds {min(seeds)}..{max(seeds)} are evaluation seeds (from "
             f"{EVALUATION_FIRST_SEED}), run with settings chosen on the development seeds "
             f"{DEVELOPMENT_SEEDS.start}..{DEVELOPMENT_SEEDS.stop - 1} only."
-            if seeds[0] >= EVALUATION_FIRST_SEED
-            else f" Seeds {seeds[0]}..{seeds[-1]} are not evaluation seeds (from "
+            if min(seeds) >= EVALUATION_FIRST_SEED
+            else f" Seeds {min(seeds)}..{max(seeds)} are not evaluation seeds (from "
             f"{EVALUATION_FIRST_SEED}): not a report."
         )
     )

@@ -111,6 +111,9 @@ __all__ = [
     "position_noise",
     "at_rest",
     "friction_kinks",
+    "friction_smear",
+    "projected_noise_share",
+    "acceleration_kernel",
     "held_still",
     "residual_report",
     "whiteness_test",
@@ -272,6 +275,75 @@ def friction_kinks(traj: Trajectories, rest: ArrayLike, joint: int) -> NDArray[n
         near = np.convolve(switch[: b - a], np.ones(2 * m), mode="full")[m : m + b - a]
         out[a:b] = near > 0
     return out
+
+
+def acceleration_kernel(est: Any) -> FloatArray:
+    """``(2 m + 3,)`` weights ``K_k``, ``k = -m - 1 .. m + 1`` (``m = window // 2``), with
+    which the filter of ``est`` (a :class:`.data.Estimate`) sees the acceleration:
+    ``qdd_hat(t) = sum_k K_k a(t + k)``, ``a`` the second difference of ``q`` over ``T^2``
+    (or, where only ``qdd`` was estimated, the first difference of ``qd`` over ``T``). The
+    filter is exact on quadratics, so the weights sum to 1; a jump of the acceleration comes
+    out as a ramp over the window."""
+    f = est.filter
+    m = f.window // 2
+    i = np.arange(-m, m + 1)
+    ks = np.arange(-m - 1, m + 2)
+    if "qd" in est.groups:  # qdd_hat = c_2 . q; q with one unit second difference at k
+        c = savgol_coeffs(f.window, f.order, deriv=2, delta=f.sample_time, use="dot")
+        return np.array([c @ (f.sample_time**2 * np.maximum(i - k, 0)) for k in ks])
+    c = savgol_coeffs(f.window, f.order, deriv=1, delta=f.sample_time, use="dot")
+    return np.array([c @ (f.sample_time * (i >= k)) for k in ks])
+
+
+def friction_smear(
+    traj: Trajectories, rest: ArrayLike, joint: int, torque: ArrayLike | None = None
+) -> FloatArray:
+    """``(N,)``: the part of a dry friction's torque ``s`` that the estimated ``qdd`` of
+    joint ``joint`` (1-based) carries into the joint's own prediction on the rows around its
+    stick phases (:func:`friction_kinks`), ``|(K * s)(t) - s(t)|`` with ``K`` the filter's
+    :func:`acceleration_kernel`; 0 elsewhere and on segments whose derivatives were given.
+    ``s``: ``torque`` ``(N,)`` (a fitted friction's torque, 0 at rest), or by default the
+    friction's sign, ``sign(qd)`` while sliding and 0, the centre of the set, at rest
+    (``rest`` ``(N,)``, :func:`at_rest`): the share of a sharp friction's level.
+
+    Where the joint stops or starts, dry friction switches within a physics step, so its
+    acceleration jumps by the switch over the joint's inertia; the torque the rest of the
+    model predicts, ``M qdd_hat``, then differs from the measured one by about the filter's
+    smear of the friction torque, ``F (K * s - s)``, with the torque held at rest unknown in
+    ``[-F_s, F_s]``. :meth:`~.model.DiagnosisModel.set_valued` takes it, for the fitted
+    friction's torque, as the half-width of the joint's own prediction interval there."""
+    rest = np.asarray(rest, dtype=bool)
+    out = np.zeros(traj.n_samples)
+    near = friction_kinks(traj, rest, joint)
+    for a, b in traj.segments:
+        s_id = int(traj.segment[a])
+        est = traj.estimated[s_id] if traj.estimated and s_id < len(traj.estimated) else None
+        if est is None or not near[a:b].any():
+            continue
+        kern = acceleration_kernel(est)
+        h = kern.size // 2
+        if torque is None:
+            s = np.where(rest[a:b], 0.0, np.sign(traj.qd[a:b, joint - 1]))
+        else:
+            s = np.asarray(torque, dtype=np.float64)[a:b]
+        # the friction's sign as the differences see it, the switch midway between two rows:
+        # a second difference weighs the sign over two rows by a hat, a first one over one row
+        seen = np.pad(s, 1, mode="edge")
+        if "qd" in est.groups:
+            seen = (seen[:-2] + 6.0 * seen[1:-1] + seen[2:]) / 8.0
+        else:
+            seen = 0.5 * (seen[1:-1] + seen[2:])
+        smooth = np.convolve(np.pad(seen, h, mode="edge"), kern[::-1], mode="valid")
+        out[a:b] = np.where(near[a:b], np.abs(smooth - s), 0.0)
+    return out
+
+
+def projected_noise_share(a: ArrayLike) -> FloatArray:
+    """``E[dist(Z, [-a, a])^2]`` for a standard normal ``Z``: the share of a noise's variance
+    left when a prediction is an interval of half-width ``a`` noise stds around the truth
+    (1 at ``a = 0``), ``2 ((1 + a^2) (1 - Phi(a)) - a phi(a))``."""
+    a = np.abs(np.asarray(a, dtype=np.float64))
+    return 2.0 * ((1.0 + a**2) * norm.sf(a) - a * norm.pdf(a))
 
 
 def held_still(rest_share: ArrayLike) -> list[int]:

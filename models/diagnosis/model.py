@@ -48,7 +48,13 @@ estimated ``qdd_k`` (no function of the estimated states predicts those rows; as
 filter's edge rows, those joints are held to the rows whose inputs the data gives). The
 sticking joint's own rows stay scored: near zero velocity they are what tells one
 friction form from another (a sharp sign from a smoothed one, a level that varies with
-position).
+position), so models are compared on them as they are. Held to the noise floor, though,
+the joint is forgiven there the part of its error that the filter's smear of the switch
+explains, which no model of the estimated states predicts: its prediction is an interval of
+half-width ``|K * f - f|`` (``f`` the fitted friction torque, 0 at rest, ``K`` the filter's
+weights on the acceleration, :func:`.analysis.friction_smear`), at most ``F_s`` next to the
+stop of a sharp friction, less for a smoothed one, and 0 half a window away
+(:meth:`DiagnosisModel.smear_widths`).
 
 Training rows: every sample except the first and last ``max_delay_samples`` of each file
 (so that any scanned delay reads states, and the start model's backfit reads outputs,
@@ -69,7 +75,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from mcpilco.models.diagnosis.analysis import at_rest, friction_kinks
+from mcpilco.models.diagnosis.analysis import at_rest, friction_kinks, friction_smear
 from mcpilco.models.diagnosis.data import (
     MIN_FIT_ROWS,
     as_trajectories,
@@ -548,6 +554,16 @@ class DiagnosisModel:
                 return e, bound
         return None
 
+    def _stick_torque(self, ctx: FeatureContext, output: int) -> FloatArray:
+        """``(N,)`` the fitted torque of the set-valued dry friction on ``output`` (0-based)
+        at the rows of ``ctx`` (0 at rest, the centre of the set)."""
+        gp = self.gps_[output]
+        mean, _ = gp.weights(self.theta_[output])
+        for e, sl in zip(self.block_effects(output), gp.block_slices(), strict=True):
+            if e.stick_bound(mean[sl]) is not None:
+                return e.columns(ctx, output) @ mean[sl]
+        return np.zeros(ctx.q.shape[0])
+
     def _fit_stick(self, joints: Sequence[int]) -> None:
         """Set-valued dry friction in the fit: on the training rows where a joint with one is
         at rest, its torque is the residual of the rest of the model clipped to ``[-F_s,
@@ -572,8 +588,25 @@ class DiagnosisModel:
             warm = dict(enumerate(self.theta_))
             self._fit_joints(warm, [j for j in range(self.n_joints) if j not in changed], self)
 
+    def smear_widths(self, traj: Trajectories) -> FloatArray:
+        """``(N, n)``: on a joint with set-valued dry friction, the filter's smear of its
+        fitted friction torque's switches on its own rows around its stops
+        (:func:`.analysis.friction_smear`; module docstring); 0 elsewhere."""
+        self._check_fitted()
+        out = np.zeros((traj.n_samples, self.n_joints))
+        ctx = None
+        for j in range(self.n_joints):
+            hit = self._stick(j)
+            if hit is None:
+                continue
+            if ctx is None:
+                ctx = self.context(traj)
+            joint = hit[0].joint
+            out[:, j] = friction_smear(traj, ctx.rest(joint), joint, self._stick_torque(ctx, j))
+        return out
+
     def set_valued(
-        self, traj: Trajectories, mean: FloatArray
+        self, traj: Trajectories, mean: FloatArray, widths: FloatArray | None = None
     ) -> tuple[FloatArray, NDArray[np.bool_]]:
         """The prediction ``mean (N, n)`` on ``traj`` with set-valued dry friction: where a
         joint with one is at rest (:meth:`.FeatureContext.rest`), any torque in ``[-F_s,
@@ -581,7 +614,12 @@ class DiagnosisModel:
         ``[mean - F_s, mean + F_s]`` and its error the residual's distance to that interval;
         on the other joints, the rows around its stick phases
         (:func:`.analysis.friction_kinks`) are predicted as measured (module docstring).
-        Returns it and the ``(N, n)`` rows where either holds."""
+        With ``widths`` (``(N, n)``, :meth:`smear_widths`), the prediction is then the
+        measurement projected onto ``[out - w, out + w]``: the figure a joint is held to the
+        noise floor by (:func:`.search.floor_check`), not the one that compares models.
+        Returns it and the
+        ``(N, n)`` rows where one of the first two holds (the rows whose noise the prediction
+        absorbs; the narrower intervals are not counted)."""
         self._check_fitted()
         out = np.array(mean, dtype=np.float64, copy=True)
         rest = np.zeros(out.shape, dtype=bool)
@@ -599,6 +637,8 @@ class DiagnosisModel:
             rest[:, j] = r
             others = np.arange(self.n_joints) != effect.joint - 1  # the joints it couples to
             kinks[:, others] |= friction_kinks(traj, r, effect.joint)[:, None]
+        if widths is not None:  # a sticking joint's own rows around its stops
+            out += np.clip(traj.y - out, -widths, widths)
         out[kinks] = traj.y[kinks]
         rest |= kinks
         return out, rest

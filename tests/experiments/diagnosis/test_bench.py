@@ -4,6 +4,8 @@ scores worked out by hand), its case plan, and one tiny simulated case end to en
 from __future__ import annotations
 
 import math
+from pathlib import Path
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
@@ -14,6 +16,7 @@ from mcpilco.experiments.diagnosis.bench import (
     SPEED_STAGES,
     case_plan,
     draw_effect,
+    run_benchmark,
     run_case,
     run_speed,
     score_record,
@@ -285,6 +288,26 @@ def test_iiwa_case_set_is_the_panda_cases_on_the_iiwa():
     assert iiwa.cases == panda.cases and len(iiwa.cases) == 14
     arm = ARMS[iiwa.arm]()
     assert arm.name == "iiwa14" and arm.joint_types == "R" * 7
+
+
+def test_chosen_seeds_run_as_their_case_of_the_repeated_plan(tmp_path):
+    """``seeds``: seed ``s`` runs the case it has when the plan repeats from the first seed
+    (the Panda set's dry-friction cases: torque log at 3 + 14 k, current log at 10 + 14 k)."""
+
+    class Capture:
+        def run(self, jobs, results_dir, desc=""):
+            self.jobs, self.dir = jobs, Path(results_dir)
+            return SimpleNamespace(summary=lambda: "", results={})
+
+    runner = Capture()
+    out = run_benchmark(runner, case_set="panda", first_seed=0, seeds=[17, 24, 17, 59],
+                        out=tmp_path / "r", runs_dir=tmp_path / "runs")  # fmt: skip
+    assert out is None  # nothing finished
+    assert [j.key for j in runner.jobs] == ["seed17", "seed24", "seed59"]
+    kinds = [(j.kwargs["seed"], tuple(j.kwargs["kinds"]), j.kwargs["logs"]) for j in runner.jobs]
+    friction = ("frictionloss", "frictionloss")
+    assert kinds == [(17, friction, "torque"), (24, friction, "current"), (59, friction, "torque")]
+    assert runner.dir == tmp_path / "runs" / "panda" / "nominal"  # the full run's records
 
 
 def test_an_effect_below_the_noise_is_not_scored_as_missed():

@@ -1,10 +1,13 @@
 """Dry friction at the noise floor: on the joints coupled to a joint with dry friction, the
 rows around its stick phases, where estimated ``qd``/``qdd`` are biased by the friction's
 own jump, are held set-valued (:func:`~mcpilco.models.diagnosis.analysis.friction_kinks`);
-on the sticking joint itself, the smoothing width ``eps`` is the sharpest the data allow.
+on the sticking joint itself, the smoothing width ``eps`` is the sharpest the data allow, and
+its own rows around its stops are held to the floor as intervals of the filter's smear of the
+switch (:func:`~mcpilco.models.diagnosis.analysis.friction_smear`).
 
 Independent truth: MuJoCo's ``frictionloss`` (a dry-friction constraint of known level) in
-logs of :func:`mcpilco.envs.robot_logs.simulate_log`, and the simulator's true velocities.
+logs of :func:`mcpilco.envs.robot_logs.simulate_log`, and the simulator's true velocities; a
+body stopped by dry friction in closed form; Monte Carlo for the noise an interval absorbs.
 """
 
 from __future__ import annotations
@@ -15,13 +18,19 @@ import warnings
 import numpy as np
 import pandas as pd
 import pytest
+from scipy.signal import savgol_coeffs
 
 from mcpilco.envs.arm_builder import arm_to_xml
 from mcpilco.envs.arms import ARMS, random_arm
 from mcpilco.envs.robot_logs import HiddenEffect, simulate_log
 from mcpilco.models.diagnosis import DiagnosisModel, NominalStart, as_trajectories, at_rest
 from mcpilco.models.diagnosis.add import add_effect
-from mcpilco.models.diagnosis.analysis import friction_kinks
+from mcpilco.models.diagnosis.analysis import (
+    acceleration_kernel,
+    friction_kinks,
+    friction_smear,
+    projected_noise_share,
+)
 from mcpilco.models.diagnosis.effects import CoulombFriction
 from mcpilco.models.diagnosis.search import floor_check
 from mcpilco.models.robot_data import from_frame
@@ -144,3 +153,121 @@ def test_the_sticking_joint_itself_sits_at_the_noise_floor(sticky_elbow):
     ratio = floor_check(model, test.interior()).ratio
     assert ratio[3] <= 1.05, ratio
     assert ratio.max() <= 1.1, ratio
+
+
+def _stop_log(mass=0.5, level=2.0, stop_row=150, n=300, dt=0.004):
+    """A 1-joint body of inertia ``mass`` sliding against dry friction ``level`` with no drive
+    torque: it decelerates at ``level / mass`` and stops midway between rows ``stop_row - 1``
+    and ``stop_row`` (held torque 0 from then on, the centre of the set). The log (``q``
+    only: ``qd``/``qdd`` estimated) and the exact rest rows."""
+    t = np.arange(n) * dt
+    t_stop = (stop_row - 0.5) * dt
+    a = level / mass
+    q = np.where(t < t_stop, a * t_stop * t - 0.5 * a * t**2, 0.5 * a * t_stop**2)[:, None]
+    traj = as_trajectories([from_frame(_frame(t, q), source="stop")])
+    return traj, t >= t_stop
+
+
+def test_the_acceleration_kernel_is_how_the_filter_sees_the_acceleration():
+    traj, _ = _stop_log()
+    est = traj.estimated[0]
+    kern = acceleration_kernel(est)
+    assert kern.sum() == pytest.approx(1.0, abs=1e-9)  # exact on quadratics
+    h = kern.size // 2
+    a = np.diff(traj.q[:, 0], 2) / est.filter.sample_time**2  # a[i] at row i + 1
+    rows = np.arange(h + 1, traj.n_samples - h - 1)
+    seen = np.array([kern @ a[r - 1 - h : r + h] for r in rows])
+    assert np.allclose(seen, traj.qdd[rows, 0], atol=1e-6)  # the filter's own qdd
+    # where only qdd was estimated (qd given): the first difference of qd, the same way
+    only = dataclasses.replace(est, groups=("qdd",))
+    kern1 = acceleration_kernel(only)
+    qd = np.gradient(traj.q[:, 0], est.filter.sample_time)
+    b = np.diff(qd) / est.filter.sample_time  # b[i] between rows i and i + 1
+    c = savgol_coeffs(est.filter.window, est.filter.order, deriv=1, delta=est.filter.sample_time)
+    m = est.filter.window // 2
+    direct = np.array([c[::-1] @ qd[r - m : r + m + 1] for r in rows])
+    assert kern1.sum() == pytest.approx(1.0, abs=1e-9)
+    assert np.allclose([kern1 @ b[r - 1 - h : r + h] for r in rows], direct, atol=1e-6)
+
+
+def test_the_smear_is_the_error_the_filter_puts_on_the_sticking_joint():
+    # known physics: inertia 0.5, dry friction 2 N m, no drive torque; the exact model
+    # M qdd_hat + F s misses the measured torque (0) only where the filter smears the stop
+    mass, level = 0.5, 2.0
+    traj, rest = _stop_log(mass, level)
+    s = np.where(rest, 0.0, 1.0)
+    err = 0.0 - (mass * traj.qdd[:, 0] + level * s)
+    m = traj.estimated[0].filter.window // 2
+    inside = np.arange(m, traj.n_samples - m)  # not the filter's edge rows
+    smear = friction_smear(traj, rest, 1)
+    assert np.abs(err[inside]).max() > 0.3 * level  # the filter's error next to the stop
+    assert np.allclose(np.abs(err[inside]), level * smear[inside], atol=0.02 * level)
+    assert not smear[: 150 - m].any() and not smear[150 + m :].any()  # half a window away: 0
+    given = dataclasses.replace(traj, estimated=[None])  # derivatives from the file: exact
+    assert not friction_smear(given, rest, 1).any()
+
+
+def test_without_dry_friction_the_intervals_gain_nothing():
+    # an effect-free Panda log: a Coulomb block on the shoulder fits a level near 0, so its
+    # intervals around the joint's reversals are near 0 wide and its held-out RMSE is that
+    # of the nominal model
+    arm = ARMS["panda"]().without_friction()
+    sims = [simulate_log(arm, [], duration=5.0, seed=s, counts_per_rev=2**17) for s in (0, 1)]
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)
+        train, test = (
+            as_trajectories([from_frame(s.table, source=f"log{i}")]).interior()
+            for i, s in enumerate(sims)
+        )
+    start = NominalStart(arm_to_xml(arm, friction=False))
+    nominal = DiagnosisModel(start).fit(train)
+    model = DiagnosisModel(start, [CoulombFriction(joint=2, eps=1e-3)]).fit(train)
+    raw = model.predict(test, with_var=False)[0]
+    width = friction_smear(test, at_rest(test)[:, 1], 2)
+    assert width.any()  # the shoulder reverses: rows around its reversals get an interval
+    gain = floor_check(nominal, test).rmse[1] / floor_check(model, test).rmse[1]
+    assert gain < 1.01, gain
+    mean, _ = model.set_valued(test, raw)
+    moved = ~at_rest(test)[:, 1]
+    assert np.abs(mean - raw)[moved, 1].max() < 0.05 * PANDA_FRICTION
+
+
+def test_the_sticking_shoulder_is_held_to_the_floor_without_the_filter_smear():
+    # the Panda table with 2 N m of frictionloss on its base joint (the largest inertia) and
+    # 3 N m on joint 6, the true friction forms and levels: the base joint's own rows around
+    # its stops hold it at 1.43x the floor, no model of the estimated states predicting the
+    # filter's smear of the switch there; judged with the smear's intervals (and their share
+    # of the noise taken off the floor) it is at the floor, and so is every other joint
+    arm = ARMS["panda"]().without_friction()
+    effects = [HiddenEffect("frictionloss", 1, 2.0, 0.0), HiddenEffect("frictionloss", 6, 3.0, 0.0)]
+    sims = [
+        simulate_log(arm, effects, duration=5.0, seed=s, counts_per_rev=2**19, tau_noise=0.03)
+        for s in (0, 1, 2)
+    ]
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)
+        train = as_trajectories(
+            [from_frame(s.table, source=f"log{i}") for i, s in enumerate(sims[:2])]
+        ).interior()
+        test = as_trajectories([from_frame(sims[2].table, source="held-out")]).interior()
+    model = DiagnosisModel(
+        NominalStart(arm_to_xml(arm, friction=False)),
+        [CoulombFriction(joint=1, eps=1e-5), CoulombFriction(joint=6, eps=1e-5)],
+    ).fit(train)
+    levels = [p["value"] for p in model.parameters()]
+    assert np.allclose(levels, [2.0, 3.0], rtol=0.01), levels
+    check = floor_check(model, test)
+    strict = check.rmse / check.floor
+    assert strict[0] > 1.3, strict  # the smear alone
+    assert check.ratio.max() <= 1.05, check.ratio
+    widths = model.smear_widths(test)
+    assert widths[:, [1, 2, 3, 4, 6]].max() == 0.0  # only the sticking joints' own rows
+    assert 0.0 < widths[:, 0].max() <= 2.0 * 1.01  # at most the level
+    assert (widths[:, 0] > 0).mean() < 0.2  # around the stops only
+
+
+def test_projected_noise_share_is_what_an_interval_leaves_of_the_noise():
+    z = np.random.default_rng(0).standard_normal(400_000)
+    for a in (0.0, 0.5, 1.0, 2.5):
+        left = np.mean(np.maximum(np.abs(z) - a, 0.0) ** 2)
+        assert projected_noise_share(a) == pytest.approx(left, rel=0.01, abs=1e-4)
