@@ -375,7 +375,9 @@ def run_case(
         answer (first ranking, named effect, added effects and their parameters, verdicts,
         the parameters of a joint diagnosed in A put back into torque units by the loop's own
         fitted ``k_t`` of that joint and marked ``in_current``,
-        held-out RMSE over the noise floor before and after) and seconds; scored by
+        held-out RMSE over the noise floor before and after, and after without the smear
+        intervals of dry friction, :func:`~mcpilco.models.diagnosis.search.smear_judged`) and
+        seconds; scored by
         :func:`score_record`.
     """
     from mcpilco.envs.arm_builder import arm_to_xml
@@ -515,6 +517,7 @@ def run_case(
         "verdict": verdict,
         "ratio_before": first.base.ratio.tolist(),
         "ratio_after": last.base.ratio.tolist(),
+        "ratio_after_plain": (last.base.rmse / last.base.floor).tolist(),  # no smear intervals
         "floor_after": last.base.floor.tolist(),
         "data_warnings": list(dict.fromkeys(train.warnings + test.warnings)),
         "simulate_seconds": t_sim,
