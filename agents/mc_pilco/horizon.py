@@ -58,6 +58,8 @@ from mcpilco.envs.tasks.spec import TaskSpec
 
 GOAL_FRACTION = 0.9  # predicted particles that must reach the goal w steps before the end
 HORIZON_GROWTH = 1.5  # factor of each growth of the horizon
+CATCH_REACH = 0.5  # fraction of particles reaching the goal in time above which a catch is due
+CATCH_SUCCESS = 0.5  # predicted success below which that catch counts as missed
 
 
 def grows(task: TaskSpec) -> bool:
@@ -121,6 +123,21 @@ def goal_fraction(states: np.ndarray, task: TaskSpec) -> float:
     last = max(0, states.shape[1] - 1 - int(task.success.window))  # H - w
     reached = task.in_goal(states[:, : last + 1]).any(axis=1)
     return float(reached.mean())
+
+
+def missed_catch(states: np.ndarray, task: TaskSpec) -> bool:
+    """Whether the particles ``(M, H + 1, n)`` of an applied policy reach the goal in time
+    but are not held there: ``p >= CATCH_REACH`` (:func:`goal_fraction`) and the predicted
+    success below ``CATCH_SUCCESS`` (:func:`predicted_success`). The horizon is then long
+    enough (or nearly) and the policy pumps the system to the goal and through it: the
+    search settled without finding the catch, which a longer horizon does not supply.
+    False for a task without a goal held over a window."""
+    if not grows(task):
+        return False
+    return bool(
+        goal_fraction(states, task) >= CATCH_REACH
+        and predicted_success(states, task) < CATCH_SUCCESS
+    )
 
 
 def next_horizon(horizon: int, fraction: float, max_horizon: int) -> int:

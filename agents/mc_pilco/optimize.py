@@ -79,7 +79,10 @@ class PolicyOptConfig:
 
     ``cuda_graph``: when the policy lives on a CUDA device, capture each step's forward and
     backward pass as one CUDA graph and replay it (:func:`loss_and_grad_fn`); no effect on
-    the CPU.
+    the CPU. ``catch_restart``: on a task whose success is a goal held over a window, a
+    trial whose applied policy the model predicts to reach the goal but not to hold it runs
+    the optimisation once more from a fresh policy draw and applies the better of the two
+    (:class:`~mcpilco.agents.mc_pilco.trainer.Trainer`).
     """
 
     max_steps: int = 1500
@@ -96,6 +99,7 @@ class PolicyOptConfig:
     max_restarts: int = 2  # plateau restarts per optimisation (module glossary)
     cuda_graph: bool = True
     snapshot_every: int | None = None  # steps between kept copies (None: derived; 0: final only)
+    catch_restart: bool = True  # search again from a fresh policy when a catch is missed
 
     def __post_init__(self) -> None:
         from mcpilco.envs.numbers import check_number
@@ -104,8 +108,9 @@ class PolicyOptConfig:
             if getattr(self, name) is None and name in _OPT_DERIVED:
                 continue
             setattr(self, name, check_number(getattr(self, name), f"opt.{name}", **rule))
-        if not isinstance(self.cuda_graph, bool):
-            raise ValueError(f"opt.cuda_graph must be true or false, got {self.cuda_graph!r}")
+        for flag in ("cuda_graph", "catch_restart"):
+            if not isinstance(getattr(self, flag), bool):
+                raise ValueError(f"opt.{flag} must be true or false, got {getattr(self, flag)!r}")
         if self.max_steps < 1:
             raise ValueError(f"max_steps must be >= 1, got {self.max_steps}")
         if not (self.lr > 0 and self.lr_min > 0):

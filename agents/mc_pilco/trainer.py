@@ -90,6 +90,7 @@ from mcpilco.agents.mc_pilco.filters import CollisionFilter, contact_steps
 from mcpilco.agents.mc_pilco.horizon import (
     goal_fraction,
     grows,
+    missed_catch,
     next_horizon,
     predicted_success,
     scaled_opt_steps,
@@ -119,6 +120,8 @@ ROLLOUT_DTYPE_TOL = 0.01
 spread on the training data, before the rollout runs in float64 instead (a model that
 misses by 1 % per step is not the model fitted; round-off on data with measurement noise
 is 1e-4 of the spread and below)."""
+
+CATCH_RESTART_SEED = 104729  # seed offset of the catch restart's fresh policy draw
 
 CANDIDATE_SEED_STRIDE = 7919
 """Candidate ``k`` of run ``seed`` is initialised with seed ``seed + 7919 k``."""
@@ -417,10 +420,33 @@ class Trainer:
         )
         if obar is not None:
             obar.close()
-        t_choose = time.perf_counter()
-        snap_costs, snap = choose_policy(loss, self.population, self.policy, res.snapshots)
-        rec.choose_s = time.perf_counter() - t_choose
-        cand_costs = snap_costs[snap]
+        snapshots = list(res.snapshots)
+        judged = self._choose_and_judge(loss, dynamics, snapshots, rec, arr)
+        if judged is not None and config.opt.catch_restart and missed_catch(judged, self.task):
+            first = (goal_fraction(judged, self.task), predicted_success(judged, self.task))
+            seed = trial_seed(config.seed, k) + CATCH_RESTART_SEED
+            self.population.reset_parameters(seed)  # a fresh draw, the first run's kept
+            res2 = optimize_policy(
+                loss,
+                self.population,
+                opt_cfg,
+                success_level=self.success_level,
+                num_candidates=config.num_candidates,
+            )
+            done = res.num_steps  # the second run's steps follow the first's
+            snapshots += [(done + step, vals) for step, vals in res2.snapshots]
+            for name in ("costs", "cost_stds", "lrs", "dropouts", "signals"):
+                getattr(res, name).extend(getattr(res2, name))
+            res.seconds += res2.seconds
+            res.cpu_seconds += res2.cpu_seconds
+            res.num_lr_reductions += res2.num_lr_reductions
+            res.restarts += [
+                f"catch restart at step {done}: reach {first[0]:.2f}, "
+                f"predicted success {first[1]:.2f}",
+                *res2.restarts,
+            ]
+            res.stop_reason = res2.stop_reason
+            judged = self._choose_and_judge(loss, dynamics, snapshots, rec, arr)
         rec.update(
             opt_steps=res.num_steps,
             opt_s=res.seconds,
@@ -433,16 +459,35 @@ class Trainer:
             opt_restart_reasons=list(res.restarts),
             opt_success_level=res.success_level,
             opt_final_cost=res.costs[-1] / config.num_candidates if res.costs else math.nan,
-            candidate_costs=cand_costs.tolist(),
-            chosen_candidate=int(cand_costs.argmin()),
-            chosen_cost=float(cand_costs.min()),
-            snapshot_steps=[step for step, _ in res.snapshots],
-            snapshot_costs=snap_costs.min(1).values.tolist(),
-            chosen_step=res.snapshots[snap][0],
             opt_snapshot_every=res.snapshot_every,
         )
         # mean J^_k over candidates per step (J^ itself for one candidate)
         arr["opt_costs"] = np.asarray(res.costs, dtype=np.float32) / config.num_candidates
+
+    def _choose_and_judge(
+        self,
+        loss: Any,
+        dynamics: torch.nn.Module,
+        snapshots: list[tuple[int, Any]],
+        rec: TrialRecord,
+        arr: dict[str, Any],
+    ) -> np.ndarray | None:
+        """Apply the candidate and snapshot with the lowest ``J^`` (:func:`choose_policy`),
+        record the choice, predict its particles (plots) and return the particles its
+        success and the next horizon are judged on (None where the task has neither)."""
+        config = self.config
+        t_choose = time.perf_counter()
+        snap_costs, snap = choose_policy(loss, self.population, self.policy, snapshots)
+        rec.choose_s = time.perf_counter() - t_choose
+        cand_costs = snap_costs[snap]
+        rec.update(
+            candidate_costs=cand_costs.tolist(),
+            chosen_candidate=int(cand_costs.argmin()),
+            chosen_cost=float(cand_costs.min()),
+            snapshot_steps=[step for step, _ in snapshots],
+            snapshot_costs=snap_costs.min(1).values.tolist(),
+            chosen_step=snapshots[snap][0],
+        )
         self.policy.eval()  # particle predictions of the applied policy (for the plots)
         predict = self._loss(make_policy_module(self.policy), dynamics)
         with torch.no_grad():
@@ -459,6 +504,7 @@ class Trainer:
                 arr["plan_particles"] = judged
         if success_window(self.task) is not None:
             rec.predicted_success = predicted_success(judged, self.task)
+        return judged
 
     def apply_policy(self, k: int, rec: TrialRecord, arr: dict[str, Any]) -> list[dict[str, Any]]:
         """Apply the chosen policy (no dropout) to the system for ``H`` steps (episodes of

@@ -15,6 +15,7 @@ from mcpilco.agents.mc_pilco.horizon import (
     HORIZON_GROWTH,
     goal_fraction,
     grows,
+    missed_catch,
     next_horizon,
     scaled_opt_steps,
 )
@@ -109,6 +110,40 @@ def test_a_particle_that_passes_through_the_goal_counts_as_reached():
     assert not task.is_success(states[0, 1:], {}, 40)  # it is no success: it did not hold
 
 
+def spin_task(window: int | None = WINDOW) -> TaskSpec:
+    """An angle ``theta`` whose goal is ``|theta| <= 0.2`` held for ``window`` steps (None: a
+    balance task judged over the whole episode)."""
+    success = {"bounds": {"theta": {"target": 0.0, "tol": 0.2}}}
+    return TaskSpec.from_dict(
+        {
+            "env_id": "Spin-v0",
+            "state_names": ["theta"],
+            "angles": ["theta"],
+            "action_low": [-1.0],
+            "action_high": [1.0],
+            "dt": DT,
+            "horizon": 40,
+            "cost": {"terms": [{"state": "theta", "target": 0.0}]},
+            "success": success if window is None else {"window": window, **success},
+        }
+    )
+
+
+def test_a_catch_is_missed_when_particles_pass_through_the_goal_and_only_then():
+    task = spin_task()
+    t = np.arange(41) * DT
+    spin = np.pi - 2.0 * t  # through upright at step 16, gone by step 17: reached, not held
+    caught = np.maximum(np.pi - 2.0 * t, 0.0)  # reaches upright at step 16 and stays
+    hanging = np.full(41, np.pi)  # never reaches the goal
+    m = lambda *rows: np.stack(rows)[..., None]  # noqa: E731 - (M, H + 1, 1) particles
+    assert missed_catch(m(spin, spin, spin, caught), task)  # reach 1.0, success 0.25
+    assert not missed_catch(m(spin, caught, caught, caught), task)  # success 0.75
+    assert not missed_catch(m(hanging, hanging, hanging, spin), task)  # reach 0.25: the
+    # horizon's matter (it grows), not the catch's
+    assert missed_catch(m(spin, spin, hanging, hanging), task)  # reach 0.5, success 0
+    assert not missed_catch(m(spin, spin, spin, spin), spin_task(None))  # no goal held over a window
+
+
 def test_tasks_without_a_goal_held_over_a_window_keep_their_horizon():
     assert grows(line_task(20))
     assert not grows(line_task(20, full_horizon=True))
@@ -176,3 +211,45 @@ def test_a_run_grows_its_horizon_and_runs_the_next_trial_over_it(tmp_path):
         write_rrd=False,
     ).run()
     assert [r.get("next_horizon") for r in fixed.records] == [None, 8]
+
+
+def test_a_missed_catch_searches_again_from_a_fresh_policy(tmp_path, monkeypatch):
+    """A trial whose applied policy misses the catch runs the optimisation a second time from
+    a fresh draw and chooses among both runs' snapshots; ``opt.catch_restart: false`` keeps
+    one run. (Whether a catch is missed is tested above on known particles; here it is
+    forced, to test what the trainer does with it.)"""
+    from mcpilco.agents.mc_pilco import trainer as trainer_module
+
+    monkeypatch.setattr(trainer_module, "missed_catch", lambda states, task: True)
+    steps = 3
+    opt = {"max_steps": steps, "min_steps": 1, "snapshot_every": 1}
+    cfg = load_config(
+        toy_env.ENV_ID,
+        overrides={
+            "task": dict(toy_env.TASK, horizon=8, eval_steps=30),
+            "num_trials": 1,
+            "num_particles": 10,
+            "max_points": 50,
+            "gp_adam_iters": 5,
+            "gp_lbfgs_iters": 2,
+            "num_basis": 10,
+            "opt": opt,
+            "log_particles": 10,
+            "torch_threads": 1,
+        },
+    )
+    rec = Trainer(cfg, tmp_path / "on", progress=False, log=None, write_rrd=False).run()
+    rec = rec.records[1]
+    assert rec["opt_steps"] == 2 * steps
+    assert rec["opt_restart_reasons"][0].startswith(f"catch restart at step {steps}: reach")
+    # both runs' snapshots competed: each run's start (step 0 and the fresh draw) and steps
+    assert rec["snapshot_steps"] == [0, 1, 2, 3, 3, 4, 5, 6]
+    assert rec["chosen_cost"] == min(rec["snapshot_costs"])
+    off = Trainer(
+        cfg.with_overrides(opt={**opt, "catch_restart": False}),
+        tmp_path / "off",
+        progress=False,
+        log=None,
+        write_rrd=False,
+    ).run()
+    assert off.records[1]["opt_steps"] == steps and not off.records[1].get("opt_restart_reasons")
