@@ -141,7 +141,8 @@ def test_a_catch_is_missed_when_particles_pass_through_the_goal_and_only_then():
     assert not missed_catch(m(hanging, hanging, hanging, spin), task)  # reach 0.25: the
     # horizon's matter (it grows), not the catch's
     assert missed_catch(m(spin, spin, hanging, hanging), task)  # reach 0.5, success 0
-    assert not missed_catch(m(spin, spin, spin, spin), spin_task(None))  # no goal held over a window
+    balance = spin_task(None)  # no goal held over a window: no catch to miss
+    assert not missed_catch(m(spin, spin, spin, spin), balance)
 
 
 def test_tasks_without_a_goal_held_over_a_window_keep_their_horizon():
