@@ -525,6 +525,9 @@ matrices are small (``11 n`` parameters, 600-4000 rows), so a second thread gain
 and, on cores shared with other jobs, spent 5-18 times the CPU and 5-18 times the wall
 time of one thread (grid evaluations, L-BFGS descents and the refinement of a 7-joint
 chain measured both ways)."""
+CHAIN_SNAP_ITERATIONS = 400
+"""Most L-BFGS iterations of the lengths and gravity after the angles are set to quarter
+turns (:meth:`ChainEstimator._snap`)."""
 CHAIN_EXACT = 1e-9
 """Relative loss of an exact fit: the search stops early once two starts reach it (noise-free
 torques); otherwise every start runs (a local minimum is often found twice, so agreement
@@ -607,6 +610,17 @@ class ChainEstimator(LagrangianEstimator):
        rows, keeping the best (fewer starts when two fit exactly, :data:`CHAIN_EXACT`).
     3. The best refined by L-BFGS on ``refine_rows`` rows, where the estimated
        accelerations' noise moves the minimum less.
+    4. Quarter turns. Every twist ``alpha_i`` and offset ``theta0_i`` set to the nearest
+       multiple of ``pi/2`` and the lengths and gravity descended again; kept when the loss
+       rises, in chi-square units (the loss's residual variance taken as the noise's), by
+       at most the Bayesian information criterion's ``2 n log N`` for the ``2 n`` angles
+       fixed (``N`` residuals). Two 5 s logs do not pin a 7-joint chain's angles: on a
+       Panda log with a 1.9 kg payload the refined kinematics fitted the training rows as
+       well as the arm's own (twists 0.03-0.43 rad off a quarter turn, offsets up to
+       0.7 rad) but left shoulder and elbow at 1.4-1.5 times the noise floor on the
+       held-out log; snapped, 1.0-1.2 times, as at the arm's own kinematics. An arm whose
+       axes are at other angles keeps its fitted ones (the rise is many times the
+       allowance).
 
     Then the parameters are fitted on every row as :class:`LagrangianEstimator` does (row
     weights, prior scale, noise); :meth:`refit_targets` keeps the kinematics.
@@ -638,8 +652,9 @@ class ChainEstimator(LagrangianEstimator):
     Fitted attributes (besides :class:`LagrangianEstimator`'s): ``kinematics_`` ``(n, 4)``,
     ``gravity_`` ``(2,)``, ``search_scale_`` ``(n,)`` (each joint's ``s_a``),
     ``search_loss_`` (the best relative loss), ``refine_loss_`` (the
-    refinement's; NaN without one), ``starts_`` (starts descended), ``grid_loss_`` (the
-    grid search's best; NaN without one), ``grid_evaluations_``.
+    refinement's; NaN without one), ``snapped_`` (the angles set to quarter turns, step 4),
+    ``snap_cost_`` (that step's rise over its allowance), ``starts_`` (starts descended),
+    ``grid_loss_`` (the grid search's best; NaN without one), ``grid_evaluations_``.
     """
 
     name = "GIP-chain"
@@ -691,6 +706,7 @@ class ChainEstimator(LagrangianEstimator):
         self.grid_evaluations_, self.grid_loss_ = 0, math.nan
         self.refine_rows = int(refine_rows)
         self.refine_loss_ = math.nan
+        self.snapped_, self.snap_cost_ = False, math.nan
         self.n_features_ = (CHAIN_PARAMETERS + 1) * len(self.joint_types)
 
     def _columns(self, kinematics: Any, gravity: Any, q: Any, qd: Any, qdd: Any) -> Any:
@@ -748,6 +764,7 @@ class ChainEstimator(LagrangianEstimator):
             return (target - A @ pi).pow(2).mean()
 
         loss.total = float(target.pow(2).mean().clamp_min(1e-300))  # relative loss = loss / total
+        loss.count = int(moving.sum())  # the residuals in the loss (rows at rest left out)
         return loss
 
     @staticmethod
@@ -882,13 +899,43 @@ class ChainEstimator(LagrangianEstimator):
             raise ValueError("the kinematics search diverged from every start; check the data")
         value, x = min(found, key=lambda t: t[0])
         self.search_loss_, self.starts_ = value / loss.total, len(found)
+        final = loss
         if self.refine_rows > self.search_rows and states.q.shape[0] > self.search_rows:
             refine = self._projection_loss(states, y, self.refine_rows)
             fine, x_fine = self._descend(refine, x, CHAIN_REFINE_ITERATIONS, 1e-14)
             if math.isfinite(fine):
-                x, self.refine_loss_ = x_fine, fine / refine.total
+                x, value, final = x_fine, fine, refine
+                self.refine_loss_ = fine / refine.total
+        x = self._snap(final, x, value)
         self.kinematics_ = x[: 4 * n].view(n, 4).numpy().copy()
         self.gravity_ = x[4 * n :].numpy().copy()
+
+    def _snap(self, loss: Any, x: Any, value: float) -> Any:
+        """The kinematics ``x`` (loss ``value``) with every twist ``alpha_i`` and offset
+        ``theta0_i`` set to the nearest quarter turn and the lengths and gravity descended
+        again (:data:`CHAIN_SNAP_ITERATIONS`), when the loss rises by less than the Bayesian
+        information criterion allows for the ``2 n`` angles fixed (class docstring); else
+        ``x``. Sets ``snapped_`` and ``snap_cost_`` (the rise over that allowance)."""
+        import torch
+
+        n = len(self.joint_types)
+        kin = x[: 4 * n].view(n, 4)
+        quarter = math.pi / 2
+        angles = torch.round(kin[:, [0, 2]] / quarter) * quarter
+
+        def full(z: Any) -> Any:
+            k = torch.stack([angles[:, 0], z[:n], angles[:, 1], z[n : 2 * n]], 1)
+            return torch.cat([k.reshape(-1), z[2 * n :]])
+
+        z0 = torch.cat([kin[:, 1], kin[:, 3], x[4 * n :]])
+        snapped, z = self._descend(lambda z: loss(full(z)), z0, CHAIN_SNAP_ITERATIONS, 1e-14)
+        # the loss is a mean of whitened squares: times the count over its own value, the
+        # rise in chi-square units (the fit's residual variance as the noise's)
+        rise = (snapped - value) / max(value, 1e-300) * loss.count
+        allowed = 2 * n * math.log(loss.count)
+        self.snap_cost_ = rise / allowed if math.isfinite(rise) else math.inf
+        self.snapped_ = bool(self.snap_cost_ <= 1.0)
+        return full(z).detach() if self.snapped_ else x
 
     def _fit(self, states: JointStates, y: FloatArray) -> None:
         import torch

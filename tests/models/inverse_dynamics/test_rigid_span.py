@@ -352,6 +352,39 @@ def test_chain_search_weighs_joints_by_their_noise():
     assert np.allclose(est.search_scale_, sigma, rtol=0.1), est.search_scale_
 
 
+def _trajectory(rows: int, phase: float) -> np.ndarray:
+    """``[q, qd, qdd]`` of three joints along sines of 0.35, 0.5 and 0.65 Hz (4 ms)."""
+    t = np.arange(rows)[:, None] * 0.004
+    w = 2 * np.pi * np.array([0.35, 0.5, 0.65])
+    q = 1.2 * np.sin(w * t + phase)
+    qd, qdd = 1.2 * w * np.cos(w * t + phase), -(w**2) * q
+    return np.concatenate([q, qd, qdd], 1)
+
+
+@pytest.mark.parametrize(("right_angles", "seed"), [(True, 3), (False, 2)])
+def test_chain_sets_quarter_turns_only_where_the_arm_has_them(right_angles, seed):
+    """Noisy torques along a smooth trajectory: an arm whose twists and offsets are right
+    angles ends with every fitted twist and offset exactly on a quarter turn
+    (``snapped_``); a random arm whose twists are not keeps its fitted angles (the snapped
+    loss rises many times past the allowance). Either predicts its RNEA (pinocchio) on new
+    states to within the noise."""
+    from mcpilco.models.inverse_dynamics import ChainEstimator
+
+    rnea = _grid_arm("RRR", seed) if right_angles else _rnea("RRR", seed)
+    X, Xt = _trajectory(3000, 0.0), _trajectory(1000, 1.0)
+    sigma = 0.02
+    y = rnea(X) + sigma * np.random.default_rng(0).standard_normal(X[:, :3].shape)
+    fast = dict(restarts=0, grid_starts=2, search_rows=300, refine_rows=1000)
+    est = ChainEstimator("RRR", **fast).fit(X, y)
+    angles = est.kinematics_[:, [0, 2]] / (np.pi / 2)
+    on_grid = np.allclose(angles, np.round(angles), atol=1e-9)
+    assert est.snapped_ == right_angles == on_grid, (est.snap_cost_, est.kinematics_)
+    if not right_angles:
+        assert est.snap_cost_ > 10, est.snap_cost_
+    err = np.sqrt(np.mean((est.predict_mean(Xt) - rnea(Xt)) ** 2, axis=0))
+    assert np.all(err < sigma), err
+
+
 def test_chain_search_is_not_bent_by_friction():
     """Torques of a random RRR arm along a smooth trajectory plus, on one joint, dry
     friction far above the noise and damping (no chain holds them):
@@ -361,15 +394,7 @@ def test_chain_search_is_not_bent_by_friction():
     from mcpilco.models.inverse_dynamics import ChainEstimator
 
     rnea = _rnea("RRR", 2)
-
-    def trajectory(rows, phase):
-        t = np.arange(rows)[:, None] * 0.004
-        w = 2 * np.pi * np.array([0.35, 0.5, 0.65])
-        q = 1.2 * np.sin(w * t + phase)
-        qd, qdd = 1.2 * w * np.cos(w * t + phase), -(w**2) * q
-        return np.concatenate([q, qd, qdd], 1)
-
-    X, Xt = trajectory(3000, 0.0), trajectory(1000, 1.0)
+    X, Xt = _trajectory(3000, 0.0), _trajectory(1000, 1.0)
     qd2 = X[:, 4]
     local = 2.0 * np.tanh(qd2 / 0.01) + 0.5 * qd2
     sigma = 0.02
