@@ -88,28 +88,6 @@ def test_goal_fraction_counts_particles_that_reach_the_goal_a_window_before_the_
     assert GOAL_FRACTION > 3 / 5
 
 
-def test_a_particle_that_passes_through_the_goal_counts_as_reached():
-    # an angle spinning through upright: theta = pi - omega t, wrapped, with omega = 2 rad/s
-    task = TaskSpec.from_dict(
-        {
-            "env_id": "Spin-v0",
-            "state_names": ["theta"],
-            "angles": ["theta"],
-            "action_low": [-1.0],
-            "action_high": [1.0],
-            "dt": DT,
-            "horizon": 40,
-            "cost": {"terms": [{"state": "theta", "target": 0.0}]},
-            "success": {"window": WINDOW, "bounds": {"theta": {"target": 0.0, "tol": 0.2}}},
-        }
-    )
-    t = np.arange(41) * DT
-    theta = np.pi - 2.0 * t  # at 0 after pi / 2 = 1.57 s (step 16), gone again by step 17
-    states = np.broadcast_to(theta[None, :, None], (4, 41, 1))
-    assert goal_fraction(states, task) == 1.0
-    assert not task.is_success(states[0, 1:], {}, 40)  # it is no success: it did not hold
-
-
 def spin_task(window: int | None = WINDOW) -> TaskSpec:
     """An angle ``theta`` whose goal is ``|theta| <= 0.2`` held for ``window`` steps (None: a
     balance task judged over the whole episode)."""
@@ -127,6 +105,16 @@ def spin_task(window: int | None = WINDOW) -> TaskSpec:
             "success": success if window is None else {"window": window, **success},
         }
     )
+
+
+def test_a_particle_that_passes_through_the_goal_counts_as_reached():
+    # an angle spinning through upright: theta = pi - omega t, wrapped, with omega = 2 rad/s
+    task = spin_task()
+    t = np.arange(41) * DT
+    theta = np.pi - 2.0 * t  # at 0 after pi / 2 = 1.57 s (step 16), gone again by step 17
+    states = np.broadcast_to(theta[None, :, None], (4, 41, 1))
+    assert goal_fraction(states, task) == 1.0
+    assert not task.is_success(states[0, 1:], {}, 40)  # it is no success: it did not hold
 
 
 def test_a_catch_is_missed_when_particles_pass_through_the_goal_and_only_then():
