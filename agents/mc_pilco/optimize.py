@@ -234,6 +234,20 @@ class OptimizationResult:
     def num_steps(self) -> int:
         return len(self.costs)
 
+    def extend(self, later: OptimizationResult) -> None:
+        """Append a ``later`` optimisation of the same policy (a fresh start after this one):
+        its steps, histories, snapshots (their steps shifted by this run's), counts, seconds,
+        restart reasons and stop reason."""
+        done = self.num_steps
+        for name in ("costs", "cost_stds", "lrs", "dropouts", "signals", "restarts"):
+            getattr(self, name).extend(getattr(later, name))
+        self.snapshots += [(done + step, vals) for step, vals in later.snapshots]
+        self.num_lr_reductions += later.num_lr_reductions
+        self.num_reinits += later.num_reinits
+        self.seconds += later.seconds
+        self.cpu_seconds += later.cpu_seconds
+        self.stop_reason = later.stop_reason
+
     @property
     def seconds_per_step(self) -> float:
         """Wall-clock seconds per step."""

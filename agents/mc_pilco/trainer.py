@@ -420,33 +420,22 @@ class Trainer:
         )
         if obar is not None:
             obar.close()
-        snapshots = list(res.snapshots)
-        judged = self._choose_and_judge(loss, dynamics, snapshots, rec, arr)
+        judged = self._choose_and_judge(loss, dynamics, res.snapshots, rec, arr)
         if judged is not None and config.opt.catch_restart and missed_catch(judged, self.task):
-            first = (goal_fraction(judged, self.task), predicted_success(judged, self.task))
+            reach, success = goal_fraction(judged, self.task), predicted_success(judged, self.task)
             seed = trial_seed(config.seed, k) + CATCH_RESTART_SEED
             self.population.reset_parameters(seed)  # a fresh draw, the first run's kept
-            res2 = optimize_policy(
+            later = optimize_policy(
                 loss,
                 self.population,
                 opt_cfg,
                 success_level=self.success_level,
                 num_candidates=config.num_candidates,
             )
-            done = res.num_steps  # the second run's steps follow the first's
-            snapshots += [(done + step, vals) for step, vals in res2.snapshots]
-            for name in ("costs", "cost_stds", "lrs", "dropouts", "signals"):
-                getattr(res, name).extend(getattr(res2, name))
-            res.seconds += res2.seconds
-            res.cpu_seconds += res2.cpu_seconds
-            res.num_lr_reductions += res2.num_lr_reductions
-            res.restarts += [
-                f"catch restart at step {done}: reach {first[0]:.2f}, "
-                f"predicted success {first[1]:.2f}",
-                *res2.restarts,
-            ]
-            res.stop_reason = res2.stop_reason
-            judged = self._choose_and_judge(loss, dynamics, snapshots, rec, arr)
+            reason = f"reach {reach:.2f}, predicted success {success:.2f}"
+            res.restarts.append(f"catch restart at step {res.num_steps}: {reason}")
+            res.extend(later)
+            judged = self._choose_and_judge(loss, dynamics, res.snapshots, rec, arr)
         rec.update(
             opt_steps=res.num_steps,
             opt_s=res.seconds,
